@@ -1,0 +1,35 @@
+"""The exceptions ineid raises for user-facing problems.
+
+Every message names the problem and, where there is one, the fix. The CLI turns any
+:class:`IneidError` into a one-line message and a non-zero exit status.
+"""
+
+from __future__ import annotations
+
+
+class IneidError(Exception):
+    """Base class of every error ineid raises on purpose."""
+
+
+class RobotModelError(IneidError):
+    """A robot description (URDF or built-in name) cannot be used as a serial-chain model."""
+
+
+class PhysicalConsistencyError(IneidError):
+    """Inertial parameters that no rigid body can have (e.g. negative mass)."""
+
+
+class CodegenError(IneidError):
+    """Generated code is missing, stale, or cannot be produced."""
+
+
+class DatasetError(IneidError):
+    """A dataset file or array is malformed."""
+
+
+class IdentificationError(IneidError):
+    """An identification problem cannot be solved as posed; carries the solver status."""
+
+    def __init__(self, message: str, status: str | None = None) -> None:
+        super().__init__(message)
+        self.status = status

@@ -1,0 +1,66 @@
+"""Code emitted by :mod:`ineid.symbolic.emit`: CasADi and JAX base-wrench regressors.
+
+Files here are generated, checked in, and never edited by hand (``make generate``
+rewrites them; a test fails when they drift). This package never imports sympy.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import re
+import sys
+from pathlib import Path
+from types import ModuleType
+
+from ineid.errors import CodegenError
+
+BUILTIN_DIR = Path(__file__).resolve().parent
+
+
+def module_slug(robot_name: str) -> str:
+    """Python module stem of a robot name: ``"sweaty-arm"`` -> ``"sweaty_arm"``."""
+    slug = re.sub(r"\W", "_", robot_name.strip().lower())
+    if not slug or slug[0].isdigit():
+        slug = "robot_" + slug
+    return slug
+
+
+def file_names(robot_name: str) -> tuple[str, str]:
+    """``(jax file, casadi file)`` names of a robot's generated modules."""
+    slug = module_slug(robot_name)
+    return f"{slug}_jax.py", f"{slug}_casadi.py"
+
+
+def load_builtin(robot_name: str) -> tuple[ModuleType, ModuleType]:
+    """The checked-in ``(jax module, casadi module)`` of a built-in robot."""
+    slug = module_slug(robot_name)
+    try:
+        return (
+            importlib.import_module(f"ineid.generated.{slug}_jax"),
+            importlib.import_module(f"ineid.generated.{slug}_casadi"),
+        )
+    except ModuleNotFoundError:
+        raise CodegenError(f"no generated code for built-in robot {robot_name!r}; run `make generate`") from None
+
+
+def load_from_directory(directory: str | Path, robot_name: str) -> tuple[ModuleType, ModuleType] | None:
+    """Import ``(jax module, casadi module)`` written by ``ineid generate`` into a folder; None if absent."""
+    directory = Path(directory)
+    modules = []
+    for name in file_names(robot_name):
+        path = directory / name
+        if not path.is_file():
+            return None
+        key = f"ineid._user_generated.{abs(hash(str(path.resolve())))}_{path.stem}"
+        spec = importlib.util.spec_from_file_location(key, path)
+        if spec is None or spec.loader is None:
+            raise CodegenError(f"cannot import generated module {str(path)!r}")
+        module = importlib.util.module_from_spec(spec)
+        try:
+            spec.loader.exec_module(module)
+        except Exception as e:  # a truncated or hand-edited file
+            raise CodegenError(f"generated module {str(path)!r} fails to import ({e}); regenerate it") from None
+        sys.modules[key] = module
+        modules.append(module)
+    return modules[0], modules[1]

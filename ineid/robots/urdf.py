@@ -1,0 +1,328 @@
+"""URDF -> :class:`Chain`: the numeric description of a serial arm that ineid works on.
+
+Parsing is yourdfpy's; this module turns its tree into a chain of moving joints:
+
+* fixed joints are merged into their parent body, their inertia folded in (as Pinocchio
+  does); links welded to the root belong to the fixture and are tared away;
+* ``locked_joints`` turns chosen moving joints into fixed ones at a given position (the
+  way to drop a gripper's fingers, for example);
+* continuous joints are revolute joints without position limits;
+* every moving body must carry a physical ``<inertial>`` (its own, or one folded in).
+
+Sampling bounds: ``<limit velocity=...>`` bounds ``|qd|``; the acceleration bound, which
+URDF has no field for, comes from an optional ``<ineid acceleration="..."/>`` element
+inside a ``<joint>`` (ignored by other URDF readers), else :data:`DEFAULT_QDD_MAX`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import math
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ineid.errors import RobotModelError
+from ineid.params import physical_violations, theta_from_inertial
+
+DEFAULT_QD_MAX = 3.0
+"""rad/s (m/s for prismatic): velocity bound for sampling where the URDF gives none."""
+DEFAULT_QDD_MAX = 10.0
+"""rad/s^2 (m/s^2 for prismatic): acceleration bound for sampling where the URDF gives none."""
+
+_MOVING = {"revolute", "continuous", "prismatic"}
+_SUPPORTED = _MOVING | {"fixed"}
+
+
+@dataclass(frozen=True, eq=False)
+class JointSpec:
+    """One moving joint and the rigid body it carries.
+
+    The joint frame is placed in the parent body frame by ``parent_R_joint`` and
+    ``parent_p_joint``; the child body frame is the joint frame moved by ``q`` about
+    (revolute) or along (prismatic) ``axis``, a unit vector in the joint frame.
+    """
+
+    name: str
+    type: str  # "revolute" or "prismatic"
+    continuous: bool
+    parent_R_joint: np.ndarray
+    parent_p_joint: np.ndarray
+    axis: np.ndarray
+    link: str
+    theta: np.ndarray  # (10,) the body's parameters in its frame, about its origin
+    q_lower: float
+    q_upper: float
+    qd_max: float
+    qdd_max: float
+
+
+@dataclass(frozen=True, eq=False)
+class Chain:
+    """A serial chain of moving joints from the fixed root body, in URDF joint order."""
+
+    name: str
+    root_link: str
+    joints: tuple[JointSpec, ...]
+    merged_links: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+
+    @property
+    def n_dof(self) -> int:
+        return len(self.joints)
+
+    def kinematic_fingerprint(self) -> str:
+        """Hash of everything the base-wrench regressor depends on (not the inertia).
+
+        The regressor depends on joint types, axes and origins only; masses do not enter
+        it. Two URDFs with the same fingerprint share generated code.
+        """
+        h = hashlib.sha256()
+        for j in self.joints:
+            h.update(j.type.encode())
+            for v in (*j.parent_R_joint.ravel(), *j.parent_p_joint, *j.axis):
+                h.update(float(v).hex().encode())
+        return h.hexdigest()[:16]
+
+
+def load_chain(path: str | Path, locked_joints: Mapping[str, float] | None = None) -> Chain:
+    """Read a URDF file into a :class:`Chain`.
+
+    Raises:
+        RobotModelError: the file is unreadable, malformed, not a serial chain, or has
+            an unsupported joint or a non-physical inertial.
+    """
+    path = Path(path)
+    try:
+        text = path.read_bytes()
+    except OSError as e:
+        raise RobotModelError(f"cannot read URDF {str(path)!r}: {e.strerror or e}") from None
+    return parse_chain(text, source=str(path), locked_joints=locked_joints)
+
+
+def parse_chain(text: bytes | str, source: str = "<urdf>", locked_joints: Mapping[str, float] | None = None) -> Chain:
+    """Parse URDF text into a :class:`Chain`; see :func:`load_chain`."""
+    import yourdfpy  # noqa: PLC0415  (heavy: trimesh)
+
+    data = text.encode() if isinstance(text, str) else text
+    try:
+        root = ET.fromstring(data)
+    except ET.ParseError as e:
+        raise RobotModelError(f"{source}: malformed XML ({e}); fix the file so that it is well-formed XML") from None
+    if root.tag != "robot":
+        raise RobotModelError(f"{source}: top-level element is <{root.tag}>, a URDF needs <robot>")
+    _check_elements(root, source)
+    try:
+        robot = yourdfpy.URDF.load(
+            io.BytesIO(data),
+            build_scene_graph=False,
+            load_meshes=False,
+            build_collision_scene_graph=False,
+            load_collision_meshes=False,
+        ).robot
+    except Exception as e:  # yourdfpy raises assorted builtin errors for bad attribute values
+        raise RobotModelError(f"{source}: invalid URDF ({type(e).__name__}: {e})") from None
+    qdd_bounds = {
+        j.get("name"): j.find("ineid").get("acceleration")
+        for j in root.iter("joint")
+        if j.find("ineid") is not None and j.find("ineid").get("acceleration") is not None
+    }
+    return _build_chain(robot, source, dict(locked_joints or {}), qdd_bounds)
+
+
+def _check_elements(root: ET.Element, source: str) -> None:
+    # yourdfpy reports missing names with a bare KeyError; say which element instead.
+    for tag in ("link", "joint"):
+        for el in root.iter(tag):
+            if el.get("name") is None and el in list(root):
+                raise RobotModelError(f"{source}: a <{tag}> element has no name attribute")
+    for j in root.iter("joint"):
+        if j not in list(root):
+            continue
+        for sub in ("parent", "child"):
+            s = j.find(sub)
+            if s is None or s.get("link") is None:
+                raise RobotModelError(f"{source}: joint {j.get('name')!r} has no <{sub} link=...>")
+
+
+def _transform(origin) -> tuple[np.ndarray, np.ndarray]:
+    if origin is None:
+        return np.eye(3), np.zeros(3)
+    t = np.asarray(origin, dtype=np.float64)
+    return t[:3, :3].copy(), t[:3, 3].copy()
+
+
+def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    k = axis / np.linalg.norm(axis)
+    s = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(angle) * s + (1 - math.cos(angle)) * s @ s
+
+
+def _link_theta(link, source: str) -> np.ndarray:
+    """The link's own parameters about its frame origin, zero if it has no mass."""
+    inertial = link.inertial
+    if inertial is None:
+        return np.zeros(10)
+    m = float(inertial.mass if inertial.mass is not None else 0.0)
+    inertia = np.asarray(inertial.inertia if inertial.inertia is not None else np.zeros((3, 3)), dtype=np.float64)
+    if not (math.isfinite(m) and np.all(np.isfinite(inertia))):
+        raise RobotModelError(f"{source}: link {link.name!r}: <inertial> holds a non-finite value")
+    if m < 0:
+        raise RobotModelError(f"{source}: link {link.name!r}: mass {m:g} kg is negative; give it a positive mass")
+    if m == 0:
+        if np.any(inertia != 0):
+            raise RobotModelError(
+                f"{source}: link {link.name!r}: zero mass with a non-zero inertia is not a rigid body; "
+                "give it a positive mass or remove the <inertial>"
+            )
+        return np.zeros(10)
+    r, p = _transform(inertial.origin)
+    theta = theta_from_inertial(m, p, r @ inertia @ r.T)
+    problems = physical_violations(theta_from_inertial(m, np.zeros(3), inertia), rtol=1e-9)
+    if problems:
+        raise RobotModelError(
+            f"{source}: link {link.name!r}: non-physical <inertial>: {'; '.join(problems)}; "
+            "fix the <inertia> values"
+        )
+    return theta
+
+
+def _fold(theta: np.ndarray, parent_R: np.ndarray, parent_p: np.ndarray) -> np.ndarray:
+    """Express a body's parameters in its parent frame: theta' = X(parent_T_body) theta."""
+    if theta[0] == 0:
+        return np.zeros(10)
+    from ineid.params import inertial_from_theta  # noqa: PLC0415
+
+    m, c, ic = inertial_from_theta(theta)
+    return theta_from_inertial(m, parent_R @ c + parent_p, parent_R @ ic @ parent_R.T)
+
+
+def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[str, str]) -> Chain:
+    links = {link.name: link for link in robot.links}
+    if not links:
+        raise RobotModelError(f"{source}: the URDF has no <link>")
+    joints_by_name = {j.name: j for j in robot.joints}
+    for name in locked:
+        if name not in joints_by_name:
+            raise RobotModelError(f"{source}: locked joint {name!r} is not in the URDF (joints: {', '.join(joints_by_name)})")
+    children: dict[str, list] = {name: [] for name in links}
+    child_seen: dict[str, str] = {}
+    for j in robot.joints:
+        if j.type not in _SUPPORTED and j.name not in locked:
+            raise RobotModelError(
+                f"{source}: joint {j.name!r} has type {j.type!r}; ineid supports revolute, continuous, "
+                "prismatic and fixed joints (lock it with locked_joints to treat it as fixed)"
+            )
+        for end in (j.parent, j.child):
+            if end not in links:
+                raise RobotModelError(f"{source}: joint {j.name!r} refers to link {end!r}, which is not defined")
+        if j.child in child_seen:
+            raise RobotModelError(f"{source}: link {j.child!r} is the child of two joints ({child_seen[j.child]!r}, {j.name!r})")
+        child_seen[j.child] = j.name
+        children[j.parent].append(j)
+    roots = [name for name in links if name not in child_seen]
+    if len(roots) != 1:
+        raise RobotModelError(f"{source}: the URDF must have exactly one root link, found {len(roots)}: {roots}")
+
+    def is_moving(j) -> bool:
+        return j.type in _MOVING and j.name not in locked
+
+    def collect_body(link_name: str) -> tuple[np.ndarray, list, list[str]]:
+        """Merge link_name and everything welded to it: (theta, moving joints out, link names)."""
+        theta = _link_theta(links[link_name], source)
+        moving_out: list = []
+        names = [link_name]
+        stack = [(link_name, np.eye(3), np.zeros(3))]
+        while stack:
+            name, body_R, body_p = stack.pop()
+            for j in children[name]:
+                r, p = _transform(j.origin)
+                if j.name in locked:
+                    axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
+                    value = float(locked[j.name])
+                    if j.type in ("revolute", "continuous"):
+                        r = r @ _axis_rotation(axis, value)
+                    elif j.type == "prismatic":
+                        p = p + r @ (axis / np.linalg.norm(axis)) * value
+                if is_moving(j):
+                    moving_out.append((j, body_R, body_p))
+                    continue
+                child_R, child_p = body_R @ r, body_R @ p + body_p
+                theta = theta + _fold(_link_theta(links[j.child], source), child_R, child_p)
+                names.append(j.child)
+                stack.append((j.child, child_R, child_p))
+        return theta, moving_out, names
+
+    merged: dict[str, tuple[str, ...]] = {}
+    _, moving_out, names = collect_body(roots[0])
+    merged[roots[0]] = tuple(names)
+    specs: list[JointSpec] = []
+    while moving_out:
+        if len(moving_out) > 1:
+            where = specs[-1].link if specs else roots[0]
+            raise RobotModelError(
+                f"{source}: branching tree: body {where!r} has {len(moving_out)} moving child joints "
+                f"({', '.join(j.name for j, _, _ in moving_out)}); ineid needs a serial chain, "
+                "lock the extra joints with locked_joints={name: position}"
+            )
+        j, body_R, body_p = moving_out[0]
+        if j.mimic is not None:
+            raise RobotModelError(
+                f"{source}: joint {j.name!r} mimics {j.mimic.joint!r}; coupled joints are not supported, "
+                "lock it with locked_joints"
+            )
+        axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
+        norm = float(np.linalg.norm(axis))
+        if not math.isfinite(norm) or norm < 1e-12:
+            raise RobotModelError(f"{source}: joint {j.name!r} has an axis of zero length; give <axis xyz=...> a direction")
+        r, p = _transform(j.origin)
+        theta, moving_out, names = collect_body(j.child)
+        merged[j.child] = tuple(names)
+        if theta[0] <= 0:
+            raise RobotModelError(
+                f"{source}: moving link {j.child!r} has no mass (no <inertial>, and nothing with mass is "
+                "fixed to it); add an <inertial> element with a positive mass"
+            )
+        specs.append(_joint_spec(j, source, body_R @ r, body_R @ p + body_p, axis / norm, theta, qdd_bounds))
+    if not specs:
+        raise RobotModelError(f"{source}: the URDF has no moving joint; nothing would move the base wrench")
+    return Chain(name=robot.name or Path(source).stem, root_link=roots[0], joints=tuple(specs), merged_links=merged)
+
+
+def _joint_spec(j, source, parent_R, parent_p, axis, theta, qdd_bounds) -> JointSpec:
+    continuous = j.type == "continuous"
+    limit = j.limit
+    lower = getattr(limit, "lower", None)
+    upper = getattr(limit, "upper", None)
+    if continuous or lower is None or upper is None or (lower == 0 and upper == 0 and j.type != "prismatic"):
+        if j.type == "prismatic":
+            raise RobotModelError(f"{source}: prismatic joint {j.name!r} needs <limit lower=... upper=...>")
+        lower, upper = -math.pi, math.pi
+    if not lower < upper:
+        raise RobotModelError(f"{source}: joint {j.name!r}: lower limit {lower} is not below upper limit {upper}")
+    velocity = getattr(limit, "velocity", None)
+    qd_max = float(velocity) if velocity is not None and velocity > 0 else DEFAULT_QD_MAX
+    raw = qdd_bounds.get(j.name)
+    try:
+        qdd_max = float(raw) if raw is not None else DEFAULT_QDD_MAX
+    except ValueError:
+        raise RobotModelError(f"{source}: joint {j.name!r}: <ineid acceleration={raw!r}> is not a number") from None
+    if not (math.isfinite(qdd_max) and qdd_max > 0):
+        raise RobotModelError(f"{source}: joint {j.name!r}: acceleration bound {qdd_max} must be positive")
+    return JointSpec(
+        name=j.name,
+        type="prismatic" if j.type == "prismatic" else "revolute",
+        continuous=continuous,
+        parent_R_joint=parent_R,
+        parent_p_joint=parent_p,
+        axis=axis,
+        link=j.child,
+        theta=theta,
+        q_lower=float(lower),
+        q_upper=float(upper),
+        qd_max=qd_max,
+        qdd_max=qdd_max,
+    )
