@@ -164,14 +164,24 @@ class RobotModel:
         return y[..., self.unknown_index], y[..., self.known_index]
 
     def base_wrench(self, q, qd, qdd, theta=None):
-        """``[F; M] = Psi(q, qd, qdd) @ theta``, (..., 6); ``theta`` defaults to :attr:`theta_cad`."""
+        """``[F; M] = Psi(q, qd, qdd) @ theta``, (..., 6); ``theta`` defaults to :attr:`theta_cad`.
+
+        Evaluated by the generated ``base_wrench``, which contracts with ``theta`` inside
+        one fused loop instead of forming ``Psi`` (several times faster on the CPU).
+        """
         import jax.numpy as jnp  # noqa: PLC0415
 
         theta = self.theta_cad if theta is None else theta
         theta = jnp.asarray(theta, dtype=jnp.float64)
         if theta.shape[-1:] != (10 * self.n_links,):
             raise ValueError(f"theta must have shape (..., {10 * self.n_links}), got {tuple(theta.shape)}")
-        return jnp.einsum("...ij,...j->...i", self.regressor(q, qd, qdd), theta)
+        q, qd, qdd = self._check_states(q, qd, qdd)
+        return self._jax.base_wrench(q, qd, qdd, self.gravity, theta)
+
+    @property
+    def jax_base_wrench(self):
+        """The generated pure function ``f(q, qd, qdd, gravity, theta) -> (..., 6)``."""
+        return self._jax.base_wrench
 
     @property
     def jax_regressor(self):

@@ -102,38 +102,100 @@ _DOC = '''Base-wrench regressor ``Psi`` of {robot}: ``[F; M] = Psi(q, qd, qdd; g
 '''
 
 
+def _trig_first(replacements):
+    """Move the ``sin(q_i)``/``cos(q_i)`` temporaries to the front (they depend on q only)."""
+    trig = [(lhs, rhs) for lhs, rhs in replacements if isinstance(rhs, (sp.sin, sp.cos)) and rhs.args[0].is_Symbol]
+    rest = [(lhs, rhs) for lhs, rhs in replacements if not (isinstance(rhs, (sp.sin, sp.cos)) and rhs.args[0].is_Symbol)]
+    return trig, rest
+
+
 def emit_jax(sym, robot_name, fingerprint, replacements, reduced, ops, regenerate) -> str:
     p = _Printer("jnp")
-    body = _unpack(sym, "..., {k}") + [f"{lhs} = {p.doprint(rhs)}" for lhs, rhs in replacements]
+    trig, rest = _trig_first(replacements)
+    body = _unpack(sym, "..., {k}")
+    if trig:
+        # XLA:CPU copies cheap elementwise producers into every fusion that reads them, so
+        # each sin/cos would be recomputed in ~100 fusions. A dot is never duplicated: the
+        # product with the identity (exact) makes the trigonometric values computed once.
+        stacked = ", ".join(p.doprint(rhs) for _, rhs in trig)
+        body.append(f"_trig = jnp.stack(jnp.broadcast_arrays({stacked}), axis=-1) @ jnp.eye({len(trig)}, dtype=q.dtype)")
+        body += [f"{lhs} = _trig[..., {k}]" for k, (lhs, _) in enumerate(trig)]
+    body += [f"{lhs} = {p.doprint(rhs)}" for lhs, rhs in rest]
+    n_cols = 10 * sym.n_dof
+    rows = [[(c, reduced[r * n_cols + c]) for c in range(n_cols) if reduced[r * n_cols + c] != 0] for r in range(6)]
     entries = ",\n".join(f"        {p.doprint(e)}" for e in reduced)
+    wrench_rows = ",\n".join(
+        "        " + (" + ".join(f"({p.doprint(e)}) * theta[..., {c}]" for c, e in row) if row else "0.0")
+        for row in rows
+    )
     doc = _DOC.format(robot=robot_name)
+    states_doc = f"""q, qd, qdd: (..., {sym.n_dof}) joint positions, velocities, accelerations (SI).
+        gravity: (3,) gravitational acceleration in the base frame, m/s^2."""
     return (
         _header(robot_name, fingerprint, ops, regenerate)
         + '\n"""JAX base-wrench regressor of '
         + robot_name
         + '; pure and jit-safe, batched over leading axes."""\n\n'
-        + "import jax.numpy as jnp\n\n"
+        + "import jax\nimport jax.numpy as jnp\n\n"
         + _constants(sym, robot_name, fingerprint, ops)
-        + "\n\n\ndef base_wrench_regressor(q, qd, qdd, gravity):\n    \"\"\""
+        + "\n\n\ndef _temporaries(q, qd, qdd, gravity):\n"
+        + '    """Inputs unpacked and the common subexpressions, in dependency order."""\n'
+        + "".join(f"    {line}\n" for line in body)
+        + "    return locals()\n"
+        + "\n\ndef base_wrench_regressor(q, qd, qdd, gravity):\n    \"\"\""
         + doc
         + f"""
     Args:
-        q, qd, qdd: (..., {sym.n_dof}) joint positions, velocities, accelerations (SI).
-        gravity: (3,) gravitational acceleration in the base frame, m/s^2.
+        {states_doc}
 
     Returns:
-        (..., 6, {10 * sym.n_dof}) regressor, dtype of the inputs.
+        (..., 6, {n_cols}) regressor, dtype of the inputs.
     \"\"\"
     q, qd, qdd, gravity = (jnp.asarray(x) for x in (q, qd, qdd, gravity))
     batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1])
+    t = _temporaries(q, qd, qdd, gravity)
+    with jax.named_scope("entries"):
+        entries = _entries(**t)
+    # Materialize the entries before interleaving them: fused into the stack, XLA:CPU
+    # would recompute shared subexpressions once per output entry.
+    entries = jax.lax.optimization_barrier(tuple(jnp.broadcast_to(e, batch).astype(q.dtype) for e in entries))
+    return jnp.stack(entries, axis=-1).reshape(batch + SHAPE)
+
+
+def base_wrench(q, qd, qdd, gravity, theta):
+    \"\"\"``[F; M] = Psi(q, qd, qdd; g) @ theta`` without forming ``Psi`` (one fused loop).
+
+    Args:
+        {states_doc}
+        theta: (..., {n_cols}) parameters, links in the order of ``LINK_NAMES``.
+
+    Returns:
+        (..., 6) wrench on the fixture: force (N) and moment about the base origin (N*m).
+    \"\"\"
+    q, qd, qdd, gravity, theta = (jnp.asarray(x) for x in (q, qd, qdd, gravity, theta))
+    batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1], theta.shape[:-1])
+    t = _temporaries(q, qd, qdd, gravity)
+    rows = _wrench_rows(theta=theta, **t)
+    return jnp.stack([jnp.broadcast_to(r, batch).astype(q.dtype) for r in rows], axis=-1)
+
+
+def _entries(**t):
 """
-        + "".join(f"    {line}\n" for line in body)
-        + "    entries = (\n"
+        + _bind_locals(rest, trig, sym)
+        + "    return (\n"
         + entries
+        + ",\n    )\n\n\ndef _wrench_rows(theta, **t):\n"
+        + _bind_locals(rest, trig, sym)
+        + "    return (\n"
+        + wrench_rows
         + ",\n    )\n"
-        + "    flat = jnp.stack([jnp.broadcast_to(e, batch).astype(q.dtype) for e in entries], axis=-1)\n"
-        + "    return flat.reshape(batch + SHAPE)\n"
     )
+
+
+def _bind_locals(rest, trig, sym) -> str:
+    names = [str(s) for group in (sym.q, sym.qd, sym.qdd, sym.gravity) for s in group]
+    names += [str(lhs) for lhs, _ in trig] + [str(lhs) for lhs, _ in rest]
+    return "".join(f"    {n} = t[{n!r}]\n" for n in names)
 
 
 def emit_casadi(sym, robot_name, fingerprint, replacements, reduced, ops, regenerate) -> str:

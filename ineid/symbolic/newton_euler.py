@@ -140,14 +140,18 @@ class SymbolicRegressor:
 
         return cols(unknown), cols(known)
 
-    def numpy_function(self):
-        """SymPy's own evaluation, through ``lambdify`` with NumPy (no CSE, no printer of ours).
+    def numpy_function(self, cse: bool = True):
+        """SymPy's own evaluation, through ``lambdify`` with NumPy (SymPy's printer, not ours).
+
+        Args:
+            cse: let lambdify eliminate common subexpressions (much faster to build for
+                large arms; without it, each entry is evaluated as one expanded tree).
 
         Returns:
             ``f(q, qd, qdd, gravity) -> (..., 6, 10 * n_dof)`` for ``q`` of shape (..., n_dof).
         """
         flat = [e for row in self.Y for e in row]
-        fn = sp.lambdify((self.q, self.qd, self.qdd, self.gravity), flat, modules="numpy", cse=False)
+        fn = sp.lambdify((self.q, self.qd, self.qdd, self.gravity), flat, modules="numpy", cse=cse)
 
         def f(q, qd, qdd, gravity):
             q, qd, qdd = (np.asarray(x, dtype=np.float64) for x in (q, qd, qdd))

@@ -1,0 +1,61 @@
+"""Shared fixtures: float64 JAX, one seed, a private codegen cache, example-robot-data paths."""
+
+from __future__ import annotations
+
+import importlib.metadata
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import ineid  # noqa: F401  (turns on jax x64)
+
+SEED = 20261121
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _private_cache(tmp_path_factory):
+    """Generated code of URDF robots goes to a per-session folder, not ~/.cache."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("INEID_CACHE_DIR", str(tmp_path_factory.mktemp("ineid-cache")))
+    yield
+    mp.undo()
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(SEED)
+
+
+def example_robot_data_dir() -> Path:
+    dist = importlib.metadata.distribution("example-robot-data")
+    return Path(dist.locate_file("cmeel.prefix/share/example-robot-data/robots"))
+
+
+FIXTURES = Path(__file__).resolve().parent / "fixtures"
+
+# name -> (URDF path, locked joints)
+REAL_ROBOTS = {
+    "ur5": ("ur_description/urdf/ur5_robot.urdf", None),
+    "panda": ("panda_description/urdf/panda.urdf", {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}),
+    "kinova": ("kinova_description/robots/kinova.urdf", None),
+}
+
+
+def real_robot(name: str) -> tuple[Path, dict | None]:
+    rel, locked = REAL_ROBOTS[name]
+    return example_robot_data_dir() / rel, locked
+
+
+def random_states(model, n: int, rng: np.random.Generator):
+    """q within limits, qd and qdd within the sampling bounds: (n, n_dof) each."""
+    q = rng.uniform(model.q_lower, model.q_upper, (n, model.n_dof))
+    qd = rng.uniform(-model.qd_max, model.qd_max, (n, model.n_dof))
+    qdd = rng.uniform(-model.qdd_max, model.qdd_max, (n, model.n_dof))
+    return q, qd, qdd
+
+
+def rel_err(a, b) -> float:
+    """max |a - b| / max |b|, over everything."""
+    a, b = np.asarray(a), np.asarray(b)
+    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))

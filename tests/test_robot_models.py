@@ -1,0 +1,129 @@
+"""Loading robots: the built-in arm, any serial URDF, and clear errors for bad models."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import ineid
+from ineid import RobotModelError
+from ineid.reference import pinocchio_model, pinocchio_theta
+from ineid.robots import load_chain
+from ineid.robots.urdf import parse_chain
+
+from .conftest import FIXTURES
+
+LINK = '<link name="{name}"><inertial><origin xyz="0 0 0.1" rpy="0 0 0"/><mass value="{m}"/>' \
+    '<inertia ixx="{ixx}" ixy="0" ixz="0" iyy="{iyy}" iyz="0" izz="{izz}"/></inertial></link>'
+
+
+def urdf(*, joint_type="revolute", axis="0 0 1", m1="1", inertia=("0.01", "0.01", "0.01"), extra=""):
+    ixx, iyy, izz = inertia
+    return f"""<robot name="t">
+      <link name="base"/>
+      <joint name="j1" type="revolute"><parent link="base"/><child link="a"/><axis xyz="0 0 1"/>
+        <limit lower="-1" upper="1" velocity="2" effort="1"/></joint>
+      {LINK.format(name="a", m=m1, ixx=ixx, iyy=iyy, izz=izz)}
+      <joint name="j2" type="{joint_type}"><parent link="a"/><child link="b"/><origin xyz="0 0 0.2"/>
+        <axis xyz="{axis}"/><limit lower="-1" upper="1" velocity="2" effort="1"/></joint>
+      {LINK.format(name="b", m="1", ixx="0.01", iyy="0.01", izz="0.01")}
+      {extra}
+    </robot>"""
+
+
+def test_builtin_arm():
+    m = ineid.load_robot("sweaty-arm")
+    assert m.name == "sweaty-arm"
+    assert m.joint_names == ("shoulder_pitch", "shoulder_roll", "upper_arm_yaw", "elbow")
+    assert m.link_names == ("shoulder_pitch_link", "shoulder_roll_link", "upper_arm", "forearm")
+    assert m.unknown_links == ("upper_arm", "forearm") and m.known_links == ("shoulder_pitch_link", "shoulder_roll_link")
+    assert len(m.unknown_index) == 20
+    assert m.theta_cad.shape == (40,)
+    assert m.urdf_path.is_file() and "REPRESENTATIVE" in m.urdf_path.read_text()
+    assert np.all(m.q_lower < m.q_upper) and np.all(m.qd_max > 0) and np.all(m.qdd_max == [30, 30, 40, 40])
+    ineid.check_physical(m.theta_cad, m.link_names)
+    assert m.param_names[20:22] == ["upper_arm.m", "upper_arm.mx"]
+
+
+def test_unknown_links_choice():
+    m = ineid.load_robot("sweaty-arm", unknown_links=["forearm"])
+    assert m.unknown_links == ("forearm",) and len(m.known_links) == 3
+    # chain order, whatever order given
+    m = ineid.load_robot("sweaty-arm", unknown_links=["forearm", "upper_arm"])
+    assert m.unknown_links == ("upper_arm", "forearm")
+    with pytest.raises(RobotModelError, match="'hand' is not a moving link of sweaty-arm; choose from"):
+        ineid.load_robot("sweaty-arm", unknown_links=["hand"])
+
+
+def test_urdf_default_unknown_is_every_moving_link():
+    m = ineid.load_robot(FIXTURES / "mixed_chain.urdf")
+    assert m.unknown_links == m.link_names == ("l1", "l2", "l3")
+    assert m.joint_types == ("continuous", "prismatic", "revolute")
+
+
+def test_fixed_joints_fold_like_pinocchio():
+    """Links welded mid-chain and at the tip fold into their parent body; root welds are tared."""
+    path = FIXTURES / "mixed_chain.urdf"
+    chain = load_chain(path)
+    assert chain.root_link == "world"
+    assert chain.merged_links["world"] == ("world", "base")
+    assert chain.merged_links["l2"] == ("l2", "bracket")
+    assert chain.merged_links["l3"] == ("l3", "tool", "tcp")
+    assert np.allclose(np.concatenate([j.theta for j in chain.joints]), pinocchio_theta(pinocchio_model(path)), atol=1e-14)
+
+
+def test_locked_joints_turn_a_tree_into_a_chain():
+    from .conftest import real_robot
+
+    path, locked = real_robot("panda")
+    with pytest.raises(RobotModelError, match="branching tree.*panda_finger_joint1, panda_finger_joint2.*locked_joints"):
+        load_chain(path)
+    assert load_chain(path, locked_joints=locked).n_dof == 7
+    with pytest.raises(RobotModelError, match="locked joint 'nope' is not in the URDF"):
+        load_chain(path, locked_joints={"nope": 0.0})
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("<robot name='t'><link name='a'>", "malformed XML"),
+        ("<robt name='t'/>", "top-level element is <robt>, a URDF needs <robot>"),
+        (urdf(joint_type="planar"), "joint 'j2' has type 'planar'; ineid supports revolute, continuous, prismatic"),
+        (urdf(axis="0 0 0"), "joint 'j2' has an axis of zero length"),
+        (urdf(m1="-1"), "link 'a': mass -1 kg is negative"),
+        (urdf(m1="0"), "link 'a': zero mass with a non-zero inertia"),
+        (urdf(inertia=("0.01", "-0.01", "0.01")), "link 'a': non-physical <inertial>: inertia about the centre of mass is not positive definite"),
+        (urdf(inertia=("0.01", "0.01", "0.05")), "link 'a': non-physical <inertial>: principal moments .* violate the triangle inequality"),
+        (urdf().replace(LINK.format(name="b", m="1", ixx="0.01", iyy="0.01", izz="0.01"), '<link name="b"/>'),
+         "moving link 'b' has no mass .* add an <inertial> element"),
+        (urdf(extra='<link name="c"/><joint name="j3" type="revolute"><parent link="a"/><child link="c"/>'
+                    '<axis xyz="1 0 0"/><limit lower="-1" upper="1" velocity="1" effort="1"/></joint>'),
+         "branching tree: body 'a' has 2 moving child joints \\(j2, j3\\)"),
+        (urdf(extra='<joint name="j9" type="fixed"><parent link="b"/><child link="ghost"/></joint>'),
+         "joint 'j9' refers to link 'ghost', which is not defined"),
+        (urdf(extra='<link name="island"/>'), "exactly one root link, found 2"),
+        (urdf(joint_type="fixed"), ""),  # legal: one moving joint left
+        ("<robot name='t'><link name='a'/></robot>", "no moving joint"),
+    ],
+)
+def test_bad_models_raise_robot_model_error(text, message):
+    if not message:
+        assert parse_chain(text).n_dof == 1
+        return
+    with pytest.raises(RobotModelError, match=message):
+        parse_chain(text)
+
+
+def test_missing_file_and_unknown_name():
+    with pytest.raises(RobotModelError, match="neither a built-in robot"):
+        ineid.load_robot("no-such-robot")
+    with pytest.raises(RobotModelError, match="cannot read URDF"):
+        load_chain("/nonexistent/x.urdf")
+
+
+def test_sampling_bounds_from_urdf():
+    chain = parse_chain(urdf().replace("<limit", '<ineid acceleration="7.5"/><limit', 1))
+    assert chain.joints[0].qdd_max == 7.5 and chain.joints[0].qd_max == 2.0
+    assert chain.joints[1].qdd_max == 10.0  # the default
+    with pytest.raises(RobotModelError, match="acceleration bound -1.0 must be positive"):
+        parse_chain(urdf().replace("<limit", '<ineid acceleration="-1"/><limit', 1))
