@@ -6,7 +6,6 @@
 # --------------------------------------------------------------------------------------
 """JAX base-wrench regressor of sweaty-arm; pure and jit-safe, batched over leading axes."""
 
-import jax
 import jax.numpy as jnp
 
 ROBOT = 'sweaty-arm'
@@ -332,11 +331,7 @@ def base_wrench_regressor(q, qd, qdd, gravity):
     q, qd, qdd, gravity = (jnp.asarray(x) for x in (q, qd, qdd, gravity))
     batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1])
     t = _temporaries(q, qd, qdd, gravity)
-    with jax.named_scope("entries"):
-        entries = _entries(**t)
-    # Materialize the entries before interleaving them: fused into the stack, XLA:CPU
-    # would recompute shared subexpressions once per output entry.
-    entries = jax.lax.optimization_barrier(tuple(jnp.broadcast_to(e, batch).astype(q.dtype) for e in entries))
+    entries = [jnp.broadcast_to(e, batch).astype(q.dtype) for e in _entries(**t)]
     return jnp.stack(entries, axis=-1).reshape(batch + SHAPE)
 
 

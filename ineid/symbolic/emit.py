@@ -136,7 +136,7 @@ def emit_jax(sym, robot_name, fingerprint, replacements, reduced, ops, regenerat
         + '\n"""JAX base-wrench regressor of '
         + robot_name
         + '; pure and jit-safe, batched over leading axes."""\n\n'
-        + "import jax\nimport jax.numpy as jnp\n\n"
+        + "import jax.numpy as jnp\n\n"
         + _constants(sym, robot_name, fingerprint, ops)
         + "\n\n\ndef _temporaries(q, qd, qdd, gravity):\n"
         + '    """Inputs unpacked and the common subexpressions, in dependency order."""\n'
@@ -154,11 +154,7 @@ def emit_jax(sym, robot_name, fingerprint, replacements, reduced, ops, regenerat
     q, qd, qdd, gravity = (jnp.asarray(x) for x in (q, qd, qdd, gravity))
     batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1])
     t = _temporaries(q, qd, qdd, gravity)
-    with jax.named_scope("entries"):
-        entries = _entries(**t)
-    # Materialize the entries before interleaving them: fused into the stack, XLA:CPU
-    # would recompute shared subexpressions once per output entry.
-    entries = jax.lax.optimization_barrier(tuple(jnp.broadcast_to(e, batch).astype(q.dtype) for e in entries))
+    entries = [jnp.broadcast_to(e, batch).astype(q.dtype) for e in _entries(**t)]
     return jnp.stack(entries, axis=-1).reshape(batch + SHAPE)
 
 
