@@ -122,12 +122,8 @@ def emit_jax(sym, robot_name, fingerprint, replacements, reduced, ops, regenerat
         body += [f"{lhs} = _trig[..., {k}]" for k, (lhs, _) in enumerate(trig)]
     body += [f"{lhs} = {p.doprint(rhs)}" for lhs, rhs in rest]
     n_cols = 10 * sym.n_dof
-    rows = [[(c, reduced[r * n_cols + c]) for c in range(n_cols) if reduced[r * n_cols + c] != 0] for r in range(6)]
+    nonzero = tuple(tuple(c for c in range(n_cols) if reduced[r * n_cols + c] != 0) for r in range(6))
     entries = ",\n".join(f"        {p.doprint(e)}" for e in reduced)
-    wrench_rows = ",\n".join(
-        "        " + (" + ".join(f"({p.doprint(e)}) * theta[..., {c}]" for c, e in row) if row else "0.0")
-        for row in rows
-    )
     doc = _DOC.format(robot=robot_name)
     states_doc = f"""q, qd, qdd: (..., {sym.n_dof}) joint positions, velocities, accelerations (SI).
         gravity: (3,) gravitational acceleration in the base frame, m/s^2."""
@@ -138,6 +134,7 @@ def emit_jax(sym, robot_name, fingerprint, replacements, reduced, ops, regenerat
         + '; pure and jit-safe, batched over leading axes."""\n\n'
         + "import jax.numpy as jnp\n\n"
         + _constants(sym, robot_name, fingerprint, ops)
+        + f"\n# Columns of each row of Psi that are not identically zero.\nNONZERO = {nonzero!r}"
         + "\n\n\ndef _temporaries(q, qd, qdd, gravity):\n"
         + '    """Inputs unpacked and the common subexpressions, in dependency order."""\n'
         + "".join(f"    {line}\n" for line in body)
@@ -153,8 +150,7 @@ def emit_jax(sym, robot_name, fingerprint, replacements, reduced, ops, regenerat
     \"\"\"
     q, qd, qdd, gravity = (jnp.asarray(x) for x in (q, qd, qdd, gravity))
     batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1])
-    t = _temporaries(q, qd, qdd, gravity)
-    entries = [jnp.broadcast_to(e, batch).astype(q.dtype) for e in _entries(**t)]
+    entries = [jnp.broadcast_to(e, batch).astype(q.dtype) for e in _entries(**_temporaries(q, qd, qdd, gravity))]
     return jnp.stack(entries, axis=-1).reshape(batch + SHAPE)
 
 
@@ -170,9 +166,9 @@ def base_wrench(q, qd, qdd, gravity, theta):
     \"\"\"
     q, qd, qdd, gravity, theta = (jnp.asarray(x) for x in (q, qd, qdd, gravity, theta))
     batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1], theta.shape[:-1])
-    t = _temporaries(q, qd, qdd, gravity)
-    rows = _wrench_rows(theta=theta, **t)
-    return jnp.stack([jnp.broadcast_to(r, batch).astype(q.dtype) for r in rows], axis=-1)
+    entries = _entries(**_temporaries(q, qd, qdd, gravity))
+    rows = [sum(entries[r * SHAPE[1] + c] * theta[..., c] for c in cols) for r, cols in enumerate(NONZERO)]
+    return jnp.stack([jnp.broadcast_to(w, batch).astype(q.dtype) for w in rows], axis=-1)
 
 
 def _entries(**t):
@@ -180,10 +176,6 @@ def _entries(**t):
         + _bind_locals(rest, trig, sym)
         + "    return (\n"
         + entries
-        + ",\n    )\n\n\ndef _wrench_rows(theta, **t):\n"
-        + _bind_locals(rest, trig, sym)
-        + "    return (\n"
-        + wrench_rows
         + ",\n    )\n"
     )
 
