@@ -13,16 +13,7 @@ from pathlib import Path
 import click
 
 from ineid import __version__
-
-# Joined into messages, never a traceback.
-_ERRORS: tuple[type[BaseException], ...] = ()
-
-
-def _user_errors() -> tuple[type[BaseException], ...]:
-    from ineid.errors import IneidError  # noqa: PLC0415
-
-    return (IneidError,)
-
+from ineid.errors import IneidError
 
 class _Group(click.Group):
     """A group whose commands turn library errors into one clear line."""
@@ -30,7 +21,7 @@ class _Group(click.Group):
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
-        except _user_errors() as e:
+        except IneidError as e:
             raise click.ClickException(str(e)) from None
 
 

@@ -195,10 +195,7 @@ def check_physical(theta, link_names: Sequence[str] | None = None, rtol: float =
         theta: (10 * n_links,) stacked parameters, or (n_links, 10).
         link_names: names used in the message; default ``link0, link1, ...``.
     """
-    theta = _as_theta(theta)
-    if theta.shape[-1] != 10:
-        theta = theta.reshape(-1, 10)
-    flat = theta.reshape(-1, 10)
+    flat = _as_theta(theta).reshape(-1, 10)
     names = list(link_names) if link_names is not None else [f"link{i}" for i in range(len(flat))]
     for name, t in zip(names, flat, strict=True):
         problems = physical_violations(t, rtol)
