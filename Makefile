@@ -20,6 +20,8 @@ demo: setup
 	$(INEID) robot show sweaty-arm
 	$(INEID) generate sweaty-arm --out $(VENV)/demo-generated
 	$(PY) -m ineid.demo
+	$(INEID) data generate --factorial 10 --frames 100 --seed 1 --out $(VENV)/demo-data.h5 --overwrite
+	$(INEID) data info $(VENV)/demo-data.h5
 
 test: setup
 	$(PY) -m pytest -q
@@ -32,6 +34,7 @@ generate: setup
 
 bench: setup
 	$(PY) benchmarks/regressor.py
+	$(PY) benchmarks/data.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

@@ -202,5 +202,285 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
             click.echo(f"  wrote {Path(target) / fname}")
 
 
+# -- shared pieces for commands that take a robot and write a file -----------------------
+
+gravity_option = click.option(
+    "--gravity", nargs=3, type=float, default=None, metavar="GX GY GZ", help="m/s^2, base frame (default 0 0 -9.81)."
+)
+overwrite_option = click.option("--overwrite", is_flag=True, help="Replace OUT if it exists.")
+
+
+def _load_model(robot: str, unknown_links: str | None, locked: tuple[str, ...], gravity):
+    import ineid  # noqa: PLC0415
+
+    kwargs = {"unknown_links": _split_names(unknown_links), "locked_joints": _parse_locked(locked) or None}
+    if gravity is not None:
+        kwargs["gravity"] = gravity
+    return ineid.load_robot(robot, **kwargs)
+
+
+def _check_out(out: Path, overwrite: bool) -> None:
+    if out.is_dir():
+        raise click.ClickException(f"{out} is a folder; give a file name such as data.h5")
+    if out.exists() and not overwrite:
+        raise click.ClickException(f"{out} exists; pass --overwrite to replace it")
+    if not out.parent.is_dir():
+        raise click.ClickException(f"folder {out.parent} does not exist; create it first")
+
+
+class _ProgressBar:
+    """A rich progress bar driven by ``callback(done, total)``; silent with ``-q``."""
+
+    def __init__(self, description: str, unit: str, quiet: bool) -> None:
+        from rich.progress import (  # noqa: PLC0415
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        self._progress = Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn(unit),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            disable=quiet,
+            console=_console_err(),
+        )
+        self._task = None
+        self._description = description
+
+    def __enter__(self):
+        self._progress.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        return self._progress.__exit__(*exc)
+
+    def __call__(self, done: int, total: int) -> None:
+        if self._task is None:
+            self._task = self._progress.add_task(self._description, total=total)
+        self._progress.update(self._task, completed=done, total=total)
+
+
+def _console_err():
+    from rich.console import Console  # noqa: PLC0415
+
+    return Console(stderr=True, highlight=False)
+
+
+def _quiet(ctx: click.Context) -> bool:
+    return bool(ctx.obj and ctx.obj.get("verbosity", 0) < 0)
+
+
+_NOISE_KEYS = ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "q", "qd", "qdd")
+
+
+def _parse_noise(value: str | None, n_dof: int):
+    """``force=0.5,moment=0.02,qd=0.01`` -> :class:`ineid.data.NoiseModel` (or None)."""
+    if not value:
+        return None
+    from ineid.data import NoiseModel  # noqa: PLC0415
+
+    std = {k: 0.0 for k in _NOISE_KEYS}
+    given = set()
+    for item in value.split(","):
+        key, sep, val = item.strip().partition("=")
+        key = key.strip().lower()
+        try:
+            if not sep or key not in std:
+                raise ValueError
+            std[key] = float(val)
+            if not (std[key] >= 0 and std[key] < float("inf")):
+                raise ValueError
+        except ValueError:
+            raise click.BadParameter(
+                f"expected KEY=STD with KEY in {', '.join(_NOISE_KEYS)} and STD >= 0, got {item.strip()!r}",
+                param_hint="--noise",
+            ) from None
+        given.add(key)
+    force = [std[a] if a in given else std["force"] for a in ("fx", "fy", "fz")]
+    moment = [std[a] if a in given else std["moment"] for a in ("mx", "my", "mz")]
+    return NoiseModel.create(n_dof, force=force, moment=moment, q=std["q"], qd=std["qd"], qdd=std["qdd"])
+
+
+# -- ineid data ---------------------------------------------------------------------------
+
+
+@main.group(cls=_Group)
+def data() -> None:
+    """Make, import and inspect datasets (HDF5; see docs/dataset.md)."""
+
+
+@data.command("generate")
+@click.option("--robot", default="sweaty-arm", show_default=True, metavar="ROBOT", help="Built-in name or URDF path.")
+@unknown_links_option
+@lock_option
+@gravity_option
+@click.option("--factorial", type=click.IntRange(min=1), default=None, metavar="N",
+              help="N parameter sets per unknown link, all combinations (N^k configurations). Default 100.")
+@click.option("--configs", type=click.IntRange(min=1), default=None, metavar="N",
+              help="N configurations pairing the links' sets at random (instead of --factorial).")
+@click.option("--pool", type=click.IntRange(min=1), default=None, metavar="N",
+              help="With --configs: draw each link's set from a pool of N (default: a fresh set per configuration).")
+@click.option("--frames", type=click.IntRange(min=1), default=100, show_default=True, help="Frames per configuration.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seed of every random draw.")
+@click.option("--frame-mode", type=click.Choice(["uniform", "fourier"]), default="uniform", show_default=True,
+              help="Independent uniform frames (the paper) or samples of Fourier excitation trajectories.")
+@click.option("--harmonics", type=click.IntRange(min=1), default=5, show_default=True, help="Fourier harmonics per joint.")
+@click.option("--base-frequency", type=click.FloatRange(min=0, min_open=True), default=0.1, show_default=True,
+              help="Fourier base frequency, Hz; one period is sampled.")
+@click.option("--mass-band", type=click.FloatRange(0, 1, max_open=True), default=0.2, show_default=True,
+              help="Mass within CAD * (1 +- band).")
+@click.option("--com-box", type=click.FloatRange(min=0), default=0.02, show_default=True,
+              help="Centre of mass within CAD +- box per axis, m.")
+@click.option("--inertia-band", type=click.FloatRange(0, 1, max_open=True), default=0.3, show_default=True,
+              help="Second moments within CAD * (1 +- band), scaled with the mass.")
+@click.option("--rotation", type=click.FloatRange(min=0), default=30.0, show_default=True,
+              help="Largest turn of the principal axes from CAD, degrees (180: uniform).")
+@click.option("--noise", default=None, metavar="KEY=STD,...",
+              help="Gaussian noise std: force, moment (or fx..mz) in N, N*m; q, qd, qdd in rad, rad/s, rad/s^2.")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
+@overwrite_option
+@click.pass_context
+def data_generate(ctx, robot, unknown_links, locked, gravity, factorial, configs, pool, frames, seed, frame_mode,
+                  harmonics, base_frequency, mass_band, com_box, inertia_band, rotation, noise, out, overwrite) -> None:
+    """Sample a synthetic ground-truth dataset (the paper's: --factorial 100 --frames 100)."""
+    import time  # noqa: PLC0415
+
+    from ineid.data import Combination, DatasetSpec, FrameSampling, ParameterSampling, write_dataset  # noqa: PLC0415
+
+    if factorial is not None and configs is not None:
+        raise click.UsageError("give --factorial N or --configs N, not both")
+    if pool is not None and configs is None:
+        raise click.UsageError("--pool applies to --configs (random pairing)")
+    _check_out(out, overwrite)
+    model = _load_model(robot, unknown_links, locked, gravity)
+    if configs is not None:
+        combination = Combination("random", per_link=pool, n_configs=configs)
+    else:
+        combination = Combination("factorial", per_link=factorial or 100)
+    n_configs = combination.count(len(model.unknown_links))
+    if configs is None and n_configs > 10**8:
+        raise click.BadParameter(
+            f"{n_configs:,} configurations ({combination.per_link}^{len(model.unknown_links)}); "
+            "use --configs for a random subset",
+            param_hint="--factorial",
+        )
+    spec = DatasetSpec(
+        combination=combination,
+        n_frames=frames,
+        seed=seed,
+        parameters=ParameterSampling(mass_band, com_box, inertia_band, rotation),
+        frames=FrameSampling(frame_mode, harmonics, base_frequency),
+        noise=_parse_noise(noise, model.n_dof),
+    )
+    t0 = time.perf_counter()
+    with _ProgressBar("generating", "configurations", _quiet(ctx)) as bar:
+        write_dataset(model, spec, out, overwrite=overwrite, progress=bar)
+    seconds = time.perf_counter() - t0
+    n = n_configs * frames
+    click.echo(
+        f"wrote {out}: {n_configs:,} configurations x {frames} frames of {model.name} "
+        f"({', '.join(model.unknown_links)} unknown) in {seconds:.1f} s ({n / seconds:,.0f} frames/s)"
+    )
+
+
+@data.command("import")
+@click.argument("csv_file", metavar="CSV", type=click.Path(path_type=Path))
+@click.option("--robot", default="sweaty-arm", show_default=True, metavar="ROBOT", help="Built-in name or URDF path.")
+@unknown_links_option
+@lock_option
+@gravity_option
+@click.option("--flip-wrench", is_flag=True,
+              help="The sensor reports the wrench on the robot (the opposite of ineid's convention); negate it.")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
+@overwrite_option
+def data_import(csv_file, robot, unknown_links, locked, gravity, flip_wrench, out, overwrite) -> None:
+    """Import a recording from a real arm (columns: time, q1..qn, qd1..qn, qdd1..qn, fx fy fz mx my mz)."""
+    from ineid.data import read_recording_csv  # noqa: PLC0415
+
+    _check_out(out, overwrite)
+    model = _load_model(robot, unknown_links, locked, gravity)
+    ds = read_recording_csv(csv_file, model, flip_wrench=flip_wrench)
+    ds.save(out, overwrite=overwrite)
+    span = float(ds.time[0, -1] - ds.time[0, 0])
+    click.echo(f"wrote {out}: one recording of {model.name}, {ds.n_frames:,} frames over {span:.3f} s")
+
+
+@data.command("info")
+@click.argument("path", metavar="FILE", type=click.Path(path_type=Path))
+def data_info(path: Path) -> None:
+    """Summarize a dataset: sizes, robot, settings, parameter and wrench ranges."""
+    import json  # noqa: PLC0415
+
+    import numpy as np  # noqa: PLC0415
+    from rich.table import Table  # noqa: PLC0415
+
+    from ineid.data.dataset import iter_dataset, read_meta  # noqa: PLC0415
+    from ineid.params import param_names  # noqa: PLC0415
+
+    meta, shapes = read_meta(path)
+    n_configs, n_frames, n_dof = shapes["q"]
+    con = _console()
+    con.print(f"[bold]{path}[/bold]  ineid dataset v{meta.version} ({meta.source}), written by ineid {meta.ineid_version}")
+    con.print(
+        f"{n_configs:,} configuration{'s' if n_configs != 1 else ''} x {n_frames:,} frames = {n_configs * n_frames:,} "
+        f"frames; robot {meta.robot}, {n_dof} joints ({', '.join(meta.joint_names)})"
+    )
+    con.print(f"unknown links: {', '.join(meta.unknown_links)}; known links: {', '.join(meta.known_links) or '-'}")
+    con.print(f"gravity {np.asarray(meta.gravity).tolist()} m/s^2" + (f"; seed {meta.seed}" if meta.seed is not None else ""))
+    if meta.locked_joints:
+        con.print(f"locked joints: {meta.locked_joints}")
+    if meta.sampling:
+        con.print(f"sampling: {json.dumps(meta.sampling, sort_keys=True)}")
+    con.print(f"noise (std): {json.dumps(meta.noise) if meta.noise else 'none (clean data)'}")
+    if meta.origin:
+        con.print(f"origin: {json.dumps(meta.origin, sort_keys=True)}")
+    arrays = Table(title="Arrays", title_justify="left")
+    for col in ("name", "shape"):
+        arrays.add_column(col)
+    for name in sorted(shapes):
+        arrays.add_row(name, " x ".join(str(s) for s in shapes[name]) or "scalar")
+    con.print(arrays)
+
+    def ranges(name, width):
+        lo, hi = np.full(width, np.inf), np.full(width, -np.inf)
+        total, count = np.zeros(width), 0
+        for _, block in iter_dataset(path, name):
+            flat = block.reshape(-1, width)
+            lo, hi = np.minimum(lo, flat.min(0)), np.maximum(hi, flat.max(0))
+            total += flat.sum(0)
+            count += len(flat)
+        return lo, hi, total / max(count, 1)
+
+    if "theta_unknown" in shapes:
+        from ineid.robots.urdf import parse_chain  # noqa: PLC0415
+
+        chain = parse_chain(meta.urdf, source=f"{path} (its URDF)", locked_joints=meta.locked_joints or None)
+        cad = {j.link: j.theta for j in chain.joints}
+        names = param_names(meta.unknown_links)
+        lo, hi, mean = ranges("theta_unknown", len(names))
+        table = Table(title="Unknown parameters over the configurations (SI, about each link origin)",
+                      title_justify="left")
+        for col in ("parameter", "CAD", "min", "mean", "max"):
+            table.add_column(col, justify="left" if col == "parameter" else "right")
+        for k, name in enumerate(names):
+            link, _, p = name.rpartition(".")
+            table.add_row(name, f"{cad[link][k % 10]:.5g}", f"{lo[k]:.5g}", f"{mean[k]:.5g}", f"{hi[k]:.5g}")
+        con.print(table)
+    lo, hi, mean = ranges("wrench", 6)
+    table = Table(title="Wrench (N, N*m; base frame, about the base origin)", title_justify="left")
+    for col in ("axis", "min", "mean", "max"):
+        table.add_column(col, justify="left" if col == "axis" else "right")
+    for k, axis in enumerate(("fx", "fy", "fz", "mx", "my", "mz")):
+        table.add_row(axis, f"{lo[k]:.4g}", f"{mean[k]:.4g}", f"{hi[k]:.4g}")
+    con.print(table)
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

@@ -181,11 +181,24 @@ def physical_violations(theta, rtol: float = 1e-12) -> list[str]:
 
 
 def is_physical(theta, rtol: float = 1e-12) -> np.ndarray:
-    """Whether each link's parameters are physically valid: (..., 10) -> (...,) bool."""
+    """Whether each link's parameters are physically valid: (..., 10) -> (...,) bool.
+
+    The same test as :func:`physical_violations`, vectorized over links.
+    """
     theta = _as_theta(theta)
     flat = theta.reshape(-1, 10)
-    ok = np.array([not physical_violations(t, rtol) for t in flat], dtype=bool)
+    ok = np.all(np.isfinite(flat), axis=-1) & (flat[:, 0] > 0)
+    safe = np.where(ok[:, None], flat, _UNIT_BODY)
+    _, _, ic = inertial_from_theta(safe)
+    moments = np.linalg.eigvalsh(0.5 * (ic + np.swapaxes(ic, -1, -2)))
+    tol = rtol * np.maximum(np.max(np.abs(moments), axis=-1), np.finfo(float).tiny)
+    ok &= moments[:, 0] > tol
+    ok &= moments[:, 0] + moments[:, 1] >= moments[:, 2] - tol
     return ok.reshape(theta.shape[:-1])
+
+
+# A valid placeholder body for entries already known to be invalid (keeps the batch finite).
+_UNIT_BODY = np.array([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 1.0])
 
 
 def check_physical(theta, link_names: Sequence[str] | None = None, rtol: float = 1e-12) -> None:

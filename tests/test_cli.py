@@ -91,3 +91,56 @@ def test_generate_usage_errors(run, tmp_path):
     bad = tmp_path / "bad.urdf"
     bad.write_text("<robot><link name='a'>")
     assert "malformed XML" in one_line_error(run("generate", bad))
+
+
+# -- ineid data ---------------------------------------------------------------------------
+
+
+def test_data_generate_info_import(run, tmp_path):
+    import numpy as np
+
+    from ineid.data import load_dataset, write_recording_csv
+
+    out = tmp_path / "d.h5"
+    r = run("data", "generate", "--factorial", 3, "--frames", 5, "--seed", 4, "--frame-mode", "fourier",
+            "--noise", "force=0.5,mz=0.01,qd=0.02", "--out", out)
+    assert r.exit_code == 0, r.output
+    assert "9 configurations x 5 frames" in r.output and out.is_file()
+    ds = load_dataset(out)
+    assert ds.meta.seed == 4 and ds.meta.noise["wrench"] == [0.5, 0.5, 0.5, 0.0, 0.0, 0.01]
+    assert ds.meta.sampling["frames"]["mode"] == "fourier" and set(ds.clean) == {"qd", "wrench"}
+
+    r = run("data", "info", out)
+    assert r.exit_code == 0, r.output
+    for word in ("9 configurations x 5 frames", "sweaty-arm", "upper_arm.Izz", "forearm.m", "qd_clean", "fz", "seed 4"):
+        assert word in r.output, word
+
+    line = one_line_error(run("data", "generate", "--factorial", 3, "--frames", 5, "--out", out))
+    assert "exists; pass --overwrite" in line
+    r = run("data", "generate", "--configs", 4, "--pool", 2, "--frames", 3, "--out", out, "--overwrite")
+    assert r.exit_code == 0 and "4 configurations x 3 frames" in r.output
+
+    csv = write_recording_csv(tmp_path / "rec.csv", ds, config=2)
+    rec = tmp_path / "rec.h5"
+    r = run("data", "import", csv, "--robot", "sweaty-arm", "--out", rec)
+    assert r.exit_code == 0, r.output
+    assert "5 frames" in r.output and np.array_equal(load_dataset(rec).wrench[0], ds.wrench[2])
+    r = run("data", "info", rec)
+    assert r.exit_code == 0 and "recording" in r.output and "upper_arm.Izz" not in r.output
+
+
+def test_data_errors_are_one_line(run, tmp_path):
+    bad = tmp_path / "bad.h5"
+    bad.write_bytes(b"garbage" * 100)
+    assert "not a readable HDF5 file" in one_line_error(run("data", "info", bad))
+    r = run("data", "generate", "--factorial", 2, "--noise", "force=-1", "--out", tmp_path / "x.h5")
+    assert r.exit_code == 2 and "KEY=STD" in r.output
+    r = run("data", "generate", "--factorial", 2, "--configs", 3, "--out", tmp_path / "x.h5")
+    assert r.exit_code == 2 and "not both" in r.output
+    assert not (tmp_path / "x.h5").exists()
+    csv = tmp_path / "short.csv"
+    csv.write_text("time,q1,qd1,qdd1,fx,fy,fz,mx,my,mz\n0,0,0,0,0,0,0,0,0,0\n")
+    line = one_line_error(run("data", "import", csv, "--out", tmp_path / "r.h5"))
+    assert "columns are for 1 joint" in line and not (tmp_path / "r.h5").exists()
+    line = one_line_error(run("data", "generate", "--frames", 2, "--out", tmp_path / "nofolder" / "x.h5"))
+    assert "does not exist; create it first" in line

@@ -81,7 +81,7 @@ def load_robot(
     name = chain.name
     jax_mod, ca_mod = generated_modules_for(chain, name, codegen_dir)
     links = [j.link for j in chain.joints] if unknown_links is None else unknown_links
-    return RobotModel(chain, path.resolve(), name, gravity, links, jax_mod, ca_mod)
+    return RobotModel(chain, path.resolve(), name, gravity, links, jax_mod, ca_mod, locked_joints)
 
 
 __all__ = ["BUILTIN_ROBOTS", "BuiltinRobot", "Chain", "JointSpec", "RobotModel", "load_chain", "load_robot"]

@@ -36,8 +36,10 @@ class RobotModel:
         unknown_links: Sequence[str],
         jax_module: ModuleType,
         casadi_module: ModuleType,
+        locked_joints: Mapping[str, float] | None = None,
     ) -> None:
         self.chain = chain
+        self.locked_joints: dict[str, float] = dict(locked_joints or {})
         self.urdf_path = Path(urdf_path)
         self.name = name
         self.gravity = np.asarray(gravity, dtype=np.float64)

@@ -1,0 +1,58 @@
+"""Datasets: ground-truth sampling, measurement noise, the HDF5 format, CSV import.
+
+Data flow: :class:`DatasetSpec` -> :func:`generate_dataset` (in memory) or
+:func:`write_dataset` (streamed to a file) -> :func:`load_dataset` -> identify / learn.
+A recording from a real arm enters through :func:`read_recording_csv`.
+"""
+
+from __future__ import annotations
+
+from ineid.data.csv_import import csv_columns, read_recording_csv, write_recording_csv
+from ineid.data.dataset import (
+    FORMAT,
+    VERSION,
+    Dataset,
+    DatasetMeta,
+    DatasetWriter,
+    assemble_theta,
+    load_dataset,
+    model_from_meta,
+    read_meta,
+    save_dataset,
+)
+from ineid.data.generate import DatasetSpec, generate_dataset, write_dataset
+from ineid.data.noise import NoiseModel
+from ineid.data.sampling import (
+    Combination,
+    FrameSampling,
+    ParameterSampling,
+    sample_configurations,
+    sample_frames,
+    sample_link_parameters,
+)
+
+__all__ = [
+    "FORMAT",
+    "VERSION",
+    "Combination",
+    "Dataset",
+    "DatasetMeta",
+    "DatasetSpec",
+    "DatasetWriter",
+    "FrameSampling",
+    "NoiseModel",
+    "ParameterSampling",
+    "assemble_theta",
+    "csv_columns",
+    "generate_dataset",
+    "load_dataset",
+    "model_from_meta",
+    "read_meta",
+    "read_recording_csv",
+    "sample_configurations",
+    "sample_frames",
+    "sample_link_parameters",
+    "save_dataset",
+    "write_dataset",
+    "write_recording_csv",
+]

@@ -1,0 +1,226 @@
+"""Synthetic ground truth: sample parameters and frames, compute the base wrench, add noise.
+
+The wrench of every frame comes from the generated JAX function ``base_wrench`` of the
+model (``[F; M] = Psi(q, qd, qdd) @ theta``, contracted inside one fused loop), evaluated
+a chunk of configurations at a time. Generation streams: only one chunk of frames is in
+memory, so the size of a dataset is bounded by the disk, not the RAM.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ineid.data.dataset import Dataset, DatasetMeta, DatasetWriter, chunk_rows
+from ineid.data.noise import NoiseModel
+from ineid.data.sampling import (
+    RNG_BLOCK_CONFIGS,
+    STREAM_FRAMES,
+    STREAM_NOISE,
+    Combination,
+    FrameSampling,
+    ParameterSampling,
+    block_rng,
+    sample_configurations,
+    sample_frames,
+)
+from ineid.errors import DatasetError
+from ineid.params import is_physical
+
+Progress = Callable[[int, int], None]
+"""``progress(configs_done, configs_total)``."""
+
+
+@dataclass(frozen=True)
+class DatasetSpec:
+    """What to generate. The defaults are the paper's dataset: 100 x 100 configurations
+    (full factorial of 100 sets per unknown link), 100 uniform frames each, no noise.
+
+    Attributes:
+        combination: how per-link parameter sets form configurations.
+        n_frames: frames per configuration.
+        seed: the one seed every random stream derives from.
+        parameters: bands of the parameter sampling.
+        frames: frame sampling mode and settings.
+        noise: measurement noise, or ``None`` for clean data.
+    """
+
+    combination: Combination = field(default_factory=Combination)
+    n_frames: int = 100
+    seed: int = 0
+    parameters: ParameterSampling = field(default_factory=ParameterSampling)
+    frames: FrameSampling = field(default_factory=FrameSampling)
+    noise: NoiseModel | None = None
+
+    def __post_init__(self) -> None:
+        if self.n_frames < 1:
+            raise ValueError(f"n_frames must be >= 1, got {self.n_frames}")
+        if not 0 <= int(self.seed) < 2**63:
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
+
+    def sampling_dict(self) -> dict:
+        return {
+            "combination": self.combination.to_dict(),
+            "n_frames": self.n_frames,
+            "parameters": self.parameters.to_dict(),
+            "frames": self.frames.to_dict(),
+        }
+
+
+class _Plan:
+    """The parts of a generation run shared by the in-memory and the streaming paths."""
+
+    def __init__(self, model, spec: DatasetSpec) -> None:
+        if not model.unknown_links:
+            raise DatasetError("the model has no unknown links; choose the links to identify (--unknown-links)")
+        self.model, self.spec = model, spec
+        self.theta_known = np.asarray(model.theta_cad[model.known_index], dtype=np.float64)
+        self.theta_unknown, self.link_set_index = sample_configurations(
+            model.theta_cad[model.unknown_index], spec.combination, spec.seed, spec.parameters
+        )
+        bad = ~is_physical(self.theta_unknown.reshape(len(self.theta_unknown), -1, 10)).all(axis=-1)
+        if bad.any():  # cannot happen by construction; a guard against a broken sampler
+            raise DatasetError(f"sampler produced {int(bad.sum())} non-physical parameter sets")
+        self.n_configs = len(self.theta_unknown)
+        self.noise = spec.noise if spec.noise is not None and spec.noise.noisy_keys() else None
+        self.meta = DatasetMeta.for_model(
+            model,
+            source="synthetic",
+            seed=int(spec.seed),
+            sampling=spec.sampling_dict(),
+            noise=None if self.noise is None else self.noise.to_dict(),
+        )
+        names = ["q", "qd", "qdd", "wrench", "theta_unknown", "link_set_index"]
+        if spec.frames.mode == "fourier":
+            names.append("time")
+        if self.noise is not None:
+            names += [f"{k}_clean" for k in self.noise.noisy_keys()]
+        self.array_names = names
+        # Chunks are whole random-number blocks, about 1 MiB of the widest array.
+        rows = chunk_rows(spec.n_frames, max(6, model.n_dof), self.n_configs)
+        if rows >= RNG_BLOCK_CONFIGS:
+            rows -= rows % RNG_BLOCK_CONFIGS
+        elif rows < self.n_configs:
+            rows = min(RNG_BLOCK_CONFIGS, self.n_configs)
+        self.rows = rows
+        self._wrench_fn = None
+
+    def _wrench(self, q, qd, qdd, theta) -> np.ndarray:
+        import jax  # noqa: PLC0415
+
+        if self._wrench_fn is None:
+            self._wrench_fn = jax.jit(self.model.jax_base_wrench)
+        n = len(q)
+        if n < self.rows:  # pad the last chunk: one compiled shape for the whole run
+            pad = self.rows - n
+            q, qd, qdd = (np.concatenate([a, np.zeros((pad,) + a.shape[1:])]) for a in (q, qd, qdd))
+            theta = np.concatenate([theta, np.repeat(theta[-1:], pad, axis=0)])
+        full = self._full_theta(theta)[:, None, :]
+        return np.asarray(self._wrench_fn(q, qd, qdd, self.model.gravity, full))[:n]
+
+    def _full_theta(self, theta_unknown: np.ndarray) -> np.ndarray:
+        full = np.empty((len(theta_unknown), 10 * self.model.n_links))
+        full[:, self.model.unknown_index] = theta_unknown
+        full[:, self.model.known_index] = self.theta_known
+        return full
+
+    def chunks(self) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+        """Yield ``(first configuration, arrays)`` chunk by chunk."""
+        m, spec = self.model, self.spec
+        for start in range(0, self.n_configs, self.rows):
+            stop = min(start + self.rows, self.n_configs)
+            parts = []
+            for b0 in range(start, stop, RNG_BLOCK_CONFIGS):
+                b1 = min(b0 + RNG_BLOCK_CONFIGS, stop)
+                rng = block_rng(spec.seed, STREAM_FRAMES, b0 // RNG_BLOCK_CONFIGS)
+                parts.append(
+                    sample_frames(b1 - b0, spec.n_frames, m.q_lower, m.q_upper, m.qd_max, m.qdd_max, rng, spec.frames)
+                )
+            q, qd, qdd = (np.concatenate([p[k] for p in parts]) for k in range(3))
+            out = {"q": q, "qd": qd, "qdd": qdd}
+            if spec.frames.mode == "fourier":
+                out["time"] = np.concatenate([p[3] for p in parts])
+            out["wrench"] = self._wrench(q, qd, qdd, self.theta_unknown[start:stop])
+            if self.noise is not None:
+                noisy = []
+                for b0 in range(start, stop, RNG_BLOCK_CONFIGS):
+                    sl = slice(b0 - start, min(b0 + RNG_BLOCK_CONFIGS, stop) - start)
+                    rng = block_rng(spec.seed, STREAM_NOISE, b0 // RNG_BLOCK_CONFIGS)
+                    noisy.append(self.noise.apply({k: out[k][sl] for k in ("q", "qd", "qdd", "wrench")}, rng))
+                for k in self.noise.noisy_keys():
+                    out[f"{k}_clean"] = out[k]
+                    out[k] = np.concatenate([n[k] for n in noisy])
+            out["theta_unknown"] = self.theta_unknown[start:stop]
+            out["link_set_index"] = self.link_set_index[start:stop]
+            yield start, out
+
+
+def generate_dataset(model, spec: DatasetSpec = DatasetSpec(), progress: Progress | None = None) -> Dataset:
+    """Generate a synthetic dataset in memory (for files, use :func:`write_dataset`).
+
+    Args:
+        model: the :class:`ineid.RobotModel`; its unknown links are sampled, the others
+            keep their CAD values; its gravity is used.
+        spec: sizes, sampling, seed, noise.
+        progress: called after each chunk.
+
+    Returns:
+        The :class:`Dataset`; the same ``spec`` gives bit-identical arrays.
+    """
+    plan = _Plan(model, spec)
+    collected: dict[str, list[np.ndarray]] = {}
+    for start, arrays in plan.chunks():
+        for k, v in arrays.items():
+            collected.setdefault(k, []).append(v)
+        if progress is not None:
+            progress(start + len(arrays["q"]), plan.n_configs)
+    arrays = {k: np.concatenate(v) for k, v in collected.items()}
+    clean = {k[: -len("_clean")]: arrays.pop(k) for k in list(arrays) if k.endswith("_clean")}
+    return Dataset(
+        meta=plan.meta,
+        q=arrays["q"],
+        qd=arrays["qd"],
+        qdd=arrays["qdd"],
+        wrench=arrays["wrench"],
+        theta_known=plan.theta_known,
+        theta_unknown=arrays["theta_unknown"],
+        clean=clean,
+        time=arrays.get("time"),
+        link_set_index=arrays["link_set_index"],
+    )
+
+
+def write_dataset(
+    model,
+    spec: DatasetSpec,
+    path: str | Path,
+    overwrite: bool = False,
+    progress: Progress | None = None,
+    workers: int | None = None,
+) -> Path:
+    """Generate a synthetic dataset straight into an HDF5 file, chunk by chunk.
+
+    Memory holds one chunk (about a megabyte per array); compression runs in a thread
+    pool beside the computation. The file is complete or absent: an error or Ctrl-C
+    removes the partial file.
+
+    Args:
+        model, spec, progress: as for :func:`generate_dataset`; the arrays are identical.
+        path: the ``.h5`` file to write.
+        overwrite: replace an existing file.
+        workers: compression threads (default: the CPU count).
+    """
+    plan = _Plan(model, spec)
+    with DatasetWriter(
+        path, plan.meta, plan.n_configs, spec.n_frames, plan.array_names, plan.rows, overwrite, workers
+    ) as writer:
+        writer.write_constant("theta_known", plan.theta_known)
+        for start, arrays in plan.chunks():
+            for name, arr in arrays.items():
+                writer.write(name, start, arr)
+            if progress is not None:
+                progress(start + len(arrays["q"]), plan.n_configs)
+    return Path(path)
