@@ -20,8 +20,11 @@ demo: setup
 	$(INEID) robot show sweaty-arm
 	$(INEID) generate sweaty-arm --out $(VENV)/demo-generated
 	$(PY) -m ineid.demo
-	$(INEID) data generate --factorial 10 --frames 100 --seed 1 --out $(VENV)/demo-data.h5 --overwrite
-	$(INEID) data info $(VENV)/demo-data.h5
+	$(INEID) -q data generate --factorial 10 --frames 100 --seed 1 --noise force=0.5,moment=0.05 \
+		--out $(VENV)/demo-data.h5 --overwrite
+	$(INEID) -q solve $(VENV)/demo-data.h5 --method consistent --weights estimate --configs 0:20 \
+		--out $(VENV)/demo-results.h5 --overwrite
+	$(INEID) export-urdf $(VENV)/demo-results.h5 --config 0 --out $(VENV)/demo-identified.urdf --overwrite
 
 test: setup
 	$(PY) -m pytest -q
@@ -35,6 +38,7 @@ generate: setup
 bench: setup
 	$(PY) benchmarks/regressor.py
 	$(PY) benchmarks/data.py
+	$(PY) benchmarks/identify.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

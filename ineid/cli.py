@@ -482,5 +482,294 @@ def data_info(path: Path) -> None:
     con.print(table)
 
 
+# -- identification ------------------------------------------------------------------------
+
+
+def _parse_selection(text: str | None, n: int):
+    """``all``, ``A:B[:STEP]``, ``1,5,9`` or mixtures (``0:10,50``) -> sorted unique indices."""
+    import numpy as np  # noqa: PLC0415
+
+    if text is None or text.strip().lower() == "all":
+        return np.arange(n)
+    picked: list[int] = []
+    for part in text.split(","):
+        part = part.strip()
+        try:
+            if ":" in part:
+                bits = [int(b) if b.strip() else None for b in part.split(":")]
+                if len(bits) > 3:
+                    raise ValueError
+                picked += list(range(n))[slice(*bits)]
+            else:
+                k = int(part)
+                if not -n <= k < n:
+                    raise click.BadParameter(f"configuration {k} is out of range (the file has {n}: 0..{n - 1})",
+                                             param_hint="--configs")
+                picked.append(k % n)
+        except ValueError:
+            raise click.BadParameter(
+                f"expected 'all', A:B[:STEP] or comma-separated indices, got {part!r}", param_hint="--configs"
+            ) from None
+    idx = np.unique(np.asarray(picked, dtype=np.int64))
+    if idx.size == 0:
+        raise click.BadParameter(f"{text!r} selects no configuration of the {n} in the file", param_hint="--configs")
+    return idx
+
+
+@main.command()
+@robot_argument
+@unknown_links_option
+@lock_option
+@gravity_option
+@click.option("--frames", "n_frames", type=click.IntRange(min=1), default=200, show_default=True,
+              help="Random frames (uniform within the bounds) to analyse.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--data", "data_path", type=click.Path(path_type=Path), default=None,
+              help="Analyse the frames of a dataset instead (with --config).")
+@click.option("--config", type=click.IntRange(min=0), default=0, show_default=True, help="Configuration of --data.")
+def identifiability(robot, unknown_links, locked, gravity, n_frames, seed, data_path, config) -> None:
+    """Which parameters of ROBOT's unknown links the base wrench determines."""
+    import numpy as np  # noqa: PLC0415
+    from rich.table import Table  # noqa: PLC0415
+
+    from ineid.identify import analyze_frames, base_parameters, generic_frames  # noqa: PLC0415
+
+    model = _load_model(robot, unknown_links, locked, gravity)
+    base = base_parameters(model)
+    if data_path is not None:
+        from ineid.data import load_dataset  # noqa: PLC0415
+
+        ds = load_dataset(data_path, configs=[config])
+        if ds.meta.joint_names != model.joint_names:
+            raise click.ClickException(f"{data_path} is a dataset of {ds.meta.robot}, not of {model.name}")
+        q, qd, qdd = ds.q[0], ds.qd[0], ds.qdd[0]
+        source = f"{len(q)} frames of configuration {config} of {data_path}"
+    else:
+        q, qd, qdd = generic_frames(model, n_frames, seed)
+        source = f"{n_frames} random frames within the bounds (seed {seed})"
+    a = analyze_frames(model, q, qd, qdd, base)
+    con = _console()
+    n = base.n_params
+    con.print(f"[bold]{model.name}[/bold]: unknown links {', '.join(model.unknown_links)} ({n} standard parameters)")
+    con.print(f"frames: {source}")
+    con.print(
+        f"rank {a.rank} of {n}; structural rank {base.rank} (no frames can do better): "
+        f"[bold]{base.rank} identifiable combinations[/bold], {n - base.rank} null direction(s)"
+    )
+    cond = "inf" if not np.isfinite(a.condition_number) else f"{a.condition_number:.4g}"
+    con.print(f"condition number (scaled, identifiable part): {cond}; fewest leading frames reaching rank "
+              f"{base.rank}: {a.min_frames if a.min_frames is not None else 'never'} "
+              f"(at least {-(-base.rank // 6)}: 6 equations per frame)")
+    con.print("singular values (scaled): " + " ".join(f"{v:.3g}" for v in a.singular_values))
+    if a.problem():
+        con.print(f"[bold red]these frames are not enough:[/bold red] {a.problem()}")
+    table = Table(title="Base parameters: what the data determine (beta = B theta)", title_justify="left")
+    table.add_column("#", justify="right")
+    table.add_column("base parameter")
+    for k, name in enumerate(base.names):
+        table.add_row(str(k + 1), name)
+    con.print(table)
+    if base.null_basis.shape[1]:
+        table = Table(title="Null directions: parameter changes invisible in the base wrench", title_justify="left")
+        table.add_column("#", justify="right")
+        table.add_column("direction (add t times)")
+        for k, text in enumerate(base.null_directions()):
+            table.add_row(str(k + 1), text)
+        con.print(table)
+    ident = [p for p, ok in zip(base.param_names, base.identifiable) if ok]
+    other = [p for p, ok in zip(base.param_names, base.identifiable) if not ok]
+    con.print(f"individually identifiable ({len(ident)}): {', '.join(ident) or '-'}")
+    con.print(f"only in combinations ({len(other)}): {', '.join(other) or '-'}")
+    if base.null_basis.shape[1]:
+        con.print(
+            "The null directions are structural: mass on a joint axis between two unknown links does not feel "
+            "that joint turn, so it acts on the base as if welded to the earlier link. Estimates of the other "
+            "parameters need prior knowledge (ineid uses the CAD values) or constraints."
+        )
+
+
+@main.command()
+@click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
+@click.option("--method", type=click.Choice(["linear", "nonlinear", "consistent"]), default="linear", show_default=True)
+@click.option("--frames", type=click.IntRange(min=1), default=None,
+              help="Frames fitted per configuration (the first K; the rest validate). Default: 80 %.")
+@click.option("--configs", "selection", default=None, metavar="SEL",
+              help="Configurations: all (default), A:B[:STEP], or 1,5,9.")
+@click.option("--weights", type=click.Choice(["none", "noise", "estimate"]), default="none", show_default=True,
+              help="Row weights per wrench axis: none, from the noise levels (--sigma or the file), or estimated.")
+@click.option("--sigma", nargs=6, type=float, default=None, metavar="FX FY FZ MX MY MZ",
+              help="Wrench noise std per axis (N, N*m) for --weights noise.")
+@click.option("--start", type=click.Choice(["prior", "linear"]), default="prior", show_default=True,
+              help="IPOPT start: the CAD values, or the linear estimate (made physical).")
+@click.option("--backend", type=click.Choice(["jax", "casadi"]), default="jax", show_default=True,
+              help="Linear method: batched JAX/NumPy, or CasADi per configuration.")
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="Processes for IPOPT (default: CPU count).")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Results file (.h5).")
+@overwrite_option
+@click.pass_context
+def solve(ctx, data_path, method, frames, selection, weights, sigma, start, backend, workers, out, overwrite) -> None:
+    """Identify the unknown links of every selected configuration of DATA.h5."""
+    import os  # noqa: PLC0415
+
+    from ineid.data import load_dataset, read_meta  # noqa: PLC0415
+    from ineid.identify import SolveSettings, save_results, solve_dataset  # noqa: PLC0415
+
+    _check_out(out, overwrite)
+    if backend == "casadi" and method != "linear":
+        raise click.UsageError("--backend casadi applies to --method linear")
+    if sigma is not None and weights != "noise":
+        raise click.UsageError("--sigma goes with --weights noise")
+    _, shapes = read_meta(data_path)
+    idx = _parse_selection(selection, shapes["q"][0])
+    ds = load_dataset(data_path, configs=idx)
+    settings = SolveSettings(
+        method=method, frames=frames, weights=weights, axis_sigma=tuple(sigma) if sigma else None, start=start,
+        backend=backend, workers=workers or os.cpu_count() or 1,
+    )  # fmt: skip
+    with _ProgressBar(f"solving ({method})", "configurations", _quiet(ctx)) as bar:
+        res = solve_dataset(ds, settings, progress=bar)
+    save_results(res, out, overwrite=overwrite)
+    _print_results(res, out)
+
+
+def _print_results(res, out) -> None:
+    import numpy as np  # noqa: PLC0415
+    from rich.table import Table  # noqa: PLC0415
+
+    from ineid.identify import error_summary  # noqa: PLC0415
+
+    con = _console()
+    n_ok = int(res.success.sum())
+    total = res.meta.get("total_seconds", float("nan"))
+    con.print(
+        f"[bold]{res.settings.method}[/bold] on {res.meta['robot']}: {n_ok}/{res.n} configurations identified "
+        f"in {total:.2f} s ({1e3 * total / max(res.n, 1):.2f} ms each); fitted {res.n_frames_fit} frames each"
+        + (f", validated on {res.n_frames_validation}" if res.n_frames_validation else "")
+    )
+    if n_ok < res.n:
+        statuses, counts = np.unique(res.status[~res.success].astype(str), return_counts=True)
+        con.print("failed: " + "; ".join(f"{c} x {s}" for s, c in zip(statuses, counts)))
+    if res.n_frames_validation and n_ok:
+        rel = res.validation_rel[res.success]
+        con.print(f"held-out wrench error ||w - Psi theta_hat|| / ||w||: median {np.median(rel):.3g}, "
+                  f"95th percentile {np.percentile(rel, 95):.3g}")
+    if res.theta_true is not None and n_ok:
+        for title, est, truth, names, ident in (
+            ("standard parameters", res.theta_hat, res.theta_true, res.param_names, res.base.identifiable),
+            ("base parameters (what the data determine)", res.base_hat, res.base_true, res.base.names, None),
+        ):
+            table = Table(title=f"Relative error, {title}, over {n_ok} configurations", title_justify="left")
+            for col in ("parameter", "median", "95th pct", "within 1%", "within 5%") + (("identifiable",) if ident is not None else ()):
+                table.add_column(col, justify="left" if col in ("parameter", "identifiable") else "right")
+            for row in error_summary(est, truth, names, res.success, ident):
+                cells = [row.name, f"{row.median:.3g}", f"{row.p95:.3g}", f"{100 * row.within_1:.1f}%",
+                         f"{100 * row.within_5:.1f}%"]
+                if ident is not None:
+                    cells.append("yes" if row.identifiable else "no (prior)")
+                table.add_row(*cells)
+            con.print(table)
+        from ineid.params import is_physical  # noqa: PLC0415
+
+        valid = is_physical(np.nan_to_num(res.theta_hat[res.success]).reshape(n_ok, -1, 10)).all(axis=-1)
+        con.print(f"physically valid estimates: {100 * valid.mean():.1f}%")
+    elif n_ok:
+        i = int(np.flatnonzero(res.success)[0])
+        table = Table(title=f"Estimates of configuration {int(res.config_index[i])} (SI, about each link origin)",
+                      title_justify="left")
+        for col in ("parameter", "estimate", "std", "prior (CAD)", "identifiable"):
+            table.add_column(col, justify="left" if col in ("parameter", "identifiable") else "right")
+        for k, name in enumerate(res.param_names):
+            std = res.theta_std[i, k]
+            table.add_row(name, f"{res.theta_hat[i, k]:.6g}", "-" if not np.isfinite(std) else f"{std:.3g}",
+                          f"{res.theta_prior[k]:.6g}", "yes" if res.base.identifiable[k] else "no (prior)")
+        con.print(table)
+        table = Table(title="Base parameters", title_justify="left")
+        for col in ("base parameter", "estimate", "std"):
+            table.add_column(col, justify="left" if col == "base parameter" else "right")
+        for k, name in enumerate(res.base.names):
+            table.add_row(name, f"{res.base_hat[i, k]:.6g}", f"{res.base_std[i, k]:.3g}")
+        con.print(table)
+    con.print(f"wrote {out}")
+
+
+@main.command("export-urdf")
+@click.argument("results_path", metavar="RESULTS", type=click.Path(path_type=Path))
+@click.option("--config", type=int, required=True, help="Configuration (index in the dataset).")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="The .urdf file to write.")
+@overwrite_option
+def export_urdf_cmd(results_path, config, out, overwrite) -> None:
+    """Write the model's URDF with the identified links' inertials of one configuration."""
+    from ineid.identify import export_urdf, load_results  # noqa: PLC0415
+
+    _check_out(out, overwrite)
+    res = load_results(results_path)
+    export_urdf(res, config, out, overwrite=overwrite)
+    click.echo(f"wrote {out}: {', '.join(res.meta['unknown_links'])} of configuration {config} ({res.settings.method})")
+
+
+@main.group(cls=_Group)
+def study() -> None:
+    """Studies that sweep settings and write a table and a plot."""
+
+
+@study.command("noise")
+@click.option("--robot", default="sweaty-arm", show_default=True, metavar="ROBOT")
+@unknown_links_option
+@click.option("--levels", default="0,0.5,1,2,4", show_default=True,
+              help="Noise levels, multiples of force 0.5 N, moment 0.05 N*m, qd 0.01 rad/s, qdd 0.1 rad/s^2.")
+@click.option("--frames", "frames_text", default="10,50,200", show_default=True, help="Frame counts per configuration.")
+@click.option("--configs", type=click.IntRange(min=1), default=200, show_default=True, help="Configurations per level.")
+@click.option("--methods", default="linear,weighted,consistent", show_default=True)
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="Processes for IPOPT (default: CPU count).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder for noise_study.csv and noise_study.png.")
+@overwrite_option
+@click.pass_context
+def study_noise(ctx, robot, unknown_links, levels, frames_text, configs, methods, seed, workers, out_dir, overwrite):
+    """Errors and physical validity of linear, weighted and consistent estimates under noise."""
+    import os  # noqa: PLC0415
+
+    from rich.table import Table  # noqa: PLC0415
+
+    from ineid.identify.study import STUDY_METHODS, noise_study, plot, write_csv  # noqa: PLC0415
+
+    def numbers(text, cast, hint):
+        try:
+            vals = [cast(v) for v in text.split(",") if v.strip()]
+            if not vals or any(v < 0 for v in vals):
+                raise ValueError
+            return vals
+        except ValueError:
+            raise click.BadParameter(f"expected comma-separated non-negative numbers, got {text!r}", param_hint=hint) from None
+
+    lv = numbers(levels, float, "--levels")
+    fr = numbers(frames_text, int, "--frames")
+    ms = [m.strip() for m in methods.split(",") if m.strip()]
+    bad = [m for m in ms if m not in STUDY_METHODS]
+    if bad or not ms:
+        raise click.BadParameter(f"methods are {', '.join(STUDY_METHODS)}, got {methods!r}", param_hint="--methods")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    csv_path, png_path = out_dir / "noise_study.csv", out_dir / "noise_study.png"
+    for p in (csv_path, png_path):
+        if p.exists() and not overwrite:
+            raise click.ClickException(f"{p} exists; pass --overwrite to replace it")
+    model = _load_model(robot, unknown_links, (), None)
+    with _ProgressBar("noise study", "solves", _quiet(ctx)) as bar:
+        rows = noise_study(model, lv, fr, configs, seed, ms, workers or os.cpu_count() or 1, progress=bar)
+    table = Table(title=f"Noise study, {model.name}, {configs} configurations per level", title_justify="left")
+    for col in ("level", "frames", "method", "base err (median)", "base err (p95)", "standard err (median)",
+                "identifiable std. err", "invalid", "failed", "s"):
+        table.add_column(col, justify="left" if col == "method" else "right")
+    for r in rows:
+        table.add_row(f"{r.level:g}", str(r.frames), r.method, f"{r.base_error_median:.3g}", f"{r.base_error_p95:.3g}",
+                      f"{r.standard_error_median:.3g}", f"{r.identifiable_error_median:.3g}",
+                      f"{100 * r.invalid_share:.1f}%", f"{100 * r.failed_share:.1f}%", f"{r.seconds:.1f}")
+    _console().print(table)
+    write_csv(rows, csv_path)
+    plot(rows, png_path)
+    click.echo(f"wrote {csv_path} and {png_path}")
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

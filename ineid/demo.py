@@ -1,8 +1,10 @@
-"""``make demo``: the main job on the built-in arm, end to end, in under a minute.
+"""``make demo``: the main job on the built-in arm, end to end, in about a minute.
 
 Run with ``python -m ineid.demo``. Loads ``sweaty-arm``, evaluates its generated
 base-wrench regressor on random frames with JAX and CasADi, checks the two agree and that
-the arm at rest loads the sensor with its weight, and prints what it measured.
+the arm at rest loads the sensor with its weight; then makes a small noisy ground-truth
+dataset, identifies links 3-4 with the linear, weighted and physically consistent
+solvers, and prints how close each gets, for the standard and for the base parameters.
 """
 
 from __future__ import annotations
@@ -54,6 +56,44 @@ def main(n_frames: int = 100_000, seed: int = 0) -> None:
     print("wrench of the first frames (N, N*m):")
     for k in range(3):
         print("  " + "  ".join(f"{v:9.3f}" for v in wrench[k]))
+    identification(model, seed)
+
+
+def identification(model, seed: int = 0, per_link: int = 12, n_frames: int = 100) -> None:
+    """A noisy ground truth (per_link^2 configurations), identified three ways."""
+    from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset  # noqa: PLC0415
+    from ineid.identify import SolveSettings, base_parameters, relative_error, solve_dataset  # noqa: PLC0415
+    from ineid.params import is_physical  # noqa: PLC0415
+
+    noise = NoiseModel.create(model.n_dof, force=0.5, moment=0.05, qd=0.01, qdd=0.1)
+    t0 = time.perf_counter()
+    ds = generate_dataset(model, DatasetSpec(Combination("factorial", per_link=per_link), n_frames, seed, noise=noise))
+    base = base_parameters(model)
+    print(
+        f"\ndataset: {ds.n_configs} configurations x {n_frames} frames, noise force 0.5 N, moment 0.05 N*m, "
+        f"qd 0.01 rad/s, qdd 0.1 rad/s^2 ({time.perf_counter() - t0:.1f} s)"
+    )
+    print(
+        f"identifiable: {base.rank} of {base.n_params} parameters (base parameters such as {base.names[0]!r}); "
+        "the other directions come from the CAD prior"
+    )
+    print(f"{'method':28s} {'base err':>9s} {'std err':>9s} {'identifiable':>13s} {'physical':>9s} {'seconds':>8s}")
+    for label, settings in (
+        ("linear least squares", SolveSettings()),
+        ("weighted least squares", SolveSettings(weights="estimate")),
+        ("consistent (log-Cholesky)", SolveSettings(method="consistent", weights="estimate")),
+    ):
+        t0 = time.perf_counter()
+        res = solve_dataset(ds, settings, model=model)
+        seconds = time.perf_counter() - t0
+        ok = res.success
+        base_err = np.median(relative_error(res.base_hat[ok], res.base_true[ok]))
+        std_err = np.median(relative_error(res.theta_hat[ok], res.theta_true[ok]))
+        ident_err = np.median(relative_error(res.theta_hat[ok][:, base.identifiable], res.theta_true[ok][:, base.identifiable]))
+        physical = is_physical(res.theta_hat[ok].reshape(int(ok.sum()), -1, 10)).all(axis=-1).mean()
+        print(f"{label:28s} {base_err:9.4f} {std_err:9.4f} {ident_err:13.4f} {physical:9.0%} {seconds:8.2f}")
+    print("(median relative errors over configurations and parameters; identifiable = the 6 standard parameters")
+    print(" the data determine alone; physical = share of estimates that are rigid bodies)")
 
 
 if __name__ == "__main__":

@@ -144,3 +144,82 @@ def test_data_errors_are_one_line(run, tmp_path):
     assert "columns are for 1 joint" in line and not (tmp_path / "r.h5").exists()
     line = one_line_error(run("data", "generate", "--frames", 2, "--out", tmp_path / "nofolder" / "x.h5"))
     assert "does not exist; create it first" in line
+
+
+# -- identification -------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def small_data(tmp_path_factory):
+    from ineid.data import Combination, DatasetSpec, NoiseModel, write_dataset
+
+    import ineid
+
+    model = ineid.load_robot("sweaty-arm")
+    path = tmp_path_factory.mktemp("id") / "d.h5"
+    noise = NoiseModel.create(4, force=0.3, moment=0.03)
+    write_dataset(model, DatasetSpec(Combination("random", n_configs=12), n_frames=30, seed=2, noise=noise), path)
+    return path
+
+
+def test_identifiability_command(run, tmp_path, small_data):
+    r = run("identifiability", "sweaty-arm")
+    assert r.exit_code == 0, r.output
+    for text in ("structural rank 17", "17 identifiable combinations", "upper_arm.m + forearm.m",
+                 "forearm.Ixx - forearm.Izz", "individually identifiable (6)", "Null directions"):
+        assert text in r.output, text
+    r = run("identifiability", "sweaty-arm", "--unknown-links", "forearm", "--frames", 1)
+    assert r.exit_code == 0 and "these frames are not enough" in r.output and "use at least 2 frames" in r.output
+    r = run("identifiability", "sweaty-arm", "--data", small_data, "--config", 3)
+    assert r.exit_code == 0 and "30 frames of configuration 3" in r.output
+
+
+def test_solve_and_export(run, tmp_path, small_data):
+    out = tmp_path / "r.h5"
+    r = run("solve", small_data, "--method", "linear", "--weights", "estimate", "--configs", "0:6", "--out", out)
+    assert r.exit_code == 0, r.output
+    for text in ("6/6 configurations identified", "fitted 24 frames each, validated on 6", "held-out wrench error",
+                 "Relative error, standard parameters", "base parameters (what the data determine)",
+                 "no (prior)", "physically valid estimates"):
+        assert text in r.output, text
+    assert "exists; pass --overwrite" in one_line_error(run("solve", small_data, "--out", out))
+    out_c = tmp_path / "c.h5"
+    r = run("solve", small_data, "--method", "consistent", "--configs", "2,5", "--frames", 30, "--workers", 1,
+            "--out", out_c)
+    assert r.exit_code == 0 and "2/2 configurations identified" in r.output and "physically valid estimates: 100.0%" in r.output
+    urdf = tmp_path / "arm.urdf"
+    r = run("export-urdf", out_c, "--config", 5, "--out", urdf)
+    assert r.exit_code == 0 and urdf.is_file(), r.output
+    r = run("robot", "show", urdf)
+    assert r.exit_code == 0
+    assert "not in the results" in one_line_error(run("export-urdf", out_c, "--config", 4, "--out", tmp_path / "x.urdf"))
+    r = run("solve", small_data, "--configs", "0:zz", "--out", tmp_path / "bad.h5")
+    assert r.exit_code == 2 and "A:B[:STEP]" in r.output
+    line = one_line_error(run("solve", small_data, "--frames", 2, "--out", tmp_path / "few.h5"))
+    assert "use at least 3 frames" in line and not (tmp_path / "few.h5").exists()
+    r = run("solve", small_data, "--weights", "noise", "--configs", "0", "--out", tmp_path / "n.h5")
+    assert r.exit_code == 0 and (tmp_path / "n.h5").exists()  # the file records its noise levels
+    r = run("solve", small_data, "--sigma", 1, 1, 1, 1, 1, 1, "--out", tmp_path / "s.h5")
+    assert r.exit_code == 2 and "--sigma goes with --weights noise" in r.output
+
+
+def test_solve_recording_prints_estimates(run, tmp_path, small_data):
+    from ineid.data import load_dataset, write_recording_csv
+
+    csv = write_recording_csv(tmp_path / "rec.csv", load_dataset(small_data, configs=[4]))
+    rec = tmp_path / "rec.h5"
+    assert run("data", "import", csv, "--out", rec).exit_code == 0
+    r = run("solve", rec, "--method", "consistent", "--out", tmp_path / "rr.h5")
+    assert r.exit_code == 0, r.output
+    for text in ("1/1 configurations identified", "Estimates of configuration 0", "prior (CAD)", "Base parameters"):
+        assert text in r.output, text
+
+
+def test_study_noise_command(run, tmp_path):
+    r = run("study", "noise", "--levels", "0,1", "--frames", "10", "--configs", 6, "--methods", "linear,consistent",
+            "--workers", 1, "--out", tmp_path / "study")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "study" / "noise_study.csv").is_file() and (tmp_path / "study" / "noise_study.png").is_file()
+    assert "consistent" in r.output and "invalid" in r.output
+    lines = (tmp_path / "study" / "noise_study.csv").read_text().splitlines()
+    assert len(lines) == 1 + 2 * 1 * 2

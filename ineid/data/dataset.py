@@ -173,15 +173,16 @@ class Dataset:
         return assemble_theta(self.meta, self.theta_unknown, self.theta_known)
 
     def select(self, configs=None, frames=None) -> Dataset:
-        """A sub-dataset: ``configs`` and ``frames`` are slices, index arrays or ``None`` (all)."""
+        """A copy of some configurations and frames: slices, index arrays, integers or ``None`` (all)."""
         c = slice(None) if configs is None else ([configs] if np.ndim(configs) == 0 and not isinstance(configs, slice) else configs)
         f = slice(None) if frames is None else ([frames] if np.ndim(frames) == 0 and not isinstance(frames, slice) else frames)
 
         def pick(a, per_frame=True):
+            # always a copy: editing a selection must not change the dataset it came from
             if a is None:
                 return None
             a = a[c]
-            return a[:, f] if per_frame else a
+            return np.array(a[:, f] if per_frame else a)
 
         return Dataset(
             meta=self.meta,

@@ -1,0 +1,54 @@
+"""Classical identification: base parameters, linear, nonlinear and physically consistent.
+
+Data flow: a :class:`ineid.data.Dataset` -> stacked systems (:mod:`.systems`) -> the base
+least-squares fit (:func:`fit_base`) -> standard parameters by the null-space rule
+(:func:`linear_estimate`) or by IPOPT (:class:`NlpSolver`) -> :func:`solve_dataset`
+results -> :func:`save_results` / :func:`export_urdf`. Never imports sympy.
+"""
+
+from __future__ import annotations
+
+from ineid.identify.export import export_urdf, urdf_with_inertials
+from ineid.identify.identifiability import (
+    BaseParameters,
+    FrameAnalysis,
+    analyze_frames,
+    base_parameters,
+    base_parameters_from_regressor,
+    generic_frames,
+)
+from ineid.identify.linear import BaseFit, Estimate, fit_base, linear_estimate, standard_from_base
+from ineid.identify.nlp import NlpSolver, nlp_estimate
+from ineid.identify.results import error_summary, load_results, relative_error, save_results
+from ineid.identify.solve import METHODS, SolveResults, SolveSettings, identify_frames, solve_dataset
+from ineid.identify.systems import parameter_scales, stack, stack_casadi
+
+__all__ = [
+    "METHODS",
+    "BaseFit",
+    "BaseParameters",
+    "Estimate",
+    "FrameAnalysis",
+    "NlpSolver",
+    "SolveResults",
+    "SolveSettings",
+    "analyze_frames",
+    "base_parameters",
+    "base_parameters_from_regressor",
+    "error_summary",
+    "export_urdf",
+    "fit_base",
+    "generic_frames",
+    "identify_frames",
+    "linear_estimate",
+    "load_results",
+    "nlp_estimate",
+    "parameter_scales",
+    "relative_error",
+    "save_results",
+    "solve_dataset",
+    "stack",
+    "stack_casadi",
+    "standard_from_base",
+    "urdf_with_inertials",
+]

@@ -1,0 +1,266 @@
+"""Which combinations of the unknown parameters the base wrench determines.
+
+The stacked regressor ``W`` (6F x 10n) of generic frames has a structural rank ``r``
+that no choice of frames can raise: some directions ``n`` of parameter space give
+``W n = 0`` for every motion. With links 3 and 4 of the built-in arm unknown, ``r = 17``
+of 20: mass on the elbow axis does not feel the elbow turn, so link 4's mass, its first
+moment along the axis, and the equal pair of inertias perpendicular to the axis that such
+a line of mass carries act on the base exactly as if welded to link 3.
+
+What the data determine are ``r`` *base parameters* ``beta = B theta``. ineid picks them
+by scanning the standard parameters in chain order (earlier links first) and keeping each
+one whose regressor column is independent of those kept (Gautier 1990): the kept ones
+``theta_b`` are the base columns, the rest ``theta_d`` depend on them through
+``W_d = W_b K``, so ``W theta = W_b (theta_b + K theta_d)`` and
+
+    beta = theta_b + K theta_d      (named like "upper_arm.m + forearm.m")
+
+Each dependent parameter gives one null direction ``e_d - sum_b K_bd e_b``: a transfer of
+that parameter of a later link onto the earlier link's parameters. A standard parameter is
+individually identifiable when no null direction touches it.
+
+Ranks are taken on the regressor scaled by :func:`ineid.identify.systems.parameter_scales`
+(unit-consistent columns), with a relative tolerance on the singular values.
+
+References:
+    Gautier (1990), Numerical calculation of the base inertial parameters of robots.
+    Khalil & Dombre (2002), Modeling, identification and control of robots, ch. 12.
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+
+from ineid.identify.systems import parameter_scales, stack
+from ineid.params import param_names
+
+RANK_RTOL = 1e-9
+"""Singular values below this fraction of the largest count as zero (scaled regressor)."""
+
+STRUCTURAL_FRAMES = 200
+"""Generic frames used to find the structural base parameters."""
+
+_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def numerical_rank(singular_values: np.ndarray, rtol: float = RANK_RTOL) -> int:
+    s = np.asarray(singular_values)
+    return int(np.sum(s > rtol * s.max())) if s.size and s.max() > 0 else 0
+
+
+def _greedy_independent(w: np.ndarray, rtol: float = 1e-7) -> list[int]:
+    """Columns of ``w`` kept in order when each adds a new direction (Gram-Schmidt)."""
+    kept: list[int] = []
+    basis = np.zeros((w.shape[0], 0))
+    for j in range(w.shape[1]):
+        col = w[:, j]
+        norm = np.linalg.norm(col)
+        if norm == 0:
+            continue
+        resid = col - basis @ (basis.T @ col)
+        resid = resid - basis @ (basis.T @ resid)  # re-orthogonalize once
+        if np.linalg.norm(resid) > rtol * norm:
+            kept.append(j)
+            basis = np.column_stack([basis, resid / np.linalg.norm(resid)])
+    return kept
+
+
+@dataclass(frozen=True)
+class BaseParameters:
+    """The identifiable combinations ``beta = B theta_unknown`` and the null space.
+
+    Attributes:
+        param_names: (10 n_u,) standard parameter names, ``"<link>.<param>"``.
+        base_index: (r,) standard parameters kept as base columns.
+        dependent_index: (10 n_u - r,) the others.
+        K: (r, 10 n_u - r) ``beta = theta[base_index] + K @ theta[dependent_index]``.
+        B: (r, 10 n_u) the same map on the whole vector.
+        null_basis: (10 n_u, 10 n_u - r) one null direction per dependent parameter.
+        identifiable: (10 n_u,) bool, standard parameters the data determine alone.
+        names: (r,) readable names of the base parameters.
+        scales: (10 n_u,) parameter scales used for ranks and priors.
+    """
+
+    param_names: tuple[str, ...]
+    base_index: np.ndarray
+    dependent_index: np.ndarray
+    K: np.ndarray
+    B: np.ndarray
+    null_basis: np.ndarray
+    identifiable: np.ndarray
+    names: tuple[str, ...]
+    scales: np.ndarray
+
+    @property
+    def rank(self) -> int:
+        return len(self.base_index)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.param_names)
+
+    def null_directions(self) -> list[str]:
+        """Each null direction as text: ``"+1 forearm.m, -1 upper_arm.m, -0.22 upper_arm.mz"``."""
+        out = []
+        for k in range(self.null_basis.shape[1]):
+            v = self.null_basis[:, k]
+            terms = [f"{_coef(v[i], signed=True)} {self.param_names[i]}" for i in np.flatnonzero(v)]
+            out.append(", ".join(terms))
+        return out
+
+
+def _coef(c: float, signed: bool = False) -> str:
+    if np.isclose(abs(c), 1.0, rtol=1e-9, atol=0):
+        return ("+1" if c > 0 else "-1") if signed else ("" if c > 0 else "-")
+    return f"{c:+.4g}" if signed else f"{c:.4g}"
+
+
+def _base_name(name: str, deps: list[tuple[float, str]]) -> str:
+    text = name
+    for c, dep in deps:
+        sign = "+" if c > 0 else "-"
+        mag = abs(c)
+        text += f" {sign} {dep}" if np.isclose(mag, 1.0, rtol=1e-9, atol=0) else f" {sign} {mag:.4g}*{dep}"
+    return text
+
+
+def base_parameters_from_regressor(w: np.ndarray, names, scales: np.ndarray) -> BaseParameters:
+    """The base parameters of a stacked regressor ``w`` (rows x 10 n_u) of generic frames."""
+    w = np.asarray(w, dtype=np.float64)
+    ws = w * scales
+    sv = np.linalg.svd(ws, compute_uv=False)
+    rank = numerical_rank(sv)
+    kept = _greedy_independent(ws)
+    if len(kept) != rank:  # the scan and the SVD disagree only for ill-conditioned frames
+        kept = kept[:rank]
+    base = np.array(kept, dtype=np.int64)
+    dep = np.array([j for j in range(w.shape[1]) if j not in set(kept)], dtype=np.int64)
+    if dep.size:
+        k_scaled, *_ = np.linalg.lstsq(ws[:, base], ws[:, dep], rcond=None)
+        k = k_scaled * scales[base][:, None] / scales[dep][None, :]  # back to SI units
+        k[np.abs(k_scaled) < 1e-9] = 0.0
+    else:
+        k = np.zeros((len(base), 0))
+    n = w.shape[1]
+    b = np.zeros((len(base), n))
+    b[np.arange(len(base)), base] = 1.0
+    b[:, dep] = k
+    null = np.zeros((n, len(dep)))
+    for col, d in enumerate(dep):
+        null[d, col] = 1.0
+        null[base, col] = -k[:, col]
+    identifiable = ~np.any(np.abs(null) > 0, axis=1)
+    base_names = tuple(
+        _base_name(names[bi], [(k[row, c], names[d]) for c, d in enumerate(dep) if k[row, c] != 0])
+        for row, bi in enumerate(base)
+    )
+    return BaseParameters(
+        param_names=tuple(names),
+        base_index=base,
+        dependent_index=dep,
+        K=k,
+        B=b,
+        null_basis=null,
+        identifiable=identifiable,
+        names=base_names,
+        scales=np.asarray(scales, dtype=np.float64),
+    )
+
+
+def generic_frames(model, n_frames: int = STRUCTURAL_FRAMES, seed: int = 0):
+    """Random frames within the model's bounds: (n_frames, n_dof) x 3."""
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(model.q_lower, model.q_upper, (n_frames, model.n_dof))
+    qd = rng.uniform(-model.qd_max, model.qd_max, (n_frames, model.n_dof))
+    qdd = rng.uniform(-model.qdd_max, model.qdd_max, (n_frames, model.n_dof))
+    return q, qd, qdd
+
+
+def base_parameters(model) -> BaseParameters:
+    """The structural base parameters of ``model``'s unknown links (cached per model)."""
+    key = tuple(model.unknown_links)
+    cache = _CACHE.setdefault(model, {})
+    if key not in cache:
+        q, qd, qdd = generic_frames(model)
+        theta_known = model.theta_cad[model.known_index]
+        w, _ = stack(model, q[None], qd[None], qdd[None], np.zeros((1, len(q), 6)), theta_known)
+        scales = parameter_scales(model.theta_cad[model.unknown_index])
+        cache[key] = base_parameters_from_regressor(w[0], param_names(model.unknown_links), scales)
+    return cache[key]
+
+
+@dataclass(frozen=True)
+class FrameAnalysis:
+    """How well a set of frames determines the base parameters.
+
+    Attributes:
+        n_frames: frames analysed.
+        rank: numerical rank of their stacked regressor.
+        structural_rank: the most any frames can reach (the number of base parameters).
+        singular_values: of the scaled regressor, descending.
+        condition_number: ``s_1 / s_r`` over the identifiable part (inf when deficient).
+        min_frames: fewest leading frames that reach ``structural_rank`` (None if never).
+        undetermined: base parameters these frames leave undetermined.
+    """
+
+    n_frames: int
+    rank: int
+    structural_rank: int
+    singular_values: np.ndarray
+    condition_number: float
+    min_frames: int | None
+    undetermined: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        return self.rank == self.structural_rank
+
+    def problem(self) -> str | None:
+        """A one-line explanation of what is missing, or None when the frames suffice."""
+        if self.ok:
+            return None
+        needed = -(-self.structural_rank // 6)
+        if 6 * self.n_frames < self.structural_rank:
+            return (
+                f"{self.n_frames} frame{'s' if self.n_frames != 1 else ''} give {6 * self.n_frames} equations for "
+                f"{self.structural_rank} identifiable parameters; use at least {needed} frames (more with noise)"
+            )
+        shown = ", ".join(self.undetermined[:4]) + (", ..." if len(self.undetermined) > 4 else "")
+        return (
+            f"the frames determine only {self.rank} of the {self.structural_rank} identifiable parameters "
+            f"(undetermined: {shown}); add frames that move every joint with varied positions, velocities "
+            "and accelerations (frames at rest show only gravity)"
+        )
+
+
+def analyze_frames(model, q, qd, qdd, base: BaseParameters | None = None) -> FrameAnalysis:
+    """Rank, singular values, conditioning and missing directions of one set of frames.
+
+    Args:
+        model: the :class:`ineid.RobotModel`.
+        q, qd, qdd: (F, n_dof) frames.
+        base: the structural base parameters (default: :func:`base_parameters`).
+    """
+    base = base or base_parameters(model)
+    q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (q, qd, qdd))
+    theta_known = model.theta_cad[model.known_index]
+    w, _ = stack(model, q[None], qd[None], qdd[None], np.zeros((1, len(q), 6)), theta_known)
+    ws = w[0] * base.scales
+    sv = np.linalg.svd(ws, compute_uv=False)
+    rank = numerical_rank(sv)
+    r = base.rank
+    cond = float(sv[0] / sv[r - 1]) if rank >= r and sv[r - 1] > 0 else float("inf")
+    min_frames = None
+    for k in range(-(-r // 6), len(q) + 1):
+        if numerical_rank(np.linalg.svd(ws[: 6 * k], compute_uv=False)) >= r:
+            min_frames = k
+            break
+    undetermined: tuple[str, ...] = ()
+    if rank < r:
+        wb = ws[:, base.base_index]
+        kept = set(_greedy_independent(wb, rtol=1e-6))
+        undetermined = tuple(base.names[i] for i in range(r) if i not in kept)
+    return FrameAnalysis(len(q), rank, r, sv, cond, min_frames, undetermined)

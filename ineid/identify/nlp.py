@@ -1,0 +1,333 @@
+"""Nonlinear and physically consistent identification with IPOPT through CasADi.
+
+Both solvers minimize, over their own unknowns ``x`` per link,
+
+    f(x) = ||R (B theta(x)) - z||^2 / (r s^2)  +  lam * ||N^T ((theta(x) - theta_prior) / scale)||^2
+
+The first term is the least-squares cost of the frames, written through the base fit
+(:class:`ineid.identify.linear.BaseFit`: ``||D (W theta - y)||^2 = ||R (B theta - beta_hat)||^2
++ rss``, ``z = R beta_hat``), so its size does not grow with the number of frames and one
+compiled solver serves every configuration; ``s^2`` is the residual variance (floored for
+noise-free data at ``1e-5`` (nonlinear) or ``1e-3`` (consistent) of the data's RMS: a
+tighter floor leaves IPOPT chasing round-off near the boundary of the physical set; no
+force/torque sensor is better than 0.1 % of its signal), so one unit of cost is about one
+standard deviation of the data. The
+second is the pull towards the prior (CAD values by default): ``N`` is an orthonormal basis
+of the null space in scaled coordinates, so the pull acts only on the directions the data
+cannot see and picks, among the best fits, the one closest to the prior (the same rule as
+the linear solver). ``lam = 1e-2`` by default. The consistent solver adds
+``eps * sum_links D(J, J_prior)``, the log-det divergence of each link's scaled
+pseudo-inertia from the prior's (``eps = 1e-3``): a barrier that keeps estimates off the
+degenerate bodies at the boundary of the physical set, where noise would otherwise push
+them and where IPOPT converges slowly.
+
+* ``nonlinear`` (the paper's form): per link ``x = (m, c, I_C)``, mass, centre of mass in
+  the link frame and the six entries of the inertia about it, ``theta(x) = (m, m c,
+  I_C + m S(c)^T S(c))``; bounds ``m >= 1e-6 * scale``. Its minimizer is the linear one
+  whenever the mass bound is inactive: the parameterization changes nothing the data see.
+* ``consistent``: per link the log-Cholesky factor of the pseudo-inertia,
+  ``J = U U^T``, ``U = e^a [[e^d1, s12, s13, t1], [0, e^d2, s23, t2], [0, 0, e^d3, t3],
+  [0, 0, 0, 1]]`` (Rucker & Wensing 2022), in units scaled by the link's mass and length,
+  so every estimate has a positive definite pseudo-inertia: a rigid body, even with noise.
+
+Exact first and second derivatives come from CasADi; IPOPT's status is reported per
+configuration, and a failed solve never passes as an estimate.
+
+References:
+    Wensing, Kim, Slotine (2017), Linear matrix inequalities for physically consistent
+    inertial parameter identification. Rucker & Wensing (2022), Smooth parameterization of
+    rigid-body inertia.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ineid.errors import IdentificationError
+from ineid.identify.identifiability import BaseParameters
+from ineid.identify.linear import BaseFit, Estimate, standard_std
+from ineid.params import N_PARAMS_PER_LINK, inertial_from_theta, pseudo_inertia
+
+METHODS = ("nonlinear", "consistent")
+DEFAULT_PULL = 1e-2
+DEFAULT_ENTROPIC = 1e-3
+SIGMA_FLOOR_REL = {"nonlinear": 1e-5, "consistent": 1e-3}
+"""Noise-free data: the residual variance is floored at (this x RMS of the data)^2."""
+ACCEPTED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+
+
+def _link_lengths(scales: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    s = scales.reshape(-1, N_PARAMS_PER_LINK)
+    mass = s[:, 0]
+    return mass, s[:, 1] / mass  # first-moment scale is m*l
+
+
+def null_basis_scaled(base: BaseParameters) -> np.ndarray:
+    """Orthonormal basis (10 n_u, k) of the null space in scaled coordinates ``theta / scale``."""
+    if base.null_basis.shape[1] == 0:
+        return np.zeros((base.n_params, 0))
+    q, _ = np.linalg.qr(base.null_basis / base.scales[:, None])
+    return q
+
+
+def _theta_nonlinear(x, mass_s, length):
+    import casadi as ca  # noqa: PLC0415
+
+    out = []
+    for k in range(len(mass_s)):
+        xs = x[10 * k : 10 * k + 10]
+        m = xs[0] * mass_s[k]
+        c = xs[1:4] * length[k]
+        i_s = mass_s[k] * length[k] ** 2
+        ixx, ixy, iyy, ixz, iyz, izz = (xs[4 + j] * i_s for j in range(6))
+        cx, cy, cz = c[0], c[1], c[2]
+        out += [
+            m, m * cx, m * cy, m * cz,
+            ixx + m * (cy * cy + cz * cz),
+            ixy - m * cx * cy,
+            iyy + m * (cx * cx + cz * cz),
+            ixz - m * cx * cz,
+            iyz - m * cy * cz,
+            izz + m * (cx * cx + cy * cy),
+        ]  # fmt: skip
+    return ca.vertcat(*out)
+
+
+def _log_cholesky_factor(x, k):
+    import casadi as ca  # noqa: PLC0415
+
+    a, d1, d2, d3, s12, s23, s13, t1, t2, t3 = (x[10 * k + j] for j in range(10))
+    u = ca.SX.zeros(4, 4)
+    u[0, 0], u[1, 1], u[2, 2], u[3, 3] = ca.exp(d1), ca.exp(d2), ca.exp(d3), 1
+    u[0, 1], u[1, 2], u[0, 2] = s12, s23, s13
+    u[0, 3], u[1, 3], u[2, 3] = t1, t2, t3
+    return ca.exp(a) * u, 2 * (4 * a + d1 + d2 + d3)  # U, log det(U U^T)
+
+
+def _entropic(x, prior_j_inv: list[np.ndarray]):
+    """sum over links of tr(Jp^-1 J) - log det(Jp^-1 J) - 4 (scaled units; zero at the prior)."""
+    import casadi as ca  # noqa: PLC0415
+
+    total = 0
+    for k, jp_inv in enumerate(prior_j_inv):
+        u, logdet = _log_cholesky_factor(x, k)
+        j = ca.mtimes(u, u.T)
+        total += ca.trace(ca.mtimes(ca.DM(jp_inv), j)) - logdet - float(np.linalg.slogdet(jp_inv)[1]) - 4
+    return total
+
+
+def _theta_log_cholesky(x, mass_s, length):
+    import casadi as ca  # noqa: PLC0415
+
+    out = []
+    for k in range(len(mass_s)):
+        u, _ = _log_cholesky_factor(x, k)
+        j = ca.mtimes(u, u.T)
+        m = j[3, 3] * mass_s[k]
+        h = j[0:3, 3] * mass_s[k] * length[k]
+        sigma = j[0:3, 0:3] * mass_s[k] * length[k] ** 2
+        tr = sigma[0, 0] + sigma[1, 1] + sigma[2, 2]
+        out += [
+            m, h[0], h[1], h[2],
+            tr - sigma[0, 0], -sigma[0, 1], tr - sigma[1, 1], -sigma[0, 2], -sigma[1, 2], tr - sigma[2, 2],
+        ]  # fmt: skip
+    return ca.vertcat(*out)
+
+
+def scaled_pseudo_inertia(theta: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """Pseudo-inertias (n_u, 4, 4) in each link's mass and length units."""
+    mass_s, length = _link_lengths(scales)
+    out = []
+    for k, t in enumerate(np.asarray(theta, dtype=np.float64).reshape(-1, 10)):
+        d = np.array([1 / length[k]] * 3 + [1.0])
+        out.append(d[:, None] * pseudo_inertia(t) * d[None, :] / mass_s[k])
+    return np.array(out)
+
+
+def nonlinear_start(theta: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """Scaled ``(m, c, I_C)`` unknowns of the nonlinear form from parameters (10 n_u,)."""
+    mass_s, length = _link_lengths(scales)
+    x = []
+    for k, t in enumerate(np.asarray(theta, dtype=np.float64).reshape(-1, 10)):
+        m, c, ic = inertial_from_theta(t)
+        i_s = mass_s[k] * length[k] ** 2
+        x += [m / mass_s[k], *(c / length[k]), *(ic[[0, 0, 1, 0, 1, 2], [0, 1, 1, 2, 2, 2]] / i_s)]
+    return np.array(x)
+
+
+def log_cholesky_start(theta: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """Log-Cholesky unknowns from physically valid parameters (10 n_u,); inverse of the map."""
+    x = []
+    for j in scaled_pseudo_inertia(theta, scales):
+        p = np.eye(4)[::-1]
+        try:
+            lower = np.linalg.cholesky(p @ j @ p)
+        except np.linalg.LinAlgError:
+            raise IdentificationError(
+                "the start of the consistent solver is not a rigid body (pseudo-inertia not positive definite); "
+                "start from physically valid parameters",
+                status="invalid_start",
+            ) from None
+        u = p @ lower @ p  # upper triangular, J = U U^T
+        ea = u[3, 3]
+        u = u / ea
+        x += [np.log(ea), np.log(u[0, 0]), np.log(u[1, 1]), np.log(u[2, 2]), u[0, 1], u[1, 2], u[0, 2], *u[0:3, 3]]
+    return np.array(x)
+
+
+@dataclass
+class NlpSolver:
+    """A compiled IPOPT problem for one base structure, method and prior; reused for every fit.
+
+    Its parameters are the per-configuration data ``(R, z, 1/s^2)``; the prior is fixed
+    when it is built.
+    """
+
+    method: str
+    base: BaseParameters
+    theta_prior: np.ndarray
+    pull: float
+    entropic: float
+    solver: object
+    theta_fn: object
+
+    @property
+    def n_params(self) -> int:
+        return self.base.n_params
+
+    @classmethod
+    def build(
+        cls,
+        method: str,
+        base: BaseParameters,
+        theta_prior: np.ndarray,
+        pull: float = DEFAULT_PULL,
+        entropic: float = DEFAULT_ENTROPIC,
+        ipopt_options: dict | None = None,
+    ) -> NlpSolver:
+        """Compile the problem (a fraction of a second).
+
+        Args:
+            method: ``"nonlinear"`` or ``"consistent"``.
+            base: the base parameters of the unknown links.
+            theta_prior: (10 n_u,) the prior (CAD values by default upstream).
+            pull: weight of the quadratic pull of the null-space part towards the prior.
+            entropic: ``consistent`` only: weight of the log-det divergence
+                ``tr(Jp^-1 J) - log det(Jp^-1 J) - 4`` of each link's scaled pseudo-inertia
+                from the prior's; a barrier that keeps estimates off degenerate bodies
+                (Lee & Wensing 2019). Zero disables it.
+            ipopt_options: extra IPOPT options (``{"max_iter": 1000}``).
+        """
+        import casadi as ca  # noqa: PLC0415
+
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        if not pull > 0 or not entropic >= 0:
+            raise ValueError(f"pull must be > 0 and entropic >= 0, got {pull} and {entropic}")
+        prior = np.asarray(theta_prior, dtype=np.float64)
+        if prior.shape != (base.n_params,) or not np.all(np.isfinite(prior)):
+            raise ValueError(f"theta_prior must be {base.n_params} finite numbers, got shape {prior.shape}")
+        n, r = base.n_params, base.rank
+        mass_s, length = _link_lengths(base.scales)
+        x = ca.SX.sym("x", n)
+        theta = (_theta_nonlinear if method == "nonlinear" else _theta_log_cholesky)(x, mass_s, length)
+        rp = ca.SX.sym("R", r, r)
+        zp = ca.SX.sym("z", r)
+        inv_s2 = ca.SX.sym("inv_sigma2")
+        nb = null_basis_scaled(base)
+        f = ca.sumsqr(ca.mtimes(rp, ca.mtimes(ca.DM(base.B), theta)) - zp) * inv_s2 / r
+        if nb.shape[1]:
+            phi = theta / ca.DM(base.scales)
+            f += pull * ca.sumsqr(ca.mtimes(ca.DM(nb.T), phi - ca.DM(prior / base.scales)))
+        if method == "consistent" and entropic > 0:
+            try:
+                jp_inv = [np.linalg.inv(j) for j in scaled_pseudo_inertia(prior, base.scales)]
+                log_cholesky_start(prior, base.scales)
+            except (np.linalg.LinAlgError, IdentificationError):
+                raise IdentificationError(
+                    "the prior of the consistent solver is not a rigid body; give physically valid prior parameters",
+                    status="invalid_prior",
+                ) from None
+            f += entropic * _entropic(x, jp_inv)
+        p = ca.vertcat(ca.vec(rp), zp, inv_s2)
+        opts = {
+            "ipopt.print_level": 0,
+            "ipopt.sb": "yes",
+            "print_time": False,
+            "show_eval_warnings": False,  # IPOPT backs off from a trial point with inf; no noise
+            "ipopt.tol": 1e-8,
+            "ipopt.acceptable_tol": 1e-5,
+            "ipopt.max_iter": 500,
+        }
+        opts.update({f"ipopt.{k}": v for k, v in (ipopt_options or {}).items()})
+        solver = ca.nlpsol(f"ineid_{method}", "ipopt", {"x": x, "p": p, "f": f}, opts)
+        theta_fn = ca.Function("theta", [x], [theta])
+        return cls(method, base, prior, pull, entropic, solver, theta_fn)
+
+    def start(self, theta: np.ndarray) -> np.ndarray:
+        return (nonlinear_start if self.method == "nonlinear" else log_cholesky_start)(theta, self.base.scales)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lb, ub = np.full(self.n_params, -np.inf), np.full(self.n_params, np.inf)
+        if self.method == "nonlinear":
+            lb[0::10] = 1e-6  # positive mass, in units of the link's mass scale
+        return lb, ub
+
+    def solve_one(
+        self, r_factor: np.ndarray, beta_hat: np.ndarray, sigma2: float, data_rms: float, theta_start: np.ndarray
+    ) -> tuple[np.ndarray, bool, str, int]:
+        """One configuration: ``(theta, success, IPOPT status, iterations)``."""
+        s2 = max(float(sigma2), (SIGMA_FLOOR_REL[self.method] * max(float(data_rms), 1e-300)) ** 2)
+        p = np.concatenate([r_factor.ravel(order="F"), r_factor @ beta_hat, [1.0 / s2]])
+        lb, ub = self.bounds()
+        x0 = np.clip(self.start(theta_start), lb, ub)
+        sol = self.solver(x0=x0, p=p, lbx=lb, ubx=ub)
+        stats = self.solver.stats()
+        status = str(stats.get("return_status", "unknown"))
+        theta = np.array(self.theta_fn(sol["x"])).ravel()
+        ok = status in ACCEPTED and bool(np.all(np.isfinite(theta)))
+        return theta, ok, status, int(stats.get("iter_count", -1))
+
+
+def nlp_estimate(
+    fit: BaseFit,
+    solver: NlpSolver,
+    data_rms: np.ndarray,
+    theta_start: np.ndarray | None = None,
+    progress=None,
+) -> Estimate:
+    """Nonlinear or consistent estimates of a batch from its base fit.
+
+    Args:
+        fit: the base least-squares fit of every configuration.
+        solver: the compiled problem (method, base parameters, prior).
+        data_rms: (C,) RMS of the weighted data, for the noise-free floor of the variance.
+        theta_start: start, (10 n_u,) or (C, 10 n_u); default the prior.
+        progress: ``progress(done, total)``.
+    """
+    base = solver.base
+    c = fit.beta.shape[0]
+    start = solver.theta_prior if theta_start is None else theta_start
+    start = np.broadcast_to(np.asarray(start, dtype=np.float64), (c, base.n_params))
+    theta = np.full((c, base.n_params), np.nan)
+    success = np.zeros(c, dtype=bool)
+    status = np.empty(c, dtype=object)
+    for i in range(c):
+        if not fit.full_rank[i]:
+            status[i] = f"rank_deficient ({fit.rank[i]} of {base.rank})"
+        else:
+            th, ok, st, _ = solver.solve_one(fit.R[i], fit.beta[i], fit.sigma2[i], data_rms[i], start[i])
+            status[i] = "ok" if ok else st
+            success[i] = ok
+            if ok:
+                theta[i] = th
+        if progress is not None:
+            progress(i + 1, c)
+    beta = theta @ base.B.T
+    std = standard_std(np.nan_to_num(fit.cov_beta), base)
+    std[~success] = np.nan
+    beta_std = np.sqrt(np.maximum(np.diagonal(np.nan_to_num(fit.cov_beta), axis1=1, axis2=2), 0.0))
+    beta_std[~success] = np.nan
+    return Estimate(theta, std, beta, beta_std, success, status, fit)

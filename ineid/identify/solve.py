@@ -1,0 +1,451 @@
+"""Solve every selected configuration of a dataset: the engine behind ``ineid solve``.
+
+Per configuration the first ``K`` frames are fitted; the remaining frames (if any) are
+held out and the estimate's wrench prediction error on them is reported. All methods
+share the base least-squares fit (:func:`ineid.identify.linear.fit_base`), computed in
+batches; ``nonlinear`` and ``consistent`` then run IPOPT per configuration, in worker
+processes when there are many.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ineid.errors import IdentificationError
+from ineid.identify.identifiability import BaseParameters, base_parameters
+from ineid.identify.linear import WEIGHT_MODES, BaseFit, Estimate, fit_base, fit_base_casadi, linear_estimate
+from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL, NlpSolver, nlp_estimate
+from ineid.identify.systems import check_frames, iter_stacks, predict_wrench, stack_casadi
+
+METHODS = ("linear", "nonlinear", "consistent")
+HOLDOUT_FRACTION = 0.2
+"""Without ``frames``, this share of each configuration's frames is held out for validation."""
+PARALLEL_MIN_CONFIGS = 256
+"""Fewer configurations are solved in this process: starting workers costs about a second."""
+
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class SolveSettings:
+    """How to identify.
+
+    Attributes:
+        method: ``"linear"``, ``"nonlinear"`` (the paper's mass / centre of mass / inertia
+            form) or ``"consistent"`` (log-Cholesky, always physical).
+        frames: frames fitted per configuration (the first ``frames``); the rest are held
+            out for validation. ``None``: all but the last 20 % (all, when too few).
+        weights: ``"none"``, ``"noise"`` (``1/sigma`` per wrench axis from ``axis_sigma``, or
+            from the dataset's recorded noise) or ``"estimate"`` (from the residuals).
+        axis_sigma: (6,) wrench noise standard deviations for ``weights="noise"``.
+        start: IPOPT start, ``"prior"`` (the CAD values) or ``"linear"`` (the linear
+            estimate, made physical for ``consistent`` if needed).
+        pull, entropic: prior weights of the IPOPT solvers (see :mod:`ineid.identify.nlp`).
+        backend: ``"jax"`` (batched regressors and QR) or ``"casadi"`` (per configuration,
+            the generated CasADi function and CasADi's QR); linear method only.
+        workers: processes for the IPOPT solvers (default 1). More than one uses spawned
+            processes (multiprocessing): call from under ``if __name__ == "__main__":``.
+    """
+
+    method: str = "linear"
+    frames: int | None = None
+    weights: str = "none"
+    axis_sigma: tuple[float, ...] | None = None
+    start: str = "prior"
+    pull: float = DEFAULT_PULL
+    entropic: float = DEFAULT_ENTROPIC
+    backend: str = "jax"
+    workers: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.weights not in WEIGHT_MODES:
+            raise ValueError(f"weights must be one of {', '.join(WEIGHT_MODES)}, got {self.weights!r}")
+        if self.start not in ("prior", "linear"):
+            raise ValueError(f"start must be 'prior' or 'linear', got {self.start!r}")
+        if self.backend not in ("jax", "casadi"):
+            raise ValueError(f"backend must be 'jax' or 'casadi', got {self.backend!r}")
+        if self.backend == "casadi" and self.method != "linear":
+            raise ValueError("backend='casadi' applies to the linear method")
+        if self.frames is not None and self.frames < 1:
+            raise ValueError(f"frames must be >= 1, got {self.frames}")
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["axis_sigma"] = None if self.axis_sigma is None else list(self.axis_sigma)
+        return d
+
+
+@dataclass
+class SolveResults:
+    """Estimates of the selected configurations of one dataset (see ``docs/identification.md``).
+
+    Arrays have one row per solved configuration, in selection order.
+    """
+
+    settings: SolveSettings
+    base: BaseParameters
+    param_names: tuple[str, ...]
+    config_index: np.ndarray
+    theta_hat: np.ndarray
+    theta_std: np.ndarray
+    base_hat: np.ndarray
+    base_std: np.ndarray
+    success: np.ndarray
+    status: np.ndarray
+    seconds: np.ndarray
+    fit_rms: np.ndarray
+    validation_rms: np.ndarray
+    validation_rel: np.ndarray
+    n_frames_fit: int
+    n_frames_validation: int
+    theta_prior: np.ndarray
+    theta_true: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def base_true(self) -> np.ndarray | None:
+        return None if self.theta_true is None else self.theta_true @ self.base.B.T
+
+    @property
+    def n(self) -> int:
+        return len(self.config_index)
+
+
+def _frame_split(n_frames: int, frames: int | None, rank: int) -> tuple[int, int]:
+    if frames is not None:
+        if frames > n_frames:
+            raise IdentificationError(
+                f"--frames {frames} but the dataset has {n_frames} frames per configuration; use at most {n_frames}",
+                status="too_many_frames",
+            )
+        check_frames(frames, rank)
+        return frames, n_frames - frames
+    held = int(HOLDOUT_FRACTION * n_frames)
+    fit = n_frames - held
+    if 6 * fit < 2 * rank:  # too few to spare any: fit them all
+        fit, held = n_frames, 0
+    check_frames(fit, rank)
+    return fit, held
+
+
+def _axis_sigma(ds, settings: SolveSettings) -> np.ndarray | None:
+    if settings.weights != "noise":
+        return None
+    if settings.axis_sigma is not None:
+        return np.asarray(settings.axis_sigma, dtype=np.float64)
+    recorded = (ds.meta.noise or {}).get("wrench")
+    if recorded is None or not np.all(np.asarray(recorded) > 0):
+        raise IdentificationError(
+            "weights='noise' needs the wrench noise per axis: give axis_sigma (--sigma FX FY FZ MX MY MZ) "
+            "or use weights='estimate'",
+            status="no_noise_levels",
+        )
+    return np.asarray(recorded, dtype=np.float64)
+
+
+def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, progress: Progress | None = None) -> SolveResults:
+    """Identify the unknown links of every configuration in ``ds``.
+
+    Args:
+        ds: a :class:`ineid.data.Dataset` (select configurations beforehand).
+        settings: method and options.
+        model: the dataset's :class:`ineid.RobotModel` (default: rebuilt from the file).
+        progress: ``progress(done, total)`` over configurations.
+
+    Raises:
+        IdentificationError: too few frames for the identifiable parameters, or noise
+            weights without noise levels. Per-configuration failures (rank-deficient frames,
+            IPOPT not converging) do not raise: they are recorded in ``success`` and ``status``.
+    """
+    model = model or ds.model()
+    base = base_parameters(model)
+    prior = np.asarray(model.theta_cad[model.unknown_index], dtype=np.float64)
+    n_fit, n_val = _frame_split(ds.n_frames, settings.frames, base.rank)
+    axis_sigma = _axis_sigma(ds, settings)
+    c = ds.n_configs
+    fit_sl, val_sl = slice(0, n_fit), slice(n_fit, n_fit + n_val)
+    t_start = time.perf_counter()
+
+    # 1. base least squares, batched (or per configuration through CasADi)
+    fits: list[BaseFit] = []
+    rms = np.empty(c)
+    seconds = np.zeros(c)
+    done = 0
+    if settings.backend == "casadi":
+        fits, rms, seconds = _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress)
+        fit = _concat_fits(fits)
+    else:
+        for sl, w, y in iter_stacks(model, ds.q[:, fit_sl], ds.qd[:, fit_sl], ds.qdd[:, fit_sl],
+                                    ds.wrench[:, fit_sl], ds.theta_known):
+            t0 = time.perf_counter()
+            f = fit_base(w, y, base, settings.weights, axis_sigma)
+            fits.append(f)
+            rows = np.tile(f.axis_weights, (1, y.shape[1] // 6))
+            rms[sl] = np.sqrt(np.mean((y * rows) ** 2, axis=1))
+            seconds[sl] = (time.perf_counter() - t0) / (sl.stop - sl.start)
+            done = sl.stop
+            if progress is not None and settings.method == "linear":
+                progress(done, c)
+        fit = _concat_fits(fits)
+
+    # 2. standard parameters
+    lin = linear_estimate(fit, base, prior)
+    if settings.method == "linear":
+        est = lin
+    else:
+        start = prior if settings.start == "prior" else _physical_start(lin.theta, prior, settings.method)
+        est, nlp_seconds = _run_nlp(fit, base, settings, prior, rms, start, progress)
+        seconds = seconds + nlp_seconds
+
+    # 3. residuals on the fitted and on the held-out frames
+    fit_rms = _wrench_rms(model, ds, fit_sl, est.theta)
+    if n_val:
+        val_rms = _wrench_rms(model, ds, val_sl, est.theta)
+        val_rel = _wrench_rel(model, ds, val_sl, est.theta)
+    else:
+        val_rms = np.full((c, 6), np.nan)
+        val_rel = np.full(c, np.nan)
+    meta = {
+        "robot": ds.meta.robot,
+        "source": ds.meta.source,
+        "urdf": ds.meta.urdf,
+        "unknown_links": list(ds.meta.unknown_links),
+        "gravity": np.asarray(ds.meta.gravity).tolist(),
+        "locked_joints": ds.meta.locked_joints,
+        "total_seconds": time.perf_counter() - t_start,
+    }
+    return SolveResults(
+        settings=settings,
+        base=base,
+        param_names=tuple(base.param_names),
+        config_index=np.asarray(ds.config_index, dtype=np.int64),
+        theta_hat=est.theta,
+        theta_std=est.theta_std,
+        base_hat=est.beta,
+        base_std=est.beta_std,
+        success=est.success,
+        status=np.asarray(est.status, dtype=object),
+        seconds=seconds,
+        fit_rms=fit_rms,
+        validation_rms=val_rms,
+        validation_rel=val_rel,
+        n_frames_fit=n_fit,
+        n_frames_validation=n_val,
+        theta_prior=prior,
+        theta_true=None if ds.theta_unknown is None else np.asarray(ds.theta_unknown),
+        meta=meta,
+    )
+
+
+def _concat_fits(fits: list[BaseFit]) -> BaseFit:
+    if len(fits) == 1:
+        return fits[0]
+    cat = {f.name: np.concatenate([getattr(x, f.name) for x in fits]) for f in dataclasses.fields(BaseFit) if f.name != "dof"}
+    return BaseFit(dof=fits[0].dof, **cat)
+
+
+def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress):
+    """The linear fit through CasADi, one configuration at a time (an independent route)."""
+    fits, rms, seconds = [], np.empty(ds.n_configs), np.zeros(ds.n_configs)
+    for i in range(ds.n_configs):
+        t0 = time.perf_counter()
+        w, y = stack_casadi(model, ds.q[i, fit_sl], ds.qd[i, fit_sl], ds.qdd[i, fit_sl], ds.wrench[i, fit_sl],
+                            ds.theta_known)
+        f = fit_base(w[None], y[None], base, settings.weights, axis_sigma)
+        beta = fit_base_casadi(w, y, base, f.axis_weights[0])
+        if f.full_rank[0]:
+            f.beta[0] = beta
+        fits.append(f)
+        rows = np.tile(f.axis_weights[0], y.shape[0] // 6)
+        rms[i] = np.sqrt(np.mean((y * rows) ** 2))
+        seconds[i] = time.perf_counter() - t0
+        if progress is not None:
+            progress(i + 1, ds.n_configs)
+    return fits, rms, seconds
+
+
+def _physical_start(theta_lin: np.ndarray, prior: np.ndarray, method: str) -> np.ndarray:
+    """Linear estimates as IPOPT starts, moved towards the prior until they are rigid bodies.
+
+    Per configuration, ``prior + t (theta_lin - prior)`` with the largest ``t`` in
+    ``1, 1/2, 1/4, ..., 0`` whose links all have a well-conditioned pseudo-inertia (smallest
+    eigenvalue at least 1e-3 of the largest). The prior itself must be physical.
+    """
+    from ineid.params import pseudo_inertia  # noqa: PLC0415
+
+    lin = np.where(np.isfinite(theta_lin), theta_lin, prior)
+    c = len(lin)
+    start = np.broadcast_to(prior, lin.shape).copy()
+    pending = np.ones(c, dtype=bool)
+    for t in (1.0, 0.5, 0.25, 0.125, 0.0625):
+        cand = prior + t * (lin - prior)
+        w = np.linalg.eigvalsh(pseudo_inertia(cand.reshape(c, -1, 10)))
+        good = np.all(w[..., 0] >= 1e-3 * w[..., -1], axis=-1) & pending
+        start[good] = cand[good]
+        pending &= ~good
+    return start
+
+
+def _nlp_worker_init(method, base, prior, pull, entropic):
+    global _WORKER_SOLVER  # noqa: PLW0603 - one compiled solver per worker process
+    _WORKER_SOLVER = NlpSolver.build(method, base, prior, pull, entropic)
+
+
+def _nlp_worker(args):
+    r, beta, sigma2, rms, start, full_rank = args
+    out = []
+    for i in range(len(r)):
+        t0 = time.perf_counter()
+        if not full_rank[i]:
+            out.append((None, False, None, time.perf_counter() - t0))
+            continue
+        th, ok, status, _ = _WORKER_SOLVER.solve_one(r[i], beta[i], sigma2[i], rms[i], start[i])
+        out.append((th, ok, status, time.perf_counter() - t0))
+    return out
+
+
+def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate, np.ndarray]:
+    c = fit.beta.shape[0]
+    start = np.broadcast_to(start, (c, base.n_params))
+    workers = settings.workers or 1
+    seconds = np.zeros(c)
+    if workers <= 1 or c < PARALLEL_MIN_CONFIGS:
+        solver = NlpSolver.build(settings.method, base, prior, settings.pull, settings.entropic)
+        t = [time.perf_counter()]
+
+        def timed(done, total):
+            now = time.perf_counter()
+            seconds[done - 1] = now - t[0]
+            t[0] = now
+            if progress is not None:
+                progress(done, total)
+
+        est = nlp_estimate(fit, solver, rms, start, progress=timed)
+        return est, seconds
+    import multiprocessing as mp  # noqa: PLC0415
+    from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
+
+    from ineid.identify.linear import standard_std  # noqa: PLC0415
+
+    block = max(8, min(256, c // (4 * workers)))
+    jobs = [
+        (fit.R[i:i + block], fit.beta[i:i + block], fit.sigma2[i:i + block], rms[i:i + block], start[i:i + block],
+         fit.full_rank[i:i + block])
+        for i in range(0, c, block)
+    ]  # fmt: skip
+    theta = np.full((c, base.n_params), np.nan)
+    success = np.zeros(c, dtype=bool)
+    status = np.empty(c, dtype=object)
+    ctx = mp.get_context("spawn")  # JAX's threads and fork do not mix
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_nlp_worker_init,
+                             initargs=(settings.method, base, prior, settings.pull, settings.entropic)) as pool:
+        done = 0
+        for j, out in enumerate(pool.map(_nlp_worker, jobs)):
+            for k, (th, ok, st, sec) in enumerate(out):
+                i = j * block + k
+                seconds[i] = sec
+                if th is None:
+                    status[i] = f"rank_deficient ({fit.rank[i]} of {base.rank})"
+                    continue
+                success[i] = ok
+                status[i] = "ok" if ok else st
+                if ok:
+                    theta[i] = th
+            done += len(out)
+            if progress is not None:
+                progress(done, c)
+    beta = theta @ base.B.T
+    std = standard_std(np.nan_to_num(fit.cov_beta), base)
+    std[~success] = np.nan
+    beta_std = np.sqrt(np.maximum(np.diagonal(np.nan_to_num(fit.cov_beta), axis1=1, axis2=2), 0.0))
+    beta_std[~success] = np.nan
+    return Estimate(theta, std, beta, beta_std, success, status, fit), seconds
+
+
+def _predicted(model, ds, sl, theta_u):
+    theta = np.empty((ds.n_configs, 10 * model.n_links))
+    theta[:, model.unknown_index] = np.nan_to_num(theta_u)
+    theta[:, model.known_index] = ds.theta_known
+    w = predict_wrench(model, ds.q[:, sl], ds.qd[:, sl], ds.qdd[:, sl], theta)
+    return w, ds.wrench[:, sl]
+
+
+def _wrench_rms(model, ds, sl, theta_u) -> np.ndarray:
+    """(C, 6) RMS of measured minus predicted wrench per axis (N, N*m)."""
+    w, meas = _predicted(model, ds, sl, theta_u)
+    out = np.sqrt(np.mean((meas - w) ** 2, axis=1))
+    out[~np.all(np.isfinite(theta_u), axis=1)] = np.nan
+    return out
+
+
+def _wrench_rel(model, ds, sl, theta_u) -> np.ndarray:
+    """(C,) ||measured - predicted|| / ||measured|| over the frames (all axes)."""
+    w, meas = _predicted(model, ds, sl, theta_u)
+    out = np.linalg.norm((meas - w).reshape(len(w), -1), axis=1) / np.linalg.norm(meas.reshape(len(w), -1), axis=1)
+    out[~np.all(np.isfinite(theta_u), axis=1)] = np.nan
+    return out
+
+
+def identify_frames(
+    model,
+    q,
+    qd,
+    qdd,
+    wrench,
+    method: str = "linear",
+    weights: str = "none",
+    axis_sigma=None,
+    start: str = "prior",
+) -> SolveResults:
+    """Identify the unknown links from one set of frames (a recording); all frames are fitted.
+
+    Args:
+        model: the :class:`ineid.RobotModel` (unknown links, gravity, CAD prior).
+        q, qd, qdd: (F, n_dof); wrench: (F, 6), the sensor reading in ineid's convention.
+        method, weights, axis_sigma, start: as in :class:`SolveSettings`.
+
+    Returns:
+        One-row :class:`SolveResults` (``theta_hat[0]``, ``theta_std[0]``, ``base_hat[0]``, ...).
+
+    Raises:
+        IdentificationError: too few frames, frames that do not determine the base
+            parameters (with what is missing), or an IPOPT failure (``.status`` holds
+            IPOPT's return status).
+    """
+    from ineid.data.dataset import Dataset, DatasetMeta  # noqa: PLC0415
+    from ineid.identify.identifiability import analyze_frames  # noqa: PLC0415
+
+    arrays = [np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench)]
+    for label, a, width in zip(("q", "qd", "qdd", "wrench"), arrays, (model.n_dof,) * 3 + (6,), strict=True):
+        if a.ndim != 2 or a.shape[1] != width or len(a) != len(arrays[0]):
+            raise ValueError(f"{label} must have shape (n_frames, {width}), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise IdentificationError(f"{label} holds NaN or infinite values; drop or repair those frames",
+                                      status="non_finite")
+    base = base_parameters(model)
+    check_frames(len(arrays[0]), base.rank)
+    analysis = analyze_frames(model, *arrays[:3], base)
+    if not analysis.ok:
+        raise IdentificationError(analysis.problem(), status="rank_deficient")
+    meta = DatasetMeta.for_model(model, source="recording")
+    ds = Dataset(meta, *(a[None] for a in arrays), theta_known=model.theta_cad[model.known_index])
+    res = solve_dataset(
+        ds,
+        SolveSettings(method=method, frames=len(arrays[0]), weights=weights,
+                      axis_sigma=None if axis_sigma is None else tuple(axis_sigma), start=start),
+        model=model,
+    )  # fmt: skip
+    if not res.success[0]:
+        raise IdentificationError(
+            f"the {method} solver failed ({res.status[0]}); try --start linear, more frames, or the linear method",
+            status=str(res.status[0]),
+        )
+    return res

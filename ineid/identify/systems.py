@@ -1,0 +1,168 @@
+"""Stacked linear systems ``W theta_unknown = y`` of frames, and the parameter scales.
+
+For one configuration with frames ``k = 1..F`` the base wrench is
+``w_k = Psi_u(s_k) theta_u + Psi_k(s_k) theta_k`` (unknown and known links), so
+
+    W = [Psi_u(s_1); ...; Psi_u(s_F)]            (6F, 10 n_unknown)
+    y = [w_1 - Psi_k(s_1) theta_k; ...]          (6F,)
+
+with rows in frame-major order (frame 1's ``fx..mz``, then frame 2's, ...). Regressors
+come from the generated JAX code, batched over configurations and chunked to bound
+memory; the CasADi path (:func:`stack_casadi`) evaluates the generated CasADi function
+instead, as an independent route.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Iterator
+
+import numpy as np
+
+from ineid.errors import IdentificationError
+from ineid.params import N_PARAMS_PER_LINK
+
+
+def parameter_scales(theta_cad_unknown: np.ndarray) -> np.ndarray:
+    """Typical magnitude of each unknown parameter, from the CAD values (same units).
+
+    Per link: mass ``m``; first moments ``m l``; inertias ``m l^2``, with
+    ``l^2 = tr(Sigma_O) / m = tr(I_O) / (2 m)`` the mean squared distance of the mass from
+    the link origin. Used to make solvers unit-consistent: the null-space rule and the
+    prior pull measure ``(theta - theta_prior) / scale``.
+
+    Args:
+        theta_cad_unknown: (10 * n_unknown,).
+
+    Returns:
+        (10 * n_unknown,) positive scales.
+    """
+    cad = np.asarray(theta_cad_unknown, dtype=np.float64).reshape(-1, N_PARAMS_PER_LINK)
+    m = np.abs(cad[:, 0])
+    trace = cad[:, 4] + cad[:, 6] + cad[:, 9]
+    length = np.sqrt(np.maximum(trace, 1e-12) / (2.0 * np.maximum(m, 1e-12)))
+    scales = np.empty_like(cad)
+    scales[:, 0] = m
+    scales[:, 1:4] = (m * length)[:, None]
+    scales[:, 4:10] = (m * length**2)[:, None]
+    return np.maximum(scales, 1e-12).ravel()
+
+
+def known_wrench(model, q, qd, qdd, theta_known) -> np.ndarray:
+    """``Psi_k(q, qd, qdd) @ theta_known``: the known links' share of the wrench, (..., 6)."""
+    theta = np.zeros(10 * model.n_links)
+    theta[model.known_index] = theta_known
+    return np.asarray(model.base_wrench(q, qd, qdd, theta))
+
+
+EVAL_CHUNK = 4096
+"""Frames per evaluation of the generated regressor: one compiled shape serves every call."""
+
+
+@functools.lru_cache(maxsize=None)
+def _split_fn(jax_regressor, unknown: tuple[int, ...], known: tuple[int, ...]):
+    """Jitted ``(Psi_u, Psi_k @ theta_known)``; cached per generated module and link split,
+    so every model of the same robot shares one compilation."""
+    import jax  # noqa: PLC0415
+
+    u, k = np.asarray(unknown, dtype=np.int64), np.asarray(known, dtype=np.int64)
+
+    def fn(q, qd, qdd, gravity, theta_known):
+        y = jax_regressor(q, qd, qdd, gravity)
+        return y[..., u], y[..., k] @ theta_known
+
+    return jax.jit(fn)
+
+
+@functools.lru_cache(maxsize=None)
+def _wrench_fn(jax_base_wrench):
+    import jax  # noqa: PLC0415
+
+    return jax.jit(jax_base_wrench)
+
+
+def _compiled(model, name: str):
+    gravity = np.asarray(model.gravity, dtype=np.float64)
+    if name == "split":
+        fn = _split_fn(model.jax_regressor, tuple(model.unknown_index.tolist()), tuple(model.known_index.tolist()))
+        return lambda q, qd, qdd, theta_known: fn(q, qd, qdd, gravity, theta_known)
+    fn = _wrench_fn(model.jax_base_wrench)
+    return lambda q, qd, qdd, theta: fn(q, qd, qdd, gravity, theta)
+
+
+def _chunked(fn, frames: list[np.ndarray], extra) -> list[np.ndarray]:
+    """Apply ``fn(*frames_chunk, extra)`` over (N, .) frames in padded chunks of EVAL_CHUNK."""
+    n = frames[0].shape[0]
+    outs: list[list[np.ndarray]] = []
+    for start in range(0, n, EVAL_CHUNK):
+        stop = min(start + EVAL_CHUNK, n)
+        part = [a[start:stop] for a in frames]
+        if stop - start < EVAL_CHUNK:
+            part = [np.concatenate([a, np.zeros((EVAL_CHUNK - len(a),) + a.shape[1:])]) for a in part]
+        res = fn(*part, extra)
+        res = res if isinstance(res, tuple) else (res,)
+        outs.append([np.asarray(r)[: stop - start] for r in res])
+    return [np.concatenate([o[k] for o in outs]) for k in range(len(outs[0]))]
+
+
+def stack(model, q, qd, qdd, wrench, theta_known) -> tuple[np.ndarray, np.ndarray]:
+    """``(W, y)`` of each configuration: (C, 6F, 10 n_unknown) and (C, 6F).
+
+    Args:
+        model: the :class:`ineid.RobotModel` (its unknown links define the columns).
+        q, qd, qdd: (C, F, n_dof).
+        wrench: (C, F, 6) measured.
+        theta_known: (10 n_known,) the known links' parameters.
+    """
+    q, qd, qdd, wrench = (np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench))
+    if q.ndim != 3 or wrench.shape != q.shape[:2] + (6,):
+        raise ValueError(f"expected q (C, F, n_dof) and wrench (C, F, 6), got {q.shape} and {wrench.shape}")
+    c, f, n = q.shape
+    flat = [a.reshape(c * f, n) for a in (q, qd, qdd)]
+    w_u, w_k = _chunked(_compiled(model, "split"), flat, np.asarray(theta_known, dtype=np.float64))
+    w = w_u.reshape(c, f, 6, -1).reshape(c, 6 * f, -1)
+    y = (wrench - w_k.reshape(c, f, 6)).reshape(c, 6 * f)
+    return w, y
+
+
+def predict_wrench(model, q, qd, qdd, theta) -> np.ndarray:
+    """``Psi(q, qd, qdd) @ theta`` per configuration: (C, F, n_dof) x3, theta (C, 10 n_links) -> (C, F, 6)."""
+    q, qd, qdd = (np.asarray(a, dtype=np.float64) for a in (q, qd, qdd))
+    c, f, n = q.shape
+    th = np.repeat(np.asarray(theta, dtype=np.float64), f, axis=0)
+    flat = [a.reshape(c * f, n) for a in (q, qd, qdd)] + [th]
+    fn = _compiled(model, "wrench")
+    (w,) = _chunked(lambda a, b, d, t, _: fn(a, b, d, t), flat, None)
+    return w.reshape(c, f, 6)
+
+
+def iter_stacks(model, q, qd, qdd, wrench, theta_known, max_rows: int = 200_000) -> Iterator[tuple[slice, np.ndarray, np.ndarray]]:
+    """:func:`stack` over chunks of configurations, about ``max_rows`` frames at a time."""
+    n_configs, n_frames = q.shape[:2]
+    per = max(1, max_rows // max(n_frames, 1))
+    for start in range(0, n_configs, per):
+        sl = slice(start, min(start + per, n_configs))
+        w, y = stack(model, q[sl], qd[sl], qdd[sl], wrench[sl], theta_known)
+        yield sl, w, y
+
+
+def stack_casadi(model, q, qd, qdd, wrench, theta_known) -> tuple[np.ndarray, np.ndarray]:
+    """``(W, y)`` of one configuration through the generated CasADi function; (6F, 10 n_u), (6F,)."""
+    q, qd, qdd, wrench = (np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench))
+    f = q.shape[0]
+    mapped = model.casadi_regressor.map(f)
+    y_all = np.array(mapped(q.T, qd.T, qdd.T)).reshape(6, f, -1).transpose(1, 0, 2)  # (F, 6, 10 n)
+    w = y_all[..., model.unknown_index].reshape(6 * f, -1)
+    known = y_all[..., model.known_index] @ np.asarray(theta_known, dtype=np.float64)
+    return w, (wrench - known).reshape(6 * f)
+
+
+def check_frames(n_frames: int, rank_needed: int) -> None:
+    """Refuse fewer frames than equations needed: ``6 F >= rank`` of the identifiable part."""
+    needed = -(-rank_needed // 6)
+    if n_frames < needed:
+        raise IdentificationError(
+            f"{n_frames} frame{'s' if n_frames != 1 else ''} give {6 * n_frames} equations for "
+            f"{rank_needed} identifiable parameters; use at least {needed} frames (more with noise)",
+            status="too_few_frames",
+        )
