@@ -603,7 +603,8 @@ def identifiability(robot, unknown_links, locked, gravity, n_frames, seed, data_
               help="IPOPT start: the CAD values, or the linear estimate (made physical).")
 @click.option("--backend", type=click.Choice(["jax", "casadi"]), default="jax", show_default=True,
               help="Linear method: batched JAX/NumPy, or CasADi per configuration.")
-@click.option("--workers", type=click.IntRange(min=1), default=None, help="Processes for IPOPT (default: CPU count).")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Processes for IPOPT (default: CPU count; fewer than 256 configurations run in one).")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Results file (.h5).")
 @overwrite_option
 @click.pass_context
@@ -737,7 +738,7 @@ def study_noise(ctx, robot, unknown_links, levels, frames_text, configs, methods
     def numbers(text, cast, hint):
         try:
             vals = [cast(v) for v in text.split(",") if v.strip()]
-            if not vals or any(v < 0 for v in vals):
+            if not vals or any(v < 0 for v in vals) or (cast is int and any(v < 1 for v in vals)):
                 raise ValueError
             return vals
         except ValueError:

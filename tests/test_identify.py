@@ -183,6 +183,8 @@ def test_nonlinear_matches_linear(model, noisy, clean):
     np.testing.assert_allclose(nl.theta_hat, lin.theta_hat, atol=1e-5 * lin.base.scales.max())
     exact = solve_dataset(clean.select(slice(0, 10)), SolveSettings(method="nonlinear"), model=model)
     assert exact.success.all() and rel_err(exact.base_hat, exact.base_true) < 1e-6
+    exact_lin = solve_dataset(clean.select(slice(0, 10)), model=model)
+    np.testing.assert_allclose(exact.theta_hat, exact_lin.theta_hat, atol=1e-6 * lin.base.scales.min())
 
 
 def test_consistent_is_always_physical(model, base):
@@ -196,6 +198,18 @@ def test_consistent_is_always_physical(model, base):
     assert np.median(relative_error(con.base_hat, con.base_true)) <= 1.1 * np.median(
         relative_error(lin.base_hat, lin.base_true)
     )
+
+
+def test_linear_start_is_used_and_physical(model, base, clean):
+    from ineid.identify.solve import _physical_start
+
+    sub = clean.select(slice(0, 20))
+    lin = solve_dataset(sub, model=model)
+    prior = model.theta_cad[model.unknown_index]
+    start = _physical_start(lin.theta_hat, prior, base.scales)
+    assert is_physical(start.reshape(-1, 10)).all()
+    moved = ~np.all(start == prior, axis=1)
+    assert moved.mean() > 0.5  # most starts are (part of the way to) the linear estimate
 
 
 def test_consistent_on_clean_data(model, clean):

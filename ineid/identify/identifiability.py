@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ineid.errors import IdentificationError
 from ineid.identify.systems import parameter_scales, stack
 from ineid.params import param_names
 
@@ -134,8 +135,12 @@ def base_parameters_from_regressor(w: np.ndarray, names, scales: np.ndarray) -> 
     sv = np.linalg.svd(ws, compute_uv=False)
     rank = numerical_rank(sv)
     kept = _greedy_independent(ws)
-    if len(kept) != rank:  # the scan and the SVD disagree only for ill-conditioned frames
-        kept = kept[:rank]
+    if len(kept) != rank:
+        raise IdentificationError(
+            f"the frames are too ill-conditioned to find the base parameters (column scan finds {len(kept)} "
+            f"independent columns, the SVD rank is {rank}); use more, and more varied, frames",
+            status="ill_conditioned",
+        )
     base = np.array(kept, dtype=np.int64)
     dep = np.array([j for j in range(w.shape[1]) if j not in set(kept)], dtype=np.int64)
     if dep.size:

@@ -8,7 +8,8 @@ columns, so
     beta_hat = argmin || D (W_b beta - y) ||^2         (QR of D W_b)
 
 with ``D`` optional row weights, one per wrench axis: ``1/sigma_axis`` from known noise
-levels, or estimated from the unweighted residual per axis (two steps). The residual
+levels, or estimated from the residuals per axis (an unweighted fit, then
+``ESTIMATE_ROUNDS`` reweighted refits). The residual
 variance ``s^2 = ||D r||^2 / (6F - r)`` gives ``cov(beta_hat) = s^2 (R^T R)^-1``.
 
 **Null-space rule.** The standard parameters are the solution closest to a prior

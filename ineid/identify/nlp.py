@@ -15,7 +15,10 @@ standard deviation of the data. The
 second is the pull towards the prior (CAD values by default): ``N`` is an orthonormal basis
 of the null space in scaled coordinates, so the pull acts only on the directions the data
 cannot see and picks, among the best fits, the one closest to the prior (the same rule as
-the linear solver). ``lam = 1e-2`` by default. The consistent solver adds
+the linear solver). ``lam = 1e-2`` by default. The ``nonlinear`` solver applies the rule
+exactly instead, as the equality constraints ``N^T ((theta(x) - theta_prior) / scale) = 0``:
+its data term and the null-space part are independent, and a penalty that weak against
+noise-free data would leave IPOPT stopping before the null-space part has moved. The consistent solver adds
 ``eps * sum_links D(J, J_prior)``, the log-det divergence of each link's scaled
 pseudo-inertia from the prior's (``eps = 1e-3``): a barrier that keeps estimates off the
 degenerate bodies at the boundary of the physical set, where noise would otherwise push
@@ -238,9 +241,13 @@ class NlpSolver:
         inv_s2 = ca.SX.sym("inv_sigma2")
         nb = null_basis_scaled(base)
         f = ca.sumsqr(ca.mtimes(rp, ca.mtimes(ca.DM(base.B), theta)) - zp) * inv_s2 / r
+        g = ca.SX.zeros(0, 1)
         if nb.shape[1]:
-            phi = theta / ca.DM(base.scales)
-            f += pull * ca.sumsqr(ca.mtimes(ca.DM(nb.T), phi - ca.DM(prior / base.scales)))
+            null_part = ca.mtimes(ca.DM(nb.T), theta / ca.DM(base.scales) - ca.DM(prior / base.scales))
+            if method == "nonlinear":
+                g = null_part  # the rule exactly: the null-space part equals the prior's
+            else:
+                f += pull * ca.sumsqr(null_part)
         if method == "consistent" and entropic > 0:
             try:
                 jp_inv = [np.linalg.inv(j) for j in scaled_pseudo_inertia(prior, base.scales)]
@@ -262,7 +269,7 @@ class NlpSolver:
             "ipopt.max_iter": 500,
         }
         opts.update({f"ipopt.{k}": v for k, v in (ipopt_options or {}).items()})
-        solver = ca.nlpsol(f"ineid_{method}", "ipopt", {"x": x, "p": p, "f": f}, opts)
+        solver = ca.nlpsol(f"ineid_{method}", "ipopt", {"x": x, "p": p, "f": f, "g": g}, opts)
         theta_fn = ca.Function("theta", [x], [theta])
         return cls(method, base, prior, pull, entropic, solver, theta_fn)
 
@@ -283,7 +290,7 @@ class NlpSolver:
         p = np.concatenate([r_factor.ravel(order="F"), r_factor @ beta_hat, [1.0 / s2]])
         lb, ub = self.bounds()
         x0 = np.clip(self.start(theta_start), lb, ub)
-        sol = self.solver(x0=x0, p=p, lbx=lb, ubx=ub)
+        sol = self.solver(x0=x0, p=p, lbx=lb, ubx=ub, lbg=0, ubg=0)
         stats = self.solver.stats()
         status = str(stats.get("return_status", "unknown"))
         theta = np.array(self.theta_fn(sol["x"])).ravel()

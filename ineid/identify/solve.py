@@ -49,7 +49,8 @@ class SolveSettings:
         pull, entropic: prior weights of the IPOPT solvers (see :mod:`ineid.identify.nlp`).
         backend: ``"jax"`` (batched regressors and QR) or ``"casadi"`` (per configuration,
             the generated CasADi function and CasADi's QR); linear method only.
-        workers: processes for the IPOPT solvers (default 1). More than one uses spawned
+        workers: processes for the IPOPT solvers (default 1); used from
+            :data:`PARALLEL_MIN_CONFIGS` configurations on. More than one uses spawned
             processes (multiprocessing): call from under ``if __name__ == "__main__":``.
     """
 
@@ -201,7 +202,7 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
     if settings.method == "linear":
         est = lin
     else:
-        start = prior if settings.start == "prior" else _physical_start(lin.theta, prior, settings.method)
+        start = prior if settings.start == "prior" else _physical_start(lin.theta, prior, base.scales)
         est, nlp_seconds = _run_nlp(fit, base, settings, prior, rms, start, progress)
         seconds = seconds + nlp_seconds
 
@@ -272,23 +273,26 @@ def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress):
     return fits, rms, seconds
 
 
-def _physical_start(theta_lin: np.ndarray, prior: np.ndarray, method: str) -> np.ndarray:
+def _physical_start(theta_lin: np.ndarray, prior: np.ndarray, scales: np.ndarray) -> np.ndarray:
     """Linear estimates as IPOPT starts, moved towards the prior until they are rigid bodies.
 
     Per configuration, ``prior + t (theta_lin - prior)`` with the largest ``t`` in
-    ``1, 1/2, 1/4, ..., 0`` whose links all have a well-conditioned pseudo-inertia (smallest
-    eigenvalue at least 1e-3 of the largest). The prior itself must be physical.
+    ``1, 1/2, ..., 1/64`` whose links all have a positive definite pseudo-inertia, in each
+    link's mass and length units (smallest eigenvalue at least 1e-4 of the largest);
+    the prior where none does (it must be physical).
     """
-    from ineid.params import pseudo_inertia  # noqa: PLC0415
+    from ineid.identify.nlp import scaled_pseudo_inertia  # noqa: PLC0415
 
     lin = np.where(np.isfinite(theta_lin), theta_lin, prior)
     c = len(lin)
     start = np.broadcast_to(prior, lin.shape).copy()
     pending = np.ones(c, dtype=bool)
-    for t in (1.0, 0.5, 0.25, 0.125, 0.0625):
+    for t in 0.5 ** np.arange(7):
         cand = prior + t * (lin - prior)
-        w = np.linalg.eigvalsh(pseudo_inertia(cand.reshape(c, -1, 10)))
-        good = np.all(w[..., 0] >= 1e-3 * w[..., -1], axis=-1) & pending
+        good = pending.copy()
+        for i in np.flatnonzero(pending):
+            w = np.linalg.eigvalsh(scaled_pseudo_inertia(cand[i], scales))
+            good[i] = bool(np.all(w[:, 0] >= 1e-4 * w[:, -1]))
         start[good] = cand[good]
         pending &= ~good
     return start
@@ -445,7 +449,7 @@ def identify_frames(
     )  # fmt: skip
     if not res.success[0]:
         raise IdentificationError(
-            f"the {method} solver failed ({res.status[0]}); try --start linear, more frames, or the linear method",
+            f"the {method} solver failed ({res.status[0]}); try start='linear', more frames, or the linear method",
             status=str(res.status[0]),
         )
     return res
