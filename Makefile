@@ -25,6 +25,8 @@ demo: setup
 	$(INEID) -q solve $(VENV)/demo-data.h5 --method consistent --weights estimate --configs 0:20 \
 		--out $(VENV)/demo-results.h5 --overwrite
 	$(INEID) export-urdf $(VENV)/demo-results.h5 --config 0 --out $(VENV)/demo-identified.urdf --overwrite
+	$(INEID) -q train $(VENV)/demo-data.h5 --arch net2 --frames 10 --siamese --loss physics --beta 10 \
+		--epochs 30 --batch 32 --lr 3e-3 --out $(VENV)/demo-run --overwrite
 
 test: setup
 	$(PY) -m pytest -q
@@ -39,6 +41,7 @@ bench: setup
 	$(PY) benchmarks/regressor.py
 	$(PY) benchmarks/data.py
 	$(PY) benchmarks/identify.py
+	$(PY) benchmarks/learn.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

@@ -772,5 +772,220 @@ def study_noise(ctx, robot, unknown_links, levels, frames_text, configs, methods
     click.echo(f"wrote {csv_path} and {png_path}")
 
 
+# -- learning -------------------------------------------------------------------------------
+
+
+def _train_options(f):
+    """Options shared by `ineid train` and `ineid sweep` (the settings of one run)."""
+    opts = [
+        click.option("--depth", type=click.IntRange(min=1), default=None, help="Hidden layers of --arch mlp."),
+        click.option("--width", type=click.IntRange(min=1), default=None, help="Neurons per layer of --arch mlp."),
+        click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=1e-3, show_default=True),
+        click.option("--schedule", type=click.Choice(["constant", "cosine"]), default="constant", show_default=True),
+        click.option("--epochs", type=click.IntRange(min=1), default=100, show_default=True),
+        click.option("--batch", type=click.IntRange(min=1), default=256, show_default=True, help="Samples per step."),
+        click.option("--alpha", type=click.FloatRange(min=0), default=1.0, show_default=True, help="Weight of the MSE."),
+        click.option("--beta", type=click.FloatRange(min=0), default=1.0, show_default=True,
+                     help="Weight of the wrench residual (physics loss)."),
+        click.option("--patience", type=click.IntRange(min=0), default=20, show_default=True,
+                     help="Early stopping: epochs without a better validation MSE (0: off)."),
+        click.option("--train-configs", type=click.IntRange(min=1), default=None, help="Training configurations (70 %)."),
+        click.option("--val-configs", type=click.IntRange(min=1), default=None, help="Validation configurations (15 %)."),
+        click.option("--test-configs", type=click.IntRange(min=1), default=None, help="Test configurations (the rest)."),
+        click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True),
+        click.option("--physics-mode", type=click.Choice(["cached", "inline"]), default="cached", show_default=True,
+                     help="Regressor of the physics loss: computed once per frame, or inside the loss."),
+    ]
+    for o in reversed(opts):
+        f = o(f)
+    return f
+
+
+def _base_train_config(kw: dict):
+    from ineid.learn import ModelSpec, TrainConfig  # noqa: PLC0415
+
+    try:
+        model = ModelSpec(arch=kw.get("arch", "simple"), activation=kw.get("activation", "tanh"), depth=kw["depth"],
+                          width=kw["width"], siamese=kw.get("siamese", False), frames=kw.get("frames", 1))
+        return TrainConfig(
+            model=model, scaler=kw.get("scaler", "standard"), loss=kw.get("loss", "mse"), alpha=kw["alpha"],
+            beta=kw["beta"], optimizer=kw.get("optimizer", "adam"), lr=kw["lr"], schedule=kw["schedule"],
+            epochs=kw["epochs"], batch=kw["batch"], patience=kw["patience"], seed=kw["seed"],
+            n_train=kw["train_configs"], n_val=kw["val_configs"], n_test=kw["test_configs"],
+        )
+    except ValueError as e:
+        raise click.UsageError(str(e)) from None
+
+
+@main.command("train")
+@click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
+@click.option("--arch", type=click.Choice(["simple", "net1", "net2", "net3", "net4", "net5", "net6", "net7", "funnel",
+                                           "mlp"]), default="simple", show_default=True, help="Table 1 of the paper, or mlp.")
+@click.option("--activation", type=click.Choice(["tanh", "relu", "gelu", "sigmoid", "elu", "silu"]), default="tanh",
+              show_default=True)
+@click.option("--scaler", type=click.Choice(["standard", "robust", "minmax"]), default="standard", show_default=True)
+@click.option("--optimizer", type=click.Choice(["sgd", "adam", "adamw"]), default="adam", show_default=True)
+@click.option("--frames", type=click.IntRange(min=1), default=1, show_default=True, help="Frames per sample (K).")
+@click.option("--siamese", is_flag=True, help="One shared encoder per frame, embeddings averaged, then a head.")
+@click.option("--loss", type=click.Choice(["mse", "physics"]), default="mse", show_default=True)
+@_train_options
+@click.option("--out", "run_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="Run folder.")
+@click.option("--resume", is_flag=True, help="Continue the run in --out from its checkpoint (same settings).")
+@overwrite_option
+@click.pass_context
+def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, **kw) -> None:
+    """Train a network on DATA.h5 into a run folder, then evaluate it on the test split."""
+    import json  # noqa: PLC0415
+
+    from ineid.data import load_dataset  # noqa: PLC0415
+    from ineid.learn import evaluate, load_run, train  # noqa: PLC0415
+
+    cfg = _base_train_config(kw)
+    ds = load_dataset(data_path)
+    model = ds.model()
+    quiet = _quiet(ctx)
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: PLC0415
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("epochs"),
+                  TimeElapsedColumn(), disable=quiet, console=_console_err()) as prog:
+        task = prog.add_task(f"training {cfg.model.name}", total=cfg.epochs)
+
+        def progress(epoch, total, rec):
+            prog.update(task, completed=epoch, description=(
+                f"training {cfg.model.name}  loss {rec['train_loss']:.4f}  val mse {rec['val_mse']:.4f}"
+                f"  val phys {rec['val_phys']:.4f}"))
+
+        result = train(ds, cfg, run_dir, dataset_path=str(data_path), resume=resume, overwrite=overwrite,
+                       progress=progress, model=model, physics_mode=physics_mode)
+    click.echo(
+        f"{result.epochs_run} epochs in {result.seconds:.1f} s"
+        + (" (stopped early)" if result.stopped_early else "")
+        + f"; best validation MSE {result.best_val_mse:.4g} at epoch {result.best_epoch}; wrote {run_dir}"
+    )
+    ev = evaluate(load_run(run_dir), ds, model=model)
+    (run_dir / "evaluation.json").write_text(json.dumps(ev.to_dict(), indent=1))
+    _print_evaluation(ev)
+
+
+def _print_evaluation(ev) -> None:
+    import numpy as np  # noqa: PLC0415
+    from rich.table import Table  # noqa: PLC0415
+
+    con = _console()
+    con.print(f"evaluated on {ev.n_configs} configurations ({ev.extra.get('configs')}), {ev.frames_used} frames each")
+    table = Table(title="Relative error of the standard parameters (median / 95th percentile) and R^2", title_justify="left")
+    for col in ("parameter", "network", "p95", "R^2", "floor (null space)", "linear LS", "identifiable"):
+        table.add_column(col, justify="left" if col in ("parameter", "identifiable") else "right")
+    for k, name in enumerate(ev.network["names"]):
+        lin = f"{ev.linear['median'][k]:.3g}" if ev.linear else "-"
+        table.add_row(name, f"{ev.network['median'][k]:.3g}", f"{ev.network['p95'][k]:.3g}",
+                      f"{ev.network['r2'][k]:.3f}", f"{ev.floor['median'][k]:.3g}", lin,
+                      "yes" if ev.identifiable[k] else "no")
+    con.print(table)
+    table = Table(title="Relative error of the base parameters (median)", title_justify="left")
+    for col in ("base parameter", "network", "R^2", "linear LS"):
+        table.add_column(col, justify="left" if col == "base parameter" else "right")
+    for k, name in enumerate(ev.network_base["names"]):
+        lin = f"{ev.linear_base['median'][k]:.3g}" if ev.linear_base else "-"
+        table.add_row(name, f"{ev.network_base['median'][k]:.3g}", f"{ev.network_base['r2'][k]:.3f}", lin)
+    con.print(table)
+    lin = (f"; linear LS: standard {ev.linear['overall_median']:.4g}, base {ev.linear_base['overall_median']:.4g}, "
+           f"physical {100 * ev.linear_physical_share:.0f}%") if ev.linear else ""
+    con.print(
+        f"median over all parameters: network standard {ev.network['overall_median']:.4g}, base "
+        f"{ev.network_base['overall_median']:.4g} (per sample, before averaging: {ev.per_sample_median:.4g}); "
+        f"null-space floor {ev.floor['overall_median']:.4g}{lin}"
+    )
+    rms = ", ".join(f"{v:.3g}" for v in ev.wrench_rms)
+    con.print(f"wrench residual of the predictions, RMS per axis (N, N*m): {rms}; normalized {ev.wrench_normalized:.4g}; "
+              f"physically valid predictions {100 * ev.physical_share:.0f}%")
+    del np
+
+
+@main.command("evaluate")
+@click.argument("run_dir", metavar="RUN_DIR", type=click.Path(path_type=Path))
+@click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
+@click.option("--configs", "selection", default=None, metavar="SEL",
+              help="Configurations (default: the run's test split if DATA.h5 is its dataset, else all).")
+@click.option("--no-linear", is_flag=True, help="Skip the linear least-squares comparison.")
+def evaluate_cmd(run_dir, data_path, selection, no_linear) -> None:
+    """Evaluate a trained run on DATA.h5: errors, R^2, floor, wrench residual, linear LS."""
+    import json  # noqa: PLC0415
+
+    from ineid.data import load_dataset  # noqa: PLC0415
+    from ineid.learn import evaluate, load_run  # noqa: PLC0415
+
+    run = load_run(run_dir)
+    ds = load_dataset(data_path)
+    configs = None if selection is None else _parse_selection(selection, ds.n_configs)
+    ev = evaluate(run, ds, configs, linear=not no_linear)
+    (Path(run_dir) / "evaluation.json").write_text(json.dumps(ev.to_dict(), indent=1))
+    _print_evaluation(ev)
+
+
+@main.command("sweep")
+@click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
+@click.option("--archs", default="simple,net1,net2,net3,net4,net5,net6,net7,funnel", show_default=True)
+@click.option("--activations", default="tanh", show_default=True)
+@click.option("--scalers", default="robust", show_default=True)
+@click.option("--optimizers", default="adam", show_default=True)
+@click.option("--losses", default="mse", show_default=True)
+@click.option("--frames-list", default="1", show_default=True, help="Frames per sample to try (comma-separated).")
+@click.option("--siamese", type=click.Choice(["off", "on", "both"]), default="off", show_default=True)
+@_train_options
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
+@overwrite_option
+@click.pass_context
+def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, frames_list, siamese, out_dir,
+              overwrite, physics_mode, **kw) -> None:
+    """Train a grid of networks one after another; write sweep.csv and sweep.png ranked by test error."""
+    from rich.table import Table  # noqa: PLC0415
+
+    from ineid.data import load_dataset  # noqa: PLC0415
+    from ineid.learn import Grid, sweep  # noqa: PLC0415
+    from ineid.learn.models import ACTIVATIONS, ARCHITECTURES  # noqa: PLC0415
+
+    def names(text, allowed, hint):
+        vals = tuple(v.strip() for v in text.split(",") if v.strip())
+        bad = [v for v in vals if v not in allowed]
+        if bad or not vals:
+            raise click.BadParameter(f"choose from {', '.join(allowed)}; got {text!r}", param_hint=hint)
+        return vals
+
+    try:
+        ks = tuple(int(v) for v in frames_list.split(",") if v.strip())
+        if not ks or min(ks) < 1:
+            raise ValueError
+    except ValueError:
+        raise click.BadParameter(f"expected positive integers, got {frames_list!r}", param_hint="--frames-list") from None
+    grid = Grid(
+        archs=names(archs, [a for a in ARCHITECTURES if a != "mlp"], "--archs"),
+        activations=names(activations, list(ACTIVATIONS), "--activations"),
+        scalers=names(scalers, ["standard", "robust", "minmax"], "--scalers"),
+        optimizers=names(optimizers, ["sgd", "adam", "adamw"], "--optimizers"),
+        losses=names(losses, ["mse", "physics"], "--losses"),
+        frames=ks,
+        siamese={"off": (False,), "on": (True,), "both": (False, True)}[siamese],
+    )
+    base = _base_train_config(kw)
+    if (out_dir / "sweep.csv").exists() and not overwrite:
+        raise click.ClickException(f"{out_dir} holds a sweep; pass --overwrite to replace it")
+    ds = load_dataset(data_path)
+    n = len(grid.configs(base))
+    with _ProgressBar("sweep", "runs", _quiet(ctx)) as bar:
+        bar(0, n)
+        rows = sweep(ds, grid, base, out_dir, dataset_path=str(data_path), progress=lambda i, t, r: bar(i, t),
+                     overwrite=True)
+    table = Table(title=f"Sweep on {data_path}: test median relative error, ranked", title_justify="left")
+    for col in ("#", "run", "standard", "base", "floor", "linear LS (std / base)", "physical", "epochs", "s"):
+        table.add_column(col, justify="left" if col == "run" else "right")
+    for i, r in enumerate(rows):
+        table.add_row(str(i + 1), r.name, f"{r.test_standard_median:.4g}", f"{r.test_base_median:.4g}",
+                      f"{r.floor_standard_median:.4g}", f"{r.linear_standard_median:.4g} / {r.linear_base_median:.3g}",
+                      f"{100 * r.physical_share:.0f}%", str(r.epochs_run), f"{r.seconds:.0f}")
+    _console().print(table)
+    click.echo(f"wrote {out_dir / 'sweep.csv'} and {out_dir / 'sweep.png'}")
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

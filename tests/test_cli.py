@@ -223,3 +223,39 @@ def test_study_noise_command(run, tmp_path):
     assert "consistent" in r.output and "invalid" in r.output
     lines = (tmp_path / "study" / "noise_study.csv").read_text().splitlines()
     assert len(lines) == 1 + 2 * 1 * 2
+
+
+# -- learning --------------------------------------------------------------------------------
+
+
+def test_train_evaluate_sweep(run, tmp_path):
+    from ineid.data import Combination, DatasetSpec, write_dataset
+
+    import ineid
+
+    data = tmp_path / "d.h5"
+    write_dataset(ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=40), n_frames=6, seed=1),
+                  data)
+    out = tmp_path / "run"
+    r = run("train", data, "--arch", "net1", "--frames", 3, "--siamese", "--loss", "physics", "--beta", 2,
+            "--epochs", 3, "--batch", 16, "--train-configs", 24, "--val-configs", 8, "--out", out)
+    assert r.exit_code == 0, r.output
+    for text in ("3 epochs in", "evaluated on 8 configurations (test split)", "floor (null space)", "linear LS",
+                 "upper_arm.m + forearm.m", "wrench residual of the predictions"):
+        assert text in r.output, text
+    for name in ("config.json", "scalers.json", "model.msgpack", "checkpoint.msgpack", "metrics.jsonl",
+                 "evaluation.json"):
+        assert (out / name).is_file(), name
+    assert "not empty; pass --overwrite" in one_line_error(run("train", data, "--epochs", 1, "--out", out))
+    r = run("evaluate", out, data, "--configs", "0:5", "--no-linear")
+    assert r.exit_code == 0 and "evaluated on 5 configurations" in r.output
+    assert "not a finished training run" in one_line_error(run("evaluate", tmp_path, data))
+    r = run("train", data, "--arch", "mlp", "--out", tmp_path / "x")
+    assert r.exit_code == 2 and "depth >= 1 and width >= 1" in r.output
+    sw = tmp_path / "sweep"
+    r = run("sweep", data, "--archs", "simple,funnel", "--frames-list", "2", "--siamese", "both", "--epochs", 2,
+            "--batch", 16, "--out", sw)
+    assert r.exit_code == 0, r.output
+    assert (sw / "sweep.csv").is_file() and (sw / "sweep.png").is_file()
+    assert len((sw / "sweep.csv").read_text().splitlines()) == 1 + 4
+    assert "holds a sweep; pass --overwrite" in one_line_error(run("sweep", data, "--archs", "simple", "--out", sw))

@@ -1,0 +1,101 @@
+"""Training steps per second: the plain MSE loss against the physics-informed loss.
+
+The same network, batch and data for both losses; one step is gather + forward + loss +
+gradient + Adam update, jit-compiled (``ineid.learn.train.build_functions``), timed after
+compilation over ``--steps`` steps (best of 3). The physics loss evaluates
+``||R - Psi theta_hat||^2`` over every frame of every sample, ``Psi`` from the generated
+JAX regressor, either cached per frame (the default) or evaluated inside the loss
+(``inline``). Floor: the physics step costs at most 2x the plain step on the CPU; aim 1.3x.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import jax
+import numpy as np
+
+import ineid
+from ineid.data import Combination, DatasetSpec, generate_dataset
+from ineid.learn import ModelSpec, TrainConfig, split_configs
+from ineid.learn.train import build_functions, epoch_groups, make_optimizer, prepare
+
+
+def cpu() -> str:
+    try:
+        with open("/proc/cpuinfo") as fh:
+            name = next(line.split(":", 1)[1].strip() for line in fh if line.startswith("model name"))
+    except (OSError, StopIteration):
+        name = "unknown CPU"
+    return f"{name}, {os.cpu_count()} cores, JAX {jax.__version__} on {jax.default_backend()}"
+
+
+def time_steps(ds, model, cfg: TrainConfig, split, physics_mode: str, n_steps: int) -> float:
+    """Seconds per training step (best of 3 runs of n_steps)."""
+    rows = np.union1d(split.train, split.val)
+    prep = prepare(ds, cfg, rows, model, fit_rows=split.train, physics_mode=physics_mode)
+    net = cfg.model.build(prep.n_out)
+    k = cfg.model.frames
+    params = net.init(jax.random.key(0), prep.arrays["x"][:1, :k])
+    opt = make_optimizer(cfg, 100)
+    state = opt.init(params)
+    step, _ = build_functions(net, cfg, prep, opt)
+    pos, frames = epoch_groups(len(split.train), prep.n_frames, k, 0, 1)
+    local = prep.local(split.train)[pos]
+    b = cfg.batch
+    n_batches = len(local) // b
+    p, s, out = step(params, state, prep.arrays, local[:b], frames[:b])  # compile
+    jax.block_until_ready(out)
+    best = np.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        for i in range(n_steps):
+            j = i % n_batches
+            p, s, out = step(p, s, prep.arrays, local[j * b : (j + 1) * b], frames[j * b : (j + 1) * b])
+        jax.block_until_ready(out)
+        best = min(best, (time.perf_counter() - t0) / n_steps)
+    return best
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--configs", type=int, default=600)
+    ap.add_argument("--steps", type=int, default=200)
+    args = ap.parse_args()
+    model = ineid.load_robot("sweaty-arm")
+    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=args.configs), n_frames=100, seed=0))
+    split = split_configs(ds.n_configs, None, None, None, 0)
+    cases = [
+        ("simple, 1 frame, batch 256", ModelSpec("simple"), 256),
+        ("net6 (8 x 160), 1 frame, batch 256", ModelSpec("net6"), 256),
+        ("net2 (8 x 40), 10 frames concatenated, batch 64", ModelSpec("net2", frames=10), 64),
+        ("net6 Siamese, 10 frames, batch 64", ModelSpec("net6", frames=10, siamese=True), 64),
+    ]
+    print(f"machine: {cpu()}; ineid {ineid.__version__}; float64")
+    print(f"{len(split.train)} training configurations x 100 frames; Adam; {args.steps} steps timed, best of 3")
+    head = f"{'network':48s} {'loss':16s} {'steps/s':>9s} {'samples/s':>10s} {'frames/s':>10s} {'vs MSE':>7s}"
+    print(head)
+    print("-" * len(head))
+    worst = 0.0
+    for label, spec, batch in cases:
+        base = None
+        for loss, mode in (("mse", "cached"), ("physics", "cached"), ("physics", "inline")):
+            cfg = TrainConfig(model=spec, loss=loss, batch=batch)
+            sec = time_steps(ds, model, cfg, split, mode, args.steps)
+            base = sec if loss == "mse" else base
+            ratio = sec / base
+            if loss == "physics" and mode == "cached":
+                worst = max(worst, ratio)
+            name = "MSE" if loss == "mse" else f"physics ({mode})"
+            print(f"{label:48s} {name:16s} {1 / sec:9,.0f} {batch / sec:10,.0f} {batch * spec.frames / sec:10,.0f} "
+                  f"{ratio:6.2f}x")
+    verdict = "MET" if worst <= 2.0 else "MISSED"
+    aim = "met" if worst <= 1.3 else "not met"
+    print(f"floor: physics step <= 2x the MSE step (cached, the default): worst {worst:.2f}x -> {verdict}; "
+          f"aim 1.3x {aim}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,222 @@
+"""Evaluation of a trained run on held-out configurations, with the floor the null space sets
+and the linear least-squares estimate on the same configurations and frames.
+
+A configuration's estimate is the mean of the network's predictions over the disjoint
+groups ``[0, K), [K, 2K), ...`` of its frames (K = 1: every frame); the linear least
+squares of :mod:`ineid.identify` uses the same frames. Errors are reported twice:
+
+* on the standard parameters (the paper's measure, ``|theta_hat - theta| / |theta|``);
+* on the base parameters ``beta = B theta``, the combinations the wrench determines.
+
+**The floor.** With two unknown links, three directions of the 20 parameters never reach
+the base wrench, so even an estimator that knew ``beta`` exactly could only guess them from
+their correlation with ``beta`` over the sampled configurations. ineid fits that best
+guess, the linear minimum-mean-square-error estimator
+``theta_hat = mu_theta + C_theta,beta C_beta,beta^-1 (beta - mu_beta)`` on the training
+configurations' true parameters (or, for another dataset, on the evaluated ones), and
+reports its error per parameter: no network can beat it on average on the standard
+parameters, because its only handicap is the null space. It is zero on the
+individually identifiable parameters.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ineid.learn.data import Split, fixed_groups, frame_features
+from ineid.learn.scalers import Scaler
+from ineid.learn.train import TrainConfig, TrainingError
+
+
+@dataclass
+class Run:
+    """A trained run loaded from its folder."""
+
+    run_dir: Path
+    config: TrainConfig
+    meta: dict
+    x_scaler: Scaler
+    y_scaler: Scaler
+    params: object
+    split: Split
+
+    @property
+    def net(self):
+        return self.config.model.build(self.meta["n_out"])
+
+
+def load_run(run_dir: str | Path) -> Run:
+    """Read ``config.json``, ``scalers.json`` and ``model.msgpack`` of a run folder."""
+    import jax  # noqa: PLC0415
+    from flax import serialization  # noqa: PLC0415
+
+    run_dir = Path(run_dir)
+    files = [run_dir / n for n in ("config.json", "scalers.json", "model.msgpack")]
+    missing = [f.name for f in files if not f.is_file()]
+    if missing:
+        hint = " (training was interrupted: finish it with `ineid train ... --resume`)" if (
+            run_dir / "checkpoint.msgpack").is_file() else ""
+        raise TrainingError(f"{run_dir} is not a finished training run: {', '.join(missing)} missing{hint}")
+    meta = json.loads(files[0].read_text())
+    cfg = TrainConfig.from_dict(meta["train"])
+    sc = json.loads(files[1].read_text())
+    net = cfg.model.build(meta["n_out"])
+    k = cfg.model.frames
+    template = net.init(jax.random.key(0), np.zeros((1, k, len(sc["x"]["center"]))))
+    try:
+        params = serialization.from_bytes(template, files[2].read_bytes())
+    except (ValueError, KeyError, TypeError) as e:
+        raise TrainingError(f"{files[2]} does not match the run's network ({e}); the run folder is damaged") from None
+    return Run(run_dir, cfg, meta, Scaler.from_dict(sc["x"]), Scaler.from_dict(sc["y"]), params, Split.from_dict(meta["split"]))
+
+
+def predict(run: Run, ds, configs: np.ndarray, batch: int = 1024) -> tuple[np.ndarray, np.ndarray, int]:
+    """Per-configuration estimates (C, n_u), per-sample estimates (C, G, n_u), frames used."""
+    import jax  # noqa: PLC0415
+
+    k = run.config.model.frames
+    sub = ds.select(np.asarray(configs))
+    x = run.x_scaler.transform(frame_features(sub))
+    pos, frames = fixed_groups(sub.n_configs, sub.n_frames, k)
+    groups = sub.n_frames // k
+    apply = jax.jit(run.net.apply)
+    out = []
+    for start in range(0, len(pos), batch):
+        xb = x[pos[start : start + batch, None], frames[start : start + batch]]
+        n = len(xb)
+        if n < batch:
+            xb = np.concatenate([xb, np.zeros((batch - n,) + xb.shape[1:])])
+        out.append(np.asarray(apply(run.params, xb))[:n])
+    z = np.concatenate(out).reshape(sub.n_configs, groups, -1)
+    per_sample = run.y_scaler.inverse(z)
+    return per_sample.mean(axis=1), per_sample, groups * k
+
+
+def floor_estimator(theta_fit: np.ndarray, b: np.ndarray):
+    """The linear MMSE estimate of ``theta`` from exact ``beta = B theta`` (see module doc)."""
+    beta = theta_fit @ b.T
+    mu_t, mu_b = theta_fit.mean(axis=0), beta.mean(axis=0)
+    ct = (theta_fit - mu_t).T @ (beta - mu_b) / max(len(theta_fit) - 1, 1)
+    cb = np.cov(beta, rowvar=False)
+    gain = np.linalg.lstsq(cb, ct.T, rcond=None)[0].T
+
+    def estimate(theta_true: np.ndarray) -> np.ndarray:
+        return mu_t + (theta_true @ b.T - mu_b) @ gain.T
+
+    return estimate
+
+
+def _stats(est, truth, names):
+    from ineid.identify.results import relative_error  # noqa: PLC0415
+
+    err = relative_error(est, truth)
+    ss_res = np.sum((est - truth) ** 2, axis=0)
+    ss_tot = np.sum((truth - truth.mean(axis=0)) ** 2, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r2 = 1.0 - ss_res / ss_tot
+    return {
+        "names": list(names),
+        "median": np.nanmedian(err, axis=0).tolist(),
+        "p95": np.nanpercentile(err, 95, axis=0).tolist(),
+        "r2": r2.tolist(),
+        "overall_median": float(np.nanmedian(err)),
+    }
+
+
+@dataclass
+class Evaluation:
+    """Everything ``ineid evaluate`` reports, JSON-able via :meth:`to_dict`."""
+
+    n_configs: int
+    frames_used: int
+    network: dict
+    network_base: dict
+    floor: dict
+    per_sample_median: float
+    wrench_rms: list
+    wrench_normalized: float
+    physical_share: float
+    identifiable: list
+    linear: dict | None = None
+    linear_base: dict | None = None
+    linear_physical_share: float | None = None
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def evaluate(run: Run, ds, configs: np.ndarray | None = None, model=None, linear: bool = True) -> Evaluation:
+    """Evaluate ``run`` on configurations of ``ds`` (default: the run's test split when ``ds``
+    is its dataset, else every configuration).
+
+    Args:
+        run: a loaded run.
+        ds: a dataset with the truth.
+        configs: dataset indices to evaluate.
+        model: the robot model (default: rebuilt from the dataset).
+        linear: also solve the linear least squares on the same configurations and frames.
+    """
+    from ineid.identify import SolveSettings, base_parameters, solve_dataset  # noqa: PLC0415
+    from ineid.identify.results import relative_error  # noqa: PLC0415
+    from ineid.identify.systems import predict_wrench  # noqa: PLC0415
+    from ineid.params import is_physical  # noqa: PLC0415
+
+    if ds.theta_unknown is None:
+        raise TrainingError("evaluation needs the true parameters; this dataset is a recording")
+    if list(ds.meta.unknown_param_names) != list(run.meta["param_names"]):
+        raise TrainingError(
+            f"the run predicts {', '.join(run.meta['param_names'][:3])}, ...; the dataset's unknown parameters differ"
+        )
+    same = _same_dataset(run, ds)
+    if configs is None:
+        configs = run.split.test if same else np.arange(ds.n_configs)
+    configs = np.asarray(configs, dtype=np.int64)
+    model = model or ds.model()
+    base = base_parameters(model)
+    theta_hat, per_sample, f_used = predict(run, ds, configs)
+    truth = ds.theta_unknown[configs]
+    names = run.meta["param_names"]
+    fit_rows = run.split.train if same else configs
+    floor = floor_estimator(ds.theta_unknown[fit_rows], base.B)(truth)
+    sub = ds.select(configs, slice(0, f_used))
+    full = np.empty((len(configs), 10 * model.n_links))
+    full[:, model.unknown_index] = theta_hat
+    full[:, model.known_index] = ds.theta_known
+    resid = sub.wrench - predict_wrench(model, sub.q, sub.qd, sub.qdd, full)
+    scale = np.asarray(run.meta["wrench_scale"])
+    ev = Evaluation(
+        n_configs=len(configs),
+        frames_used=f_used,
+        network=_stats(theta_hat, truth, names),
+        network_base=_stats(theta_hat @ base.B.T, truth @ base.B.T, base.names),
+        floor=_stats(floor, truth, names),
+        per_sample_median=float(np.nanmedian(relative_error(per_sample, truth[:, None, :]))),
+        wrench_rms=np.sqrt(np.mean(resid**2, axis=(0, 1))).tolist(),
+        wrench_normalized=float(np.mean((resid / scale) ** 2)),
+        physical_share=float(is_physical(theta_hat.reshape(len(configs), -1, 10)).all(axis=-1).mean()),
+        identifiable=base.identifiable.tolist(),
+    )
+    if linear and 6 * f_used >= base.rank:
+        res = solve_dataset(sub, SolveSettings(frames=f_used), model=model)
+        ok = res.success
+        ev.linear = _stats(res.theta_hat[ok], truth[ok], names)
+        ev.linear_base = _stats(res.base_hat[ok], truth[ok] @ base.B.T, base.names)
+        ev.linear_physical_share = float(is_physical(res.theta_hat[ok].reshape(int(ok.sum()), -1, 10)).all(axis=-1).mean())
+    ev.extra = {"configs": "test split" if same and configs is run.split.test else "given", "same_dataset": same}
+    return ev
+
+
+def _same_dataset(run: Run, ds) -> bool:
+    d = run.meta.get("dataset", {})
+    return (
+        d.get("robot") == ds.meta.robot
+        and d.get("n_configs") == ds.n_configs
+        and d.get("n_frames") == ds.n_frames
+        and d.get("seed") == ds.meta.seed
+        and d.get("noise") == ds.meta.noise
+    )

@@ -1,0 +1,118 @@
+"""Losses: the parameter MSE and the physics-informed loss of the paper's equation 5.
+
+    L = alpha * mean_i (z_hat_i - z_i)^2  +  beta * mean_{j, a} ((R_ja - [Psi_j theta_hat]_a) / s_a)^2
+
+* ``z`` are the targets in scaled units (the output scaler), so the first term is the MSE
+  the network is trained on anyway;
+* the second is the wrench residual of the predicted parameters over the sample's K
+  frames, in physical units: ``theta_hat`` is the unscaled prediction of the unknown
+  links, completed by the known links' CAD values, ``Psi_j`` is the generated JAX
+  regressor of the robot (see :class:`Physics` for the cached and inline forms), and
+  ``s_a`` is the standard deviation of the measured
+  wrench on axis ``a`` over the training set (N for forces, N*m for moments), so each
+  axis counts alike and the term is dimensionless: 1 means "as large as the wrench's
+  spread". With ``alpha = beta = 1`` the two terms are of the same order for an untrained
+  network; at the true parameters of clean data the second is exactly zero.
+
+The whole loss is one jit-compiled function; its gradient flows through the regressor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+LOSSES = ("mse", "physics")
+
+
+PHYSICS_MODES = ("cached", "inline")
+
+
+@dataclass(frozen=True)
+class Physics:
+    """What the physics term needs besides the batch (all constants of a run).
+
+    Two ways to get ``Psi``, with identical values:
+
+    * ``"cached"`` (default): the unknown links' regressor ``Psi_u`` of every training frame
+      and ``y = R - Psi_k theta_k`` are computed once by the generated JAX regressor
+      (:func:`ineid.identify.systems.stack`); a step gathers its frames' blocks, so the
+      physics term costs one small contraction (120 numbers a frame in memory for two
+      unknown links).
+    * ``"inline"``: the generated regressor runs inside the jitted loss on the batch's
+      frames (no memory, more compute and compile time), for datasets too big to cache.
+
+    The data do not depend on the network's parameters, so ``Psi`` is a constant of the
+    gradient: ``d/d theta ||y - Psi_u theta||^2 = -2 Psi_u^T r``.
+
+    Attributes:
+        mode: ``"cached"`` or ``"inline"``.
+        regressor: the generated ``f(q, qd, qdd, gravity) -> (..., 6, 10 n_links)`` (inline).
+        gravity: (3,) m/s^2.
+        unknown_index, known_index: columns of ``theta`` of the unknown and known links.
+        theta_known: (10 n_known,) known links' parameters.
+        wrench_scale: (6,) per-axis normalization ``s_a``.
+        y_center, y_scale: the output scaler, to unscale predictions.
+    """
+
+    mode: str
+    regressor: object
+    gravity: np.ndarray
+    unknown_index: np.ndarray
+    known_index: np.ndarray
+    theta_known: np.ndarray
+    wrench_scale: np.ndarray
+    y_center: np.ndarray
+    y_scale: np.ndarray
+
+    def residual(self, theta_unknown, inputs):
+        """Normalized wrench residual ``(R - Psi theta) / s``: (B, K, 6).
+
+        Args:
+            theta_unknown: (B, 10 n_u) physical units.
+            inputs: ``(psi_u (B, K, 6, 10 n_u), y (B, K, 6))`` when cached, else
+                ``(q, qd, qdd, wrench)`` of the batch's frames.
+        """
+        import jax  # noqa: PLC0415
+
+        if self.mode == "cached":
+            psi_u, y = inputs
+        else:
+            q, qd, qdd, wrench = inputs
+            psi = jax.lax.stop_gradient(self.regressor(q, qd, qdd, jnp.asarray(self.gravity)))
+            psi_u = psi[..., self.unknown_index]
+            y = wrench - psi[..., self.known_index] @ jnp.asarray(self.theta_known)
+        predicted = jnp.einsum("bkij,bj->bki", psi_u, theta_unknown)
+        return (y - predicted) / jnp.asarray(self.wrench_scale)
+
+    def term(self, z_hat, inputs):
+        """``mean ((R - Psi theta_hat) / s)^2`` from scaled predictions ``z_hat`` (B, n_out)."""
+        theta_u = z_hat * jnp.asarray(self.y_scale) + jnp.asarray(self.y_center)
+        r = self.residual(theta_u, inputs)
+        return jnp.mean(r * r)
+
+
+def make_loss(apply_fn, alpha: float, beta: float, physics: Physics | None):
+    """``loss(params, x, z, inputs) -> (total, (mse, phys))`` for one batch.
+
+    Args:
+        apply_fn: the model's ``apply(params, x) -> z_hat``.
+        alpha, beta: weights of the parameter MSE and the physics term (``beta = 0``: plain MSE).
+        physics: constants of the physics term (required when ``beta > 0``); ``inputs`` are
+            its per-batch arrays (see :meth:`Physics.residual`).
+    """
+    if beta > 0 and physics is None:
+        raise ValueError("the physics loss needs the robot's regressor (physics=...)")
+
+    def loss(params, x, z, inputs):
+        z_hat = apply_fn(params, x)
+        mse = jnp.mean((z_hat - z) ** 2)
+        if beta > 0:
+            phys = physics.term(z_hat, inputs)
+        else:
+            phys = jnp.zeros((), dtype=mse.dtype)
+        return alpha * mse + beta * phys, (mse, phys)
+
+    return loss

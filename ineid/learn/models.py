@@ -1,0 +1,150 @@
+"""The networks: the paper's simple network, Table 1's Networks 1-7, the funnel, any MLP;
+single- or multi-frame input; Siamese networks with one shared frame encoder.
+
+Every model maps a batch of samples ``x`` (B, K, 18), K frames of one configuration with
+18 scaled features each (``q, qd, qdd, wrench``), to (B, N_out) scaled parameters:
+
+* ``MLP``: the K frames concatenated (K * 18 inputs), hidden layers, a linear output;
+* ``Siamese``: one encoder (the hidden layers) applied to every frame with the same
+  weights, the K embeddings averaged (so the output does not depend on the frames' order
+  and K may differ between training and use), then a head (one hidden layer of the last
+  width, then the linear output). Shared weights hold by construction: the encoder is one
+  module called K times.
+
+Table 1 of the paper (N_out = 20 for two unknown links):
+
+==========  ======  ======================
+network     depth   width
+==========  ======  ======================
+simple      1       20 (Fig. 1)
+net1        8       N_out
+net2        8       2 N_out
+net3        12      N_out
+net4        16      N_out
+net5        8       4 N_out
+net6        8       8 N_out
+net7        8       16 N_out
+funnel      6       64, 32, 16, 8, 4, 2
+==========  ======  ======================
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import flax.linen as nn
+import jax.numpy as jnp
+
+ACTIVATIONS = {
+    "tanh": nn.tanh,
+    "relu": nn.relu,
+    "gelu": nn.gelu,
+    "sigmoid": nn.sigmoid,
+    "elu": nn.elu,
+    "silu": nn.silu,
+}
+
+TABLE1 = {  # name: (depth, width factor of N_out)
+    "net1": (8, 1),
+    "net2": (8, 2),
+    "net3": (12, 1),
+    "net4": (16, 1),
+    "net5": (8, 4),
+    "net6": (8, 8),
+    "net7": (8, 16),
+}
+ARCHITECTURES = ("simple", *TABLE1, "funnel", "mlp")
+
+
+def hidden_widths(arch: str, n_out: int, depth: int | None = None, width: int | None = None) -> tuple[int, ...]:
+    """Hidden-layer widths of a named architecture (``mlp`` takes ``depth`` and ``width``)."""
+    if arch == "simple":
+        return (20,)
+    if arch in TABLE1:
+        d, k = TABLE1[arch]
+        return (k * n_out,) * d
+    if arch == "funnel":
+        return (64, 32, 16, 8, 4, 2)
+    if arch == "mlp":
+        if not depth or not width or depth < 1 or width < 1:
+            raise ValueError("the mlp architecture needs depth >= 1 and width >= 1")
+        return (int(width),) * int(depth)
+    raise ValueError(f"architecture must be one of {', '.join(ARCHITECTURES)}, got {arch!r}")
+
+
+class MLP(nn.Module):
+    """Frames concatenated -> hidden layers -> linear output. (B, K, F) -> (B, n_out)."""
+
+    hidden: Sequence[int]
+    n_out: int
+    activation: str = "tanh"
+
+    @nn.compact
+    def __call__(self, x):
+        act = ACTIVATIONS[self.activation]
+        h = x.reshape(x.shape[0], -1)
+        for i, w in enumerate(self.hidden):
+            h = act(nn.Dense(w, param_dtype=jnp.float64, name=f"hidden_{i}")(h))
+        return nn.Dense(self.n_out, param_dtype=jnp.float64, name="out")(h)
+
+
+class Encoder(nn.Module):
+    """One frame -> embedding: the hidden layers of the architecture."""
+
+    hidden: Sequence[int]
+    activation: str = "tanh"
+
+    @nn.compact
+    def __call__(self, x):
+        act = ACTIVATIONS[self.activation]
+        for i, w in enumerate(self.hidden):
+            x = act(nn.Dense(w, param_dtype=jnp.float64, name=f"hidden_{i}")(x))
+        return x
+
+
+class Siamese(nn.Module):
+    """Shared encoder on every frame, mean of the embeddings, head. (B, K, F) -> (B, n_out)."""
+
+    hidden: Sequence[int]
+    n_out: int
+    activation: str = "tanh"
+
+    @nn.compact
+    def __call__(self, x):
+        act = ACTIVATIONS[self.activation]
+        encoder = Encoder(self.hidden, self.activation, name="encoder")
+        emb = encoder(x)  # Dense acts on the last axis: the same weights for every frame
+        pooled = emb.mean(axis=1)
+        h = act(nn.Dense(self.hidden[-1], param_dtype=jnp.float64, name="head_hidden")(pooled))
+        return nn.Dense(self.n_out, param_dtype=jnp.float64, name="out")(h)
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """What to build: architecture, sizes, activation, Siamese or not, frames per sample."""
+
+    arch: str = "simple"
+    activation: str = "tanh"
+    depth: int | None = None
+    width: int | None = None
+    siamese: bool = False
+    frames: int = 1
+
+    def __post_init__(self) -> None:
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(f"activation must be one of {', '.join(ACTIVATIONS)}, got {self.activation!r}")
+        if self.frames < 1:
+            raise ValueError(f"frames per sample must be >= 1, got {self.frames}")
+        hidden_widths(self.arch, 1, self.depth, self.width)  # validates the name and sizes
+
+    def build(self, n_out: int) -> nn.Module:
+        hidden = hidden_widths(self.arch, n_out, self.depth, self.width)
+        cls = Siamese if self.siamese else MLP
+        return cls(hidden=hidden, n_out=n_out, activation=self.activation)
+
+    @property
+    def name(self) -> str:
+        base = self.arch if self.arch != "mlp" else f"mlp{self.depth}x{self.width}"
+        kind = "siamese" if self.siamese else ("multi" if self.frames > 1 else "single")
+        return f"{base}-{self.activation}-{kind}{self.frames if self.frames > 1 else ''}"

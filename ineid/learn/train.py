@@ -1,0 +1,438 @@
+"""Training: splits, scalers, Optax optimizers, a jit-compiled step, validation every epoch,
+early stopping, exact resumption from checkpoints, metrics per epoch.
+
+A run lives in a folder::
+
+    RUN_DIR/config.json       everything needed to rebuild the run (settings, split, sizes)
+    RUN_DIR/scalers.json      the feature and target scalers (fitted on the training split)
+    RUN_DIR/metrics.jsonl     one JSON line per epoch
+    RUN_DIR/checkpoint.msgpack  params, optimizer state, best params, counters (each epoch)
+    RUN_DIR/model.msgpack     the best parameters (lowest validation MSE)
+
+Everything random is seeded: initialization by ``seed``, the split by ``(seed, 11)``, the
+frame groups of epoch ``e`` by ``(seed, 12, e)``; so a run resumed from its checkpoint
+ends bit for bit where the uninterrupted run would have.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ineid.errors import DatasetError, IneidError
+from ineid.learn.data import Split, epoch_groups, fixed_groups, frame_features, split_configs
+from ineid.learn.losses import LOSSES, PHYSICS_MODES, Physics, make_loss
+from ineid.learn.models import ModelSpec
+from ineid.learn.scalers import SCALERS, Scaler
+
+OPTIMIZERS = ("sgd", "adam", "adamw")
+SCHEDULES = ("constant", "cosine")
+
+
+class TrainingError(IneidError):
+    """A training run cannot start or resume as asked."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Settings of a training run (see ``docs/learning.md``).
+
+    Attributes:
+        model: architecture, activation, Siamese, frames per sample.
+        scaler: feature and target scaler kind.
+        loss: ``"mse"`` or ``"physics"`` (``alpha * MSE + beta * wrench residual``).
+        alpha, beta: loss weights (``beta`` used by the physics loss only).
+        optimizer: ``"sgd"`` (with ``momentum``), ``"adam"``, ``"adamw"`` (``weight_decay``).
+        lr, schedule: learning rate and its schedule (``constant`` or ``cosine`` decay to 0).
+        epochs, batch: epochs and samples per step.
+        patience: stop after this many epochs without a better validation MSE (0: never).
+        seed: the one seed of the run.
+        n_train, n_val, n_test: configurations per split (defaults 70 / 15 / 15 %).
+    """
+
+    model: ModelSpec = field(default_factory=ModelSpec)
+    scaler: str = "standard"
+    loss: str = "mse"
+    alpha: float = 1.0
+    beta: float = 1.0
+    optimizer: str = "adam"
+    lr: float = 1e-3
+    momentum: float = 0.9
+    weight_decay: float = 1e-4
+    schedule: str = "constant"
+    epochs: int = 100
+    batch: int = 256
+    patience: int = 20
+    seed: int = 0
+    n_train: int | None = None
+    n_val: int | None = None
+    n_test: int | None = None
+
+    def __post_init__(self) -> None:
+        checks = [
+            (self.scaler in SCALERS, f"scaler must be one of {', '.join(SCALERS)}"),
+            (self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}"),
+            (self.optimizer in OPTIMIZERS, f"optimizer must be one of {', '.join(OPTIMIZERS)}"),
+            (self.schedule in SCHEDULES, f"schedule must be one of {', '.join(SCHEDULES)}"),
+            (self.lr > 0 and self.epochs >= 1 and self.batch >= 1 and self.patience >= 0, "lr, epochs, batch must be positive"),
+            (self.alpha >= 0 and self.beta >= 0 and (self.alpha > 0 or (self.loss == "physics" and self.beta > 0)),
+             "alpha and beta must be >= 0 and the loss not identically zero"),
+        ]  # fmt: skip
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(message)
+
+    @property
+    def effective_beta(self) -> float:
+        return self.beta if self.loss == "physics" else 0.0
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["model"] = dataclasses.asdict(self.model)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrainConfig:
+        d = dict(d)
+        d["model"] = ModelSpec(**d["model"])
+        return cls(**d)
+
+
+def make_optimizer(cfg: TrainConfig, steps_per_epoch: int):
+    import optax  # noqa: PLC0415
+
+    if cfg.schedule == "cosine":
+        lr = optax.cosine_decay_schedule(cfg.lr, decay_steps=max(1, cfg.epochs * steps_per_epoch))
+    else:
+        lr = cfg.lr
+    if cfg.optimizer == "sgd":
+        return optax.sgd(lr, momentum=cfg.momentum)
+    if cfg.optimizer == "adam":
+        return optax.adam(lr)
+    return optax.adamw(lr, weight_decay=cfg.weight_decay)
+
+
+@dataclass
+class Prepared:
+    """The configurations of a run made ready: scalers and device arrays.
+
+    Arrays hold only the configurations in ``rows`` (dataset indices), in that order;
+    ``local(indices)`` maps dataset indices to positions in them.
+    """
+
+    rows: np.ndarray
+    x_scaler: Scaler
+    y_scaler: Scaler
+    arrays: dict
+    physics: Physics
+    n_out: int
+    n_frames: int
+
+    def local(self, dataset_indices: np.ndarray) -> np.ndarray:
+        return np.searchsorted(self.rows, dataset_indices)
+
+
+CACHE_LIMIT_BYTES = 6 * 2**30
+"""A cached physics term larger than this falls back to the inline regressor."""
+
+
+def prepare(ds, cfg: TrainConfig, rows: np.ndarray, model, scalers=None, fit_rows: np.ndarray | None = None,
+            wrench_scale: np.ndarray | None = None, physics_mode: str = "cached") -> Prepared:
+    """Scalers (fitted on ``fit_rows`` unless given) and device arrays of configurations ``rows``.
+
+    Args:
+        ds: the dataset (with the truth).
+        cfg: the run's settings.
+        rows: sorted dataset indices of the configurations to hold.
+        model: the robot model.
+        scalers: ``(x_scaler, y_scaler)`` of an existing run, or None to fit.
+        fit_rows: configurations to fit the scalers and the wrench scale on (the training split).
+        wrench_scale: the physics term's per-axis normalization of an existing run.
+        physics_mode: ``"cached"`` or ``"inline"`` (see :class:`ineid.learn.losses.Physics`).
+    """
+    import jax.numpy as jnp  # noqa: PLC0415
+
+    from ineid.identify.systems import stack  # noqa: PLC0415
+
+    if ds.theta_unknown is None:
+        raise DatasetError("training and evaluation need the true parameters: this dataset is a recording")
+    k = cfg.model.frames
+    if ds.n_frames < k:
+        raise DatasetError(f"{k} frames per sample but the dataset has {ds.n_frames} frames per configuration")
+    rows = np.asarray(rows, dtype=np.int64)
+    sub = ds.select(rows)
+    feats = frame_features(sub)
+    if scalers is None:
+        fit_local = np.searchsorted(rows, fit_rows)
+        x_scaler = Scaler.fit(cfg.scaler, feats[fit_local].reshape(-1, feats.shape[-1]))
+        y_scaler = Scaler.fit(cfg.scaler, sub.theta_unknown[fit_local])
+        ws = sub.wrench[fit_local].reshape(-1, 6).std(axis=0)
+        wrench_scale = np.where(ws > 0, ws, 1.0)
+    else:
+        x_scaler, y_scaler = scalers
+    n_u = sub.theta_unknown.shape[1]
+    if physics_mode == "cached" and cfg.effective_beta > 0:
+        need = sub.n_configs * sub.n_frames * 6 * (n_u + 1) * 8
+        if need > CACHE_LIMIT_BYTES:
+            physics_mode = "inline"
+    physics = Physics(
+        mode=physics_mode,
+        regressor=model.jax_regressor,
+        gravity=np.asarray(model.gravity),
+        unknown_index=np.asarray(model.unknown_index),
+        known_index=np.asarray(model.known_index),
+        theta_known=np.asarray(sub.theta_known),
+        wrench_scale=np.asarray(wrench_scale, dtype=np.float64),
+        y_center=y_scaler.center,
+        y_scale=y_scaler.scale,
+    )
+    arrays = {"x": jnp.asarray(x_scaler.transform(feats)), "z": jnp.asarray(y_scaler.transform(sub.theta_unknown))}
+    if physics_mode == "cached":
+        w, y = stack(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known)  # (C, 6F, n_u), (C, 6F)
+        arrays["psi"] = jnp.asarray(w.reshape(sub.n_configs, sub.n_frames, 6, n_u))
+        arrays["yres"] = jnp.asarray(y.reshape(sub.n_configs, sub.n_frames, 6))
+    else:
+        arrays.update(q=jnp.asarray(sub.q), qd=jnp.asarray(sub.qd), qdd=jnp.asarray(sub.qdd), wrench=jnp.asarray(sub.wrench))
+    return Prepared(rows, x_scaler, y_scaler, arrays, physics, n_u, sub.n_frames)
+
+
+def _gather(arrays, mode, rows, frames):
+    """Batch of samples: positions (B,) and frame indices (B, K) -> (x, z, physics inputs).
+
+    Per-frame arrays are gathered by one flat index ``row * n_frames + frame`` along their
+    first axis: a single-axis ``take``, much cheaper on the CPU than a two-axis gather.
+    """
+    import jax.numpy as jnp  # noqa: PLC0415
+
+    n_frames = arrays["x"].shape[1]
+    flat = rows[:, None] * n_frames + frames
+
+    def take(a):
+        return jnp.take(a.reshape((-1,) + a.shape[2:]), flat, axis=0)
+
+    if mode == "cached":
+        inputs = (take(arrays["psi"]), take(arrays["yres"]))
+    else:
+        inputs = tuple(take(arrays[k]) for k in ("q", "qd", "qdd", "wrench"))
+    return take(arrays["x"]), arrays["z"][rows], inputs
+
+
+def build_functions(net, cfg: TrainConfig, prep: Prepared, optimizer):
+    """Jitted ``train_step`` and ``eval_batch`` for a run."""
+    import jax  # noqa: PLC0415
+    import jax.numpy as jnp  # noqa: PLC0415
+    import optax  # noqa: PLC0415
+
+    loss_fn = make_loss(net.apply, cfg.alpha, cfg.effective_beta, prep.physics)
+    mode = prep.physics.mode
+
+    @jax.jit
+    def train_step(params, opt_state, arrays, rows, frames):
+        x, z, inputs = _gather(arrays, mode, rows, frames)
+        (total, (mse, phys)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, x, z, inputs)
+        updates, opt_state = optimizer.update(grads, opt_state, params)
+        return optax.apply_updates(params, updates), opt_state, jnp.stack([total, mse, phys])
+
+    @jax.jit
+    def eval_batch(params, arrays, rows, frames, mask):
+        """Sums over the masked samples of (mse, phys) and the predictions."""
+        x, z, inputs = _gather(arrays, mode, rows, frames)
+        z_hat = net.apply(params, x)
+        se = jnp.mean((z_hat - z) ** 2, axis=1)
+        r = prep.physics.residual(z_hat * prep.y_scaler.scale + prep.y_scaler.center, inputs)
+        ph = jnp.mean(r * r, axis=(1, 2))
+        return jnp.sum(se * mask), jnp.sum(ph * mask), z_hat
+
+    return train_step, eval_batch
+
+
+def evaluate_groups(eval_batch, params, arrays, rows, frames, batch: int):
+    """Mean MSE, mean physics term and scaled predictions (S, n_out) over sample groups."""
+    n = len(rows)
+    se = ph = 0.0
+    preds = []
+    for start in range(0, n, batch):
+        r, f = rows[start : start + batch], frames[start : start + batch]
+        m = np.ones(len(r))
+        if len(r) < batch:  # pad to one compiled shape
+            pad = batch - len(r)
+            r = np.concatenate([r, np.repeat(r[-1:], pad)])
+            f = np.concatenate([f, np.repeat(f[-1:], pad, axis=0)])
+            m = np.concatenate([m, np.zeros(pad)])
+        a, b, z = eval_batch(params, arrays, r, f, m)
+        se += float(a)
+        ph += float(b)
+        preds.append(np.asarray(z)[: int(m.sum())])
+    return se / n, ph / n, np.concatenate(preds)
+
+
+@dataclass
+class TrainResult:
+    run_dir: Path
+    epochs_run: int
+    best_epoch: int
+    best_val_mse: float
+    stopped_early: bool
+    seconds: float
+
+
+Progress = Callable[[int, int, dict], None]
+
+
+def _atomic_write(path: Path, data: bytes | str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    if isinstance(data, str):
+        tmp.write_text(data)
+    else:
+        tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def train(
+    ds,
+    cfg: TrainConfig,
+    run_dir: str | Path,
+    *,
+    dataset_path: str | None = None,
+    resume: bool = False,
+    overwrite: bool = False,
+    progress: Progress | None = None,
+    model=None,
+    physics_mode: str = "cached",
+) -> TrainResult:
+    """Train a network on ``ds`` into ``run_dir`` (see module doc).
+
+    Args:
+        ds: a synthetic :class:`ineid.data.Dataset` (with the truth).
+        cfg: the settings.
+        run_dir: the run folder; must be new or empty unless ``resume`` or ``overwrite``.
+        dataset_path: recorded in ``config.json`` (for ``ineid evaluate``).
+        resume: continue the run in ``run_dir`` from its checkpoint (same settings).
+        overwrite: start afresh in a folder that holds a run.
+        progress: ``progress(epoch, epochs, metrics)`` after every epoch.
+        model: the dataset's robot model (default: rebuilt from the dataset).
+        physics_mode: ``"cached"`` or ``"inline"`` regressor in the physics loss.
+
+    Raises:
+        TrainingError: the folder holds another run, or a resume does not match it.
+    """
+    import jax  # noqa: PLC0415
+    from flax import serialization  # noqa: PLC0415
+
+    run_dir = Path(run_dir)
+    ckpt_path = run_dir / "checkpoint.msgpack"
+    cfg_path = run_dir / "config.json"
+    if resume:
+        if not ckpt_path.is_file() or not cfg_path.is_file():
+            raise TrainingError(f"{run_dir} holds no checkpoint to resume; start the run without --resume")
+        saved = json.loads(cfg_path.read_text())
+        if saved["train"] != cfg.to_dict():
+            raise TrainingError(
+                f"{run_dir} holds a run with other settings; resume it with the same settings, or use a new folder"
+            )
+        split = Split.from_dict(saved["split"])
+    else:
+        if run_dir.exists() and any(run_dir.iterdir()) and not overwrite:
+            raise TrainingError(f"{run_dir} is not empty; pass --overwrite to replace the run, or --resume to continue it")
+        run_dir.mkdir(parents=True, exist_ok=True)
+        for name in ("checkpoint.msgpack", "model.msgpack", "metrics.jsonl", "evaluation.json"):
+            (run_dir / name).unlink(missing_ok=True)
+        split = None
+
+    model = model or ds.model()
+    if split is None:
+        split = split_configs(ds.n_configs, cfg.n_train, cfg.n_val, cfg.n_test, cfg.seed)
+    if resume:
+        saved_scalers = json.loads((run_dir / "scalers.json").read_text())
+        scalers = (Scaler.from_dict(saved_scalers["x"]), Scaler.from_dict(saved_scalers["y"]))
+        wrench_scale = np.asarray(saved["wrench_scale"])
+    else:
+        scalers = wrench_scale = None
+    rows = np.union1d(split.train, split.val)
+    prep = prepare(ds, cfg, rows, model, scalers, split.train, wrench_scale, physics_mode)
+    train_local, val_local = prep.local(split.train), prep.local(split.val)
+    k = cfg.model.frames
+    n_groups = prep.n_frames // k
+    n_samples = len(split.train) * n_groups
+    batch = min(cfg.batch, n_samples)
+    steps_per_epoch = n_samples // batch
+    net = cfg.model.build(prep.n_out)
+    params = net.init(jax.random.key(cfg.seed), prep.arrays["x"][:1, :k])
+    optimizer = make_optimizer(cfg, steps_per_epoch)
+    opt_state = optimizer.init(params)
+    state = {"params": params, "opt_state": opt_state, "best_params": params, "epoch": 0,
+             "best_val": float("inf"), "best_epoch": 0, "bad_epochs": 0}  # fmt: skip
+    if resume:
+        state = serialization.from_bytes(state, ckpt_path.read_bytes())
+    else:
+        meta = {
+            "train": cfg.to_dict(),
+            "split": split.to_dict(),
+            "physics_mode": prep.physics.mode,
+            "dataset": {"path": dataset_path, "robot": ds.meta.robot, "n_configs": ds.n_configs,
+                        "n_frames": ds.n_frames, "seed": ds.meta.seed, "noise": ds.meta.noise},
+            "n_out": prep.n_out,
+            "param_names": ds.meta.unknown_param_names,
+            "unknown_links": list(ds.meta.unknown_links),
+            "wrench_scale": prep.physics.wrench_scale.tolist(),
+            "steps_per_epoch": steps_per_epoch,
+            "batch": batch,
+        }  # fmt: skip
+        _atomic_write(cfg_path, json.dumps(meta, indent=1))
+        _atomic_write(run_dir / "scalers.json", json.dumps({"x": prep.x_scaler.to_dict(), "y": prep.y_scaler.to_dict()}))
+    metrics_path = run_dir / "metrics.jsonl"
+    done = int(state["epoch"])
+    kept = []
+    if resume and metrics_path.is_file():
+        kept = [line for line in metrics_path.read_text().splitlines() if line and json.loads(line)["epoch"] <= done]
+    _atomic_write(metrics_path, "".join(line + "\n" for line in kept))
+
+    train_step, eval_batch = build_functions(net, cfg, prep, optimizer)
+    val_pos, val_frames = fixed_groups(len(split.val), prep.n_frames, k)
+    val_rows = val_local[val_pos]
+    t_start = time.perf_counter()
+    params, opt_state = state["params"], state["opt_state"]
+    stopped = False
+    epoch = done
+    for epoch in range(done + 1, cfg.epochs + 1):
+        t0 = time.perf_counter()
+        pos, frames = epoch_groups(len(split.train), prep.n_frames, k, cfg.seed, epoch)
+        rows = train_local[pos]
+        sums = np.zeros(3)
+        for s in range(steps_per_epoch):
+            sl = slice(s * batch, (s + 1) * batch)
+            params, opt_state, losses = train_step(params, opt_state, prep.arrays, rows[sl], frames[sl])
+            sums += np.asarray(losses)
+        train_loss = sums / max(steps_per_epoch, 1)
+        if not np.all(np.isfinite(train_loss)):
+            raise TrainingError(f"the training loss diverged (non-finite) at epoch {epoch}; lower --lr")
+        val_mse, val_phys, _ = evaluate_groups(eval_batch, params, prep.arrays, val_rows, val_frames, batch)
+        improved = val_mse < state["best_val"]
+        state.update(params=params, opt_state=opt_state, epoch=epoch)
+        if improved:
+            state.update(best_params=params, best_val=val_mse, best_epoch=epoch, bad_epochs=0)
+        else:
+            state["bad_epochs"] = int(state["bad_epochs"]) + 1
+        record = {
+            "epoch": epoch, "train_loss": float(train_loss[0]), "train_mse": float(train_loss[1]),
+            "train_phys": float(train_loss[2]), "val_mse": float(val_mse), "val_phys": float(val_phys),
+            "best_epoch": int(state["best_epoch"]), "seconds": time.perf_counter() - t0,
+        }  # fmt: skip
+        with metrics_path.open("a") as fh:
+            fh.write(json.dumps(record) + "\n")
+        _atomic_write(ckpt_path, serialization.to_bytes(state))
+        if progress is not None:
+            progress(epoch, cfg.epochs, record)
+        if cfg.patience and state["bad_epochs"] >= cfg.patience:
+            stopped = True
+            break
+    _atomic_write(run_dir / "model.msgpack", serialization.to_bytes(state["best_params"]))
+    return TrainResult(run_dir, epoch, int(state["best_epoch"]), float(state["best_val"]), stopped,
+                       time.perf_counter() - t_start)  # fmt: skip
