@@ -855,8 +855,13 @@ def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, **kw) ->
                 f"training {cfg.model.name}  loss {rec['train_loss']:.4f}  val mse {rec['val_mse']:.4f}"
                 f"  val phys {rec['val_phys']:.4f}"))
 
-        result = train(ds, cfg, run_dir, dataset_path=str(data_path), resume=resume, overwrite=overwrite,
-                       progress=progress, model=model, physics_mode=physics_mode)
+        try:
+            result = train(ds, cfg, run_dir, dataset_path=str(data_path), resume=resume, overwrite=overwrite,
+                           progress=progress, model=model, physics_mode=physics_mode)
+        except KeyboardInterrupt:
+            raise click.ClickException(
+                f"interrupted; {run_dir} keeps the last finished epoch: continue with the same command and --resume"
+            ) from None
     click.echo(
         f"{result.epochs_run} epochs in {result.seconds:.1f} s"
         + (" (stopped early)" if result.stopped_early else "")
@@ -959,7 +964,7 @@ def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, f
     except ValueError:
         raise click.BadParameter(f"expected positive integers, got {frames_list!r}", param_hint="--frames-list") from None
     grid = Grid(
-        archs=names(archs, [a for a in ARCHITECTURES if a != "mlp"], "--archs"),
+        archs=names(archs, list(ARCHITECTURES), "--archs"),
         activations=names(activations, list(ACTIVATIONS), "--activations"),
         scalers=names(scalers, ["standard", "robust", "minmax"], "--scalers"),
         optimizers=names(optimizers, ["sgd", "adam", "adamw"], "--optimizers"),
@@ -967,15 +972,21 @@ def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, f
         frames=ks,
         siamese={"off": (False,), "on": (True,), "both": (False, True)}[siamese],
     )
-    base = _base_train_config(kw)
+    base = _base_train_config({**kw, "arch": "mlp" if kw["depth"] or kw["width"] else "simple"})
     if (out_dir / "sweep.csv").exists() and not overwrite:
         raise click.ClickException(f"{out_dir} holds a sweep; pass --overwrite to replace it")
+    try:
+        cfgs = grid.configs(base)
+        if not cfgs:
+            raise ValueError("the grid is empty: a Siamese network needs more than one frame (--frames-list 10)")
+    except ValueError as e:
+        raise click.UsageError(str(e)) from None
     ds = load_dataset(data_path)
-    n = len(grid.configs(base))
+    n = len(cfgs)
     with _ProgressBar("sweep", "runs", _quiet(ctx)) as bar:
         bar(0, n)
         rows = sweep(ds, grid, base, out_dir, dataset_path=str(data_path), progress=lambda i, t, r: bar(i, t),
-                     overwrite=True)
+                     overwrite=overwrite, physics_mode=physics_mode)
     table = Table(title=f"Sweep on {data_path}: test median relative error, ranked", title_justify="left")
     for col in ("#", "run", "standard", "base", "floor", "linear LS (std / base)", "physical", "epochs", "s"):
         table.add_column(col, justify="left" if col == "run" else "right")

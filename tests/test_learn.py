@@ -258,3 +258,29 @@ def test_resume_continues_the_same_run(model, data, tmp_path):
 def test_learn_never_imports_sympy():
     code = "import sys, ineid.learn; assert 'sympy' not in sys.modules, 'sympy imported'"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_resume_guards(model, data, tmp_path):
+    cfg = TrainConfig(model=ModelSpec("net1", frames=2), epochs=30, batch=16, lr=0.05, patience=1)
+    first = train(data, cfg, tmp_path / "run", model=model)
+    assert first.stopped_early and first.epochs_run < 30
+    n_lines = len((tmp_path / "run" / "metrics.jsonl").read_text().splitlines())
+    again = train(data, cfg, tmp_path / "run", model=model, resume=True)  # a finished run stays finished
+    assert again.stopped_early and len((tmp_path / "run" / "metrics.jsonl").read_text().splitlines()) == n_lines
+    other = generate_dataset(model, DatasetSpec(Combination("random", n_configs=120), n_frames=12, seed=SEED + 1))
+    with pytest.raises(TrainingError, match="trained on another dataset"):
+        train(other, cfg, tmp_path / "run", model=model, resume=True)
+    with pytest.raises(ValueError, match="depth and width apply to the mlp"):
+        ModelSpec("net1", depth=3)
+
+
+def test_evaluate_on_another_dataset(model, data, tmp_path):
+    cfg = TrainConfig(model=ModelSpec("simple"), epochs=2, batch=64)
+    train(data, cfg, tmp_path / "run", model=model)
+    run = load_run(tmp_path / "run")
+    other = generate_dataset(model, DatasetSpec(Combination("random", n_configs=150), n_frames=6, seed=9))
+    ev = evaluate(run, other, model=model)
+    assert ev.n_configs == 150 and ev.extra == {"configs": "all", "same_dataset": False}
+    assert np.isfinite(ev.floor["overall_median"]) and ev.floor["overall_median"] > 0.001  # out of fold, not fitted
+    small = evaluate(run, other, configs=np.arange(5), model=model, linear=False)
+    assert small.extra["configs"] == "given" and np.isnan(small.floor["overall_median"])

@@ -137,6 +137,8 @@ class ModelSpec:
         if self.frames < 1:
             raise ValueError(f"frames per sample must be >= 1, got {self.frames}")
         hidden_widths(self.arch, 1, self.depth, self.width)  # validates the name and sizes
+        if self.arch != "mlp" and (self.depth is not None or self.width is not None):
+            raise ValueError(f"depth and width apply to the mlp architecture; {self.arch} has fixed sizes")
 
     def build(self, n_out: int) -> nn.Module:
         hidden = hidden_widths(self.arch, n_out, self.depth, self.width)

@@ -35,7 +35,8 @@ class Grid:
         ):
             if siam and k < 2:
                 continue  # a Siamese network of one frame is a plain network
-            model = dataclasses.replace(base.model, arch=arch, activation=act, frames=k, siamese=siam)
+            sizes = {"depth": base.model.depth, "width": base.model.width} if arch == "mlp" else {"depth": None, "width": None}
+            model = dataclasses.replace(base.model, arch=arch, activation=act, frames=k, siamese=siam, **sizes)
             out.append(dataclasses.replace(base, model=model, scaler=scaler, optimizer=opt, loss=loss))
         return out
 
@@ -65,7 +66,7 @@ class SweepRow:
 
 
 def sweep(ds, grid: Grid, base: TrainConfig, out_dir: str | Path, dataset_path: str | None = None, model=None,
-          progress=None, overwrite: bool = False) -> list[SweepRow]:
+          progress=None, overwrite: bool = False, physics_mode: str = "cached") -> list[SweepRow]:
     """Train and evaluate every configuration of ``grid`` into ``out_dir/<name>``; rows ranked
     by the test median relative error of the standard parameters."""
     out_dir = Path(out_dir)
@@ -73,9 +74,12 @@ def sweep(ds, grid: Grid, base: TrainConfig, out_dir: str | Path, dataset_path: 
     model = model or ds.model()
     rows = []
     cfgs = grid.configs(base)
+    if not cfgs:
+        raise ValueError("the grid is empty (a Siamese network needs more than one frame: add --frames-list values > 1)")
     for i, cfg in enumerate(cfgs):
         name = run_name(cfg)
-        result = train(ds, cfg, out_dir / name, dataset_path=dataset_path, overwrite=overwrite, model=model)
+        result = train(ds, cfg, out_dir / name, dataset_path=dataset_path, overwrite=overwrite, model=model,
+                       physics_mode=physics_mode)
         ev = evaluate(load_run(out_dir / name), ds, model=model)
         (out_dir / name / "evaluation.json").write_text(json.dumps(ev.to_dict(), indent=1))
         rows.append(SweepRow(
@@ -110,9 +114,10 @@ def plot(rows: list[SweepRow], path: Path) -> Path:
     x = np.arange(len(rows))
     ax.bar(x - 0.2, [r.test_standard_median for r in rows], 0.4, label="standard parameters")
     ax.bar(x + 0.2, [r.test_base_median for r in rows], 0.4, label="base parameters")
-    if rows:
+    if rows and np.isfinite(rows[0].floor_standard_median):
         ax.axhline(rows[0].floor_standard_median, color="k", linestyle="--", label="null-space floor (standard)")
-        ax.axhline(rows[0].linear_base_median, color="C3", linestyle=":", label="linear least squares (base)")
+    if rows and len({r.frames for r in rows}) == 1:  # the same frames for every run: one LS line
+        ax.axhline(rows[0].linear_standard_median, color="C3", linestyle=":", label="linear least squares (standard)")
     ax.set_xticks(x, [r.name for r in rows], rotation=60, ha="right", fontsize=7)
     ax.set_ylabel("test median relative error")
     ax.set_yscale("log")

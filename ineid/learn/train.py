@@ -81,7 +81,8 @@ class TrainConfig:
             (self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}"),
             (self.optimizer in OPTIMIZERS, f"optimizer must be one of {', '.join(OPTIMIZERS)}"),
             (self.schedule in SCHEDULES, f"schedule must be one of {', '.join(SCHEDULES)}"),
-            (self.lr > 0 and self.epochs >= 1 and self.batch >= 1 and self.patience >= 0, "lr, epochs, batch must be positive"),
+            (self.lr > 0 and self.epochs >= 1 and self.batch >= 1 and self.patience >= 0,
+             "lr, epochs and batch must be positive and patience >= 0"),
             (self.alpha >= 0 and self.beta >= 0 and (self.alpha > 0 or (self.loss == "physics" and self.beta > 0)),
              "alpha and beta must be >= 0 and the loss not identically zero"),
         ]  # fmt: skip
@@ -178,7 +179,7 @@ def prepare(ds, cfg: TrainConfig, rows: np.ndarray, model, scalers=None, fit_row
     else:
         x_scaler, y_scaler = scalers
     n_u = sub.theta_unknown.shape[1]
-    if physics_mode == "cached" and cfg.effective_beta > 0:
+    if physics_mode == "cached":
         need = sub.n_configs * sub.n_frames * 6 * (n_u + 1) * 8
         if need > CACHE_LIMIT_BYTES:
             physics_mode = "inline"
@@ -286,6 +287,18 @@ class TrainResult:
 Progress = Callable[[int, int, dict], None]
 
 
+def dataset_fingerprint(ds) -> str:
+    """A digest of what defines a dataset's content: robot, URDF, sizes, seed, sampling, noise."""
+    import hashlib  # noqa: PLC0415
+
+    m = ds.meta
+    key = json.dumps([m.robot, m.urdf, list(m.unknown_links), np.asarray(m.gravity).tolist(), ds.n_configs,
+                      ds.n_frames, m.seed, m.sampling, m.noise, m.source], sort_keys=True, default=str)
+    if m.seed is None:  # a recording: its numbers are its identity
+        key += hashlib.sha256(np.ascontiguousarray(ds.wrench).tobytes()).hexdigest()
+    return hashlib.sha256(key.encode()).hexdigest()[:16]
+
+
 def _atomic_write(path: Path, data: bytes | str) -> None:
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     if isinstance(data, str):
@@ -338,6 +351,11 @@ def train(
                 f"{run_dir} holds a run with other settings; resume it with the same settings, or use a new folder"
             )
         split = Split.from_dict(saved["split"])
+        if saved.get("dataset", {}).get("fingerprint") != dataset_fingerprint(ds):
+            raise TrainingError(
+                f"{run_dir} was trained on another dataset (robot, sizes, seed, sampling or noise differ); "
+                "resume it with the same dataset"
+            )
     else:
         if run_dir.exists() and any(run_dir.iterdir()) and not overwrite:
             raise TrainingError(f"{run_dir} is not empty; pass --overwrite to replace the run, or --resume to continue it")
@@ -377,7 +395,8 @@ def train(
             "split": split.to_dict(),
             "physics_mode": prep.physics.mode,
             "dataset": {"path": dataset_path, "robot": ds.meta.robot, "n_configs": ds.n_configs,
-                        "n_frames": ds.n_frames, "seed": ds.meta.seed, "noise": ds.meta.noise},
+                        "n_frames": ds.n_frames, "seed": ds.meta.seed, "noise": ds.meta.noise,
+                        "fingerprint": dataset_fingerprint(ds)},
             "n_out": prep.n_out,
             "param_names": ds.meta.unknown_param_names,
             "unknown_links": list(ds.meta.unknown_links),
@@ -401,7 +420,11 @@ def train(
     params, opt_state = state["params"], state["opt_state"]
     stopped = False
     epoch = done
+    finished = bool(cfg.patience) and int(state["bad_epochs"]) >= cfg.patience  # stopped early before
     for epoch in range(done + 1, cfg.epochs + 1):
+        if finished:
+            stopped = True
+            break
         t0 = time.perf_counter()
         pos, frames = epoch_groups(len(split.train), prep.n_frames, k, cfg.seed, epoch)
         rows = train_local[pos]
