@@ -28,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from machine import cpu_description  # benchmarks/machine.py
+
 import ineid  # turns on JAX's float64 mode before jax is used
 from ineid.data import (
     Combination,
@@ -45,13 +47,8 @@ FLOOR_S = 30.0
 
 def header() -> str:
     """CPU model, core count, library versions."""
-    try:
-        with open("/proc/cpuinfo") as fh:
-            cpu = next(l.split(":", 1)[1].strip() for l in fh if l.startswith("model name"))
-    except (OSError, StopIteration):
-        cpu = platform.processor() or "unknown CPU"
     versions = ", ".join(f"{p} {md.version(p)}" for p in ("jax", "h5py", "numpy"))
-    return f"CPU: {cpu}, {os.cpu_count()} cores; {versions}; Python {platform.python_version()}"
+    return f"CPU: {cpu_description()}; {versions}; Python {platform.python_version()}"
 
 
 def warmup_spec(model, spec: DatasetSpec) -> DatasetSpec:

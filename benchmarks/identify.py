@@ -25,18 +25,11 @@ import time
 
 import numpy as np
 
+from machine import cpu_description  # benchmarks/machine.py
+
 import ineid
 from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
 from ineid.identify import SolveSettings, relative_error, solve_dataset
-
-
-def cpu() -> str:
-    try:
-        with open("/proc/cpuinfo") as fh:
-            name = next(line.split(":", 1)[1].strip() for line in fh if line.startswith("model name"))
-    except (OSError, StopIteration):
-        name = "unknown CPU"
-    return f"{name}, {os.cpu_count()} cores"
 
 
 def pinocchio_peer(model, ds, n_fit: int) -> tuple[np.ndarray, float]:
@@ -88,7 +81,7 @@ def main() -> None:
     n_fit = args.frames - int(0.2 * args.frames)
     sub = ds.select(slice(0, min(args.subset, ds.n_configs)))
     solve_dataset(ds.select(slice(0, 8)), SolveSettings(), model=model)  # compile the chunk shapes
-    print(f"machine: {cpu()}; ineid {ineid.__version__}")
+    print(f"machine: {cpu_description()}; ineid {ineid.__version__}")
     print(
         f"sweaty-arm, upper_arm + forearm unknown (20 parameters, 17 base); {ds.n_configs:,} configurations x "
         f"{args.frames} frames, wrench noise 0.5 N / 0.05 N*m; {n_fit} frames fitted per configuration"

@@ -17,19 +17,12 @@ import time
 import jax
 import numpy as np
 
+from machine import cpu_description  # benchmarks/machine.py
+
 import ineid
 from ineid.data import Combination, DatasetSpec, generate_dataset
 from ineid.learn import ModelSpec, TrainConfig, split_configs
 from ineid.learn.train import build_functions, epoch_groups, make_optimizer, prepare
-
-
-def cpu() -> str:
-    try:
-        with open("/proc/cpuinfo") as fh:
-            name = next(line.split(":", 1)[1].strip() for line in fh if line.startswith("model name"))
-    except (OSError, StopIteration):
-        name = "unknown CPU"
-    return f"{name}, {os.cpu_count()} cores, JAX {jax.__version__} on {jax.default_backend()}"
 
 
 def time_steps(ds, model, cfg: TrainConfig, split, physics_mode: str, n_steps: int) -> float:
@@ -73,7 +66,7 @@ def main() -> None:
         ("net2 (8 x 40), 10 frames concatenated, batch 64", ModelSpec("net2", frames=10), 64),
         ("net6 Siamese, 10 frames, batch 64", ModelSpec("net6", frames=10, siamese=True), 64),
     ]
-    print(f"machine: {cpu()}; ineid {ineid.__version__}; float64")
+    print(f"machine: {cpu_description()}; ineid {ineid.__version__}; float64")
     print(f"{len(split.train)} training configurations x 100 frames; Adam; {args.steps} steps timed, best of 3")
     head = f"{'network':48s} {'loss':16s} {'steps/s':>9s} {'samples/s':>10s} {'frames/s':>10s} {'vs MSE':>7s}"
     print(head)

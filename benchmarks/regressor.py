@@ -28,6 +28,7 @@ import platform
 import time
 
 import numpy as np
+from machine import cpu_description
 
 import ineid  # turns on JAX's float64 mode before jax is used
 
@@ -38,15 +39,10 @@ PANDA_LOCKED = {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}
 
 def header() -> str:
     """CPU model, core count, library versions."""
-    try:
-        with open("/proc/cpuinfo") as fh:
-            cpu = next(l.split(":", 1)[1].strip() for l in fh if l.startswith("model name"))
-    except (OSError, StopIteration):
-        cpu = platform.processor() or "unknown CPU"
     versions = ", ".join(f"{p} {md.version(d)}" for p, d in (("jax", "jax"), ("casadi", "casadi"),
                                                               ("sympy", "sympy"), ("pinocchio", "pin")))
     flags = os.environ.get("XLA_FLAGS", "")
-    return f"CPU: {cpu}, {os.cpu_count()} cores; {versions}; Python {platform.python_version()}" + (
+    return f"CPU: {cpu_description()}; {versions}; Python {platform.python_version()}" + (
         f"; XLA_FLAGS={flags!r}" if flags else "")
 
 

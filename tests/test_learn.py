@@ -157,7 +157,7 @@ def test_loss_gradients(model, data):
     x, z, inputs = _gather(prep.arrays, "cached", prep.local(split.train[:4]), np.tile(np.arange(3), (4, 1)))
     params = net.init(jax.random.key(0), x)
     loss = make_loss(net.apply, 0.7, 2.0, prep.physics)
-    check_grads(lambda p: loss(p, x, z, inputs)[0], (params,), order=2, modes=["rev"], atol=1e-6, rtol=1e-6)
+    check_grads(lambda p: loss(p, x, z, inputs)[0], (params,), order=2, modes=["rev"], eps=1e-6, atol=1e-6, rtol=1e-6)
     with pytest.raises(ValueError, match="physics loss needs"):
         make_loss(net.apply, 1.0, 1.0, None)
 

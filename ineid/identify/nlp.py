@@ -332,6 +332,12 @@ def nlp_estimate(
                 theta[i] = th
         if progress is not None:
             progress(i + 1, c)
+    return estimate_from_solves(theta, success, status, fit, base)
+
+
+def estimate_from_solves(theta, success, status, fit: BaseFit, base: BaseParameters) -> Estimate:
+    """An :class:`Estimate` of IPOPT solutions: ``beta = B theta``, standard deviations from
+    the base least-squares fit (the linearized uncertainty), NaN where a solve failed."""
     beta = theta @ base.B.T
     std = standard_std(np.nan_to_num(fit.cov_beta), base)
     std[~success] = np.nan

@@ -20,7 +20,7 @@ import numpy as np
 from ineid.errors import IdentificationError
 from ineid.identify.identifiability import BaseParameters, base_parameters
 from ineid.identify.linear import WEIGHT_MODES, BaseFit, Estimate, fit_base, fit_base_casadi, linear_estimate
-from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL, NlpSolver, nlp_estimate
+from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL, NlpSolver, estimate_from_solves, nlp_estimate
 from ineid.identify.systems import check_frames, iter_stacks, predict_wrench, stack_casadi
 
 METHODS = ("linear", "nonlinear", "consistent")
@@ -337,8 +337,6 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
     import multiprocessing as mp  # noqa: PLC0415
     from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
 
-    from ineid.identify.linear import standard_std  # noqa: PLC0415
-
     block = max(8, min(256, c // (4 * workers)))
     jobs = [
         (fit.R[i:i + block], fit.beta[i:i + block], fit.sigma2[i:i + block], rms[i:i + block], start[i:i + block],
@@ -366,12 +364,7 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
             done += len(out)
             if progress is not None:
                 progress(done, c)
-    beta = theta @ base.B.T
-    std = standard_std(np.nan_to_num(fit.cov_beta), base)
-    std[~success] = np.nan
-    beta_std = np.sqrt(np.maximum(np.diagonal(np.nan_to_num(fit.cov_beta), axis1=1, axis2=2), 0.0))
-    beta_std[~success] = np.nan
-    return Estimate(theta, std, beta, beta_std, success, status, fit), seconds
+    return estimate_from_solves(theta, success, status, fit, base), seconds
 
 
 def _predicted(model, ds, sl, theta_u):

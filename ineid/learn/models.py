@@ -73,24 +73,8 @@ def hidden_widths(arch: str, n_out: int, depth: int | None = None, width: int | 
     raise ValueError(f"architecture must be one of {', '.join(ARCHITECTURES)}, got {arch!r}")
 
 
-class MLP(nn.Module):
-    """Frames concatenated -> hidden layers -> linear output. (B, K, F) -> (B, n_out)."""
-
-    hidden: Sequence[int]
-    n_out: int
-    activation: str = "tanh"
-
-    @nn.compact
-    def __call__(self, x):
-        act = ACTIVATIONS[self.activation]
-        h = x.reshape(x.shape[0], -1)
-        for i, w in enumerate(self.hidden):
-            h = act(nn.Dense(w, param_dtype=jnp.float64, name=f"hidden_{i}")(h))
-        return nn.Dense(self.n_out, param_dtype=jnp.float64, name="out")(h)
-
-
 class Encoder(nn.Module):
-    """One frame -> embedding: the hidden layers of the architecture."""
+    """The hidden layers of an architecture: (..., F) -> (..., last width)."""
 
     hidden: Sequence[int]
     activation: str = "tanh"
@@ -101,6 +85,19 @@ class Encoder(nn.Module):
         for i, w in enumerate(self.hidden):
             x = act(nn.Dense(w, param_dtype=jnp.float64, name=f"hidden_{i}")(x))
         return x
+
+
+class MLP(nn.Module):
+    """Frames concatenated -> hidden layers -> linear output. (B, K, F) -> (B, n_out)."""
+
+    hidden: Sequence[int]
+    n_out: int
+    activation: str = "tanh"
+
+    @nn.compact
+    def __call__(self, x):
+        h = Encoder(self.hidden, self.activation, name="encoder")(x.reshape(x.shape[0], -1))
+        return nn.Dense(self.n_out, param_dtype=jnp.float64, name="out")(h)
 
 
 class Siamese(nn.Module):
