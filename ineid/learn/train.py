@@ -226,7 +226,7 @@ def _gather(arrays, mode, rows, frames):
 
 
 def build_functions(net, cfg: TrainConfig, prep: Prepared, optimizer):
-    """Jitted ``train_step`` and ``eval_batch`` for a run."""
+    """Jitted ``train_steps`` (with ``.single`` for one step) and ``eval_batch`` for a run."""
     import jax  # noqa: PLC0415
     import jax.numpy as jnp  # noqa: PLC0415
     import optax  # noqa: PLC0415
@@ -234,12 +234,27 @@ def build_functions(net, cfg: TrainConfig, prep: Prepared, optimizer):
     loss_fn = make_loss(net.apply, cfg.alpha, cfg.effective_beta, prep.physics)
     mode = prep.physics.mode
 
-    @jax.jit
-    def train_step(params, opt_state, arrays, rows, frames):
+    def one_step(params, opt_state, arrays, rows, frames):
         x, z, inputs = _gather(arrays, mode, rows, frames)
         (total, (mse, phys)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, x, z, inputs)
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return optax.apply_updates(params, updates), opt_state, jnp.stack([total, mse, phys])
+
+    @jax.jit
+    def train_steps(params, opt_state, arrays, rows, frames):
+        """``STEPS_PER_CALL`` steps in one call (a scan): rows (S, B), frames (S, B, K).
+
+        Small networks spend most of a step in dispatch; one call per few steps removes it.
+        """
+
+        def body(carry, batch):
+            p, o, losses = one_step(*carry, arrays, *batch)
+            return (p, o), losses
+
+        (params, opt_state), losses = jax.lax.scan(body, (params, opt_state), (rows, frames))
+        return params, opt_state, losses.sum(axis=0)
+
+    train_steps.single = jax.jit(one_step)
 
     @jax.jit
     def eval_batch(params, arrays, rows, frames, mask):
@@ -251,7 +266,28 @@ def build_functions(net, cfg: TrainConfig, prep: Prepared, optimizer):
         ph = jnp.mean(r * r, axis=(1, 2))
         return jnp.sum(se * mask), jnp.sum(ph * mask), z_hat
 
-    return train_step, eval_batch
+    return train_steps, eval_batch
+
+
+STEPS_PER_CALL = 16
+"""Training steps per compiled call (see ``train_steps``); the remainder runs one by one."""
+
+
+def run_epoch(train_steps, params, opt_state, arrays, rows, frames, batch: int, n_steps: int):
+    """``n_steps`` steps over consecutive batches; returns params, state and summed losses."""
+    sums = np.zeros(3)
+    full = n_steps - n_steps % STEPS_PER_CALL
+    for s0 in range(0, full, STEPS_PER_CALL):
+        sl = slice(s0 * batch, (s0 + STEPS_PER_CALL) * batch)
+        r = rows[sl].reshape(STEPS_PER_CALL, batch)
+        f = frames[sl].reshape(STEPS_PER_CALL, batch, -1)
+        params, opt_state, losses = train_steps(params, opt_state, arrays, r, f)
+        sums += np.asarray(losses)
+    for s in range(full, n_steps):
+        sl = slice(s * batch, (s + 1) * batch)
+        params, opt_state, losses = train_steps.single(params, opt_state, arrays, rows[sl], frames[sl])
+        sums += np.asarray(losses)
+    return params, opt_state, sums
 
 
 def evaluate_groups(eval_batch, params, arrays, rows, frames, batch: int):
@@ -413,7 +449,7 @@ def train(
         kept = [line for line in metrics_path.read_text().splitlines() if line and json.loads(line)["epoch"] <= done]
     _atomic_write(metrics_path, "".join(line + "\n" for line in kept))
 
-    train_step, eval_batch = build_functions(net, cfg, prep, optimizer)
+    train_steps, eval_batch = build_functions(net, cfg, prep, optimizer)
     val_pos, val_frames = fixed_groups(len(split.val), prep.n_frames, k)
     val_rows = val_local[val_pos]
     t_start = time.perf_counter()
@@ -428,11 +464,8 @@ def train(
         t0 = time.perf_counter()
         pos, frames = epoch_groups(len(split.train), prep.n_frames, k, cfg.seed, epoch)
         rows = train_local[pos]
-        sums = np.zeros(3)
-        for s in range(steps_per_epoch):
-            sl = slice(s * batch, (s + 1) * batch)
-            params, opt_state, losses = train_step(params, opt_state, prep.arrays, rows[sl], frames[sl])
-            sums += np.asarray(losses)
+        params, opt_state, sums = run_epoch(train_steps, params, opt_state, prep.arrays, rows, frames, batch,
+                                            steps_per_epoch)
         train_loss = sums / max(steps_per_epoch, 1)
         if not np.all(np.isfinite(train_loss)):
             raise TrainingError(f"the training loss diverged (non-finite) at epoch {epoch}; lower --lr")
