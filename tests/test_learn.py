@@ -284,3 +284,11 @@ def test_evaluate_on_another_dataset(model, data, tmp_path):
     assert np.isfinite(ev.floor["overall_median"]) and ev.floor["overall_median"] > 0.001  # out of fold, not fitted
     small = evaluate(run, other, configs=np.arange(5), model=model, linear=False)
     assert small.extra["configs"] == "given" and np.isnan(small.floor["overall_median"])
+
+
+def test_training_refuses_a_recording(model, data, tmp_path):
+    from ineid.data import read_recording_csv, write_recording_csv
+
+    rec = read_recording_csv(write_recording_csv(tmp_path / "r.csv", data, 0), model)
+    with pytest.raises(TrainingError, match="training needs the true parameters: this dataset is a recording"):
+        train(rec, TrainConfig(), tmp_path / "run", model=model)

@@ -376,6 +376,9 @@ def train(
     from flax import serialization  # noqa: PLC0415
 
     run_dir = Path(run_dir)
+    if ds.theta_unknown is None:
+        raise TrainingError("training needs the true parameters: this dataset is a recording; "
+                            "train on a synthetic dataset (ineid data generate)")
     ckpt_path = run_dir / "checkpoint.msgpack"
     cfg_path = run_dir / "config.json"
     if resume:
