@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import importlib.metadata as md
 import math
-import os
 import platform
 import tempfile
 import time

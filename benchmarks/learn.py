@@ -12,7 +12,6 @@ JAX regressor, either cached per frame (the default) or evaluated inside the los
 from __future__ import annotations
 
 import argparse
-import os
 import time
 
 import jax

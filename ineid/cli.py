@@ -105,13 +105,9 @@ def robot_show(robot: str, unknown_links: str | None, locked: tuple[str, ...], g
     """Joints, links (known/unknown) and CAD parameters of ROBOT."""
     from rich.table import Table  # noqa: PLC0415
 
-    import ineid  # noqa: PLC0415
     from ineid.params import PARAM_NAMES, inertial_from_theta  # noqa: PLC0415
 
-    kwargs = {"unknown_links": _split_names(unknown_links), "locked_joints": _parse_locked(locked) or None}
-    if gravity is not None:
-        kwargs["gravity"] = gravity
-    model = ineid.load_robot(robot, **kwargs)
+    model = _load_model(robot, unknown_links, locked, gravity)
     con = _console()
     con.print(f"[bold]{model.name}[/bold]  {model.urdf_path}")
     con.print(
@@ -669,9 +665,9 @@ def _print_results(res, out) -> None:
                     cells.append("yes" if row.identifiable else "no (prior)")
                 table.add_row(*cells)
             con.print(table)
-        from ineid.params import is_physical  # noqa: PLC0415
+        from ineid.params import all_links_physical  # noqa: PLC0415
 
-        valid = is_physical(np.nan_to_num(res.theta_hat[res.success]).reshape(n_ok, -1, 10)).all(axis=-1)
+        valid = all_links_physical(np.nan_to_num(res.theta_hat[res.success]))
         con.print(f"physically valid estimates: {100 * valid.mean():.1f}%")
     elif n_ok:
         i = int(np.flatnonzero(res.success)[0])

@@ -63,7 +63,7 @@ def identification(model, seed: int = 0, per_link: int = 12, n_frames: int = 100
     """A noisy ground truth (per_link^2 configurations), identified three ways."""
     from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset  # noqa: PLC0415
     from ineid.identify import SolveSettings, base_parameters, relative_error, solve_dataset  # noqa: PLC0415
-    from ineid.params import is_physical  # noqa: PLC0415
+    from ineid.params import all_links_physical  # noqa: PLC0415
 
     noise = NoiseModel.create(model.n_dof, force=0.5, moment=0.05, qd=0.01, qdd=0.1)
     t0 = time.perf_counter()
@@ -90,7 +90,7 @@ def identification(model, seed: int = 0, per_link: int = 12, n_frames: int = 100
         base_err = np.median(relative_error(res.base_hat[ok], res.base_true[ok]))
         std_err = np.median(relative_error(res.theta_hat[ok], res.theta_true[ok]))
         ident_err = np.median(relative_error(res.theta_hat[ok][:, base.identifiable], res.theta_true[ok][:, base.identifiable]))
-        physical = is_physical(res.theta_hat[ok].reshape(int(ok.sum()), -1, 10)).all(axis=-1).mean()
+        physical = all_links_physical(res.theta_hat[ok]).mean()
         print(f"{label:28s} {base_err:9.4f} {std_err:9.4f} {ident_err:13.4f} {physical:9.0%} {seconds:8.2f}")
     print("(median relative errors over configurations and parameters; identifiable = the 6 standard parameters")
     print(" the data determine alone; physical = share of estimates that are rigid bodies)")

@@ -197,6 +197,12 @@ def is_physical(theta, rtol: float = 1e-12) -> np.ndarray:
     return ok.reshape(theta.shape[:-1])
 
 
+def all_links_physical(theta, rtol: float = 1e-12) -> np.ndarray:
+    """Whether every link of each stacked vector is physically valid: (..., 10 n_links) -> (...,) bool."""
+    theta = _as_theta(theta)
+    return is_physical(theta.reshape(theta.shape[:-1] + (-1, 10)), rtol).all(axis=-1)
+
+
 # A valid placeholder body for entries already known to be invalid (keeps the batch finite).
 _UNIT_BODY = np.array([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 1.0])
 

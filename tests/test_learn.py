@@ -27,7 +27,6 @@ from ineid.learn import (
     split_configs,
     train,
 )
-from ineid.learn.losses import Physics
 from ineid.learn.train import prepare
 
 from .conftest import SEED

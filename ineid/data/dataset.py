@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ineid._atomic import atomic_write, temporary_path
 from ineid.errors import DatasetError
 from ineid.params import N_PARAMS_PER_LINK, PARAM_NAMES, param_names
 
@@ -135,7 +136,7 @@ class Dataset:
     def __post_init__(self) -> None:
         if self.config_index is None:
             self.config_index = np.arange(self.q.shape[0], dtype=np.int64)
-        _check_shapes(self.meta, self.arrays(), "dataset")
+        _check_shapes(self.meta, {k: v.shape for k, v in self.arrays().items()}, "dataset")
 
     @property
     def n_configs(self) -> int:
@@ -245,9 +246,7 @@ def model_from_meta(meta: DatasetMeta, codegen_dir: str | Path | None = None):
         path = cache_dir() / "urdf" / f"{digest}.urdf"
         if not path.is_file():
             path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-            tmp.write_text(meta.urdf)
-            os.replace(tmp, path)
+            atomic_write(path, meta.urdf)
         model = load_robot(path, locked_joints=meta.locked_joints or None, codegen_dir=codegen_dir, **kwargs)
     if tuple(model.joint_names) != tuple(meta.joint_names) or tuple(model.link_names) != tuple(meta.link_names):
         raise DatasetError(
@@ -272,19 +271,18 @@ def _expected_shapes(meta: DatasetMeta, n_configs: int, n_frames: int) -> dict[s
     return shapes
 
 
-def _check_shapes(meta: DatasetMeta, arrays: Mapping[str, np.ndarray], where: str) -> None:
-    if "q" not in arrays:
+def _check_shapes(meta: DatasetMeta, shapes: Mapping[str, tuple[int, ...]], where: str) -> None:
+    """Check array shapes (by dataset name) against the metadata's sizes."""
+    if "q" not in shapes:
         raise DatasetError(f"{where}: no 'q' dataset; not an ineid dataset, or a damaged one")
-    q = arrays["q"]
-    if len(q.shape) != 3:
-        raise DatasetError(f"{where}: q must have shape (n_configs, n_frames, n_dof), got {tuple(q.shape)}")
-    expected = _expected_shapes(meta, q.shape[0], q.shape[1])
-    for name, arr in arrays.items():
-        if name not in expected:
-            continue
-        if tuple(arr.shape) != expected[name]:
+    q = tuple(shapes["q"])
+    if len(q) != 3:
+        raise DatasetError(f"{where}: q must have shape (n_configs, n_frames, n_dof), got {q}")
+    expected = _expected_shapes(meta, q[0], q[1])
+    for name, shape in shapes.items():
+        if name in expected and tuple(shape) != expected[name]:
             raise DatasetError(
-                f"{where}: {name} has shape {tuple(arr.shape)}, expected {expected[name]} for "
+                f"{where}: {name} has shape {tuple(shape)}, expected {expected[name]} for "
                 f"{meta.n_dof} joints and unknown links {list(meta.unknown_links)}"
             )
     if set(meta.unknown_links) | set(meta.known_links) != set(meta.link_names) or set(meta.unknown_links) & set(
@@ -401,7 +399,7 @@ class DatasetWriter:
         if unknown:
             raise ValueError(f"not per-configuration datasets: {unknown}")
         self.rows = rows or chunk_rows(self.n_frames, max(6, meta.n_dof), self.n_configs)
-        self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        self._tmp = temporary_path(self.path)
         self._file = h5py.File(self._tmp, "w")
         self._pool = ThreadPoolExecutor(max_workers=workers or os.cpu_count() or 1)
         self._pending: list[tuple[Future, object, tuple[int, ...]]] = []
@@ -596,18 +594,13 @@ def read_meta(path: str | Path) -> tuple[DatasetMeta, dict[str, tuple[int, ...]]
     with _open(path) as f:
         meta = _read_meta(f, str(path))
         shapes = {name: tuple(f[name].shape) for name in f}
-        _check_shapes(meta, {n: _Shape(s) for n, s in shapes.items()}, str(path))
+        _check_shapes(meta, shapes, str(path))
         for name in ("q", "qd", "qdd", "wrench", "theta_known"):
             if name not in shapes:
                 raise DatasetError(f"{path}: dataset {name!r} is missing; the file is damaged")
         if meta.source == "synthetic" and "theta_unknown" not in shapes:
             raise DatasetError(f"{path}: a synthetic dataset without theta_unknown; the file is damaged")
     return meta, shapes
-
-
-class _Shape:
-    def __init__(self, shape):
-        self.shape = shape
 
 
 def _index(sel, n: int, what: str) -> np.ndarray:

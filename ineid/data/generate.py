@@ -28,7 +28,7 @@ from ineid.data.sampling import (
     sample_frames,
 )
 from ineid.errors import DatasetError
-from ineid.params import is_physical
+from ineid.params import all_links_physical
 
 Progress = Callable[[int, int], None]
 """``progress(configs_done, configs_total)``."""
@@ -81,7 +81,7 @@ class _Plan:
         self.theta_unknown, self.link_set_index = sample_configurations(
             model.theta_cad[model.unknown_index], spec.combination, spec.seed, spec.parameters
         )
-        bad = ~is_physical(self.theta_unknown.reshape(len(self.theta_unknown), -1, 10)).all(axis=-1)
+        bad = ~all_links_physical(self.theta_unknown)
         if bad.any():  # cannot happen by construction; a guard against a broken sampler
             raise DatasetError(f"sampler produced {int(bad.sum())} non-physical parameter sets")
         self.n_configs = len(self.theta_unknown)

@@ -11,12 +11,12 @@ which reads back bit for bit.
 
 from __future__ import annotations
 
-import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
+from ineid._atomic import atomic_write
 from ineid.errors import IdentificationError, RobotModelError
 from ineid.params import inertial_from_theta, physical_violations
 
@@ -102,11 +102,4 @@ def export_urdf(results, config: int, out: str | Path, overwrite: bool = False) 
     theta = results.theta_hat[i].reshape(-1, 10)
     by_link = dict(zip(results.meta["unknown_links"], theta, strict=True))
     text = urdf_with_inertials(results.meta["urdf"], by_link, results.meta.get("locked_joints"))
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, out)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return out
+    return atomic_write(out, text)

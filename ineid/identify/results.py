@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ineid._atomic import temporary_path
 from ineid.errors import DatasetError
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.solve import SolveResults, SolveSettings
@@ -31,7 +32,7 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
         raise DatasetError(f"{path} exists; pass --overwrite to replace it")
     if not path.parent.is_dir():
         raise DatasetError(f"folder {path.parent} does not exist; create it first")
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp = temporary_path(path)
     text = h5py.string_dtype()
     try:
         with h5py.File(tmp, "w") as f:

@@ -10,7 +10,6 @@ processes when there are many.
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -198,11 +197,13 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         fit = _concat_fits(fits)
 
     # 2. standard parameters
-    lin = linear_estimate(fit, base, prior)
     if settings.method == "linear":
-        est = lin
+        est = linear_estimate(fit, base, prior)
     else:
-        start = prior if settings.start == "prior" else _physical_start(lin.theta, prior, base.scales)
+        if settings.start == "prior":
+            start = prior
+        else:
+            start = _physical_start(linear_estimate(fit, base, prior).theta, prior, base.scales)
         est, nlp_seconds = _run_nlp(fit, base, settings, prior, rms, start, progress)
         seconds = seconds + nlp_seconds
 

@@ -24,7 +24,7 @@ import numpy as np
 from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
 from ineid.identify.results import relative_error
 from ineid.identify.solve import SolveSettings, solve_dataset
-from ineid.params import is_physical
+from ineid.params import all_links_physical
 
 REFERENCE_NOISE = {"force": 0.5, "moment": 0.05, "q": 0.0, "qd": 0.01, "qdd": 0.1}
 """Standard deviations at noise level 1 (N, N*m, rad, rad/s, rad/s^2)."""
@@ -91,7 +91,7 @@ def noise_study(
                 ok = res.success
                 b_err = relative_error(res.base_hat[ok], res.base_true[ok])
                 t_err = relative_error(res.theta_hat[ok], res.theta_true[ok])
-                valid = is_physical(np.nan_to_num(res.theta_hat[ok]).reshape(int(ok.sum()), -1, 10)).all(axis=-1)
+                valid = all_links_physical(np.nan_to_num(res.theta_hat[ok]))
                 rows.append(StudyRow(
                     level=float(level),
                     frames=int(k),

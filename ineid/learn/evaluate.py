@@ -168,7 +168,7 @@ def evaluate(run: Run, ds, configs: np.ndarray | None = None, model=None, linear
     from ineid.identify import SolveSettings, base_parameters, solve_dataset  # noqa: PLC0415
     from ineid.identify.results import relative_error  # noqa: PLC0415
     from ineid.identify.systems import predict_wrench  # noqa: PLC0415
-    from ineid.params import is_physical  # noqa: PLC0415
+    from ineid.params import all_links_physical  # noqa: PLC0415
 
     if ds.theta_unknown is None:
         raise TrainingError("evaluation needs the true parameters; this dataset is a recording")
@@ -202,7 +202,7 @@ def evaluate(run: Run, ds, configs: np.ndarray | None = None, model=None, linear
         per_sample_median=float(np.nanmedian(relative_error(per_sample, truth[:, None, :]))),
         wrench_rms=np.sqrt(np.mean(resid**2, axis=(0, 1))).tolist(),
         wrench_normalized=float(np.mean((resid / scale) ** 2)),
-        physical_share=float(is_physical(theta_hat.reshape(len(configs), -1, 10)).all(axis=-1).mean()),
+        physical_share=float(all_links_physical(theta_hat).mean()),
         identifiable=base.identifiable.tolist(),
     )
     if linear and 6 * f_used >= base.rank:
@@ -210,7 +210,7 @@ def evaluate(run: Run, ds, configs: np.ndarray | None = None, model=None, linear
         ok = res.success
         ev.linear = _stats(res.theta_hat[ok], truth[ok], names)
         ev.linear_base = _stats(res.base_hat[ok], truth[ok] @ base.B.T, base.names)
-        ev.linear_physical_share = float(is_physical(res.theta_hat[ok].reshape(int(ok.sum()), -1, 10)).all(axis=-1).mean())
+        ev.linear_physical_share = float(all_links_physical(res.theta_hat[ok]).mean())
     given = "given" if configs_given else "all"
     ev.extra = {"configs": "test split" if same and not configs_given else given, "same_dataset": same}
     return ev

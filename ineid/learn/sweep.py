@@ -12,7 +12,6 @@ from pathlib import Path
 import numpy as np
 
 from ineid.learn.evaluate import evaluate, load_run
-from ineid.learn.models import ModelSpec
 from ineid.learn.train import TrainConfig, train
 
 

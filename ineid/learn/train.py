@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -26,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ineid._atomic import atomic_write
 from ineid.errors import DatasetError, IneidError
 from ineid.learn.data import Split, epoch_groups, fixed_groups, frame_features, split_configs
 from ineid.learn.losses import LOSSES, PHYSICS_MODES, Physics, make_loss
@@ -167,6 +167,8 @@ def prepare(ds, cfg: TrainConfig, rows: np.ndarray, model, scalers=None, fit_row
     k = cfg.model.frames
     if ds.n_frames < k:
         raise DatasetError(f"{k} frames per sample but the dataset has {ds.n_frames} frames per configuration")
+    if physics_mode not in PHYSICS_MODES:
+        raise ValueError(f"physics_mode must be one of {', '.join(PHYSICS_MODES)}, got {physics_mode!r}")
     rows = np.asarray(rows, dtype=np.int64)
     sub = ds.select(rows)
     feats = frame_features(sub)
@@ -335,15 +337,6 @@ def dataset_fingerprint(ds) -> str:
     return hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
-def _atomic_write(path: Path, data: bytes | str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    if isinstance(data, str):
-        tmp.write_text(data)
-    else:
-        tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 def train(
     ds,
     cfg: TrainConfig,
@@ -443,14 +436,14 @@ def train(
             "steps_per_epoch": steps_per_epoch,
             "batch": batch,
         }  # fmt: skip
-        _atomic_write(cfg_path, json.dumps(meta, indent=1))
-        _atomic_write(run_dir / "scalers.json", json.dumps({"x": prep.x_scaler.to_dict(), "y": prep.y_scaler.to_dict()}))
+        atomic_write(cfg_path, json.dumps(meta, indent=1))
+        atomic_write(run_dir / "scalers.json", json.dumps({"x": prep.x_scaler.to_dict(), "y": prep.y_scaler.to_dict()}))
     metrics_path = run_dir / "metrics.jsonl"
     done = int(state["epoch"])
     kept = []
     if resume and metrics_path.is_file():
         kept = [line for line in metrics_path.read_text().splitlines() if line and json.loads(line)["epoch"] <= done]
-    _atomic_write(metrics_path, "".join(line + "\n" for line in kept))
+    atomic_write(metrics_path, "".join(line + "\n" for line in kept))
 
     train_steps, eval_batch = build_functions(net, cfg, prep, optimizer)
     val_pos, val_frames = fixed_groups(len(split.val), prep.n_frames, k)
@@ -486,12 +479,12 @@ def train(
         }  # fmt: skip
         with metrics_path.open("a") as fh:
             fh.write(json.dumps(record) + "\n")
-        _atomic_write(ckpt_path, serialization.to_bytes(state))
+        atomic_write(ckpt_path, serialization.to_bytes(state))
         if progress is not None:
             progress(epoch, cfg.epochs, record)
         if cfg.patience and state["bad_epochs"] >= cfg.patience:
             stopped = True
             break
-    _atomic_write(run_dir / "model.msgpack", serialization.to_bytes(state["best_params"]))
+    atomic_write(run_dir / "model.msgpack", serialization.to_bytes(state["best_params"]))
     return TrainResult(run_dir, epoch, int(state["best_epoch"]), float(state["best_val"]), stopped,
                        time.perf_counter() - t_start)  # fmt: skip

@@ -15,6 +15,7 @@ from pathlib import Path
 import sympy as sp
 from sympy.printing.str import StrPrinter
 
+from ineid._atomic import atomic_write
 from ineid.generated import file_names
 from ineid.symbolic.newton_euler import SymbolicRegressor
 
@@ -236,9 +237,5 @@ def write_files(files: dict[str, str], directory: str | Path) -> list[Path]:
     directory.mkdir(parents=True, exist_ok=True)
     written = []
     for name, text in sorted(files.items()):
-        target = directory / name
-        tmp = target.with_suffix(target.suffix + ".tmp")
-        tmp.write_text(text)
-        tmp.replace(target)
-        written.append(target)
+        written.append(atomic_write(directory / name, text))
     return written
