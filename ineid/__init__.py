@@ -1,22 +1,30 @@
 """ineid: identify a robot arm's inertial parameters from the wrench under its base.
 
-``wrench = Psi(q, qd, qdd) @ theta`` (Newton-Euler, base frame). Importing ineid turns on
-JAX's 64-bit mode: ineid computes in float64 throughout.
+``wrench = Psi(q, qd, qdd) @ theta`` (Newton-Euler, base frame). ineid computes in float64
+throughout: importing it turns on JAX's 64-bit mode (through ``JAX_ENABLE_X64`` before JAX
+is imported, or JAX's config if it already was). Importing ``ineid`` itself is light (no
+JAX); :func:`load_robot` and :class:`RobotModel` load their modules on first use.
 """
 
 from __future__ import annotations
 
-import jax
+import os
+import sys
+from importlib.metadata import PackageNotFoundError, version
 
-jax.config.update("jax_enable_x64", True)
+os.environ.setdefault("JAX_ENABLE_X64", "1")
+if "jax" in sys.modules:  # imported before ineid: the variable came too late
+    sys.modules["jax"].config.update("jax_enable_x64", True)
 
 from ineid.errors import (  # noqa: E402
     CodegenError,
     DatasetError,
     IdentificationError,
     IneidError,
+    OutputExistsError,
     PhysicalConsistencyError,
     RobotModelError,
+    TrainingError,
 )
 from ineid.params import (  # noqa: E402
     PARAM_NAMES,
@@ -28,9 +36,27 @@ from ineid.params import (  # noqa: E402
     pseudo_inertia,
     theta_from_inertial,
 )
-from ineid.robots import BUILTIN_ROBOTS, RobotModel, load_robot  # noqa: E402
 
-__version__ = "0.1.0"
+try:
+    __version__ = version("ineid")
+except PackageNotFoundError:  # a source tree that was never installed
+    __version__ = "0+unknown"
+
+_LAZY = {
+    "BUILTIN_ROBOTS": "ineid.robots",
+    "RobotModel": "ineid.robots",
+    "load_robot": "ineid.codegen",
+}
+
+
+def __getattr__(name: str):
+    """Import the robot-model entry points on first use (they pull in yourdfpy)."""
+    if name in _LAZY:
+        import importlib  # noqa: PLC0415
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'ineid' has no attribute {name!r}")
+
 
 __all__ = [
     "BUILTIN_ROBOTS",
@@ -39,9 +65,11 @@ __all__ = [
     "DatasetError",
     "IdentificationError",
     "IneidError",
+    "OutputExistsError",
     "PhysicalConsistencyError",
     "RobotModel",
     "RobotModelError",
+    "TrainingError",
     "__version__",
     "check_physical",
     "inertial_from_theta",

@@ -152,7 +152,8 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
     """Derive ROBOT's base-wrench regressor and emit its CasADi and JAX modules."""
     from ineid.generated import BUILTIN_DIR  # noqa: PLC0415
     from ineid.robots import BUILTIN_ROBOTS, load_chain  # noqa: PLC0415
-    from ineid.robots.model import cache_dir, generate_code  # noqa: PLC0415
+    from ineid.cache import cache_dir  # noqa: PLC0415
+    from ineid.codegen import generate_code  # noqa: PLC0415
     from ineid.symbolic.emit import GENERATOR  # noqa: PLC0415
 
     if all_builtin == (robot is not None):

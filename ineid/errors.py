@@ -33,3 +33,11 @@ class IdentificationError(IneidError):
     def __init__(self, message: str, status: str | None = None) -> None:
         super().__init__(message)
         self.status = status
+
+
+class TrainingError(IneidError):
+    """A network cannot be trained or evaluated as asked (no truth in the data, a bad run folder)."""
+
+
+class OutputExistsError(IneidError):
+    """An output file or folder exists and the caller did not ask to replace it."""

@@ -234,8 +234,9 @@ def model_from_meta(meta: DatasetMeta, codegen_dir: str | Path | None = None):
     """
     import hashlib  # noqa: PLC0415
 
-    from ineid.robots import BUILTIN_ROBOTS, load_robot  # noqa: PLC0415
-    from ineid.robots.model import cache_dir  # noqa: PLC0415
+    from ineid.cache import cache_dir  # noqa: PLC0415
+    from ineid.codegen import load_robot  # noqa: PLC0415
+    from ineid.robots import BUILTIN_ROBOTS  # noqa: PLC0415
 
     kwargs = {"unknown_links": list(meta.unknown_links), "gravity": tuple(float(g) for g in meta.gravity)}
     spec = BUILTIN_ROBOTS.get(meta.robot)

@@ -15,7 +15,8 @@ from ineid.learn.losses import LOSSES, PHYSICS_MODES, Physics, make_loss
 from ineid.learn.models import ACTIVATIONS, ARCHITECTURES, MLP, TABLE1, ModelSpec, Siamese, hidden_widths
 from ineid.learn.scalers import SCALERS, Scaler
 from ineid.learn.sweep import Grid, SweepRow, sweep
-from ineid.learn.train import OPTIMIZERS, SCHEDULES, TrainConfig, TrainingError, TrainResult, train
+from ineid.errors import TrainingError
+from ineid.learn.train import OPTIMIZERS, SCHEDULES, TrainConfig, TrainResult, train
 
 __all__ = [
     "ACTIVATIONS",

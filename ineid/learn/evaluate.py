@@ -30,7 +30,8 @@ import numpy as np
 
 from ineid.learn.data import Split, fixed_groups, frame_features
 from ineid.learn.scalers import Scaler
-from ineid.learn.train import TrainConfig, TrainingError
+from ineid.errors import TrainingError
+from ineid.learn.train import TrainConfig
 
 
 @dataclass

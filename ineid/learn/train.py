@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ineid._atomic import atomic_write
-from ineid.errors import DatasetError, IneidError
+from ineid.errors import DatasetError, TrainingError
 from ineid.learn.data import Split, epoch_groups, fixed_groups, frame_features, split_configs
 from ineid.learn.losses import LOSSES, PHYSICS_MODES, Physics, make_loss
 from ineid.learn.models import ModelSpec
@@ -34,10 +34,6 @@ from ineid.learn.scalers import SCALERS, Scaler
 
 OPTIMIZERS = ("sgd", "adam", "adamw")
 SCHEDULES = ("constant", "cosine")
-
-
-class TrainingError(IneidError):
-    """A training run cannot start or resume as asked."""
 
 
 @dataclass(frozen=True)

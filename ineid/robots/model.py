@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping, Sequence
 from functools import cached_property
 from pathlib import Path
@@ -199,42 +198,3 @@ class RobotModel:
         q, qd, qdd = (ca.SX.sym(s, self.n_dof) for s in ("q", "qd", "qdd"))
         y = full(q, qd, qdd, ca.DM(self.gravity))
         return ca.Function("base_wrench_regressor", [q, qd, qdd], [y], ["q", "qd", "qdd"], ["Y"])
-
-    @property
-    def casadi_regressor_with_gravity(self):
-        """The generated ``casadi.Function`` ``(q, qd, qdd, gravity) -> Y``."""
-        return self._casadi.base_wrench_regressor
-
-
-def cache_dir() -> Path:
-    """Where generated code of user URDFs is cached: ``$INEID_CACHE_DIR`` or ``~/.cache/ineid``."""
-    env = os.environ.get("INEID_CACHE_DIR")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "ineid"
-
-
-def generated_modules_for(chain: Chain, robot_name: str, codegen_dir: str | Path | None = None):
-    """Import a URDF robot's generated modules, deriving and writing them first if needed."""
-    from ineid.generated import load_from_directory  # noqa: PLC0415
-
-    directory = Path(codegen_dir) if codegen_dir is not None else cache_dir() / "generated" / chain.kinematic_fingerprint()
-    modules = load_from_directory(directory, robot_name)
-    if modules is not None and modules[0].KINEMATIC_FINGERPRINT == chain.kinematic_fingerprint():
-        return modules
-    generate_code(chain, robot_name, directory)
-    modules = load_from_directory(directory, robot_name)
-    assert modules is not None
-    return modules
-
-
-def generate_code(chain: Chain, robot_name: str, directory: str | Path, regenerate: str | None = None):
-    """Derive and emit a chain's modules into ``directory``; returns the :class:`Emitted` record."""
-    from ineid.symbolic.emit import emit_modules, write_files  # noqa: PLC0415
-    from ineid.symbolic.newton_euler import derive_base_wrench_regressor  # noqa: PLC0415
-
-    sym = derive_base_wrench_regressor(chain)
-    emitted = emit_modules(sym, robot_name, regenerate or "ineid generate ROBOT")
-    write_files(emitted.files, directory)
-    return emitted

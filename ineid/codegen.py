@@ -1,0 +1,108 @@
+"""Find or derive the generated modules of a chain, and load robot models on top of them.
+
+This module sits above :mod:`ineid.robots` (URDF parsing, :class:`RobotModel`) and
+:mod:`ineid.symbolic` (SymPy derivation): a built-in robot loads its checked-in modules
+from :mod:`ineid.generated`; any other URDF loads its modules from the cache folder keyed
+by its kinematic fingerprint, and derives and writes them first when they are missing or
+stale. ``robots`` never imports ``symbolic``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from types import ModuleType
+
+from ineid.cache import cache_dir
+from ineid.errors import RobotModelError
+from ineid.robots import BUILTIN_ROBOTS, Chain, RobotModel, load_chain
+from ineid.robots.model import DEFAULT_GRAVITY
+
+log = logging.getLogger(__name__)
+
+
+def default_codegen_dir(chain: Chain) -> Path:
+    """The cache folder of a chain's generated modules: ``<cache>/generated/<fingerprint>``."""
+    return cache_dir() / "generated" / chain.kinematic_fingerprint()
+
+
+def generated_modules_for(
+    chain: Chain, robot_name: str, codegen_dir: str | Path | None = None
+) -> tuple[ModuleType, ModuleType]:
+    """``(jax module, casadi module)`` of a URDF chain, deriving and writing them first if needed.
+
+    The modules are reused when their ``KINEMATIC_FINGERPRINT`` equals the chain's.
+    """
+    from ineid.generated import load_from_directory  # noqa: PLC0415
+
+    directory = Path(codegen_dir) if codegen_dir is not None else default_codegen_dir(chain)
+    modules = load_from_directory(directory, robot_name)
+    if modules is not None and modules[0].KINEMATIC_FINGERPRINT == chain.kinematic_fingerprint():
+        log.info("generated code of %s found in %s", robot_name, directory)
+        return modules
+    log.info("deriving the regressor of %s with SymPy into %s", robot_name, directory)
+    generate_code(chain, robot_name, directory)
+    modules = load_from_directory(directory, robot_name)
+    assert modules is not None
+    return modules
+
+
+def generate_code(chain: Chain, robot_name: str, directory: str | Path, regenerate: str | None = None):
+    """Derive and emit a chain's modules into ``directory``; returns the :class:`~ineid.symbolic.emit.Emitted` record.
+
+    ``regenerate`` is the command named in the files' header (default ``ineid generate ROBOT``).
+    """
+    from ineid.symbolic.emit import emit_modules, write_files  # noqa: PLC0415
+    from ineid.symbolic.newton_euler import derive_base_wrench_regressor  # noqa: PLC0415
+
+    sym = derive_base_wrench_regressor(chain)
+    emitted = emit_modules(sym, robot_name, regenerate or "ineid generate ROBOT")
+    write_files(emitted.files, directory)
+    return emitted
+
+
+def load_robot(
+    robot: str | Path,
+    *,
+    unknown_links: Sequence[str] | None = None,
+    gravity: Sequence[float] = DEFAULT_GRAVITY,
+    locked_joints: Mapping[str, float] | None = None,
+    codegen_dir: str | Path | None = None,
+) -> RobotModel:
+    """Load a built-in robot by name or any serial-chain URDF by path.
+
+    Args:
+        robot: a built-in name (``"sweaty-arm"``) or a path to a ``.urdf`` file.
+        unknown_links: moving links whose parameters are to be identified; default: the
+            built-in robot's choice, or every moving link of a URDF.
+        gravity: (3,) m/s^2 in the base frame.
+        locked_joints: ``{joint name: position}`` of joints to treat as fixed (a URDF's
+            gripper fingers, for instance). Not for built-in robots.
+        codegen_dir: folder with (or for) a URDF's generated code; default: a cache folder
+            keyed by the kinematic fingerprint (see :mod:`ineid.cache`). A URDF without
+            generated code is derived once with SymPy (seconds).
+
+    Raises:
+        RobotModelError: unknown name, unreadable or unusable URDF, or bad link choice.
+    """
+    from ineid.generated import load_builtin  # noqa: PLC0415
+
+    key = str(robot)
+    if key in BUILTIN_ROBOTS and not Path(key).is_file():
+        spec = BUILTIN_ROBOTS[key]
+        if locked_joints:
+            raise RobotModelError(f"{key} is a built-in serial arm; locked_joints applies to URDF files only")
+        chain = load_chain(spec.urdf_path)
+        jax_mod, ca_mod = load_builtin(key)
+        links = spec.unknown_links if unknown_links is None else unknown_links
+        return RobotModel(chain, spec.urdf_path, key, gravity, links, jax_mod, ca_mod)
+    path = Path(key)
+    if not path.is_file():
+        raise RobotModelError(
+            f"{key!r} is neither a built-in robot ({', '.join(BUILTIN_ROBOTS)}) nor a URDF file that exists"
+        )
+    chain = load_chain(path, locked_joints=locked_joints)
+    jax_mod, ca_mod = generated_modules_for(chain, chain.name, codegen_dir)
+    links = [j.link for j in chain.joints] if unknown_links is None else unknown_links
+    return RobotModel(chain, path.resolve(), chain.name, gravity, links, jax_mod, ca_mod, locked_joints)
