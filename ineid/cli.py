@@ -418,7 +418,7 @@ def data_info(path: Path) -> None:
     import numpy as np  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
 
-    from ineid.data.dataset import iter_dataset, read_meta  # noqa: PLC0415
+    from ineid.data import iter_dataset, read_meta  # noqa: PLC0415
     from ineid.params import param_names  # noqa: PLC0415
 
     meta, shapes = read_meta(path)

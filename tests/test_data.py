@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import ineid
-from ineid import DatasetError, PhysicalConsistencyError, check_physical, is_physical
+from ineid import DatasetError, OutputExistsError, PhysicalConsistencyError, check_physical, is_physical
 from ineid.data import (
     Combination,
     DatasetSpec,
@@ -260,7 +260,7 @@ def test_round_trip_and_selection(small, tmp_path):
 
 def test_refuses_to_overwrite_and_leaves_no_partial_file(model, small, tmp_path):
     path = small.save(tmp_path / "s.h5")
-    with pytest.raises(DatasetError, match="exists; pass --overwrite"):
+    with pytest.raises(OutputExistsError, match=r"s\.h5 exists; pass --overwrite to replace it$"):
         small.save(path)
     before = path.read_bytes()
 

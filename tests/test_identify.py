@@ -264,7 +264,7 @@ def test_results_round_trip_and_summary(model, noisy, tmp_path):
     assert back.config_index.tolist() == list(range(0, 300, 30))
     rows = error_summary(back.base_hat, back.base_true, back.base.names, back.success)
     assert len(rows) == 17 and all(0 <= r.within_1 <= r.within_5 <= 1 for r in rows)
-    with pytest.raises(ineid.DatasetError, match="exists"):
+    with pytest.raises(ineid.OutputExistsError, match="exists; pass --overwrite to replace it"):
         save_results(res, path)
     noisy.select(slice(0, 2)).save(tmp_path / "d.h5")
     with pytest.raises(ineid.DatasetError, match="it is a dataset"):
@@ -284,7 +284,7 @@ def test_export_urdf_round_trip(model, clean, tmp_path):
     pm = pin.buildModelFromUrdf(str(out))
     got = np.concatenate([pm.inertias[i].toDynamicParameters() for i in (3, 4)])
     np.testing.assert_allclose(got, res.theta_hat[0], rtol=1e-12, atol=1e-15)
-    with pytest.raises(IdentificationError, match="exists"):
+    with pytest.raises(ineid.OutputExistsError, match="exists; pass --overwrite to replace it"):
         export_urdf(res, 7, out)
     with pytest.raises(IdentificationError, match="configuration 3 is not in the results"):
         export_urdf(res, 3, tmp_path / "x.urdf")

@@ -8,18 +8,9 @@ A recording from a real arm enters through :func:`read_recording_csv`.
 from __future__ import annotations
 
 from ineid.data.csv_import import csv_columns, read_recording_csv, write_recording_csv
-from ineid.data.dataset import (
-    FORMAT,
-    VERSION,
-    Dataset,
-    DatasetMeta,
-    DatasetWriter,
-    assemble_theta,
-    load_dataset,
-    model_from_meta,
-    read_meta,
-    save_dataset,
-)
+from ineid.data.read import iter_dataset, load_dataset, read_meta
+from ineid.data.schema import FORMAT, VERSION, Dataset, DatasetMeta, assemble_theta, model_from_meta
+from ineid.data.write import DatasetWriter, save_dataset
 from ineid.data.generate import DatasetSpec, generate_dataset, write_dataset
 from ineid.data.noise import NoiseModel
 from ineid.data.sampling import (
@@ -45,6 +36,7 @@ __all__ = [
     "assemble_theta",
     "csv_columns",
     "generate_dataset",
+    "iter_dataset",
     "load_dataset",
     "model_from_meta",
     "read_meta",

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid.data.dataset import Dataset, DatasetMeta
+from ineid.data.schema import Dataset, DatasetMeta
 from ineid.errors import DatasetError
 
 WRENCH_COLUMNS = ("fx", "fy", "fz", "mx", "my", "mz")

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid.data.dataset import Dataset, DatasetMeta, DatasetWriter, chunk_rows
+from ineid.data.schema import Dataset, DatasetMeta
+from ineid.data.write import DatasetWriter, chunk_rows
 from ineid.data.noise import NoiseModel
 from ineid.data.sampling import (
     RNG_BLOCK_CONFIGS,

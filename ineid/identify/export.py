@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid._atomic import atomic_write
+from ineid._atomic import atomic_write, check_output
 from ineid.errors import IdentificationError, RobotModelError
 from ineid.params import inertial_from_theta, physical_violations
 
@@ -87,8 +87,7 @@ def export_urdf(results, config: int, out: str | Path, overwrite: bool = False) 
         out: the ``.urdf`` file to write (atomically).
     """
     out = Path(out)
-    if out.exists() and not overwrite:
-        raise IdentificationError(f"{out} exists; pass --overwrite to replace it", status="exists")
+    check_output(out, overwrite)
     rows = np.flatnonzero(np.asarray(results.config_index) == config)
     if rows.size == 0:
         shown = ", ".join(str(i) for i in results.config_index[:8]) + (", ..." if results.n > 8 else "")

@@ -4,13 +4,12 @@ its error summaries."""
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ineid._atomic import temporary_path
+from ineid._atomic import atomic_output, check_output
 from ineid.errors import DatasetError
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.solve import SolveResults, SolveSettings
@@ -20,7 +19,12 @@ VERSION = 1
 
 
 def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -> Path:
-    """Write results atomically (temporary file, then rename)."""
+    """Write ``res`` to ``path`` atomically (temporary file, then rename).
+
+    Raises:
+        OutputExistsError: ``path`` exists and ``overwrite`` is off.
+        DatasetError: ``path`` is a folder or its folder does not exist.
+    """
     import h5py  # noqa: PLC0415
 
     from ineid import __version__  # noqa: PLC0415
@@ -28,13 +32,11 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
     path = Path(path)
     if path.is_dir():
         raise DatasetError(f"{path} is a folder; give a file name such as results.h5")
-    if path.exists() and not overwrite:
-        raise DatasetError(f"{path} exists; pass --overwrite to replace it")
+    check_output(path, overwrite)
     if not path.parent.is_dir():
         raise DatasetError(f"folder {path.parent} does not exist; create it first")
-    tmp = temporary_path(path)
     text = h5py.string_dtype()
-    try:
+    with atomic_output(path) as tmp:
         with h5py.File(tmp, "w") as f:
             a = f.attrs
             a["format"], a["version"] = FORMAT, VERSION
@@ -50,6 +52,8 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
             a["gravity"] = np.asarray(res.meta["gravity"], dtype=np.float64)
             a["locked_joints"] = json.dumps(res.meta.get("locked_joints") or {}, sort_keys=True)
             a["total_seconds"] = float(res.meta.get("total_seconds", np.nan))
+            a["dataset_path"] = str(res.meta.get("dataset_path") or "")
+            a["dataset_fingerprint"] = str(res.meta.get("dataset_fingerprint") or "")
             arrays = {
                 "config_index": res.config_index,
                 "theta_hat": res.theta_hat,
@@ -75,10 +79,6 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
             for name, arr in arrays.items():
                 f.create_dataset(name, data=np.asarray(arr), compression="gzip" if np.size(arr) > 4096 else None)
             f.create_dataset("status", data=np.array([str(s) for s in res.status], dtype=text))
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return path
 
 
@@ -129,6 +129,8 @@ def load_results(path: str | Path) -> SolveResults:
             "locked_joints": json.loads(a["locked_joints"]),
             "total_seconds": float(a["total_seconds"]),
             "ineid_version": str(a["ineid_version"]),
+            "dataset_path": str(a.get("dataset_path", "")) or None,
+            "dataset_fingerprint": str(a.get("dataset_fingerprint", "")) or None,
         }
         return SolveResults(
             settings=settings,

@@ -222,6 +222,8 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         "unknown_links": list(ds.meta.unknown_links),
         "gravity": np.asarray(ds.meta.gravity).tolist(),
         "locked_joints": ds.meta.locked_joints,
+        "dataset_path": None if ds.path is None else str(ds.path),
+        "dataset_fingerprint": ds.fingerprint(),
         "total_seconds": time.perf_counter() - t_start,
     }
     return SolveResults(
@@ -418,7 +420,7 @@ def identify_frames(
             parameters (with what is missing), or an IPOPT failure (``.status`` holds
             IPOPT's return status).
     """
-    from ineid.data.dataset import Dataset, DatasetMeta  # noqa: PLC0415
+    from ineid.data.schema import Dataset, DatasetMeta  # noqa: PLC0415
     from ineid.identify.identifiability import analyze_frames  # noqa: PLC0415
 
     arrays = [np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench)]

@@ -218,9 +218,7 @@ def evaluate(run: Run, ds, configs: np.ndarray | None = None, model=None, linear
 
 
 def _same_dataset(run: Run, ds) -> bool:
-    from ineid.learn.train import dataset_fingerprint  # noqa: PLC0415
-
-    return run.meta.get("dataset", {}).get("fingerprint") == dataset_fingerprint(ds)
+    return run.meta.get("dataset", {}).get("fingerprint") == ds.fingerprint()
 
 
 def _floor(theta_all: np.ndarray, train_rows, configs: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -321,18 +321,6 @@ class TrainResult:
 Progress = Callable[[int, int, dict], None]
 
 
-def dataset_fingerprint(ds) -> str:
-    """A digest of what defines a dataset's content: robot, URDF, sizes, seed, sampling, noise."""
-    import hashlib  # noqa: PLC0415
-
-    m = ds.meta
-    key = json.dumps([m.robot, m.urdf, list(m.unknown_links), np.asarray(m.gravity).tolist(), ds.n_configs,
-                      ds.n_frames, m.seed, m.sampling, m.noise, m.source], sort_keys=True, default=str)
-    if m.seed is None:  # a recording: its numbers are its identity
-        key += hashlib.sha256(np.ascontiguousarray(ds.wrench).tobytes()).hexdigest()
-    return hashlib.sha256(key.encode()).hexdigest()[:16]
-
-
 def train(
     ds,
     cfg: TrainConfig,
@@ -379,7 +367,7 @@ def train(
                 f"{run_dir} holds a run with other settings; resume it with the same settings, or use a new folder"
             )
         split = Split.from_dict(saved["split"])
-        if saved.get("dataset", {}).get("fingerprint") != dataset_fingerprint(ds):
+        if saved.get("dataset", {}).get("fingerprint") != ds.fingerprint():
             raise TrainingError(
                 f"{run_dir} was trained on another dataset (robot, sizes, seed, sampling or noise differ); "
                 "resume it with the same dataset"
@@ -424,7 +412,7 @@ def train(
             "physics_mode": prep.physics.mode,
             "dataset": {"path": dataset_path, "robot": ds.meta.robot, "n_configs": ds.n_configs,
                         "n_frames": ds.n_frames, "seed": ds.meta.seed, "noise": ds.meta.noise,
-                        "fingerprint": dataset_fingerprint(ds)},
+                        "fingerprint": ds.fingerprint()},
             "n_out": prep.n_out,
             "param_names": ds.meta.unknown_param_names,
             "unknown_links": list(ds.meta.unknown_links),

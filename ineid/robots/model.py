@@ -29,17 +29,22 @@ class RobotModel:
     def __init__(
         self,
         chain: Chain,
-        urdf_path: Path,
+        urdf_path: Path | None,
         name: str,
         gravity: Sequence[float],
         unknown_links: Sequence[str],
         jax_module: ModuleType,
         casadi_module: ModuleType,
         locked_joints: Mapping[str, float] | None = None,
+        urdf_text: str | None = None,
     ) -> None:
+        if urdf_path is None and urdf_text is None:
+            raise ValueError("RobotModel needs urdf_path or urdf_text")
         self.chain = chain
         self.locked_joints: dict[str, float] = dict(locked_joints or {})
-        self.urdf_path = Path(urdf_path)
+        self.urdf_path = None if urdf_path is None else Path(urdf_path)
+        """The URDF file, or None for a model rebuilt from a dataset's URDF text."""
+        self._urdf_text = urdf_text
         self.name = name
         self.gravity = np.asarray(gravity, dtype=np.float64)
         if self.gravity.shape != (3,) or not np.all(np.isfinite(self.gravity)):
@@ -68,6 +73,13 @@ class RobotModel:
             f"RobotModel({self.name!r}, n_dof={self.n_dof}, unknown_links={list(self.unknown_links)}, "
             f"gravity={self.gravity.tolist()})"
         )
+
+    @property
+    def urdf_text(self) -> str:
+        """The URDF the model was built from."""
+        if self._urdf_text is None:
+            self._urdf_text = self.urdf_path.read_text()
+        return self._urdf_text
 
     # -- structure -------------------------------------------------------------------
     @property

@@ -1,0 +1,204 @@
+"""Reading ineid dataset files: format and version checks, shapes, finite values.
+
+The schema is :mod:`ineid.data.schema`; files from older format versions are read too.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ineid.data.schema import FORMAT, MEASURED_KEYS, VERSION, Dataset, DatasetMeta, check_finite, check_shapes, expected_shapes
+from ineid.errors import DatasetError
+from ineid.params import PARAM_NAMES
+
+
+def _open(path: Path):
+    import h5py  # noqa: PLC0415
+
+    if not path.exists():
+        raise DatasetError(f"{path} does not exist")
+    if path.is_dir():
+        raise DatasetError(f"{path} is a folder, not a dataset file")
+    try:
+        return h5py.File(path, "r")
+    except OSError as e:
+        raise DatasetError(
+            f"{path} is not a readable HDF5 file ({_first_line(e)}); it may be truncated or corrupt: "
+            "regenerate it or copy it again"
+        ) from None
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip().splitlines()
+    return text[0] if text else type(e).__name__
+
+
+def _as_str(value) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+def _str_tuple(value) -> tuple[str, ...]:
+    return tuple(_as_str(v) for v in np.atleast_1d(value))
+
+
+def _json_attr(attrs, key: str, where: str):
+    try:
+        return json.loads(_as_str(attrs[key]))
+    except (KeyError, json.JSONDecodeError):
+        raise DatasetError(f"{where}: attribute {key!r} is missing or not JSON; the file is damaged") from None
+
+
+def _read_meta(f, where: str) -> DatasetMeta:
+    attrs = f.attrs
+    fmt = _as_str(attrs.get("format", ""))
+    if fmt != FORMAT:
+        raise DatasetError(
+            f"{where}: not an ineid dataset (format attribute {fmt or 'missing'!r}, expected {FORMAT!r}); "
+            "make one with `ineid data generate` or `ineid data import`"
+        )
+    try:
+        version = int(attrs["version"])
+    except (KeyError, TypeError, ValueError):
+        raise DatasetError(f"{where}: the format version attribute is missing; the file is damaged") from None
+    if version > VERSION or version < 1:
+        raise DatasetError(
+            f"{where}: format version {version} is not supported (this ineid reads versions 1..{VERSION}); "
+            "upgrade ineid or regenerate the file"
+        )
+    try:
+        order = _str_tuple(attrs["param_order"])
+        meta = DatasetMeta(
+            robot=_as_str(attrs["robot"]),
+            urdf=_as_str(attrs["urdf"]),
+            gravity=np.asarray(attrs["gravity"], dtype=np.float64),
+            joint_names=_str_tuple(attrs["joint_names"]),
+            link_names=_str_tuple(attrs["link_names"]),
+            unknown_links=_str_tuple(attrs["unknown_links"]),
+            known_links=_str_tuple(attrs["known_links"]),
+            locked_joints=_json_attr(attrs, "locked_joints", where) or {},
+            source=_as_str(attrs["source"]),
+            seed=int(attrs["seed"]) if "seed" in attrs else None,
+            sampling=_json_attr(attrs, "sampling", where),
+            noise=_json_attr(attrs, "noise", where),
+            origin=_json_attr(attrs, "origin", where),
+            ineid_version=_as_str(attrs.get("ineid_version", "")),
+            version=version,
+        )
+    except KeyError as e:
+        raise DatasetError(f"{where}: attribute {e.args[0]!r} is missing; the file is damaged") from None
+    if order != PARAM_NAMES:
+        raise DatasetError(f"{where}: parameter order {list(order)} differs from ineid's {list(PARAM_NAMES)}")
+    if meta.gravity.shape != (3,) or not np.all(np.isfinite(meta.gravity)):
+        raise DatasetError(f"{where}: gravity must be 3 finite numbers, got {meta.gravity.tolist()}")
+    return meta
+
+
+def read_meta(path: str | Path) -> tuple[DatasetMeta, dict[str, tuple[int, ...]]]:
+    """The attributes of a dataset file and the shapes of its arrays, without the data."""
+    path = Path(path)
+    with _open(path) as f:
+        meta = _read_meta(f, str(path))
+        shapes = {name: tuple(f[name].shape) for name in f}
+        check_shapes(meta, shapes, str(path))
+        for name in ("q", "qd", "qdd", "wrench", "theta_known"):
+            if name not in shapes:
+                raise DatasetError(f"{path}: dataset {name!r} is missing; the file is damaged")
+        if meta.source == "synthetic" and "theta_unknown" not in shapes:
+            raise DatasetError(f"{path}: a synthetic dataset without theta_unknown; the file is damaged")
+    return meta, shapes
+
+
+def _index(sel, n: int, what: str) -> np.ndarray:
+    if sel is None:
+        return np.arange(n)
+    if isinstance(sel, slice):
+        return np.arange(n)[sel]
+    idx = np.asarray(sel)
+    if idx.dtype == bool:
+        if idx.shape != (n,):
+            raise DatasetError(f"{what} mask must have {n} entries, got {idx.shape}")
+        return np.flatnonzero(idx)
+    idx = idx.astype(np.int64).ravel()
+    if idx.size and (idx.min() < -n or idx.max() >= n):
+        raise DatasetError(f"{what} index out of range: the file has {n} {what}s (0..{n - 1})")
+    return np.where(idx < 0, idx + n, idx)
+
+
+def load_dataset(path: str | Path, configs=None, frames=None) -> Dataset:
+    """Read a dataset file, checking format, version, shapes and finite values.
+
+    Args:
+        path: the file.
+        configs: which configurations (slice, index array, boolean mask; default all).
+        frames: which frames of each (default all).
+
+    Raises:
+        DatasetError: naming what is wrong (not HDF5, truncated, another format, a newer
+            version, a missing or misshapen array, NaN or infinite values).
+    """
+    path = Path(path)
+    meta, shapes = read_meta(path)
+    n_configs, n_frames = shapes["q"][:2]
+    cidx = _index(configs, n_configs, "configuration")
+    fidx = _index(frames, n_frames, "frame")
+    where = str(path)
+    out: dict[str, np.ndarray] = {}
+    with _open(path) as f:
+        for name in shapes:
+            if name not in expected_shapes(meta, 1, 1):
+                continue
+            dset = f[name]
+            try:
+                if name == "theta_known":
+                    arr = dset[()]
+                else:
+                    arr = _read_rows(dset, cidx)
+                    if arr.ndim == 3 or name == "time":
+                        arr = arr[:, fidx]
+            except (OSError, ValueError) as e:
+                raise DatasetError(
+                    f"{where}: dataset {name!r} cannot be read ({_first_line(e)}); the file is truncated or corrupt"
+                ) from None
+            if name != "link_set_index":
+                check_finite(name, arr, where, None if name == "theta_known" else cidx)
+            out[name] = np.asarray(arr, dtype=np.int64 if name == "link_set_index" else np.float64)
+    clean = {k: out.pop(f"{k}_clean") for k in MEASURED_KEYS if f"{k}_clean" in out}
+    return Dataset(
+        meta=meta,
+        q=out["q"],
+        qd=out["qd"],
+        qdd=out["qdd"],
+        wrench=out["wrench"],
+        theta_known=out["theta_known"],
+        theta_unknown=out.get("theta_unknown"),
+        clean=clean,
+        time=out.get("time"),
+        link_set_index=out.get("link_set_index"),
+        config_index=cidx.astype(np.int64),
+        path=path,
+    )
+
+
+def _read_rows(dset, idx: np.ndarray) -> np.ndarray:
+    if idx.size == 0:
+        return np.empty((0,) + dset.shape[1:], dset.dtype)
+    if np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
+        return dset[int(idx[0]) : int(idx[0]) + idx.size]
+    # h5py fancy indexing needs increasing indices; read sorted, then restore the order.
+    uniq, inverse = np.unique(idx, return_inverse=True)
+    return dset[uniq][inverse]
+
+
+def iter_dataset(path: str | Path, name: str, rows: int = 4096):
+    """Yield ``(start, block)`` of one per-configuration array, ``rows`` configurations at a time."""
+    path = Path(path)
+    with _open(path) as f:
+        dset = f[name]
+        for start in range(0, dset.shape[0], rows):
+            try:
+                yield start, dset[start : start + rows]
+            except OSError as e:
+                raise DatasetError(f"{path}: dataset {name!r} cannot be read ({_first_line(e)}); truncated or corrupt") from None
