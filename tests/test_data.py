@@ -213,10 +213,10 @@ def test_noise_is_recorded_and_leaves_the_clean_data_alone(model, small):
 
 def test_chunked_generation_streams(model, tmp_path):
     """Several chunks, the last one short; memory holds one chunk at a time."""
-    from ineid.data.generate import _Plan
+    from ineid.data.generate import GenerationPlan
 
     spec = small_spec(combination=Combination("random", n_configs=1000), n_frames=300)
-    plan = _Plan(model, spec)
+    plan = GenerationPlan(model, spec)
     assert plan.rows < plan.n_configs and plan.n_configs % plan.rows != 0
     ds = load_dataset(write_dataset(model, spec, tmp_path / "big.h5"))
     assert np.array_equal(ds.wrench[-3:], generate_dataset(model, spec).wrench[-3:])

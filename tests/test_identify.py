@@ -201,12 +201,12 @@ def test_consistent_is_always_physical(model, base):
 
 
 def test_linear_start_is_used_and_physical(model, base, clean):
-    from ineid.identify.solve import _physical_start
+    from ineid.identify.solve import physical_start
 
     sub = clean.select(slice(0, 20))
     lin = solve_dataset(sub, model=model)
     prior = model.theta_cad[model.unknown_index]
-    start = _physical_start(lin.theta_hat, prior, base.scales)
+    start = physical_start(lin.theta_hat, prior, base.scales)
     assert is_physical(start.reshape(-1, 10)).all()
     moved = ~np.all(start == prior, axis=1)
     assert moved.mean() > 0.5  # most starts are (part of the way to) the linear estimate

@@ -114,9 +114,9 @@ def test_physics_loss_equals_numpy_and_vanishes_at_the_truth(model, data, mode):
     prep = _physics(model, data, mode, split)
     rows = prep.local(split.train[:6])
     frames = np.tile(np.arange(3), (6, 1)) + 2
-    from ineid.learn.train import _gather
+    from ineid.learn.train import gather_samples
 
-    x, z, inputs = _gather(prep.arrays, prep.physics.mode, rows, frames)
+    x, z, inputs = gather_samples(prep.arrays, prep.physics.mode, rows, frames)
     theta_true = data.theta_unknown[split.train[:6]]
     rng = np.random.default_rng(SEED)
     theta_hat = theta_true * (1 + 0.1 * rng.normal(size=theta_true.shape))
@@ -138,12 +138,12 @@ def test_physics_loss_equals_numpy_and_vanishes_at_the_truth(model, data, mode):
 def test_physics_modes_agree(model, data):
     split = split_configs(data.n_configs, 80, 20, 20, SEED)
     a, b = _physics(model, data, "cached", split), _physics(model, data, "inline", split)
-    from ineid.learn.train import _gather
+    from ineid.learn.train import gather_samples
 
     rows, frames = a.local(split.val[:4]), np.tile(np.arange(3), (4, 1))
     z = jnp.asarray(np.random.default_rng(1).normal(size=(4, 20)))
-    va = a.physics.term(z, _gather(a.arrays, "cached", rows, frames)[2])
-    vb = b.physics.term(z, _gather(b.arrays, "inline", rows, frames)[2])
+    va = a.physics.term(z, gather_samples(a.arrays, "cached", rows, frames)[2])
+    vb = b.physics.term(z, gather_samples(b.arrays, "inline", rows, frames)[2])
     np.testing.assert_allclose(float(va), float(vb), rtol=1e-12)
 
 
@@ -151,9 +151,9 @@ def test_loss_gradients(model, data):
     split = split_configs(data.n_configs, 80, 20, 20, SEED)
     prep = _physics(model, data, "cached", split)
     net = ModelSpec("mlp", depth=2, width=6, frames=3).build(20)
-    from ineid.learn.train import _gather
+    from ineid.learn.train import gather_samples
 
-    x, z, inputs = _gather(prep.arrays, "cached", prep.local(split.train[:4]), np.tile(np.arange(3), (4, 1)))
+    x, z, inputs = gather_samples(prep.arrays, "cached", prep.local(split.train[:4]), np.tile(np.arange(3), (4, 1)))
     params = net.init(jax.random.key(0), x)
     loss = make_loss(net.apply, 0.7, 2.0, prep.physics)
     check_grads(lambda p: loss(p, x, z, inputs)[0], (params,), order=2, modes=["rev"], eps=1e-6, atol=1e-6, rtol=1e-6)
@@ -289,5 +289,5 @@ def test_training_refuses_a_recording(model, data, tmp_path):
     from ineid.data import read_recording_csv, write_recording_csv
 
     rec = read_recording_csv(write_recording_csv(tmp_path / "r.csv", data, 0), model)
-    with pytest.raises(TrainingError, match="training needs the true parameters: this dataset is a recording"):
+    with pytest.raises(ineid.DatasetError, match="training needs the true parameters, and this dataset is a recording"):
         train(rec, TrainConfig(), tmp_path / "run", model=model)

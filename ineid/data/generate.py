@@ -71,7 +71,7 @@ class DatasetSpec:
         }
 
 
-class _Plan:
+class GenerationPlan:
     """The parts of a generation run shared by the in-memory and the streaming paths."""
 
     def __init__(self, model, spec: DatasetSpec) -> None:
@@ -171,7 +171,7 @@ def generate_dataset(model, spec: DatasetSpec = DatasetSpec(), progress: Progres
     Returns:
         The :class:`Dataset`; the same ``spec`` gives bit-identical arrays.
     """
-    plan = _Plan(model, spec)
+    plan = GenerationPlan(model, spec)
     collected: dict[str, list[np.ndarray]] = {}
     for start, arrays in plan.chunks():
         for k, v in arrays.items():
@@ -214,7 +214,7 @@ def write_dataset(
         overwrite: replace an existing file.
         workers: compression threads (default: the CPU count).
     """
-    plan = _Plan(model, spec)
+    plan = GenerationPlan(model, spec)
     with DatasetWriter(
         path, plan.meta, plan.n_configs, spec.n_frames, plan.array_names, plan.rows, overwrite, workers
     ) as writer:

@@ -203,7 +203,7 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         if settings.start == "prior":
             start = prior
         else:
-            start = _physical_start(linear_estimate(fit, base, prior).theta, prior, base.scales)
+            start = physical_start(linear_estimate(fit, base, prior).theta, prior, base.scales)
         est, nlp_seconds = _run_nlp(fit, base, settings, prior, rms, start, progress)
         seconds = seconds + nlp_seconds
 
@@ -276,7 +276,7 @@ def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress):
     return fits, rms, seconds
 
 
-def _physical_start(theta_lin: np.ndarray, prior: np.ndarray, scales: np.ndarray) -> np.ndarray:
+def physical_start(theta_lin: np.ndarray, prior: np.ndarray, scales: np.ndarray) -> np.ndarray:
     """Linear estimates as IPOPT starts, moved towards the prior until they are rigid bodies.
 
     Per configuration, ``prior + t (theta_lin - prior)`` with the largest ``t`` in

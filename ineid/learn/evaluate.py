@@ -31,49 +31,7 @@ import numpy as np
 from ineid.learn.data import Split, fixed_groups, frame_features
 from ineid.learn.scalers import Scaler
 from ineid.errors import TrainingError
-from ineid.learn.train import TrainConfig
-
-
-@dataclass
-class Run:
-    """A trained run loaded from its folder."""
-
-    run_dir: Path
-    config: TrainConfig
-    meta: dict
-    x_scaler: Scaler
-    y_scaler: Scaler
-    params: object
-    split: Split
-
-    @property
-    def net(self):
-        return self.config.model.build(self.meta["n_out"])
-
-
-def load_run(run_dir: str | Path) -> Run:
-    """Read ``config.json``, ``scalers.json`` and ``model.msgpack`` of a run folder."""
-    import jax  # noqa: PLC0415
-    from flax import serialization  # noqa: PLC0415
-
-    run_dir = Path(run_dir)
-    files = [run_dir / n for n in ("config.json", "scalers.json", "model.msgpack")]
-    missing = [f.name for f in files if not f.is_file()]
-    if missing:
-        hint = " (training was interrupted: finish it with `ineid train ... --resume`)" if (
-            run_dir / "checkpoint.msgpack").is_file() else ""
-        raise TrainingError(f"{run_dir} is not a finished training run: {', '.join(missing)} missing{hint}")
-    meta = json.loads(files[0].read_text())
-    cfg = TrainConfig.from_dict(meta["train"])
-    sc = json.loads(files[1].read_text())
-    net = cfg.model.build(meta["n_out"])
-    k = cfg.model.frames
-    template = net.init(jax.random.key(0), np.zeros((1, k, len(sc["x"]["center"]))))
-    try:
-        params = serialization.from_bytes(template, files[2].read_bytes())
-    except (ValueError, KeyError, TypeError) as e:
-        raise TrainingError(f"{files[2]} does not match the run's network ({e}); the run folder is damaged") from None
-    return Run(run_dir, cfg, meta, Scaler.from_dict(sc["x"]), Scaler.from_dict(sc["y"]), params, Split.from_dict(meta["split"]))
+from ineid.learn.runs import Run, load_run
 
 
 def predict(run: Run, ds, configs: np.ndarray, batch: int = 1024) -> tuple[np.ndarray, np.ndarray, int]:
@@ -171,8 +129,7 @@ def evaluate(run: Run, ds, configs: np.ndarray | None = None, model=None, linear
     from ineid.identify.systems import predict_wrench  # noqa: PLC0415
     from ineid.params import all_links_physical  # noqa: PLC0415
 
-    if ds.theta_unknown is None:
-        raise TrainingError("evaluation needs the true parameters; this dataset is a recording")
+    ds.require_truth("evaluating a network")
     if list(ds.meta.unknown_param_names) != list(run.meta["param_names"]):
         raise TrainingError(
             f"the run predicts {', '.join(run.meta['param_names'][:3])}, ...; the dataset's unknown parameters differ"

@@ -1,13 +1,8 @@
 """Training: splits, scalers, Optax optimizers, a jit-compiled step, validation every epoch,
 early stopping, exact resumption from checkpoints, metrics per epoch.
 
-A run lives in a folder::
-
-    RUN_DIR/config.json       everything needed to rebuild the run (settings, split, sizes)
-    RUN_DIR/scalers.json      the feature and target scalers (fitted on the training split)
-    RUN_DIR/metrics.jsonl     one JSON line per epoch
-    RUN_DIR/checkpoint.msgpack  params, optimizer state, best params, counters (each epoch)
-    RUN_DIR/model.msgpack     the best parameters (lowest validation MSE)
+The run folder's files (config, scalers, metrics, checkpoint, model) are
+:mod:`ineid.learn.runs`; this module is the loop that fills them.
 
 Everything random is seeded: initialization by ``seed``, the split by ``(seed, 11)``, the
 frame groups of epoch ``e`` by ``(seed, 12, e)``; so a run resumed from its checkpoint
@@ -25,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid._atomic import atomic_write
 from ineid.errors import DatasetError, TrainingError
 from ineid.learn.data import Split, epoch_groups, fixed_groups, frame_features, split_configs
 from ineid.learn.losses import LOSSES, PHYSICS_MODES, Physics, make_loss
 from ineid.learn.models import ModelSpec
+from ineid.learn.runs import MetricsLog, load_state, save_state, start_run, write_config
 from ineid.learn.scalers import SCALERS, Scaler
 
 OPTIMIZERS = ("sgd", "adam", "adamw")
@@ -158,8 +153,7 @@ def prepare(ds, cfg: TrainConfig, rows: np.ndarray, model, scalers=None, fit_row
 
     from ineid.identify.systems import stack  # noqa: PLC0415
 
-    if ds.theta_unknown is None:
-        raise DatasetError("training and evaluation need the true parameters: this dataset is a recording")
+    ds.require_truth("training")
     k = cfg.model.frames
     if ds.n_frames < k:
         raise DatasetError(f"{k} frames per sample but the dataset has {ds.n_frames} frames per configuration")
@@ -202,7 +196,7 @@ def prepare(ds, cfg: TrainConfig, rows: np.ndarray, model, scalers=None, fit_row
     return Prepared(rows, x_scaler, y_scaler, arrays, physics, n_u, sub.n_frames)
 
 
-def _gather(arrays, mode, rows, frames):
+def gather_samples(arrays, mode, rows, frames):
     """Batch of samples: positions (B,) and frame indices (B, K) -> (x, z, physics inputs).
 
     Per-frame arrays are gathered by one flat index ``row * n_frames + frame`` along their
@@ -233,7 +227,7 @@ def build_functions(net, cfg: TrainConfig, prep: Prepared, optimizer):
     mode = prep.physics.mode
 
     def one_step(params, opt_state, arrays, rows, frames):
-        x, z, inputs = _gather(arrays, mode, rows, frames)
+        x, z, inputs = gather_samples(arrays, mode, rows, frames)
         (total, (mse, phys)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, x, z, inputs)
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return optax.apply_updates(params, updates), opt_state, jnp.stack([total, mse, phys])
@@ -257,7 +251,7 @@ def build_functions(net, cfg: TrainConfig, prep: Prepared, optimizer):
     @jax.jit
     def eval_batch(params, arrays, rows, frames, mask):
         """Sums over the masked samples of (mse, phys) and the predictions."""
-        x, z, inputs = _gather(arrays, mode, rows, frames)
+        x, z, inputs = gather_samples(arrays, mode, rows, frames)
         z_hat = net.apply(params, x)
         se = jnp.mean((z_hat - z) ** 2, axis=1)
         r = prep.physics.residual(z_hat * prep.y_scaler.scale + prep.y_scaler.center, inputs)
@@ -350,45 +344,16 @@ def train(
         TrainingError: the folder holds another run, or a resume does not match it.
     """
     import jax  # noqa: PLC0415
-    from flax import serialization  # noqa: PLC0415
 
+    ds.require_truth("training")
     run_dir = Path(run_dir)
-    if ds.theta_unknown is None:
-        raise TrainingError("training needs the true parameters: this dataset is a recording; "
-                            "train on a synthetic dataset (ineid data generate)")
-    ckpt_path = run_dir / "checkpoint.msgpack"
-    cfg_path = run_dir / "config.json"
-    if resume:
-        if not ckpt_path.is_file() or not cfg_path.is_file():
-            raise TrainingError(f"{run_dir} holds no checkpoint to resume; start the run without --resume")
-        saved = json.loads(cfg_path.read_text())
-        if saved["train"] != cfg.to_dict():
-            raise TrainingError(
-                f"{run_dir} holds a run with other settings; resume it with the same settings, or use a new folder"
-            )
-        split = Split.from_dict(saved["split"])
-        if saved.get("dataset", {}).get("fingerprint") != ds.fingerprint():
-            raise TrainingError(
-                f"{run_dir} was trained on another dataset (robot, sizes, seed, sampling or noise differ); "
-                "resume it with the same dataset"
-            )
-    else:
-        if run_dir.exists() and any(run_dir.iterdir()) and not overwrite:
-            raise TrainingError(f"{run_dir} is not empty; pass --overwrite to replace the run, or --resume to continue it")
-        run_dir.mkdir(parents=True, exist_ok=True)
-        for name in ("checkpoint.msgpack", "model.msgpack", "metrics.jsonl", "evaluation.json"):
-            (run_dir / name).unlink(missing_ok=True)
-        split = None
-
+    resumed = start_run(run_dir, cfg, ds, resume=resume, overwrite=overwrite)
     model = model or ds.model()
-    if split is None:
+    if resumed is None:
         split = split_configs(ds.n_configs, cfg.n_train, cfg.n_val, cfg.n_test, cfg.seed)
-    if resume:
-        saved_scalers = json.loads((run_dir / "scalers.json").read_text())
-        scalers = (Scaler.from_dict(saved_scalers["x"]), Scaler.from_dict(saved_scalers["y"]))
-        wrench_scale = np.asarray(saved["wrench_scale"])
-    else:
         scalers = wrench_scale = None
+    else:
+        split, scalers, wrench_scale = resumed.split, resumed.scalers, resumed.wrench_scale
     rows = np.union1d(split.train, split.val)
     prep = prepare(ds, cfg, rows, model, scalers, split.train, wrench_scale, physics_mode)
     train_local, val_local = prep.local(split.train), prep.local(split.val)
@@ -403,8 +368,8 @@ def train(
     opt_state = optimizer.init(params)
     state = {"params": params, "opt_state": opt_state, "best_params": params, "epoch": 0,
              "best_val": float("inf"), "best_epoch": 0, "bad_epochs": 0}  # fmt: skip
-    if resume:
-        state = serialization.from_bytes(state, ckpt_path.read_bytes())
+    if resumed is not None:
+        state = load_state(run_dir, state)
     else:
         meta = {
             "train": cfg.to_dict(),
@@ -420,14 +385,9 @@ def train(
             "steps_per_epoch": steps_per_epoch,
             "batch": batch,
         }  # fmt: skip
-        atomic_write(cfg_path, json.dumps(meta, indent=1))
-        atomic_write(run_dir / "scalers.json", json.dumps({"x": prep.x_scaler.to_dict(), "y": prep.y_scaler.to_dict()}))
-    metrics_path = run_dir / "metrics.jsonl"
+        write_config(run_dir, meta, prep.x_scaler, prep.y_scaler)
     done = int(state["epoch"])
-    kept = []
-    if resume and metrics_path.is_file():
-        kept = [line for line in metrics_path.read_text().splitlines() if line and json.loads(line)["epoch"] <= done]
-    atomic_write(metrics_path, "".join(line + "\n" for line in kept))
+    metrics = MetricsLog(run_dir, keep_through_epoch=done)
 
     train_steps, eval_batch = build_functions(net, cfg, prep, optimizer)
     val_pos, val_frames = fixed_groups(len(split.val), prep.n_frames, k)
@@ -461,14 +421,13 @@ def train(
             "train_phys": float(train_loss[2]), "val_mse": float(val_mse), "val_phys": float(val_phys),
             "best_epoch": int(state["best_epoch"]), "seconds": time.perf_counter() - t0,
         }  # fmt: skip
-        with metrics_path.open("a") as fh:
-            fh.write(json.dumps(record) + "\n")
-        atomic_write(ckpt_path, serialization.to_bytes(state))
+        metrics.append(record)
+        save_state(run_dir, state)
         if progress is not None:
             progress(epoch, cfg.epochs, record)
         if cfg.patience and state["bad_epochs"] >= cfg.patience:
             stopped = True
             break
-    atomic_write(run_dir / "model.msgpack", serialization.to_bytes(state["best_params"]))
+    save_state(run_dir, state, final=True)
     return TrainResult(run_dir, epoch, int(state["best_epoch"]), float(state["best_val"]), stopped,
                        time.perf_counter() - t_start)  # fmt: skip

@@ -1,0 +1,175 @@
+"""The run folder of a training run: what it holds, starting, resuming and loading one.
+
+A run lives in a folder::
+
+    RUN_DIR/config.json         everything needed to rebuild the run (settings, split, sizes, dataset)
+    RUN_DIR/scalers.json        the feature and target scalers (fitted on the training split)
+    RUN_DIR/metrics.jsonl       one JSON line per epoch
+    RUN_DIR/checkpoint.msgpack  params, optimizer state, best params, counters (each epoch)
+    RUN_DIR/model.msgpack       the best parameters (lowest validation MSE)
+    RUN_DIR/evaluation.json     written by ``ineid evaluate``
+
+Every file is written atomically (:mod:`ineid._atomic`), so an interrupted run leaves the
+previous epoch's files whole, and ``--resume`` continues from them.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ineid._atomic import atomic_write
+from ineid.errors import TrainingError
+from ineid.learn.data import Split
+from ineid.learn.scalers import Scaler
+
+if TYPE_CHECKING:
+    from ineid.data import Dataset
+    from ineid.learn.train import TrainConfig
+
+CONFIG, SCALERS, METRICS, CHECKPOINT, MODEL, EVALUATION = (
+    "config.json", "scalers.json", "metrics.jsonl", "checkpoint.msgpack", "model.msgpack", "evaluation.json",
+)  # fmt: skip
+RUN_FILES = (CONFIG, SCALERS, METRICS, CHECKPOINT, MODEL, EVALUATION)
+
+
+@dataclass
+class Resumed:
+    """What a run folder holds for ``--resume``: its config, split and fitted scalers."""
+
+    config: dict
+    split: Split
+    scalers: tuple[Scaler, Scaler]
+    wrench_scale: np.ndarray
+
+
+def start_run(run_dir: Path, cfg: TrainConfig, ds: Dataset, *, resume: bool, overwrite: bool) -> Resumed | None:
+    """Check ``run_dir`` for a new run (empty, or ``overwrite``) or a resumed one (same settings and data).
+
+    A new run's folder is created and emptied of an earlier run's files; a resumed run's
+    saved state is returned.
+
+    Raises:
+        TrainingError: the folder holds another run, or a resume does not match it.
+    """
+    if not resume:
+        if run_dir.exists() and any(run_dir.iterdir()) and not overwrite:
+            raise TrainingError(f"{run_dir} is not empty; pass --overwrite to replace the run, or --resume to continue it")
+        run_dir.mkdir(parents=True, exist_ok=True)
+        for name in RUN_FILES:
+            (run_dir / name).unlink(missing_ok=True)
+        return None
+    if not (run_dir / CHECKPOINT).is_file() or not (run_dir / CONFIG).is_file():
+        raise TrainingError(f"{run_dir} holds no checkpoint to resume; start the run without --resume")
+    saved = json.loads((run_dir / CONFIG).read_text())
+    if saved["train"] != cfg.to_dict():
+        raise TrainingError(
+            f"{run_dir} holds a run with other settings; resume it with the same settings, or use a new folder"
+        )
+    if saved.get("dataset", {}).get("fingerprint") != ds.fingerprint():
+        raise TrainingError(
+            f"{run_dir} was trained on another dataset (robot, sizes, seed, sampling or noise differ); "
+            "resume it with the same dataset"
+        )
+    sc = json.loads((run_dir / SCALERS).read_text())
+    return Resumed(saved, Split.from_dict(saved["split"]), (Scaler.from_dict(sc["x"]), Scaler.from_dict(sc["y"])),
+                   np.asarray(saved["wrench_scale"]))  # fmt: skip
+
+
+def write_config(run_dir: Path, meta: dict, x_scaler: Scaler, y_scaler: Scaler) -> None:
+    """Write ``config.json`` and ``scalers.json`` of a new run."""
+    atomic_write(run_dir / CONFIG, json.dumps(meta, indent=1))
+    atomic_write(run_dir / SCALERS, json.dumps({"x": x_scaler.to_dict(), "y": y_scaler.to_dict()}))
+
+
+class MetricsLog:
+    """``metrics.jsonl``: one JSON record per epoch, rewritten atomically after each epoch.
+
+    A resumed run keeps the records up to its checkpoint's epoch and drops later ones (an
+    interrupted epoch after the last checkpoint).
+    """
+
+    def __init__(self, run_dir: Path, keep_through_epoch: int = 0) -> None:
+        self.path = run_dir / METRICS
+        self.lines: list[str] = []
+        if keep_through_epoch and self.path.is_file():
+            self.lines = [line for line in self.path.read_text().splitlines()
+                          if line and json.loads(line)["epoch"] <= keep_through_epoch]  # fmt: skip
+        self._flush()
+
+    def append(self, record: dict) -> None:
+        self.lines.append(json.dumps(record))
+        self._flush()
+
+    def _flush(self) -> None:
+        atomic_write(self.path, "".join(line + "\n" for line in self.lines))
+
+
+def save_state(run_dir: Path, state: dict, final: bool = False) -> None:
+    """Write the checkpoint (``state``), or with ``final`` the best parameters as ``model.msgpack``."""
+    from flax import serialization  # noqa: PLC0415
+
+    if final:
+        atomic_write(run_dir / MODEL, serialization.to_bytes(state["best_params"]))
+    else:
+        atomic_write(run_dir / CHECKPOINT, serialization.to_bytes(state))
+
+
+def load_state(run_dir: Path, template: dict) -> dict:
+    """The checkpoint of ``run_dir``, restored into the structure of ``template``."""
+    from flax import serialization  # noqa: PLC0415
+
+    return serialization.from_bytes(template, (run_dir / CHECKPOINT).read_bytes())
+
+
+@dataclass
+class Run:
+    """A finished run loaded from its folder: settings, scalers, best parameters, split."""
+
+    run_dir: Path
+    config: TrainConfig
+    meta: dict
+    x_scaler: Scaler
+    y_scaler: Scaler
+    params: object
+    split: Split
+
+    @property
+    def net(self):
+        """The Flax module (``apply(params, x)`` with x (batch, frames, features))."""
+        return self.config.model.build(self.meta["n_out"])
+
+
+def load_run(run_dir: str | Path) -> Run:
+    """Read ``config.json``, ``scalers.json`` and ``model.msgpack`` of a run folder.
+
+    Raises:
+        TrainingError: a file is missing (an unfinished run says how to finish it) or does
+            not match the run's network.
+    """
+    import jax  # noqa: PLC0415
+    from flax import serialization  # noqa: PLC0415
+
+    from ineid.learn.train import TrainConfig  # noqa: PLC0415
+
+    run_dir = Path(run_dir)
+    files = [run_dir / n for n in (CONFIG, SCALERS, MODEL)]
+    missing = [f.name for f in files if not f.is_file()]
+    if missing:
+        hint = " (training was interrupted: finish it with `ineid train ... --resume`)" if (
+            run_dir / CHECKPOINT).is_file() else ""
+        raise TrainingError(f"{run_dir} is not a finished training run: {', '.join(missing)} missing{hint}")
+    meta = json.loads(files[0].read_text())
+    cfg = TrainConfig.from_dict(meta["train"])
+    sc = json.loads(files[1].read_text())
+    net = cfg.model.build(meta["n_out"])
+    template = net.init(jax.random.key(0), np.zeros((1, cfg.model.frames, len(sc["x"]["center"]))))
+    try:
+        params = serialization.from_bytes(template, files[2].read_bytes())
+    except (ValueError, KeyError, TypeError) as e:
+        raise TrainingError(f"{files[2]} does not match the run's network ({e}); the run folder is damaged") from None
+    return Run(run_dir, cfg, meta, Scaler.from_dict(sc["x"]), Scaler.from_dict(sc["y"]), params, Split.from_dict(meta["split"]))
