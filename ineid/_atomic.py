@@ -84,3 +84,28 @@ def terminate_on_sigterm() -> None:
         signal.signal(signal.SIGTERM, _raise_terminated)
     except ValueError:  # not the main thread
         print("ineid: SIGTERM handler not installed (not the main thread)", file=sys.stderr)
+
+
+def write_csv(path: str | Path, fieldnames: list[str], rows: list[dict] | list[list]) -> Path:
+    """Write a CSV with a header atomically; ``rows`` are dicts (by field name) or sequences."""
+    import csv  # noqa: PLC0415
+    import io  # noqa: PLC0415
+
+    buf = io.StringIO(newline="")
+    if rows and isinstance(rows[0], dict):
+        w = csv.DictWriter(buf, fieldnames=fieldnames)
+        w.writeheader()
+        w.writerows(rows)
+    else:
+        w = csv.writer(buf)
+        w.writerow(fieldnames)
+        w.writerows(rows)
+    return atomic_write(path, buf.getvalue())
+
+
+def save_figure(fig, path: str | Path, **savefig_kwargs) -> Path:
+    """``fig.savefig(path)`` atomically, the format taken from the suffix (default PNG)."""
+    path = Path(path)
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, format=path.suffix.lstrip(".") or "png", **savefig_kwargs)
+    return path

@@ -730,7 +730,7 @@ def study_noise(ctx, robot, unknown_links, levels, frames_text, configs, methods
 
     from rich.table import Table  # noqa: PLC0415
 
-    from ineid.identify.study import STUDY_METHODS, noise_study, plot, write_csv  # noqa: PLC0415
+    from ineid.identify.study import STUDY_METHODS, noise_study, plot, write_rows  # noqa: PLC0415
 
     def numbers(text, cast, hint):
         try:
@@ -764,7 +764,7 @@ def study_noise(ctx, robot, unknown_links, levels, frames_text, configs, methods
                       f"{r.standard_error_median:.3g}", f"{r.identifiable_error_median:.3g}",
                       f"{100 * r.invalid_share:.1f}%", f"{100 * r.failed_share:.1f}%", f"{r.seconds:.1f}")
     _console().print(table)
-    write_csv(rows, csv_path)
+    write_rows(rows, csv_path)
     plot(rows, png_path)
     click.echo(f"wrote {csv_path} and {png_path}")
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ineid._atomic import atomic_output
 from ineid.data.schema import Dataset, DatasetMeta
 from ineid.errors import DatasetError
 
@@ -154,7 +155,7 @@ def write_recording_csv(path: str | Path, dataset: Dataset, config: int = 0, fli
     cols = [t[:, None], dataset.q[config], dataset.qd[config], dataset.qdd[config], sign * dataset.wrench[config]]
     table = np.concatenate(cols, axis=1)
     path = Path(path)
-    with path.open("w", newline="") as fh:
+    with atomic_output(path) as tmp, tmp.open("w", newline="") as fh:
         fh.write(",".join(csv_columns(n)) + "\n")
         np.savetxt(fh, table, delimiter=",", fmt="%.17g")
     return path

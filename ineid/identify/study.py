@@ -15,12 +15,12 @@ A noise level ``k`` scales the reference standard deviations: wrench
 
 from __future__ import annotations
 
-import csv
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ineid._atomic import save_figure, write_csv
 from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
 from ineid.identify.results import relative_error
 from ineid.identify.solve import SolveSettings, solve_dataset
@@ -110,14 +110,9 @@ def noise_study(
     return rows
 
 
-def write_csv(rows: list[StudyRow], path: str | Path) -> Path:
-    path = Path(path)
-    with path.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(asdict(rows[0])))
-        w.writeheader()
-        for r in rows:
-            w.writerow(asdict(r))
-    return path
+def write_rows(rows: list[StudyRow], path: str | Path) -> Path:
+    """The study's table as CSV (atomically), one row per method, frame count and level."""
+    return write_csv(path, list(asdict(rows[0])), [asdict(r) for r in rows])
 
 
 def plot(rows: list[StudyRow], path: str | Path) -> Path:
@@ -149,6 +144,6 @@ def plot(rows: list[StudyRow], path: str | Path) -> Path:
         ax.grid(True, alpha=0.3)
     axes[2].legend(fontsize=7)
     path = Path(path)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
     return path

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import itertools
 import json
@@ -11,7 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid.learn.evaluate import evaluate, load_run
+from ineid._atomic import atomic_write, save_figure, write_csv
+from ineid.learn.evaluate import evaluate
+from ineid.learn.runs import EVALUATION, load_run
 from ineid.learn.train import TrainConfig, train
 
 
@@ -80,7 +81,7 @@ def sweep(ds, grid: Grid, base: TrainConfig, out_dir: str | Path, dataset_path: 
         result = train(ds, cfg, out_dir / name, dataset_path=dataset_path, overwrite=overwrite, model=model,
                        physics_mode=physics_mode)
         ev = evaluate(load_run(out_dir / name), ds, model=model)
-        (out_dir / name / "evaluation.json").write_text(json.dumps(ev.to_dict(), indent=1))
+        atomic_write(out_dir / name / EVALUATION, json.dumps(ev.to_dict(), indent=1))
         rows.append(SweepRow(
             name=name, arch=cfg.model.arch, activation=cfg.model.activation, scaler=cfg.scaler,
             optimizer=cfg.optimizer, loss=cfg.loss, frames=cfg.model.frames, siamese=cfg.model.siamese,
@@ -94,11 +95,7 @@ def sweep(ds, grid: Grid, base: TrainConfig, out_dir: str | Path, dataset_path: 
         if progress is not None:
             progress(i + 1, len(cfgs), rows[-1])
     rows.sort(key=lambda r: (np.nan_to_num(r.test_standard_median, nan=np.inf), r.name))
-    with (out_dir / "sweep.csv").open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=[f.name for f in dataclasses.fields(SweepRow)])
-        w.writeheader()
-        for r in rows:
-            w.writerow(dataclasses.asdict(r))
+    write_csv(out_dir / "sweep.csv", [f.name for f in dataclasses.fields(SweepRow)], [dataclasses.asdict(r) for r in rows])
     plot(rows, out_dir / "sweep.png")
     return rows
 
@@ -121,6 +118,6 @@ def plot(rows: list[SweepRow], path: Path) -> Path:
     ax.set_ylabel("test median relative error")
     ax.set_yscale("log")
     ax.legend(fontsize=8)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
     return path
