@@ -4,40 +4,49 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 INEID := $(VENV)/bin/ineid
 STAMP := $(VENV)/.ineid-installed
+DEV_STAMP := $(VENV)/.ineid-dev-installed
 
-.PHONY: setup demo test test-slow generate bench clean
+.PHONY: setup setup-dev demo test test-slow generate bench clean
 
+# `setup`: what the main job needs; `setup-dev`: plus the test-only reference engines
+# (Pinocchio, MuJoCo, example-robot-data: several hundred MB the demo does not need).
 setup: $(STAMP)
+
+setup-dev: $(DEV_STAMP)
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev]"
+	$(PY) -m pip install --quiet -e .
 	touch $(STAMP)
+
+$(DEV_STAMP): $(STAMP)
+	$(PY) -m pip install --quiet -e ".[dev]"
+	touch $(DEV_STAMP)
 
 demo: setup
 	$(INEID) --version
 	$(INEID) robot show sweaty-arm
 	$(INEID) generate sweaty-arm --out $(VENV)/demo-generated
 	$(PY) -m ineid.demo
-	$(INEID) -q data generate --factorial 10 --frames 100 --seed 1 --noise force=0.5,moment=0.05 \
+	$(INEID) -q data generate sweaty-arm --factorial 10 --n-frames 100 --seed 1 --noise force=0.5,moment=0.05 \
 		--out $(VENV)/demo-data.h5 --overwrite
-	$(INEID) -q solve $(VENV)/demo-data.h5 --method consistent --weights estimate --configs 0:20 \
+	$(INEID) -q solve $(VENV)/demo-data.h5 --method consistent --weights estimate --select 0:20 \
 		--out $(VENV)/demo-results.h5 --overwrite
 	$(INEID) export-urdf $(VENV)/demo-results.h5 --config 0 --out $(VENV)/demo-identified.urdf --overwrite
-	$(INEID) -q train $(VENV)/demo-data.h5 --arch net2 --frames 10 --siamese --loss physics --beta 10 \
+	$(INEID) -q train $(VENV)/demo-data.h5 --arch net2 --sample-frames 10 --siamese --loss physics --beta 10 \
 		--epochs 30 --batch 32 --lr 3e-3 --out $(VENV)/demo-run --overwrite
 
-test: setup
+test: setup-dev
 	$(PY) -m pytest -q
 
-test-slow: setup
+test-slow: setup-dev
 	$(PY) -m pytest -q -m slow
 
 generate: setup
 	$(INEID) generate --builtin
 
-bench: setup
+bench: setup-dev
 	$(PY) benchmarks/regressor.py
 	$(PY) benchmarks/data.py
 	$(PY) benchmarks/identify.py

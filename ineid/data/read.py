@@ -6,6 +6,7 @@ The schema is :mod:`ineid.data.schema`; files from older format versions are rea
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,8 @@ import numpy as np
 from ineid.data.schema import FORMAT, MEASURED_KEYS, VERSION, Dataset, DatasetMeta, check_finite, check_shapes, expected_shapes
 from ineid.errors import DatasetError
 from ineid.params import PARAM_NAMES
+
+log = logging.getLogger(__name__)
 
 
 def _open(path: Path):
@@ -108,6 +111,7 @@ def read_meta(path: str | Path) -> tuple[DatasetMeta, dict[str, tuple[int, ...]]
                 raise DatasetError(f"{path}: dataset {name!r} is missing; the file is damaged")
         if meta.source == "synthetic" and "theta_unknown" not in shapes:
             raise DatasetError(f"{path}: a synthetic dataset without theta_unknown; the file is damaged")
+    log.info("read %s: %s dataset of %s, %d x %d frames", path, meta.source, meta.robot, *shapes["q"][:2])
     return meta, shapes
 
 

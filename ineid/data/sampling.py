@@ -245,6 +245,10 @@ def sample_configurations(
     return theta, index.astype(np.int64)
 
 
+FRAME_MODES = ("uniform", "fourier")
+"""How frames are sampled: independent uniform states, or samples of Fourier trajectories."""
+
+
 @dataclass(frozen=True)
 class FrameSampling:
     """How the kinematic frames of a configuration are drawn (see module doc).
@@ -267,8 +271,8 @@ class FrameSampling:
     acceleration_scale: float = 1.0
 
     def __post_init__(self) -> None:
-        if self.mode not in ("uniform", "fourier"):
-            raise ValueError(f"frame mode must be 'uniform' or 'fourier', got {self.mode!r}")
+        if self.mode not in FRAME_MODES:
+            raise ValueError(f"frame mode must be one of {', '.join(FRAME_MODES)}, got {self.mode!r}")
         if self.harmonics < 1:
             raise ValueError(f"harmonics must be >= 1, got {self.harmonics}")
         if not self.base_frequency > 0:

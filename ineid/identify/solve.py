@@ -23,6 +23,10 @@ from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL, NlpSolver, estima
 from ineid.identify.systems import check_frames, iter_stacks, predict_wrench, stack_casadi
 
 METHODS = ("linear", "nonlinear", "consistent")
+STARTS = ("prior", "linear")
+"""IPOPT's start: the CAD values, or the linear estimate made physical."""
+BACKENDS = ("jax", "casadi")
+"""The linear method's engine: batched JAX/NumPy, or CasADi per configuration."""
 HOLDOUT_FRACTION = 0.2
 """Without ``frames``, this share of each configuration's frames is held out for validation."""
 PARALLEL_MIN_CONFIGS = 256
@@ -68,10 +72,10 @@ class SolveSettings:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
         if self.weights not in WEIGHT_MODES:
             raise ValueError(f"weights must be one of {', '.join(WEIGHT_MODES)}, got {self.weights!r}")
-        if self.start not in ("prior", "linear"):
-            raise ValueError(f"start must be 'prior' or 'linear', got {self.start!r}")
-        if self.backend not in ("jax", "casadi"):
-            raise ValueError(f"backend must be 'jax' or 'casadi', got {self.backend!r}")
+        if self.start not in STARTS:
+            raise ValueError(f"start must be one of {', '.join(STARTS)}, got {self.start!r}")
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
         if self.backend == "casadi" and self.method != "linear":
             raise ValueError("backend='casadi' applies to the linear method")
         if self.frames is not None and self.frames < 1:

@@ -1,0 +1,79 @@
+"""The ``ineid`` command: parse arguments, call the library, print or write the result.
+
+One module per verb group (:mod:`.robot`: robot, generate; :mod:`.data`; :mod:`.identify`:
+identifiability, solve, export-urdf, study, results; :mod:`.learn`: train, evaluate, sweep),
+shared options in :mod:`.options`, console output in :mod:`.output`. Heavy libraries (JAX,
+CasADi, h5py, yourdfpy) are imported inside the commands, so ``ineid --help`` imports none
+of them. Any :class:`ineid.IneidError` becomes a one-line message and exit status 1; bad
+arguments exit with status 2 (click's usage error); Ctrl-C (130) and SIGTERM (143) leave no
+partial output file and say so in one line.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+
+import click
+
+from ineid._atomic import Terminated, terminate_on_sigterm
+from ineid.errors import IneidError
+
+
+class IneidGroup(click.Group):
+    """A group whose commands turn library errors and interruptions into one clear line."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except IneidError as e:
+            raise click.ClickException(str(e)) from None
+        except Terminated:
+            click.echo("ineid: terminated (SIGTERM); no partial output file was left", err=True)
+            ctx.exit(143)
+        except KeyboardInterrupt:
+            click.echo("ineid: interrupted; no partial output file was left", err=True)
+            ctx.exit(130)
+
+
+def _version() -> str:
+    from ineid import __version__  # noqa: PLC0415  (package metadata; imports no JAX)
+
+    return __version__
+
+
+def configure_logging(verbosity: int) -> None:
+    """``-v`` INFO (files read, cache hits, code generation), ``-vv`` DEBUG and JAX's compile log."""
+    level = logging.WARNING - 10 * verbosity
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("ineid: %(message)s"))
+    root = logging.getLogger("ineid")
+    root.handlers[:] = [handler]
+    root.setLevel(max(logging.DEBUG, min(logging.CRITICAL, level)))
+    root.propagate = False
+    if verbosity >= 2:
+        os.environ.setdefault("JAX_LOG_COMPILES", "1")
+
+
+@click.group(cls=IneidGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="ineid", prog_name="ineid", message="%(prog)s %(version)s")
+@click.option("-v", "--verbose", count=True, help="More output (repeatable): files read, caches, compilation.")
+@click.option("-q", "--quiet", count=True, help="Less output: no progress bars, errors only in the log.")
+@click.pass_context
+def main(ctx: click.Context, verbose: int, quiet: int) -> None:
+    """Identify a robot arm's inertial parameters from its base force/torque sensor.
+
+    ROBOT is a built-in name (sweaty-arm) or a path to a serial-chain URDF file.
+    """
+    ctx.obj = {"verbosity": verbose - quiet}
+    configure_logging(verbose - quiet)
+    terminate_on_sigterm()
+
+
+from ineid.cli import data, identify, learn, robot  # noqa: E402  (commands register on main)
+
+for _module in (robot, data, identify, learn):
+    _module.register(main)
+
+__all__ = ["IneidGroup", "main"]

@@ -1,0 +1,190 @@
+"""``ineid data generate|import|info``: make, import and inspect datasets."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import click
+
+from ineid.cli.options import (
+    LibraryChoice,
+    LibraryOption,
+    deprecated_alias,
+    noise_model,
+    noise_option,
+    overwrite_option,
+    prepare_output,
+    quiet,
+    robot_options,
+)
+from ineid.cli.output import ProgressBar, console, table
+
+_SAMPLING = "ineid.data.sampling"
+
+
+@click.group()
+def data() -> None:
+    """Make, import and inspect datasets (HDF5; see docs/dataset.md)."""
+
+
+@data.command("generate")
+@robot_options(positional="optional")
+@click.option("--factorial", type=click.IntRange(min=1), default=None, metavar="N",
+              help="N parameter sets per unknown link, all combinations (N^k configurations). Default 100.")
+@click.option("--n-configs", type=click.IntRange(min=1), default=None, metavar="N",
+              help="N configurations pairing the links' sets at random (instead of --factorial).")
+@deprecated_alias("--configs", "n_configs", "--n-configs", type=click.IntRange(min=1))
+@click.option("--pool", type=click.IntRange(min=1), default=None, metavar="N",
+              help="With --n-configs: draw each link's set from a pool of N (default: a fresh set per configuration).")
+@click.option("--n-frames", type=click.IntRange(min=1), cls=LibraryOption,
+              default_from="ineid.data.generate:DatasetSpec.n_frames", help="Frames per configuration.")
+@deprecated_alias("--frames", "n_frames", "--n-frames", type=click.IntRange(min=1))
+@click.option("--seed", type=click.IntRange(min=0), cls=LibraryOption, default_from="ineid.data.generate:DatasetSpec.seed",
+              help="Seed of every random draw.")
+@click.option("--frame-mode", type=LibraryChoice(f"{_SAMPLING}:FRAME_MODES"), cls=LibraryOption,
+              default_from=f"{_SAMPLING}:FrameSampling.mode",
+              help="Independent uniform frames (the paper) or samples of Fourier excitation trajectories.")
+@click.option("--harmonics", type=click.IntRange(min=1), cls=LibraryOption,
+              default_from=f"{_SAMPLING}:FrameSampling.harmonics", help="Fourier harmonics per joint.")
+@click.option("--base-frequency", type=click.FloatRange(min=0, min_open=True), cls=LibraryOption,
+              default_from=f"{_SAMPLING}:FrameSampling.base_frequency", help="Fourier base frequency, Hz; one period is sampled.")
+@click.option("--mass-band", type=click.FloatRange(0, 1, max_open=True), cls=LibraryOption,
+              default_from=f"{_SAMPLING}:ParameterSampling.mass_rel", help="Mass within CAD * (1 +- band).")
+@click.option("--com-box", type=click.FloatRange(min=0), cls=LibraryOption,
+              default_from=f"{_SAMPLING}:ParameterSampling.com_box", help="Centre of mass within CAD +- box per axis, m.")
+@click.option("--inertia-band", type=click.FloatRange(0, 1, max_open=True), cls=LibraryOption,
+              default_from=f"{_SAMPLING}:ParameterSampling.inertia_rel",
+              help="Second moments within CAD * (1 +- band), scaled with the mass.")
+@click.option("--rotation", type=click.FloatRange(min=0), cls=LibraryOption,
+              default_from=f"{_SAMPLING}:ParameterSampling.orientation_deg",
+              help="Largest turn of the principal axes from CAD, degrees (180: uniform).")
+@noise_option
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
+@overwrite_option
+@click.pass_context
+def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_mode, harmonics, base_frequency,
+                  mass_band, com_box, inertia_band, rotation, noise, out, overwrite) -> None:
+    """Sample a synthetic ground-truth dataset of ROBOT (default sweaty-arm; the paper's: --factorial 100)."""
+    from ineid.data import Combination, DatasetSpec, FrameSampling, ParameterSampling, write_dataset  # noqa: PLC0415
+
+    if factorial is not None and n_configs is not None:
+        raise click.UsageError("give --factorial N or --n-configs N, not both")
+    if pool is not None and n_configs is None:
+        raise click.UsageError("--pool applies to --n-configs (random pairing)")
+    prepare_output(out, overwrite)
+    model = robot.load()
+    if n_configs is not None:
+        combination = Combination("random", per_link=pool, n_configs=n_configs)
+    elif factorial is not None:
+        combination = Combination("factorial", per_link=factorial)
+    else:
+        combination = Combination()
+    total = combination.count(len(model.unknown_links))
+    if n_configs is None and total > 10**8:
+        raise click.BadParameter(
+            f"{total:,} configurations ({combination.per_link}^{len(model.unknown_links)}); "
+            "use --n-configs for a random subset",
+            param_hint="--factorial",
+        )
+    spec = DatasetSpec(
+        combination=combination,
+        n_frames=n_frames,
+        seed=seed,
+        parameters=ParameterSampling(mass_band, com_box, inertia_band, rotation),
+        frames=FrameSampling(frame_mode, harmonics, base_frequency),
+        noise=noise_model(noise, model.n_dof),
+    )
+    t0 = time.perf_counter()
+    with ProgressBar("generating", "configurations", quiet(ctx)) as bar:
+        write_dataset(model, spec, out, overwrite=overwrite, progress=bar)
+    seconds = time.perf_counter() - t0
+    click.echo(
+        f"wrote {out}: {total:,} configurations x {n_frames} frames of {model.name} "
+        f"({', '.join(model.unknown_links)} unknown) in {seconds:.1f} s ({total * n_frames / seconds:,.0f} frames/s)"
+    )
+
+
+@data.command("import")
+@click.argument("csv_file", metavar="CSV", type=click.Path(path_type=Path))
+@robot_options(positional="option")
+@click.option("--flip-wrench", is_flag=True,
+              help="The sensor reports the wrench on the robot (the opposite of ineid's convention); negate it.")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
+@overwrite_option
+def data_import(csv_file, robot, flip_wrench, out, overwrite) -> None:
+    """Import a recording from a real arm (columns: time, q1..qn, qd1..qn, qdd1..qn, fx fy fz mx my mz)."""
+    from ineid.data import read_recording_csv  # noqa: PLC0415
+
+    prepare_output(out, overwrite)
+    model = robot.load()
+    ds = read_recording_csv(csv_file, model, flip_wrench=flip_wrench)
+    ds.save(out, overwrite=overwrite)
+    span = float(ds.time[0, -1] - ds.time[0, 0])
+    click.echo(f"wrote {out}: one recording of {model.name}, {ds.n_frames:,} frames over {span:.3f} s")
+
+
+@data.command("info")
+@click.argument("path", metavar="FILE", type=click.Path(path_type=Path))
+def data_info(path: Path) -> None:
+    """Summarize a dataset: sizes, robot, settings, parameter and wrench ranges."""
+    import numpy as np  # noqa: PLC0415
+
+    from ineid.data import iter_dataset, read_meta  # noqa: PLC0415
+    from ineid.params import param_names  # noqa: PLC0415
+
+    meta, shapes = read_meta(path)
+    n_configs, n_frames, n_dof = shapes["q"]
+    con = console()
+    con.print(f"[bold]{path}[/bold]  ineid dataset v{meta.version} ({meta.source}), written by ineid {meta.ineid_version}")
+    con.print(
+        f"{n_configs:,} configuration{'s' if n_configs != 1 else ''} x {n_frames:,} frames = {n_configs * n_frames:,} "
+        f"frames; robot {meta.robot}, {n_dof} joints ({', '.join(meta.joint_names)})"
+    )
+    con.print(f"unknown links: {', '.join(meta.unknown_links)}; known links: {', '.join(meta.known_links) or '-'}")
+    con.print(f"gravity {np.asarray(meta.gravity).tolist()} m/s^2" + (f"; seed {meta.seed}" if meta.seed is not None else ""))
+    if meta.locked_joints:
+        con.print(f"locked joints: {meta.locked_joints}")
+    if meta.sampling:
+        con.print(f"sampling: {json.dumps(meta.sampling, sort_keys=True)}")
+    con.print(f"noise (std): {json.dumps(meta.noise) if meta.noise else 'none (clean data)'}")
+    if meta.origin:
+        con.print(f"origin: {json.dumps(meta.origin, sort_keys=True)}")
+    arrays = table("Arrays", ("name", "shape"), left=("name", "shape"))
+    for name in sorted(shapes):
+        arrays.add_row(name, " x ".join(str(s) for s in shapes[name]) or "scalar")
+    con.print(arrays)
+
+    def ranges(name, width):
+        lo, hi = np.full(width, np.inf), np.full(width, -np.inf)
+        total, count = np.zeros(width), 0
+        for _, block in iter_dataset(path, name):
+            flat = block.reshape(-1, width)
+            lo, hi = np.minimum(lo, flat.min(0)), np.maximum(hi, flat.max(0))
+            total += flat.sum(0)
+            count += len(flat)
+        return lo, hi, total / max(count, 1)
+
+    if "theta_unknown" in shapes:
+        from ineid.robots.urdf import parse_chain  # noqa: PLC0415
+
+        chain = parse_chain(meta.urdf, source=f"{path} (its URDF)", locked_joints=meta.locked_joints or None)
+        cad = {j.link: j.theta for j in chain.joints}
+        names = param_names(meta.unknown_links)
+        lo, hi, mean = ranges("theta_unknown", len(names))
+        t = table("Unknown parameters over the configurations (SI, about each link origin)",
+                  ("parameter", "CAD", "min", "mean", "max"), left=("parameter",))  # fmt: skip
+        for k, name in enumerate(names):
+            link = name.rpartition(".")[0]
+            t.add_row(name, f"{cad[link][k % 10]:.5g}", f"{lo[k]:.5g}", f"{mean[k]:.5g}", f"{hi[k]:.5g}")
+        con.print(t)
+    lo, hi, mean = ranges("wrench", 6)
+    t = table("Wrench (N, N*m; base frame, about the base origin)", ("axis", "min", "mean", "max"), left=("axis",))
+    for k, axis in enumerate(("fx", "fy", "fz", "mx", "my", "mz")):
+        t.add_row(axis, f"{lo[k]:.4g}", f"{mean[k]:.4g}", f"{hi[k]:.4g}")
+    con.print(t)
+
+
+def register(main: click.Group) -> None:
+    main.add_command(data)

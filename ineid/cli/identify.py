@@ -1,0 +1,241 @@
+"""``ineid identifiability``, ``solve``, ``export-urdf``, ``study noise`` and ``results info``."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import click
+
+from ineid.cli.options import (
+    LibraryChoice,
+    LibraryOption,
+    deprecated_alias,
+    names_in,
+    numbers,
+    overwrite_option,
+    parse_selection,
+    prepare_output,
+    quiet,
+    robot_options,
+    select_alias,
+    select_option,
+)
+from ineid.cli.output import ProgressBar, console, print_results, table
+
+_SOLVE = "ineid.identify.solve"
+
+
+@click.command()
+@robot_options()
+@click.option("--n-frames", type=click.IntRange(min=1), default=200, show_default=True,
+              help="Random frames (uniform within the bounds) to analyse.")
+@deprecated_alias("--frames", "n_frames", "--n-frames", type=click.IntRange(min=1))
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--data", "data_path", type=click.Path(path_type=Path), default=None,
+              help="Analyse the frames of a dataset instead (with --config).")
+@click.option("--config", type=click.IntRange(min=0), default=0, show_default=True, help="Configuration of --data.")
+def identifiability(robot, n_frames, seed, data_path, config) -> None:
+    """Which parameters of ROBOT's unknown links the base wrench determines."""
+    import numpy as np  # noqa: PLC0415
+
+    from ineid.identify import analyze_frames, base_parameters, generic_frames  # noqa: PLC0415
+
+    model = robot.load()
+    base = base_parameters(model)
+    if data_path is not None:
+        from ineid.data import load_dataset  # noqa: PLC0415
+
+        ds = load_dataset(data_path, configs=[config])
+        if ds.meta.joint_names != model.joint_names:
+            raise click.BadParameter(f"{data_path} is a dataset of {ds.meta.robot}, not of {model.name}", param_hint="--data")
+        q, qd, qdd = ds.q[0], ds.qd[0], ds.qdd[0]
+        source = f"{len(q)} frames of configuration {config} of {data_path}"
+    else:
+        q, qd, qdd = generic_frames(model, n_frames, seed)
+        source = f"{n_frames} random frames within the bounds (seed {seed})"
+    a = analyze_frames(model, q, qd, qdd, base)
+    con = console()
+    n = base.n_params
+    con.print(f"[bold]{model.name}[/bold]: unknown links {', '.join(model.unknown_links)} ({n} standard parameters)")
+    con.print(f"frames: {source}")
+    con.print(
+        f"rank {a.rank} of {n}; structural rank {base.rank} (no frames can do better): "
+        f"[bold]{base.rank} identifiable combinations[/bold], {n - base.rank} null direction(s)"
+    )
+    cond = "inf" if not np.isfinite(a.condition_number) else f"{a.condition_number:.4g}"
+    con.print(f"condition number (scaled, identifiable part): {cond}; fewest leading frames reaching rank "
+              f"{base.rank}: {a.min_frames if a.min_frames is not None else 'never'} "
+              f"(at least {-(-base.rank // 6)}: 6 equations per frame)")
+    con.print("singular values (scaled): " + " ".join(f"{v:.3g}" for v in a.singular_values))
+    if a.problem():
+        con.print(f"[bold red]these frames are not enough:[/bold red] {a.problem()}")
+    t = table("Base parameters: what the data determine (beta = B theta)", ("#", "base parameter"),
+              left=("base parameter",))
+    for k, name in enumerate(base.names):
+        t.add_row(str(k + 1), name)
+    con.print(t)
+    if base.null_basis.shape[1]:
+        t = table("Null directions: parameter changes invisible in the base wrench", ("#", "direction (add t times)"),
+                  left=("direction (add t times)",))
+        for k, text in enumerate(base.null_directions()):
+            t.add_row(str(k + 1), text)
+        con.print(t)
+    ident = [p for p, ok in zip(base.param_names, base.identifiable) if ok]
+    other = [p for p, ok in zip(base.param_names, base.identifiable) if not ok]
+    con.print(f"individually identifiable ({len(ident)}): {', '.join(ident) or '-'}")
+    con.print(f"only in combinations ({len(other)}): {', '.join(other) or '-'}")
+    if base.null_basis.shape[1]:
+        con.print(
+            "The null directions are structural: mass on a joint axis between two unknown links does not feel "
+            "that joint turn, so it acts on the base as if welded to the earlier link. Estimates of the other "
+            "parameters need prior knowledge (ineid uses the CAD values) or constraints."
+        )
+
+
+@click.command()
+@click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
+@click.option("--method", type=LibraryChoice(f"{_SOLVE}:METHODS"), cls=LibraryOption,
+              default_from=f"{_SOLVE}:SolveSettings.method")
+@click.option("--fit-frames", type=click.IntRange(min=1), default=None,
+              help="Frames fitted per configuration (the first K; the rest validate). Default: 80 %.")
+@deprecated_alias("--frames", "fit_frames", "--fit-frames", type=click.IntRange(min=1))
+@select_option
+@select_alias
+@click.option("--weights", type=LibraryChoice("ineid.identify.linear:WEIGHT_MODES"), cls=LibraryOption,
+              default_from=f"{_SOLVE}:SolveSettings.weights",
+              help="Row weights per wrench axis: none, from the noise levels (--sigma or the file), or estimated.")
+@click.option("--sigma", nargs=6, type=float, default=None, metavar="FX FY FZ MX MY MZ",
+              help="Wrench noise std per axis (N, N*m) for --weights noise.")
+@click.option("--start", type=LibraryChoice(f"{_SOLVE}:STARTS"), cls=LibraryOption,
+              default_from=f"{_SOLVE}:SolveSettings.start",
+              help="IPOPT start: the CAD values, or the linear estimate (made physical).")
+@click.option("--backend", type=LibraryChoice(f"{_SOLVE}:BACKENDS"), cls=LibraryOption,
+              default_from=f"{_SOLVE}:SolveSettings.backend",
+              help="Linear method: batched JAX/NumPy, or CasADi per configuration.")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Processes for IPOPT (default: CPU count; fewer than 256 configurations run in one).")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Results file (.h5).")
+@overwrite_option
+@click.pass_context
+def solve(ctx, data_path, method, fit_frames, selection, weights, sigma, start, backend, workers, out, overwrite) -> None:
+    """Identify the unknown links of every selected configuration of DATA.h5."""
+    from ineid.data import load_dataset, read_meta  # noqa: PLC0415
+    from ineid.identify import SolveSettings, save_results, solve_dataset  # noqa: PLC0415
+
+    prepare_output(out, overwrite)
+    if sigma is not None and weights != "noise":
+        raise click.UsageError("--sigma goes with --weights noise")
+    _, shapes = read_meta(data_path)
+    idx = parse_selection(selection, shapes["q"][0])
+    try:
+        settings = SolveSettings(
+            method=method, frames=fit_frames, weights=weights, axis_sigma=tuple(sigma) if sigma else None, start=start,
+            backend=backend, workers=workers or os.cpu_count() or 1,
+        )  # fmt: skip
+    except ValueError as e:
+        raise click.UsageError(str(e)) from None
+    ds = load_dataset(data_path, configs=idx)
+    with ProgressBar(f"solving ({method})", "configurations", quiet(ctx)) as bar:
+        res = solve_dataset(ds, settings, progress=bar)
+    save_results(res, out, overwrite=overwrite)
+    print_results(res, out)
+
+
+@click.command("export-urdf")
+@click.argument("results_path", metavar="RESULTS", type=click.Path(path_type=Path))
+@click.option("--config", type=int, required=True, help="Configuration (index in the dataset).")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="The .urdf file to write.")
+@overwrite_option
+def export_urdf_cmd(results_path, config, out, overwrite) -> None:
+    """Write the model's URDF with the identified links' inertials of one configuration."""
+    from ineid.identify import export_urdf, load_results  # noqa: PLC0415
+
+    prepare_output(out, overwrite)
+    res = load_results(results_path)
+    export_urdf(res, config, out, overwrite=overwrite)
+    click.echo(f"wrote {out}: {', '.join(res.meta['unknown_links'])} of configuration {config} ({res.settings.method})")
+
+
+@click.group()
+def results() -> None:
+    """Inspect results files of ``ineid solve``."""
+
+
+@results.command("info")
+@click.argument("path", metavar="RESULTS", type=click.Path(path_type=Path))
+def results_info(path: Path) -> None:
+    """Provenance and summary of a results file: dataset (path, fingerprint), settings, successes."""
+    import json  # noqa: PLC0415
+
+    import numpy as np  # noqa: PLC0415
+
+    from ineid.identify import load_results  # noqa: PLC0415
+
+    res = load_results(path)
+    m = res.meta
+    con = console()
+    con.print(f"[bold]{path}[/bold]  ineid results ({res.settings.method}), written by ineid {m['ineid_version']}")
+    con.print(f"dataset: {m.get('dataset_path') or 'unknown (in memory, or an older file)'}; "
+              f"fingerprint {m.get('dataset_fingerprint') or '-'}")  # fmt: skip
+    con.print(f"robot {m['robot']} ({m['source']}); unknown links {', '.join(m['unknown_links'])}; "
+              f"gravity {m['gravity']} m/s^2")  # fmt: skip
+    con.print(f"settings: {json.dumps(res.settings.to_dict(), sort_keys=True)}")
+    n_ok = int(res.success.sum())
+    con.print(f"{n_ok}/{res.n} configurations identified (indices {int(res.config_index.min())}.."
+              f"{int(res.config_index.max())}) in {m['total_seconds']:.2f} s; {res.n_frames_fit} frames fitted, "
+              f"{res.n_frames_validation} validated; {len(res.base.names)} base parameters")  # fmt: skip
+    if res.n_frames_validation and n_ok:
+        con.print(f"held-out relative wrench error: median {np.median(res.validation_rel[res.success]):.3g}")
+
+
+@click.group()
+def study() -> None:
+    """Studies that sweep settings and write a table and a plot."""
+
+
+@study.command("noise")
+@robot_options(positional="optional", with_gravity=False)
+@click.option("--levels", default="0,0.5,1,2,4", show_default=True, callback=numbers(float, "--levels"),
+              help="Noise levels, multiples of force 0.5 N, moment 0.05 N*m, qd 0.01 rad/s, qdd 0.1 rad/s^2.")
+@click.option("--fit-frames", default="10,50,200", show_default=True, callback=numbers(int, "--fit-frames", 1),
+              help="Frames fitted per configuration, comma-separated (one study line each).")
+@deprecated_alias("--frames", "fit_frames", "--fit-frames", callback=numbers(int, "--frames", 1))
+@click.option("--n-configs", type=click.IntRange(min=1), default=200, show_default=True, help="Configurations per level.")
+@deprecated_alias("--configs", "n_configs", "--n-configs", type=click.IntRange(min=1))
+@click.option("--methods", default="linear,weighted,consistent", show_default=True,
+              callback=names_in("ineid.identify.study:STUDY_METHODS", "--methods"))
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="Processes for IPOPT (default: CPU count).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder for noise_study.csv and noise_study.png.")
+@overwrite_option
+@click.pass_context
+def study_noise(ctx, robot, levels, fit_frames, n_configs, methods, seed, workers, out_dir, overwrite):
+    """Errors and physical validity of linear, weighted and consistent estimates under noise."""
+    from ineid.identify.study import noise_study, plot, write_rows  # noqa: PLC0415
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    csv_path, png_path = out_dir / "noise_study.csv", out_dir / "noise_study.png"
+    for p in (csv_path, png_path):
+        prepare_output(p, overwrite)
+    model = robot.load()
+    with ProgressBar("noise study", "solves", quiet(ctx)) as bar:
+        rows = noise_study(model, levels, fit_frames, n_configs, seed, methods, workers or os.cpu_count() or 1,
+                           progress=bar)  # fmt: skip
+    t = table(f"Noise study, {model.name}, {n_configs} configurations per level",
+              ("level", "frames", "method", "base err (median)", "base err (p95)", "standard err (median)",
+               "identifiable std. err", "invalid", "failed", "s"), left=("method",))  # fmt: skip
+    for r in rows:
+        t.add_row(f"{r.level:g}", str(r.frames), r.method, f"{r.base_error_median:.3g}", f"{r.base_error_p95:.3g}",
+                  f"{r.standard_error_median:.3g}", f"{r.identifiable_error_median:.3g}",
+                  f"{100 * r.invalid_share:.1f}%", f"{100 * r.failed_share:.1f}%", f"{r.seconds:.1f}")
+    console().print(t)
+    write_rows(rows, csv_path)
+    plot(rows, png_path)
+    click.echo(f"wrote {csv_path} and {png_path}")
+
+
+def register(main: click.Group) -> None:
+    for command in (identifiability, solve, export_urdf_cmd, results, study):
+        main.add_command(command)

@@ -1,0 +1,216 @@
+"""``ineid train``, ``evaluate`` and ``sweep``: networks on a dataset, beside least squares."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ineid.cli.options import (
+    LibraryChoice,
+    LibraryOption,
+    deprecated_alias,
+    names_in,
+    numbers,
+    overwrite_option,
+    parse_selection,
+    quiet,
+    select_alias,
+    select_option,
+)
+from ineid.cli.output import ProgressBar, console, print_evaluation, table
+
+_CFG = "ineid.learn.train:TrainConfig"
+_MODEL = "ineid.learn.models:ModelSpec"
+
+
+def _run_options(f):
+    """Options shared by ``ineid train`` and ``ineid sweep`` (the settings of one run; defaults: TrainConfig's)."""
+    opts = [
+        click.option("--depth", type=click.IntRange(min=1), default=None, help="Hidden layers of --arch mlp."),
+        click.option("--width", type=click.IntRange(min=1), default=None, help="Neurons per layer of --arch mlp."),
+        click.option("--lr", type=click.FloatRange(min=0, min_open=True), cls=LibraryOption, default_from=f"{_CFG}.lr"),
+        click.option("--schedule", type=LibraryChoice("ineid.learn.train:SCHEDULES"), cls=LibraryOption,
+                     default_from=f"{_CFG}.schedule"),
+        click.option("--epochs", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_CFG}.epochs"),
+        click.option("--batch", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_CFG}.batch",
+                     help="Samples per step."),
+        click.option("--alpha", type=click.FloatRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.alpha",
+                     help="Weight of the MSE."),
+        click.option("--beta", type=click.FloatRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.beta",
+                     help="Weight of the wrench residual (physics loss)."),
+        click.option("--patience", type=click.IntRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.patience",
+                     help="Early stopping: epochs without a better validation MSE (0: off)."),
+        click.option("--train-configs", "n_train", type=click.IntRange(min=1), default=None,
+                     help="Training configurations (default 70 %)."),
+        click.option("--val-configs", "n_val", type=click.IntRange(min=1), default=None,
+                     help="Validation configurations (default 15 %)."),
+        click.option("--test-configs", "n_test", type=click.IntRange(min=1), default=None,
+                     help="Test configurations (default: the rest)."),
+        click.option("--seed", type=click.IntRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.seed"),
+        click.option("--physics-mode", type=LibraryChoice("ineid.learn.losses:PHYSICS_MODES"), default="cached",
+                     show_default=True, help="Regressor of the physics loss: computed once per frame, or inside the loss."),
+    ]  # fmt: skip
+    for o in reversed(opts):
+        f = o(f)
+    return f
+
+
+def _train_config(model_kw: dict, kw: dict):
+    """A :class:`TrainConfig` from the options; a bad combination is a usage error."""
+    from ineid.learn import ModelSpec, TrainConfig  # noqa: PLC0415
+
+    try:
+        return TrainConfig(model=ModelSpec(**model_kw), **kw)
+    except ValueError as e:
+        raise click.UsageError(str(e)) from None
+
+
+@click.command("train")
+@click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
+@click.option("--arch", type=LibraryChoice("ineid.learn.models:ARCHITECTURES"), cls=LibraryOption,
+              default_from=f"{_MODEL}.arch", help="Table 1 of the paper, or mlp.")
+@click.option("--activation", type=LibraryChoice("ineid.learn.models:ACTIVATIONS"), cls=LibraryOption,
+              default_from=f"{_MODEL}.activation")
+@click.option("--scaler", type=LibraryChoice("ineid.learn.scalers:SCALERS"), cls=LibraryOption,
+              default_from=f"{_CFG}.scaler")
+@click.option("--optimizer", type=LibraryChoice("ineid.learn.train:OPTIMIZERS"), cls=LibraryOption,
+              default_from=f"{_CFG}.optimizer")
+@click.option("--sample-frames", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_MODEL}.frames",
+              help="Frames per network sample (K).")
+@deprecated_alias("--frames", "sample_frames", "--sample-frames", type=click.IntRange(min=1))
+@click.option("--siamese", is_flag=True, help="One shared encoder per frame, embeddings averaged, then a head.")
+@click.option("--loss", type=LibraryChoice("ineid.learn.losses:LOSSES"), cls=LibraryOption, default_from=f"{_CFG}.loss")
+@_run_options
+@click.option("--out", "run_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="Run folder.")
+@click.option("--resume", is_flag=True, help="Continue the run in --out from its checkpoint (same settings).")
+@overwrite_option
+@click.pass_context
+def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, arch, activation, depth, width, sample_frames,
+              siamese, **kw) -> None:
+    """Train a network on DATA.h5 into a run folder, then evaluate it on the test split."""
+    import json  # noqa: PLC0415
+
+    from ineid._atomic import Terminated, atomic_write  # noqa: PLC0415
+    from ineid.data import load_dataset  # noqa: PLC0415
+    from ineid.learn import evaluate, load_run, train  # noqa: PLC0415
+    from ineid.learn.runs import EVALUATION  # noqa: PLC0415
+
+    cfg = _train_config(dict(arch=arch, activation=activation, depth=depth, width=width, siamese=siamese,
+                             frames=sample_frames), kw)  # fmt: skip
+    ds = load_dataset(data_path)
+    model = ds.model()
+    with ProgressBar(f"training {cfg.model.name}", "epochs", quiet(ctx)) as bar:
+
+        def progress(epoch, total, rec):
+            bar(epoch, total)
+            bar.set_description(f"training {cfg.model.name}  loss {rec['train_loss']:.4f}  val mse "
+                                f"{rec['val_mse']:.4f}  val phys {rec['val_phys']:.4f}")  # fmt: skip
+
+        try:
+            result = train(ds, cfg, run_dir, dataset_path=str(data_path), resume=resume, overwrite=overwrite,
+                           progress=progress, model=model, physics_mode=physics_mode)
+        except (KeyboardInterrupt, Terminated):
+            raise click.ClickException(
+                f"interrupted; {run_dir} keeps the last finished epoch: continue with the same command and --resume"
+            ) from None
+    click.echo(
+        f"{result.epochs_run} epochs in {result.seconds:.1f} s"
+        + (" (stopped early)" if result.stopped_early else "")
+        + f"; best validation MSE {result.best_val_mse:.4g} at epoch {result.best_epoch}; wrote {run_dir}"
+    )
+    ev = evaluate(load_run(run_dir), ds, model=model)
+    atomic_write(run_dir / EVALUATION, json.dumps(ev.to_dict(), indent=1))
+    print_evaluation(ev)
+
+
+@click.command("evaluate")
+@click.argument("run_dir", metavar="RUN_DIR", type=click.Path(path_type=Path))
+@click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
+@select_option
+@select_alias
+@click.option("--no-linear", is_flag=True, help="Skip the linear least-squares comparison.")
+@click.option("--out", type=click.Path(path_type=Path), default=None,
+              help="Where to write the evaluation (JSON; default RUN_DIR/evaluation.json).")
+@overwrite_option
+def evaluate_cmd(run_dir, data_path, selection, no_linear, out, overwrite) -> None:
+    """Evaluate a trained run on DATA.h5: errors, R^2, floor, wrench residual, linear LS.
+
+    Without --select: the run's test split if DATA.h5 is its dataset, else all configurations.
+    """
+    import json  # noqa: PLC0415
+
+    from ineid._atomic import atomic_write  # noqa: PLC0415
+    from ineid.cli.options import prepare_output  # noqa: PLC0415
+    from ineid.data import load_dataset  # noqa: PLC0415
+    from ineid.learn import evaluate, load_run  # noqa: PLC0415
+    from ineid.learn.runs import EVALUATION  # noqa: PLC0415
+
+    out = prepare_output(out or Path(run_dir) / EVALUATION, overwrite)
+    run = load_run(run_dir)
+    ds = load_dataset(data_path)
+    configs = None if selection is None else parse_selection(selection, ds.n_configs)
+    ev = evaluate(run, ds, configs, linear=not no_linear)
+    atomic_write(out, json.dumps(ev.to_dict(), indent=1))
+    print_evaluation(ev)
+    click.echo(f"wrote {out}")
+
+
+@click.command("sweep")
+@click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
+@click.option("--archs", default=None, callback=names_in("ineid.learn.models:ARCHITECTURES", "--archs"),
+              help="Architectures, comma-separated (default: the paper's Table 1, simple and funnel).")
+@click.option("--activations", default=None, callback=names_in("ineid.learn.models:ACTIVATIONS", "--activations"),
+              help="Default: tanh.")
+@click.option("--scalers", default=None, callback=names_in("ineid.learn.scalers:SCALERS", "--scalers"),
+              help="Default: robust.")
+@click.option("--optimizers", default=None, callback=names_in("ineid.learn.train:OPTIMIZERS", "--optimizers"),
+              help="Default: adam.")
+@click.option("--losses", default=None, callback=names_in("ineid.learn.losses:LOSSES", "--losses"), help="Default: mse.")
+@click.option("--sample-frames", "sample_frames", default=None, callback=numbers(int, "--sample-frames", 1),
+              help="Frames per network sample to try, comma-separated (default 1).")
+@deprecated_alias("--frames-list", "sample_frames", "--sample-frames", callback=numbers(int, "--frames-list", 1))
+@click.option("--siamese", type=click.Choice(["off", "on", "both"]), default="off", show_default=True)
+@_run_options
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
+@overwrite_option
+@click.pass_context
+def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, sample_frames, siamese, out_dir,
+              overwrite, physics_mode, depth, width, **kw) -> None:
+    """Train a grid of networks one after another; write sweep.csv and sweep.png ranked by test error."""
+    from ineid.cli.options import prepare_output  # noqa: PLC0415
+    from ineid.data import load_dataset  # noqa: PLC0415
+    from ineid.learn import Grid, sweep  # noqa: PLC0415
+
+    given = dict(archs=archs, activations=activations, scalers=scalers, optimizers=optimizers, losses=losses,
+                 frames=sample_frames)  # fmt: skip
+    grid = Grid(**{k: v for k, v in given.items() if v is not None},
+                siamese={"off": (False,), "on": (True,), "both": (False, True)}[siamese])  # fmt: skip
+    base = _train_config(dict(arch="mlp" if depth or width else "simple", depth=depth, width=width), kw)
+    if out_dir.is_dir():
+        prepare_output(out_dir / "sweep.csv", overwrite)
+    try:
+        cfgs = grid.configs(base)
+        if not cfgs:
+            raise ValueError("the grid is empty: a Siamese network needs more than one frame (--sample-frames 10)")
+    except ValueError as e:
+        raise click.UsageError(str(e)) from None
+    ds = load_dataset(data_path)
+    with ProgressBar("sweep", "runs", quiet(ctx)) as bar:
+        bar(0, len(cfgs))
+        rows = sweep(ds, grid, base, out_dir, dataset_path=str(data_path), progress=lambda i, t, r: bar(i, t),
+                     overwrite=overwrite, physics_mode=physics_mode)  # fmt: skip
+    t = table(f"Sweep on {data_path}: test median relative error, ranked",
+              ("#", "run", "standard", "base", "floor", "linear LS (std / base)", "physical", "epochs", "s"),
+              left=("run",))  # fmt: skip
+    for i, r in enumerate(rows):
+        t.add_row(str(i + 1), r.name, f"{r.test_standard_median:.4g}", f"{r.test_base_median:.4g}",
+                  f"{r.floor_standard_median:.4g}", f"{r.linear_standard_median:.4g} / {r.linear_base_median:.3g}",
+                  f"{100 * r.physical_share:.0f}%", str(r.epochs_run), f"{r.seconds:.0f}")
+    console().print(t)
+    click.echo(f"wrote {out_dir / 'sweep.csv'} and {out_dir / 'sweep.png'}")
+
+
+def register(main: click.Group) -> None:
+    for command in (train_cmd, evaluate_cmd, sweep_cmd):
+        main.add_command(command)

@@ -1,0 +1,368 @@
+"""Options and parsing shared by the ``ineid`` commands: each defined once, here.
+
+Flag names carry one meaning across commands:
+
+=====================  ====================================================================
+``ROBOT``              positional where the robot is the command's subject: a built-in name
+                       (sweaty-arm) or a URDF path; ``data import`` (whose subject is the
+                       recording) takes ``--robot``
+``--unknown-links``    comma-separated links to identify
+``--lock JOINT=POS``   treat a URDF joint as fixed (repeatable)
+``--gravity``          GX GY GZ, m/s^2, base frame
+``--n-configs N``      how many configurations to make
+``--n-frames N``       how many frames to make or sample per configuration
+``--fit-frames K``     frames fitted per configuration (the first K; the rest validate)
+``--sample-frames K``  frames per network sample
+``--select SEL``       which configurations of a file: ``all``, ``A:B[:STEP]``, ``1,5,9``
+``--config N``         one configuration of a file, by its index
+``--out``              the file or folder to write; never replaced without ``--overwrite``
+=====================  ====================================================================
+
+The spellings of ineid 0.1 (``--configs``, ``--frames``, ``--frames-list``, ``--robot`` on
+``data generate``/``study noise``) keep working for one release with a deprecation message.
+Defaults live in the library's dataclasses and constants; options read them from there.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+from collections.abc import Callable
+from dataclasses import MISSING, dataclass, fields
+from pathlib import Path
+
+import click
+
+DEPRECATED_UNTIL = "0.3"
+
+
+# -- values from the library, looked up when needed (``ineid --help`` imports nothing heavy) --
+
+
+def _resolve(ref: str):
+    """``"package.module:Name.attr"`` -> the object."""
+    module, _, attr = ref.partition(":")
+    obj = importlib.import_module(module)
+    for part in attr.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+def library_default(ref: str):
+    """The default of a dataclass field, ``"module:Class.field"``."""
+    module_cls, _, name = ref.rpartition(".")
+    cls = _resolve(module_cls)
+    for f in fields(cls):
+        if f.name == name:
+            if f.default is not MISSING:
+                return f.default
+            if f.default_factory is not MISSING:
+                return f.default_factory()
+    raise AttributeError(f"{ref} has no default")
+
+
+class LibraryOption(click.Option):
+    """An option whose default is a library dataclass field's (``default_from="module:Class.field"``)."""
+
+    def __init__(self, *args, default_from: str, **kwargs) -> None:
+        super().__init__(*args, show_default=True, **kwargs)
+        self.default_from = default_from
+
+    def get_default(self, ctx: click.Context, call: bool = True):
+        return library_default(self.default_from)
+
+
+class LibraryChoice(click.ParamType):
+    """``click.Choice`` over a library constant (a tuple or dict of names), imported on first use."""
+
+    def __init__(self, ref: str) -> None:
+        self.ref = ref
+        self._choice: click.Choice | None = None
+
+    @property
+    def choice(self) -> click.Choice:
+        if self._choice is None:
+            self._choice = click.Choice(list(_resolve(self.ref)))
+        return self._choice
+
+    @property
+    def name(self) -> str:  # click shows it in errors
+        return "choice"
+
+    def get_metavar(self, param, *args):
+        return self.choice.get_metavar(param, *args)
+
+    def convert(self, value, param, ctx):
+        return self.choice.convert(value, param, ctx)
+
+    def shell_complete(self, ctx, param, incomplete):
+        return self.choice.shell_complete(ctx, param, incomplete)
+
+
+def names_in(ref: str, hint: str):
+    """Callback: comma-separated names, each one of the library constant ``ref`` -> tuple."""
+
+    def callback(ctx, param, value):
+        if value is None:
+            return None
+        allowed = list(_resolve(ref))
+        vals = tuple(v.strip() for v in value.split(",") if v.strip())
+        bad = [v for v in vals if v not in allowed]
+        if bad or not vals:
+            raise click.BadParameter(f"choose from {', '.join(allowed)}; got {value!r}", param_hint=hint)
+        return vals
+
+    return callback
+
+
+def numbers(cast: type, hint: str, minimum: float = 0):
+    """Callback: comma-separated numbers, each at least ``minimum`` -> tuple."""
+
+    def callback(ctx, param, value):
+        if value is None:
+            return None
+        try:
+            vals = tuple(cast(v) for v in value.split(",") if v.strip())
+            if not vals or min(vals) < minimum:
+                raise ValueError
+        except ValueError:
+            raise click.BadParameter(
+                f"expected comma-separated numbers >= {minimum:g}, got {value!r}", param_hint=hint
+            ) from None
+        return vals
+
+    return callback
+
+
+# -- the robot -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RobotChoice:
+    """What the robot options chose; :meth:`load` builds the :class:`ineid.RobotModel`."""
+
+    robot: str
+    unknown_links: tuple[str, ...] | None = None
+    locked_joints: dict[str, float] | None = None
+    gravity: tuple[float, float, float] | None = None
+
+    def load(self):
+        import ineid  # noqa: PLC0415
+
+        kwargs = {"unknown_links": self.unknown_links, "locked_joints": self.locked_joints}
+        if self.gravity is not None:
+            kwargs["gravity"] = self.gravity
+        return ineid.load_robot(self.robot, **kwargs)
+
+
+def _split_names(ctx, param, value: str | None) -> tuple[str, ...] | None:
+    if value is None:
+        return None
+    return tuple(v.strip() for v in value.split(",") if v.strip())
+
+
+def _parse_locked(ctx, param, values: tuple[str, ...]) -> dict[str, float] | None:
+    out = {}
+    for item in values:
+        name, sep, val = item.partition("=")
+        try:
+            if not sep or not name.strip():
+                raise ValueError
+            out[name.strip()] = float(val)
+        except ValueError:
+            raise click.BadParameter(f"expected JOINT=POSITION, got {item!r}", param_hint="--lock") from None
+    return out or None
+
+
+unknown_links_option = click.option(
+    "--unknown-links", metavar="LINK,LINK", default=None, callback=_split_names,
+    help="Comma-separated links to identify (default: the built-in's choice, or all moving links).",
+)  # fmt: skip
+lock_option = click.option(
+    "--lock", "locked", multiple=True, metavar="JOINT=POS", callback=_parse_locked,
+    help="Treat a URDF joint as fixed at POS (repeatable).",
+)  # fmt: skip
+gravity_option = click.option(
+    "--gravity", nargs=3, type=float, default=None, metavar="GX GY GZ",
+    help="m/s^2, base frame (default 0 0 -9.81).",
+)  # fmt: skip
+
+
+def robot_options(positional: str = "required", with_gravity: bool = True) -> Callable:
+    """ROBOT, --unknown-links, --lock (and --gravity), handed to the command as ``robot: RobotChoice``.
+
+    ``positional``: ``"required"`` (ROBOT argument), ``"optional"`` (ROBOT argument that
+    defaults to sweaty-arm; 0.1's ``--robot`` still accepted), or ``"option"`` (``--robot``).
+    """
+
+    def deco(f):
+        @functools.wraps(f)
+        def wrapper(*args, **kw):
+            robot = kw.pop("robot")
+            old = kw.pop("deprecated_robot", None)
+            if old is not None:
+                if robot is not None:
+                    raise click.UsageError("give ROBOT or --robot, not both")
+                warn_deprecated("--robot", "the ROBOT argument")
+                robot = old
+            kw["robot"] = RobotChoice(
+                robot or "sweaty-arm", kw.pop("unknown_links"), kw.pop("locked"),
+                kw.pop("gravity", None) if with_gravity else None,
+            )  # fmt: skip
+            return f(*args, **kw)
+
+        g = wrapper
+        if with_gravity:
+            g = gravity_option(g)
+        g = lock_option(unknown_links_option(g))
+        if positional == "option":
+            return click.option("--robot", default="sweaty-arm", show_default=True, metavar="ROBOT",
+                                help="Built-in name or URDF path.")(g)  # fmt: skip
+        if positional == "optional":
+            g = click.option("--robot", "deprecated_robot", default=None, hidden=True)(g)
+        return click.argument("robot", metavar="[ROBOT]" if positional == "optional" else "ROBOT",
+                              required=positional == "required")(g)  # fmt: skip
+
+    return deco
+
+
+# -- outputs ---------------------------------------------------------------------------------
+
+overwrite_option = click.option("--overwrite", is_flag=True, help="Replace the output if it exists.")
+
+
+def prepare_output(path: Path, overwrite: bool, kind: str = "file") -> Path:
+    """Check an output before any work: a file (not a folder) in an existing folder, new unless ``overwrite``.
+
+    Raises:
+        OutputExistsError: it exists and ``overwrite`` is off (:func:`ineid._atomic.check_output`).
+        click.BadParameter: a folder where a file is expected, or a missing parent folder.
+    """
+    from ineid._atomic import check_output  # noqa: PLC0415
+
+    path = Path(path)
+    if kind == "file" and path.is_dir():
+        raise click.BadParameter(f"{path} is a folder; give a file name", param_hint="--out")
+    if not path.parent.is_dir():
+        raise click.BadParameter(f"folder {path.parent} does not exist; create it first", param_hint="--out")
+    return check_output(path, overwrite)
+
+
+# -- deprecated spellings --------------------------------------------------------------------
+
+
+def warn_deprecated(old: str, new: str) -> None:
+    click.echo(f"ineid: {old} is deprecated; use {new} (the old spelling goes in ineid {DEPRECATED_UNTIL})", err=True)
+
+
+def deprecated_alias(old: str, new_param: str, new_flag: str, **option_kwargs) -> Callable:
+    """Accept the 0.1 spelling ``old`` of option ``new_flag`` (parameter ``new_param``) with a warning."""
+    dest = "deprecated_" + old.lstrip("-").replace("-", "_")
+
+    def deco(f):
+        @functools.wraps(f)
+        def wrapper(*args, **kw):
+            value = kw.pop(dest)
+            if value is not None:
+                ctx = click.get_current_context()
+                if ctx.get_parameter_source(new_param) is click.core.ParameterSource.COMMANDLINE:
+                    raise click.UsageError(f"give {new_flag} or {old}, not both")
+                warn_deprecated(old, new_flag)
+                kw[new_param] = value
+            return f(*args, **kw)
+
+        return click.option(old, dest, default=None, hidden=True, **option_kwargs)(wrapper)
+
+    return deco
+
+
+# -- selections, noise -------------------------------------------------------------------------
+
+
+def parse_selection(text: str | None, n: int, hint: str = "--select"):
+    """``all``, ``A:B[:STEP]``, ``1,5,9`` or mixtures (``0:10,50``) -> sorted unique indices into ``n``."""
+    import numpy as np  # noqa: PLC0415
+
+    if text is None or text.strip().lower() == "all":
+        return np.arange(n)
+    picked: list[int] = []
+    for part in text.split(","):
+        part = part.strip()
+        try:
+            if ":" in part:
+                bits = [int(b) if b.strip() else None for b in part.split(":")]
+                if len(bits) > 3:
+                    raise ValueError
+                picked += list(range(n))[slice(*bits)]
+            else:
+                k = int(part)
+                if not -n <= k < n:
+                    raise click.BadParameter(f"configuration {k} is out of range (the file has {n}: 0..{n - 1})",
+                                             param_hint=hint)  # fmt: skip
+                picked.append(k % n)
+        except ValueError:
+            raise click.BadParameter(
+                f"expected 'all', A:B[:STEP] or comma-separated indices, got {part!r}", param_hint=hint
+            ) from None
+    idx = np.unique(np.asarray(picked, dtype=np.int64))
+    if idx.size == 0:
+        raise click.BadParameter(f"{text!r} selects no configuration of the {n} in the file", param_hint=hint)
+    return idx
+
+
+select_option = click.option(
+    "--select", "selection", default=None, metavar="SEL",
+    help="Configurations: all (default), A:B[:STEP], or 1,5,9.",
+)  # fmt: skip
+select_alias = deprecated_alias("--configs", "selection", "--select")
+
+NOISE_KEYS = ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "q", "qd", "qdd")
+
+
+def _parse_noise(ctx, param, value: str | None) -> dict[str, float] | None:
+    """``force=0.5,moment=0.02,qd=0.01`` -> ``{key: std}`` (checked; see :func:`noise_model`)."""
+    if not value:
+        return None
+    std = {}
+    for item in value.split(","):
+        key, sep, val = item.strip().partition("=")
+        key = key.strip().lower()
+        try:
+            if not sep or key not in NOISE_KEYS:
+                raise ValueError
+            std[key] = float(val)
+            if not 0 <= std[key] < float("inf"):
+                raise ValueError
+        except ValueError:
+            raise click.BadParameter(
+                f"expected KEY=STD with KEY in {', '.join(NOISE_KEYS)} and STD >= 0, got {item.strip()!r}",
+                param_hint="--noise",
+            ) from None
+    return std
+
+
+noise_option = click.option(
+    "--noise", default=None, metavar="KEY=STD,...", callback=_parse_noise,
+    help="Gaussian noise std: force, moment (or fx..mz) in N, N*m; q, qd, qdd in rad, rad/s, rad/s^2.",
+)  # fmt: skip
+
+
+def noise_model(std: dict[str, float] | None, n_dof: int):
+    """The :class:`ineid.data.NoiseModel` of a parsed ``--noise`` (None for clean data)."""
+    if not std:
+        return None
+    from ineid.data import NoiseModel  # noqa: PLC0415
+
+    force = [std.get(a, std.get("force", 0.0)) for a in ("fx", "fy", "fz")]
+    moment = [std.get(a, std.get("moment", 0.0)) for a in ("mx", "my", "mz")]
+    return NoiseModel.create(n_dof, force=force, moment=moment, q=std.get("q", 0.0), qd=std.get("qd", 0.0),
+                             qdd=std.get("qdd", 0.0))  # fmt: skip
+
+
+def verbosity(ctx: click.Context) -> int:
+    """``-v`` count minus ``-q`` count (rio's convention)."""
+    return int((ctx.find_root().obj or {}).get("verbosity", 0))
+
+
+def quiet(ctx: click.Context) -> bool:
+    return verbosity(ctx) < 0
