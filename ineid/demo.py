@@ -18,12 +18,10 @@ def main(n_frames: int = 100_000, seed: int = 0) -> None:
     import jax  # noqa: PLC0415
 
     import ineid  # noqa: PLC0415
+    from ineid.data.sampling import model_uniform_states  # noqa: PLC0415
 
     model = ineid.load_robot("sweaty-arm")
-    rng = np.random.default_rng(seed)
-    q = rng.uniform(model.q_lower, model.q_upper, (n_frames, model.n_dof))
-    qd = rng.uniform(-model.qd_max, model.qd_max, (n_frames, model.n_dof))
-    qdd = rng.uniform(-model.qdd_max, model.qdd_max, (n_frames, model.n_dof))
+    q, qd, qdd = model_uniform_states(model, n_frames, np.random.default_rng(seed))
 
     f = jax.jit(model.jax_regressor)
     f(q, qd, qdd, model.gravity).block_until_ready()  # compile for this shape

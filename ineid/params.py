@@ -36,6 +36,38 @@ N_PARAMS_PER_LINK = 10
 _INERTIA_INDEX = ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2))
 
 
+def full_theta(
+    link_names: Sequence[str], unknown_links: Sequence[str], theta_unknown: np.ndarray, theta_known: np.ndarray
+) -> np.ndarray:
+    """Every link's parameters in chain order from the unknown links' and the known links'.
+
+    Args:
+        link_names: the moving links in chain order.
+        unknown_links: the unknown ones, in chain order; the rest are known.
+        theta_unknown: (..., 10 * n_unknown), the unknown links in chain order.
+        theta_known: (10 * n_known,) or (..., 10 * n_known), broadcast against the batch.
+
+    Returns:
+        (..., 10 * n_links) with ``theta[..., 10 i : 10 i + 10]`` the parameters of link ``i``.
+    """
+    theta_unknown = np.asarray(theta_unknown, dtype=np.float64)
+    theta_known = np.asarray(theta_known, dtype=np.float64)
+    batch = np.broadcast_shapes(theta_unknown.shape[:-1], theta_known.shape[:-1])
+    u = np.broadcast_to(theta_unknown, batch + theta_unknown.shape[-1:]).reshape(batch + (-1, N_PARAMS_PER_LINK))
+    k = np.broadcast_to(theta_known, batch + theta_known.shape[-1:]).reshape(batch + (-1, N_PARAMS_PER_LINK))
+    unknown, iu, ik, parts = set(unknown_links), 0, 0, []
+    for link in link_names:
+        if link in unknown:
+            parts.append(u[..., iu, :])
+            iu += 1
+        else:
+            parts.append(k[..., ik, :])
+            ik += 1
+    if iu != u.shape[-2] or ik != k.shape[-2]:
+        raise ValueError(f"theta_unknown has {u.shape[-2]} links and theta_known {k.shape[-2]}, expected {iu} and {ik}")
+    return np.concatenate(parts, axis=-1)
+
+
 def param_names(link_names: Sequence[str]) -> list[str]:
     """Names ``"<link>.<param>"`` of a stacked parameter vector, link by link."""
     return [f"{link}.{p}" for link in link_names for p in PARAM_NAMES]

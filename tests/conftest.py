@@ -49,10 +49,9 @@ def real_robot(name: str) -> tuple[Path, dict | None]:
 
 def random_states(model, n: int, rng: np.random.Generator):
     """q within limits, qd and qdd within the sampling bounds: (n, n_dof) each."""
-    q = rng.uniform(model.q_lower, model.q_upper, (n, model.n_dof))
-    qd = rng.uniform(-model.qd_max, model.qd_max, (n, model.n_dof))
-    qdd = rng.uniform(-model.qdd_max, model.qdd_max, (n, model.n_dof))
-    return q, qd, qdd
+    from ineid.data.sampling import model_uniform_states
+
+    return model_uniform_states(model, n, rng)
 
 
 def rel_err(a, b) -> float:

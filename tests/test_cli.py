@@ -39,8 +39,12 @@ def test_robot_list_and_show(run):
     assert r.exit_code == 0 and r.output.startswith("sweaty-arm")
     r = run("robot", "show", "sweaty-arm")
     assert r.exit_code == 0
-    for word in ("shoulder_pitch", "upper_arm_yaw", "forearm", "unknown", "known", "hand", "Ixy", "1256 operations"):
+    for word in ("shoulder_pitch", "upper_arm_yaw", "forearm", "hand", "Ixy", "1256 operations"):
         assert word in r.output
+    cells = [[c.strip() for c in line.split("│")[1:-1]] for line in r.output.splitlines() if line.startswith("│")]
+    roles = {row[0]: row[1] for row in cells if row[1] in ("known", "unknown")}
+    assert roles == {"shoulder_pitch_link": "known", "shoulder_roll_link": "known", "upper_arm": "unknown",
+                     "forearm": "unknown"}
     r = run("robot", "show", "sweaty-arm", "--unknown-links", "forearm", "--gravity", "0", "0", "-1.62")
     assert r.exit_code == 0 and "-1.62" in r.output
 

@@ -8,12 +8,13 @@ memory, so the size of a dataset is bounded by the disk, not the RAM.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ineid.progress import Progress
 from ineid.data.schema import Dataset, DatasetMeta
 from ineid.data.write import DatasetWriter, chunk_rows
 from ineid.data.noise import NoiseModel
@@ -31,7 +32,6 @@ from ineid.data.sampling import (
 from ineid.errors import DatasetError
 from ineid.params import all_links_physical
 
-Progress = Callable[[int, int], None]
 """``progress(configs_done, configs_total)``."""
 
 
@@ -119,14 +119,8 @@ class GenerationPlan:
             pad = self.rows - n
             q, qd, qdd = (np.concatenate([a, np.zeros((pad,) + a.shape[1:])]) for a in (q, qd, qdd))
             theta = np.concatenate([theta, np.repeat(theta[-1:], pad, axis=0)])
-        full = self._full_theta(theta)[:, None, :]
+        full = self.model.full_theta(theta, self.theta_known)[:, None, :]
         return np.asarray(self._wrench_fn(q, qd, qdd, self.model.gravity, full))[:n]
-
-    def _full_theta(self, theta_unknown: np.ndarray) -> np.ndarray:
-        full = np.empty((len(theta_unknown), 10 * self.model.n_links))
-        full[:, self.model.unknown_index] = theta_unknown
-        full[:, self.model.known_index] = self.theta_known
-        return full
 
     def chunks(self) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
         """Yield ``(first configuration, arrays)`` chunk by chunk."""

@@ -287,6 +287,33 @@ class FrameSampling:
         return dataclasses.asdict(self)
 
 
+def uniform_states(
+    q_lower: np.ndarray,
+    q_upper: np.ndarray,
+    qd_max: np.ndarray,
+    qdd_max: np.ndarray,
+    rng: np.random.Generator,
+    shape: tuple[int, ...],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Independent uniform states within the bounds: ``q`` in the limits, ``|qd|``, ``|qdd|`` below theirs.
+
+    Each (shape..., n_dof). The draws of a leading index (a configuration) are one
+    contiguous block of ``rng``: its q of every frame, then its qd, then its qdd; so a
+    configuration's frames do not depend on how many configurations are drawn with it.
+    """
+    lo, hi = np.asarray(q_lower, float), np.asarray(q_upper, float)
+    u = rng.random((*shape[:-1], 3, shape[-1], lo.shape[0]))
+    q = lo + (hi - lo) * u[..., 0, :, :]
+    qd = np.asarray(qd_max, float) * (2.0 * u[..., 1, :, :] - 1.0)
+    qdd = np.asarray(qdd_max, float) * (2.0 * u[..., 2, :, :] - 1.0)
+    return q, qd, qdd
+
+
+def model_uniform_states(model, n_frames: int, rng: np.random.Generator):
+    """:func:`uniform_states` within a :class:`ineid.RobotModel`'s bounds: (n_frames, n_dof) x 3."""
+    return uniform_states(model.q_lower, model.q_upper, model.qd_max, model.qdd_max, rng, (n_frames,))
+
+
 def sample_frames(
     n_configs: int,
     n_frames: int,
@@ -315,11 +342,7 @@ def sample_frames(
     amax = np.asarray(qdd_max, float) * spec.acceleration_scale
     n_dof = lo.shape[0]
     if spec.mode == "uniform":
-        u = rng.random((n_configs, 3, n_frames, n_dof))
-        q = lo + (hi - lo) * u[:, 0]
-        qd = vmax * (2.0 * u[:, 1] - 1.0)
-        qdd = amax * (2.0 * u[:, 2] - 1.0)
-        return q, qd, qdd, None
+        return (*uniform_states(lo, hi, vmax, amax, rng, (n_configs, n_frames)), None)
     n_h = spec.harmonics
     omega = 2.0 * np.pi * spec.base_frequency
     duration = spec.duration if spec.duration is not None else 1.0 / spec.base_frequency

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ineid.errors import DatasetError
-from ineid.params import N_PARAMS_PER_LINK, param_names
+from ineid.params import N_PARAMS_PER_LINK, full_theta, param_names
 
 if TYPE_CHECKING:
     from ineid.robots import RobotModel
@@ -233,21 +233,9 @@ class Dataset:
         return save_dataset(self, path, overwrite=overwrite)
 
 def assemble_theta(meta: DatasetMeta, theta_unknown: np.ndarray, theta_known: np.ndarray) -> np.ndarray:
-    """Stack unknown (..., 10 n_unknown) and known (10 n_known,) parameters in chain order."""
-    theta_unknown = np.asarray(theta_unknown, dtype=np.float64)
-    batch = theta_unknown.shape[:-1]
-    u = theta_unknown.reshape(batch + (len(meta.unknown_links), N_PARAMS_PER_LINK))
-    k = np.broadcast_to(
-        np.asarray(theta_known, dtype=np.float64).reshape(len(meta.known_links), N_PARAMS_PER_LINK),
-        batch + (len(meta.known_links), N_PARAMS_PER_LINK),
-    )
-    parts = []
-    for link in meta.link_names:
-        if link in meta.unknown_links:
-            parts.append(u[..., meta.unknown_links.index(link), :])
-        else:
-            parts.append(k[..., meta.known_links.index(link), :])
-    return np.concatenate(parts, axis=-1)
+    """Stack unknown (..., 10 n_unknown) and known (10 n_known,) parameters in chain order (:func:`ineid.params.full_theta`)."""
+    return full_theta(meta.link_names, meta.unknown_links, theta_unknown, theta_known)
+
 
 def model_from_meta(meta: DatasetMeta, codegen_dir: str | Path | None = None) -> RobotModel:
     """Rebuild the robot model of a dataset from the URDF text it carries.

@@ -177,11 +177,9 @@ def base_parameters_from_regressor(w: np.ndarray, names, scales: np.ndarray) -> 
 
 def generic_frames(model, n_frames: int = STRUCTURAL_FRAMES, seed: int = 0):
     """Random frames within the model's bounds: (n_frames, n_dof) x 3."""
-    rng = np.random.default_rng(seed)
-    q = rng.uniform(model.q_lower, model.q_upper, (n_frames, model.n_dof))
-    qd = rng.uniform(-model.qd_max, model.qd_max, (n_frames, model.n_dof))
-    qdd = rng.uniform(-model.qdd_max, model.qdd_max, (n_frames, model.n_dof))
-    return q, qd, qdd
+    from ineid.data.sampling import model_uniform_states  # noqa: PLC0415
+
+    return model_uniform_states(model, n_frames, np.random.default_rng(seed))
 
 
 def base_parameters(model) -> BaseParameters:

@@ -11,11 +11,12 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
+
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ineid.progress import Progress
 from ineid.errors import IdentificationError
 from ineid.identify.identifiability import BaseParameters, base_parameters
 from ineid.identify.linear import WEIGHT_MODES, BaseFit, Estimate, fit_base, fit_base_casadi, linear_estimate
@@ -32,7 +33,6 @@ HOLDOUT_FRACTION = 0.2
 PARALLEL_MIN_CONFIGS = 256
 """Fewer configurations are solved in this process: starting workers costs about a second."""
 
-Progress = Callable[[int, int], None]
 
 
 @dataclass(frozen=True)
@@ -375,9 +375,7 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
 
 
 def _predicted(model, ds, sl, theta_u):
-    theta = np.empty((ds.n_configs, 10 * model.n_links))
-    theta[:, model.unknown_index] = np.nan_to_num(theta_u)
-    theta[:, model.known_index] = ds.theta_known
+    theta = model.full_theta(np.nan_to_num(theta_u), ds.theta_known)
     w = predict_wrench(model, ds.q[:, sl], ds.qd[:, sl], ds.qdd[:, sl], theta)
     return w, ds.wrench[:, sl]
 

@@ -48,13 +48,6 @@ def parameter_scales(theta_cad_unknown: np.ndarray) -> np.ndarray:
     return np.maximum(scales, 1e-12).ravel()
 
 
-def known_wrench(model, q, qd, qdd, theta_known) -> np.ndarray:
-    """``Psi_k(q, qd, qdd) @ theta_known``: the known links' share of the wrench, (..., 6)."""
-    theta = np.zeros(10 * model.n_links)
-    theta[model.known_index] = theta_known
-    return np.asarray(model.base_wrench(q, qd, qdd, theta))
-
-
 EVAL_CHUNK = 4096
 """Frames per evaluation of the generated regressor: one compiled shape serves every call."""
 

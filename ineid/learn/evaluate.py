@@ -146,9 +146,7 @@ def evaluate(run: Run, ds, configs: np.ndarray | None = None, model=None, linear
     names = run.meta["param_names"]
     floor = _floor(ds.theta_unknown, run.split.train if same else None, configs, base.B)
     sub = ds.select(configs, slice(0, f_used))
-    full = np.empty((len(configs), 10 * model.n_links))
-    full[:, model.unknown_index] = theta_hat
-    full[:, model.known_index] = ds.theta_known
+    full = model.full_theta(theta_hat, ds.theta_known)
     resid = sub.wrench - predict_wrench(model, sub.q, sub.qd, sub.qdd, full)
     scale = np.asarray(run.meta["wrench_scale"])
     ev = Evaluation(

@@ -14,12 +14,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from collections.abc import Callable
+
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ineid.progress import EpochProgress
 from ineid.errors import DatasetError, TrainingError
 from ineid.learn.data import Split, epoch_groups, fixed_groups, frame_features, split_configs
 from ineid.learn.losses import LOSSES, PHYSICS_MODES, Physics, make_loss
@@ -312,7 +313,6 @@ class TrainResult:
     seconds: float
 
 
-Progress = Callable[[int, int, dict], None]
 
 
 def train(
@@ -323,7 +323,7 @@ def train(
     dataset_path: str | None = None,
     resume: bool = False,
     overwrite: bool = False,
-    progress: Progress | None = None,
+    progress: EpochProgress | None = None,
     model=None,
     physics_mode: str = "cached",
 ) -> TrainResult:

@@ -10,7 +10,7 @@ from types import ModuleType
 import numpy as np
 
 from ineid.errors import CodegenError, RobotModelError
-from ineid.params import param_names
+from ineid.params import full_theta, param_names
 from ineid.robots.urdf import Chain
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
@@ -127,6 +127,14 @@ class RobotModel:
     def theta_cad(self) -> np.ndarray:
         """(10 * n_links,) the URDF's parameters, fixed links folded in, Pinocchio order."""
         return np.concatenate([j.theta for j in self.chain.joints])
+
+    def full_theta(self, theta_unknown: np.ndarray, theta_known: np.ndarray | None = None) -> np.ndarray:
+        """(..., 10 * n_links): the unknown links' ``theta_unknown`` and the known links' (default CAD) in chain order.
+
+        ``full_theta(theta_unknown)[..., unknown_index] == theta_unknown``.
+        """
+        known = self.theta_cad[self.known_index] if theta_known is None else theta_known
+        return full_theta(self.link_names, self.unknown_links, theta_unknown, known)
 
     @property
     def q_lower(self) -> np.ndarray:
