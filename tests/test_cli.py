@@ -158,9 +158,8 @@ def test_data_errors_are_one_line(run, tmp_path):
 
 @pytest.fixture(scope="module")
 def small_data(tmp_path_factory):
-    from ineid.data import Combination, DatasetSpec, NoiseModel, write_dataset
-
     import ineid
+    from ineid.data import Combination, DatasetSpec, NoiseModel, write_dataset
 
     model = ineid.load_robot("sweaty-arm")
     path = tmp_path_factory.mktemp("id") / "d.h5"
@@ -248,9 +247,8 @@ def test_study_noise_command(run, tmp_path):
 
 
 def test_train_evaluate_sweep(run, tmp_path):
-    from ineid.data import Combination, DatasetSpec, write_dataset
-
     import ineid
+    from ineid.data import Combination, DatasetSpec, write_dataset
 
     data = tmp_path / "d.h5"
     write_dataset(ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=40), n_frames=6, seed=1),

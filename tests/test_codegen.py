@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from ineid.codegen import generate_code
 from ineid.generated import BUILTIN_DIR, file_names
 from ineid.robots import BUILTIN_ROBOTS, load_chain
-from ineid.codegen import generate_code
 
 from .conftest import FIXTURES
 

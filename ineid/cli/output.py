@@ -138,7 +138,6 @@ def print_results(res, out) -> None:
 
 def print_evaluation(ev) -> None:
     """The report of ``ineid evaluate``: the network beside the floor and least squares."""
-    import numpy as np  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
 
     con = console()

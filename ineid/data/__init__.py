@@ -8,11 +8,9 @@ A recording from a real arm enters through :func:`read_recording_csv`.
 from __future__ import annotations
 
 from ineid.data.csv_import import csv_columns, read_recording_csv, write_recording_csv
-from ineid.data.read import iter_dataset, load_dataset, read_meta
-from ineid.data.schema import FORMAT, VERSION, Dataset, DatasetMeta, assemble_theta, model_from_meta
-from ineid.data.write import DatasetWriter, save_dataset
 from ineid.data.generate import DatasetSpec, generate_dataset, write_dataset
 from ineid.data.noise import NoiseModel
+from ineid.data.read import iter_dataset, load_dataset, read_meta
 from ineid.data.sampling import (
     Combination,
     FrameSampling,
@@ -21,6 +19,8 @@ from ineid.data.sampling import (
     sample_frames,
     sample_link_parameters,
 )
+from ineid.data.schema import FORMAT, VERSION, Dataset, DatasetMeta, assemble_theta, model_from_meta
+from ineid.data.write import DatasetWriter, save_dataset
 
 __all__ = [
     "FORMAT",

@@ -19,12 +19,16 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ineid._atomic import atomic_output
 from ineid.data.schema import Dataset, DatasetMeta
 from ineid.errors import DatasetError
+
+if TYPE_CHECKING:
+    from ineid.robots import RobotModel
 
 WRENCH_COLUMNS = ("fx", "fy", "fz", "mx", "my", "mz")
 
@@ -40,7 +44,7 @@ def csv_columns(n_dof: int) -> list[str]:
     )
 
 
-def read_recording_csv(path: str | Path, model, flip_wrench: bool = False) -> Dataset:
+def read_recording_csv(path: str | Path, model: RobotModel, flip_wrench: bool = False) -> Dataset:
     """Read a recording CSV into a :class:`Dataset` of one configuration.
 
     Args:

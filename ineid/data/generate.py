@@ -11,12 +11,10 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ineid.progress import Progress
-from ineid.data.schema import Dataset, DatasetMeta
-from ineid.data.write import DatasetWriter, chunk_rows
 from ineid.data.noise import NoiseModel
 from ineid.data.sampling import (
     RNG_BLOCK_CONFIGS,
@@ -29,10 +27,14 @@ from ineid.data.sampling import (
     sample_configurations,
     sample_frames,
 )
+from ineid.data.schema import Dataset, DatasetMeta
+from ineid.data.write import DatasetWriter, chunk_rows
 from ineid.errors import DatasetError
 from ineid.params import all_links_physical
+from ineid.progress import Progress
 
-"""``progress(configs_done, configs_total)``."""
+if TYPE_CHECKING:
+    from ineid.robots import RobotModel
 
 
 @dataclass(frozen=True)
@@ -153,7 +155,7 @@ class GenerationPlan:
             yield start, out
 
 
-def generate_dataset(model, spec: DatasetSpec = DatasetSpec(), progress: Progress | None = None) -> Dataset:
+def generate_dataset(model: RobotModel, spec: DatasetSpec = DatasetSpec(), progress: Progress | None = None) -> Dataset:
     """Generate a synthetic dataset in memory (for files, use :func:`write_dataset`).
 
     Args:
@@ -189,7 +191,7 @@ def generate_dataset(model, spec: DatasetSpec = DatasetSpec(), progress: Progres
 
 
 def write_dataset(
-    model,
+    model: RobotModel,
     spec: DatasetSpec,
     path: str | Path,
     overwrite: bool = False,

@@ -11,7 +11,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid.data.schema import FORMAT, MEASURED_KEYS, VERSION, Dataset, DatasetMeta, check_finite, check_shapes, expected_shapes
+from ineid.data.schema import (
+    FORMAT,
+    MEASURED_KEYS,
+    VERSION,
+    Dataset,
+    DatasetMeta,
+    check_finite,
+    check_shapes,
+    expected_shapes,
+)
 from ineid.errors import DatasetError
 from ineid.params import PARAM_NAMES
 

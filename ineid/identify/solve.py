@@ -11,17 +11,16 @@ from __future__ import annotations
 
 import dataclasses
 import time
-
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ineid.progress import Progress
 from ineid.errors import IdentificationError
 from ineid.identify.identifiability import BaseParameters, base_parameters
 from ineid.identify.linear import WEIGHT_MODES, BaseFit, Estimate, fit_base, fit_base_casadi, linear_estimate
 from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL, NlpSolver, estimate_from_solves, nlp_estimate
 from ineid.identify.systems import check_frames, iter_stacks, predict_wrench, stack_casadi
+from ineid.progress import Progress
 
 METHODS = ("linear", "nonlinear", "consistent")
 STARTS = ("prior", "linear")

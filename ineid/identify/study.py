@@ -38,6 +38,12 @@ STUDY_METHODS = {
 
 @dataclass(frozen=True)
 class StudyRow:
+    """One line of the noise study: a method at one noise level and frame count, over its configurations.
+
+    Errors are relative (``|estimate - truth| / |truth|``), medians and 95th percentiles over
+    the successful configurations; shares are fractions in [0, 1]; ``seconds`` wall-clock.
+    """
+
     level: float
     frames: int
     method: str

@@ -9,13 +9,14 @@ squares -> :func:`sweep` over grids. Never imports sympy.
 
 from __future__ import annotations
 
+from ineid.errors import TrainingError
 from ineid.learn.data import Split, epoch_groups, fixed_groups, frame_features, split_configs
-from ineid.learn.evaluate import Evaluation, Run, evaluate, floor_estimator, load_run, predict
+from ineid.learn.evaluate import Evaluation, evaluate, floor_estimator, predict
 from ineid.learn.losses import LOSSES, PHYSICS_MODES, Physics, make_loss
 from ineid.learn.models import ACTIVATIONS, ARCHITECTURES, MLP, TABLE1, ModelSpec, Siamese, hidden_widths
+from ineid.learn.runs import Run, load_run
 from ineid.learn.scalers import SCALERS, Scaler
 from ineid.learn.sweep import Grid, SweepRow, sweep
-from ineid.errors import TrainingError
 from ineid.learn.train import OPTIMIZERS, SCHEDULES, TrainConfig, TrainResult, train
 
 __all__ = [

@@ -22,19 +22,21 @@ to that); a network whose error is near it has nothing left to gain from the dat
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ineid.learn.data import Split, fixed_groups, frame_features
-from ineid.learn.scalers import Scaler
 from ineid.errors import TrainingError
-from ineid.learn.runs import Run, load_run
+from ineid.learn.data import fixed_groups, frame_features
+from ineid.learn.runs import Run
+
+if TYPE_CHECKING:
+    from ineid.data import Dataset
+    from ineid.robots import RobotModel
 
 
-def predict(run: Run, ds, configs: np.ndarray, batch: int = 1024) -> tuple[np.ndarray, np.ndarray, int]:
+def predict(run: Run, ds: Dataset, configs: np.ndarray, batch: int = 1024) -> tuple[np.ndarray, np.ndarray, int]:
     """Per-configuration estimates (C, n_u), per-sample estimates (C, G, n_u), frames used."""
     import jax  # noqa: PLC0415
 
@@ -71,9 +73,9 @@ def floor_estimator(theta_fit: np.ndarray, b: np.ndarray):
 
 
 def _stats(est, truth, names):
-    from ineid.identify.results import relative_error  # noqa: PLC0415
-
     import warnings  # noqa: PLC0415
+
+    from ineid.identify.results import relative_error  # noqa: PLC0415
 
     err = relative_error(est, truth)
     ss_res = np.sum((est - truth) ** 2, axis=0)
@@ -113,7 +115,7 @@ class Evaluation:
         return dict(self.__dict__)
 
 
-def evaluate(run: Run, ds, configs: np.ndarray | None = None, model=None, linear: bool = True) -> Evaluation:
+def evaluate(run: Run, ds: Dataset, configs: np.ndarray | None = None, model: RobotModel | None = None, linear: bool = True) -> Evaluation:
     """Evaluate ``run`` on configurations of ``ds`` (default: the run's test split when ``ds``
     is its dataset, else every configuration).
 

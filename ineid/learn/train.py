@@ -12,21 +12,24 @@ ends bit for bit where the uninterrupted run would have.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
-
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ineid.progress import EpochProgress
 from ineid.errors import DatasetError, TrainingError
-from ineid.learn.data import Split, epoch_groups, fixed_groups, frame_features, split_configs
+from ineid.learn.data import epoch_groups, fixed_groups, frame_features, split_configs
 from ineid.learn.losses import LOSSES, PHYSICS_MODES, Physics, make_loss
 from ineid.learn.models import ModelSpec
 from ineid.learn.runs import MetricsLog, load_state, save_state, start_run, write_config
 from ineid.learn.scalers import SCALERS, Scaler
+from ineid.progress import EpochProgress
+
+if TYPE_CHECKING:
+    from ineid.data import Dataset
+    from ineid.robots import RobotModel
 
 OPTIMIZERS = ("sgd", "adam", "adamw")
 SCHEDULES = ("constant", "cosine")
@@ -136,7 +139,7 @@ CACHE_LIMIT_BYTES = 6 * 2**30
 """A cached physics term larger than this falls back to the inline regressor."""
 
 
-def prepare(ds, cfg: TrainConfig, rows: np.ndarray, model, scalers=None, fit_rows: np.ndarray | None = None,
+def prepare(ds: Dataset, cfg: TrainConfig, rows: np.ndarray, model: RobotModel, scalers=None, fit_rows: np.ndarray | None = None,
             wrench_scale: np.ndarray | None = None, physics_mode: str = "cached") -> Prepared:
     """Scalers (fitted on ``fit_rows`` unless given) and device arrays of configurations ``rows``.
 
@@ -305,6 +308,8 @@ def evaluate_groups(eval_batch, params, arrays, rows, frames, batch: int):
 
 @dataclass
 class TrainResult:
+    """What :func:`train` returns: epochs run, the best epoch and its validation MSE, early stop, wall-clock seconds."""
+
     run_dir: Path
     epochs_run: int
     best_epoch: int
@@ -316,7 +321,7 @@ class TrainResult:
 
 
 def train(
-    ds,
+    ds: Dataset,
     cfg: TrainConfig,
     run_dir: str | Path,
     *,
@@ -324,7 +329,7 @@ def train(
     resume: bool = False,
     overwrite: bool = False,
     progress: EpochProgress | None = None,
-    model=None,
+    model: RobotModel | None = None,
     physics_mode: str = "cached",
 ) -> TrainResult:
     """Train a network on ``ds`` into ``run_dir`` (see module doc).

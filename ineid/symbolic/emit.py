@@ -111,6 +111,10 @@ def _trig_first(replacements):
 
 
 def emit_jax(sym, robot_name, fingerprint, replacements, reduced, ops, regenerate) -> str:
+    """The JAX module's source: ``base_wrench_regressor(q, qd, qdd, gravity)`` -> (..., 6, 10 n) and
+    ``base_wrench(q, qd, qdd, gravity, theta)`` -> (..., 6), both batched over leading axes, with
+    the CSE'd ``replacements`` shared; ``base_wrench(...) == base_wrench_regressor(...) @ theta``.
+    """
     p = _Printer("jnp")
     trig, rest = _trig_first(replacements)
     body = _unpack(sym, "..., {k}")
@@ -188,6 +192,9 @@ def _bind_locals(rest, trig, sym) -> str:
 
 
 def emit_casadi(sym, robot_name, fingerprint, replacements, reduced, ops, regenerate) -> str:
+    """The CasADi module's source: a ``casadi.Function`` ``base_wrench_regressor(q, qd, qdd, gravity) -> Y``
+    (n_dof x 1 inputs, 6 x 10 n output) built from the same CSE'd expressions as :func:`emit_jax`.
+    """
     p = _Printer("ca")
     n = sym.n_dof
     body = _unpack(sym, "{k}") + [f"{lhs} = {p.doprint(rhs)}" for lhs, rhs in replacements]
