@@ -69,11 +69,14 @@ def main(ctx: click.Context, verbose: int, quiet: int) -> None:
     ctx.obj = {"verbosity": verbose - quiet}
     configure_logging(verbose - quiet)
     terminate_on_sigterm()
+    from ineid.cache import enable_compilation_cache  # noqa: PLC0415
+
+    enable_compilation_cache()  # JAX not imported yet: sets the environment variables JAX reads
 
 
-from ineid.cli import data, identify, learn, robot  # noqa: E402  (commands register on main)
+from ineid.cli import cache, data, identify, learn, robot  # noqa: E402  (commands register on main)
 
-for _module in (robot, data, identify, learn):
+for _module in (robot, data, identify, learn, cache):
     _module.register(main)
 
 __all__ = ["IneidGroup", "main"]

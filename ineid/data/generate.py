@@ -115,6 +115,9 @@ class GenerationPlan:
         import jax  # noqa: PLC0415
 
         if self._wrench_fn is None:
+            from ineid.cache import enable_compilation_cache  # noqa: PLC0415
+
+            enable_compilation_cache()
             self._wrench_fn = jax.jit(self.model.jax_base_wrench)
         n = len(q)
         if n < self.rows:  # pad the last chunk: one compiled shape for the whole run

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.errors import IdentificationError
-from ineid.identify.systems import parameter_scales, stack
+from ineid.identify.systems import parameter_scales, stack_casadi
 from ineid.params import param_names
 
 RANK_RTOL = 1e-9
@@ -182,16 +182,27 @@ def generic_frames(model, n_frames: int = STRUCTURAL_FRAMES, seed: int = 0):
     return model_uniform_states(model, n_frames, np.random.default_rng(seed))
 
 
+def _regressor_unknown(model, q, qd, qdd) -> np.ndarray:
+    """Stacked regressor (6F, 10 n_u) of the unknown links through the generated CasADi
+    function: a one-off analysis needs no compilation (milliseconds for hundreds of frames)."""
+    theta_known = model.theta_cad[model.known_index]
+    w, _ = stack_casadi(model, q, qd, qdd, np.zeros((len(q), 6)), theta_known)
+    return w
+
+
 def base_parameters(model) -> BaseParameters:
-    """The structural base parameters of ``model``'s unknown links (cached per model)."""
+    """The structural base parameters of ``model``'s unknown links (cached per model).
+
+    From :data:`STRUCTURAL_FRAMES` generic frames (:func:`generic_frames`), evaluated by the
+    generated CasADi function: milliseconds, no JAX compilation.
+    """
     key = tuple(model.unknown_links)
     cache = _CACHE.setdefault(model, {})
     if key not in cache:
         q, qd, qdd = generic_frames(model)
-        theta_known = model.theta_cad[model.known_index]
-        w, _ = stack(model, q[None], qd[None], qdd[None], np.zeros((1, len(q), 6)), theta_known)
         scales = parameter_scales(model.theta_cad[model.unknown_index])
-        cache[key] = base_parameters_from_regressor(w[0], param_names(model.unknown_links), scales)
+        w = _regressor_unknown(model, q, qd, qdd)
+        cache[key] = base_parameters_from_regressor(w, param_names(model.unknown_links), scales)
     return cache[key]
 
 
@@ -249,9 +260,7 @@ def analyze_frames(model, q, qd, qdd, base: BaseParameters | None = None) -> Fra
     """
     base = base or base_parameters(model)
     q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (q, qd, qdd))
-    theta_known = model.theta_cad[model.known_index]
-    w, _ = stack(model, q[None], qd[None], qdd[None], np.zeros((1, len(q), 6)), theta_known)
-    ws = w[0] * base.scales
+    ws = _regressor_unknown(model, q, qd, qdd) * base.scales
     sv = np.linalg.svd(ws, compute_uv=False)
     rank = numerical_rank(sv)
     r = base.rank

@@ -12,6 +12,17 @@ levels, or estimated from the residuals per axis (an unweighted fit, then
 ``ESTIMATE_ROUNDS`` reweighted refits). The residual
 variance ``s^2 = ||D r||^2 / (6F - r)`` gives ``cov(beta_hat) = s^2 (R^T R)^-1``.
 
+**Two routes, the same numbers.** :func:`fit_base` factors the stacked ``D W_b`` (QR); it
+is the reference. :func:`fit_base_blocks` solves the normal equations
+``(W_b^T D^2 W_b) beta = W_b^T D^2 y`` from per-axis blocks that a fused kernel accumulates
+without forming the stacks (:mod:`ineid.identify.fused`): one batched Cholesky
+factorization of the column-scaled information matrix, its eigenvalues for the rank and
+condition checks, and reweighting rounds that reuse the blocks. Normal equations lose
+``cond^2`` where QR loses ``cond``, so a configuration whose scaled base regressor has a
+condition number above :data:`NORMAL_MAX_COND` (or is rank-deficient) is flagged, and
+:func:`ineid.identify.solve_dataset` refits it through the reference; below it the two
+agree to about ``1e-10`` relative in the scaled parameters (``eps * cond^2``).
+
 **Null-space rule.** The standard parameters are the solution closest to a prior
 (default: the CAD values) in the scaled metric, among all that reproduce ``beta_hat``:
 
@@ -28,6 +39,7 @@ References:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +49,9 @@ from ineid.identify.identifiability import BaseParameters, numerical_rank
 WEIGHT_MODES = ("none", "noise", "estimate")
 ESTIMATE_ROUNDS = 3
 """Reweighting rounds of ``weights="estimate"``."""
+NORMAL_MAX_COND = 1e3
+"""Largest condition number of the scaled base regressor solved through the normal
+equations (error ``~ eps * cond^2 <= 2e-10``); above it, through QR of the stacks."""
 
 
 @dataclass
@@ -54,7 +69,9 @@ class BaseFit:
         sigma2: (C,) residual variance in weighted units (1 when weights are exact).
         cov_beta: (C, r, r).
         rank: (C,) numerical rank of the base columns for these frames.
-        cond: (C,) condition number of the scaled base regressor.
+        cond: (C,) condition number of the scaled base regressor (exact from QR; from the
+            normal equations an upper bound at most ``sqrt(r)`` above it; inf when not
+            full rank).
         axis_weights: (C, 6) the row weights ``D`` per wrench axis.
     """
 
@@ -92,6 +109,27 @@ def _weighted_fit(w_b: np.ndarray, y: np.ndarray, axis_w: np.ndarray, base_scale
     return beta, safe_r, rss, rank, cond, resid
 
 
+def _axis_weights(weights: str, axis_sigma, c: int) -> np.ndarray:
+    if weights not in WEIGHT_MODES:
+        raise ValueError(f"weights must be one of {WEIGHT_MODES}, got {weights!r}")
+    if weights != "noise":
+        return np.ones((c, 6))
+    if axis_sigma is None:
+        raise ValueError("weights='noise' needs axis_sigma, the wrench noise per axis")
+    sig = np.broadcast_to(np.asarray(axis_sigma, dtype=np.float64), (c, 6))
+    if np.any(sig <= 0) or not np.all(np.isfinite(sig)):
+        raise ValueError(f"axis_sigma must be positive and finite, got {np.asarray(axis_sigma).tolist()}")
+    return 1.0 / sig
+
+
+def _reweight(per_axis_rss: np.ndarray, dof: int) -> np.ndarray:
+    """Row weights ``1/sigma_a`` from unweighted per-axis residual sums of squares (C, 6)."""
+    ms = per_axis_rss / (dof / 6)
+    sig = np.sqrt(np.maximum(ms, 1e-300))
+    sig = np.maximum(sig, 1e-9 * np.max(sig, axis=1, keepdims=True))  # an axis that fits exactly
+    return 1.0 / sig
+
+
 def fit_base(
     w: np.ndarray,
     y: np.ndarray,
@@ -109,20 +147,11 @@ def fit_base(
             ``"estimate"``: per-axis noise estimated from an unweighted fit, then refit.
         axis_sigma: (6,) or (C, 6) wrench noise standard deviations, for ``"noise"``.
     """
-    if weights not in WEIGHT_MODES:
-        raise ValueError(f"weights must be one of {WEIGHT_MODES}, got {weights!r}")
     c, n, _ = w.shape
+    axis_w = _axis_weights(weights, axis_sigma, c)
     r = base.rank
     w_b = w[:, :, base.base_index]
     scales_b = base.scales[base.base_index]
-    axis_w = np.ones((c, 6))
-    if weights == "noise":
-        if axis_sigma is None:
-            raise ValueError("weights='noise' needs axis_sigma, the wrench noise per axis")
-        sig = np.broadcast_to(np.asarray(axis_sigma, dtype=np.float64), (c, 6))
-        if np.any(sig <= 0) or not np.all(np.isfinite(sig)):
-            raise ValueError(f"axis_sigma must be positive and finite, got {np.asarray(axis_sigma).tolist()}")
-        axis_w = 1.0 / sig
     beta, rr, rss, rank, cond, resid = _weighted_fit(w_b, y, axis_w, scales_b)
     dof = n - r
     if weights == "estimate" and dof > 0:
@@ -130,16 +159,126 @@ def fit_base(
         # repeat (a few rounds remove the leakage of noisy axes into the others' residuals).
         for _ in range(ESTIMATE_ROUNDS):
             per_axis = resid.reshape(c, n // 6, 6) / axis_w[:, None, :]
-            ms = np.einsum("cfa,cfa->ca", per_axis, per_axis) / ((n // 6) * dof / n)
-            sig = np.sqrt(np.maximum(ms, 1e-300))
-            sig = np.maximum(sig, 1e-9 * np.max(sig, axis=1, keepdims=True))  # an axis that fits exactly
-            axis_w = 1.0 / sig
+            axis_w = _reweight(np.einsum("cfa,cfa->ca", per_axis, per_axis), dof)
             beta, rr, rss, rank, cond, resid = _weighted_fit(w_b, y, axis_w, scales_b)
     sigma2 = rss / max(dof, 1)
     r_inv = np.linalg.solve(rr, np.broadcast_to(np.eye(r), rr.shape))
     cov = sigma2[:, None, None] * r_inv @ np.swapaxes(r_inv, -1, -2)
     cov[rank < r] = np.nan
     return BaseFit(beta, rr, rss, dof, sigma2, cov, rank, cond, axis_w)
+
+
+def _normal_fit(blocks, axis_w: np.ndarray, scales_b: np.ndarray):
+    """One weighted solve of the normal equations of every configuration (column-scaled).
+
+    ``A_s = S A S = L L^T`` (Cholesky), ``beta = S A_s^-1 S b``, ``R = L^T S^-1`` (upper
+    triangular, ``R^T R = A``), ``rss = y^T D^2 y - 2 beta.b + beta^T A beta``. The
+    condition number of the scaled regressor is estimated as
+    ``sqrt(||A_s||_1 ||A_s^-1||_1)``, an upper bound (symmetric ``A_s``: ``||.||_2 <=
+    ||.||_1``) at most ``sqrt(r)`` above the true one; rows where it exceeds
+    :data:`NORMAL_MAX_COND`, or where the Cholesky factorization fails, are flagged and
+    get placeholders (the identity for ``A_s``, NaN estimates).
+    """
+    a, b, yy = blocks.weighted(axis_w)
+    c, r = b.shape
+    a_s = a * scales_b[None, :, None] * scales_b[None, None, :]
+    b_s = b * scales_b
+    eye = np.eye(r)[None]
+    finite = np.all(np.isfinite(a_s), axis=(1, 2)) & np.isfinite(yy)
+    a_s = np.where(finite[:, None, None], a_s, eye)
+    try:
+        chol = np.linalg.cholesky(a_s)
+        pd = np.ones(c, dtype=bool)
+    except np.linalg.LinAlgError:  # some not positive definite: find them one by one
+        pd = np.array([_is_positive_definite(m) for m in a_s])
+        chol = np.linalg.cholesky(np.where(pd[:, None, None], a_s, eye))
+    l_inv = np.linalg.inv(chol)
+    a_s_inv = np.swapaxes(l_inv, -1, -2) @ l_inv
+    norm1 = np.abs(a_s).sum(axis=1).max(axis=1) * np.abs(a_s_inv).sum(axis=1).max(axis=1)
+    cond = np.sqrt(norm1)
+    ok = finite & pd & (cond <= NORMAL_MAX_COND)
+    if not np.all(ok):
+        bad = ~ok
+        a_s[bad], chol[bad], a_s_inv[bad] = eye, eye, eye
+        cond[bad] = np.inf
+    beta_s = np.matmul(a_s_inv, b_s[:, :, None])[..., 0]
+    beta = beta_s * scales_b
+    quad = np.matmul(beta_s[:, None, :], np.matmul(a_s, beta_s[:, :, None]))[:, 0, 0]
+    rss = np.maximum(yy - 2.0 * np.sum(beta_s * b_s, axis=1) + quad, 0.0)
+    rr = np.swapaxes(chol, -1, -2) / scales_b[None, None, :]
+    a_inv = a_s_inv * scales_b[None, :, None] * scales_b[None, None, :]
+    beta[~ok] = np.nan
+    rank = np.where(ok, r, -1)  # flagged rows: the reference fit supplies the rank
+    return beta, rr, rss, rank, cond, a_inv, ~ok
+
+
+def _is_positive_definite(m: np.ndarray) -> bool:
+    try:
+        np.linalg.cholesky(m)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def fit_base_blocks(
+    blocks,
+    base: BaseParameters,
+    weights: str = "none",
+    axis_sigma: np.ndarray | None = None,
+) -> tuple[BaseFit, np.ndarray]:
+    """:func:`fit_base` from per-axis normal-equation blocks (:func:`ineid.identify.fused.information_blocks`).
+
+    The same estimates as :func:`fit_base` on the stacks the blocks summarize (to about
+    1e-10 relative in the scaled parameters), from ``6 r^2`` numbers per configuration:
+    ``A = sum_a d_a^2 G_a``, ``b = sum_a d_a^2 h_a``, solved by one batched Cholesky
+    factorization; ``weights="estimate"`` reweights from the per-axis residual sums
+    ``e_a - 2 beta.h_a + beta^T G_a beta`` without touching the frames again.
+
+    Args:
+        blocks: an :class:`ineid.identify.fused.InformationBlocks` of C configurations.
+        base, weights, axis_sigma: as in :func:`fit_base`.
+
+    Returns:
+        ``(fit, refit)``: the fit, and a (C,) mask of configurations whose normal equations
+        are rank-deficient or have a condition number above :data:`NORMAL_MAX_COND` in any
+        round; their rows of ``fit`` are placeholders (NaN estimates) to be replaced by
+        :func:`fit_base` on their stacks.
+    """
+    c = blocks.e.shape[0]
+    axis_w = _axis_weights(weights, axis_sigma, c)
+    r = base.rank
+    n = 6 * blocks.n_frames
+    scales_b = base.scales[base.base_index]
+    beta, rr, rss, rank, cond, a_inv, refit = _normal_fit(blocks, axis_w, scales_b)
+    dof = n - r
+    if weights == "estimate" and dof > 0:
+        for _ in range(ESTIMATE_ROUNDS):
+            axis_w = _reweight(blocks.axis_rss(np.nan_to_num(beta)), dof)
+            beta, rr, rss, rank, cond, a_inv, bad = _normal_fit(blocks, axis_w, scales_b)
+            refit |= bad
+    sigma2 = rss / max(dof, 1)
+    cov = sigma2[:, None, None] * a_inv
+    cov[refit] = np.nan
+    return BaseFit(beta, rr, rss, dof, sigma2, cov, rank, cond, axis_w), refit
+
+
+def with_exact_rss(fit: BaseFit, axis_rss: np.ndarray) -> BaseFit:
+    """``fit`` with ``rss = sum_a d_a^2 axis_rss_a`` and the variance and covariance that follow.
+
+    ``axis_rss`` (C, 6): per wrench axis, the residual sum of squares of the fitted frames
+    at the estimate, evaluated directly (:func:`ineid.identify.fused.residual_sums`), where
+    the normal equations only give ``y^T D^2 y - beta^T b``, a difference that loses
+    ``eps * ||D y||^2`` (all of it on noise-free data). Rows that are not full rank are kept.
+    """
+    ok = fit.full_rank & np.all(np.isfinite(axis_rss), axis=1)
+    rss = fit.rss.copy()
+    rss[ok] = np.einsum("ca,ca->c", fit.axis_weights[ok] ** 2, axis_rss[ok])
+    sigma2 = rss / max(fit.dof, 1)
+    cov = fit.cov_beta.copy()
+    if np.any(ok):
+        r_inv = np.linalg.inv(fit.R[ok])
+        cov[ok] = sigma2[ok, None, None] * (r_inv @ np.swapaxes(r_inv, -1, -2))
+    return dataclasses.replace(fit, rss=rss, sigma2=sigma2, cov_beta=cov)
 
 
 def prior_map(base: BaseParameters) -> np.ndarray:

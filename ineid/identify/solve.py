@@ -2,9 +2,13 @@
 
 Per configuration the first ``K`` frames are fitted; the remaining frames (if any) are
 held out and the estimate's wrench prediction error on them is reported. All methods
-share the base least-squares fit (:func:`ineid.identify.linear.fit_base`), computed in
-batches; ``nonlinear`` and ``consistent`` then run IPOPT per configuration, in worker
-processes when there are many.
+share the base least-squares fit: from per-axis normal-equation blocks accumulated by one
+fused kernel over the frames (:mod:`ineid.identify.fused`,
+:func:`ineid.identify.linear.fit_base_blocks`), with the QR of the stacks
+(:func:`ineid.identify.linear.fit_base`) for the few ill-conditioned configurations;
+``nonlinear`` and ``consistent`` then run IPOPT per configuration, in worker processes
+when there are many. The residuals on the fitted and held-out frames come from one more
+fused pass.
 """
 
 from __future__ import annotations
@@ -15,11 +19,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ineid.cache import enable_compilation_cache
 from ineid.errors import IdentificationError
+from ineid.identify.fused import information_blocks, residual_sums
 from ineid.identify.identifiability import BaseParameters, base_parameters
-from ineid.identify.linear import WEIGHT_MODES, BaseFit, Estimate, fit_base, fit_base_casadi, linear_estimate
+from ineid.identify.linear import (
+    WEIGHT_MODES,
+    BaseFit,
+    Estimate,
+    fit_base,
+    fit_base_blocks,
+    fit_base_casadi,
+    linear_estimate,
+    with_exact_rss,
+)
 from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL, NlpSolver, estimate_from_solves, nlp_estimate
-from ineid.identify.systems import check_frames, iter_stacks, predict_wrench, stack_casadi
+from ineid.identify.systems import check_frames, stack, stack_casadi
 from ineid.progress import Progress
 
 METHODS = ("linear", "nonlinear", "consistent")
@@ -168,53 +183,52 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
             weights without noise levels. Per-configuration failures (rank-deficient frames,
             IPOPT not converging) do not raise: they are recorded in ``success`` and ``status``.
     """
+    enable_compilation_cache()
     model = model or ds.model()
     base = base_parameters(model)
     prior = np.asarray(model.theta_cad[model.unknown_index], dtype=np.float64)
     n_fit, n_val = _frame_split(ds.n_frames, settings.frames, base.rank)
     axis_sigma = _axis_sigma(ds, settings)
     c = ds.n_configs
-    fit_sl, val_sl = slice(0, n_fit), slice(n_fit, n_fit + n_val)
+    fit_sl = slice(0, n_fit)
     t_start = time.perf_counter()
 
     # 1. base least squares, batched (or per configuration through CasADi)
-    fits: list[BaseFit] = []
-    rms = np.empty(c)
-    seconds = np.zeros(c)
-    done = 0
     if settings.backend == "casadi":
         fits, rms, seconds = _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress)
         fit = _concat_fits(fits)
     else:
-        for sl, w, y in iter_stacks(model, ds.q[:, fit_sl], ds.qd[:, fit_sl], ds.qdd[:, fit_sl],
-                                    ds.wrench[:, fit_sl], ds.theta_known):
-            t0 = time.perf_counter()
-            f = fit_base(w, y, base, settings.weights, axis_sigma)
-            fits.append(f)
-            rows = np.tile(f.axis_weights, (1, y.shape[1] // 6))
-            rms[sl] = np.sqrt(np.mean((y * rows) ** 2, axis=1))
-            seconds[sl] = (time.perf_counter() - t0) / (sl.stop - sl.start)
-            done = sl.stop
-            if progress is not None and settings.method == "linear":
-                progress(done, c)
-        fit = _concat_fits(fits)
+        t0 = time.perf_counter()
+        fit, rms = _fused_fit(model, ds, fit_sl, base, settings, axis_sigma,
+                              progress if settings.method == "linear" else None)
+        seconds = np.full(c, (time.perf_counter() - t0) / max(c, 1))
 
-    # 2. standard parameters
+    # 2. the residuals of the least-squares fit itself, exactly (one fused pass over every
+    # frame at the linear estimate): the normal equations give the rss only up to
+    # cancellation (eps * ||y||^2), the covariance and the IPOPT noise level need it exact
+    lin = linear_estimate(fit, base, prior)
+    sums = _residual_sums(model, ds, n_fit, n_val, lin.theta)
+    fit = with_exact_rss(fit, sums[0])
+
+    # 3. standard parameters
     if settings.method == "linear":
         est = linear_estimate(fit, base, prior)
     else:
-        if settings.start == "prior":
-            start = prior
-        else:
-            start = physical_start(linear_estimate(fit, base, prior).theta, prior, base.scales)
+        start = prior if settings.start == "prior" else physical_start(lin.theta, prior, base.scales)
         est, nlp_seconds = _run_nlp(fit, base, settings, prior, rms, start, progress)
         seconds = seconds + nlp_seconds
+        sums = _residual_sums(model, ds, n_fit, n_val, est.theta)
 
-    # 3. residuals on the fitted and on the held-out frames
-    fit_rms = _wrench_rms(model, ds, fit_sl, est.theta)
+    # 4. residuals of the estimates on the fitted and on the held-out frames
+    ssr_fit, ssr_held, ss_held = sums
+    failed = ~np.all(np.isfinite(est.theta), axis=1)
+    fit_rms = np.sqrt(ssr_fit / n_fit)
+    fit_rms[failed] = np.nan
     if n_val:
-        val_rms = _wrench_rms(model, ds, val_sl, est.theta)
-        val_rel = _wrench_rel(model, ds, val_sl, est.theta)
+        val_rms = np.sqrt(ssr_held / n_val)
+        val_rel = np.sqrt(ssr_held.sum(axis=1)) / np.sqrt(ss_held)
+        val_rms[failed] = np.nan
+        val_rel[failed] = np.nan
     else:
         val_rms = np.full((c, 6), np.nan)
         val_rel = np.full(c, np.nan)
@@ -257,6 +271,37 @@ def _concat_fits(fits: list[BaseFit]) -> BaseFit:
         return fits[0]
     cat = {f.name: np.concatenate([getattr(x, f.name) for x in fits]) for f in dataclasses.fields(BaseFit) if f.name != "dof"}
     return BaseFit(dof=fits[0].dof, **cat)
+
+
+def _residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.ndarray):
+    """:func:`ineid.identify.fused.residual_sums` of the unknown links' estimates (NaN rows as zeros)."""
+    theta = model.full_theta(np.nan_to_num(theta_unknown), ds.theta_known)
+    frames = slice(0, n_fit + n_val)
+    return residual_sums(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], ds.wrench[:, frames],
+                         theta, n_fit)
+
+
+REFERENCE_ROWS = 200_000
+"""Frames per batch when configurations are refitted through the stacked QR (reference)."""
+
+
+def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress) -> tuple[BaseFit, np.ndarray]:
+    """The base fit of every configuration from fused normal-equation blocks, ill-conditioned
+    ones refitted through QR of their stacks; and the RMS of the weighted data, (C,)."""
+    q, qd, qdd, wrench = (a[:, fit_sl] for a in (ds.q, ds.qd, ds.qdd, ds.wrench))
+    blocks = information_blocks(model, base, q, qd, qdd, wrench, ds.theta_known, progress=progress)
+    fit, refit = fit_base_blocks(blocks, base, settings.weights, axis_sigma)
+    rows = np.flatnonzero(refit)
+    per = max(1, REFERENCE_ROWS // max(blocks.n_frames, 1))
+    for start in range(0, len(rows), per):
+        idx = rows[start : start + per]
+        w, y = stack(model, q[idx], qd[idx], qdd[idx], wrench[idx], ds.theta_known)
+        ref = fit_base(w, y, base, settings.weights, axis_sigma)
+        for f in dataclasses.fields(BaseFit):
+            if f.name != "dof":
+                getattr(fit, f.name)[idx] = getattr(ref, f.name)
+    _, _, yy = blocks.weighted(fit.axis_weights)
+    return fit, np.sqrt(yy / (6 * blocks.n_frames))
 
 
 def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress):
@@ -371,28 +416,6 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
             if progress is not None:
                 progress(done, c)
     return estimate_from_solves(theta, success, status, fit, base), seconds
-
-
-def _predicted(model, ds, sl, theta_u):
-    theta = model.full_theta(np.nan_to_num(theta_u), ds.theta_known)
-    w = predict_wrench(model, ds.q[:, sl], ds.qd[:, sl], ds.qdd[:, sl], theta)
-    return w, ds.wrench[:, sl]
-
-
-def _wrench_rms(model, ds, sl, theta_u) -> np.ndarray:
-    """(C, 6) RMS of measured minus predicted wrench per axis (N, N*m)."""
-    w, meas = _predicted(model, ds, sl, theta_u)
-    out = np.sqrt(np.mean((meas - w) ** 2, axis=1))
-    out[~np.all(np.isfinite(theta_u), axis=1)] = np.nan
-    return out
-
-
-def _wrench_rel(model, ds, sl, theta_u) -> np.ndarray:
-    """(C,) ||measured - predicted|| / ||measured|| over the frames (all axes)."""
-    w, meas = _predicted(model, ds, sl, theta_u)
-    out = np.linalg.norm((meas - w).reshape(len(w), -1), axis=1) / np.linalg.norm(meas.reshape(len(w), -1), axis=1)
-    out[~np.all(np.isfinite(theta_u), axis=1)] = np.nan
-    return out
 
 
 def identify_frames(

@@ -7,15 +7,13 @@ For one configuration with frames ``k = 1..F`` the base wrench is
     y = [w_1 - Psi_k(s_1) theta_k; ...]          (6F,)
 
 with rows in frame-major order (frame 1's ``fx..mz``, then frame 2's, ...). Regressors
-come from the generated JAX code, batched over configurations and chunked to bound
-memory; the CasADi path (:func:`stack_casadi`) evaluates the generated CasADi function
-instead, as an independent route.
+come from :meth:`ineid.RobotModel.regressor_split` (the generated JAX code, compiled once,
+chunked); the CasADi path (:func:`stack_casadi`) evaluates the generated CasADi function
+instead, as an independent route that needs no compilation. The solvers themselves do
+not form these stacks (:mod:`ineid.identify.fused`); they are the reference.
 """
 
 from __future__ import annotations
-
-import functools
-from collections.abc import Iterator
 
 import numpy as np
 
@@ -48,54 +46,6 @@ def parameter_scales(theta_cad_unknown: np.ndarray) -> np.ndarray:
     return np.maximum(scales, 1e-12).ravel()
 
 
-EVAL_CHUNK = 4096
-"""Frames per evaluation of the generated regressor: one compiled shape serves every call."""
-
-
-@functools.lru_cache(maxsize=None)
-def _split_fn(jax_regressor, unknown: tuple[int, ...], known: tuple[int, ...]):
-    """Jitted ``(Psi_u, Psi_k @ theta_known)``; cached per generated module and link split,
-    so every model of the same robot shares one compilation."""
-    import jax  # noqa: PLC0415
-
-    u, k = np.asarray(unknown, dtype=np.int64), np.asarray(known, dtype=np.int64)
-
-    def fn(q, qd, qdd, gravity, theta_known):
-        y = jax_regressor(q, qd, qdd, gravity)
-        return y[..., u], y[..., k] @ theta_known
-
-    return jax.jit(fn)
-
-
-@functools.lru_cache(maxsize=None)
-def _wrench_fn(jax_base_wrench):
-    import jax  # noqa: PLC0415
-
-    return jax.jit(jax_base_wrench)
-
-
-def _compiled(model, name: str):
-    gravity = np.asarray(model.gravity, dtype=np.float64)
-    if name == "split":
-        fn = _split_fn(model.jax_regressor, tuple(model.unknown_index.tolist()), tuple(model.known_index.tolist()))
-        return lambda q, qd, qdd, theta_known: fn(q, qd, qdd, gravity, theta_known)
-    fn = _wrench_fn(model.jax_base_wrench)
-    return lambda q, qd, qdd, theta: fn(q, qd, qdd, gravity, theta)
-
-
-def _chunked(fn, frames: list[np.ndarray], extra) -> list[np.ndarray]:
-    """Apply ``fn(*frames_chunk, extra)`` over (N, .) frames in padded chunks of EVAL_CHUNK."""
-    n = frames[0].shape[0]
-    outs: list[list[np.ndarray]] = []
-    for start in range(0, n, EVAL_CHUNK):
-        stop = min(start + EVAL_CHUNK, n)
-        part = [a[start:stop] for a in frames]
-        if stop - start < EVAL_CHUNK:
-            part = [np.concatenate([a, np.zeros((EVAL_CHUNK - len(a),) + a.shape[1:])]) for a in part]
-        res = fn(*part, extra)
-        res = res if isinstance(res, tuple) else (res,)
-        outs.append([np.asarray(r)[: stop - start] for r in res])
-    return [np.concatenate([o[k] for o in outs]) for k in range(len(outs[0]))]
 
 
 def stack(model, q, qd, qdd, wrench, theta_known) -> tuple[np.ndarray, np.ndarray]:
@@ -110,33 +60,17 @@ def stack(model, q, qd, qdd, wrench, theta_known) -> tuple[np.ndarray, np.ndarra
     q, qd, qdd, wrench = (np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench))
     if q.ndim != 3 or wrench.shape != q.shape[:2] + (6,):
         raise ValueError(f"expected q (C, F, n_dof) and wrench (C, F, 6), got {q.shape} and {wrench.shape}")
-    c, f, n = q.shape
-    flat = [a.reshape(c * f, n) for a in (q, qd, qdd)]
-    w_u, w_k = _chunked(_compiled(model, "split"), flat, np.asarray(theta_known, dtype=np.float64))
-    w = w_u.reshape(c, f, 6, -1).reshape(c, 6 * f, -1)
-    y = (wrench - w_k.reshape(c, f, 6)).reshape(c, 6 * f)
+    c, f, _ = q.shape
+    psi_u, psi_k = model.regressor_split(q, qd, qdd)
+    w = psi_u.reshape(c, 6 * f, -1)
+    y = (wrench - psi_k @ np.asarray(theta_known, dtype=np.float64)).reshape(c, 6 * f)
     return w, y
 
 
 def predict_wrench(model, q, qd, qdd, theta) -> np.ndarray:
     """``Psi(q, qd, qdd) @ theta`` per configuration: (C, F, n_dof) x3, theta (C, 10 n_links) -> (C, F, 6)."""
-    q, qd, qdd = (np.asarray(a, dtype=np.float64) for a in (q, qd, qdd))
-    c, f, n = q.shape
-    th = np.repeat(np.asarray(theta, dtype=np.float64), f, axis=0)
-    flat = [a.reshape(c * f, n) for a in (q, qd, qdd)] + [th]
-    fn = _compiled(model, "wrench")
-    (w,) = _chunked(lambda a, b, d, t, _: fn(a, b, d, t), flat, None)
-    return w.reshape(c, f, 6)
-
-
-def iter_stacks(model, q, qd, qdd, wrench, theta_known, max_rows: int = 200_000) -> Iterator[tuple[slice, np.ndarray, np.ndarray]]:
-    """:func:`stack` over chunks of configurations, about ``max_rows`` frames at a time."""
-    n_configs, n_frames = q.shape[:2]
-    per = max(1, max_rows // max(n_frames, 1))
-    for start in range(0, n_configs, per):
-        sl = slice(start, min(start + per, n_configs))
-        w, y = stack(model, q[sl], qd[sl], qdd[sl], wrench[sl], theta_known)
-        yield sl, w, y
+    theta = np.asarray(theta, dtype=np.float64)
+    return model.base_wrench(q, qd, qdd, theta[:, None, :])
 
 
 def stack_casadi(model, q, qd, qdd, wrench, theta_known) -> tuple[np.ndarray, np.ndarray]:

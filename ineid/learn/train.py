@@ -351,6 +351,9 @@ def train(
     import jax  # noqa: PLC0415
 
     ds.require_truth("training")
+    from ineid.cache import enable_compilation_cache  # noqa: PLC0415
+
+    enable_compilation_cache()
     run_dir = Path(run_dir)
     resumed = start_run(run_dir, cfg, ds, resume=resume, overwrite=overwrite)
     model = model or ds.model()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 from functools import cached_property
 from pathlib import Path
@@ -9,6 +10,7 @@ from types import ModuleType
 
 import numpy as np
 
+from ineid.cache import enable_compilation_cache
 from ineid.errors import CodegenError, RobotModelError
 from ineid.params import full_theta, param_names
 from ineid.robots.urdf import Chain
@@ -160,61 +162,264 @@ class RobotModel:
         return int(self._jax.OP_COUNT)
 
     # -- regressor -------------------------------------------------------------------
-    def _check_states(self, q, qd, qdd):
-        import jax.numpy as jnp  # noqa: PLC0415
+    @property
+    def regressor_nonzero(self) -> tuple[tuple[int, ...], ...]:
+        """Per row of ``Psi`` (6), the columns that are not identically zero."""
+        return tuple(tuple(cols) for cols in self._jax.NONZERO)
 
+    @property
+    def jax_regressor_entries(self):
+        """The generated pure function ``f(q, qd, qdd, gravity) -> (Psi_00, Psi_01, ..., Psi_5m)``.
+
+        The ``6 * 10 n_links`` entries of ``Psi`` in row-major order, each of the batch shape
+        (or the number 0 where identically zero), sharing one set of common subexpressions:
+        ``jnp.stack(f(...), -1).reshape(..., 6, 10 n_links) == jax_regressor(...)``. Stacking
+        only the entries needed, frames last, is what XLA:CPU evaluates fastest (the public
+        evaluators and the fused identification do). The same object for every model of
+        the robot, so it can key compilation caches.
+        """
+        return _entries_function(self._jax)
+
+    def _states(self, q, qd, qdd, theta=None):
+        """``q, qd, qdd`` (and ``theta`` when per frame) flattened to (N, .) float64 NumPy, and the batch shape."""
         arrays = []
         for label, x in (("q", q), ("qd", qd), ("qdd", qdd)):
-            x = jnp.asarray(x, dtype=jnp.float64)
+            x = _host(label, x)
             if x.ndim == 0 or x.shape[-1] != self.n_dof:
                 raise ValueError(f"{label} must have shape (..., {self.n_dof}), got {tuple(x.shape)}")
             arrays.append(x)
-        return arrays
+        if theta is not None:
+            arrays.append(theta)
+        try:
+            batch = np.broadcast_shapes(*(x.shape[:-1] for x in arrays))
+        except ValueError:
+            shapes = ", ".join(str(tuple(x.shape)) for x in arrays)
+            names = "q, qd, qdd" + (" and theta" if theta is not None else "")
+            raise ValueError(f"{names} must broadcast to one leading shape, got {shapes}") from None
+        n = int(np.prod(batch, dtype=np.int64))
+        flat = [np.broadcast_to(x, batch + x.shape[-1:]).reshape(n, x.shape[-1]) for x in arrays]
+        return flat, batch
 
-    def regressor(self, q, qd, qdd):
-        """``Psi(q, qd, qdd)`` with the model's gravity; (..., n_dof) -> (..., 6, 10 * n_links), JAX."""
-        q, qd, qdd = self._check_states(q, qd, qdd)
-        return self._jax.base_wrench_regressor(q, qd, qdd, self.gravity)
+    def _entry_order(self) -> tuple[np.ndarray, int]:
+        """Flat indices of the nonzero entries of ``Psi``, unknown links' columns first, and how many of those."""
+        n_cols = 10 * self.n_links
+        nonzero = _nonzero_flat(self.regressor_nonzero, n_cols)
+        unknown = np.isin(nonzero % n_cols, self.unknown_index)
+        return np.concatenate([nonzero[unknown], nonzero[~unknown]]), int(unknown.sum())
 
-    def regressor_split(self, q, qd, qdd):
-        """``(Psi_unknown, Psi_known)``: the regressor's columns of the unknown and known links.
+    def regressor(self, q, qd, qdd) -> np.ndarray:
+        """``Psi(q, qd, qdd)``: ``[F; M] = Psi @ theta`` with the model's gravity.
 
-        ``wrench = Psi_unknown @ theta_unknown + Psi_known @ theta_known``.
+        Args:
+            q, qd, qdd: (..., n_dof) joint positions, velocities, accelerations (SI), NumPy
+                or JAX arrays; leading shapes broadcast.
+
+        Returns:
+            (..., 6, 10 n_links) float64 NumPy array: the wrench the moving links exert on
+            the fixture (base frame, moment about the base origin) is ``Psi @ theta`` for
+            any parameters ``theta`` (Pinocchio's order, about each link origin).
+
+        Evaluated by the generated code, compiled once per robot and link split and run
+        over chunks of :data:`CHUNK_FRAMES` frames written straight into the result, so
+        memory beyond the result stays about one chunk's. Inside ``jax.jit`` use
+        :attr:`jax_regressor`.
         """
-        y = self.regressor(q, qd, qdd)
-        return y[..., self.unknown_index], y[..., self.known_index]
+        flat, batch = self._states(q, qd, qdd)
+        n_cols = 10 * self.n_links
+        order, _ = self._entry_order()
+        out = np.zeros((len(flat[0]), 6 * n_cols))
 
-    def base_wrench(self, q, qd, qdd, theta=None):
-        """``[F; M] = Psi(q, qd, qdd) @ theta``, (..., 6); ``theta`` defaults to :attr:`theta_cad`.
+        def write(start, stop, rows):
+            out[start:stop, order] = rows[:, : stop - start].T
 
-        Evaluated by the generated ``base_wrench``, which contracts with ``theta`` inside
-        one fused loop instead of forming ``Psi`` (several times faster on the CPU).
+        _run_chunked(_entries_kernel(self._jax, order), flat, (self._gravity_device,), write)
+        return out.reshape(batch + (6, n_cols))
+
+    def regressor_split(self, q, qd, qdd) -> tuple[np.ndarray, np.ndarray]:
+        """``(Psi_u, Psi_k)``: the regressor's columns of the unknown and of the known links.
+
+        ``[F; M] = Psi_u @ theta[unknown_index] + Psi_k @ theta[known_index]``; shapes
+        (..., 6, 10 n_unknown) and (..., 6, 10 n_known), float64 NumPy. Same evaluation as
+        :meth:`regressor`, written into the two results directly.
         """
+        flat, batch = self._states(q, qd, qdd)
+        n_cols = 10 * self.n_links
+        order, n_u = self._entry_order()
+        n = len(flat[0])
+        parts = []
+        for index, entries in ((self.unknown_index, order[:n_u]), (self.known_index, order[n_u:])):
+            column = {int(c): k for k, c in enumerate(index)}
+            dest = np.array([(e // n_cols) * len(index) + column[int(e % n_cols)] for e in entries], dtype=np.int64)
+            parts.append((np.zeros((n, 6 * len(index))), dest))
+        (out_u, dest_u), (out_k, dest_k) = parts
+
+        def write(start, stop, rows):
+            out_u[start:stop, dest_u] = rows[:n_u, : stop - start].T
+            out_k[start:stop, dest_k] = rows[n_u:, : stop - start].T
+
+        _run_chunked(_entries_kernel(self._jax, order), flat, (self._gravity_device,), write)
+        return (out_u.reshape(batch + (6, len(self.unknown_index))),
+                out_k.reshape(batch + (6, len(self.known_index))))  # fmt: skip
+
+    def base_wrench(self, q, qd, qdd, theta=None) -> np.ndarray:
+        """``[F; M] = Psi(q, qd, qdd) @ theta``: the wrench on the fixture, (..., 6) float64 NumPy.
+
+        Force (N) and moment about the base origin (N*m), base frame. ``theta`` (10 n_links,)
+        or (..., 10 n_links) broadcasting with the states; default :attr:`theta_cad`.
+        Evaluated by the generated ``base_wrench``, which contracts with ``theta`` inside the
+        fused loops instead of forming ``Psi`` (several times faster), compiled once per
+        robot and chunked like :meth:`regressor`. Inside ``jax.jit`` use :attr:`jax_base_wrench`.
+        """
+        theta = _host("theta", self.theta_cad if theta is None else theta)
+        n_par = 10 * self.n_links
+        if theta.ndim == 0 or theta.shape[-1] != n_par:
+            raise ValueError(f"theta must have shape (..., {n_par}), got {tuple(theta.shape)}")
+        per_frame = theta.ndim > 1
+        flat, batch = self._states(q, qd, qdd, theta if per_frame else None)
+        consts = (self._gravity_device,) if per_frame else (theta, self._gravity_device)
+        out = np.empty((len(flat[0]), 6))
+
+        def write(start, stop, rows):
+            out[start:stop] = rows[: stop - start]
+
+        _run_chunked(_wrench_kernel(self._jax), flat, consts, write)
+        return out.reshape(batch + (6,))
+
+    @cached_property
+    def _gravity_device(self):
         import jax.numpy as jnp  # noqa: PLC0415
 
-        theta = self.theta_cad if theta is None else theta
-        theta = jnp.asarray(theta, dtype=jnp.float64)
-        if theta.shape[-1:] != (10 * self.n_links,):
-            raise ValueError(f"theta must have shape (..., {10 * self.n_links}), got {tuple(theta.shape)}")
-        q, qd, qdd = self._check_states(q, qd, qdd)
-        return self._jax.base_wrench(q, qd, qdd, self.gravity, theta)
+        return jnp.asarray(self.gravity)
 
     @property
     def jax_base_wrench(self):
-        """The generated pure function ``f(q, qd, qdd, gravity, theta) -> (..., 6)``."""
+        """The generated pure function ``f(q, qd, qdd, gravity, theta) -> (..., 6)``, for use inside ``jax.jit``.
+
+        ``f(q, qd, qdd, g, theta) == jax_regressor(q, qd, qdd, g) @ theta`` (round-off).
+        """
         return self._jax.base_wrench
 
     @property
     def jax_regressor(self):
-        """The generated pure function ``f(q, qd, qdd, gravity) -> (..., 6, 10 * n_links)``."""
+        """The generated pure function ``f(q, qd, qdd, gravity) -> (..., 6, 10 * n_links)``, for use inside ``jax.jit``.
+
+        ``f(q, qd, qdd, g) @ theta`` is the base wrench; :meth:`regressor` is the same with
+        ``g`` the model's gravity, evaluated eagerly into NumPy.
+        """
         return self._jax.base_wrench_regressor
 
     @cached_property
     def casadi_regressor(self):
-        """``casadi.Function`` ``(q, qd, qdd) -> Y`` (n_dof x 1 each -> 6 x 10 n_links), gravity applied."""
+        """``casadi.Function`` ``(q, qd, qdd) -> Y`` (n_dof x 1 each -> 6 x 10 n_links), gravity applied.
+
+        ``Y(q, qd, qdd) == regressor(q, qd, qdd)`` for one frame (round-off).
+        """
         import casadi as ca  # noqa: PLC0415
 
         full = self._casadi.base_wrench_regressor
         q, qd, qdd = (ca.SX.sym(s, self.n_dof) for s in ("q", "qd", "qdd"))
         y = full(q, qd, qdd, ca.DM(self.gravity))
         return ca.Function("base_wrench_regressor", [q, qd, qdd], [y], ["q", "qd", "qdd"], ["Y"])
+
+
+# -- chunked evaluation ----------------------------------------------------------------
+CHUNK_FRAMES = 2048
+"""Frames per compiled call of the public evaluators. XLA:CPU keeps a chunk's temporaries
+in cache up to a few thousand frames; throughput falls beyond (benchmarks/regressor.py)."""
+SMALL_FRAMES = 64
+"""Calls of at most this many frames, and remainders this short, use a second, small
+compiled shape instead of a padded full chunk."""
+
+
+def _host(label: str, x) -> np.ndarray:
+    """``x`` as a float64 NumPy array (a JAX array is copied from its device if needed)."""
+    try:
+        return np.asarray(x, dtype=np.float64)
+    except TypeError as e:  # a tracer: called inside jax.jit / grad / vmap
+        raise TypeError(
+            f"{label} is a traced JAX value: RobotModel.regressor / regressor_split / base_wrench evaluate "
+            "eagerly into NumPy; inside jax.jit, grad or vmap use model.jax_regressor or model.jax_base_wrench "
+            "with model.gravity"
+        ) from e
+
+
+def _nonzero_flat(nonzero: tuple[tuple[int, ...], ...], n_cols: int) -> np.ndarray:
+    """Flat (row-major) indices of the structurally nonzero entries of ``Psi``."""
+    return np.array([r * n_cols + c for r, cols in enumerate(nonzero) for c in cols], dtype=np.int64)
+
+
+@functools.lru_cache(maxsize=None)
+def _entries_function(module):
+    """``f(q, qd, qdd, gravity) -> entries of Psi`` of a generated module (its emitter's
+    ``_temporaries`` and ``_entries``), one function object per module."""
+
+    def entries(q, qd, qdd, gravity):
+        return module._entries(**module._temporaries(q, qd, qdd, gravity))
+
+    return entries
+
+
+@functools.lru_cache(maxsize=None)
+def _entries_kernel_cached(module, entries: tuple[int, ...]):
+    import jax  # noqa: PLC0415
+    import jax.numpy as jnp  # noqa: PLC0415
+
+    def kernel(q, qd, qdd, gravity):
+        values = _entries_function(module)(q, qd, qdd, gravity)
+        batch = q.shape[:-1]
+        return jnp.stack([jnp.broadcast_to(values[i], batch).astype(q.dtype) for i in entries], axis=0)
+
+    return jax.jit(kernel)
+
+
+def _entries_kernel(module, entries: np.ndarray):
+    """Jitted ``(q, qd, qdd, gravity) -> (len(entries), N)``: chosen entries of the flat ``Psi``,
+    frames last (XLA:CPU's fastest layout: each entry one contiguous row). One compilation per
+    generated module and choice of entries, shared by every model of the robot."""
+    return _entries_kernel_cached(module, tuple(int(i) for i in entries))
+
+
+@functools.lru_cache(maxsize=None)
+def _wrench_kernel(module):
+    """Jitted ``(q, qd, qdd, theta, gravity) -> (N, 6)``, the generated ``base_wrench``;
+    theta (N, 10n) per frame or (10n,) for all."""
+    import jax  # noqa: PLC0415
+
+    def kernel(q, qd, qdd, theta, gravity):
+        return module.base_wrench(q, qd, qdd, gravity, theta)
+
+    return jax.jit(kernel)
+
+
+def _chunks(n: int):
+    """``(start, stop, compiled size)`` covering frames ``[0, n)``."""
+    if n <= SMALL_FRAMES:
+        if n:
+            yield 0, n, SMALL_FRAMES
+        return
+    for start in range(0, n, CHUNK_FRAMES):
+        stop = min(start + CHUNK_FRAMES, n)
+        yield start, stop, CHUNK_FRAMES if stop - start > SMALL_FRAMES else SMALL_FRAMES
+
+
+def _run_chunked(kernel, batched: list[np.ndarray], consts: tuple, write) -> None:
+    """``write(start, stop, kernel(*chunk_of(batched), *consts))`` over frame chunks.
+
+    Each chunk is padded with zeros to its compiled size; the next chunk is dispatched
+    before the previous result is written, so XLA computes while NumPy copies.
+    """
+    enable_compilation_cache()
+    pending = None
+    for start, stop, size in _chunks(len(batched[0])):
+        args = []
+        for a in batched:
+            part = a[start:stop]
+            if stop - start < size:
+                part = np.concatenate([part, np.zeros((size - (stop - start),) + a.shape[1:])])
+            args.append(part)
+        result = kernel(*args, *consts)
+        if pending is not None:
+            write(pending[0], pending[1], np.asarray(pending[2]))
+        pending = (start, stop, result)
+    if pending is not None:
+        write(pending[0], pending[1], np.asarray(pending[2]))

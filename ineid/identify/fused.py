@@ -1,0 +1,221 @@
+"""Fused kernels of the linear identification: what a batch of configurations needs, never the stacks.
+
+For configuration ``c`` with frames ``k = 1..F`` the base least squares (see
+:mod:`ineid.identify.linear`) uses ``W_b`` (6F x r, the unknown links' base columns of
+``Psi``) and ``y`` (6F, the wrench minus the known links' share) only through
+
+    G_a = sum_k W_b[k, a]^T W_b[k, a]        (r x r)   per wrench axis a = fx..mz
+    h_a = sum_k W_b[k, a]^T y[k, a]           (r,)
+    e_a = sum_k y[k, a]^2
+
+so that, with row weights ``d_a`` per axis (``D`` in :mod:`ineid.identify.linear`),
+
+    W_b^T D^2 W_b = sum_a d_a^2 G_a,   W_b^T D^2 y = sum_a d_a^2 h_a,   y^T D^2 y = sum_a d_a^2 e_a
+
+and the per-axis residual sum of squares of any ``beta`` is ``e_a - 2 beta.h_a + beta^T G_a beta``.
+:func:`information_blocks` computes ``G, h, e`` in one jitted function per chunk of
+configurations: the generated regressor's entries of the base columns and the known links'
+contraction are formed and reduced inside it, so the ``(C, 6F, n)`` stacks never exist (the
+memory is the blocks', ``6 r^2`` numbers per configuration). :func:`residual_sums` is the
+same for the wrench residual of given parameters (the generated ``base_wrench``, which
+never forms ``Psi``), over fitted and held-out frames in one pass.
+
+One compiled shape serves every chunk: configurations are padded to a fixed count and long
+recordings are split into frame chunks (masked). Compiled once per robot, link split, base
+structure and frame count (see :func:`ineid.cache.enable_compilation_cache`).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+TARGET_FRAMES = 2048
+"""Frames (configurations x frames) per compiled call: the chunk the regressor runs fastest on."""
+MAX_FRAME_CHUNK = 2048
+"""Longer configurations (recordings) are reduced over chunks of this many frames."""
+
+
+@dataclass
+class InformationBlocks:
+    """Per-axis normal-equation blocks of a batch of configurations (see module doc).
+
+    Attributes:
+        G: (C, 6, r, r) ``sum_k W_b[k, a]^T W_b[k, a]`` per wrench axis ``a``.
+        h: (C, 6, r) ``sum_k W_b[k, a]^T y[k, a]``.
+        e: (C, 6) ``sum_k y[k, a]^2``.
+        n_frames: frames per configuration ``F`` (rows ``6F``).
+    """
+
+    G: np.ndarray
+    h: np.ndarray
+    e: np.ndarray
+    n_frames: int
+
+    def weighted(self, axis_w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(W_b^T D^2 W_b, W_b^T D^2 y, y^T D^2 y)`` for row weights ``axis_w`` (C, 6)."""
+        d2 = (np.asarray(axis_w, dtype=np.float64) ** 2)[:, None, :]  # (C, 1, 6)
+        c, _, r, _ = self.G.shape
+        a = np.matmul(d2, self.G.reshape(c, 6, r * r)).reshape(c, r, r)
+        b = np.matmul(d2, self.h)[:, 0]
+        return a, b, np.matmul(d2, self.e[:, :, None])[:, 0, 0]
+
+    def axis_rss(self, beta: np.ndarray) -> np.ndarray:
+        """(C, 6) unweighted residual sum of squares per axis, ``e_a - 2 beta.h_a + beta^T G_a beta``."""
+        gb = np.matmul(self.G, beta[:, None, :, None])[..., 0]  # (C, 6, r)
+        quad = np.matmul(gb, beta[:, :, None])[..., 0]
+        lin = np.matmul(self.h, beta[:, :, None])[..., 0]
+        return np.maximum(self.e - 2.0 * lin + quad, 0.0)
+
+    def select(self, rows) -> InformationBlocks:
+        return InformationBlocks(self.G[rows], self.h[rows], self.e[rows], self.n_frames)
+
+
+def _split(n_configs: int, n_frames: int) -> tuple[int, int]:
+    """``(configurations, frames)`` per compiled call."""
+    frames = min(n_frames, MAX_FRAME_CHUNK)
+    return max(1, TARGET_FRAMES // frames), frames
+
+
+def _map_chunks(kernel: Callable, frame_arrays: list[np.ndarray], config_arrays: list[np.ndarray],
+                consts: tuple, progress: Callable[[int, int], None] | None = None) -> list[np.ndarray]:
+    """Sum ``kernel(*frame_chunks, mask, *config_chunks, *consts)`` over frame chunks, per configuration chunk.
+
+    ``frame_arrays`` are (C, F, .) and ``config_arrays`` (C, .); each call gets (Cc, Fc, .)
+    and (Cc, .) zero-padded pieces and the (Cc, Fc) mask of real frames. The kernel returns
+    a tuple of (Cc, ...) arrays, summed over frame chunks and concatenated over
+    configurations. Calls are dispatched one ahead so XLA computes while NumPy collects.
+    """
+    n_configs, n_frames = frame_arrays[0].shape[:2]
+    per, frames = _split(n_configs, n_frames)
+    sums: list[list[np.ndarray]] = []
+    pending: list = []
+
+    def pad(piece, shape):
+        if piece.shape[: len(shape)] == shape:
+            return piece
+        out = np.zeros(shape + piece.shape[len(shape):])
+        out[tuple(slice(0, k) for k in piece.shape[: len(shape)])] = piece
+        return out
+
+    def collect(item):
+        start, stop, outs = item
+        if not sums:
+            sums.extend([] for _ in outs)
+        for k, o in enumerate(outs):
+            sums[k].append(np.asarray(o)[: stop - start])
+        if progress is not None:
+            progress(stop, n_configs)
+
+    for start in range(0, n_configs, per):
+        stop = min(start + per, n_configs)
+        per_config = [pad(a[start:stop], (per,)) for a in config_arrays]
+        total = None
+        for f0 in range(0, n_frames, frames):
+            f1 = min(f0 + frames, n_frames)
+            parts = [pad(a[start:stop, f0:f1], (per, frames)) for a in frame_arrays]
+            mask = np.zeros((per, frames))
+            mask[: stop - start, : f1 - f0] = 1.0
+            outs = kernel(*parts, mask, *per_config, *consts)
+            total = outs if total is None else tuple(t + o for t, o in zip(total, outs, strict=True))
+        pending.append((start, stop, total))
+        if len(pending) > 1:
+            collect(pending.pop(0))
+    for item in pending:
+        collect(item)
+    return [np.concatenate(s) for s in sums]
+
+
+@functools.lru_cache(maxsize=None)
+def _blocks_kernel(entries_fn, n_cols: int, base_columns: tuple[int, ...], known_columns: tuple[int, ...]):
+    """Jitted ``(q, qd, qdd, wrench, mask, gravity, theta_known) -> (G, h, e)`` of one chunk."""
+    import jax  # noqa: PLC0415
+    import jax.numpy as jnp  # noqa: PLC0415
+
+    def kernel(q, qd, qdd, wrench, mask, gravity, theta_known):
+        entries = entries_fn(q, qd, qdd, gravity)
+        batch = q.shape[:-1]  # (Cc, Fc)
+
+        def entry(a, col):
+            return jnp.broadcast_to(entries[a * n_cols + col], batch).astype(q.dtype) * mask
+
+        # (6, Cc, r, Fc): frames last, each entry one contiguous run (XLA:CPU's fast layout)
+        w_b = jnp.stack([jnp.stack([entry(a, c) for c in base_columns], axis=1) for a in range(6)])
+        known = [sum((entries[a * n_cols + c] * theta_known[k] for k, c in enumerate(known_columns)),
+                     start=jnp.zeros(batch, q.dtype)) for a in range(6)]  # fmt: skip
+        y = jnp.stack([(wrench[..., a] - known[a]) * mask for a in range(6)])  # (6, Cc, Fc)
+        g = jnp.einsum("acrf,acsf->cars", w_b, w_b)
+        h = jnp.einsum("acrf,acf->car", w_b, y)
+        e = jnp.einsum("acf,acf->ca", y, y)
+        return g, h, e
+
+    return jax.jit(kernel)
+
+
+def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
+                       progress: Callable[[int, int], None] | None = None) -> InformationBlocks:
+    """Per-axis blocks ``G, h, e`` of every configuration (see module doc).
+
+    Args:
+        model: the :class:`ineid.RobotModel` (unknown links, gravity, generated code).
+        base: the :class:`~ineid.identify.identifiability.BaseParameters` of its unknown links.
+        q, qd, qdd: (C, F, n_dof) frames; wrench: (C, F, 6) measured.
+        theta_known: (10 n_known,) the known links' parameters.
+        progress: ``progress(done, total)`` over configurations.
+    """
+    arrays = [np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench)]
+    n_configs, n_frames = arrays[0].shape[:2]
+    r = base.rank
+    if n_configs == 0:
+        return InformationBlocks(np.zeros((0, 6, r, r)), np.zeros((0, 6, r)), np.zeros((0, 6)), n_frames)
+    columns = tuple(int(c) for c in np.asarray(model.unknown_index)[base.base_index])
+    kernel = _blocks_kernel(model.jax_regressor_entries, 10 * model.n_links, columns,
+                            tuple(int(c) for c in model.known_index))
+    consts = (model.gravity, np.asarray(theta_known, dtype=np.float64))
+    g, h, e = _map_chunks(kernel, arrays, [], consts, progress)
+    return InformationBlocks(g, h, e, n_frames)
+
+
+@functools.lru_cache(maxsize=None)
+def _residual_kernel(base_wrench_fn):
+    """Jitted ``(q, qd, qdd, wrench, fit, mask, theta, gravity) -> (ssr_fit, ssr_held, ss_held)``."""
+    import jax  # noqa: PLC0415
+    import jax.numpy as jnp  # noqa: PLC0415
+
+    def kernel(q, qd, qdd, wrench, fit, mask, theta, gravity):
+        # fit: (Cc, Fc, 1) 1 on fitted frames, 0 on held-out ones; theta: (Cc, 10 n)
+        predicted = base_wrench_fn(q, qd, qdd, gravity, theta[:, None, :])
+        r2 = (wrench - predicted) ** 2 * mask[..., None]
+        held = (1.0 - fit) * mask[..., None]
+        return (jnp.sum(r2 * fit, axis=1), jnp.sum(r2 * held, axis=1), jnp.sum(wrench**2 * held, axis=(1, 2)))
+
+    return jax.jit(kernel)
+
+
+def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sums of squares of ``wrench - Psi theta`` per configuration: fitted and held-out frames.
+
+    Args:
+        model: the :class:`ineid.RobotModel`.
+        q, qd, qdd: (C, F, n_dof); wrench: (C, F, 6).
+        theta: (C, 10 n_links) every link's parameters, per configuration.
+        n_fit: the first ``n_fit`` frames are the fitted ones, the rest held out.
+
+    Returns:
+        ``(ssr_fit (C, 6), ssr_held (C, 6), ss_held (C,))``: per axis, the sum over the
+        fitted and over the held-out frames of the squared residual, and the sum of the
+        squared measured wrench over the held-out frames (all axes).
+    """
+    arrays = [np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench)]
+    n_configs, n_frames = arrays[0].shape[:2]
+    if n_configs == 0:
+        return np.zeros((0, 6)), np.zeros((0, 6)), np.zeros(0)
+    fit = (np.arange(n_frames) < n_fit).astype(np.float64)
+    fit = np.broadcast_to(fit[None, :, None], (n_configs, n_frames, 1))
+    theta = np.asarray(theta, dtype=np.float64)
+    kernel = _residual_kernel(model.jax_base_wrench)
+    ssr_fit, ssr_held, ss_held = _map_chunks(kernel, [*arrays, fit], [theta], (model.gravity,))
+    return ssr_fit, ssr_held, ss_held
