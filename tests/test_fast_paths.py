@@ -25,9 +25,9 @@ import pytest
 import ineid
 from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
 from ineid.identify import SolveSettings, base_parameters, fit_base, solve_dataset, stack
-from ineid.identify import fused
+from ineid.identify import casadi_c, fused
 from ineid.identify.linear import NORMAL_MAX_COND, fit_base_blocks, standard_std
-from ineid.identify.systems import full_theta, stack_casadi
+from ineid.identify.systems import stack_casadi
 from ineid.robots import model as model_module
 
 from .conftest import SEED, random_states, rel_err
@@ -68,7 +68,8 @@ SIZES = [1, 63, model_module.CHUNK_FRAMES + model_module.SMALL_FRAMES // 2, 2 * 
 @pytest.mark.parametrize("n", SIZES)
 def test_chunked_regressor_equals_whole_batch(arm, rng, n):
     q, qd, qdd = random_states(arm, n, rng)
-    ref = np.asarray(arm.jax_regressor(q, qd, qdd, arm.gravity))  # op by op, whole batch
+    # the generated CasADi function over the whole batch: no JAX, no chunks, no padding
+    ref = np.array(arm.casadi_regressor.map(n)(q.T, qd.T, qdd.T)).reshape(6, n, 40).transpose(1, 0, 2)
     y = arm.regressor(q, qd, qdd)
     assert isinstance(y, np.ndarray) and y.dtype == np.float64 and y.shape == (n, 6, 40)
     assert rel_err(y, ref) < 1e-13
@@ -119,7 +120,7 @@ def test_fused_linear_equals_lstsq_per_configuration(arm, base, noisy):
         w, y = stack_casadi(arm, *frames, noisy.theta_known)  # the generated CasADi code, not JAX
         beta, *_ = np.linalg.lstsq(w[:, base.base_index], y, rcond=None)
         beta_ref.append(beta)
-        theta = full_theta(arm, res.theta_hat[c], noisy.theta_known)
+        theta = arm.full_theta(res.theta_hat[c], noisy.theta_known)
         resid = noisy.wrench[c] - arm.base_wrench(noisy.q[c], noisy.qd[c], noisy.qdd[c], theta)
         rms_fit.append(np.sqrt(np.mean(resid[:n_fit] ** 2, axis=0)))
         rms_val.append(np.sqrt(np.mean(resid[n_fit:] ** 2, axis=0)))
@@ -176,7 +177,7 @@ def test_ill_conditioned_configurations_take_the_qr_route(arm, base):
     ds.qd[slow] *= 1e-3
     ds.qdd[slow] *= 1e-3
     ds.wrench[slow] = arm.base_wrench(ds.q[slow], ds.qd[slow], ds.qdd[slow],
-                                      full_theta(arm, ds.theta_unknown[slow], ds.theta_known))
+                                      arm.full_theta(ds.theta_unknown[slow], ds.theta_known))
     fitted = [a[:, :32] for a in (ds.q, ds.qd, ds.qdd, ds.wrench)]
     blocks = fused.information_blocks(arm, base, *fitted, ds.theta_known)
     fit, refit = fit_base_blocks(blocks, base)
@@ -247,3 +248,74 @@ def test_user_cache_setting_wins(tmp_path, monkeypatch):
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "mine")
     finally:
         jax.config.update("jax_compilation_cache_dir", before)
+
+
+# -- the CasADi route compiled to C ---------------------------------------------------------
+
+needs_cc = pytest.mark.skipif(casadi_c.c_compiler() is None, reason="no C compiler (cc, gcc, clang) on PATH")
+
+
+@needs_cc
+def test_compiled_casadi_blocks_equal_the_jax_blocks(arm, base, noisy):
+    """70 configurations: a full call of CONFIGS_PER_CALL and a padded one; then the whole solve."""
+    sub = noisy.select(slice(0, casadi_c.CONFIGS_PER_CALL + 6))
+    frames = [a[:, :32] for a in (sub.q, sub.qd, sub.qdd, sub.wrench)]
+    ref = fused.information_blocks(arm, base, *frames, sub.theta_known)
+    got = casadi_c.information_blocks_c(arm, base, *frames, sub.theta_known)
+    for name in ("G", "h", "e"):
+        assert rel_err(getattr(got, name), getattr(ref, name)) < 1e-13
+    libraries = list((casadi_c.cache_dir() / "casadi-c").glob("*.so"))
+    assert len(libraries) == 1  # compiled once, in ineid's cache
+    a = solve_dataset(sub, SolveSettings(), model=arm)
+    b = solve_dataset(sub, SolveSettings(backend="casadi-c"), model=arm)
+    assert scaled_rel(b.base_hat, a.base_hat, base.scales[base.base_index]) < 1e-10
+    assert rel_err(b.validation_rms, a.validation_rms) < 1e-10
+
+
+def test_casadi_c_without_a_compiler_says_so(arm, noisy, tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from ineid.cli import main
+    from ineid.data import save_dataset
+
+    monkeypatch.setenv("INEID_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
+    monkeypatch.setattr(casadi_c, "_LOADED", {})
+    path = save_dataset(noisy.select(slice(0, 3)), tmp_path / "d.h5")
+    out = tmp_path / "r.h5"
+    r = CliRunner().invoke(main, ["solve", str(path), "--backend", "casadi-c", "--out", str(out)])
+    assert r.exit_code == 1 and "Traceback" not in r.output
+    assert r.output.strip().splitlines()[-1].startswith(
+        f"Error: the C compiler {str(tmp_path / 'no-such-cc')!r} cannot run (No such file or directory)")
+    assert not out.exists() and not list((tmp_path / "cache").rglob("*.so"))
+
+
+@pytest.mark.slow
+@needs_cc
+def test_compiled_ipopt_problems_give_the_same_estimates(arm, noisy):
+    """CasADi's jit for the nonlinear and consistent problems (seconds of compilation each)."""
+    sub = noisy.select(slice(0, 8))
+    for method in ("nonlinear", "consistent"):
+        a = solve_dataset(sub, SolveSettings(method=method), model=arm)
+        b = solve_dataset(sub, SolveSettings(method=method, backend="casadi-c"), model=arm)
+        assert np.array_equal(a.success, b.success)
+        assert rel_err(b.theta_hat, a.theta_hat) < 1e-8
+
+
+def test_cache_command_shows_and_clears(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from ineid.cli import main
+
+    monkeypatch.setenv("INEID_CACHE_DIR", str(tmp_path))
+    (tmp_path / "xla").mkdir()
+    (tmp_path / "xla" / "kernel").write_bytes(b"x" * 1000)
+    (tmp_path / "generated" / "abc").mkdir(parents=True)
+    (tmp_path / "generated" / "abc" / "m.py").write_text("# code\n")
+    runner = CliRunner()
+    info = runner.invoke(main, ["cache", "info"])
+    assert info.exit_code == 0 and "compiled XLA kernels" in info.output and "generated" in info.output
+    r = runner.invoke(main, ["cache", "clear", "--xla-only"])
+    assert r.exit_code == 0 and f"removed {tmp_path / 'xla'} (1 files" in r.output
+    assert not (tmp_path / "xla").exists() and (tmp_path / "generated" / "abc" / "m.py").exists()
+    assert runner.invoke(main, ["cache", "clear"]).exit_code == 0 and not tmp_path.exists()

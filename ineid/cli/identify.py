@@ -112,7 +112,8 @@ def identifiability(robot, n_frames, seed, data_path, config) -> None:
               help="IPOPT start: the CAD values, or the linear estimate (made physical).")
 @click.option("--backend", type=LibraryChoice(f"{_SOLVE}:BACKENDS"), cls=LibraryOption,
               default_from=f"{_SOLVE}:SolveSettings.backend",
-              help="Linear method: batched JAX/NumPy, or CasADi per configuration.")
+              help="Least squares: fused JAX kernels; CasADi per configuration (linear only); or "
+                   "casadi-c, the CasADi route compiled to C (IPOPT problems too; needs a C compiler).")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Processes for IPOPT (default: CPU count; fewer than 256 configurations run in one).")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Results file (.h5).")

@@ -48,7 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ineid.errors import IdentificationError
+from ineid.errors import CodegenError, IdentificationError
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.linear import BaseFit, Estimate, standard_std
 from ineid.params import N_PARAMS_PER_LINK, inertial_from_theta, pseudo_inertia
@@ -209,6 +209,7 @@ class NlpSolver:
         pull: float = DEFAULT_PULL,
         entropic: float = DEFAULT_ENTROPIC,
         ipopt_options: dict | None = None,
+        compiled: bool = False,
     ) -> NlpSolver:
         """Compile the problem (a fraction of a second).
 
@@ -222,6 +223,10 @@ class NlpSolver:
                 from the prior's; a barrier that keeps estimates off degenerate bodies
                 (Lee & Wensing 2019). Zero disables it.
             ipopt_options: extra IPOPT options (``{"max_iter": 1000}``).
+            compiled: print the problem's functions (objective, constraints and their
+                derivatives) as C and compile them with the system's compiler (CasADi's
+                ``jit``): several seconds once per solver, then faster solves (see
+                ``benchmarks/identify.py``). Needs a C compiler.
         """
         import casadi as ca  # noqa: PLC0415
 
@@ -269,6 +274,15 @@ class NlpSolver:
             "ipopt.max_iter": 500,
         }
         opts.update({f"ipopt.{k}": v for k, v in (ipopt_options or {}).items()})
+        if compiled:
+            from ineid.identify.casadi_c import c_compiler  # noqa: PLC0415
+
+            cc = c_compiler()
+            if cc is None:
+                raise CodegenError("compiled IPOPT problems need a C compiler (cc, gcc or clang on PATH, or $CC); "
+                                   "install one or use the default backend")
+            opts.update({"jit": True, "compiler": "shell",
+                         "jit_options": {"compiler": cc, "flags": ["-O2"], "verbose": False}})
         solver = ca.nlpsol(f"ineid_{method}", "ipopt", {"x": x, "p": p, "f": f, "g": g}, opts)
         theta_fn = ca.Function("theta", [x], [theta])
         return cls(method, base, prior, pull, entropic, solver, theta_fn)

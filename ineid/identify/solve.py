@@ -40,8 +40,9 @@ from ineid.progress import Progress
 METHODS = ("linear", "nonlinear", "consistent")
 STARTS = ("prior", "linear")
 """IPOPT's start: the CAD values, or the linear estimate made physical."""
-BACKENDS = ("jax", "casadi")
-"""The linear method's engine: batched JAX/NumPy, or CasADi per configuration."""
+BACKENDS = ("jax", "casadi", "casadi-c")
+"""The least-squares engine: fused JAX kernels; CasADi per configuration (QR, an independent
+route; linear method only); or the fused blocks through CasADi's C code, compiled (needs a C compiler)."""
 HOLDOUT_FRACTION = 0.2
 """Without ``frames``, this share of each configuration's frames is held out for validation."""
 PARALLEL_MIN_CONFIGS = 256
@@ -64,8 +65,11 @@ class SolveSettings:
         start: IPOPT start, ``"prior"`` (the CAD values) or ``"linear"`` (the linear
             estimate, made physical for ``consistent`` if needed).
         pull, entropic: prior weights of the IPOPT solvers (see :mod:`ineid.identify.nlp`).
-        backend: ``"jax"`` (batched regressors and QR) or ``"casadi"`` (per configuration,
-            the generated CasADi function and CasADi's QR); linear method only.
+        backend: ``"jax"`` (fused normal-equation blocks, batched), ``"casadi"`` (per
+            configuration, the generated CasADi function and CasADi's QR; linear method only)
+            or ``"casadi-c"`` (the same blocks as ``"jax"`` from the CasADi function printed
+            as C and compiled, see :mod:`ineid.identify.casadi_c`, and for ``nonlinear`` /
+            ``consistent`` the IPOPT problem compiled too; needs a C compiler).
         workers: processes for the IPOPT solvers (default 1); used from
             :data:`PARALLEL_MIN_CONFIGS` configurations on. More than one uses spawned
             processes (multiprocessing): call from under ``if __name__ == "__main__":``.
@@ -90,7 +94,7 @@ class SolveSettings:
             raise ValueError(f"start must be one of {', '.join(STARTS)}, got {self.start!r}")
         if self.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
-        if self.backend == "casadi" and self.method != "linear":
+        if self.backend == "casadi" and self.method != "linear":  # casadi-c serves every method
             raise ValueError("backend='casadi' applies to the linear method")
         if self.frames is not None and self.frames < 1:
             raise ValueError(f"frames must be >= 1, got {self.frames}")
@@ -199,8 +203,11 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         fit = _concat_fits(fits)
     else:
         t0 = time.perf_counter()
+        blocks_fn = information_blocks
+        if settings.backend == "casadi-c":
+            from ineid.identify.casadi_c import information_blocks_c as blocks_fn  # noqa: PLC0415
         fit, rms = _fused_fit(model, ds, fit_sl, base, settings, axis_sigma,
-                              progress if settings.method == "linear" else None)
+                              progress if settings.method == "linear" else None, blocks_fn)
         seconds = np.full(c, (time.perf_counter() - t0) / max(c, 1))
 
     # 2. the residuals of the least-squares fit itself, exactly (one fused pass over every
@@ -285,11 +292,12 @@ REFERENCE_ROWS = 200_000
 """Frames per batch when configurations are refitted through the stacked QR (reference)."""
 
 
-def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress) -> tuple[BaseFit, np.ndarray]:
-    """The base fit of every configuration from fused normal-equation blocks, ill-conditioned
-    ones refitted through QR of their stacks; and the RMS of the weighted data, (C,)."""
+def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress,
+               blocks_fn=information_blocks) -> tuple[BaseFit, np.ndarray]:
+    """The base fit of every configuration from fused normal-equation blocks (``blocks_fn``),
+    ill-conditioned ones refitted through QR of their stacks; and the RMS of the weighted data, (C,)."""
     q, qd, qdd, wrench = (a[:, fit_sl] for a in (ds.q, ds.qd, ds.qdd, ds.wrench))
-    blocks = information_blocks(model, base, q, qd, qdd, wrench, ds.theta_known, progress=progress)
+    blocks = blocks_fn(model, base, q, qd, qdd, wrench, ds.theta_known, progress=progress)
     fit, refit = fit_base_blocks(blocks, base, settings.weights, axis_sigma)
     rows = np.flatnonzero(refit)
     per = max(1, REFERENCE_ROWS // max(blocks.n_frames, 1))
@@ -349,9 +357,9 @@ def physical_start(theta_lin: np.ndarray, prior: np.ndarray, scales: np.ndarray)
     return start
 
 
-def _nlp_worker_init(method, base, prior, pull, entropic):
+def _nlp_worker_init(method, base, prior, pull, entropic, compiled):
     global _WORKER_SOLVER  # noqa: PLW0603 - one compiled solver per worker process
-    _WORKER_SOLVER = NlpSolver.build(method, base, prior, pull, entropic)
+    _WORKER_SOLVER = NlpSolver.build(method, base, prior, pull, entropic, compiled=compiled)
 
 
 def _nlp_worker(args):
@@ -373,7 +381,8 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
     workers = settings.workers or 1
     seconds = np.zeros(c)
     if workers <= 1 or c < PARALLEL_MIN_CONFIGS:
-        solver = NlpSolver.build(settings.method, base, prior, settings.pull, settings.entropic)
+        solver = NlpSolver.build(settings.method, base, prior, settings.pull, settings.entropic,
+                                 compiled=settings.backend == "casadi-c")
         t = [time.perf_counter()]
 
         def timed(done, total):
@@ -399,7 +408,8 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
     status = np.empty(c, dtype=object)
     ctx = mp.get_context("spawn")  # JAX's threads and fork do not mix
     with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_nlp_worker_init,
-                             initargs=(settings.method, base, prior, settings.pull, settings.entropic)) as pool:
+                             initargs=(settings.method, base, prior, settings.pull, settings.entropic,
+                                       settings.backend == "casadi-c")) as pool:
         done = 0
         for j, out in enumerate(pool.map(_nlp_worker, jobs)):
             for k, (th, ok, st, sec) in enumerate(out):
