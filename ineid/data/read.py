@@ -96,6 +96,7 @@ def _read_meta(f, where: str) -> DatasetMeta:
             sampling=_json_attr(attrs, "sampling", where),
             noise=_json_attr(attrs, "noise", where),
             origin=_json_attr(attrs, "origin", where),
+            sensor=_json_attr(attrs, "sensor", where) if version >= 2 else None,
             ineid_version=_as_str(attrs.get("ineid_version", "")),
             version=version,
         )
@@ -103,6 +104,8 @@ def _read_meta(f, where: str) -> DatasetMeta:
         raise DatasetError(f"{where}: attribute {e.args[0]!r} is missing; the file is damaged") from None
     if order != PARAM_NAMES:
         raise DatasetError(f"{where}: parameter order {list(order)} differs from ineid's {list(PARAM_NAMES)}")
+    if meta.sensor is not None:
+        meta.sensor_pose()  # raises DatasetError naming what is wrong
     if meta.gravity.shape != (3,) or not np.all(np.isfinite(meta.gravity)):
         raise DatasetError(f"{where}: gravity must be 3 finite numbers, got {meta.gravity.tolist()}")
     return meta

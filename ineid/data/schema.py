@@ -35,8 +35,12 @@ if TYPE_CHECKING:
     from ineid.robots import RobotModel
 
 FORMAT = "ineid-dataset"
-VERSION = 1
-"""Format version this ineid writes and the newest it reads."""
+VERSION = 2
+"""Format version this ineid writes and the newest it reads.
+
+Version 2 added the ``sensor`` attribute (the F/T sensor's pose in the base frame); a
+version-1 file reads as one whose wrench is in the base frame (``sensor = None``).
+"""
 
 STATE_KEYS = ("q", "qd", "qdd")
 MEASURED_KEYS = (*STATE_KEYS, "wrench")
@@ -59,6 +63,9 @@ class DatasetMeta:
         sampling: parameter, combination and frame settings (JSON-able).
         noise: noise settings, or ``None`` for clean data.
         origin: free-form provenance (e.g. the CSV file and its sign convention).
+        sensor: the F/T sensor's pose (:meth:`ineid.sensor.SensorPose.to_dict`); the
+            ``wrench`` array is then what the sensor reads, in its frame, moment about its
+            origin. ``None``: the wrench is in the base frame, about the base origin.
         ineid_version: the ineid that wrote the file.
         version: the format version.
     """
@@ -76,6 +83,7 @@ class DatasetMeta:
     sampling: dict | None = None
     noise: dict | None = None
     origin: dict | None = None
+    sensor: dict | None = None
     ineid_version: str = ""
     version: int = VERSION
 
@@ -86,6 +94,17 @@ class DatasetMeta:
     @property
     def unknown_param_names(self) -> list[str]:
         return param_names(self.unknown_links)
+
+    def sensor_pose(self):
+        """The :class:`ineid.sensor.SensorPose` of the wrench, or None for the base frame."""
+        from ineid.sensor import SensorPose  # noqa: PLC0415
+
+        return None if self.sensor is None else SensorPose.from_dict(self.sensor)
+
+    def sensor_transform(self) -> np.ndarray | None:
+        """``X`` (6, 6) with ``wrench = X @ base wrench`` (:func:`ineid.sensor.wrench_transform`), or None."""
+        pose = self.sensor_pose()
+        return None if pose is None or pose.is_identity else pose.transform()
 
     @classmethod
     def for_model(cls, model: RobotModel, **kwargs) -> DatasetMeta:
@@ -220,6 +239,8 @@ class Dataset:
                           self.n_frames, m.seed, m.sampling, m.noise, m.source], sort_keys=True, default=str)
         if m.seed is None:
             key += hashlib.sha256(np.ascontiguousarray(self.wrench).tobytes()).hexdigest()
+        if m.sensor is not None:  # absent from version-1 keys, so their fingerprints stay
+            key += json.dumps(m.sensor, sort_keys=True)
         return hashlib.sha256(key.encode()).hexdigest()[:16]
 
     def model(self, codegen_dir: str | Path | None = None) -> RobotModel:

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ineid._atomic import check_output, temporary_path
-from ineid.data.schema import FORMAT, Dataset, DatasetMeta, expected_shapes
+from ineid.data.schema import FORMAT, VERSION, Dataset, DatasetMeta, expected_shapes
 from ineid.errors import DatasetError
 from ineid.params import PARAM_NAMES
 
@@ -37,7 +37,7 @@ def _string_array(values: Sequence[str]) -> np.ndarray:
 def _meta_attrs(meta: DatasetMeta) -> dict:
     attrs = {
         "format": FORMAT,
-        "version": np.int64(meta.version),
+        "version": np.int64(VERSION),  # a file is written in this ineid's format, whatever it was read from
         "robot": meta.robot,
         "urdf": meta.urdf,
         "gravity": np.asarray(meta.gravity, dtype=np.float64),
@@ -52,6 +52,7 @@ def _meta_attrs(meta: DatasetMeta) -> dict:
         "sampling": json.dumps(meta.sampling, sort_keys=True),
         "noise": json.dumps(meta.noise, sort_keys=True),
         "origin": json.dumps(meta.origin, sort_keys=True),
+        "sensor": json.dumps(meta.sensor, sort_keys=True),
         "ineid_version": meta.ineid_version,
     }
     if meta.seed is not None:

@@ -326,3 +326,52 @@ def _joint_spec(j, source, parent_R, parent_p, axis, theta, qdd_bounds) -> Joint
         qd_max=qd_max,
         qdd_max=qdd_max,
     )
+
+
+def fixed_frame_pose(
+    text: bytes | str, frame: str, source: str = "<urdf>", locked_joints: Mapping[str, float] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(root_R_frame, root_p_frame)``: the pose of link ``frame`` in the root link's frame.
+
+    The frame must be welded to the root (fixed joints, or joints in ``locked_joints``
+    at their locked positions): it is where a sensor under the base can sit.
+
+    Raises:
+        RobotModelError: the URDF does not parse, has no such link, or a moving joint
+            lies between the frame and the root.
+    """
+    import yourdfpy  # noqa: PLC0415
+
+    data = text.encode() if isinstance(text, str) else text
+    try:
+        robot = yourdfpy.URDF.load(io.BytesIO(data), build_scene_graph=False, load_meshes=False,
+                                   build_collision_scene_graph=False, load_collision_meshes=False).robot
+    except Exception as e:  # yourdfpy raises assorted builtin errors for bad attribute values
+        raise RobotModelError(f"{source}: invalid URDF ({type(e).__name__}: {e})") from None
+    links = [link.name for link in robot.links]
+    if frame not in links:
+        joint = next((j for j in robot.joints if j.name == frame), None)
+        hint = f" ({frame!r} is a joint; give its child link {joint.child!r})" if joint is not None else ""
+        raise RobotModelError(f"{source}: no link named {frame!r}{hint}; links: {', '.join(links)}")
+    locked = dict(locked_joints or {})
+    parent_joint = {j.child: j for j in robot.joints}
+    r_acc, p_acc = np.eye(3), np.zeros(3)
+    name = frame
+    while name in parent_joint:
+        j = parent_joint[name]
+        r, p = _transform(j.origin)
+        if j.name in locked:
+            axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
+            if j.type in ("revolute", "continuous"):
+                r = r @ _axis_rotation(axis, float(locked[j.name]))
+            elif j.type == "prismatic":
+                p = p + r @ (axis / np.linalg.norm(axis)) * float(locked[j.name])
+        elif j.type != "fixed":
+            raise RobotModelError(
+                f"{source}: frame {frame!r} moves with {j.type} joint {j.name!r}; the sensor frame must be welded "
+                "to the root link (a link reached from it by fixed joints only)"
+            )
+        # parent_T_name = (r, p); accumulate root_T_frame = parent_T_name @ name_T_frame
+        r_acc, p_acc = r @ r_acc, r @ p_acc + p
+        name = j.parent
+    return r_acc, p_acc
