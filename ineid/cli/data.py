@@ -107,22 +107,40 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
 
 
 @data.command("import")
-@click.argument("csv_file", metavar="CSV", type=click.Path(path_type=Path))
+@click.argument("path", metavar="PATH", type=click.Path(path_type=Path))
 @robot_options(positional="option")
+@click.option("--sensor-pose", default=None, metavar="X,Y,Z,R,P,Y|FRAME",
+              help="The sensor frame in the base frame (m, rad, URDF rpy) or a URDF link welded to the base "
+                   "(default: the bag's wrench frame_id if the URDF has that link, else the base frame).")
+@click.option("--cutoff", type=click.FloatRange(min=0, min_open=True), default=None, metavar="HZ",
+              help="Low-pass cut-off of angles and wrench (default: chosen from the joint angles when qd, qdd "
+                   "are derived; no filter when they are measured).")
+@click.option("--rate", type=click.FloatRange(min=0, min_open=True), default=None, metavar="HZ",
+              help="Rate of the frames (default: the slower stream's).")
+@click.option("--delay", type=float, default=0.0, show_default=True, metavar="S",
+              help="How late the wrench time stamps are against the joints' (s).")
+@click.option("--joint-topic", default="/joint_states", show_default=True, help="Bags: the JointState topic.")
+@click.option("--wrench-topic", default=None, help="Bags: the WrenchStamped topic (needed when there are several).")
 @click.option("--flip-wrench", is_flag=True,
               help="The sensor reports the wrench on the robot (the opposite of ineid's convention); negate it.")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
-def data_import(csv_file, robot, flip_wrench, out, overwrite) -> None:
-    """Import a recording from a real arm (columns: time, q1..qn, qd1..qn, qdd1..qn, fx fy fz mx my mz)."""
-    from ineid.data import read_recording_csv  # noqa: PLC0415
+@click.pass_context
+def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic, wrench_topic, flip_wrench, out,
+                overwrite) -> None:
+    """Import a recording: a CSV (time, q1..qn, [qd1..qn, qdd1..qn,] fx fy fz mx my mz), a ROS 1 .bag, or a
+    ROS 2 bag folder or .mcap (sensor_msgs/JointState, geometry_msgs/WrenchStamped)."""
+    from ineid.data.recording import ImportSettings, import_recording  # noqa: PLC0415
 
     prepare_output(out, overwrite)
     model = robot.load()
-    ds = read_recording_csv(csv_file, model, flip_wrench=flip_wrench)
+    settings = ImportSettings(sensor_pose=sensor_pose, cutoff=cutoff, rate=rate, delay=delay, flip_wrench=flip_wrench)
+    with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
+        ds, summary = import_recording(path, model, settings, joint_topic, wrench_topic, progress=bar)
     ds.save(out, overwrite=overwrite)
-    span = float(ds.time[0, -1] - ds.time[0, 0])
-    click.echo(f"wrote {out}: one recording of {model.name}, {ds.n_frames:,} frames over {span:.3f} s")
+    click.echo(f"wrote {out}: one recording of {model.name}")
+    for line in summary.lines():
+        click.echo(f"  {line}")
 
 
 @data.command("info")
@@ -151,6 +169,10 @@ def data_info(path: Path) -> None:
     con.print(f"noise (std): {json.dumps(meta.noise) if meta.noise else 'none (clean data)'}")
     if meta.origin:
         con.print(f"origin: {json.dumps(meta.origin, sort_keys=True)}")
+    pose = meta.sensor_pose()
+    if pose is not None:
+        con.print(f"sensor frame in the base frame: {pose.describe()}"
+                  + (f"; wrench messages in frame {pose.frame_id!r}" if pose.frame_id else ""))
     arrays = table("Arrays", ("name", "shape"), left=("name", "shape"))
     for name in sorted(shapes):
         arrays.add_row(name, " x ".join(str(s) for s in shapes[name]) or "scalar")
@@ -180,7 +202,8 @@ def data_info(path: Path) -> None:
             t.add_row(name, f"{cad[link][k % 10]:.5g}", f"{lo[k]:.5g}", f"{mean[k]:.5g}", f"{hi[k]:.5g}")
         con.print(t)
     lo, hi, mean = ranges("wrench", 6)
-    t = table("Wrench (N, N*m; base frame, about the base origin)", ("axis", "min", "mean", "max"), left=("axis",))
+    frame = "base frame, about the base origin" if pose is None else "sensor frame, about the sensor origin"
+    t = table(f"Wrench (N, N*m; {frame})", ("axis", "min", "mean", "max"), left=("axis",))
     for k, axis in enumerate(("fx", "fy", "fz", "mx", "my", "mz")):
         t.add_row(axis, f"{lo[k]:.4g}", f"{mean[k]:.4g}", f"{hi[k]:.4g}")
     con.print(t)

@@ -3,16 +3,20 @@
 Columns (a header row is required; names are case-insensitive, any order, extra columns
 are ignored; units SI):
 
-    time                 s, strictly increasing
+    time                 s, increasing within each stream (see below)
     q1 .. qn             joint positions, rad (m for prismatic joints), URDF chain order
-    qd1 .. qn            joint velocities, rad/s
-    qdd1 .. qn           joint accelerations, rad/s^2
-    fx fy fz             force, N         } the wrench the robot exerts on the sensor,
-    mx my mz             moment, N*m      } base frame, moment about the base origin
+    qd1 .. qn            joint velocities, rad/s        } optional, together: without them
+    qdd1 .. qn           joint accelerations, rad/s^2   } they are derived from q1 .. qn
+    fx fy fz             force, N         } what the sensor reads: the load of the robot on
+    mx my mz             moment, N*m      } it, sensor frame, moment about the sensor origin
 
-A sensor that reports the wrench the fixture exerts on the robot (the opposite sign)
-is imported with ``flip_wrench=True``. The truth is unknown, so the file has no
-``theta_unknown``; ``theta_known`` holds the model's CAD values of the known links.
+Two streams may share the file: a row whose joint cells are all empty holds a wrench
+sample only, a row whose wrench cells are all empty a joint sample only (a merged log of
+two clocks). The processing (filter, derivatives, one time base, the sensor pose) is
+:mod:`ineid.data.recording`'s. A sensor that reports the wrench the fixture exerts on the
+robot (the opposite sign) is imported with ``flip_wrench=True``. The truth is unknown, so
+the file has no ``theta_unknown``; ``theta_known`` holds the model's CAD values of the
+known links.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ineid._atomic import atomic_output
-from ineid.data.schema import Dataset, DatasetMeta
+from ineid.data.schema import Dataset
 from ineid.errors import DatasetError
 
 if TYPE_CHECKING:
@@ -33,30 +37,48 @@ if TYPE_CHECKING:
 WRENCH_COLUMNS = ("fx", "fy", "fz", "mx", "my", "mz")
 
 
-def csv_columns(n_dof: int) -> list[str]:
-    """The required columns for an arm with ``n_dof`` joints, in the documented order."""
-    return (
-        ["time"]
-        + [f"q{i}" for i in range(1, n_dof + 1)]
-        + [f"qd{i}" for i in range(1, n_dof + 1)]
-        + [f"qdd{i}" for i in range(1, n_dof + 1)]
-        + list(WRENCH_COLUMNS)
-    )
+def csv_columns(n_dof: int, derivatives: bool = True) -> list[str]:
+    """The columns of an arm with ``n_dof`` joints in the documented order (``qd``, ``qdd`` if ``derivatives``)."""
+    joints = [f"q{i}" for i in range(1, n_dof + 1)]
+    if derivatives:
+        joints += [f"qd{i}" for i in range(1, n_dof + 1)] + [f"qdd{i}" for i in range(1, n_dof + 1)]
+    return ["time", *joints, *WRENCH_COLUMNS]
 
 
-def read_recording_csv(path: str | Path, model: RobotModel, flip_wrench: bool = False) -> Dataset:
+def read_recording_csv(path: str | Path, model: RobotModel, flip_wrench: bool = False, settings=None) -> Dataset:
     """Read a recording CSV into a :class:`Dataset` of one configuration.
 
     Args:
         path: the CSV file (comma-separated; ``#`` lines are comments).
         model: the :class:`ineid.RobotModel` the arm is.
         flip_wrench: the sensor reports the wrench on the robot; negate it.
+        settings: an :class:`ineid.data.recording.ImportSettings` (sensor pose, cut-off,
+            rate, delay); its ``flip_wrench`` is overridden by the argument.
 
     Raises:
-        DatasetError: a missing column, a joint count that does not match the model, a
-            cell that is not a number, a non-finite value, time not increasing, fewer
-            than one data row.
+        DatasetError: see :func:`read_csv_streams` and
+            :func:`ineid.data.recording.recording_dataset`.
     """
+    from dataclasses import replace  # noqa: PLC0415
+
+    from ineid.data.recording import ImportSettings, recording_dataset  # noqa: PLC0415
+
+    settings = replace(settings or ImportSettings(), flip_wrench=flip_wrench)
+    return recording_dataset(read_csv_streams(path, model), model, settings)[0]
+
+
+def read_csv_streams(path: str | Path, model, progress=None):
+    """Read a recording CSV into :class:`ineid.data.recording.Streams` (no processing yet).
+
+    Raises:
+        DatasetError: the file missing, unreadable or empty; a repeated column; joint
+            columns for another number of joints; missing columns (all named); ``qd``
+            without ``qdd`` or the reverse; no data rows; a ragged row; a cell that is
+            not a number; a row with only some of a stream's cells; NaN or infinite
+            values; time not increasing within a stream. Cell errors name the line.
+    """
+    from ineid.data.recording import Streams  # noqa: PLC0415
+
     path = Path(path)
     n = model.n_dof
     try:
@@ -75,7 +97,7 @@ def read_recording_csv(path: str | Path, model: RobotModel, flip_wrench: bool = 
     rows = [cells for _, cells in numbered]
     line_of = [k for k, _ in numbered]
     if not rows:
-        raise DatasetError(f"{path}: the file is empty; expected a header row {','.join(csv_columns(n))}")
+        raise DatasetError(f"{path}: the file is empty; expected a header row {','.join(csv_columns(n, False))}")
     header = [h.strip().lower() for h in rows[0]]
     dup = sorted({h for h in header if header.count(h) > 1 and h})
     if dup:
@@ -90,57 +112,83 @@ def read_recording_csv(path: str | Path, model: RobotModel, flip_wrench: bool = 
             if min(joint_index) >= 1
             else f"{path}: joint columns count from 1 (q1, qd1, qdd1), found index 0"
         )
-    required = csv_columns(n)
+    required = csv_columns(n, derivatives=False)
     missing = [c for c in required if c not in header]
     if missing:
         raise DatasetError(
             f"{path}: missing column{'s' if len(missing) > 1 else ''} {', '.join(missing)}; "
-            f"a recording of {model.name} needs {','.join(required)}"
+            f"a recording of {model.name} needs {','.join(required)} (and optionally qd1..qd{n}, qdd1..qdd{n})"
         )
-    col = [header.index(c) for c in required]
+    deriv = [f"{p}{i}" for p in ("qd", "qdd") for i in range(1, n + 1)]
+    present = [c for c in deriv if c in header]
+    if present and len(present) != len(deriv):
+        absent = [c for c in deriv if c not in header]
+        raise DatasetError(
+            f"{path}: missing column{'s' if len(absent) > 1 else ''} {', '.join(absent)}; give all of "
+            f"qd1..qd{n} and qdd1..qdd{n}, or none (then they are derived from the joint angles)"
+        )
+    names = csv_columns(n, derivatives=bool(present))
+    col = [header.index(c) for c in names]
     body = rows[1:]
     if not body:
         raise DatasetError(f"{path}: the header has no data rows below it")
-    data = np.empty((len(body), len(required)))
+    n_joint = len(names) - 7  # q (and qd, qdd) columns
+    data = np.full((len(body), len(names)), np.nan)
+    has_joint = np.ones(len(body), dtype=bool)
+    has_wrench = np.ones(len(body), dtype=bool)
     for i, row in enumerate(body):
         line = line_of[i + 1]
         if len(row) != len(header):
             raise DatasetError(f"{path}: line {line} has {len(row)} cells, the header has {len(header)}")
-        for k, c in enumerate(col):
-            cell = row[c].strip()
-            try:
-                data[i, k] = float(cell)
-            except ValueError:
-                raise DatasetError(f"{path}: line {line}, column {required[k]!r}: {cell!r} is not a number") from None
-    bad = ~np.isfinite(data)
-    if bad.any():
-        r, k = np.argwhere(bad)[0]
-        raise DatasetError(
-            f"{path}: line {line_of[r + 1]}, column {required[k]!r} is {data[r, k]}; values must be finite: "
-            "drop or repair those rows"
-        )
-    t = data[:, 0]
-    if len(t) > 1 and not np.all(np.diff(t) > 0):
-        r = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 2
-        raise DatasetError(f"{path}: time does not increase at line {line_of[r]}; sort the rows or fix the time column")
-    q, qd, qdd = data[:, 1 : 1 + n], data[:, 1 + n : 1 + 2 * n], data[:, 1 + 2 * n : 1 + 3 * n]
-    wrench = data[:, 1 + 3 * n :]
-    if flip_wrench:
-        wrench = -wrench
-    meta = DatasetMeta.for_model(
-        model,
-        source="recording",
-        origin={"csv": path.name, "rows": int(len(body)), "flip_wrench": bool(flip_wrench)},
-    )
-    return Dataset(
-        meta=meta,
-        q=q[None],
-        qd=qd[None],
-        qdd=qdd[None],
-        wrench=wrench[None],
-        theta_known=np.asarray(model.theta_cad[model.known_index], dtype=np.float64),
-        time=t[None],
-    )
+        cells = [row[c].strip() for c in col]
+        empty = [not c for c in cells]
+        for lo, hi, flag in ((1, 1 + n_joint, has_joint), (1 + n_joint, len(names), has_wrench)):
+            if all(empty[lo:hi]):
+                flag[i] = False
+            elif any(empty[lo:hi]):
+                k = lo + empty[lo:hi].index(True)
+                raise DatasetError(
+                    f"{path}: line {line}, column {names[k]!r} is empty while others of its stream are not; "
+                    "a row holds all joint cells, all wrench cells, or both"
+                )
+        if empty[0]:
+            raise DatasetError(f"{path}: line {line}, column 'time' is empty")
+        if not (has_joint[i] or has_wrench[i]):
+            raise DatasetError(f"{path}: line {line} holds a time but no joint or wrench values")
+        for k, cell in enumerate(cells):
+            if cell:
+                try:
+                    data[i, k] = float(cell)
+                except ValueError:
+                    raise DatasetError(f"{path}: line {line}, column {names[k]!r}: {cell!r} is not a number") from None
+                if not np.isfinite(data[i, k]):
+                    raise DatasetError(
+                        f"{path}: line {line}, column {names[k]!r} is {cell}; values must be finite: drop or "
+                        "repair those rows"
+                    )
+        if progress is not None and (i + 1) % 10000 == 0:
+            progress(i + 1, len(body))
+    for name, mask in (("joint", has_joint), ("wrench", has_wrench)):
+        rows_k = np.flatnonzero(mask)
+        t = data[rows_k, 0]
+        if len(rows_k) < 2:
+            raise DatasetError(f"{path}: {len(rows_k)} {name} sample{'s' if len(rows_k) != 1 else ''}; a recording needs many more")
+        bad = np.flatnonzero(np.diff(t) <= 0)
+        if bad.size:
+            raise DatasetError(
+                f"{path}: time does not increase at line {line_of[rows_k[bad[0] + 1] + 1]} ({name} samples); "
+                "sort the rows or fix the time column"
+            )
+    jr, wr = data[has_joint], data[has_wrench]
+    q = jr[:, 1 : 1 + n]
+    qd = jr[:, 1 + n : 1 + 2 * n] if present else None
+    qdd = jr[:, 1 + 2 * n : 1 + 3 * n] if present else None
+    if progress is not None:
+        progress(len(body), len(body))
+    return Streams(
+        joint_time=jr[:, 0], q=q, qd=qd, qdd=qdd, wrench_time=wr[:, 0], wrench=wr[:, 1 + n_joint :],
+        source=str(path), origin={"format": "csv", "file": path.name, "rows": int(len(body))},
+    )  # fmt: skip
 
 
 def _joint_column(name: str) -> tuple[str, int] | None:
@@ -151,15 +199,19 @@ def _joint_column(name: str) -> tuple[str, int] | None:
     return None
 
 
-def write_recording_csv(path: str | Path, dataset: Dataset, config: int = 0, flip_wrench: bool = False) -> Path:
-    """Write one configuration of a dataset as a recording CSV (the inverse of the import)."""
+def write_recording_csv(path: str | Path, dataset: Dataset, config: int = 0, flip_wrench: bool = False,
+                        derivatives: bool = True) -> Path:
+    """Write one configuration of a dataset as a recording CSV (the inverse of the import).
+
+    ``derivatives=False`` leaves out ``qd``/``qdd``, as an encoder-only recording has them.
+    """
     n = dataset.n_dof
     t = dataset.time[config] if dataset.time is not None else np.arange(dataset.n_frames) * 0.01
     sign = -1.0 if flip_wrench else 1.0
-    cols = [t[:, None], dataset.q[config], dataset.qd[config], dataset.qdd[config], sign * dataset.wrench[config]]
-    table = np.concatenate(cols, axis=1)
+    joints = [dataset.q[config], dataset.qd[config], dataset.qdd[config]] if derivatives else [dataset.q[config]]
+    table = np.concatenate([t[:, None], *joints, sign * dataset.wrench[config]], axis=1)
     path = Path(path)
     with atomic_output(path) as tmp, tmp.open("w", newline="") as fh:
-        fh.write(",".join(csv_columns(n)) + "\n")
+        fh.write(",".join(csv_columns(n, derivatives)) + "\n")
         np.savetxt(fh, table, delimiter=",", fmt="%.17g")
     return path

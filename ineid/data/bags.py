@@ -1,0 +1,234 @@
+"""ROS bags in: ``sensor_msgs/JointState`` and ``geometry_msgs/WrenchStamped``, no ROS needed.
+
+Read with ``rosbags`` (pure Python): a ROS 1 ``.bag``, a ROS 2 bag folder (sqlite3 or MCAP
+storage, with its ``metadata.yaml``), or a bare ``.mcap`` file. Message definitions come
+from the bag itself.
+
+* Joint states: the topic ``joint_topic`` (default ``/joint_states``). Joints are matched
+  to the model's by name, in any order (each message may order them differently); extra
+  joints (a gripper, a head) are ignored; a model joint missing from a message is an error
+  naming it. Only positions are read: velocities and accelerations are derived
+  consistently from them (:mod:`ineid.data.recording`).
+* Wrench: the one ``WrenchStamped`` topic of the bag, or ``wrench_topic`` when there are
+  several. Its ``header.frame_id`` is recorded (and names the sensor frame when the URDF
+  has that link).
+* Time: each message's ``header.stamp`` (the measurement time); a zero stamp falls back
+  to the time the bag logged the message. Times are seconds from the earliest message of
+  the two topics; the absolute start is recorded in the dataset's origin.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from ineid.errors import DatasetError
+
+JOINT_STATE = "sensor_msgs/msg/JointState"
+WRENCH_STAMPED = "geometry_msgs/msg/WrenchStamped"
+
+
+def bag_kind(path: Path) -> str:
+    """``"ros1"``, ``"ros2"`` (a folder with ``metadata.yaml``) or ``"mcap"`` (a bare MCAP file)."""
+    if path.is_dir():
+        if not (path / "metadata.yaml").is_file():
+            raise DatasetError(f"{path} is a folder without metadata.yaml, not a ROS 2 bag; give the bag folder, "
+                               "a ROS 1 .bag file, a .mcap file or a CSV file")
+        return "ros2"
+    suffix = path.suffix.lower()
+    if suffix == ".bag":
+        return "ros1"
+    if suffix in (".mcap", ".db3"):
+        if (path.parent / "metadata.yaml").is_file():
+            return "ros2"
+        if suffix == ".mcap":
+            return "mcap"
+        raise DatasetError(f"{path}: a .db3 file needs its bag folder (with metadata.yaml); give the folder")
+    raise DatasetError(f"{path}: not a ROS bag (.bag, .mcap, or a ROS 2 bag folder)")
+
+
+@contextmanager
+def _open_bag(path: Path):
+    """Yield ``(connections, messages(conns) -> iterator of (conn, log_ns, raw), deserialize(raw, type))``."""
+    from rosbags.highlevel import AnyReader, AnyReaderError  # noqa: PLC0415
+    from rosbags.rosbag1 import ReaderError as Reader1Error  # noqa: PLC0415
+    from rosbags.rosbag2 import ReaderError as Reader2Error  # noqa: PLC0415
+    from rosbags.serde import SerdeError  # noqa: PLC0415
+    from rosbags.typesys import TypesysError  # noqa: PLC0415
+
+    errors = (AnyReaderError, Reader1Error, Reader2Error, SerdeError, TypesysError, OSError, KeyError, ValueError)
+    kind = bag_kind(path)
+    try:
+        if kind == "mcap":
+            reader = _McapFile(path)
+            reader.open()
+            try:
+                yield reader.connections, reader.messages, reader.deserialize
+            finally:
+                reader.close()
+            return
+        target = path.parent if kind == "ros2" and not path.is_dir() else path
+        with AnyReader([target]) as reader:
+            yield reader.connections, lambda conns: reader.messages(connections=conns), reader.deserialize
+    except DatasetError:
+        raise
+    except errors as e:
+        raise DatasetError(f"{path}: cannot be read as a ROS bag ({type(e).__name__}: {e})") from None
+
+
+class _McapFile:
+    """A bare ROS 2 ``.mcap`` file (no ``metadata.yaml``), through rosbags' MCAP storage reader."""
+
+    def __init__(self, path: Path) -> None:
+        from rosbags.rosbag2.storage_mcap import McapReader  # noqa: PLC0415
+
+        self._reader = McapReader(path)
+        self.connections: list = []
+        self._typestore = None
+
+    def open(self) -> None:
+        from rosbags.interfaces import MessageDefinitionFormat  # noqa: PLC0415
+        from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore  # noqa: PLC0415
+
+        self._reader.open()
+        self.connections = list(self._reader.connections)
+        types: dict = {}
+        sep = "=" * 80 + "\n"
+        for conn in self.connections:
+            fmt, text = conn.msgdef.format, conn.msgdef.data
+            if fmt == MessageDefinitionFormat.MSG:
+                types.update(get_types_from_msg(text, conn.msgtype))
+            elif fmt == MessageDefinitionFormat.IDL:
+                parts = text.split(sep)[1:] if text.startswith(f"{sep}IDL: ") else [text]
+                for part in parts:
+                    types.update(get_types_from_idl(part.split("\n", 1)[1] if part.startswith("IDL: ") else part))
+        store = get_typestore(Stores.EMPTY)
+        store.register(types)
+        self._typestore = store
+
+    def messages(self, conns) -> Iterator:
+        return self._reader.messages(conns)
+
+    def deserialize(self, raw: bytes, msgtype: str):
+        return self._typestore.deserialize_cdr(raw, msgtype)
+
+    def close(self) -> None:
+        self._reader.close()
+
+
+def _stamp_ns(msg, log_ns: int) -> int:
+    stamp = msg.header.stamp
+    ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return ns if ns > 0 else int(log_ns)
+
+
+def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: str = "/joint_states",
+                     wrench_topic: str | None = None, progress: Callable[[int, int], None] | None = None):
+    """Read joint angles and the sensor wrench from a ROS bag into :class:`ineid.data.recording.Streams`.
+
+    Args:
+        path: ROS 1 ``.bag``, ROS 2 bag folder, or ``.mcap`` file.
+        joint_names: the model's joints in chain order (``RobotModel.joint_names``).
+        joint_topic: the ``sensor_msgs/JointState`` topic.
+        wrench_topic: the ``geometry_msgs/WrenchStamped`` topic; None: the only one in the bag.
+        progress: ``progress(done, total)`` over messages read.
+
+    Raises:
+        DatasetError: the bag cannot be read; a topic is missing or of another type (the
+            message lists what the bag has); several wrench topics and none chosen; a
+            model joint missing from the joint states (named); positions not matching
+            names; the wrench ``frame_id`` changing within the recording.
+    """
+    from ineid.data.recording import Streams  # noqa: PLC0415
+
+    path = Path(path)
+    if not path.exists():
+        raise DatasetError(f"{path} does not exist")
+    joint_names = list(joint_names)
+    with _open_bag(path) as (connections, messages, deserialize):
+        by_topic: dict[str, list] = {}
+        for c in connections:
+            by_topic.setdefault(c.topic, []).append(c)
+        available = ", ".join(f"{t} ({cs[0].msgtype})" for t, cs in sorted(by_topic.items())) or "none"
+        jconns = by_topic.get(joint_topic)
+        if not jconns:
+            states = [t for t, cs in by_topic.items() if cs[0].msgtype == JOINT_STATE]
+            hint = f"; its JointState topics: {', '.join(states)}: pass --joint-topic" if states else ""
+            raise DatasetError(f"{path}: the bag has no topic {joint_topic!r}{hint} (topics: {available})")
+        if jconns[0].msgtype != JOINT_STATE:
+            raise DatasetError(f"{path}: topic {joint_topic!r} holds {jconns[0].msgtype}, not {JOINT_STATE}")
+        wrenches = sorted(t for t, cs in by_topic.items() if cs[0].msgtype == WRENCH_STAMPED)
+        if wrench_topic is None:
+            if not wrenches:
+                raise DatasetError(f"{path}: the bag has no {WRENCH_STAMPED} topic (topics: {available})")
+            if len(wrenches) > 1:
+                raise DatasetError(f"{path}: the bag has {len(wrenches)} wrench topics ({', '.join(wrenches)}); "
+                                   "choose one with --wrench-topic")
+            wrench_topic = wrenches[0]
+        wconns = by_topic.get(wrench_topic)
+        if not wconns:
+            hint = f"; its wrench topics: {', '.join(wrenches)}" if wrenches else ""
+            raise DatasetError(f"{path}: the bag has no topic {wrench_topic!r}{hint} (topics: {available})")
+        if wconns[0].msgtype != WRENCH_STAMPED:
+            raise DatasetError(f"{path}: topic {wrench_topic!r} holds {wconns[0].msgtype}, not {WRENCH_STAMPED}")
+        total = sum(c.msgcount for c in jconns + wconns)
+        joint_ids = {c.id for c in jconns}
+        tq: list[int] = []
+        q: list[np.ndarray] = []
+        tw: list[int] = []
+        w: list[tuple] = []
+        frame_ids: set[str] = set()
+        order_cache: dict[tuple, np.ndarray] = {}
+        done = 0
+        for conn, log_ns, raw in messages(jconns + wconns):
+            msg = deserialize(raw, conn.msgtype)
+            if conn.id in joint_ids:
+                names = tuple(msg.name)
+                idx = order_cache.get(names)
+                if idx is None:
+                    missing = [j for j in joint_names if j not in names]
+                    if missing:
+                        raise DatasetError(
+                            f"{path}: joint state message {len(tq)} on {joint_topic} lacks joint"
+                            f"{'s' if len(missing) > 1 else ''} {', '.join(missing)} (it names {', '.join(names) or 'none'}); "
+                            "the recording is of another arm, or the URDF's joint names differ"
+                        )
+                    idx = order_cache[names] = np.array([names.index(j) for j in joint_names])
+                pos = np.asarray(msg.position, dtype=np.float64)
+                if len(pos) != len(names):
+                    raise DatasetError(f"{path}: joint state message {len(tq)} on {joint_topic} has {len(names)} names "
+                                       f"but {len(pos)} positions")
+                tq.append(_stamp_ns(msg, log_ns))
+                q.append(pos[idx])
+            else:
+                f, m = msg.wrench.force, msg.wrench.torque
+                tw.append(_stamp_ns(msg, log_ns))
+                w.append((f.x, f.y, f.z, m.x, m.y, m.z))
+                frame_ids.add(str(msg.header.frame_id))
+            done += 1
+            if progress is not None and done % 5000 == 0:
+                progress(done, total)
+        if progress is not None:
+            progress(done, total)
+    if not tq or not w:
+        raise DatasetError(f"{path}: no messages on {joint_topic if not tq else wrench_topic}")
+    if len(frame_ids) > 1:
+        raise DatasetError(f"{path}: the wrench messages on {wrench_topic} name several frames "
+                           f"({', '.join(sorted(frame_ids))}); a recording needs one sensor frame")
+    t0 = min(tq[0], tw[0], min(tq), min(tw))
+    frame_id = frame_ids.pop() or None
+    return Streams(
+        joint_time=(np.asarray(tq, dtype=np.int64) - t0) * 1e-9,
+        q=np.asarray(q, dtype=np.float64).reshape(len(tq), len(joint_names)),
+        qd=None,
+        qdd=None,
+        wrench_time=(np.asarray(tw, dtype=np.int64) - t0) * 1e-9,
+        wrench=np.asarray(w, dtype=np.float64),
+        source=str(path),
+        frame_id=frame_id,
+        origin={"format": bag_kind(path), "file": path.name, "joint_topic": joint_topic, "wrench_topic": wrench_topic,
+                "joint_messages": len(tq), "wrench_messages": len(w), "start_ns": int(t0), "frame_id": frame_id},
+    )  # fmt: skip

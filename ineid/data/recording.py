@@ -1,0 +1,362 @@
+"""A lab's recording -> a one-configuration dataset: two clocks, angles only, the sensor frame.
+
+What a lab records (:class:`Streams`): joint angles with their time stamps (velocities and
+accelerations only when a sensor measures them, like the paper's gyroscopes), and the F/T
+sensor's wrench with its own time stamps, in the sensor's frame. :func:`recording_dataset`
+turns that into frames ``(q, qd, qdd, wrench)`` on one uniform time base:
+
+1. checks: finite values, increasing time stamps, each stream with enough samples;
+2. the wrench clock is shifted by ``delay`` (a wrench stamped ``t`` was measured at
+   ``t - delay``);
+3. when ``qd``/``qdd`` are missing, joint angles *and* wrench go through the same zero-phase
+   low-pass (:mod:`ineid.data.signals`), at a cut-off chosen from the angles' spectrum or
+   given, and the angles are differentiated; samples within the filter's edge are dropped.
+   Measured ``qd``/``qdd`` are used as they are (no filter unless a cut-off is given, which
+   then applies to every channel);
+4. both streams are put on one time base: the slower stream's rate, or ``rate``, over the
+   time both cover (cubic-spline interpolation; rows already on the grid are taken as they
+   are, so one CSV with one time column and measured derivatives passes through unchanged).
+
+The wrench stays in the sensor frame: the dataset records the sensor pose (format version
+2) and identification transforms the regressor (:mod:`ineid.sensor`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ineid.data import signals
+from ineid.data.schema import Dataset, DatasetMeta
+from ineid.errors import DatasetError
+from ineid.sensor import SensorPose, parse_sensor_pose
+
+Progress = Callable[[int, int], None]
+
+
+@dataclass
+class Streams:
+    """A recording as read from a file: two streams, each on its own clock.
+
+    Attributes:
+        joint_time: (Nq,) s, increasing.
+        q: (Nq, n_dof) joint angles (rad; m for prismatic joints), chain order.
+        qd, qdd: (Nq, n_dof) measured velocities and accelerations, or None (derived).
+        wrench_time: (Nw,) s, increasing, on the wrench's clock.
+        wrench: (Nw, 6) what the sensor reads: the load of the robot on it, in its frame,
+            moment about its origin (N, N*m).
+        source: the file, for messages.
+        frame_id: the frame the wrench messages name (ROS bags), or None.
+        origin: provenance recorded in the dataset (format, topics, message counts...).
+    """
+
+    joint_time: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray | None
+    qdd: np.ndarray | None
+    wrench_time: np.ndarray
+    wrench: np.ndarray
+    source: str
+    frame_id: str | None = None
+    origin: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ImportSettings:
+    """How to turn :class:`Streams` into frames (the options of ``ineid data import``).
+
+    Attributes:
+        sensor_pose: ``"x,y,z,roll,pitch,yaw"`` (m, rad, URDF rpy) or a URDF frame name, the
+            sensor frame in the base frame; None: the frame named by the wrench messages'
+            ``frame_id`` when the URDF has it, else the base frame.
+        cutoff: Hz, the low-pass cut-off; None: chosen from the joint angles (when they
+            are differentiated) or no filter (when ``qd``/``qdd`` are measured).
+        rate: Hz, the rate of the frames; None: the slower stream's.
+        delay: s, how late the wrench time stamps are against the joints'.
+        flip_wrench: the sensor reports the wrench on the robot; negate it.
+    """
+
+    sensor_pose: str | None = None
+    cutoff: float | None = None
+    rate: float | None = None
+    delay: float = 0.0
+    flip_wrench: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("cutoff", "rate"):
+            v = getattr(self, name)
+            if v is not None and not (v > 0 and math.isfinite(v)):
+                raise DatasetError(f"{name} must be a positive number of Hz, got {v}")
+        if not math.isfinite(self.delay):
+            raise DatasetError(f"delay must be a finite number of seconds, got {self.delay}")
+
+
+@dataclass
+class ImportSummary:
+    """What the import did, for the user (printed by ``ineid data import``) and the file."""
+
+    n_frames: int
+    rate: float
+    span: float
+    joint_rate: float
+    wrench_rate: float
+    derived: bool
+    cutoff: float | None
+    cutoff_choice: signals.CutoffChoice | None
+    dropped_start: float
+    dropped_end: float
+    dropped_joint_samples: int
+    dropped_wrench_samples: int
+    resampled: tuple[str, ...]
+    sensor: SensorPose
+    delay: float
+
+    def lines(self) -> list[str]:
+        out = [f"{self.n_frames:,} frames at {self.rate:g} Hz over {self.span:.3f} s "
+               f"(joints at {self.joint_rate:g} Hz, wrench at {self.wrench_rate:g} Hz"
+               + (f"; {' and '.join(self.resampled)} resampled" if self.resampled else "") + ")"]
+        if self.derived:
+            c = self.cutoff_choice
+            how = "given" if c is None else {
+                "noise": f"chosen from the joint angles: noise {_fmt_list(c.noise_rms)} rad RMS keeps "
+                         f"{100 * c.acceleration_noise:.2g} % of the accelerations' RMS",
+                "rate": f"the upper bound, 0.1 x the rate: the joint angles' noise ({_fmt_list(c.noise_rms)} rad "
+                        "RMS) allows more",
+                "floor": "the lower bound: the joint angles are noisy for their motion "
+                         f"({100 * c.acceleration_noise:.2g} % noise in the accelerations even so)",
+            }[c.limited]
+            out.append(f"qd, qdd from the joint angles: zero-phase Butterworth low-pass at {self.cutoff:.3g} Hz "
+                       f"({how}), central differences; the wrench filtered the same")
+        elif self.cutoff is not None:
+            out.append(f"measured qd, qdd; every channel low-passed at {self.cutoff:.3g} Hz (given)")
+        else:
+            out.append("measured qd, qdd used as they are (no filter)")
+        out.append(f"dropped {self.dropped_start:.3f} s at the start and {self.dropped_end:.3f} s at the end "
+                   f"({self.dropped_joint_samples:,} joint and {self.dropped_wrench_samples:,} wrench samples: "
+                   "filter edges and time covered by one stream only)")
+        out.append(f"sensor frame in the base frame: {self.sensor.describe()}"
+                   + (f"; messages name frame {self.sensor.frame_id!r}" if self.sensor.frame_id else "")
+                   + (f"; wrench delayed by {self.delay:g} s" if self.delay else ""))
+        return out
+
+    def to_dict(self) -> dict:
+        return {
+            "frames": self.n_frames, "rate": self.rate, "joint_rate": self.joint_rate,
+            "wrench_rate": self.wrench_rate, "derived": self.derived, "cutoff": self.cutoff,
+            "cutoff_rule": None if self.cutoff_choice is None else self.cutoff_choice.limited,
+            "dropped_start": self.dropped_start, "dropped_end": self.dropped_end, "delay": self.delay,
+        }  # fmt: skip
+
+
+def _fmt_list(values) -> str:
+    v = np.asarray(values)
+    return f"{v.min():.2g}" if np.allclose(v, v.min(), rtol=0.5) else f"{v.min():.2g}..{v.max():.2g}"
+
+
+def resolve_sensor(pose_text: str | None, frame_id: str | None, model) -> SensorPose:
+    """The sensor pose from ``--sensor-pose``, else from the messages' ``frame_id``, else the base frame.
+
+    Raises:
+        DatasetError, RobotModelError: a pose that does not parse, a frame the URDF does
+            not have or that moves with the arm.
+    """
+    from dataclasses import replace  # noqa: PLC0415
+
+    from ineid.robots.urdf import fixed_frame_pose  # noqa: PLC0415
+
+    source = f"the URDF of {model.name}"
+    if pose_text is not None:
+        pose = parse_sensor_pose(pose_text, model.urdf_text, model.locked_joints or None, source)
+    elif frame_id:
+        if frame_id == model.chain.root_link:
+            pose = SensorPose(frame=frame_id)
+        else:
+            try:
+                r, p = fixed_frame_pose(model.urdf_text, frame_id, source, model.locked_joints or None)
+            except Exception as e:  # noqa: BLE001 - re-raised below with the fix
+                raise DatasetError(
+                    f"the wrench messages are in frame {frame_id!r}: {e}; give the sensor's pose in the base frame "
+                    "with --sensor-pose x,y,z,roll,pitch,yaw (0,0,0,0,0,0 if it is the base frame)"
+                ) from None
+            pose = SensorPose.from_matrix(r, p, frame=frame_id)
+    else:
+        pose = SensorPose()
+    return replace(pose, frame_id=frame_id)
+
+
+def _check_stream(name: str, t: np.ndarray, arrays: dict[str, np.ndarray], source: str) -> float:
+    """Finite values and increasing time; the median interval (s)."""
+    for label, a in {"time": t, **arrays}.items():
+        bad = ~np.isfinite(a.reshape(len(a), -1))
+        if bad.any():
+            rows = np.flatnonzero(bad.any(axis=1))
+            k = int(rows[0])
+            what = "NaN" if np.isnan(a.reshape(len(a), -1)[k]).any() else "an infinite value"
+            when = f", t = {t[k]!r} s" if label != "time" and np.isfinite(t[k]) else ""
+            raise DatasetError(
+                f"{source}: the {name} stream's {label} holds {what} at sample {k}{when} ({len(rows)} sample"
+                f"{'s' if len(rows) != 1 else ''} in all); values must be finite: drop or repair those samples"
+            )
+    return signals.median_interval(t, f"{source}: the {name} stream")
+
+
+def recording_dataset(streams: Streams, model, settings: ImportSettings = ImportSettings()) -> tuple[Dataset, ImportSummary]:
+    """Frames on one time base from a recording's two streams (see the module docstring).
+
+    Args:
+        streams: what was read from the file.
+        model: the :class:`ineid.RobotModel` of the arm (joint count, URDF frames, CAD values).
+        settings: cut-off, rate, delay, sensor pose, wrench sign.
+
+    Returns:
+        ``(dataset, summary)``: one configuration, ``time`` the frames' time stamps on the
+        joints' clock, ``wrench`` in the sensor frame, ``meta.sensor`` the pose.
+
+    Raises:
+        DatasetError: NaN or infinite samples, time that does not increase, too few
+            samples, streams that do not overlap, a cut-off or rate that does not fit the
+            sampling, a sensor pose that does not parse.
+    """
+    src = streams.source
+    n = model.n_dof
+    tq = np.asarray(streams.joint_time, dtype=np.float64)
+    q = np.asarray(streams.q, dtype=np.float64)
+    if q.ndim != 2 or q.shape != (len(tq), n):
+        raise DatasetError(f"{src}: joint angles of shape {q.shape} for {len(tq)} time stamps and {n} joints")
+    measured = streams.qd is not None and streams.qdd is not None
+    joint_arrays = {"q": q}
+    if measured:
+        joint_arrays.update(qd=np.asarray(streams.qd, dtype=np.float64), qdd=np.asarray(streams.qdd, dtype=np.float64))
+    tw = np.asarray(streams.wrench_time, dtype=np.float64) - settings.delay
+    w = np.asarray(streams.wrench, dtype=np.float64) * (-1.0 if settings.flip_wrench else 1.0)
+    if w.ndim != 2 or w.shape != (len(tw), 6):
+        raise DatasetError(f"{src}: wrench of shape {w.shape} for {len(tw)} time stamps; expected 6 columns")
+    hq = _check_stream("joint", tq, joint_arrays, src)
+    hw = _check_stream("wrench", tw, {"wrench": w}, src)
+    sensor = resolve_sensor(settings.sensor_pose, streams.frame_id, model)
+    rate = settings.rate or min(1.0 / hq, 1.0 / hw)
+    same_clock = len(tq) == len(tw) and np.array_equal(tq, tw)
+
+    # 1. filter (and differentiate) each stream on a uniform grid at its own rate
+    choice = None
+    cutoff = settings.cutoff
+    if not measured and cutoff is None:
+        choice = signals.choose_cutoff(signals.to_uniform(tq, q, hq)[1], 1.0 / hq)
+        cutoff = min(choice.cutoff, 0.4 * rate)
+    if cutoff is not None and cutoff >= 0.45 * rate:
+        raise DatasetError(
+            f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold (Nyquist {rate / 2:g} Hz); "
+            f"use --cutoff below {0.45 * rate:g} Hz or a higher --rate"
+        )
+    if cutoff is not None:
+        tq_u, jq = signals.to_uniform(tq, np.concatenate([joint_arrays[k] for k in joint_arrays], axis=1), hq)
+        lp_q = signals.LowPass(cutoff, 1.0 / hq)
+        jq = lp_q.apply(jq)
+        if measured:
+            q_s, qd_s, qdd_s = jq[:, :n], jq[:, n:2 * n], jq[:, 2 * n:]
+        else:
+            q_s = jq
+            qd_s, qdd_s = signals.derivatives(q_s, hq)
+        tw_u, w_s = signals.to_uniform(tw, w, hw)
+        w_s = signals.LowPass(cutoff, 1.0 / hw).apply(w_s)
+        edge = signals.edge_seconds(cutoff)
+    else:
+        tq_u, q_s, qd_s, qdd_s = tq, q, joint_arrays["qd"], joint_arrays["qdd"]
+        tw_u, w_s = tw, w
+        edge = 0.0
+
+    # 2. one time base over what both streams cover, edges dropped
+    start = max(tq_u[0], tw_u[0]) + edge
+    stop = min(tq_u[-1], tw_u[-1]) - edge
+    if not stop > start:
+        raise DatasetError(
+            f"{src}: the joint stream ({tq[0]:.6g}..{tq[-1]:.6g} s) and the wrench stream ({tw[0]:.6g}..{tw[-1]:.6g} s"
+            + (f", delay {settings.delay:g} s applied" if settings.delay else "")
+            + f") overlap in {max(0.0, min(tq_u[-1], tw_u[-1]) - max(tq_u[0], tw_u[0])):.3g} s"
+            + (f", less than the filter's edges ({edge:.3g} s at each end)" if edge else "")
+            + "; record longer, or check the time stamps and --delay"
+        )
+    passthrough = same_clock and settings.rate is None and cutoff is None
+    slower_t = tq_u if hq >= hw else tw_u
+    if passthrough:  # one clock, measured derivatives: the rows are the frames
+        grid = tq[(tq >= start) & (tq <= stop)]
+        rate = 1.0 / hq
+    elif settings.rate is None and signals.is_uniform(slower_t):  # the slower stream's own time base
+        grid = slower_t[(slower_t >= start - 1e-9 * max(hq, hw)) & (slower_t <= stop + 1e-9 * max(hq, hw))]
+    else:
+        h = 1.0 / rate
+        grid = start + h * np.arange(int(math.floor((stop - start) / h * (1 + 1e-12))) + 1)
+    if len(grid) < 2:
+        raise DatasetError(f"{src}: {len(grid)} frame{'s' if len(grid) != 1 else ''} left on the common time base; "
+                           "record longer or raise --rate")
+    joints = np.concatenate([q_s, qd_s, qdd_s], axis=1)
+    joints, moved_q = _on_grid(tq_u, joints, grid)
+    wrench, moved_w = _on_grid(tw_u, w_s, grid)
+    resampled = [name for name, moved in (("joints", moved_q), ("wrench", moved_w)) if moved]
+    summary = ImportSummary(
+        n_frames=len(grid), rate=float(rate),
+        span=float(grid[-1] - grid[0]), joint_rate=1.0 / hq, wrench_rate=1.0 / hw, derived=not measured,
+        cutoff=cutoff, cutoff_choice=choice if settings.cutoff is None else None,
+        dropped_start=float(grid[0] - min(tq[0], tw[0])), dropped_end=float(max(tq[-1], tw[-1]) - grid[-1]),
+        dropped_joint_samples=int(np.sum((tq < grid[0] - 1e-9 * hq) | (tq > grid[-1] + 1e-9 * hq))),
+        dropped_wrench_samples=int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw))),
+        resampled=tuple(resampled), sensor=sensor, delay=settings.delay,
+    )  # fmt: skip
+    meta = DatasetMeta.for_model(
+        model, source="recording", origin={**streams.origin, "import": summary.to_dict()}, sensor=sensor.to_dict()
+    )
+    ds = Dataset(
+        meta=meta,
+        q=joints[None, :, :n],
+        qd=joints[None, :, n:2 * n],
+        qdd=joints[None, :, 2 * n:],
+        wrench=wrench[None],
+        theta_known=np.asarray(model.theta_cad[model.known_index], dtype=np.float64),
+        time=grid[None],
+    )
+    return ds, summary
+
+
+def _on_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, bool]:
+    """``x`` at ``grid``: the samples themselves where the stream's stamps are the grid, else a cubic spline."""
+    i0 = int(np.searchsorted(t, grid[0] - 1e-9 * abs(grid[0]) - 1e-12))
+    part = t[i0:i0 + len(grid)]
+    h = (grid[-1] - grid[0]) / max(len(grid) - 1, 1)
+    if len(part) == len(grid) and np.all(np.abs(part - grid) <= 1e-6 * h):
+        return np.array(x[i0:i0 + len(grid)]), False
+    return signals.interpolate(t, x, grid), True
+
+
+def import_recording(path: str | Path, model, settings: ImportSettings = ImportSettings(), joint_topic: str = "/joint_states",
+                     wrench_topic: str | None = None, progress: Progress | None = None) -> tuple[Dataset, ImportSummary]:
+    """Read a recording file (CSV, ROS 1 ``.bag``, ROS 2 bag folder or ``.mcap``) into a dataset.
+
+    Args:
+        path: the file or (ROS 2) folder.
+        model: the :class:`ineid.RobotModel` of the arm.
+        settings: see :class:`ImportSettings`.
+        joint_topic, wrench_topic: bag topics (``sensor_msgs/JointState``,
+            ``geometry_msgs/WrenchStamped``; the wrench topic may be left out when the bag
+            has one such topic).
+        progress: ``progress(done, total)`` over rows or messages read.
+
+    Raises:
+        DatasetError: see :func:`recording_dataset`, :func:`ineid.data.csv_import.read_csv_streams`
+            and :func:`ineid.data.bags.read_bag_streams`.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise DatasetError(f"{path} does not exist")
+    if path.is_dir() or path.suffix.lower() in (".bag", ".mcap", ".db3"):
+        from ineid.data.bags import read_bag_streams  # noqa: PLC0415
+
+        streams = read_bag_streams(path, model.joint_names, joint_topic, wrench_topic, progress)
+    else:
+        from ineid.data.csv_import import read_csv_streams  # noqa: PLC0415
+
+        streams = read_csv_streams(path, model, progress)
+    return recording_dataset(streams, model, settings)
