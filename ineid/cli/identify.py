@@ -35,14 +35,18 @@ _SOLVE = "ineid.identify.solve"
 @click.option("--data", "data_path", type=click.Path(path_type=Path), default=None,
               help="Analyse the frames of a dataset instead (with --config).")
 @click.option("--config", type=click.IntRange(min=0), default=0, show_default=True, help="Configuration of --data.")
-def identifiability(robot, n_frames, seed, data_path, config) -> None:
+@click.option("--bias", type=LibraryChoice(f"{_SOLVE}:BIAS_MODES"), cls=LibraryOption,
+              default_from=f"{_SOLVE}:SolveSettings.bias",
+              help="estimate: six constant sensor offsets are identified too; shows what they cost.")
+def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
     """Which parameters of ROBOT's unknown links the base wrench determines."""
     import numpy as np  # noqa: PLC0415
 
     from ineid.identify import analyze_frames, base_parameters, generic_frames  # noqa: PLC0415
 
     model = robot.load()
-    base = base_parameters(model)
+    with_bias = bias == "estimate"
+    base = base_parameters(model, bias=with_bias)
     if data_path is not None:
         from ineid.data import load_dataset  # noqa: PLC0415
 
@@ -54,7 +58,7 @@ def identifiability(robot, n_frames, seed, data_path, config) -> None:
     else:
         q, qd, qdd = generic_frames(model, n_frames, seed)
         source = f"{n_frames} random frames within the bounds (seed {seed})"
-    a = analyze_frames(model, q, qd, qdd, base)
+    a = analyze_frames(model, q, qd, qdd, base, bias=with_bias)
     con = console()
     n = base.n_params
     con.print(f"[bold]{model.name}[/bold]: unknown links {', '.join(model.unknown_links)} ({n} standard parameters)")
@@ -91,6 +95,32 @@ def identifiability(robot, n_frames, seed, data_path, config) -> None:
             "that joint turn, so it acts on the base as if welded to the earlier link. Estimates of the other "
             "parameters need prior knowledge (ineid uses the CAD values) or constraints."
         )
+    if with_bias:
+        _print_bias_cost(con, model, q, qd, qdd)
+
+
+def _print_bias_cost(con, model, q, qd, qdd) -> None:
+    from ineid.identify import bias_cost  # noqa: PLC0415
+
+    c = bias_cost(model, q, qd, qdd)
+    con.print(
+        f"[bold]What the six sensor offsets cost[/bold]: a wrench constant over the whole recording cannot be told "
+        f"from them. Structural rank {c.base.rank} without offsets, {c.base_bias.rank} with; condition number "
+        f"{c.condition[0]:.4g} -> {c.condition[1]:.4g} on these frames."
+    )
+    if c.new_null_directions:
+        t = table("Lost with the offsets: parameter changes whose only effect is a constant wrench",
+                  ("#", "direction (add t times)"), left=("direction (add t times)",))
+        for k, text in enumerate(c.new_null_directions):
+            t.add_row(str(k + 1), text)
+        con.print(t)
+    if c.lost:
+        con.print(f"no longer individually identifiable: {', '.join(c.lost)}")
+    t = table("Standard deviation of each base parameter with the offsets / without (same noise, these frames)",
+              ("#", "base parameter (with offsets)", "std ratio"), left=("base parameter (with offsets)",))
+    for k, (name, r) in enumerate(zip(c.base_bias.names, c.std_inflation, strict=True)):
+        t.add_row(str(k + 1), name, f"{r:.3g}")
+    con.print(t)
 
 
 @click.command()
@@ -116,15 +146,24 @@ def identifiability(robot, n_frames, seed, data_path, config) -> None:
                    "casadi-c, the CasADi route compiled to C (IPOPT problems too; needs a C compiler).")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Processes for IPOPT (default: CPU count; fewer than 256 configurations run in one).")
+@click.option("--bias", type=LibraryChoice(f"{_SOLVE}:BIAS_MODES"), cls=LibraryOption,
+              default_from=f"{_SOLVE}:SolveSettings.bias",
+              help="estimate: identify six constant sensor offsets with the parameters (an untared sensor).")
+@click.option("--plot", "plot_path", type=click.Path(path_type=Path), default=None, metavar="FILE",
+              help="Write measured vs predicted wrench of the held-out frames (first solved configuration), "
+                   "per axis with the residual RMS (.png, .pdf, .svg).")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Results file (.h5).")
 @overwrite_option
 @click.pass_context
-def solve(ctx, data_path, method, fit_frames, selection, weights, sigma, start, backend, workers, out, overwrite) -> None:
+def solve(ctx, data_path, method, fit_frames, selection, weights, sigma, start, backend, workers, bias, plot_path, out,
+          overwrite) -> None:
     """Identify the unknown links of every selected configuration of DATA.h5."""
     from ineid.data import load_dataset, read_meta  # noqa: PLC0415
     from ineid.identify import SolveSettings, save_results, solve_dataset  # noqa: PLC0415
 
     prepare_output(out, overwrite)
+    if plot_path is not None:
+        prepare_output(plot_path, overwrite)
     if sigma is not None and weights != "noise":
         raise click.UsageError("--sigma goes with --weights noise")
     _, shapes = read_meta(data_path)
@@ -132,7 +171,7 @@ def solve(ctx, data_path, method, fit_frames, selection, weights, sigma, start, 
     try:
         settings = SolveSettings(
             method=method, frames=fit_frames, weights=weights, axis_sigma=tuple(sigma) if sigma else None, start=start,
-            backend=backend, workers=workers or os.cpu_count() or 1,
+            backend=backend, workers=workers or os.cpu_count() or 1, bias=bias,
         )  # fmt: skip
     except ValueError as e:
         raise click.UsageError(str(e)) from None
@@ -141,6 +180,15 @@ def solve(ctx, data_path, method, fit_frames, selection, weights, sigma, start, 
         res = solve_dataset(ds, settings, progress=bar)
     save_results(res, out, overwrite=overwrite)
     print_results(res, out)
+    if plot_path is not None and res.success.any():
+        from ineid.identify.report import plot_validation, validation  # noqa: PLC0415
+
+        v = validation(res, ds)
+        plot_validation(v, plot_path, title=f"{res.meta['robot']}, {method}: ")
+        console().print("residual RMS per axis (fx fy fz N, mx my mz N*m): " + " ".join(f"{r:.3g}" for r in v.rms)
+                        + f"; wrote {plot_path}")
+    elif plot_path is not None:
+        console().print(f"no configuration identified: {plot_path} not written")
 
 
 @click.command("export-urdf")

@@ -133,6 +133,11 @@ def print_results(res, out) -> None:
         for k, name in enumerate(res.base.names):
             table.add_row(name, f"{res.base_hat[i, k]:.6g}", f"{res.base_std[i, k]:.3g}")
         con.print(table)
+    if res.bias_hat is not None and n_ok:
+        i = int(np.flatnonzero(res.success)[0])
+        con.print(f"sensor offsets of configuration {int(res.config_index[i])} (N, N*m, the wrench's frame): "
+                  + ", ".join(f"{a} {b:.5g} +- {s:.2g}" for a, b, s in
+                              zip(("fx", "fy", "fz", "mx", "my", "mz"), res.bias_hat[i], res.bias_std[i], strict=True)))
     con.print(f"wrote {out}")
 
 

@@ -35,7 +35,7 @@ from ineid.data.schema import Dataset, DatasetMeta
 from ineid.errors import DatasetError
 from ineid.sensor import SensorPose, parse_sensor_pose
 
-Progress = Callable[[int, int], None]
+from ineid.progress import Progress  # noqa: E402
 
 
 @dataclass

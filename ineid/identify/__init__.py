@@ -11,10 +11,12 @@ from __future__ import annotations
 from ineid.identify.export import export_urdf, urdf_with_inertials
 from ineid.identify.identifiability import (
     BaseParameters,
+    BiasCost,
     FrameAnalysis,
     analyze_frames,
     base_parameters,
     base_parameters_from_regressor,
+    bias_cost,
     generic_frames,
 )
 from ineid.identify.linear import BaseFit, Estimate, fit_base, linear_estimate, standard_from_base
@@ -27,6 +29,7 @@ __all__ = [
     "METHODS",
     "BaseFit",
     "BaseParameters",
+    "BiasCost",
     "Estimate",
     "FrameAnalysis",
     "NlpSolver",
@@ -35,6 +38,7 @@ __all__ = [
     "analyze_frames",
     "base_parameters",
     "base_parameters_from_regressor",
+    "bias_cost",
     "error_summary",
     "export_urdf",
     "fit_base",

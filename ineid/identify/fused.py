@@ -20,6 +20,15 @@ memory is the blocks', ``6 r^2`` numbers per configuration). :func:`residual_sum
 same for the wrench residual of given parameters (the generated ``base_wrench``, which
 never forms ``Psi``), over fitted and held-out frames in one pass.
 
+A dataset with an F/T sensor pose (:mod:`ineid.sensor`) is fitted in the sensor's frame: the
+kernel applies the 6x6 wrench transform ``X`` to the regressor rows and to the known links'
+share before reducing (``W_b[k] -> X W_b[k]``), so the axes ``a`` are the sensor's. For six
+constant offsets (the bias) the kernel also returns the sums over the frames ``s_a = sum_k
+Psi_u[k, a]`` (all unknown columns) and ``t_a = sum_k y[k, a]``, and
+:meth:`InformationBlocks.centred` turns the blocks into those of the frames centred per axis
+(``G_a - s_a s_a^T / F``, ...), which is the joint fit of the parameters and the offsets
+(:class:`ineid.identify.systems.Offsets`).
+
 One compiled shape serves every chunk: configurations are padded to a fixed count and long
 recordings are split into frame chunks (masked). Compiled once per robot, link split, base
 structure and frame count (see :func:`ineid.cache.enable_compilation_cache`).
@@ -48,12 +57,35 @@ class InformationBlocks:
         h: (C, 6, r) ``sum_k W_b[k, a]^T y[k, a]``.
         e: (C, 6) ``sum_k y[k, a]^2``.
         n_frames: frames per configuration ``F`` (rows ``6F``).
+        s: (C, 6, 10 n_u) ``sum_k Psi_u[k, a]`` (every unknown column), or None.
+        t: (C, 6) ``sum_k y[k, a]``, or None.
     """
 
     G: np.ndarray
     h: np.ndarray
     e: np.ndarray
     n_frames: int
+    s: np.ndarray | None = None
+    t: np.ndarray | None = None
+
+    def centred(self, base):
+        """``(blocks, offsets)``: the blocks of the frames centred per axis, and their means.
+
+        With ``sb_a = s_a[base columns]``: ``G_a - sb_a sb_a^T / F``, ``h_a - sb_a t_a / F``,
+        ``e_a - t_a^2 / F`` (``sum_k (x_k - xbar)(z_k - zbar) = sum_k x_k z_k - F xbar zbar``);
+        ``offsets`` holds ``Wbar = s / F`` and ``ybar = t / F``
+        (:class:`ineid.identify.systems.Offsets`).
+        """
+        from ineid.identify.systems import Offsets  # noqa: PLC0415
+
+        if self.s is None or self.t is None:
+            raise ValueError("these blocks carry no frame sums; compute them with sums=True")
+        f = self.n_frames
+        sb = self.s[..., base.base_index]
+        g = self.G - np.einsum("car,cas->cars", sb, sb) / f
+        h = self.h - sb * (self.t / f)[..., None]
+        e = self.e - self.t**2 / f
+        return InformationBlocks(g, h, e, f), Offsets(self.s / f, self.t / f, f)
 
     def weighted(self, axis_w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(W_b^T D^2 W_b, W_b^T D^2 y, y^T D^2 y)`` for row weights ``axis_w`` (C, 6)."""
@@ -71,7 +103,8 @@ class InformationBlocks:
         return np.maximum(self.e - 2.0 * lin + quad, 0.0)
 
     def select(self, rows) -> InformationBlocks:
-        return InformationBlocks(self.G[rows], self.h[rows], self.e[rows], self.n_frames)
+        return InformationBlocks(self.G[rows], self.h[rows], self.e[rows], self.n_frames,
+                                 None if self.s is None else self.s[rows], None if self.t is None else self.t[rows])
 
 
 def _split(n_configs: int, n_frames: int) -> tuple[int, int]:
@@ -130,12 +163,17 @@ def _map_chunks(kernel: Callable, frame_arrays: list[np.ndarray], config_arrays:
 
 
 @functools.lru_cache(maxsize=None)
-def _blocks_kernel(entries_fn, n_cols: int, base_columns: tuple[int, ...], known_columns: tuple[int, ...]):
-    """Jitted ``(q, qd, qdd, wrench, mask, gravity, theta_known) -> (G, h, e)`` of one chunk."""
+def _blocks_kernel(entries_fn, n_cols: int, base_columns: tuple[int, ...], known_columns: tuple[int, ...],
+                   sensor: bool = False, sum_columns: tuple[int, ...] = ()):
+    """Jitted ``(q, qd, qdd, wrench, mask, gravity, theta_known, x) -> (G, h, e[, s, t])`` of one chunk.
+
+    ``sensor``: rows in the sensor frame (``x`` the 6x6 wrench transform; ignored otherwise);
+    ``sum_columns``: also the frame sums ``s`` of these columns and ``t`` of ``y``.
+    """
     import jax  # noqa: PLC0415
     import jax.numpy as jnp  # noqa: PLC0415
 
-    def kernel(q, qd, qdd, wrench, mask, gravity, theta_known):
+    def kernel(q, qd, qdd, wrench, mask, gravity, theta_known, x):
         entries = entries_fn(q, qd, qdd, gravity)
         batch = q.shape[:-1]  # (Cc, Fc)
 
@@ -144,19 +182,28 @@ def _blocks_kernel(entries_fn, n_cols: int, base_columns: tuple[int, ...], known
 
         # (6, Cc, r, Fc): frames last, each entry one contiguous run (XLA:CPU's fast layout)
         w_b = jnp.stack([jnp.stack([entry(a, c) for c in base_columns], axis=1) for a in range(6)])
-        known = [sum((entries[a * n_cols + c] * theta_known[k] for k, c in enumerate(known_columns)),
-                     start=jnp.zeros(batch, q.dtype)) for a in range(6)]  # fmt: skip
+        known = jnp.stack([sum((entries[a * n_cols + c] * theta_known[k] for k, c in enumerate(known_columns)),
+                               start=jnp.zeros(batch, q.dtype)) for a in range(6)])  # (6, Cc, Fc)
+        if sensor:  # the sensor's axes: X applied to every regressor row and to the known share
+            w_b = jnp.einsum("ab,bcrf->acrf", x, w_b)
+            known = jnp.einsum("ab,bcf->acf", x, known)
         y = jnp.stack([(wrench[..., a] - known[a]) * mask for a in range(6)])  # (6, Cc, Fc)
         g = jnp.einsum("acrf,acsf->cars", w_b, w_b)
         h = jnp.einsum("acrf,acf->car", w_b, y)
         e = jnp.einsum("acf,acf->ca", y, y)
-        return g, h, e
+        if not sum_columns:
+            return g, h, e
+        w_s = jnp.stack([jnp.stack([entry(a, c) for c in sum_columns], axis=1) for a in range(6)])
+        if sensor:
+            w_s = jnp.einsum("ab,bcpf->acpf", x, w_s)
+        return g, h, e, jnp.einsum("acpf->cap", w_s), jnp.einsum("acf->ca", y)
 
     return jax.jit(kernel)
 
 
 def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
-                       progress: Callable[[int, int], None] | None = None) -> InformationBlocks:
+                       progress: Callable[[int, int], None] | None = None, sensor: np.ndarray | None = None,
+                       sums: bool = False) -> InformationBlocks:
     """Per-axis blocks ``G, h, e`` of every configuration (see module doc).
 
     Args:
@@ -165,29 +212,38 @@ def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
         q, qd, qdd: (C, F, n_dof) frames; wrench: (C, F, 6) measured.
         theta_known: (10 n_known,) the known links' parameters.
         progress: ``progress(done, total)`` over configurations.
+        sensor: the 6x6 wrench transform ``X`` of the sensor frame ``wrench`` is in
+            (:func:`ineid.sensor.wrench_transform`); None: the base frame.
+        sums: also the frame sums ``s, t`` (for :meth:`InformationBlocks.centred`).
     """
     arrays = [np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench)]
     n_configs, n_frames = arrays[0].shape[:2]
-    r = base.rank
+    r, p = base.rank, base.n_params
     if n_configs == 0:
-        return InformationBlocks(np.zeros((0, 6, r, r)), np.zeros((0, 6, r)), np.zeros((0, 6)), n_frames)
+        return InformationBlocks(np.zeros((0, 6, r, r)), np.zeros((0, 6, r)), np.zeros((0, 6)), n_frames,
+                                 np.zeros((0, 6, p)) if sums else None, np.zeros((0, 6)) if sums else None)
     columns = tuple(int(c) for c in np.asarray(model.unknown_index)[base.base_index])
+    sum_columns = tuple(int(c) for c in model.unknown_index) if sums else ()
     kernel = _blocks_kernel(model.jax_regressor_entries, 10 * model.n_links, columns,
-                            tuple(int(c) for c in model.known_index))
-    consts = (model.gravity, np.asarray(theta_known, dtype=np.float64))
-    g, h, e = _map_chunks(kernel, arrays, [], consts, progress)
-    return InformationBlocks(g, h, e, n_frames)
+                            tuple(int(c) for c in model.known_index), sensor is not None, sum_columns)
+    x = np.eye(6) if sensor is None else np.asarray(sensor, dtype=np.float64)
+    consts = (model.gravity, np.asarray(theta_known, dtype=np.float64), x)
+    out = _map_chunks(kernel, arrays, [], consts, progress)
+    return InformationBlocks(*out[:3], n_frames, *(out[3:] if sums else (None, None)))
 
 
 @functools.lru_cache(maxsize=None)
-def _residual_kernel(base_wrench_fn):
-    """Jitted ``(q, qd, qdd, wrench, fit, mask, theta, gravity) -> (ssr_fit, ssr_held, ss_held)``."""
+def _residual_kernel(base_wrench_fn, sensor: bool = False):
+    """Jitted ``(q, qd, qdd, wrench, fit, mask, theta, bias, gravity, x) -> (ssr_fit, ssr_held, ss_held)``."""
     import jax  # noqa: PLC0415
     import jax.numpy as jnp  # noqa: PLC0415
 
-    def kernel(q, qd, qdd, wrench, fit, mask, theta, gravity):
-        # fit: (Cc, Fc, 1) 1 on fitted frames, 0 on held-out ones; theta: (Cc, 10 n)
+    def kernel(q, qd, qdd, wrench, fit, mask, theta, bias, gravity, x):
+        # fit: (Cc, Fc, 1) 1 on fitted frames, 0 on held-out ones; theta: (Cc, 10 n); bias: (Cc, 6)
         predicted = base_wrench_fn(q, qd, qdd, gravity, theta[:, None, :])
+        if sensor:
+            predicted = predicted @ x.T
+        predicted = predicted + bias[:, None, :]
         r2 = (wrench - predicted) ** 2 * mask[..., None]
         held = (1.0 - fit) * mask[..., None]
         return (jnp.sum(r2 * fit, axis=1), jnp.sum(r2 * held, axis=1), jnp.sum(wrench**2 * held, axis=(1, 2)))
@@ -195,14 +251,17 @@ def _residual_kernel(base_wrench_fn):
     return jax.jit(kernel)
 
 
-def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sums of squares of ``wrench - Psi theta`` per configuration: fitted and held-out frames.
+def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int, sensor: np.ndarray | None = None,
+                  bias: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sums of squares of ``wrench - (X Psi theta + b)`` per configuration: fitted and held-out frames.
 
     Args:
         model: the :class:`ineid.RobotModel`.
         q, qd, qdd: (C, F, n_dof); wrench: (C, F, 6).
         theta: (C, 10 n_links) every link's parameters, per configuration.
         n_fit: the first ``n_fit`` frames are the fitted ones, the rest held out.
+        sensor: the 6x6 wrench transform ``X`` (None: the base frame, ``X = I``).
+        bias: (C, 6) sensor offsets ``b`` (None: zero).
 
     Returns:
         ``(ssr_fit (C, 6), ssr_held (C, 6), ss_held (C,))``: per axis, the sum over the
@@ -216,6 +275,8 @@ def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int) -> tuple[np.ndar
     fit = (np.arange(n_frames) < n_fit).astype(np.float64)
     fit = np.broadcast_to(fit[None, :, None], (n_configs, n_frames, 1))
     theta = np.asarray(theta, dtype=np.float64)
-    kernel = _residual_kernel(model.jax_base_wrench)
-    ssr_fit, ssr_held, ss_held = _map_chunks(kernel, [*arrays, fit], [theta], (model.gravity,))
+    bias = np.zeros((n_configs, 6)) if bias is None else np.asarray(bias, dtype=np.float64)
+    kernel = _residual_kernel(model.jax_base_wrench, sensor is not None)
+    x = np.eye(6) if sensor is None else np.asarray(sensor, dtype=np.float64)
+    ssr_fit, ssr_held, ss_held = _map_chunks(kernel, [*arrays, fit], [theta, bias], (model.gravity, x))
     return ssr_fit, ssr_held, ss_held

@@ -190,20 +190,40 @@ def _regressor_unknown(model, q, qd, qdd) -> np.ndarray:
     return w
 
 
-def base_parameters(model) -> BaseParameters:
+def base_parameters(model, bias: bool = False) -> BaseParameters:
     """The structural base parameters of ``model``'s unknown links (cached per model).
 
     From :data:`STRUCTURAL_FRAMES` generic frames (:func:`generic_frames`), evaluated by the
-    generated CasADi function: milliseconds, no JAX compilation.
+    generated CasADi function: milliseconds, no JAX compilation. ``bias=True``: with six
+    constant sensor offsets identified too, a wrench that is constant over every motion
+    cannot be told from them, so the base parameters are those of the regressor centred
+    per axis (:func:`centred_regressor`).
     """
-    key = tuple(model.unknown_links)
+    key = (tuple(model.unknown_links), bool(bias))
     cache = _CACHE.setdefault(model, {})
     if key not in cache:
         q, qd, qdd = generic_frames(model)
         scales = parameter_scales(model.theta_cad[model.unknown_index])
         w = _regressor_unknown(model, q, qd, qdd)
+        w = centred_regressor(w) if bias else w
         cache[key] = base_parameters_from_regressor(w, param_names(model.unknown_links), scales)
     return cache[key]
+
+
+def centred_regressor(w: np.ndarray) -> np.ndarray:
+    """A stacked regressor (6F, p) minus its mean over the frames, per wrench axis.
+
+    A column that the centring cancels to round-off (``||W_c|| <= 1e-9 ||W||``: a
+    parameter whose whole effect is a constant wrench) is set to zero exactly, so that
+    rank decisions do not see its round-off as a direction.
+    """
+    w = np.asarray(w, dtype=np.float64)
+    f = w.shape[0] // 6
+    w3 = w.reshape(f, 6, -1)
+    wc = (w3 - w3.mean(axis=0)).reshape(6 * f, -1)
+    tiny = np.linalg.norm(wc, axis=0) <= 1e-9 * np.linalg.norm(w, axis=0)
+    wc[:, tiny] = 0.0
+    return wc
 
 
 @dataclass(frozen=True)
@@ -250,17 +270,19 @@ class FrameAnalysis:
         )
 
 
-def analyze_frames(model, q, qd, qdd, base: BaseParameters | None = None) -> FrameAnalysis:
+def analyze_frames(model, q, qd, qdd, base: BaseParameters | None = None, bias: bool = False) -> FrameAnalysis:
     """Rank, singular values, conditioning and missing directions of one set of frames.
 
     Args:
         model: the :class:`ineid.RobotModel`.
         q, qd, qdd: (F, n_dof) frames.
-        base: the structural base parameters (default: :func:`base_parameters`).
+        base: the structural base parameters (default: :func:`base_parameters` with ``bias``).
+        bias: six constant offsets are identified too (the regressor is centred per axis).
     """
-    base = base or base_parameters(model)
+    base = base or base_parameters(model, bias)
     q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (q, qd, qdd))
-    ws = _regressor_unknown(model, q, qd, qdd) * base.scales
+    w = _regressor_unknown(model, q, qd, qdd)
+    ws = (centred_regressor(w) if bias else w) * base.scales
     sv = np.linalg.svd(ws, compute_uv=False)
     rank = numerical_rank(sv)
     r = base.rank
@@ -276,3 +298,73 @@ def analyze_frames(model, q, qd, qdd, base: BaseParameters | None = None) -> Fra
         kept = set(_greedy_independent(wb, rtol=1e-6))
         undetermined = tuple(base.names[i] for i in range(r) if i not in kept)
     return FrameAnalysis(len(q), rank, r, sv, cond, min_frames, undetermined)
+
+
+@dataclass(frozen=True)
+class BiasCost:
+    """What identifying six constant sensor offsets costs, structurally and on given frames.
+
+    A wrench that is constant over the whole recording is indistinguishable from the
+    offsets: the weight of mass that never moves (mass at a point all joint axes before it
+    pass through) is lost, and the rest of the mass is seen only through how the weight's
+    moment changes with the configuration and through accelerations.
+
+    Attributes:
+        base: base parameters without offsets.
+        base_bias: base parameters with offsets (``base_bias.rank <= base.rank``).
+        lost: standard parameters individually identifiable without offsets, not with them.
+        new_null_directions: the null directions the offsets add (as text).
+        std_inflation: (base_bias.rank,) on the given frames, the standard deviation of each
+            base parameter of ``base_bias`` with the offsets over its standard deviation
+            without them (same noise); 1 means the offsets cost nothing there.
+        condition: (without, with) condition numbers of the scaled, identifiable regressor.
+    """
+
+    base: BaseParameters
+    base_bias: BaseParameters
+    lost: tuple[str, ...]
+    new_null_directions: tuple[str, ...]
+    std_inflation: np.ndarray
+    condition: tuple[float, float]
+
+
+def bias_cost(model, q, qd, qdd) -> BiasCost:
+    """Compare identification with and without six constant offsets on frames ``q, qd, qdd`` (F, n_dof).
+
+    The standard deviations assume the same white noise on every row: ``cov(beta) ~
+    (W_b^T W_b)^-1``. Each base parameter of the offset case is a combination
+    ``beta_c = M beta`` of the base parameters without offsets (``M = B_c B^+``), so
+    its variance without offsets is ``M cov(beta) M^T``.
+    """
+    base, base_c = base_parameters(model), base_parameters(model, bias=True)
+    q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (q, qd, qdd))
+    w = _regressor_unknown(model, q, qd, qdd)
+    wc = centred_regressor(w)
+
+    def cov(a: np.ndarray) -> np.ndarray:
+        return np.linalg.pinv(a.T @ a)
+
+    def cond(a: np.ndarray, scales: np.ndarray) -> float:
+        sv = np.linalg.svd(a * scales, compute_uv=False)
+        return float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+
+    cov_nb = cov(w[:, base.base_index])
+    m = base_c.B @ np.linalg.pinv(base.B)
+    var_nb = np.einsum("ij,jk,ik->i", m, cov_nb, m)
+    var_c = np.diag(cov(wc[:, base_c.base_index]))
+    lost = tuple(p for p, a, b in zip(base.param_names, base.identifiable, base_c.identifiable, strict=True) if a and not b)
+    # the offsets' null directions that are new: those of the column scan's (sparse, readable)
+    # directions that each add a dimension to the null space without offsets (scaled coordinates)
+    span = base.null_basis / base.scales[:, None]
+    texts = base_c.null_directions()
+    new_dirs = []
+    for k in range(base_c.null_basis.shape[1]):
+        trial = np.column_stack([span, base_c.null_basis[:, k] / base.scales])
+        if numerical_rank(np.linalg.svd(trial, compute_uv=False), 1e-8) > span.shape[1]:
+            span = trial
+            new_dirs.append(texts[k])
+    return BiasCost(
+        base, base_c, lost, tuple(new_dirs), np.sqrt(var_c / np.maximum(var_nb, 1e-300)),
+        (cond(w[:, base.base_index], base.scales[base.base_index]),
+         cond(wc[:, base_c.base_index], base_c.scales[base_c.base_index])),
+    )  # fmt: skip

@@ -54,6 +54,7 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
             a["total_seconds"] = float(res.meta.get("total_seconds", np.nan))
             a["dataset_path"] = str(res.meta.get("dataset_path") or "")
             a["dataset_fingerprint"] = str(res.meta.get("dataset_fingerprint") or "")
+            a["sensor"] = json.dumps(res.meta.get("sensor"), sort_keys=True)
             arrays = {
                 "config_index": res.config_index,
                 "theta_hat": res.theta_hat,
@@ -71,6 +72,8 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
                 "validation_rms": res.validation_rms,
                 "validation_rel": res.validation_rel,
             }
+            if res.bias_hat is not None:
+                arrays["bias_hat"], arrays["bias_std"] = res.bias_hat, res.bias_std
             if res.theta_true is not None:
                 arrays["theta_true"] = res.theta_true
                 arrays["base_true"] = res.base_true
@@ -131,6 +134,7 @@ def load_results(path: str | Path) -> SolveResults:
             "ineid_version": str(a["ineid_version"]),
             "dataset_path": str(a.get("dataset_path", "")) or None,
             "dataset_fingerprint": str(a.get("dataset_fingerprint", "")) or None,
+            "sensor": json.loads(a["sensor"]) if "sensor" in a else None,
         }
         return SolveResults(
             settings=settings,
@@ -151,6 +155,8 @@ def load_results(path: str | Path) -> SolveResults:
             n_frames_validation=int(a["n_frames_validation"]),
             theta_prior=get("theta_prior"),
             theta_true=get("theta_true"),
+            bias_hat=get("bias_hat"),
+            bias_std=get("bias_std"),
             meta=meta,
         )
 

@@ -34,7 +34,7 @@ from ineid.identify.linear import (
     with_exact_rss,
 )
 from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL, NlpSolver, estimate_from_solves, nlp_estimate
-from ineid.identify.systems import check_frames, stack, stack_casadi
+from ineid.identify.systems import Offsets, check_frames, predict_wrench, remove_offsets, stack, stack_casadi
 from ineid.progress import Progress
 
 METHODS = ("linear", "nonlinear", "consistent")
@@ -43,6 +43,8 @@ STARTS = ("prior", "linear")
 BACKENDS = ("jax", "casadi", "casadi-c")
 """The least-squares engine: fused JAX kernels; CasADi per configuration (QR, an independent
 route; linear method only); or the fused blocks through CasADi's C code, compiled (needs a C compiler)."""
+BIAS_MODES = ("none", "estimate")
+"""The sensor's six constant offsets: absent (a tared sensor), or identified with the parameters."""
 HOLDOUT_FRACTION = 0.2
 """Without ``frames``, this share of each configuration's frames is held out for validation."""
 PARALLEL_MIN_CONFIGS = 256
@@ -73,6 +75,10 @@ class SolveSettings:
         workers: processes for the IPOPT solvers (default 1); used from
             :data:`PARALLEL_MIN_CONFIGS` configurations on. More than one uses spawned
             processes (multiprocessing): call from under ``if __name__ == "__main__":``.
+        bias: ``"none"`` (the wrench holds no offset) or ``"estimate"``: six constant offsets,
+            one per sensor axis, identified jointly with the parameters (every method;
+            :class:`ineid.identify.systems.Offsets`). They also take the weight of whatever
+            sits between the sensor and the first joint.
     """
 
     method: str = "linear"
@@ -84,6 +90,7 @@ class SolveSettings:
     entropic: float = DEFAULT_ENTROPIC
     backend: str = "jax"
     workers: int | None = None
+    bias: str = "none"
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -94,6 +101,10 @@ class SolveSettings:
             raise ValueError(f"start must be one of {', '.join(STARTS)}, got {self.start!r}")
         if self.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
+        if self.bias not in BIAS_MODES:
+            raise ValueError(f"bias must be one of {', '.join(BIAS_MODES)}, got {self.bias!r}")
+        if self.backend == "casadi-c" and self.bias == "estimate":
+            raise ValueError("backend='casadi-c' does not estimate sensor offsets; use backend 'jax' or 'casadi'")
         if self.backend == "casadi" and self.method != "linear":  # casadi-c serves every method
             raise ValueError("backend='casadi' applies to the linear method")
         if self.frames is not None and self.frames < 1:
@@ -109,7 +120,8 @@ class SolveSettings:
 class SolveResults:
     """Estimates of the selected configurations of one dataset (see ``docs/identification.md``).
 
-    Arrays have one row per solved configuration, in selection order.
+    Arrays have one row per solved configuration, in selection order. ``bias_hat`` and
+    ``bias_std`` (C, 6) are the sensor offsets (N, N*m, sensor frame) with ``bias="estimate"``.
     """
 
     settings: SolveSettings
@@ -131,6 +143,8 @@ class SolveResults:
     theta_prior: np.ndarray
     theta_true: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
+    bias_hat: np.ndarray | None = None
+    bias_std: np.ndarray | None = None
 
     @property
     def base_true(self) -> np.ndarray | None:
@@ -189,32 +203,41 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
     """
     enable_compilation_cache()
     model = model or ds.model()
-    base = base_parameters(model)
+    with_bias = settings.bias == "estimate"
+    base = base_parameters(model, bias=with_bias)
+    sensor = ds.meta.sensor_transform()
+    if sensor is not None and settings.backend == "casadi-c":
+        raise IdentificationError("backend 'casadi-c' fits in the base frame only; this dataset's wrench is in a "
+                                  "sensor frame: use backend 'jax' or 'casadi'", status="unsupported")
     prior = np.asarray(model.theta_cad[model.unknown_index], dtype=np.float64)
-    n_fit, n_val = _frame_split(ds.n_frames, settings.frames, base.rank)
+    n_fit, n_val = _frame_split(ds.n_frames, settings.frames, base.rank + 6 * with_bias)
     axis_sigma = _axis_sigma(ds, settings)
     c = ds.n_configs
     fit_sl = slice(0, n_fit)
     t_start = time.perf_counter()
 
     # 1. base least squares, batched (or per configuration through CasADi)
+    offsets = None
     if settings.backend == "casadi":
-        fits, rms, seconds = _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress)
+        fits, rms, seconds, parts = _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress, sensor)
         fit = _concat_fits(fits)
+        offsets = Offsets.concat(parts) if with_bias else None
     else:
         t0 = time.perf_counter()
         blocks_fn = information_blocks
         if settings.backend == "casadi-c":
             from ineid.identify.casadi_c import information_blocks_c as blocks_fn  # noqa: PLC0415
-        fit, rms = _fused_fit(model, ds, fit_sl, base, settings, axis_sigma,
-                              progress if settings.method == "linear" else None, blocks_fn)
+        fit, rms, offsets = _fused_fit(model, ds, fit_sl, base, settings, axis_sigma,
+                                       progress if settings.method == "linear" else None, blocks_fn, sensor)
         seconds = np.full(c, (time.perf_counter() - t0) / max(c, 1))
+    if with_bias:
+        _offset_dof(fit)
 
     # 2. the residuals of the least-squares fit itself, exactly (one fused pass over every
     # frame at the linear estimate): the normal equations give the rss only up to
     # cancellation (eps * ||y||^2), the covariance and the IPOPT noise level need it exact
     lin = linear_estimate(fit, base, prior)
-    sums = _residual_sums(model, ds, n_fit, n_val, lin.theta)
+    sums = _residual_sums(model, ds, n_fit, n_val, lin.theta, sensor, offsets)
     fit = with_exact_rss(fit, sums[0])
 
     # 3. standard parameters
@@ -224,7 +247,10 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         start = prior if settings.start == "prior" else physical_start(lin.theta, prior, base.scales)
         est, nlp_seconds = _run_nlp(fit, base, settings, prior, rms, start, progress)
         seconds = seconds + nlp_seconds
-        sums = _residual_sums(model, ds, n_fit, n_val, est.theta)
+        sums = _residual_sums(model, ds, n_fit, n_val, est.theta, sensor, offsets)
+    bias_hat = bias_std = None
+    if with_bias:
+        bias_hat, bias_std = _bias_estimate(offsets, est, base)
 
     # 4. residuals of the estimates on the fitted and on the held-out frames
     ssr_fit, ssr_held, ss_held = sums
@@ -248,6 +274,7 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         "locked_joints": ds.meta.locked_joints,
         "dataset_path": None if ds.path is None else str(ds.path),
         "dataset_fingerprint": ds.fingerprint(),
+        "sensor": ds.meta.sensor,
         "total_seconds": time.perf_counter() - t_start,
     }
     return SolveResults(
@@ -270,7 +297,37 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         theta_prior=prior,
         theta_true=None if ds.theta_unknown is None else np.asarray(ds.theta_unknown),
         meta=meta,
+        bias_hat=bias_hat,
+        bias_std=bias_std,
     )
+
+
+def _offset_dof(fit: BaseFit) -> None:
+    """Six more fitted unknowns (the offsets): ``s^2 = rss / (6F - r - 6)``, covariance alike."""
+    scale = fit.dof / max(fit.dof - 6, 1)
+    fit.dof -= 6
+    fit.sigma2 *= scale
+    fit.cov_beta *= scale
+
+
+def _bias_estimate(off: Offsets, est: Estimate, base: BaseParameters):
+    """Offsets ``b = ybar - Wbar theta_hat`` (C, 6) and their standard deviations.
+
+    ``ybar``'s noise is independent of ``beta_hat`` (fitted on the centred frames), so
+    ``var(b_a) = s^2 / (d_a^2 F) + (Wbar T cov(beta) T^T Wbar^T)_aa`` with ``d_a`` the axis
+    weight and ``T`` the null-space rule's map (:func:`ineid.identify.linear.prior_map`;
+    the linearization for the IPOPT methods). Where a solve failed: NaN.
+    """
+    from ineid.identify.linear import prior_map  # noqa: PLC0415
+
+    bias = off.bias(est.theta)
+    g = np.einsum("cap,pr->car", off.w_mean, prior_map(base))
+    var = np.einsum("car,crs,cas->ca", g, np.nan_to_num(est.fit.cov_beta), g)
+    var += est.fit.sigma2[:, None] / (est.fit.axis_weights**2 * off.n_frames)
+    std = np.sqrt(np.maximum(var, 0.0))
+    bad = ~est.success
+    bias[bad], std[bad] = np.nan, np.nan
+    return bias, std
 
 
 def _concat_fits(fits: list[BaseFit]) -> BaseFit:
@@ -280,12 +337,15 @@ def _concat_fits(fits: list[BaseFit]) -> BaseFit:
     return BaseFit(dof=fits[0].dof, **cat)
 
 
-def _residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.ndarray):
-    """:func:`ineid.identify.fused.residual_sums` of the unknown links' estimates (NaN rows as zeros)."""
+def _residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.ndarray, sensor=None,
+                   offsets: Offsets | None = None):
+    """:func:`ineid.identify.fused.residual_sums` of the unknown links' estimates (NaN rows as zeros),
+    in the sensor frame, with the offsets ``b = ybar - Wbar theta`` that go with them."""
     theta = model.full_theta(np.nan_to_num(theta_unknown), ds.theta_known)
+    bias = None if offsets is None else np.nan_to_num(offsets.bias(theta_unknown))
     frames = slice(0, n_fit + n_val)
     return residual_sums(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], ds.wrench[:, frames],
-                         theta, n_fit)
+                         theta, n_fit, sensor, bias)
 
 
 REFERENCE_ROWS = 200_000
@@ -293,32 +353,44 @@ REFERENCE_ROWS = 200_000
 
 
 def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress,
-               blocks_fn=information_blocks) -> tuple[BaseFit, np.ndarray]:
+               blocks_fn=information_blocks, sensor=None) -> tuple[BaseFit, np.ndarray, Offsets | None]:
     """The base fit of every configuration from fused normal-equation blocks (``blocks_fn``),
-    ill-conditioned ones refitted through QR of their stacks; and the RMS of the weighted data, (C,)."""
+    ill-conditioned ones refitted through QR of their stacks; the RMS of the weighted data, (C,);
+    with ``settings.bias == "estimate"`` the fit of the frames centred per axis, and the means taken out."""
     q, qd, qdd, wrench = (a[:, fit_sl] for a in (ds.q, ds.qd, ds.qdd, ds.wrench))
-    blocks = blocks_fn(model, base, q, qd, qdd, wrench, ds.theta_known, progress=progress)
+    with_bias = settings.bias == "estimate"
+    extra = {} if sensor is None and not with_bias else {"sensor": sensor, "sums": with_bias}
+    blocks = blocks_fn(model, base, q, qd, qdd, wrench, ds.theta_known, progress=progress, **extra)
+    offsets = None
+    if with_bias:
+        blocks, offsets = blocks.centred(base)
     fit, refit = fit_base_blocks(blocks, base, settings.weights, axis_sigma)
     rows = np.flatnonzero(refit)
     per = max(1, REFERENCE_ROWS // max(blocks.n_frames, 1))
     for start in range(0, len(rows), per):
         idx = rows[start : start + per]
-        w, y = stack(model, q[idx], qd[idx], qdd[idx], wrench[idx], ds.theta_known)
+        w, y = stack(model, q[idx], qd[idx], qdd[idx], wrench[idx], ds.theta_known, sensor)
+        if with_bias:
+            w, y, _ = remove_offsets(w, y)
         ref = fit_base(w, y, base, settings.weights, axis_sigma)
         for f in dataclasses.fields(BaseFit):
             if f.name != "dof":
                 getattr(fit, f.name)[idx] = getattr(ref, f.name)
     _, _, yy = blocks.weighted(fit.axis_weights)
-    return fit, np.sqrt(yy / (6 * blocks.n_frames))
+    return fit, np.sqrt(yy / (6 * blocks.n_frames)), offsets
 
 
-def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress):
+def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress, sensor=None):
     """The linear fit through CasADi, one configuration at a time (an independent route)."""
-    fits, rms, seconds = [], np.empty(ds.n_configs), np.zeros(ds.n_configs)
+    fits, rms, seconds, offsets = [], np.empty(ds.n_configs), np.zeros(ds.n_configs), []
     for i in range(ds.n_configs):
         t0 = time.perf_counter()
         w, y = stack_casadi(model, ds.q[i, fit_sl], ds.qd[i, fit_sl], ds.qdd[i, fit_sl], ds.wrench[i, fit_sl],
-                            ds.theta_known)
+                            ds.theta_known, sensor)
+        if settings.bias == "estimate":
+            wc, yc, off = remove_offsets(w[None], y[None])
+            w, y = wc[0], yc[0]
+            offsets.append(off)
         f = fit_base(w[None], y[None], base, settings.weights, axis_sigma)
         beta = fit_base_casadi(w, y, base, f.axis_weights[0])
         if f.full_rank[0]:
@@ -329,7 +401,7 @@ def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress):
         seconds[i] = time.perf_counter() - t0
         if progress is not None:
             progress(i + 1, ds.n_configs)
-    return fits, rms, seconds
+    return fits, rms, seconds, offsets
 
 
 def physical_start(theta_lin: np.ndarray, prior: np.ndarray, scales: np.ndarray) -> np.ndarray:
@@ -357,9 +429,19 @@ def physical_start(theta_lin: np.ndarray, prior: np.ndarray, scales: np.ndarray)
     return start
 
 
-def _nlp_worker_init(method, base, prior, pull, entropic, compiled):
+BIAS_MAX_ITER = 3000
+"""IPOPT iterations with offsets estimated (500 otherwise): centring the frames worsens the scaled
+problem's conditioning (``sweaty-arm``: 52 -> 279) and the consistent solver from the CAD start
+took 807 iterations on the MuJoCo test recording (a few tenths of a second)."""
+
+
+def _nlp_options(settings: SolveSettings) -> dict | None:
+    return {"max_iter": BIAS_MAX_ITER} if settings.bias == "estimate" else None
+
+
+def _nlp_worker_init(method, base, prior, pull, entropic, compiled, options=None):
     global _WORKER_SOLVER  # noqa: PLW0603 - one compiled solver per worker process
-    _WORKER_SOLVER = NlpSolver.build(method, base, prior, pull, entropic, compiled=compiled)
+    _WORKER_SOLVER = NlpSolver.build(method, base, prior, pull, entropic, options, compiled=compiled)
 
 
 def _nlp_worker(args):
@@ -382,7 +464,7 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
     seconds = np.zeros(c)
     if workers <= 1 or c < PARALLEL_MIN_CONFIGS:
         solver = NlpSolver.build(settings.method, base, prior, settings.pull, settings.entropic,
-                                 compiled=settings.backend == "casadi-c")
+                                 _nlp_options(settings), compiled=settings.backend == "casadi-c")
         t = [time.perf_counter()]
 
         def timed(done, total):
@@ -409,7 +491,7 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
     ctx = mp.get_context("spawn")  # JAX's threads and fork do not mix
     with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_nlp_worker_init,
                              initargs=(settings.method, base, prior, settings.pull, settings.entropic,
-                                       settings.backend == "casadi-c")) as pool:
+                                       settings.backend == "casadi-c", _nlp_options(settings))) as pool:
         done = 0
         for j, out in enumerate(pool.map(_nlp_worker, jobs)):
             for k, (th, ok, st, sec) in enumerate(out):
@@ -438,13 +520,16 @@ def identify_frames(
     weights: str = "none",
     axis_sigma=None,
     start: str = "prior",
+    bias: str = "none",
+    sensor_pose=None,
 ) -> SolveResults:
     """Identify the unknown links from one set of frames (a recording); all frames are fitted.
 
     Args:
         model: the :class:`ineid.RobotModel` (unknown links, gravity, CAD prior).
         q, qd, qdd: (F, n_dof); wrench: (F, 6), the sensor reading in ineid's convention.
-        method, weights, axis_sigma, start: as in :class:`SolveSettings`.
+        method, weights, axis_sigma, start, bias: as in :class:`SolveSettings`.
+        sensor_pose: the :class:`ineid.sensor.SensorPose` the wrench is read in (None: the base frame).
 
     Returns:
         One-row :class:`SolveResults` (``theta_hat[0]``, ``theta_std[0]``, ``base_hat[0]``, ...).
@@ -464,17 +549,18 @@ def identify_frames(
         if not np.all(np.isfinite(a)):
             raise IdentificationError(f"{label} holds NaN or infinite values; drop or repair those frames",
                                       status="non_finite")
-    base = base_parameters(model)
-    check_frames(len(arrays[0]), base.rank)
-    analysis = analyze_frames(model, *arrays[:3], base)
+    base = base_parameters(model, bias=bias == "estimate")
+    check_frames(len(arrays[0]), base.rank + 6 * (bias == "estimate"))
+    analysis = analyze_frames(model, *arrays[:3], base, bias=bias == "estimate")
     if not analysis.ok:
         raise IdentificationError(analysis.problem(), status="rank_deficient")
-    meta = DatasetMeta.for_model(model, source="recording")
+    meta = DatasetMeta.for_model(model, source="recording",
+                                 sensor=None if sensor_pose is None else sensor_pose.to_dict())
     ds = Dataset(meta, *(a[None] for a in arrays), theta_known=model.theta_cad[model.known_index])
     res = solve_dataset(
         ds,
         SolveSettings(method=method, frames=len(arrays[0]), weights=weights,
-                      axis_sigma=None if axis_sigma is None else tuple(axis_sigma), start=start),
+                      axis_sigma=None if axis_sigma is None else tuple(axis_sigma), start=start, bias=bias),
         model=model,
     )  # fmt: skip
     if not res.success[0]:
@@ -483,3 +569,17 @@ def identify_frames(
             status=str(res.status[0]),
         )
     return res
+
+
+def predicted_wrench(model, ds, theta_u, frames=slice(None), sensor=None, bias=None) -> np.ndarray:
+    """What the estimates predict the sensor reads: ``X Psi theta + b`` (C, F, 6) on ``frames`` of ``ds``.
+
+    Args:
+        theta_u: (C, 10 n_u) the unknown links' estimates (the known links' come from ``ds``).
+        sensor: the 6x6 wrench transform (default: the dataset's sensor pose).
+        bias: (C, 6) estimated offsets, or None.
+    """
+    sensor = ds.meta.sensor_transform() if sensor is None else sensor
+    theta = model.full_theta(np.nan_to_num(theta_u), ds.theta_known)
+    w = predict_wrench(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], theta, sensor)
+    return w if bias is None else w + np.nan_to_num(bias)[:, None, :]

@@ -15,10 +15,13 @@ not form these stacks (:mod:`ineid.identify.fused`); they are the reference.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ineid.errors import IdentificationError
 from ineid.params import N_PARAMS_PER_LINK
+from ineid.sensor import regressor_in_sensor, wrench_in_sensor
 
 
 def parameter_scales(theta_cad_unknown: np.ndarray) -> np.ndarray:
@@ -48,7 +51,7 @@ def parameter_scales(theta_cad_unknown: np.ndarray) -> np.ndarray:
 
 
 
-def stack(model, q, qd, qdd, wrench, theta_known) -> tuple[np.ndarray, np.ndarray]:
+def stack(model, q, qd, qdd, wrench, theta_known, sensor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(W, y)`` of each configuration: (C, 6F, 10 n_unknown) and (C, 6F).
 
     Args:
@@ -56,29 +59,38 @@ def stack(model, q, qd, qdd, wrench, theta_known) -> tuple[np.ndarray, np.ndarra
         q, qd, qdd: (C, F, n_dof).
         wrench: (C, F, 6) measured.
         theta_known: (10 n_known,) the known links' parameters.
+        sensor: the 6x6 wrench transform ``X`` of a sensor frame
+            (:func:`ineid.sensor.wrench_transform`): ``wrench`` is in that frame and every
+            regressor row becomes ``X Psi``. None: the base frame.
     """
     q, qd, qdd, wrench = (np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench))
     if q.ndim != 3 or wrench.shape != q.shape[:2] + (6,):
         raise ValueError(f"expected q (C, F, n_dof) and wrench (C, F, 6), got {q.shape} and {wrench.shape}")
     c, f, _ = q.shape
     psi_u, psi_k = model.regressor_split(q, qd, qdd)
+    psi_u = regressor_in_sensor(sensor, psi_u)
+    known = wrench_in_sensor(sensor, psi_k @ np.asarray(theta_known, dtype=np.float64))
     w = psi_u.reshape(c, 6 * f, -1)
-    y = (wrench - psi_k @ np.asarray(theta_known, dtype=np.float64)).reshape(c, 6 * f)
+    y = (wrench - known).reshape(c, 6 * f)
     return w, y
 
 
-def predict_wrench(model, q, qd, qdd, theta) -> np.ndarray:
-    """``Psi(q, qd, qdd) @ theta`` per configuration: (C, F, n_dof) x3, theta (C, 10 n_links) -> (C, F, 6)."""
+def predict_wrench(model, q, qd, qdd, theta, sensor: np.ndarray | None = None) -> np.ndarray:
+    """``X Psi(q, qd, qdd) @ theta`` per configuration: (C, F, n_dof) x3, theta (C, 10 n_links) -> (C, F, 6).
+
+    ``sensor`` is the wrench transform ``X`` of :func:`stack` (None: the base frame).
+    """
     theta = np.asarray(theta, dtype=np.float64)
-    return model.base_wrench(q, qd, qdd, theta[:, None, :])
+    return wrench_in_sensor(sensor, model.base_wrench(q, qd, qdd, theta[:, None, :]))
 
 
-def stack_casadi(model, q, qd, qdd, wrench, theta_known) -> tuple[np.ndarray, np.ndarray]:
+def stack_casadi(model, q, qd, qdd, wrench, theta_known, sensor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(W, y)`` of one configuration through the generated CasADi function; (6F, 10 n_u), (6F,)."""
     q, qd, qdd, wrench = (np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench))
     f = q.shape[0]
     mapped = model.casadi_regressor.map(f)
     y_all = np.array(mapped(q.T, qd.T, qdd.T)).reshape(6, f, -1).transpose(1, 0, 2)  # (F, 6, 10 n)
+    y_all = regressor_in_sensor(sensor, y_all)
     w = y_all[..., model.unknown_index].reshape(6 * f, -1)
     known = y_all[..., model.known_index] @ np.asarray(theta_known, dtype=np.float64)
     return w, (wrench - known).reshape(6 * f)
@@ -93,3 +105,42 @@ def check_frames(n_frames: int, rank_needed: int) -> None:
             f"{rank_needed} identifiable parameters; use at least {needed} frames (more with noise)",
             status="too_few_frames",
         )
+
+
+@dataclass
+class Offsets:
+    """The per-axis means taken out of stacked systems for six constant sensor offsets (the bias).
+
+    With a bias ``b`` (6,) the frames read ``y_k = W_k theta + b + e_k``. Minimizing over
+    ``b`` first gives ``b = ybar - Wbar theta`` (means over the frames, per axis), and what
+    is left is the least squares of the centred system ``y_k - ybar = (W_k - Wbar) theta``
+    (Frisch-Waugh-Lovell): fitting the centred system *is* the joint fit of ``theta`` and
+    ``b``, for every method, with 6 fewer degrees of freedom.
+
+    Attributes:
+        w_mean: (C, 6, 10 n_u) ``Wbar`` per configuration.
+        y_mean: (C, 6) ``ybar``.
+        n_frames: frames the means were taken over.
+    """
+
+    w_mean: np.ndarray
+    y_mean: np.ndarray
+    n_frames: int
+
+    def bias(self, theta_u: np.ndarray) -> np.ndarray:
+        """``b = ybar - Wbar theta`` (C, 6) for the unknown links' parameters ``theta_u`` (C, 10 n_u)."""
+        return self.y_mean - np.einsum("cap,cp->ca", self.w_mean, np.nan_to_num(theta_u))
+
+    @staticmethod
+    def concat(parts: list[Offsets]) -> Offsets:
+        return Offsets(np.concatenate([o.w_mean for o in parts]), np.concatenate([o.y_mean for o in parts]),
+                       parts[0].n_frames)
+
+
+def remove_offsets(w: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, Offsets]:
+    """Centre stacked systems per wrench axis: ``(W - Wbar, y - ybar, Offsets)``; shapes as :func:`stack`'s."""
+    c, rows, p = w.shape
+    f = rows // 6
+    w4, y3 = w.reshape(c, f, 6, p), y.reshape(c, f, 6)
+    wm, ym = w4.mean(axis=1), y3.mean(axis=1)
+    return (w4 - wm[:, None]).reshape(c, rows, p), (y3 - ym[:, None]).reshape(c, rows), Offsets(wm, ym, f)
