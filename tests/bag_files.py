@@ -50,7 +50,7 @@ def write_bag(path: Path, kind: str, joint_names: Sequence[str], joint_time: np.
         for ns, which, k in events:
             if which == 0:
                 header = t["std_msgs/msg/Header"](stamp=_time(store, ns), frame_id="", **({"seq": k} if ros1 else {}))
-                msg = t[js](header=header, name=list(joint_names), position=np.asarray(q[k], dtype=np.float64),
+                msg = t[js](header=header, name=list(joint_names), position=np.ascontiguousarray(q[k], dtype=np.float64),
                             velocity=empty, effort=empty)
                 writer.write(cj, ns, serialize(msg, js))
             else:

@@ -58,3 +58,15 @@ def rel_err(a, b) -> float:
     """max |a - b| / max |b|, over everything."""
     a, b = np.asarray(a), np.asarray(b)
     return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
+
+
+@pytest.fixture(scope="session")
+def lab(tmp_path_factory):
+    """A MuJoCo recording of ``sweaty-arm`` on a turned-over F/T sensor, simulated once per session.
+
+    See :class:`tests.mujoco_arm.LabRecording`: 10 s at 1 kHz, joint angles only, sensor-frame
+    wrench with offsets; its files (CSV, ROS 1 and ROS 2 bags) are written on first use.
+    """
+    from tests.mujoco_arm import LabRecording
+
+    return LabRecording(tmp_path_factory.mktemp("lab"))

@@ -24,7 +24,6 @@ The wrench stays in the sensor frame: the dataset records the sensor pose (forma
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,9 +32,8 @@ import numpy as np
 from ineid.data import signals
 from ineid.data.schema import Dataset, DatasetMeta
 from ineid.errors import DatasetError
+from ineid.progress import Progress
 from ineid.sensor import SensorPose, parse_sensor_pose
-
-from ineid.progress import Progress  # noqa: E402
 
 
 @dataclass
