@@ -106,6 +106,16 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
     )
 
 
+def _delay(ctx, param, value: str) -> float | None:
+    """``--delay``: seconds, or ``auto`` (None: estimate it)."""
+    if value.strip().lower() == "auto":
+        return None
+    try:
+        return float(value)
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is neither a number of seconds nor 'auto'") from None
+
+
 @data.command("import")
 @click.argument("path", metavar="PATH", type=click.Path(path_type=Path))
 @robot_options(positional="option")
@@ -117,8 +127,9 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
                    "are derived; no filter when they are measured).")
 @click.option("--rate", type=click.FloatRange(min=0, min_open=True), default=None, metavar="HZ",
               help="Rate of the frames (default: the slower stream's).")
-@click.option("--delay", type=float, default=0.0, show_default=True, metavar="S",
-              help="How late the wrench time stamps are against the joints' (s).")
+@click.option("--delay", default="0", show_default=True, metavar="S|auto", callback=_delay,
+              help="How late the wrench time stamps are against the joints' (s), or auto: estimated from the "
+                   "model within +-50 ms.")
 @click.option("--joint-topic", default="/joint_states", show_default=True, help="Bags: the JointState topic.")
 @click.option("--wrench-topic", default=None, help="Bags: the WrenchStamped topic (needed when there are several).")
 @click.option("--flip-wrench", is_flag=True,
@@ -134,7 +145,8 @@ def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic,
 
     prepare_output(out, overwrite)
     model = robot.load()
-    settings = ImportSettings(sensor_pose=sensor_pose, cutoff=cutoff, rate=rate, delay=delay, flip_wrench=flip_wrench)
+    settings = ImportSettings(sensor_pose=sensor_pose, cutoff=cutoff, rate=rate, delay=delay or 0.0,
+                              estimate_delay=delay is None, flip_wrench=flip_wrench)
     with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
         ds, summary = import_recording(path, model, settings, joint_topic, wrench_topic, progress=bar)
     ds.save(out, overwrite=overwrite)

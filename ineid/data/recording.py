@@ -7,7 +7,7 @@ turns that into frames ``(q, qd, qdd, wrench)`` on one uniform time base:
 
 1. checks: finite values, increasing time stamps, each stream with enough samples;
 2. the wrench clock is shifted by ``delay`` (a wrench stamped ``t`` was measured at
-   ``t - delay``);
+   ``t - delay``), given or estimated from the model (:mod:`ineid.data.delay`);
 3. when ``qd``/``qdd`` are missing, joint angles *and* wrench go through the same zero-phase
    low-pass (:mod:`ineid.data.signals`), at a cut-off chosen from the angles' spectrum or
    given, and the angles are differentiated; samples within the filter's edge are dropped.
@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ineid.data import signals
+from ineid.data.delay import DelayEstimate
 from ineid.data.schema import Dataset, DatasetMeta
 from ineid.errors import DatasetError
 from ineid.progress import Progress
@@ -76,6 +77,9 @@ class ImportSettings:
         rate: Hz, the rate of the frames; None: the slower stream's.
         delay: s, how late the wrench time stamps are against the joints'.
         flip_wrench: the sensor reports the wrench on the robot; negate it.
+        estimate_delay: estimate ``delay`` from the model instead
+            (:func:`ineid.data.delay.estimate_delay`, within ``+-max_delay`` s).
+        max_delay: s, the search range of ``estimate_delay``.
     """
 
     sensor_pose: str | None = None
@@ -83,6 +87,8 @@ class ImportSettings:
     rate: float | None = None
     delay: float = 0.0
     flip_wrench: bool = False
+    estimate_delay: bool = False
+    max_delay: float = 0.05
 
     def __post_init__(self) -> None:
         for name in ("cutoff", "rate"):
@@ -112,6 +118,7 @@ class ImportSummary:
     resampled: tuple[str, ...]
     sensor: SensorPose
     delay: float
+    delay_estimate: DelayEstimate | None = None
 
     def lines(self) -> list[str]:
         out = [f"{self.n_frames:,} frames at {self.rate:g} Hz over {self.span:.3f} s "
@@ -138,7 +145,11 @@ class ImportSummary:
                    "filter edges and time covered by one stream only)")
         out.append(f"sensor frame in the base frame: {self.sensor.describe()}"
                    + (f"; messages name frame {self.sensor.frame_id!r}" if self.sensor.frame_id else "")
-                   + (f"; wrench delayed by {self.delay:g} s" if self.delay else ""))
+                   + (f"; wrench delayed by {self.delay:g} s" if self.delay and self.delay_estimate is None else ""))
+        if self.delay_estimate is not None:
+            e = self.delay_estimate
+            out.append(f"wrench delay estimated: {1e3 * e.delay:.4g} ms (relative residual of the linear fit with "
+                       f"offsets {e.residual:.3g}, against {e.residual_at_zero:.3g} without a delay)")
         return out
 
     def to_dict(self) -> dict:
@@ -147,6 +158,7 @@ class ImportSummary:
             "wrench_rate": self.wrench_rate, "derived": self.derived, "cutoff": self.cutoff,
             "cutoff_rule": None if self.cutoff_choice is None else self.cutoff_choice.limited,
             "dropped_start": self.dropped_start, "dropped_end": self.dropped_end, "delay": self.delay,
+            "delay_estimated": self.delay_estimate is not None,
         }  # fmt: skip
 
 
@@ -219,6 +231,16 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
             samples, streams that do not overlap, a cut-off or rate that does not fit the
             sampling, a sensor pose that does not parse.
     """
+    if settings.estimate_delay:
+        from dataclasses import replace  # noqa: PLC0415
+
+        from ineid.data.delay import estimate_delay  # noqa: PLC0415
+
+        estimate = estimate_delay(streams, model, settings, settings.max_delay)
+        ds, summary = recording_dataset(streams, model, replace(settings, delay=estimate.delay, estimate_delay=False))
+        summary.delay_estimate = estimate
+        ds.meta.origin["import"] = summary.to_dict()
+        return ds, summary
     src = streams.source
     n = model.n_dof
     tq = np.asarray(streams.joint_time, dtype=np.float64)
