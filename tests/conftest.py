@@ -67,6 +67,7 @@ def lab(tmp_path_factory):
     See :class:`tests.mujoco_arm.LabRecording`: 10 s at 1 kHz, joint angles only, sensor-frame
     wrench with offsets; its files (CSV, ROS 1 and ROS 2 bags) are written on first use.
     """
+    pytest.importorskip("mujoco")
     from tests.mujoco_arm import LabRecording
 
     return LabRecording(tmp_path_factory.mktemp("lab"))
