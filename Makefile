@@ -52,6 +52,7 @@ bench: setup-dev
 	$(PY) benchmarks/data.py
 	$(PY) benchmarks/identify.py
 	$(PY) benchmarks/learn.py
+	$(PY) benchmarks/recordings.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

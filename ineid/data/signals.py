@@ -21,8 +21,9 @@ time base:
    error of ``qdd`` there has decayed to about 1e-6 of its RMS, measured).
 
 The default cut-off (:func:`choose_cutoff`) comes from the joint angles' spectrum; see its
-docstring for the rule and ``docs/dataset.md`` for the measurements behind the filter
-(Butterworth against Savitzky-Golay and smoothing splines) and the rule.
+docstring for the rule and ``docs/recordings.md`` (``benchmarks/recordings.py``) for the
+measurements behind the filter (Butterworth against Savitzky-Golay and smoothing splines)
+and the rule.
 """
 
 from __future__ import annotations
@@ -201,10 +202,10 @@ def choose_cutoff(q: np.ndarray, rate: float) -> CutoffChoice:
 
     and the cut-off is the highest ``fc`` with ``sqrt(noise / motion)`` at most
     :data:`ACCELERATION_NOISE` (1 %), within :data:`CUTOFF_RANGE`. Noise in the regressor
-    biases least squares; on the MuJoCo recording of the tests (1 kHz, 14- to 20-bit
-    encoders) this rule lands at or next to the cut-off with the smallest
-    identification error (``docs/dataset.md``), and on noise-free data it gives the upper
-    bound.
+    biases least squares; on the MuJoCo recording of the tests (1 kHz, 17-bit encoders) this
+    rule picks 24 Hz, next to the 20 Hz with the smallest identification error of the
+    cut-offs tried (``benchmarks/recordings.py``, ``docs/recordings.md``), and on noise-free
+    data it gives the upper bound, where the error is smallest.
     """
     from scipy.signal import welch  # noqa: PLC0415
 
