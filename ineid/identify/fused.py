@@ -57,8 +57,10 @@ class InformationBlocks:
         h: (C, 6, r) ``sum_k W_b[k, a]^T y[k, a]``.
         e: (C, 6) ``sum_k y[k, a]^2``.
         n_frames: frames per configuration ``F`` (rows ``6F``).
-        s: (C, 6, 10 n_u) ``sum_k Psi_u[k, a]`` (every unknown column), or None.
-        t: (C, 6) ``sum_k y[k, a]``, or None.
+        s: (C, 6, 10 n_u) ``sum_k (Psi_u[k, a] - w_ref_a)`` (every unknown column), or None.
+        t: (C, 6) ``sum_k (y[k, a] - y_ref_a)``, or None.
+        w_ref, y_ref: (C, 6, 10 n_u), (C, 6) the rows subtracted from every frame before
+            ``G, h, e, s, t`` were summed (the first frame's), or None (nothing subtracted).
     """
 
     G: np.ndarray
@@ -67,14 +69,17 @@ class InformationBlocks:
     n_frames: int
     s: np.ndarray | None = None
     t: np.ndarray | None = None
+    w_ref: np.ndarray | None = None
+    y_ref: np.ndarray | None = None
 
     def centred(self, base):
         """``(blocks, offsets)``: the blocks of the frames centred per axis, and their means.
 
         With ``sb_a = s_a[base columns]``: ``G_a - sb_a sb_a^T / F``, ``h_a - sb_a t_a / F``,
         ``e_a - t_a^2 / F`` (``sum_k (x_k - xbar)(z_k - zbar) = sum_k x_k z_k - F xbar zbar``);
-        ``offsets`` holds ``Wbar = s / F`` and ``ybar = t / F``
-        (:class:`ineid.identify.systems.Offsets`).
+        ``offsets`` holds ``Wbar = s / F + w_ref`` and ``ybar = t / F + y_ref``
+        (:class:`ineid.identify.systems.Offsets`). The shift by ``w_ref, y_ref`` leaves the
+        centred blocks as they are and keeps them from cancelling.
         """
         from ineid.identify.systems import Offsets  # noqa: PLC0415
 
@@ -85,7 +90,9 @@ class InformationBlocks:
         g = self.G - np.einsum("car,cas->cars", sb, sb) / f
         h = self.h - sb * (self.t / f)[..., None]
         e = self.e - self.t**2 / f
-        return InformationBlocks(g, h, e, f), Offsets(self.s / f, self.t / f, f)
+        w_ref = 0.0 if self.w_ref is None else self.w_ref
+        y_ref = 0.0 if self.y_ref is None else self.y_ref
+        return InformationBlocks(g, h, e, f), Offsets(self.s / f + w_ref, self.t / f + y_ref, f)
 
     def weighted(self, axis_w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(W_b^T D^2 W_b, W_b^T D^2 y, y^T D^2 y)`` for row weights ``axis_w`` (C, 6)."""
@@ -103,8 +110,11 @@ class InformationBlocks:
         return np.maximum(self.e - 2.0 * lin + quad, 0.0)
 
     def select(self, rows) -> InformationBlocks:
-        return InformationBlocks(self.G[rows], self.h[rows], self.e[rows], self.n_frames,
-                                 None if self.s is None else self.s[rows], None if self.t is None else self.t[rows])
+        def pick(a):
+            return None if a is None else a[rows]
+
+        return InformationBlocks(self.G[rows], self.h[rows], self.e[rows], self.n_frames, pick(self.s), pick(self.t),
+                                 pick(self.w_ref), pick(self.y_ref))
 
 
 def _split(n_configs: int, n_frames: int) -> tuple[int, int]:
@@ -165,15 +175,21 @@ def _map_chunks(kernel: Callable, frame_arrays: list[np.ndarray], config_arrays:
 @functools.lru_cache(maxsize=None)
 def _blocks_kernel(entries_fn, n_cols: int, base_columns: tuple[int, ...], known_columns: tuple[int, ...],
                    sensor: bool = False, sum_columns: tuple[int, ...] = ()):
-    """Jitted ``(q, qd, qdd, wrench, mask, gravity, theta_known, x) -> (G, h, e[, s, t])`` of one chunk.
+    """Jitted ``(q, qd, qdd, wrench, mask, [w_ref, y_ref,] gravity, theta_known, x) -> (G, h, e[, s, t])``.
 
-    ``sensor``: rows in the sensor frame (``x`` the 6x6 wrench transform; ignored otherwise);
-    ``sum_columns``: also the frame sums ``s`` of these columns and ``t`` of ``y``.
+    ``sensor``: rows in the sensor frame (``x`` the 6x6 wrench transform; ignored otherwise).
+    ``sum_columns`` (the unknown columns, base columns among them): the blocks are of the
+    frames minus a reference row per configuration and axis (``w_ref`` (Cc, 6, p), ``y_ref``
+    (Cc, 6): the first frame's), and the frame sums ``s`` of those columns and ``t`` of ``y``
+    come too. Centring is invariant to the shift, and the shift takes the large constant part
+    (offsets, the weight of the links) out of the sums before they cancel.
     """
     import jax  # noqa: PLC0415
     import jax.numpy as jnp  # noqa: PLC0415
 
-    def kernel(q, qd, qdd, wrench, mask, gravity, theta_known, x):
+    base_pos = tuple(sum_columns.index(c) for c in base_columns) if sum_columns else ()
+
+    def core(q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, x):
         entries = entries_fn(q, qd, qdd, gravity)
         batch = q.shape[:-1]  # (Cc, Fc)
 
@@ -181,24 +197,28 @@ def _blocks_kernel(entries_fn, n_cols: int, base_columns: tuple[int, ...], known
             return jnp.broadcast_to(entries[a * n_cols + col], batch).astype(q.dtype) * mask
 
         # (6, Cc, r, Fc): frames last, each entry one contiguous run (XLA:CPU's fast layout)
-        w_b = jnp.stack([jnp.stack([entry(a, c) for c in base_columns], axis=1) for a in range(6)])
+        w_b = jnp.stack([jnp.stack([entry(a, c) for c in sum_columns or base_columns], axis=1) for a in range(6)])
         known = jnp.stack([sum((entries[a * n_cols + c] * theta_known[k] for k, c in enumerate(known_columns)),
                                start=jnp.zeros(batch, q.dtype)) for a in range(6)])  # (6, Cc, Fc)
         if sensor:  # the sensor's axes: X applied to every regressor row and to the known share
             w_b = jnp.einsum("ab,bcrf->acrf", x, w_b)
             known = jnp.einsum("ab,bcf->acf", x, known)
         y = jnp.stack([(wrench[..., a] - known[a]) * mask for a in range(6)])  # (6, Cc, Fc)
+        if sum_columns:
+            w_all = w_b - jnp.moveaxis(w_ref, 1, 0)[..., None] * mask[None, :, None, :]
+            y = y - jnp.moveaxis(y_ref, 1, 0)[..., None] * mask[None]
+            w_b = w_all[:, :, base_pos, :]
         g = jnp.einsum("acrf,acsf->cars", w_b, w_b)
         h = jnp.einsum("acrf,acf->car", w_b, y)
         e = jnp.einsum("acf,acf->ca", y, y)
         if not sum_columns:
             return g, h, e
-        w_s = jnp.stack([jnp.stack([entry(a, c) for c in sum_columns], axis=1) for a in range(6)])
-        if sensor:
-            w_s = jnp.einsum("ab,bcpf->acpf", x, w_s)
-        return g, h, e, jnp.einsum("acpf->cap", w_s), jnp.einsum("acf->ca", y)
+        return g, h, e, jnp.einsum("acpf->cap", w_all), jnp.einsum("acf->ca", y)
 
-    return jax.jit(kernel)
+    if sum_columns:
+        return jax.jit(core)
+    return jax.jit(lambda q, qd, qdd, wrench, mask, gravity, theta_known, x:
+                   core(q, qd, qdd, wrench, mask, None, None, gravity, theta_known, x))
 
 
 def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
@@ -214,7 +234,9 @@ def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
         progress: ``progress(done, total)`` over configurations.
         sensor: the 6x6 wrench transform ``X`` of the sensor frame ``wrench`` is in
             (:func:`ineid.sensor.wrench_transform`); None: the base frame.
-        sums: also the frame sums ``s, t`` (for :meth:`InformationBlocks.centred`).
+        sums: also the frame sums ``s, t`` (for :meth:`InformationBlocks.centred`); the
+            blocks are then of the frames minus each configuration's first frame (``w_ref,
+            y_ref``), which only :meth:`InformationBlocks.centred` should use.
     """
     arrays = [np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench)]
     n_configs, n_frames = arrays[0].shape[:2]
@@ -227,9 +249,15 @@ def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
     kernel = _blocks_kernel(model.jax_regressor_entries, 10 * model.n_links, columns,
                             tuple(int(c) for c in model.known_index), sensor is not None, sum_columns)
     x = np.eye(6) if sensor is None else np.asarray(sensor, dtype=np.float64)
-    consts = (model.gravity, np.asarray(theta_known, dtype=np.float64), x)
-    out = _map_chunks(kernel, arrays, [], consts, progress)
-    return InformationBlocks(*out[:3], n_frames, *(out[3:] if sums else (None, None)))
+    theta_known = np.asarray(theta_known, dtype=np.float64)
+    consts = (model.gravity, theta_known, x)
+    if not sums:
+        return InformationBlocks(*_map_chunks(kernel, arrays, [], consts, progress), n_frames)
+    psi_u, psi_k = model.regressor_split(*(a[:, :1] for a in arrays[:3]))  # the first frames: (C, 1, 6, .)
+    w_ref = x @ np.asarray(psi_u)[:, 0]
+    y_ref = arrays[3][:, 0] - (np.asarray(psi_k)[:, 0] @ theta_known) @ x.T
+    out = _map_chunks(kernel, arrays, [w_ref, y_ref], consts, progress)
+    return InformationBlocks(*out[:3], n_frames, out[3], out[4], w_ref, y_ref)
 
 
 @functools.lru_cache(maxsize=None)
