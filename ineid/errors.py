@@ -41,3 +41,12 @@ class TrainingError(IneidError):
 
 class OutputExistsError(IneidError):
     """An output file or folder exists and the caller did not ask to replace it."""
+
+
+class ExcitationError(IneidError):
+    """An excitation trajectory cannot be designed as asked; ``reason`` says which check failed
+    (``infeasible_bounds``, ``duration``, ``harmonics``, ``rank_deficient``, ``noise``, ``settings``)."""
+
+    def __init__(self, message: str, reason: str | None = None) -> None:
+        super().__init__(message)
+        self.reason = reason
