@@ -45,7 +45,12 @@ def data() -> None:
               help="Seed of every random draw.")
 @click.option("--frame-mode", type=LibraryChoice(f"{_SAMPLING}:FRAME_MODES"), cls=LibraryOption,
               default_from=f"{_SAMPLING}:FrameSampling.mode",
-              help="Independent uniform frames (the paper) or samples of Fourier excitation trajectories.")
+              help="Independent uniform frames (the paper), samples of random Fourier excitation trajectories, "
+                   "or the samples of one designed trajectory (--trajectory).")
+@click.option("--trajectory", type=click.Path(path_type=Path, exists=True, dir_okay=False), default=None,
+              metavar="FILE",
+              help="With --frame-mode trajectory: ineid excite's CSV (its rows are the frames) or JSON "
+                   "(--n-frames samples over its duration, default its CSV's rows).")
 @click.option("--harmonics", type=click.IntRange(min=1), cls=LibraryOption,
               default_from=f"{_SAMPLING}:FrameSampling.harmonics", help="Fourier harmonics per joint.")
 @click.option("--base-frequency", type=click.FloatRange(min=0, min_open=True), cls=LibraryOption,
@@ -64,8 +69,8 @@ def data() -> None:
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
 @click.pass_context
-def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_mode, harmonics, base_frequency,
-                  mass_band, com_box, inertia_band, rotation, noise, out, overwrite) -> None:
+def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_mode, trajectory, harmonics,
+                  base_frequency, mass_band, com_box, inertia_band, rotation, noise, out, overwrite) -> None:
     """Sample a synthetic ground-truth dataset of ROBOT (default sweaty-arm; the paper's: --factorial 100)."""
     from ineid.data import Combination, DatasetSpec, FrameSampling, ParameterSampling, write_dataset  # noqa: PLC0415
 
@@ -73,8 +78,21 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
         raise click.UsageError("give --factorial N or --n-configs N, not both")
     if pool is not None and n_configs is None:
         raise click.UsageError("--pool applies to --n-configs (random pairing)")
+    if (frame_mode == "trajectory") != (trajectory is not None):
+        raise click.UsageError("--frame-mode trajectory and --trajectory FILE go together")
+    frames_given = ctx.get_parameter_source("n_frames") is click.core.ParameterSource.COMMANDLINE
+    if trajectory is not None and frames_given and trajectory.suffix.lower() != ".json":
+        raise click.BadParameter("the rows of a trajectory CSV are the frames; drop --n-frames (or give its .json)",
+                                 param_hint="--n-frames")
     prepare_output(out, overwrite)
     model = robot.load()
+    sampled = None
+    if trajectory is not None:
+        from ineid.data.trajectory import check_trajectory_fits, load_trajectory  # noqa: PLC0415
+
+        sampled = load_trajectory(trajectory, n_frames=n_frames if frames_given else None)
+        check_trajectory_fits(sampled, model)
+        n_frames = sampled.n_frames
     if n_configs is not None:
         combination = Combination("random", per_link=pool, n_configs=n_configs)
     elif factorial is not None:
@@ -93,7 +111,7 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
         n_frames=n_frames,
         seed=seed,
         parameters=ParameterSampling(mass_band, com_box, inertia_band, rotation),
-        frames=FrameSampling(frame_mode, harmonics, base_frequency),
+        frames=FrameSampling(frame_mode, harmonics, base_frequency, trajectory=sampled),
         noise=noise_model(noise, model.n_dof),
     )
     t0 = time.perf_counter()

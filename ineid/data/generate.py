@@ -97,7 +97,7 @@ class GenerationPlan:
             noise=None if self.noise is None else self.noise.to_dict(),
         )
         names = ["q", "qd", "qdd", "wrench", "theta_unknown", "link_set_index"]
-        if spec.frames.mode == "fourier":
+        if spec.frames.mode in ("fourier", "trajectory"):
             names.append("time")
         if self.noise is not None:
             names += [f"{k}_clean" for k in self.noise.noisy_keys()]
@@ -141,7 +141,7 @@ class GenerationPlan:
                 )
             q, qd, qdd = (np.concatenate([p[k] for p in parts]) for k in range(3))
             out = {"q": q, "qd": qd, "qdd": qdd}
-            if spec.frames.mode == "fourier":
+            if spec.frames.mode in ("fourier", "trajectory"):
                 out["time"] = np.concatenate([p[3] for p in parts])
             out["wrench"] = self._wrench(q, qd, qdd, self.theta_unknown[start:stop])
             if self.noise is not None:

@@ -23,7 +23,8 @@ Fourier series per joint (Swevers et al. 1997) with ``q, qd, qdd`` analytic::
     qdd(t) =      sum_l -a_l w l sin(w l t) + b_l w l cos(w l t),   w = 2 pi f0
 
 scaled so that ``|qd| <= qd_max``, ``|qdd| <= qdd_max`` and ``q`` stays within its limits
-for all ``t`` (the bound is the sum of harmonic amplitudes, so it holds exactly).
+for all ``t`` (the bound is the sum of harmonic amplitudes, so it holds exactly). Or the
+samples of one given trajectory (``ineid excite``'s design), the same for every configuration.
 
 Random streams are keyed by ``(seed, purpose, block)`` so that a configuration's draws do
 not depend on how generation is chunked, and the clean data do not depend on the noise.
@@ -36,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ineid.data.trajectory import SampledTrajectory
 from ineid.params import N_PARAMS_PER_LINK, inertial_from_theta, theta_from_inertial
 
 # Purposes of the random streams; never renumber (files record only the seed).
@@ -245,8 +247,9 @@ def sample_configurations(
     return theta, index.astype(np.int64)
 
 
-FRAME_MODES = ("uniform", "fourier")
-"""How frames are sampled: independent uniform states, or samples of Fourier trajectories."""
+FRAME_MODES = ("uniform", "fourier", "trajectory")
+"""How frames are sampled: independent uniform states, samples of random Fourier trajectories,
+or the samples of one given (designed) trajectory, the same for every configuration."""
 
 
 @dataclass(frozen=True)
@@ -261,6 +264,9 @@ class FrameSampling:
         duration: seconds of trajectory sampled (default: one period), frames equally
             spaced at ``t_k = k * duration / n_frames``.
         velocity_scale, acceleration_scale: fractions of the model's bounds used.
+        trajectory: for ``mode="trajectory"``, the samples every configuration moves
+            through (:class:`ineid.data.trajectory.SampledTrajectory`, e.g. from
+            ``ineid excite``); the other settings do not apply to it.
     """
 
     mode: str = "uniform"
@@ -269,10 +275,13 @@ class FrameSampling:
     duration: float | None = None
     velocity_scale: float = 1.0
     acceleration_scale: float = 1.0
+    trajectory: SampledTrajectory | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in FRAME_MODES:
             raise ValueError(f"frame mode must be one of {', '.join(FRAME_MODES)}, got {self.mode!r}")
+        if (self.mode == "trajectory") != (self.trajectory is not None):
+            raise ValueError("frame mode 'trajectory' needs a trajectory (--trajectory FILE), and only it takes one")
         if self.harmonics < 1:
             raise ValueError(f"harmonics must be >= 1, got {self.harmonics}")
         if not self.base_frequency > 0:
@@ -284,7 +293,9 @@ class FrameSampling:
                 raise ValueError(f"{name} must be in (0, 1], got {getattr(self, name)}")
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        if self.trajectory is None:
+            return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "trajectory"}
+        return {"mode": self.mode, "trajectory": self.trajectory.describe()}
 
 
 def uniform_states(
@@ -341,6 +352,12 @@ def sample_frames(
     vmax = np.asarray(qd_max, float) * spec.velocity_scale
     amax = np.asarray(qdd_max, float) * spec.acceleration_scale
     n_dof = lo.shape[0]
+    if spec.mode == "trajectory":
+        tr = spec.trajectory
+        if tr.n_dof != n_dof or tr.n_frames != n_frames:
+            raise ValueError(f"the trajectory has {tr.n_frames} frames of {tr.n_dof} joints; asked for "
+                             f"{n_frames} frames of {n_dof}")
+        return tuple(np.broadcast_to(a, (n_configs, *a.shape)).copy() for a in (tr.q, tr.qd, tr.qdd, tr.time))
     if spec.mode == "uniform":
         return (*uniform_states(lo, hi, vmax, amax, rng, (n_configs, n_frames)), None)
     n_h = spec.harmonics

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid._atomic import atomic_write
+from ineid._atomic import atomic_write, check_output
 from ineid.errors import DatasetError, OutputExistsError
 
 FORMAT = "ineid-fourier-trajectory"
@@ -224,8 +224,7 @@ class FourierTrajectory:
 def _check_output(path: Path, overwrite: bool) -> None:
     if path.is_dir():
         raise OutputExistsError(f"{path} is a folder; give a file name")
-    if path.exists() and not overwrite:
-        raise OutputExistsError(f"{path} exists; pass --overwrite to replace it")
+    check_output(path, overwrite)
 
 
 def csv_columns(n_dof: int) -> list[str]:
@@ -426,3 +425,26 @@ def _csv_joint_names(path: Path) -> tuple[str, ...]:
     except (OSError, UnicodeDecodeError):
         return ()
     return ()
+
+
+def check_trajectory_fits(trajectory: SampledTrajectory, model) -> None:
+    """Check that ``trajectory`` is for ``model``: same joints (by count, and by name when it names them),
+    positions within the joint limits.
+
+    Raises:
+        DatasetError: which check failed, and what to do.
+    """
+    src = trajectory.source or "the trajectory"
+    if trajectory.n_dof != model.n_dof:
+        raise DatasetError(f"{src} moves {trajectory.n_dof} joints, {model.name} has {model.n_dof}; "
+                           "design the trajectory for this robot (ineid excite)")
+    if trajectory.joint_names and tuple(trajectory.joint_names) != tuple(model.joint_names):
+        raise DatasetError(f"{src} is for joints {', '.join(trajectory.joint_names)}, {model.name} has "
+                           f"{', '.join(model.joint_names)}; design the trajectory for this robot (ineid excite)")
+    lo, hi = np.asarray(model.q_lower, float), np.asarray(model.q_upper, float)
+    tol = 1e-9 * (hi - lo)
+    bad = np.flatnonzero(np.any((trajectory.q < lo - tol) | (trajectory.q > hi + tol), axis=0))
+    if bad.size:
+        j = int(bad[0])
+        raise DatasetError(f"{src}: joint {model.joint_names[j]!r} leaves its limits [{lo[j]:g}, {hi[j]:g}]; "
+                           "design the trajectory within the limits (ineid excite)")

@@ -1,0 +1,125 @@
+"""``ineid excite``: design an excitation trajectory (the library: :mod:`ineid.identify.excite`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ineid.cli.options import (
+    LibraryChoice,
+    LibraryOption,
+    noise_model,
+    noise_option,
+    overwrite_option,
+    prepare_output,
+    quiet,
+    robot_options,
+)
+from ineid.cli.output import ProgressBar, console, table
+
+_SETTINGS = "ineid.identify.excite:ExcitationSettings"
+
+
+@click.command("excite")
+@robot_options()
+@click.option("--duration", type=click.FloatRange(min=0, min_open=True), required=True,
+              help="Seconds of trajectory: a whole number of periods (and of samples at --rate).")
+@click.option("--harmonics", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_SETTINGS}.harmonics",
+              help="Fourier harmonics per joint (at least 2 to start and end at rest).")
+@click.option("--base-frequency", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Fourier base frequency, Hz.  [default: 1/duration, one period]")
+@click.option("--criterion", type=LibraryChoice("ineid.identify.excite:CRITERIA"), cls=LibraryOption,
+              default_from=f"{_SETTINGS}.criterion",
+              help="d-opt: -log det of the scaled information; cond: log of the scaled condition number.")
+@click.option("--starts", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_SETTINGS}.starts",
+              help="Random starts; the best design is kept.")
+@click.option("--rate", type=click.FloatRange(min=0, min_open=True), cls=LibraryOption,
+              default_from=f"{_SETTINGS}.rate", help="Samples per second in the CSV, Hz.")
+@click.option("--margin", type=click.FloatRange(0, 0.5, max_open=True), cls=LibraryOption,
+              default_from=f"{_SETTINGS}.margin", help="Fraction of each joint's range kept free at each end.")
+@click.option("--velocity-scale", type=click.FloatRange(0, 1, min_open=True), cls=LibraryOption,
+              default_from=f"{_SETTINGS}.velocity_scale", help="Fraction of the model's velocity bounds used.")
+@click.option("--acceleration-scale", type=click.FloatRange(0, 1, min_open=True), cls=LibraryOption,
+              default_from=f"{_SETTINGS}.acceleration_scale", help="Fraction of the model's acceleration bounds used.")
+@click.option("--seed", type=click.IntRange(min=0), cls=LibraryOption, default_from=f"{_SETTINGS}.seed",
+              help="Seed of the random starts.")
+@noise_option
+@click.option("--out", type=click.Path(path_type=Path), required=True,
+              help="The trajectory CSV (time, q1..qn, qd1..qn, qdd1..qn).")
+@click.option("--coefficients", type=click.Path(path_type=Path), default=None,
+              help="The coefficients and design record, JSON.  [default: --out with .json]")
+@overwrite_option
+@click.pass_context
+def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, rate, margin, velocity_scale,
+           acceleration_scale, seed, noise, out, coefficients, overwrite) -> None:
+    """Design a periodic Fourier excitation trajectory of ROBOT that identifies its unknown links well.
+
+    The trajectory starts and ends at rest, keeps every joint within its limits (less the
+    margin), velocity and acceleration bounds at every instant, and maximizes the
+    information of the base wrench about the base parameters (the wrench noise of --noise
+    weights the axes; default force=0.5,moment=0.05).
+    """
+    from ineid.data.trajectory import write_trajectory_csv, write_trajectory_json  # noqa: PLC0415
+    from ineid.identify.excite import ExcitationSettings, design_excitation  # noqa: PLC0415
+
+    coefficients = coefficients if coefficients is not None else out.with_suffix(".json")
+    if coefficients.resolve() == out.resolve():
+        raise click.BadParameter("the coefficients file must differ from --out", param_hint="--coefficients")
+    prepare_output(out, overwrite)
+    prepare_output(coefficients, overwrite)
+    model = robot.load()
+    settings = ExcitationSettings(
+        duration=duration, harmonics=harmonics, base_frequency=base_frequency, criterion=criterion, starts=starts,
+        rate=rate, margin=margin, velocity_scale=velocity_scale, acceleration_scale=acceleration_scale, seed=seed,
+    )  # fmt: skip
+    with ProgressBar("designing", "starts", quiet(ctx)) as bar:
+        res = design_excitation(model, settings, noise=noise_model(noise, model.n_dof), progress=bar)
+    t, q, qd, qdd = res.trajectory.sample(rate)
+    comments = [
+        (f"ineid excitation trajectory of {model.name}: {res.trajectory.harmonics} harmonics of "
+         f"{res.trajectory.base_frequency:g} Hz, {res.trajectory.duration:g} s at {rate:g} Hz"),
+        f"joints: {', '.join(model.joint_names)}",
+        f"coefficients: {coefficients.name}",
+    ]
+    write_trajectory_json(coefficients, res.trajectory, {"design": res.to_dict()}, overwrite=overwrite)
+    write_trajectory_csv(out, t, q, qd, qdd, comments, overwrite=overwrite)
+    print_design(res)
+    click.echo(f"wrote {out} ({len(t):,} samples) and {coefficients}")
+
+
+def print_design(res) -> None:
+    """The summary: criterion, scaled condition number and expected std, designed beside random Fourier."""
+    import numpy as np  # noqa: PLC0415
+
+    con = console()
+    opt, rnd = res.optimized, res.random
+    sigma = res.sigma
+    con.print(
+        f"[bold]{res.criterion}[/bold] design of {res.settings['robot']} ({', '.join(res.settings['unknown_links'])} "
+        f"unknown): {res.base.rank} base parameters, {len(res.starts)} starts in {res.seconds:.1f} s "
+        f"(of which compilation {res.compile_seconds:.1f} s)"
+    )
+    con.print(
+        f"noise model: white Gaussian wrench noise, std {sigma[0]:g} {sigma[1]:g} {sigma[2]:g} N, "
+        f"{sigma[3]:g} {sigma[4]:g} {sigma[5]:g} N*m per sample, {opt.n_samples} samples at {res.rate:g} Hz; "
+        "joint states exact"
+    )
+    t = table("Design vs a random Fourier trajectory (same period, harmonics and bounds)",
+              ("", "designed", "random Fourier", "ratio"), left=("",))  # fmt: skip
+    t.add_row("-log det M (d-opt)", f"{opt.d_opt:.4g}", f"{rnd.d_opt:.4g}", f"{rnd.d_opt - opt.d_opt:+.3g} (diff)")
+    t.add_row("scaled condition number", f"{opt.condition_number:.4g}", f"{rnd.condition_number:.4g}",
+              f"{rnd.condition_number / opt.condition_number:.3g}x")
+    t.add_row("median expected relative std", f"{np.median(opt.rel_std):.3g}", f"{np.median(rnd.rel_std):.3g}",
+              f"{np.median(rnd.rel_std) / np.median(opt.rel_std):.3g}x")
+    con.print(t)
+    t = table("Expected standard deviation of each base parameter (SI units of the parameter)",
+              ("base parameter", "CAD value", "std designed", "std random", "ratio"), left=("base parameter",))
+    for k, name in enumerate(res.base.names):
+        t.add_row(name, f"{res.base.cad[k]:.5g}", f"{opt.std[k]:.3g}", f"{rnd.std[k]:.3g}",
+                  f"{rnd.std[k] / opt.std[k]:.3g}x")
+    con.print(t)
+
+
+def register(main: click.Group) -> None:
+    main.add_command(excite)
