@@ -83,16 +83,24 @@ def test_expected_std_is_the_spread_of_least_squares_estimates(arm, design):
     np.testing.assert_allclose(beta.std(axis=1), design.optimized.std, rtol=0.2)
 
 
-@pytest.mark.parametrize("criterion", ["d-opt", "cond"])
-def test_gradient_matches_finite_differences(arm, criterion):
-    base = design_base(arm)
+@pytest.mark.parametrize(("criterion", "bias"), [("d-opt", False), ("cond", False), ("d-opt", True)])
+def test_gradient_matches_finite_differences(arm, criterion, bias):
+    base = design_base(arm, bias=bias)
     problem = _Problem(arm, base, design_noise(), criterion, design_bounds(arm), 1 / DURATION, 4, 160, 128)
     x = problem.random_start(np.random.default_rng(SEED))
     f, g = problem.gradient(x)
     assert np.isfinite(f)
-    h = 1e-6
+    h = 1e-5  # central differences: truncation ~h^2, rounding ~1e-16 |f| / h
     fd = np.array([(problem.value(x + h * e) - problem.value(x - h * e)) / (2 * h) for e in np.eye(len(x))])
-    np.testing.assert_allclose(g, fd, atol=1e-6 * np.max(np.abs(fd)))
+    np.testing.assert_allclose(g, fd, atol=1e-5 * np.max(np.abs(fd)))
+
+
+def test_bias_adds_six_constant_columns(arm):
+    plain, with_bias = design_base(arm), design_base(arm, bias=True)
+    np.testing.assert_array_equal(with_bias.columns[:6], np.arange(6))  # the bias axes come first and stay
+    assert all(name.startswith(axis) for name, axis in zip(with_bias.names, ("bias.fx", "bias.fy", "bias.fz")))
+    # the weight of the moving links is partly a constant force: with a bias some combinations drop out
+    assert plain.rank < with_bias.rank <= plain.rank + 6
 
 
 def test_trajectory_json_and_csv_agree(tmp_path, design):

@@ -106,8 +106,6 @@ class DesignBase:
         base: the underlying :class:`BaseParameters` (over ``BIAS_NAMES`` + the unknown
             links' parameters when ``bias``).
         bias: whether the six bias columns take part.
-        unknown_columns: (r,) each one's column in ``[I_6 | Psi_unknown]`` (the unknown
-            links' columns, as :func:`ineid.identify.stack` returns them).
     """
 
     names: tuple[str, ...]
@@ -116,8 +114,6 @@ class DesignBase:
     cad: np.ndarray
     base: BaseParameters
     bias: bool
-
-    unknown_columns: np.ndarray
 
     @property
     def rank(self) -> int:
@@ -156,7 +152,6 @@ def design_base(model, bias: bool = False) -> DesignBase:
             cad=base.B @ theta_u,
             base=base,
             bias=False,
-            unknown_columns=6 + idx,
         )
     wb = np.concatenate([np.tile(np.eye(6), (len(q), 1)), w], axis=1)
     scales = np.concatenate([bias_scales(model), parameter_scales(theta_u)])
@@ -170,7 +165,6 @@ def design_base(model, bias: bool = False) -> DesignBase:
         cad=base.B @ np.concatenate([np.zeros(6), theta_u]),
         base=base,
         bias=True,
-        unknown_columns=idx.copy(),
     )
 
 
