@@ -227,7 +227,7 @@ def _check_output(path: Path, overwrite: bool) -> None:
     check_output(path, overwrite)
 
 
-def csv_columns(n_dof: int) -> list[str]:
+def trajectory_columns(n_dof: int) -> list[str]:
     """``time, q1..qn, qd1..qn, qdd1..qn``."""
     return ["time"] + [f"{p}{i}" for p in ("q", "qd", "qdd") for i in range(1, n_dof + 1)]
 
@@ -239,7 +239,7 @@ def trajectory_csv_text(t, q, qd, qdd, comments: Sequence[str] = ()) -> str:
     buf = io.StringIO()
     for line in comments:
         buf.write(f"# {line}\n")
-    buf.write(",".join(csv_columns(q.shape[1])) + "\n")
+    buf.write(",".join(trajectory_columns(q.shape[1])) + "\n")
     np.savetxt(buf, np.concatenate([t[:, None], q, qd, qdd], axis=1), delimiter=",", fmt="%.17g")
     return buf.getvalue()
 
@@ -352,7 +352,7 @@ def read_trajectory_csv(path: str | Path) -> SampledTrajectory:
         n += 1
     if n == 0:
         raise DatasetError(f"{path}: no joint columns (q1, qd1, qdd1, ...) in the header {','.join(header)}")
-    required = csv_columns(n)
+    required = trajectory_columns(n)
     missing = [c for c in required if c not in header]
     if missing:
         raise DatasetError(f"{path}: missing column{'s' if len(missing) > 1 else ''} {', '.join(missing)}")

@@ -44,9 +44,10 @@ All constraints are linear in the coefficients.
 
 **Solver.** IPOPT through CasADi: the constraints as one sparse constant matrix, the
 objective and its exact gradient through a :class:`casadi.Callback` that evaluates the
-generated JAX regressor (jit) at the design samples and pulls the criterion's gradient
-back through it (``jax.vjp``), then through the linear map from coefficients to states;
-L-BFGS Hessian. Several random feasible starts; the best design is kept. The solution is
+generated JAX regressor and its derivatives with respect to the states at the design
+samples (forward mode, ``jax.jvp`` vmapped over the ``3 n`` state directions, jitted once
+per robot), contracts them with ``df/dPhi``, then maps through the linear map from
+coefficients to states; L-BFGS Hessian. Several random feasible starts; the best design is kept. The solution is
 projected back onto the tightened grid constraints (scaling each joint's amplitude about
 its mean) so IPOPT's constraint tolerance cannot leak out.
 
@@ -395,7 +396,13 @@ class _Problem:
         self.kappa = kappa
         self.q_lo = bounds.q_lower + shrink
         self.q_hi = bounds.q_upper - shrink
-        if np.any(self.q_hi <= self.q_lo) or kappa >= 0.5:
+        if kappa >= 0.5:
+            raise ExcitationError(
+                f"{constraint_points} constraint points per period are too few for {harmonics} harmonics; "
+                f"use more than pi H = {math.pi * harmonics:.1f} (default 32 per harmonic)",
+                reason="settings",
+            )
+        if np.any(self.q_hi <= self.q_lo):
             bad = int(np.argmax(self.q_lo - self.q_hi))
             raise ExcitationError(
                 f"joint {model.joint_names[bad]!r}: its range less the margin is too small to move in; "
