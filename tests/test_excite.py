@@ -194,6 +194,14 @@ def test_cli_excite_writes_csv_json_and_summary(tmp_path):
     assert r.exit_code == 2 and "rows of a trajectory CSV are the frames" in r.output
 
 
+def test_cli_help_lists_the_choices():
+    for args in (("excite", "--help"), ("data", "generate", "--help")):
+        r = _run(*args)
+        assert r.exit_code == 0, r.output
+    assert "d-opt|cond" in _run("excite", "--help").output
+    assert "uniform|fourier|trajectory" in _run("data", "generate", "--help").output
+
+
 def test_cli_excite_one_line_errors(tmp_path):
     r = _run("excite", "sweaty-arm", "--duration", 0.08, "--out", tmp_path / "t.csv")
     assert r.exit_code == 1 and "too short" in r.output.strip().splitlines()[-1] and "Traceback" not in r.output

@@ -89,8 +89,8 @@ class LibraryChoice(click.ParamType):
     def name(self) -> str:  # click shows it in errors
         return "choice"
 
-    def get_metavar(self, param, *args):
-        return self.choice.get_metavar(param, *args)
+    def get_metavar(self, param, *args, **kwargs):  # click >= 8.2 passes ctx= by keyword
+        return self.choice.get_metavar(param, *args, **kwargs)
 
     def convert(self, value, param, ctx):
         return self.choice.convert(value, param, ctx)
