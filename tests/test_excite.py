@@ -95,12 +95,23 @@ def test_gradient_matches_finite_differences(arm, criterion, bias):
     np.testing.assert_allclose(g, fd, atol=1e-5 * np.max(np.abs(fd)))
 
 
-def test_bias_adds_six_constant_columns(arm):
+def test_bias_design_is_for_the_offset_aware_base_parameters(arm):
+    from ineid.identify import base_parameters
+
     plain, with_bias = design_base(arm), design_base(arm, bias=True)
-    np.testing.assert_array_equal(with_bias.columns[:6], np.arange(6))  # the bias axes come first and stay
-    assert all(name.startswith(axis) for name, axis in zip(with_bias.names, ("bias.fx", "bias.fy", "bias.fz")))
-    # the weight of the moving links is partly a constant force: with a bias some combinations drop out
-    assert plain.rank < with_bias.rank <= plain.rank + 6
+    assert with_bias.names == base_parameters(arm, bias=True).names  # what ineid solve --bias estimate fits
+    assert with_bias.rank <= plain.rank
+    # centring the samples profiles the offsets out: the std equals that of [1 | Psi_b] least squares
+    rng = np.random.default_rng(SEED)
+    q, qd, qdd = (rng.uniform(-1, 1, (300, arm.n_dof)) for _ in range(3))
+    ev = evaluate_design(arm, q, qd, qdd, with_bias, design_noise())
+    from ineid.identify.excite import regressor_and_derivatives, scaled_regressor
+
+    phi = scaled_regressor(regressor_and_derivatives(arm, q, qd, qdd, derivatives=False)[0], with_bias, design_noise())
+    ones = np.tile(np.eye(6) / design_noise()[:, None], (len(q), 1))
+    a = np.concatenate([ones, phi.reshape(-1, with_bias.rank)], axis=1)
+    rel = np.sqrt(np.diag(np.linalg.inv(a.T @ a)))[6:]
+    np.testing.assert_allclose(ev.rel_std, rel, rtol=1e-8)
 
 
 def test_trajectory_json_and_csv_agree(tmp_path, design):
@@ -177,6 +188,11 @@ def test_cli_excite_writes_csv_json_and_summary(tmp_path):
     # never replaced without --overwrite, one line
     r = _run("excite", "sweaty-arm", "--duration", 5, "--out", out)
     assert r.exit_code == 1 and "exists; pass --overwrite" in r.output and "Traceback" not in r.output
+
+    r = _run("-q", "excite", "sweaty-arm", "--duration", 5, "--harmonics", 3, "--starts", 1, "--bias", "estimate",
+             "--out", tmp_path / "b.csv")  # fmt: skip
+    assert r.exit_code == 0 and "sensor offsets estimated" in r.output, r.output
+    assert json.loads((tmp_path / "b.json").read_text())["design"]["bias"] is True
 
     # the designed trajectory drives a simulated dataset
     h5 = tmp_path / "d.h5"

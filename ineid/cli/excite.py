@@ -42,6 +42,9 @@ _SETTINGS = "ineid.identify.excite:ExcitationSettings"
               default_from=f"{_SETTINGS}.velocity_scale", help="Fraction of the model's velocity bounds used.")
 @click.option("--acceleration-scale", type=click.FloatRange(0, 1, min_open=True), cls=LibraryOption,
               default_from=f"{_SETTINGS}.acceleration_scale", help="Fraction of the model's acceleration bounds used.")
+@click.option("--bias", type=LibraryChoice("ineid.identify.solve:BIAS_MODES"), cls=LibraryOption,
+              default_from="ineid.identify.solve:SolveSettings.bias",
+              help="estimate: design for ineid solve --bias estimate (six sensor offsets identified too).")
 @click.option("--seed", type=click.IntRange(min=0), cls=LibraryOption, default_from=f"{_SETTINGS}.seed",
               help="Seed of the random starts.")
 @noise_option
@@ -52,7 +55,7 @@ _SETTINGS = "ineid.identify.excite:ExcitationSettings"
 @overwrite_option
 @click.pass_context
 def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, rate, margin, velocity_scale,
-           acceleration_scale, seed, noise, out, coefficients, overwrite) -> None:
+           acceleration_scale, bias, seed, noise, out, coefficients, overwrite) -> None:
     """Design a periodic Fourier excitation trajectory of ROBOT that identifies its unknown links well.
 
     The trajectory starts and ends at rest, keeps every joint within its limits (less the
@@ -71,7 +74,8 @@ def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, r
     model = robot.load()
     settings = ExcitationSettings(
         duration=duration, harmonics=harmonics, base_frequency=base_frequency, criterion=criterion, starts=starts,
-        rate=rate, margin=margin, velocity_scale=velocity_scale, acceleration_scale=acceleration_scale, seed=seed,
+        rate=rate, margin=margin, velocity_scale=velocity_scale, acceleration_scale=acceleration_scale,
+        bias=bias == "estimate", seed=seed,
     )  # fmt: skip
     with ProgressBar("designing", "starts", quiet(ctx)) as bar:
         res = design_excitation(model, settings, noise=noise_model(noise, model.n_dof), progress=bar)
@@ -97,7 +101,8 @@ def print_design(res) -> None:
     sigma = res.sigma
     con.print(
         f"[bold]{res.criterion}[/bold] design of {res.settings['robot']} ({', '.join(res.settings['unknown_links'])} "
-        f"unknown): {res.base.rank} base parameters, {len(res.starts)} starts in {res.seconds:.1f} s "
+        f"unknown{'; sensor offsets estimated' if res.base.bias else ''}): {res.base.rank} base parameters, "
+        f"{len(res.starts)} starts in {res.seconds:.1f} s "
         f"(of which compilation {res.compile_seconds:.1f} s)"
     )
     con.print(

@@ -2,17 +2,19 @@
 
 **What is optimized.** Along a trajectory sampled at times ``t_k`` the identification
 solves ``y = W_b beta + e`` with ``W_b`` the regressor's base columns
-(:mod:`ineid.identify.identifiability`; with ``bias=True`` six constant columns, one per
-wrench axis, join them first, and the columns they make dependent drop out). The design
-works on the *scaled* regressor of each sample
+(:mod:`ineid.identify.identifiability`). The design works on the *scaled* regressor of
+each sample
 
-    Phi_k = D^-1 [I_6 | Psi(q_k, qd_k, qdd_k)][:, base columns] S
+    Phi_k = D^-1 Psi(q_k, qd_k, qdd_k)[:, base columns] S
 
 with ``D = diag(sigma)`` the wrench sensor noise per axis (N, N*m) and ``S`` the
 characteristic scale of each base parameter (:func:`ineid.identify.systems.parameter_scales`:
-``m``, ``m l``, ``m l^2`` per link, from the CAD values; for a bias axis the RMS of that
-axis of the unknown links' CAD wrench over generic states). ``Phi`` is dimensionless, so
-nothing below depends on units. With ``M = (1/N) sum_k Phi_k^T Phi_k`` (the information
+``m``, ``m l``, ``m l^2`` per link, from the CAD values). ``Phi`` is dimensionless, so
+nothing below depends on units. With ``bias=True`` (``ineid solve --bias estimate``: six
+constant sensor offsets identified jointly) the samples are centred per axis,
+``Phi_k - mean_j Phi_j``, which profiles the offsets out exactly, and the base parameters
+are those of the centred regressor (:func:`ineid.identify.base_parameters` with ``bias``);
+the gradient needs no extra term, since the centred rows sum to zero. With ``M = (1/N) sum_k Phi_k^T Phi_k`` (the information
 per sample) the criteria are
 
     d-opt:  f = -log det M                (D-optimality; the volume of the confidence ellipsoid)
@@ -72,18 +74,10 @@ import numpy as np
 from ineid.data.noise import NoiseModel
 from ineid.data.trajectory import FourierTrajectory, state_matrices, whole_count
 from ineid.errors import ExcitationError
-from ineid.identify.identifiability import (
-    BaseParameters,
-    base_parameters_from_regressor,
-    generic_frames,
-    numerical_rank,
-)
-from ineid.identify.systems import parameter_scales
-from ineid.params import param_names
+from ineid.identify.identifiability import BaseParameters, base_parameters, numerical_rank
 from ineid.progress import Progress
 
 CRITERIA = ("d-opt", "cond")
-BIAS_NAMES = ("bias.fx", "bias.fy", "bias.fz", "bias.mx", "bias.my", "bias.mz")
 DEFAULT_CHUNK = 160
 """Samples per call of the compiled regressor and its derivatives (the design grid of 5 harmonics)."""
 DESIGN_NOISE = {"force": 0.5, "moment": 0.05}
@@ -96,17 +90,16 @@ DESIGN_NOISE = {"force": 0.5, "moment": 0.05}
 
 @dataclass(frozen=True)
 class DesignBase:
-    """The base parameters a design is for: the unknown links' ones, plus the bias if estimated.
+    """The base parameters a design is for: the unknown links', with or without sensor offsets.
 
     Attributes:
-        names: (r,) base parameter names (``"bias.fx"`` for a bias axis).
-        columns: (r,) each one's column in ``[I_6 | Psi]`` (the 6 bias columns, then
-            the ``10 n_links`` regressor columns).
+        names: (r,) base parameter names.
+        columns: (r,) each one's column in ``[I_6 | Psi]`` (``6 +`` its column in the
+            ``10 n_links`` regressor columns).
         scales: (r,) characteristic scales ``S`` (SI units of each parameter).
-        cad: (r,) the CAD values ``B theta_cad`` (0 for bias axes).
-        base: the underlying :class:`BaseParameters` (over ``BIAS_NAMES`` + the unknown
-            links' parameters when ``bias``).
-        bias: whether the six bias columns take part.
+        cad: (r,) the CAD values ``B theta_cad``.
+        base: the underlying :class:`BaseParameters`.
+        bias: six constant offsets are identified too (the regressor is centred per axis).
     """
 
     names: tuple[str, ...]
@@ -121,52 +114,24 @@ class DesignBase:
         return len(self.names)
 
 
-def bias_scales(model, n_frames: int = 200, seed: int = 0) -> np.ndarray:
-    """(6,) RMS of each axis of the unknown links' CAD wrench over generic states (N, N*m)."""
-    q, qd, qdd = generic_frames(model, n_frames, seed)
-    psi, _ = regressor_and_derivatives(model, q, qd, qdd, derivatives=False)
-    wrench = psi[..., model.unknown_index] @ model.theta_cad[model.unknown_index]
-    rms = np.sqrt(np.mean(wrench**2, axis=0))
-    return np.maximum(rms, 1e-9 * max(float(rms.max()), 1e-300))
-
-
 def design_base(model, bias: bool = False) -> DesignBase:
-    """The base parameters of ``model``'s unknown links, with the six bias axes when ``bias``.
-
-    With the bias, the column scan of :func:`base_parameters_from_regressor` runs over
-    ``[I_6 | W_unknown]`` with the bias columns first: a parameter whose only effect is a
-    constant wrench (the weight of a link that never moves its centre of mass
-    vertically, say) is then a null direction, and the bias keeps its six axes.
-    """
-    theta_u = model.theta_cad[model.unknown_index]
-    q, qd, qdd = generic_frames(model)
-    psi, _ = regressor_and_derivatives(model, q, qd, qdd, derivatives=False)
-    w = psi[..., model.unknown_index].reshape(-1, len(model.unknown_index))
-    if not bias:
-        # base_parameters(model) with the design's compiled regressor (one compilation, not two)
-        base = base_parameters_from_regressor(w, param_names(model.unknown_links), parameter_scales(theta_u))
-        idx = base.base_index
-        return DesignBase(
-            names=base.names,
-            columns=6 + model.unknown_index[idx],
-            scales=base.scales[idx],
-            cad=base.B @ theta_u,
-            base=base,
-            bias=False,
-        )
-    wb = np.concatenate([np.tile(np.eye(6), (len(q), 1)), w], axis=1)
-    scales = np.concatenate([bias_scales(model), parameter_scales(theta_u)])
-    base = base_parameters_from_regressor(wb, BIAS_NAMES + tuple(param_names(model.unknown_links)), scales)
+    """The structural base parameters of ``model``'s unknown links, as ``ineid solve`` identifies
+    them (:func:`ineid.identify.base_parameters`, with ``bias`` for ``--bias estimate``)."""
+    base = base_parameters(model, bias=bias)
     idx = base.base_index
-    full = np.concatenate([np.arange(6), 6 + model.unknown_index])
     return DesignBase(
         names=base.names,
-        columns=full[idx],
-        scales=scales[idx],
-        cad=base.B @ np.concatenate([np.zeros(6), theta_u]),
+        columns=6 + model.unknown_index[idx],
+        scales=base.scales[idx],
+        cad=base.B @ model.theta_cad[model.unknown_index],
         base=base,
-        bias=True,
+        bias=bool(bias),
     )
+
+
+def centred(phi: np.ndarray) -> np.ndarray:
+    """``Phi_k - mean_j Phi_j`` (N, 6, r): the offsets of every axis profiled out."""
+    return phi - phi.mean(axis=0, keepdims=True)
 
 
 def design_noise(noise: NoiseModel | None = None) -> np.ndarray:
@@ -265,6 +230,7 @@ def evaluate_design(model, q, qd, qdd, base: DesignBase, sigma: np.ndarray) -> D
     f = len(q)
     psi, _ = regressor_and_derivatives(model, q, qd, qdd, derivatives=False)
     phi = scaled_regressor(psi, base, sigma)
+    phi = centred(phi) if base.bias else phi
     a = phi.reshape(-1, base.rank)
     sv = np.linalg.svd(a, compute_uv=False)
     rank = numerical_rank(sv)
@@ -449,9 +415,11 @@ class _Problem:
         psi, dpsi = regressor_and_derivatives(self.model, q, qd, qdd)
         self.n_evals += 1
         phi = scaled_regressor(psi, self.base, self.sigma)
-        sel = self.base.columns >= 6
-        weight = (self.base.scales[sel] / self.sigma[:, None])  # (6, r_psi)
-        dphi = dpsi[..., self.base.columns[sel] - 6] * weight  # bias columns are constant
+        # centring: df/dPhi_k = G_k - mean(G) = G_k, as G_k = (2/N) Phi_c_k dM sums to zero
+        phi = centred(phi) if self.base.bias else phi
+        sel = self.base.columns >= 6  # every column (the offsets are profiled out, not columns)
+        weight = (self.base.scales[sel] / self.sigma[:, None])  # (6, r)
+        dphi = dpsi[..., self.base.columns[sel] - 6] * weight
         self._last = (key, (phi, dphi, sel))
         return self._last[1]
 
@@ -723,8 +691,8 @@ class ExcitationSettings:
         rate: Hz of the samples (the CSV rows, and the reported evaluations).
         margin: fraction of each joint's range kept free at each end, in [0, 0.5).
         velocity_scale, acceleration_scale: fractions of the model's bounds, in (0, 1].
-        bias: design for six constant wrench offsets too (a sensor bias estimated with
-            the parameters); ineid's solvers do not estimate a bias yet.
+        bias: design for identification with six constant sensor offsets estimated
+            jointly (``ineid solve --bias estimate``).
         seed: of the random starts.
         design_points: samples per period of the criterion (None: ``32 H`` rounded up to a
             multiple of :data:`DEFAULT_CHUNK`, the compiled block size).
@@ -826,9 +794,7 @@ def design_excitation(
     sigma = design_noise(noise)
     design_points = design_points or DEFAULT_CHUNK * math.ceil(32 * harmonics / DEFAULT_CHUNK)
     constraint_points = constraint_points or 32 * harmonics
-    t_compile = time.perf_counter()
-    base = design_base(model, bias)  # the first call of the compiled regressor and its derivatives
-    compile_seconds = time.perf_counter() - t_compile
+    base = design_base(model, bias)
     samples = n_rate + 1
     if 6 * samples < base.rank:
         raise ExcitationError(
@@ -839,6 +805,9 @@ def design_excitation(
     problem = _Problem(model, base, sigma, criterion, bounds, f0, harmonics, design_points, constraint_points)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 12]))
     x0s = [problem.random_start(rng) for _ in range(starts)]
+    t_compile = time.perf_counter()
+    problem.gradient(x0s[0])  # the first call of the compiled regressor and its derivatives
+    compile_seconds = time.perf_counter() - t_compile
 
 
     solver, _keep, bnds = _ipopt_solver(problem, max_iter, tol)
