@@ -35,7 +35,14 @@ from ineid.data import Combination, DatasetSpec, FrameSampling, NoiseModel, gene
 from ineid.data.sampling import model_uniform_states
 from ineid.data.trajectory import SampledTrajectory
 from ineid.identify import SolveSettings, relative_error, solve_dataset
-from ineid.identify.excite import ExcitationSettings, design_base, design_excitation, design_noise, evaluate_design
+from ineid.identify.excite import (
+    ExcitationSettings,
+    design_base,
+    design_excitation,
+    design_noise,
+    evaluate_design,
+    regressor_and_derivatives,
+)
 from ineid.identify.study import REFERENCE_NOISE
 
 EXAMPLES = "cmeel.prefix/share/example-robot-data/robots"
@@ -79,8 +86,10 @@ def main() -> None:
     makers = robots()
     for name in args.robots.split(","):
         model = makers[name]()
+        base = design_base(model)  # through CasADi: no compilation
         t0 = time.perf_counter()
-        base = design_base(model)  # compiles the regressor and its derivatives
+        zeros = np.zeros((1, model.n_dof))
+        regressor_and_derivatives(model, zeros, zeros, zeros)  # compiles the regressor and its derivatives
         compile_s = time.perf_counter() - t0
         sigma = design_noise()
         rows = {"designed": [], "random Fourier": [], "uniform states": []}
