@@ -27,8 +27,10 @@ _MODEL = "ineid.learn.models:ModelSpec"
 def _run_options(f):
     """Options shared by ``ineid train`` and ``ineid sweep`` (the settings of one run; defaults: TrainConfig's)."""
     opts = [
-        click.option("--depth", type=click.IntRange(min=1), default=None, help="Hidden layers of --arch mlp."),
-        click.option("--width", type=click.IntRange(min=1), default=None, help="Neurons per layer of --arch mlp."),
+        click.option("--depth", type=click.IntRange(min=1), default=None,
+                     help="Hidden layers of --arch mlp (or of the wls frame encoder, default 2)."),
+        click.option("--width", type=click.IntRange(min=1), default=None,
+                     help="Neurons per layer of --arch mlp (or of the wls frame encoder, default 32)."),
         click.option("--lr", type=click.FloatRange(min=0, min_open=True), cls=LibraryOption, default_from=f"{_CFG}.lr"),
         click.option("--schedule", type=LibraryChoice("ineid.learn.train:SCHEDULES"), cls=LibraryOption,
                      default_from=f"{_CFG}.schedule"),
@@ -69,7 +71,8 @@ def _train_config(model_kw: dict, kw: dict):
 @click.command("train")
 @click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
 @click.option("--arch", type=LibraryChoice("ineid.learn.models:ARCHITECTURES"), cls=LibraryOption,
-              default_from=f"{_MODEL}.arch", help="Table 1 of the paper, or mlp.")
+              default_from=f"{_MODEL}.arch",
+              help="Table 1 of the paper, mlp, or wls (a weighted least-squares solve with learned weights and prior).")
 @click.option("--activation", type=LibraryChoice("ineid.learn.models:ACTIVATIONS"), cls=LibraryOption,
               default_from=f"{_MODEL}.activation")
 @click.option("--scaler", type=LibraryChoice("ineid.learn.scalers:SCALERS"), cls=LibraryOption,
@@ -129,7 +132,7 @@ def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, arch, ac
 @click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
 @select_option
 @select_alias
-@click.option("--no-linear", is_flag=True, help="Skip the linear least-squares comparison.")
+@click.option("--no-linear", is_flag=True, help="Skip the classical comparisons (linear LS, Gaussian prior).")
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Where to write the evaluation (JSON; default RUN_DIR/evaluation.json).")
 @overwrite_option

@@ -316,11 +316,12 @@ select_option = click.option(
 )  # fmt: skip
 select_alias = deprecated_alias("--configs", "selection", "--select")
 
-NOISE_KEYS = ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "q", "qd", "qdd")
+NOISE_KEYS = ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "q", "qd", "qdd", "glitch", "glitch_scale")
 
 
 def _parse_noise(ctx, param, value: str | None) -> dict[str, float] | None:
-    """``force=0.5,moment=0.02,qd=0.01`` -> ``{key: std}`` (checked; see :func:`noise_model`)."""
+    """``force=0.5,moment=0.02,qd=0.01[,glitch=0.02,glitch_scale=20]`` -> ``{key: value}`` (checked; see
+    :func:`noise_model`)."""
     if not value:
         return None
     std = {}
@@ -343,20 +344,31 @@ def _parse_noise(ctx, param, value: str | None) -> dict[str, float] | None:
 
 noise_option = click.option(
     "--noise", default=None, metavar="KEY=STD,...", callback=_parse_noise,
-    help="Gaussian noise std: force, moment (or fx..mz) in N, N*m; q, qd, qdd in rad, rad/s, rad/s^2.",
+    help="Gaussian noise std: force, moment (or fx..mz) in N, N*m; q, qd, qdd in rad, rad/s, rad/s^2; "
+         "glitch=RATE: that share of frames gets glitch_scale (default 20) times the force noise.",
 )  # fmt: skip
 
 
 def noise_model(std: dict[str, float] | None, n_dof: int):
-    """The :class:`ineid.data.NoiseModel` of a parsed ``--noise`` (None for clean data)."""
+    """The :class:`ineid.data.NoiseModel` of a parsed ``--noise`` (None for clean data).
+
+    Raises:
+        click.BadParameter: glitches without force noise, a glitch rate outside [0, 1) or a scale below 1.
+    """
     if not std:
         return None
     from ineid.data import NoiseModel  # noqa: PLC0415
 
     force = [std.get(a, std.get("force", 0.0)) for a in ("fx", "fy", "fz")]
     moment = [std.get(a, std.get("moment", 0.0)) for a in ("mx", "my", "mz")]
-    return NoiseModel.create(n_dof, force=force, moment=moment, q=std.get("q", 0.0), qd=std.get("qd", 0.0),
-                             qdd=std.get("qdd", 0.0))  # fmt: skip
+    glitch = {"glitch_rate": std.get("glitch", 0.0)}
+    if "glitch_scale" in std:
+        glitch["glitch_scale"] = std["glitch_scale"]
+    try:
+        return NoiseModel.create(n_dof, force=force, moment=moment, q=std.get("q", 0.0), qd=std.get("qd", 0.0),
+                                 qdd=std.get("qdd", 0.0), **glitch)  # fmt: skip
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--noise") from None
 
 
 def verbosity(ctx: click.Context) -> int:

@@ -148,23 +148,28 @@ def print_evaluation(ev) -> None:
     con = console()
     con.print(f"evaluated on {ev.n_configs} configurations ({ev.extra.get('configs')}), {ev.frames_used} frames each")
     table = Table(title="Relative error of the standard parameters (median / 95th percentile) and R^2", title_justify="left")
-    for col in ("parameter", "network", "p95", "R^2", "floor (null space)", "linear LS", "identifiable"):
+    for col in ("parameter", "network", "p95", "R^2", "floor (null space)", "linear LS", "Gaussian prior",
+                "identifiable"):
         table.add_column(col, justify="left" if col in ("parameter", "identifiable") else "right")
     for k, name in enumerate(ev.network["names"]):
         lin = f"{ev.linear['median'][k]:.3g}" if ev.linear else "-"
+        gp = f"{ev.gaussian['median'][k]:.3g}" if ev.gaussian else "-"
         table.add_row(name, f"{ev.network['median'][k]:.3g}", f"{ev.network['p95'][k]:.3g}",
-                      f"{ev.network['r2'][k]:.3f}", f"{ev.floor['median'][k]:.3g}", lin,
+                      f"{ev.network['r2'][k]:.3f}", f"{ev.floor['median'][k]:.3g}", lin, gp,
                       "yes" if ev.identifiable[k] else "no")
     con.print(table)
     table = Table(title="Relative error of the base parameters (median)", title_justify="left")
-    for col in ("base parameter", "network", "R^2", "linear LS"):
+    for col in ("base parameter", "network", "R^2", "linear LS", "Gaussian prior"):
         table.add_column(col, justify="left" if col == "base parameter" else "right")
     for k, name in enumerate(ev.network_base["names"]):
         lin = f"{ev.linear_base['median'][k]:.3g}" if ev.linear_base else "-"
-        table.add_row(name, f"{ev.network_base['median'][k]:.3g}", f"{ev.network_base['r2'][k]:.3f}", lin)
+        gp = f"{ev.gaussian_base['median'][k]:.3g}" if ev.gaussian_base else "-"
+        table.add_row(name, f"{ev.network_base['median'][k]:.3g}", f"{ev.network_base['r2'][k]:.3f}", lin, gp)
     con.print(table)
     lin = (f"; linear LS: standard {ev.linear['overall_median']:.4g}, base {ev.linear_base['overall_median']:.4g}, "
            f"physical {100 * ev.linear_physical_share:.0f}%") if ev.linear else ""
+    if ev.gaussian:
+        lin += f"; Gaussian prior: standard {ev.gaussian['overall_median']:.4g}, base {ev.gaussian_base['overall_median']:.4g}"
     con.print(
         f"median over all parameters: network standard {ev.network['overall_median']:.4g}, base "
         f"{ev.network_base['overall_median']:.4g} (per sample, before averaging: {ev.per_sample_median:.4g}); "

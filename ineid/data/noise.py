@@ -5,6 +5,15 @@ independent Gaussian noise is added to each wrench axis (a force/torque sensor) 
 ``q`` (encoders), ``qd`` and ``qdd`` (as a gyroscope and its derivative, or an observer,
 would see them). The clean values are kept beside the noisy ones in a dataset, so a
 study can separate the two error sources.
+
+**Glitches.** A sensor that now and then misreads (a loose connector, an impact, a
+saturating strain gauge) is modelled by ``glitch_rate`` and ``glitch_scale``: each frame,
+independently with probability ``glitch_rate``, gets force noise ``glitch_scale`` times
+the force axes' standard deviations (``fx, fy, fz``; the moments keep theirs). The noise
+of frame ``j`` on force axis ``a`` is then ``sigma_a * g_j * z_ja`` with ``g_j`` =
+``glitch_scale`` on a glitched frame and 1 otherwise, ``z`` standard normal. Which frames
+glitch is drawn after the Gaussian noise from the same stream, so data without glitches
+are bit-identical to those made before glitches existed.
 """
 
 from __future__ import annotations
@@ -36,12 +45,25 @@ class NoiseModel:
     Attributes:
         wrench: (6,) per axis: N for ``fx, fy, fz``, N*m for ``mx, my, mz``.
         q: (n_dof,) rad (m for prismatic joints); ``qd`` rad/s; ``qdd`` rad/s^2.
+        glitch_rate: share of frames, in [0, 1), whose force noise is ``glitch_scale``
+            times larger (see the module doc); 0: no glitches.
+        glitch_scale: the factor on a glitched frame's force noise, >= 1 (default 20).
     """
 
     wrench: np.ndarray = field(default_factory=lambda: np.zeros(6))
     q: np.ndarray | float = 0.0
     qd: np.ndarray | float = 0.0
     qdd: np.ndarray | float = 0.0
+    glitch_rate: float = 0.0
+    glitch_scale: float = 20.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= float(self.glitch_rate) < 1.0:
+            raise ValueError(f"glitch_rate must be in [0, 1), got {self.glitch_rate}")
+        if not 1.0 <= float(self.glitch_scale) < float("inf"):
+            raise ValueError(f"glitch_scale must be >= 1 and finite, got {self.glitch_scale}")
+        if self.glitch_rate > 0 and not np.any(np.asarray(self.wrench)[:3] > 0):
+            raise ValueError("glitches scale the force noise: give a force noise (force=...) with glitch_rate > 0")
 
     @classmethod
     def create(
@@ -53,10 +75,13 @@ class NoiseModel:
         q: float | Sequence[float] = 0.0,
         qd: float | Sequence[float] = 0.0,
         qdd: float | Sequence[float] = 0.0,
+        glitch_rate: float = 0.0,
+        glitch_scale: float = 20.0,
     ) -> NoiseModel:
         """A noise model from per-group standard deviations (a number, or one per axis/joint)."""
         wrench = np.concatenate([_std(force, 3, "force"), _std(moment, 3, "moment")])
-        return cls(wrench=wrench, q=_std(q, n_dof, "q"), qd=_std(qd, n_dof, "qd"), qdd=_std(qdd, n_dof, "qdd"))
+        return cls(wrench=wrench, q=_std(q, n_dof, "q"), qd=_std(qd, n_dof, "qd"), qdd=_std(qdd, n_dof, "qdd"),
+                   glitch_rate=float(glitch_rate), glitch_scale=float(glitch_scale))
 
     @classmethod
     def from_dict(cls, d: Mapping, n_dof: int) -> NoiseModel:
@@ -66,10 +91,17 @@ class NoiseModel:
             q=_std(d.get("q", 0.0), n_dof, "q"),
             qd=_std(d.get("qd", 0.0), n_dof, "qd"),
             qdd=_std(d.get("qdd", 0.0), n_dof, "qdd"),
+            glitch_rate=float(d.get("glitch_rate", 0.0)),
+            glitch_scale=float(d.get("glitch_scale", 20.0)),
         )
 
     def to_dict(self) -> dict:
-        return {k: np.atleast_1d(np.asarray(getattr(self, k), dtype=float)).tolist() for k in ("wrench", "q", "qd", "qdd")}
+        """The standard deviations as lists; ``glitch_rate`` and ``glitch_scale`` only when glitching
+        (so the records, and the fingerprints, of data without glitches are unchanged)."""
+        d = {k: np.atleast_1d(np.asarray(getattr(self, k), dtype=float)).tolist() for k in ("wrench", "q", "qd", "qdd")}
+        if self.glitch_rate > 0:
+            d.update(glitch_rate=float(self.glitch_rate), glitch_scale=float(self.glitch_scale))
+        return d
 
     def noisy_keys(self) -> tuple[str, ...]:
         """Which arrays this model perturbs, among ``q, qd, qdd, wrench``."""
@@ -79,7 +111,8 @@ class NoiseModel:
         """Noisy copies of ``arrays["q" | "qd" | "qdd" | "wrench"]`` (..., dim).
 
         One draw of all channels per frame, in a fixed order, so a configuration's noise
-        depends only on its random stream.
+        depends only on its random stream; with glitches, then one uniform draw per frame
+        picks the glitched frames.
         """
         keys = (*STATE_KEYS, "wrench")
         widths = [arrays[k].shape[-1] for k in keys]
@@ -90,4 +123,10 @@ class NoiseModel:
             std = np.asarray(getattr(self, k), dtype=np.float64)
             out[k] = arrays[k] + std * z[..., start : start + width] if np.any(std > 0) else arrays[k]
             start += width
+        if self.glitch_rate > 0:
+            glitched = rng.random(batch) < self.glitch_rate
+            extra = np.where(glitched, self.glitch_scale - 1.0, 0.0)[..., None]  # (..., 1)
+            zw = z[..., start - 6 : start - 3]  # the force axes' draws
+            out["wrench"] = out["wrench"].copy()
+            out["wrench"][..., :3] += extra * np.asarray(self.wrench)[:3] * zw
         return out

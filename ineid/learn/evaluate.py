@@ -18,6 +18,13 @@ configurations), and reports its error per parameter. It is zero on the individu
 identifiable parameters. It is the best estimator linear in ``beta`` (the conditional
 mean, so the best of all, where the sampling is Gaussian; ineid's uniform bands are close
 to that); a network whose error is near it has nothing left to gain from the data.
+
+**The Gaussian-prior estimate** is the classical answer to noise with a known population:
+the posterior mean of ``beta`` under a Gaussian prior fitted on the training
+configurations' true parameters (their mean and covariance) and a per-axis noise model
+(the RMS of the wrench residual at the truth over the training frames), mapped to
+``theta`` by the floor's rule (:func:`ineid.learn.wls.prior_estimate`; out of fold on
+another dataset, like the floor). It is what an untrained ``wls`` network outputs.
 """
 
 from __future__ import annotations
@@ -36,35 +43,56 @@ if TYPE_CHECKING:
     from ineid.robots import RobotModel
 
 
-def predict(run: Run, ds: Dataset, configs: np.ndarray, batch: int = 1024) -> tuple[np.ndarray, np.ndarray, int]:
-    """Per-configuration estimates (C, n_u), per-sample estimates (C, G, n_u), frames used."""
+PREDICT_CHUNK_FRAMES = 100_000
+"""Frames per chunk of configurations in :func:`predict` (bounds a wls run's regressor memory)."""
+
+
+def predict(run: Run, ds: Dataset, configs: np.ndarray, batch: int = 1024, model: RobotModel | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """Per-configuration estimates (C, n_u), per-sample estimates (C, G, n_u), frames used.
+
+    A configuration's groups ``[0, K), [K, 2K), ...`` are its samples; a ``wls`` run also
+    gets each frame's regressor and wrench (the generated JAX regressor of ``model``,
+    default the dataset's), computed a chunk of configurations at a time.
+    """
     import jax  # noqa: PLC0415
 
     k = run.config.model.frames
-    sub = ds.select(np.asarray(configs))
-    x = run.x_scaler.transform(frame_features(sub))
-    pos, frames = fixed_groups(sub.n_configs, sub.n_frames, k)
-    groups = sub.n_frames // k
+    configs = np.asarray(configs)
+    if ds.n_frames < k:
+        raise TrainingError(f"the run takes {k} frames per sample but the dataset has {ds.n_frames} per configuration")
+    groups = ds.n_frames // k
+    structured = run.config.model.uses_regressor
+    if structured:
+        from ineid.identify.systems import stack  # noqa: PLC0415
+
+        model = model or ds.model()
     apply = jax.jit(run.net.apply)
+    per_chunk = max(1, PREDICT_CHUNK_FRAMES // ds.n_frames)
     out = []
-    for start in range(0, len(pos), batch):
-        xb = x[pos[start : start + batch, None], frames[start : start + batch]]
-        n = len(xb)
-        if n < batch:
-            xb = np.concatenate([xb, np.zeros((batch - n,) + xb.shape[1:])])
-        out.append(np.asarray(apply(run.params, xb))[:n])
-    z = np.concatenate(out).reshape(sub.n_configs, groups, -1)
+    for c0 in range(0, len(configs), per_chunk):
+        sub = ds.select(configs[c0 : c0 + per_chunk], slice(0, groups * k))
+        x = run.x_scaler.transform(frame_features(sub))
+        pos, frames = fixed_groups(sub.n_configs, sub.n_frames, k)
+        arrays = [x]
+        if structured:
+            w, y = stack(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known)
+            arrays += [w.reshape(sub.n_configs, sub.n_frames, 6, -1), y.reshape(sub.n_configs, sub.n_frames, 6)]
+        for start in range(0, len(pos), batch):
+            parts = [a[pos[start : start + batch, None], frames[start : start + batch]] for a in arrays]
+            n = len(parts[0])
+            if n < batch:  # pad to one compiled shape
+                parts = [np.concatenate([a, np.repeat(a[-1:], batch - n, axis=0)]) for a in parts]
+            out.append(np.asarray(apply(run.params, *parts))[:n])
+    z = np.concatenate(out).reshape(len(configs), groups, -1)
     per_sample = run.y_scaler.inverse(z)
     return per_sample.mean(axis=1), per_sample, groups * k
 
 
 def floor_estimator(theta_fit: np.ndarray, b: np.ndarray):
     """The linear MMSE estimate of ``theta`` from exact ``beta = B theta`` (see module doc)."""
-    beta = theta_fit @ b.T
-    mu_t, mu_b = theta_fit.mean(axis=0), beta.mean(axis=0)
-    ct = (theta_fit - mu_t).T @ (beta - mu_b) / max(len(theta_fit) - 1, 1)
-    cb = np.cov(beta, rowvar=False)
-    gain = np.linalg.lstsq(cb, ct.T, rcond=None)[0].T
+    from ineid.learn.wls import null_space_map  # noqa: PLC0415
+
+    mu_t, mu_b, gain = null_space_map(theta_fit, b)
 
     def estimate(theta_true: np.ndarray) -> np.ndarray:
         return mu_t + (theta_true @ b.T - mu_b) @ gain.T
@@ -109,6 +137,8 @@ class Evaluation:
     linear: dict | None = None
     linear_base: dict | None = None
     linear_physical_share: float | None = None
+    gaussian: dict | None = None
+    gaussian_base: dict | None = None
     extra: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
@@ -124,7 +154,8 @@ def evaluate(run: Run, ds: Dataset, configs: np.ndarray | None = None, model: Ro
         ds: a dataset with the truth.
         configs: dataset indices to evaluate.
         model: the robot model (default: rebuilt from the dataset).
-        linear: also solve the linear least squares on the same configurations and frames.
+        linear: also compute the classical references on the same configurations and
+            frames: the linear least squares and the Gaussian-prior estimate.
     """
     from ineid.identify import SolveSettings, base_parameters, solve_dataset  # noqa: PLC0415
     from ineid.identify.results import relative_error  # noqa: PLC0415
@@ -143,7 +174,7 @@ def evaluate(run: Run, ds: Dataset, configs: np.ndarray | None = None, model: Ro
     configs = np.asarray(configs, dtype=np.int64)
     model = model or ds.model()
     base = base_parameters(model)
-    theta_hat, per_sample, f_used = predict(run, ds, configs)
+    theta_hat, per_sample, f_used = predict(run, ds, configs, model=model)
     truth = ds.theta_unknown[configs]
     names = run.meta["param_names"]
     floor = _floor(ds.theta_unknown, run.split.train if same else None, configs, base.B)
@@ -169,6 +200,11 @@ def evaluate(run: Run, ds: Dataset, configs: np.ndarray | None = None, model: Ro
         ev.linear = _stats(res.theta_hat[ok], truth[ok], names)
         ev.linear_base = _stats(res.base_hat[ok], truth[ok] @ base.B.T, base.names)
         ev.linear_physical_share = float(all_links_physical(res.theta_hat[ok]).mean())
+    if linear:
+        gp = _gaussian_prior(run, ds, configs, f_used, model, same)
+        if gp is not None:
+            ev.gaussian = _stats(gp[0], truth, names)
+            ev.gaussian_base = _stats(gp[1], truth @ base.B.T, base.names)
     given = "given" if configs_given else "all"
     ev.extra = {"configs": "test split" if same and not configs_given else given, "same_dataset": same}
     return ev
@@ -176,6 +212,37 @@ def evaluate(run: Run, ds: Dataset, configs: np.ndarray | None = None, model: Ro
 
 def _same_dataset(run: Run, ds) -> bool:
     return run.meta.get("dataset", {}).get("fingerprint") == ds.fingerprint()
+
+
+def _gaussian_prior(run: Run, ds, configs: np.ndarray, f_used: int, model, same: bool):
+    """Gaussian-prior estimates ``(theta (C, n_u), beta (C, r))`` of ``configs`` on their first
+    ``f_used`` frames: prior and noise model from the run's training split (a wls run's own
+    constants), or 5-fold out of fold on another dataset; None when too few to fit."""
+    from ineid.identify import base_parameters  # noqa: PLC0415
+    from ineid.identify.systems import iter_stacks  # noqa: PLC0415
+    from ineid.learn.train import wls_context  # noqa: PLC0415
+    from ineid.learn.wls import WlsContext, prior_estimate  # noqa: PLC0415
+
+    scale = np.asarray(run.meta["wrench_scale"])
+    n = len(configs)
+    if same:
+        contexts = [WlsContext.from_dict(run.meta["wls"]) if "wls" in run.meta else
+                    wls_context(ds, run.split.train, model, run.y_scaler, scale)]  # fmt: skip
+        fold = np.zeros(n, dtype=np.int64)
+    else:
+        if n < 5 * (base_parameters(model).rank + 2):
+            return None
+        fold = np.arange(n) % 5
+        contexts = [wls_context(ds, configs[fold != k], model, run.y_scaler, scale) for k in range(5)]
+    sub = ds.select(configs, slice(0, f_used))
+    theta = np.empty((n, len(run.meta["param_names"])))
+    beta = np.empty((n, contexts[0].rank))
+    for sl, w, y in iter_stacks(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known):
+        for k, ctx in enumerate(contexts):
+            rows = np.flatnonzero(fold[sl] == k)
+            if rows.size:
+                theta[sl.start + rows], beta[sl.start + rows] = prior_estimate(ctx, w[rows], y[rows])
+    return theta, beta
 
 
 def _floor(theta_all: np.ndarray, train_rows, configs: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -69,6 +69,20 @@ class Physics:
     y_center: np.ndarray
     y_scale: np.ndarray
 
+    def system(self, inputs):
+        """``(psi_u (B, K, 6, 10 n_u), y (B, K, 6))``: the batch's frames as ``y = Psi_u theta_u``.
+
+        Args:
+            inputs: ``(psi_u, y)`` when cached, else ``(q, qd, qdd, wrench)`` of the frames.
+        """
+        import jax  # noqa: PLC0415
+
+        if self.mode == "cached":
+            return inputs
+        q, qd, qdd, wrench = inputs
+        psi = jax.lax.stop_gradient(self.regressor(q, qd, qdd, jnp.asarray(self.gravity)))
+        return psi[..., self.unknown_index], wrench - psi[..., self.known_index] @ jnp.asarray(self.theta_known)
+
     def residual(self, theta_unknown, inputs):
         """Normalized wrench residual ``(R - Psi theta) / s``: (B, K, 6).
 
@@ -77,15 +91,7 @@ class Physics:
             inputs: ``(psi_u (B, K, 6, 10 n_u), y (B, K, 6))`` when cached, else
                 ``(q, qd, qdd, wrench)`` of the batch's frames.
         """
-        import jax  # noqa: PLC0415
-
-        if self.mode == "cached":
-            psi_u, y = inputs
-        else:
-            q, qd, qdd, wrench = inputs
-            psi = jax.lax.stop_gradient(self.regressor(q, qd, qdd, jnp.asarray(self.gravity)))
-            psi_u = psi[..., self.unknown_index]
-            y = wrench - psi[..., self.known_index] @ jnp.asarray(self.theta_known)
+        psi_u, y = self.system(inputs)
         predicted = jnp.einsum("bkij,bj->bki", psi_u, theta_unknown)
         return (y - predicted) / jnp.asarray(self.wrench_scale)
 
@@ -96,20 +102,22 @@ class Physics:
         return jnp.mean(r * r)
 
 
-def make_loss(apply_fn, alpha: float, beta: float, physics: Physics | None):
+def make_loss(apply_fn, alpha: float, beta: float, physics: Physics | None, uses_regressor: bool = False):
     """``loss(params, x, z, inputs) -> (total, (mse, phys))`` for one batch.
 
     Args:
-        apply_fn: the model's ``apply(params, x) -> z_hat``.
+        apply_fn: the model's ``apply(params, x) -> z_hat``, or with ``uses_regressor``
+            ``apply(params, x, psi_u, y) -> z_hat`` (the ``wls`` network).
         alpha, beta: weights of the parameter MSE and the physics term (``beta = 0``: plain MSE).
-        physics: constants of the physics term (required when ``beta > 0``); ``inputs`` are
-            its per-batch arrays (see :meth:`Physics.residual`).
+        physics: constants of the physics term (required when ``beta > 0`` or
+            ``uses_regressor``); ``inputs`` are its per-batch arrays (see :meth:`Physics.residual`).
+        uses_regressor: the model takes the frames' regressor and wrench (:meth:`Physics.system`).
     """
-    if beta > 0 and physics is None:
-        raise ValueError("the physics loss needs the robot's regressor (physics=...)")
+    if (beta > 0 or uses_regressor) and physics is None:
+        raise ValueError("the physics loss and the wls network need the robot's regressor (physics=...)")
 
     def loss(params, x, z, inputs):
-        z_hat = apply_fn(params, x)
+        z_hat = apply_fn(params, x, *physics.system(inputs)) if uses_regressor else apply_fn(params, x)
         mse = jnp.mean((z_hat - z) ** 2)
         if beta > 0:
             phys = physics.term(z_hat, inputs)

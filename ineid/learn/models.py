@@ -10,6 +10,10 @@ Every model maps a batch of samples ``x`` (B, K, 18), K frames of one configurat
   and K may differ between training and use), then a head (one hidden layer of the last
   width, then the linear output). Shared weights hold by construction: the encoder is one
   module called K times.
+* ``wls`` (:class:`ineid.learn.wls.WLS`): a weighted least-squares solve built from the
+  robot's regressor, with learned per-frame weights and a learned prior; it also takes
+  each frame's regressor and wrench (``uses_regressor``) and the constants fitted on the
+  training split (``context``).
 
 Table 1 of the paper (N_out = 20 for two unknown links):
 
@@ -54,7 +58,9 @@ TABLE1 = {  # name: (depth, width factor of N_out)
     "net6": (8, 8),
     "net7": (8, 16),
 }
-ARCHITECTURES = ("simple", *TABLE1, "funnel", "mlp")
+ARCHITECTURES = ("simple", *TABLE1, "funnel", "mlp", "wls")
+SIZED = ("mlp", "wls")
+"""Architectures whose sizes ``--depth`` and ``--width`` set (wls: its frame encoder, default 2 x 32)."""
 
 
 def hidden_widths(arch: str, n_out: int, depth: int | None = None, width: int | None = None) -> tuple[int, ...]:
@@ -69,6 +75,13 @@ def hidden_widths(arch: str, n_out: int, depth: int | None = None, width: int | 
     if arch == "mlp":
         if not depth or not width or depth < 1 or width < 1:
             raise ValueError("the mlp architecture needs depth >= 1 and width >= 1")
+        return (int(width),) * int(depth)
+    if arch == "wls":
+        from ineid.learn.wls import WLS_DEPTH, WLS_WIDTH  # noqa: PLC0415
+
+        depth, width = depth or WLS_DEPTH, width or WLS_WIDTH
+        if depth < 1 or width < 1:
+            raise ValueError("the wls encoder needs depth >= 1 and width >= 1")
         return (int(width),) * int(depth)
     raise ValueError(f"architecture must be one of {', '.join(ARCHITECTURES)}, got {arch!r}")
 
@@ -134,16 +147,33 @@ class ModelSpec:
         if self.frames < 1:
             raise ValueError(f"frames per sample must be >= 1, got {self.frames}")
         hidden_widths(self.arch, 1, self.depth, self.width)  # validates the name and sizes
-        if self.arch != "mlp" and (self.depth is not None or self.width is not None):
-            raise ValueError(f"depth and width apply to the mlp architecture; {self.arch} has fixed sizes")
+        if self.arch not in SIZED and (self.depth is not None or self.width is not None):
+            raise ValueError(f"depth and width apply to the mlp and wls architectures; {self.arch} has fixed sizes")
+        if self.arch == "wls" and self.siamese:
+            raise ValueError("the wls network shares its frame encoder by construction; drop siamese")
 
-    def build(self, n_out: int) -> nn.Module:
+    @property
+    def uses_regressor(self) -> bool:
+        """Whether the network also takes each frame's regressor and wrench (``wls``)."""
+        return self.arch == "wls"
+
+    def build(self, n_out: int, context=None) -> nn.Module:
+        """The Flax module; ``context`` (a :class:`ineid.learn.wls.WlsContext`) is required by ``wls``."""
         hidden = hidden_widths(self.arch, n_out, self.depth, self.width)
+        if self.uses_regressor:
+            from ineid.learn.wls import WLS  # noqa: PLC0415
+
+            if context is None:
+                raise ValueError("the wls network needs the constants fitted on its training split (context)")
+            return WLS(hidden=hidden, context=context, activation=self.activation)
         cls = Siamese if self.siamese else MLP
         return cls(hidden=hidden, n_out=n_out, activation=self.activation)
 
     @property
     def name(self) -> str:
+        if self.arch == "wls":
+            sizes = "" if self.depth is None and self.width is None else f"{self.depth or ''}x{self.width or ''}"
+            return f"wls{sizes}-{self.activation}-k{self.frames}"
         base = self.arch if self.arch != "mlp" else f"mlp{self.depth}x{self.width}"
         kind = "siamese" if self.siamese else ("multi" if self.frames > 1 else "single")
         return f"{base}-{self.activation}-{kind}{self.frames if self.frames > 1 else ''}"

@@ -140,8 +140,21 @@ class Run:
 
     @property
     def net(self):
-        """The Flax module (``apply(params, x)`` with x (batch, frames, features))."""
-        return self.config.model.build(self.meta["n_out"])
+        """The Flax module: ``apply(params, x)`` with x (batch, frames, features), or for a
+        ``wls`` run ``apply(params, x, psi_u, y)`` (see :class:`ineid.learn.wls.WLS`)."""
+        return build_net(self.config, self.meta)
+
+
+def build_net(cfg: TrainConfig, meta: dict):
+    """The Flax module of a run from its settings and ``config.json`` (a wls run's constants)."""
+    context = None
+    if cfg.model.uses_regressor:
+        from ineid.learn.wls import WlsContext  # noqa: PLC0415
+
+        if "wls" not in meta:
+            raise TrainingError("the run's config.json lacks the wls constants; the run folder is damaged")
+        context = WlsContext.from_dict(meta["wls"])
+    return cfg.model.build(meta["n_out"], context)
 
 
 def load_run(run_dir: str | Path) -> Run:
@@ -166,8 +179,13 @@ def load_run(run_dir: str | Path) -> Run:
     meta = json.loads(files[0].read_text())
     cfg = TrainConfig.from_dict(meta["train"])
     sc = json.loads(files[1].read_text())
-    net = cfg.model.build(meta["n_out"])
-    template = net.init(jax.random.key(0), np.zeros((1, cfg.model.frames, len(sc["x"]["center"]))))
+    net = build_net(cfg, meta)
+    x = np.zeros((1, cfg.model.frames, len(sc["x"]["center"])))
+    if cfg.model.uses_regressor:
+        n_u = meta["n_out"]
+        template = net.init(jax.random.key(0), x, np.zeros((1, cfg.model.frames, 6, n_u)), np.zeros((1, cfg.model.frames, 6)))
+    else:
+        template = net.init(jax.random.key(0), x)
     try:
         params = serialization.from_bytes(template, files[2].read_bytes())
     except (ValueError, KeyError, TypeError) as e:

@@ -221,13 +221,49 @@ def gather_samples(arrays, mode, rows, frames):
     return take(arrays["x"]), arrays["z"][rows], inputs
 
 
+def forward(net, spec: ModelSpec, physics: Physics):
+    """``f(params, x, inputs) -> z_hat``: the network on a batch, given its physics inputs when it takes them."""
+    if spec.uses_regressor:
+        return lambda params, x, inputs: net.apply(params, x, *physics.system(inputs))
+    return lambda params, x, inputs: net.apply(params, x)
+
+
+def init_params(net, spec: ModelSpec, prep: Prepared, key):
+    """Initial parameters of ``net`` from the shapes of one sample of ``prep``."""
+    k = spec.frames
+    x, _, inputs = gather_samples(prep.arrays, prep.physics.mode, np.zeros(1, dtype=np.int64), np.arange(k)[None])
+    return net.init(key, x, *prep.physics.system(inputs)) if spec.uses_regressor else net.init(key, x)
+
+
+def wls_context(ds, train_rows: np.ndarray, model, y_scaler: Scaler, wrench_scale: np.ndarray):
+    """The constants of a ``wls`` network from the training configurations (:func:`ineid.learn.wls.fit_context`).
+
+    The noise model is the per-axis RMS of the wrench residual at the true parameters over
+    every training frame (:func:`ineid.learn.wls.residual_sigma`), computed a chunk of
+    configurations at a time.
+    """
+    from ineid.identify import base_parameters  # noqa: PLC0415
+    from ineid.identify.systems import iter_stacks  # noqa: PLC0415
+    from ineid.learn.wls import SIGMA_FLOOR, fit_context  # noqa: PLC0415
+
+    sub = ds.select(np.asarray(train_rows))
+    sq, n = np.zeros(6), 0
+    for sl, w, y in iter_stacks(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known):
+        res = (y - np.einsum("cnp,cp->cn", w, sub.theta_unknown[sl])).reshape(-1, 6)
+        sq += np.sum(res**2, axis=0)
+        n += len(res)
+    sigma = np.maximum(np.sqrt(sq / max(n, 1)), SIGMA_FLOOR * np.asarray(wrench_scale))
+    return fit_context(sub.theta_unknown, sigma, base_parameters(model), y_scaler.center, y_scaler.scale)
+
+
 def build_functions(net, cfg: TrainConfig, prep: Prepared, optimizer):
     """Jitted ``train_steps`` (with ``.single`` for one step) and ``eval_batch`` for a run."""
     import jax  # noqa: PLC0415
     import jax.numpy as jnp  # noqa: PLC0415
     import optax  # noqa: PLC0415
 
-    loss_fn = make_loss(net.apply, cfg.alpha, cfg.effective_beta, prep.physics)
+    loss_fn = make_loss(net.apply, cfg.alpha, cfg.effective_beta, prep.physics, cfg.model.uses_regressor)
+    apply = forward(net, cfg.model, prep.physics)
     mode = prep.physics.mode
 
     def one_step(params, opt_state, arrays, rows, frames):
@@ -256,7 +292,7 @@ def build_functions(net, cfg: TrainConfig, prep: Prepared, optimizer):
     def eval_batch(params, arrays, rows, frames, mask):
         """Sums over the masked samples of (mse, phys) and the predictions."""
         x, z, inputs = gather_samples(arrays, mode, rows, frames)
-        z_hat = net.apply(params, x)
+        z_hat = apply(params, x, inputs)
         se = jnp.mean((z_hat - z) ** 2, axis=1)
         r = prep.physics.residual(z_hat * prep.y_scaler.scale + prep.y_scaler.center, inputs)
         ph = jnp.mean(r * r, axis=(1, 2))
@@ -349,6 +385,7 @@ def train(
         TrainingError: the folder holds another run, or a resume does not match it.
     """
     import jax  # noqa: PLC0415
+    import jax.numpy as jnp  # noqa: PLC0415
 
     ds.require_truth("training")
     from ineid.cache import enable_compilation_cache  # noqa: PLC0415
@@ -370,8 +407,18 @@ def train(
     n_samples = len(split.train) * n_groups
     batch = min(cfg.batch, n_samples)
     steps_per_epoch = n_samples // batch
-    net = cfg.model.build(prep.n_out)
-    params = net.init(jax.random.key(cfg.seed), prep.arrays["x"][:1, :k])
+    context = None
+    if cfg.model.uses_regressor:
+        from ineid.learn.wls import WlsContext  # noqa: PLC0415
+
+        context = (WlsContext.from_dict(resumed.config["wls"]) if resumed is not None
+                   else wls_context(ds, split.train, model, prep.y_scaler, prep.physics.wrench_scale))  # fmt: skip
+        # Train on the identifiable part of the targets: the rest (along the null directions) no
+        # wrench can tell, and fitting it would only teach the network the training configurations.
+        truth = context.identifiable_part(ds.theta_unknown[prep.rows])
+        prep.arrays["z"] = jnp.asarray(prep.y_scaler.transform(truth))
+    net = cfg.model.build(prep.n_out, context)
+    params = init_params(net, cfg.model, prep, jax.random.key(cfg.seed))
     optimizer = make_optimizer(cfg, steps_per_epoch)
     opt_state = optimizer.init(params)
     state = {"params": params, "opt_state": opt_state, "best_params": params, "epoch": 0,
@@ -393,6 +440,8 @@ def train(
             "steps_per_epoch": steps_per_epoch,
             "batch": batch,
         }  # fmt: skip
+        if context is not None:
+            meta["wls"] = context.to_dict()
         write_config(run_dir, meta, prep.x_scaler, prep.y_scaler)
     done = int(state["epoch"])
     metrics = MetricsLog(run_dir, keep_through_epoch=done)
