@@ -50,3 +50,7 @@ class ExcitationError(IneidError):
     def __init__(self, message: str, reason: str | None = None) -> None:
         super().__init__(message)
         self.reason = reason
+
+
+class OptionalDependencyError(IneidError):
+    """A feature needs an optional package that is not installed (the message says how to install it)."""

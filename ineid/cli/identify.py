@@ -126,7 +126,10 @@ def _print_bias_cost(con, model, q, qd, qdd) -> None:
 @click.command()
 @click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
 @click.option("--method", type=LibraryChoice(f"{_SOLVE}:METHODS"), cls=LibraryOption,
-              default_from=f"{_SOLVE}:SolveSettings.method")
+              default_from=f"{_SOLVE}:SolveSettings.method",
+              help="network: a trained run (--run) identifies every configuration at once.")
+@click.option("--run", "run_dir", type=click.Path(file_okay=False, path_type=Path), default=None, metavar="RUN",
+              help="Run folder of `ineid train`, for --method network.")
 @click.option("--fit-frames", type=click.IntRange(min=1), default=None,
               help="Frames fitted per configuration (the first K; the rest validate). Default: 80 %.")
 @deprecated_alias("--frames", "fit_frames", "--fit-frames", type=click.IntRange(min=1))
@@ -155,13 +158,25 @@ def _print_bias_cost(con, model, q, qd, qdd) -> None:
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Results file (.h5).")
 @overwrite_option
 @click.pass_context
-def solve(ctx, data_path, method, fit_frames, selection, weights, sigma, start, backend, workers, bias, plot_path, out,
-          overwrite) -> None:
-    """Identify the unknown links of every selected configuration of DATA.h5."""
+def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma, start, backend, workers, bias,
+          plot_path, out, overwrite) -> None:
+    """Identify the unknown links of every selected configuration of DATA.h5.
+
+    --method network: a trained run (--run RUN) estimates all configurations in batches; with
+    --fit-frames, a multiple of the run's frames per sample.
+    """
     from ineid.data import load_dataset, read_meta  # noqa: PLC0415
     from ineid.identify import SolveSettings, save_results, solve_dataset  # noqa: PLC0415
 
     prepare_output(out, overwrite)
+    if (method == "network") != (run_dir is not None):
+        raise click.UsageError("--method network needs --run RUN (a trained run folder), and --run goes with it")
+    given = [f"--{n}" for n in ("weights", "sigma", "start", "backend", "workers", "bias")
+             if ctx.get_parameter_source(n) is click.core.ParameterSource.COMMANDLINE]  # fmt: skip
+    if method == "network" and plot_path is not None:
+        given.append("--plot")
+    if method == "network" and given:
+        raise click.UsageError(f"{', '.join(given)} do not apply to --method network")
     if plot_path is not None:
         prepare_output(plot_path, overwrite)
     if sigma is not None and weights != "noise":
@@ -172,6 +187,7 @@ def solve(ctx, data_path, method, fit_frames, selection, weights, sigma, start, 
         settings = SolveSettings(
             method=method, frames=fit_frames, weights=weights, axis_sigma=tuple(sigma) if sigma else None, start=start,
             backend=backend, workers=workers or os.cpu_count() or 1, bias=bias,
+            run=None if run_dir is None else str(run_dir),
         )  # fmt: skip
     except ValueError as e:
         raise click.UsageError(str(e)) from None

@@ -175,12 +175,20 @@ def evaluate_cmd(run_dir, data_path, selection, no_linear, out, overwrite) -> No
 @deprecated_alias("--frames-list", "sample_frames", "--sample-frames", callback=numbers(int, "--frames-list", 1))
 @click.option("--siamese", type=click.Choice(["off", "on", "both"]), default="off", show_default=True)
 @_run_options
+@click.option("--engine", type=LibraryChoice("ineid.learn.sweep:ENGINES"), default="sequential", show_default=True,
+              help="Run the trials one after another here, or as tasks on a Ray cluster (pip install 'ineid[ray]').")
+@click.option("--address", default=None, metavar="ADDR",
+              help="Ray cluster to join (ray://head:10001, auto); default: a local one started for the sweep.")
+@click.option("--cpus-per-trial", type=click.FloatRange(min=0), default=1.0, show_default=True,
+              help="CPUs each trial reserves (--engine ray).")
+@click.option("--gpus-per-trial", type=click.FloatRange(min=0), default=0.0, show_default=True,
+              help="GPUs each trial reserves (--engine ray).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
 @overwrite_option
 @click.pass_context
-def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, sample_frames, siamese, out_dir,
-              overwrite, physics_mode, depth, width, **kw) -> None:
-    """Train a grid of networks one after another; write sweep.csv and sweep.png ranked by test error."""
+def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, sample_frames, siamese, engine, address,
+              cpus_per_trial, gpus_per_trial, out_dir, overwrite, physics_mode, depth, width, **kw) -> None:
+    """Train a grid of networks (here, or on a Ray cluster); write sweep.csv and sweep.png ranked by test error."""
     from ineid.cli.options import prepare_output  # noqa: PLC0415
     from ineid.data import load_dataset  # noqa: PLC0415
     from ineid.learn import Grid, sweep  # noqa: PLC0415
@@ -190,6 +198,14 @@ def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, s
     grid = Grid(**{k: v for k, v in given.items() if v is not None},
                 siamese={"off": (False,), "on": (True,), "both": (False, True)}[siamese])  # fmt: skip
     base = _train_config(dict(arch="mlp" if depth or width else "simple", depth=depth, width=width), kw)
+    ray_given = [f"--{n.replace('_', '-')}" for n in ("address", "cpus_per_trial", "gpus_per_trial")
+                 if ctx.get_parameter_source(n) is click.core.ParameterSource.COMMANDLINE]  # fmt: skip
+    if engine != "ray" and ray_given:
+        raise click.UsageError(f"{', '.join(ray_given)} go with --engine ray")
+    if engine == "ray":
+        from ineid.learn.ray_engine import import_ray  # noqa: PLC0415
+
+        import_ray()  # says how to install Ray before anything is loaded
     if out_dir.is_dir():
         prepare_output(out_dir / "sweep.csv", overwrite)
     try:
@@ -202,15 +218,22 @@ def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, s
     with ProgressBar("sweep", "runs", quiet(ctx)) as bar:
         bar(0, len(cfgs))
         rows = sweep(ds, grid, base, out_dir, dataset_path=str(data_path), progress=lambda i, t, r: bar(i, t),
-                     overwrite=overwrite, physics_mode=physics_mode)  # fmt: skip
+                     overwrite=overwrite, physics_mode=physics_mode, engine=engine, address=address,
+                     cpus_per_trial=cpus_per_trial, gpus_per_trial=gpus_per_trial)  # fmt: skip
     t = table(f"Sweep on {data_path}: test median relative error, ranked",
-              ("#", "run", "standard", "base", "floor", "linear LS (std / base)", "physical", "epochs", "s"),
-              left=("run",))  # fmt: skip
+              ("#", "run", "standard", "base", "floor", "linear LS (std / base)", "Gaussian prior (std / base)",
+               "physical", "epochs", "s"), left=("run",))  # fmt: skip
     for i, r in enumerate(rows):
+        if r.status != "ok":
+            t.add_row(str(i + 1), r.name, r.status, *[""] * 7)
+            continue
         t.add_row(str(i + 1), r.name, f"{r.test_standard_median:.4g}", f"{r.test_base_median:.4g}",
                   f"{r.floor_standard_median:.4g}", f"{r.linear_standard_median:.4g} / {r.linear_base_median:.3g}",
-                  f"{100 * r.physical_share:.0f}%", str(r.epochs_run), f"{r.seconds:.0f}")
+                  f"{r.gaussian_standard_median:.4g} / {r.gaussian_base_median:.3g}", f"{100 * r.physical_share:.0f}%", str(r.epochs_run), f"{r.seconds:.0f}")
     console().print(t)
+    failed = [r for r in rows if r.status != "ok"]
+    if failed:
+        click.echo(f"{len(failed)} of {len(rows)} trials failed (see the table and sweep.csv's status column)", err=True)
     click.echo(f"wrote {out_dir / 'sweep.csv'} and {out_dir / 'sweep.png'}")
 
 

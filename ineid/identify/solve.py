@@ -37,7 +37,7 @@ from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL, NlpSolver, estima
 from ineid.identify.systems import Offsets, check_frames, predict_wrench, remove_offsets, stack, stack_casadi
 from ineid.progress import Progress
 
-METHODS = ("linear", "nonlinear", "consistent")
+METHODS = ("linear", "nonlinear", "consistent", "network")
 STARTS = ("prior", "linear")
 """IPOPT's start: the CAD values, or the linear estimate made physical."""
 BACKENDS = ("jax", "casadi", "casadi-c")
@@ -79,6 +79,7 @@ class SolveSettings:
             one per sensor axis, identified jointly with the parameters (every method;
             :class:`ineid.identify.systems.Offsets`). They also take the weight of whatever
             sits between the sensor and the first joint.
+        run: the trained run folder of ``method="network"`` (:mod:`ineid.learn.amortized`).
     """
 
     method: str = "linear"
@@ -91,6 +92,7 @@ class SolveSettings:
     backend: str = "jax"
     workers: int | None = None
     bias: str = "none"
+    run: str | None = None
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -109,6 +111,10 @@ class SolveSettings:
             raise ValueError("backend='casadi' applies to the linear method")
         if self.frames is not None and self.frames < 1:
             raise ValueError(f"frames must be >= 1, got {self.frames}")
+        if self.method == "network" and self.bias != "none":
+            raise ValueError("method='network' estimates no sensor offsets; use bias='none'")
+        if (self.method == "network") != (self.run is not None):
+            raise ValueError("method='network' needs run (a trained run folder), and run goes with method='network'")
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -202,6 +208,10 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
             IPOPT not converging) do not raise: they are recorded in ``success`` and ``status``.
     """
     enable_compilation_cache()
+    if settings.method == "network":  # a trained run as the solver
+        from ineid.learn.amortized import solve_with_run  # noqa: PLC0415
+
+        return solve_with_run(ds, settings, model, progress)
     model = model or ds.model()
     with_bias = settings.bias == "estimate"
     base = base_parameters(model, bias=with_bias)

@@ -201,7 +201,7 @@ def evaluate(run: Run, ds: Dataset, configs: np.ndarray | None = None, model: Ro
         ev.linear_base = _stats(res.base_hat[ok], truth[ok] @ base.B.T, base.names)
         ev.linear_physical_share = float(all_links_physical(res.theta_hat[ok]).mean())
     if linear:
-        gp = _gaussian_prior(run, ds, configs, f_used, model, same)
+        gp = gaussian_prior_estimates(run, ds, configs, f_used, model, same)
         if gp is not None:
             ev.gaussian = _stats(gp[0], truth, names)
             ev.gaussian_base = _stats(gp[1], truth @ base.B.T, base.names)
@@ -214,14 +214,22 @@ def _same_dataset(run: Run, ds) -> bool:
     return run.meta.get("dataset", {}).get("fingerprint") == ds.fingerprint()
 
 
-def _gaussian_prior(run: Run, ds, configs: np.ndarray, f_used: int, model, same: bool):
+def gaussian_prior_estimates(run: Run, ds, configs: np.ndarray, f_used: int, model, same: bool):
     """Gaussian-prior estimates ``(theta (C, n_u), beta (C, r))`` of ``configs`` on their first
-    ``f_used`` frames: prior and noise model from the run's training split (a wls run's own
-    constants), or 5-fold out of fold on another dataset; None when too few to fit."""
+    ``f_used`` frames (see the module doc).
+
+    Args:
+        run: a loaded run; its training split (``same``) gives the prior and the noise model
+            (a wls run's own constants, which are exactly those).
+        ds, configs: the dataset (with the truth) and the dataset indices to estimate.
+        f_used: frames per configuration.
+        model: the robot model.
+        same: ``ds`` is the run's dataset; otherwise the fit is 5-fold out of fold over
+            ``configs`` (None when there are fewer than ``5 (r + 2)`` of them).
+    """
     from ineid.identify import base_parameters  # noqa: PLC0415
-    from ineid.identify.systems import iter_stacks  # noqa: PLC0415
     from ineid.learn.train import wls_context  # noqa: PLC0415
-    from ineid.learn.wls import WlsContext, prior_estimate  # noqa: PLC0415
+    from ineid.learn.wls import WlsContext, iter_systems, prior_estimate  # noqa: PLC0415
 
     scale = np.asarray(run.meta["wrench_scale"])
     n = len(configs)
@@ -237,7 +245,7 @@ def _gaussian_prior(run: Run, ds, configs: np.ndarray, f_used: int, model, same:
     sub = ds.select(configs, slice(0, f_used))
     theta = np.empty((n, len(run.meta["param_names"])))
     beta = np.empty((n, contexts[0].rank))
-    for sl, w, y in iter_stacks(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known):
+    for sl, w, y in iter_systems(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known):
         for k, ctx in enumerate(contexts):
             rows = np.flatnonzero(fold[sl] == k)
             if rows.size:

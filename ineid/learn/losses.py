@@ -113,8 +113,10 @@ def make_loss(apply_fn, alpha: float, beta: float, physics: Physics | None, uses
             ``uses_regressor``); ``inputs`` are its per-batch arrays (see :meth:`Physics.residual`).
         uses_regressor: the model takes the frames' regressor and wrench (:meth:`Physics.system`).
     """
-    if (beta > 0 or uses_regressor) and physics is None:
-        raise ValueError("the physics loss and the wls network need the robot's regressor (physics=...)")
+    if beta > 0 and physics is None:
+        raise ValueError("the physics loss needs the robot's regressor (physics=...)")
+    if uses_regressor and physics is None:
+        raise ValueError("a network that uses the regressor (wls) needs the robot's regressor (physics=...)")
 
     def loss(params, x, z, inputs):
         z_hat = apply_fn(params, x, *physics.system(inputs)) if uses_regressor else apply_fn(params, x)

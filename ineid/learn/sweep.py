@@ -1,4 +1,10 @@
-"""Train a grid of networks one after another and rank them by test error (``ineid sweep``)."""
+"""Train a grid of networks and rank them by test error (``ineid sweep``).
+
+Trials run one after another in this process (``engine="sequential"``, the default) or as
+Ray tasks on a cluster (``engine="ray"``, :mod:`ineid.learn.ray_engine`); either way each
+trial has its own run folder ``OUT/<name>`` and the ranked table goes to ``OUT/sweep.csv``
+and ``OUT/sweep.png``.
+"""
 
 from __future__ import annotations
 
@@ -12,7 +18,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ineid._atomic import atomic_write, save_figure, write_csv
+from ineid.errors import TrainingError
 from ineid.learn.evaluate import evaluate
+from ineid.learn.models import SIZED
 from ineid.learn.runs import EVALUATION, load_run
 from ineid.learn.train import TrainConfig, train
 
@@ -40,7 +48,11 @@ class Grid:
         ):
             if siam and k < 2:
                 continue  # a Siamese network of one frame is a plain network
-            sizes = {"depth": base.model.depth, "width": base.model.width} if arch == "mlp" else {"depth": None, "width": None}
+            if arch == "wls" and siam:
+                if False in self.siamese:
+                    continue  # wls shares its frame encoder anyway: one run, not two
+                siam = False
+            sizes = {"depth": base.model.depth, "width": base.model.width} if arch in SIZED else {"depth": None, "width": None}
             model = dataclasses.replace(base.model, arch=arch, activation=act, frames=k, siamese=siam, **sizes)
             out.append(dataclasses.replace(base, model=model, scaler=scaler, optimizer=opt, loss=loss))
         return out
@@ -52,7 +64,8 @@ def run_name(cfg: TrainConfig) -> str:
 
 @dataclass
 class SweepRow:
-    """One trained run of a sweep: its settings, training time, and test errors beside the floor and least squares.
+    """One trial of a sweep: its settings, training time, and test errors beside the floor and least squares (NaN
+    and ``status = "failed: <why>"`` when it failed).
 
     Errors are median relative errors over the test split's parameters (standard and base).
     """
@@ -73,39 +86,106 @@ class SweepRow:
     linear_standard_median: float
     linear_base_median: float
     physical_share: float
+    gaussian_standard_median: float = float("nan")
+    gaussian_base_median: float = float("nan")
+    status: str = "ok"
+
+    @classmethod
+    def failed(cls, cfg: TrainConfig, message: str) -> SweepRow:
+        nan = float("nan")
+        return cls(name=run_name(cfg), arch=cfg.model.arch, activation=cfg.model.activation, scaler=cfg.scaler,
+                   optimizer=cfg.optimizer, loss=cfg.loss, frames=cfg.model.frames, siamese=cfg.model.siamese,
+                   epochs_run=0, seconds=nan, test_standard_median=nan, test_base_median=nan,
+                   floor_standard_median=nan, linear_standard_median=nan, linear_base_median=nan,
+                   physical_share=nan, status=f"failed: {message}")  # fmt: skip
+
+
+ENGINES = ("sequential", "ray")
+
+
+def run_trial(ds, cfg: TrainConfig, run_dir: Path, dataset_path: str | None = None, model=None,
+              physics_mode: str = "cached") -> SweepRow:
+    """Train one grid point into ``run_dir`` (replacing a run there), evaluate it on the test
+    split and write its ``evaluation.json``."""
+    result = train(ds, cfg, run_dir, dataset_path=dataset_path, overwrite=True, model=model, physics_mode=physics_mode)
+    ev = evaluate(load_run(run_dir), ds, model=model)
+    atomic_write(run_dir / EVALUATION, json.dumps(ev.to_dict(), indent=1))
+    nan = float("nan")
+    return SweepRow(
+        name=run_name(cfg), arch=cfg.model.arch, activation=cfg.model.activation, scaler=cfg.scaler,
+        optimizer=cfg.optimizer, loss=cfg.loss, frames=cfg.model.frames, siamese=cfg.model.siamese,
+        epochs_run=result.epochs_run, seconds=result.seconds,
+        test_standard_median=ev.network["overall_median"], test_base_median=ev.network_base["overall_median"],
+        floor_standard_median=ev.floor["overall_median"],
+        linear_standard_median=ev.linear["overall_median"] if ev.linear else nan,
+        linear_base_median=ev.linear_base["overall_median"] if ev.linear_base else nan,
+        physical_share=ev.physical_share,
+        gaussian_standard_median=ev.gaussian["overall_median"] if ev.gaussian else nan,
+        gaussian_base_median=ev.gaussian_base["overall_median"] if ev.gaussian_base else nan,
+    )  # fmt: skip
 
 
 def sweep(ds: Dataset, grid: Grid, base: TrainConfig, out_dir: str | Path, dataset_path: str | None = None,
-          model: RobotModel | None = None,
-          progress=None, overwrite: bool = False, physics_mode: str = "cached") -> list[SweepRow]:
+          model: RobotModel | None = None, progress=None, overwrite: bool = False, physics_mode: str = "cached", *,
+          engine: str = "sequential", address: str | None = None, cpus_per_trial: float = 1.0,
+          gpus_per_trial: float = 0.0, ray_init: dict | None = None) -> list[SweepRow]:
     """Train and evaluate every configuration of ``grid`` into ``out_dir/<name>``; rows ranked
-    by the test median relative error of the standard parameters."""
+    by the test median relative error of the standard parameters, failed trials last.
+
+    A trial that fails (an :class:`ineid.IneidError` such as a diverging loss; with Ray, any
+    error in the trial) becomes a row with ``status = "failed: <why>"`` and NaN errors; the
+    sweep goes on.
+
+    Args:
+        ds: the dataset (with the truth).
+        grid, base: the settings to combine, and the rest of each run's settings.
+        out_dir: one run folder per trial, ``sweep.csv`` and ``sweep.png``.
+        dataset_path: recorded in each run's ``config.json``.
+        model: the robot model (default: rebuilt from the dataset).
+        progress: ``progress(done, total, row)`` after each trial.
+        overwrite: replace run folders that hold runs (else refused before any training).
+        physics_mode: ``"cached"`` or ``"inline"`` (see :func:`ineid.learn.train`).
+        engine: ``"sequential"`` (this process, one trial after another) or ``"ray"``
+            (:mod:`ineid.learn.ray_engine`: one Ray task per trial).
+        address: the Ray cluster to join; None starts a local one for the sweep and stops it.
+        cpus_per_trial, gpus_per_trial: Ray resources each trial reserves.
+        ray_init: extra keyword arguments of ``ray.init`` for the local cluster (e.g. ``num_cpus``).
+
+    Raises:
+        ValueError: an empty grid or an unknown engine.
+        TrainingError: a run folder holds a run and ``overwrite`` is off.
+        OptionalDependencyError: ``engine="ray"`` without Ray installed.
+    """
+    from ineid.errors import IneidError  # noqa: PLC0415
+
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    model = model or ds.model()
-    rows = []
     cfgs = grid.configs(base)
     if not cfgs:
         raise ValueError("the grid is empty (a Siamese network needs more than one frame: add --frames-list values > 1)")
-    for i, cfg in enumerate(cfgs):
-        name = run_name(cfg)
-        result = train(ds, cfg, out_dir / name, dataset_path=dataset_path, overwrite=overwrite, model=model,
-                       physics_mode=physics_mode)
-        ev = evaluate(load_run(out_dir / name), ds, model=model)
-        atomic_write(out_dir / name / EVALUATION, json.dumps(ev.to_dict(), indent=1))
-        rows.append(SweepRow(
-            name=name, arch=cfg.model.arch, activation=cfg.model.activation, scaler=cfg.scaler,
-            optimizer=cfg.optimizer, loss=cfg.loss, frames=cfg.model.frames, siamese=cfg.model.siamese,
-            epochs_run=result.epochs_run, seconds=result.seconds,
-            test_standard_median=ev.network["overall_median"], test_base_median=ev.network_base["overall_median"],
-            floor_standard_median=ev.floor["overall_median"],
-            linear_standard_median=ev.linear["overall_median"] if ev.linear else float("nan"),
-            linear_base_median=ev.linear_base["overall_median"] if ev.linear_base else float("nan"),
-            physical_share=ev.physical_share,
-        ))  # fmt: skip
-        if progress is not None:
-            progress(i + 1, len(cfgs), rows[-1])
-    rows.sort(key=lambda r: (np.nan_to_num(r.test_standard_median, nan=np.inf), r.name))
+    names = [run_name(cfg) for cfg in cfgs]
+    busy = [n for n in names if (out_dir / n).is_dir() and any((out_dir / n).iterdir())]
+    if busy and not overwrite:
+        raise TrainingError(f"{out_dir / busy[0]} holds a run; pass --overwrite to replace the sweep's runs")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if engine == "ray":
+        from ineid.learn.ray_engine import ray_trials  # noqa: PLC0415
+
+        rows = ray_trials(ds, cfgs, out_dir, dataset_path=dataset_path, physics_mode=physics_mode, progress=progress,
+                          address=address, cpus_per_trial=cpus_per_trial, gpus_per_trial=gpus_per_trial,
+                          ray_init=ray_init)  # fmt: skip
+    else:
+        model = model or ds.model()
+        rows = []
+        for i, (cfg, name) in enumerate(zip(cfgs, names, strict=True)):
+            try:
+                rows.append(run_trial(ds, cfg, out_dir / name, dataset_path, model, physics_mode))
+            except IneidError as e:
+                rows.append(SweepRow.failed(cfg, str(e)))
+            if progress is not None:
+                progress(i + 1, len(cfgs), rows[-1])
+    rows.sort(key=lambda r: (r.status != "ok", np.nan_to_num(r.test_standard_median, nan=np.inf), r.name))
     write_csv(out_dir / "sweep.csv", [f.name for f in dataclasses.fields(SweepRow)], [dataclasses.asdict(r) for r in rows])
     plot(rows, out_dir / "sweep.png")
     return rows
@@ -121,10 +201,12 @@ def plot(rows: list[SweepRow], path: Path) -> Path:
     x = np.arange(len(rows))
     ax.bar(x - 0.2, [r.test_standard_median for r in rows], 0.4, label="standard parameters")
     ax.bar(x + 0.2, [r.test_base_median for r in rows], 0.4, label="base parameters")
-    if rows and np.isfinite(rows[0].floor_standard_median):
-        ax.axhline(rows[0].floor_standard_median, color="k", linestyle="--", label="null-space floor (standard)")
-    if rows and len({r.frames for r in rows}) == 1:  # the same frames for every run: one LS line
-        ax.axhline(rows[0].linear_standard_median, color="C3", linestyle=":", label="linear least squares (standard)")
+    ok = [r for r in rows if r.status == "ok"]
+    if ok and np.isfinite(ok[0].floor_standard_median):
+        ax.axhline(ok[0].floor_standard_median, color="k", linestyle="--", label="null-space floor (standard)")
+    if ok and len({r.frames for r in ok}) == 1 and np.isfinite(ok[0].linear_standard_median):
+        # the same frames for every run: one LS line
+        ax.axhline(ok[0].linear_standard_median, color="C3", linestyle=":", label="linear least squares (standard)")
     ax.set_xticks(x, [r.name for r in rows], rotation=60, ha="right", fontsize=7)
     ax.set_ylabel("test median relative error")
     ax.set_yscale("log")

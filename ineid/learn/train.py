@@ -243,12 +243,11 @@ def wls_context(ds, train_rows: np.ndarray, model, y_scaler: Scaler, wrench_scal
     configurations at a time.
     """
     from ineid.identify import base_parameters  # noqa: PLC0415
-    from ineid.identify.systems import iter_stacks  # noqa: PLC0415
-    from ineid.learn.wls import SIGMA_FLOOR, fit_context  # noqa: PLC0415
+    from ineid.learn.wls import SIGMA_FLOOR, fit_context, iter_systems  # noqa: PLC0415
 
     sub = ds.select(np.asarray(train_rows))
     sq, n = np.zeros(6), 0
-    for sl, w, y in iter_stacks(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known):
+    for sl, w, y in iter_systems(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known):
         res = (y - np.einsum("cnp,cp->cn", w, sub.theta_unknown[sl])).reshape(-1, 6)
         sq += np.sum(res**2, axis=0)
         n += len(res)

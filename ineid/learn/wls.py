@@ -171,6 +171,18 @@ def residual_sigma(w, y, theta, wrench_scale: np.ndarray) -> np.ndarray:
     return np.maximum(rms, SIGMA_FLOOR * np.asarray(wrench_scale))
 
 
+def iter_systems(model, q, qd, qdd, wrench, theta_known, max_frames: int = 200_000):
+    """``(slice, W (c, 6F, n_u), y (c, 6F))`` of chunks of configurations, about ``max_frames`` frames
+    at a time (:func:`ineid.identify.systems.stack`, which holds a whole chunk in memory)."""
+    from ineid.identify.systems import stack  # noqa: PLC0415
+
+    n_configs, n_frames = q.shape[:2]
+    per = max(1, max_frames // max(n_frames, 1))
+    for start in range(0, n_configs, per):
+        sl = slice(start, min(start + per, n_configs))
+        yield (sl, *stack(model, q[sl], qd[sl], qdd[sl], wrench[sl], theta_known))
+
+
 def fit_context(theta_fit: np.ndarray, sigma: np.ndarray, base, y_center: np.ndarray, y_scale: np.ndarray) -> WlsContext:
     """The :class:`WlsContext` from training truth ``theta_fit`` (C, n_u) and the noise model ``sigma`` (6,).
 

@@ -1,0 +1,142 @@
+"""Amortized identification: a trained run as a solver (``ineid solve --method network --run RUN``).
+
+A network trained on synthetic configurations identifies the configurations of any
+dataset of the same robot and unknown links, a recording included, in batches and
+without per-configuration optimization. Each configuration's first frames are cut into
+the run's groups of K (the first ``K * (n_fit // K)`` frames, ``n_fit`` the fitted frames),
+the group estimates are averaged (as :func:`ineid.learn.evaluate` does), and the frames
+after the fitted ones validate: the results have the fields of every other method
+(:class:`ineid.identify.SolveResults`). A network gives no standard deviations: those
+fields are NaN.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ineid.errors import IdentificationError, TrainingError
+
+HOLDOUT_FRACTION = 0.2
+"""Without ``frames``, about this share of each configuration's frames is held out (as for the other methods)."""
+
+
+def network_frames(n_frames: int, k: int, frames: int | None) -> int:
+    """Frames fed to a run of K frames per sample: a multiple of K, at most ``n_frames``.
+
+    ``frames`` given: it must be a multiple of K. Otherwise the largest multiple of K that
+    leaves :data:`HOLDOUT_FRACTION` of the frames for validation, or all usable frames
+    when that leaves no group.
+
+    Raises:
+        IdentificationError: fewer frames than K, or ``frames`` not a multiple of K or too many.
+    """
+    if n_frames < k:
+        raise IdentificationError(
+            f"the run takes {k} frames per sample but the dataset has {n_frames} per configuration; "
+            "use a run trained with fewer frames (--frames)", status="too_few_frames")  # fmt: skip
+    if frames is not None:
+        if frames % k or frames > n_frames:
+            raise IdentificationError(
+                f"--frames {frames} must be a multiple of the run's {k} frames per sample and at most {n_frames}",
+                status="bad_frames")  # fmt: skip
+        return frames
+    fit = (n_frames - int(HOLDOUT_FRACTION * n_frames)) // k * k
+    return fit if fit >= k else n_frames // k * k
+
+
+def solve_with_run(ds, settings, model=None, progress=None):
+    """Identify every configuration of ``ds`` with the trained run ``settings.run``.
+
+    Args:
+        ds: a :class:`ineid.data.Dataset` of the run's robot and unknown links (a recording
+            or synthetic; select configurations beforehand).
+        settings: a :class:`ineid.identify.SolveSettings` with ``method="network"`` and ``run``;
+            ``frames`` as in :func:`network_frames`.
+        model: the dataset's robot model (default: rebuilt from the file).
+        progress: ``progress(done, total)`` over configurations.
+
+    Returns:
+        :class:`ineid.identify.SolveResults`.
+
+    Raises:
+        TrainingError: the run folder is not a finished run, or it predicts other parameters
+            than the dataset's unknown links.
+        IdentificationError: too few frames for the run.
+    """
+    from ineid.identify.identifiability import base_parameters  # noqa: PLC0415
+    from ineid.identify.solve import SolveResults  # noqa: PLC0415
+    from ineid.identify.systems import predict_wrench  # noqa: PLC0415
+    from ineid.learn.evaluate import predict  # noqa: PLC0415
+    from ineid.learn.runs import load_run  # noqa: PLC0415
+
+    run = load_run(settings.run)
+    if list(ds.meta.unknown_param_names) != list(run.meta["param_names"]):
+        raise TrainingError(
+            f"the run predicts {', '.join(run.meta['param_names'][:2])}, ... of {run.meta['dataset']['robot']}; "
+            f"the dataset's unknown parameters ({', '.join(ds.meta.unknown_param_names[:2])}, ...) differ"
+        )
+    n_features = len(run.x_scaler.center)
+    if 3 * ds.q.shape[-1] + 6 != n_features:
+        raise TrainingError(f"the run takes {n_features} features per frame; the dataset's frames have "
+                            f"{3 * ds.q.shape[-1] + 6}: it is another robot")  # fmt: skip
+    model = model or ds.model()
+    base = base_parameters(model)
+    k = run.config.model.frames
+    n_fit = network_frames(ds.n_frames, k, settings.frames)
+    n_val = ds.n_frames - n_fit
+    c = ds.n_configs
+    t0 = time.perf_counter()
+    theta, _, _ = predict(run, ds.select(None, slice(0, n_fit)), np.arange(c), model=model)
+    seconds = np.full(c, (time.perf_counter() - t0) / max(c, 1))
+    if progress is not None:
+        progress(c, c)
+    ok = np.all(np.isfinite(theta), axis=1)
+    full = np.empty((c, 10 * model.n_links))
+    full[:, model.unknown_index] = np.nan_to_num(theta)
+    full[:, model.known_index] = ds.theta_known
+
+    def residual(sl):
+        meas = ds.wrench[:, sl]
+        res = meas - predict_wrench(model, ds.q[:, sl], ds.qd[:, sl], ds.qdd[:, sl], full)
+        rms = np.sqrt(np.mean(res**2, axis=1))
+        rel = np.linalg.norm(res.reshape(c, -1), axis=1) / np.linalg.norm(meas.reshape(c, -1), axis=1)
+        rms[~ok], rel[~ok] = np.nan, np.nan
+        return rms, rel
+
+    fit_rms, _ = residual(slice(0, n_fit))
+    val_rms, val_rel = residual(slice(n_fit, None)) if n_val else (np.full((c, 6), np.nan), np.full(c, np.nan))
+    nan = np.full_like(theta, np.nan)
+    meta = {
+        "robot": ds.meta.robot,
+        "source": ds.meta.source,
+        "urdf": ds.meta.urdf,
+        "unknown_links": list(ds.meta.unknown_links),
+        "gravity": np.asarray(ds.meta.gravity).tolist(),
+        "locked_joints": ds.meta.locked_joints,
+        "dataset_path": None if ds.path is None else str(ds.path),
+        "dataset_fingerprint": ds.fingerprint(),
+        "total_seconds": time.perf_counter() - t0,
+    }
+    return SolveResults(
+        settings=settings,
+        base=base,
+        param_names=tuple(base.param_names),
+        config_index=np.asarray(ds.config_index, dtype=np.int64),
+        theta_hat=theta,
+        theta_std=nan,
+        base_hat=theta @ base.B.T,
+        base_std=np.full((c, base.rank), np.nan),
+        success=ok,
+        status=np.where(ok, "ok", "non_finite").astype(object),
+        seconds=seconds,
+        fit_rms=fit_rms,
+        validation_rms=val_rms,
+        validation_rel=val_rel,
+        n_frames_fit=n_fit,
+        n_frames_validation=n_val,
+        theta_prior=np.asarray(model.theta_cad[model.unknown_index], dtype=np.float64),
+        theta_true=None if ds.theta_unknown is None else np.asarray(ds.theta_unknown),
+        meta=meta,
+    )

@@ -1,0 +1,125 @@
+"""Sweeps on a Ray cluster: one Ray task per trial (``ineid sweep --engine ray``).
+
+The driver puts the dataset in Ray's object store once and submits one task per grid
+point, each reserving ``cpus_per_trial`` CPUs and ``gpus_per_trial`` GPUs. A task trains
+and evaluates into a temporary folder on its node and returns the run folder's files with
+its row; the driver writes them into ``OUT/<name>`` (atomically, file by file), so the
+nodes need no shared file system. Without an address, a local cluster is started for the
+sweep and stopped after it (a Ray instance this process already started is used and left
+running). A trial that raises, or whose worker dies, is reported as a failed row; the
+others go on.
+
+The nodes need ineid (with its generated code) importable: on a local cluster the workers
+inherit the driver's environment; on a remote one install ineid on every node.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+from ineid._atomic import atomic_write
+from ineid.errors import OptionalDependencyError
+from ineid.learn.runs import MODEL, RUN_FILES
+from ineid.learn.sweep import SweepRow, run_name, run_trial
+from ineid.learn.train import TrainConfig
+
+INSTALL_HINT = "the ray engine needs Ray: pip install 'ineid[ray]' (or pip install 'ray[default]')"
+
+
+def import_ray():
+    """The ``ray`` module, or :class:`OptionalDependencyError` saying how to install it."""
+    try:
+        import ray  # noqa: PLC0415
+    except ImportError:
+        raise OptionalDependencyError(INSTALL_HINT) from None
+    return ray
+
+
+def _trial(ds, cfg: TrainConfig, dataset_path: str | None, physics_mode: str) -> tuple[SweepRow, dict[str, bytes]]:
+    """One trial on a worker: train and evaluate in a temporary folder; the row and the folder's files."""
+    import ineid  # noqa: F401, PLC0415  (float64 JAX before anything imports jax)
+
+    with tempfile.TemporaryDirectory(prefix="ineid-trial-") as tmp:
+        run_dir = Path(tmp) / run_name(cfg)
+        row = run_trial(ds, cfg, run_dir, dataset_path, None, physics_mode)
+        files = {name: (run_dir / name).read_bytes() for name in RUN_FILES if (run_dir / name).is_file()}
+    return row, files
+
+
+def _message(err: BaseException) -> str:
+    """The first line of what went wrong in a trial (the trial's own exception when Ray wrapped it)."""
+    cause = getattr(err, "cause", None)
+    text = str(cause) if cause is not None else str(err)
+    first = next((line for line in text.splitlines() if line.strip()), type(err).__name__)
+    return f"{type(cause or err).__name__}: {first.strip()}"
+
+
+def ray_trials(ds, cfgs: list[TrainConfig], out_dir: Path, *, dataset_path: str | None = None,
+               physics_mode: str = "cached", progress: Callable | None = None, address: str | None = None,
+               cpus_per_trial: float = 1.0, gpus_per_trial: float = 0.0,
+               ray_init: dict | None = None) -> list[SweepRow]:
+    """Run every trial of ``cfgs`` as a Ray task; rows in completion order (see the module doc).
+
+    Args:
+        ds: the dataset (with the truth); sent to the object store once.
+        cfgs: one training configuration per trial.
+        out_dir: where the run folders ``<name>`` are written.
+        dataset_path, physics_mode: as for :func:`ineid.learn.sweep.sweep`.
+        progress: ``progress(done, total, row)`` after each trial.
+        address: a Ray cluster's address (``ray://host:10001``, ``host:6379`` or ``auto``);
+            None starts a local cluster and stops it afterwards.
+        cpus_per_trial, gpus_per_trial: resources each task reserves.
+        ray_init: extra ``ray.init`` arguments for the local cluster (e.g. ``num_cpus=2``).
+
+    Raises:
+        OptionalDependencyError: Ray is not installed.
+        ValueError: negative resources, or ``cpus_per_trial`` more than a local cluster has.
+    """
+    ray = import_ray()
+    if cpus_per_trial < 0 or gpus_per_trial < 0:
+        raise ValueError(f"resources per trial must be >= 0, got {cpus_per_trial} CPUs and {gpus_per_trial} GPUs")
+    started = False
+    if not ray.is_initialized():
+        if address is None:
+            options = {"include_dashboard": False, "log_to_driver": False, **(ray_init or {})}
+            cpus = options.get("num_cpus") or os.cpu_count() or 1
+            if cpus_per_trial > cpus:
+                raise ValueError(f"{cpus_per_trial} CPUs per trial but the local cluster has {cpus}; lower --cpus-per-trial")
+            ray.init(**options)
+        else:
+            ray.init(address=address, log_to_driver=False)
+        started = True
+    try:
+        task = ray.remote(_trial).options(num_cpus=cpus_per_trial, num_gpus=gpus_per_trial, max_retries=0)
+        ds_ref = ray.put(ds)
+        pending = {task.remote(ds_ref, cfg, dataset_path, physics_mode): cfg for cfg in cfgs}
+        rows: list[SweepRow] = []
+        while pending:
+            (ref,), _ = ray.wait(list(pending), num_returns=1)
+            cfg = pending.pop(ref)
+            try:
+                row, files = ray.get(ref)
+            except ray.exceptions.RayError as e:  # the trial raised, or its worker died
+                row = SweepRow.failed(cfg, _message(e))
+            else:
+                _write_run(out_dir / row.name, files)
+            rows.append(row)
+            if progress is not None:
+                progress(len(rows), len(cfgs), row)
+        return rows
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _write_run(run_dir: Path, files: dict[str, bytes]) -> None:
+    """Replace the run files in ``run_dir`` by ``files``; ``model.msgpack``, the mark of a finished
+    run (:func:`ineid.learn.load_run`), goes last."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    for name in RUN_FILES:
+        (run_dir / name).unlink(missing_ok=True)
+    for name in sorted(files, key=lambda n: n == MODEL):
+        atomic_write(run_dir / name, files[name])
