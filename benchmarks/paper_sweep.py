@@ -38,7 +38,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from machine import cpu_description  # benchmarks/machine.py
 
 import ineid
@@ -131,8 +130,6 @@ def wls_rows(out: Path, m, full: bool) -> list[dict]:
         sub = ds.select(test, slice(0, frames))
         ls = solve_dataset(sub, SolveSettings(frames=frames), model=m)
         wls = solve_dataset(sub, SolveSettings(frames=frames, weights="estimate"), model=m)
-        from ineid.learn.evaluate import _gaussian_prior  # noqa: PLC0415
-
         gp_theta, _ = gaussian_prior_estimates(run, ds, test, frames, m, True)
         floor = ev.floor["overall_median"]
         for label, est, secs in (("least squares", ls.theta_hat, None),
