@@ -68,6 +68,19 @@ def test_layer_is_weighted_least_squares_with_the_noise_weights_and_no_prior(mod
     if not noise:  # clean data: the identifiable combinations exactly
         truth = ds.theta_unknown @ base.B.T
         assert np.max(np.abs(theta @ base.B.T - truth) / scale) < 1e-10
+        # and whatever weights and prior a network learns: the data rows outweigh any prior
+        net = WLS(hidden=(16, 16), context=ctx)
+        params = _perturbed(net.init(jax.random.key(4), *(a[:1] for a in inputs)), 1.0, jax.random.key(5))
+        theta = np.asarray(jax.jit(net.apply)(params, *inputs))
+        assert np.max(np.abs(theta @ base.B.T - truth) / np.abs(truth)) < 1e-8
+
+
+def _perturbed(params, std, key):
+    """Every weight moved off its start by N(0, std^2) (the last layers start at zero)."""
+    leaves, tree = jax.tree_util.tree_flatten(params)
+    keys = jax.random.split(key, len(leaves))
+    return jax.tree_util.tree_unflatten(tree, [w + std * jax.random.normal(k, w.shape, w.dtype)
+                                               for w, k in zip(leaves, keys, strict=True)])  # fmt: skip
 
 
 def test_untrained_layer_is_the_gaussian_prior_estimate(model, base):
@@ -107,11 +120,7 @@ def test_model_gradients_match_finite_differences(model, base):
     ctx, _, _, inputs = _layer_inputs(model, ds, base)
     net = WLS(hidden=(4,), context=ctx)
     params = net.init(jax.random.key(2), *(a[:1] for a in inputs))
-    # move every weight off its start (the last layers start at zero) so that every path carries a gradient
-    leaves, tree = jax.tree_util.tree_flatten(params)
-    keys = jax.random.split(jax.random.key(3), len(leaves))
-    params = jax.tree_util.tree_unflatten(tree, [w + 0.05 * jax.random.normal(k, w.shape, w.dtype)
-                                                  for w, k in zip(leaves, keys, strict=True)])  # fmt: skip
+    params = _perturbed(params, 0.05, jax.random.key(3))  # so that every path carries a gradient
     x, psi, y = (jnp.asarray(a[:2]) for a in inputs)
     check_grads(jax.jit(lambda prm: jnp.sum(net.apply(prm, x, psi, y) ** 2)), (params,), order=1, modes=("rev",),
                 eps=1e-6)  # fmt: skip
@@ -199,20 +208,20 @@ def test_cli_solve_network_round_trip(model, tmp_path):
 
     data, out = tmp_path / "d.h5", tmp_path / "run"
     noise = "force=0.5,moment=0.05,qd=0.01,qdd=0.1,glitch=0.05,glitch_scale=10"
-    assert run("data", "generate", "--configs", 80, "--frames", 8, "--noise", noise, "--out", data).exit_code == 0
-    r = run("-q", "train", data, "--arch", "wls", "--frames", 4, "--epochs", 2, "--batch", 32, "--out", out)
+    assert run("data", "generate", "--n-configs", 80, "--n-frames", 8, "--noise", noise, "--out", data).exit_code == 0
+    r = run("-q", "train", data, "--arch", "wls", "--sample-frames", 4, "--epochs", 2, "--batch", 32, "--out", out)
     assert r.exit_code == 0, r.output
     assert "Gaussian prior" in r.output
-    r = run("-q", "solve", data, "--method", "network", "--run", out, "--configs", "0:10", "--out", tmp_path / "r.h5")
+    r = run("-q", "solve", data, "--method", "network", "--run", out, "--select", "0:10", "--out", tmp_path / "r.h5")
     assert r.exit_code == 0, r.output
     assert "network on sweaty-arm: 10/10 configurations identified" in r.output and "validated on 4" in r.output
     res = load_results(tmp_path / "r.h5")
     assert res.settings.method == "network" and res.settings.run == str(out) and res.n == 10
     r = run("solve", data, "--method", "network", "--out", tmp_path / "x.h5")
     assert r.exit_code == 2 and "needs --run" in r.output
-    r = run("solve", data, "--method", "network", "--run", out, "--frames", 6, "--out", tmp_path / "x.h5")
+    r = run("solve", data, "--method", "network", "--run", out, "--fit-frames", 6, "--out", tmp_path / "x.h5")
     assert r.exit_code == 1 and "multiple of the run's 4 frames" in r.output
-    r = run("data", "generate", "--configs", 5, "--noise", "force=0.5,glitch=2", "--out", tmp_path / "g.h5")
+    r = run("data", "generate", "--n-configs", 5, "--noise", "force=0.5,glitch=2", "--out", tmp_path / "g.h5")
     assert r.exit_code == 2 and "glitch_rate must be in [0, 1)" in r.output
 
 

@@ -35,11 +35,11 @@ def network_frames(n_frames: int, k: int, frames: int | None) -> int:
     if n_frames < k:
         raise IdentificationError(
             f"the run takes {k} frames per sample but the dataset has {n_frames} per configuration; "
-            "use a run trained with fewer frames (--frames)", status="too_few_frames")  # fmt: skip
+            "use a run trained with fewer frames per sample (--sample-frames)", status="too_few_frames")  # fmt: skip
     if frames is not None:
         if frames % k or frames > n_frames:
             raise IdentificationError(
-                f"--frames {frames} must be a multiple of the run's {k} frames per sample and at most {n_frames}",
+                f"--fit-frames {frames} must be a multiple of the run's {k} frames per sample and at most {n_frames}",
                 status="bad_frames")  # fmt: skip
         return frames
     fit = (n_frames - int(HOLDOUT_FRACTION * n_frames)) // k * k
