@@ -23,7 +23,8 @@ diagonal precision ``Gamma^2 = diag(exp(2 lambda))`` in *whitened* base coordina
   diagonal in ``beta``; a diagonal precision in ``beta`` could not represent it.
 * ``sigma``: the per-axis RMS of the residual ``y - W theta`` at the true parameters over
   the training frames (the wrench noise plus what kinematic noise adds), floored at
-  ``1e-9`` of the wrench's spread so that clean data give large finite weights.
+  ``1e-13`` of the wrench's spread (some 100 times the rounding of the wrench) so that
+  clean data give large finite weights that outweigh any prior the head can set.
 * ``mu_theta``, ``G``: the linear minimum-mean-square-error map from ``beta`` to
   ``theta`` fitted on the training truth (evaluate's floor); ``B G = I``, so
   ``B theta_hat = beta_hat`` exactly: the null space is filled in, the base parameters
@@ -67,7 +68,7 @@ from ineid.learn.models import ACTIVATIONS, Encoder
 WLS_DEPTH, WLS_WIDTH = 2, 32
 """Default hidden layers of the wls encoder and their width (``--depth``, ``--width``)."""
 
-SIGMA_FLOOR = 1e-9
+SIGMA_FLOOR = 1e-13
 """Smallest residual RMS per axis, relative to the wrench's spread (clean data)."""
 
 LOG_WEIGHT_RANGE = 8.0
