@@ -37,6 +37,27 @@ if TYPE_CHECKING:
 WRENCH_COLUMNS = ("fx", "fy", "fz", "mx", "my", "mz")
 
 
+def read_csv_rows(path: str | Path) -> list[tuple[int, list[str]]]:
+    """``(physical line number, cells)`` of every row of a CSV file; blank and ``#`` comment lines skipped.
+
+    Raises:
+        DatasetError: the file does not exist or is not CSV text.
+    """
+    path = Path(path)
+    try:
+        with path.open(newline="") as fh:
+            return [
+                (k, cells)
+                for k, line in enumerate(fh, start=1)
+                if line.strip() and not line.lstrip().startswith("#")
+                for cells in csv.reader([line])
+            ]
+    except FileNotFoundError:
+        raise DatasetError(f"{path} does not exist") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise DatasetError(f"{path}: cannot be read as CSV text ({e})") from None
+
+
 def csv_columns(n_dof: int, derivatives: bool = True) -> list[str]:
     """The columns of an arm with ``n_dof`` joints in the documented order (``qd``, ``qdd`` if ``derivatives``)."""
     joints = [f"q{i}" for i in range(1, n_dof + 1)]
@@ -81,19 +102,7 @@ def read_csv_streams(path: str | Path, model, progress=None):
 
     path = Path(path)
     n = model.n_dof
-    try:
-        with path.open(newline="") as fh:
-            # (physical line number, cells); comment and blank lines skipped
-            numbered = [
-                (k, cells)
-                for k, line in enumerate(fh, start=1)
-                if line.strip() and not line.lstrip().startswith("#")
-                for cells in csv.reader([line])
-            ]
-    except FileNotFoundError:
-        raise DatasetError(f"{path} does not exist") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as e:
-        raise DatasetError(f"{path}: cannot be read as CSV text ({e})") from None
+    numbered = read_csv_rows(path)
     rows = [cells for _, cells in numbered]
     line_of = [k for k, _ in numbered]
     if not rows:

@@ -25,7 +25,6 @@ Both are written atomically (:mod:`ineid._atomic`).
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import io
 import json
@@ -332,18 +331,9 @@ def read_trajectory_csv(path: str | Path) -> SampledTrajectory:
             strictly increasing, no rows.
     """
     path = Path(path)
-    try:
-        with path.open(newline="") as fh:
-            numbered = [
-                (k, cells)
-                for k, line in enumerate(fh, start=1)
-                if line.strip() and not line.lstrip().startswith("#")
-                for cells in csv.reader([line])
-            ]
-    except FileNotFoundError:
-        raise DatasetError(f"{path} does not exist") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as e:
-        raise DatasetError(f"{path}: cannot be read as CSV text ({e})") from None
+    from ineid.data.csv_import import read_csv_rows  # noqa: PLC0415
+
+    numbered = read_csv_rows(path)
     if not numbered:
         raise DatasetError(f"{path}: the file is empty; expected a header row time,q1..qn,qd1..qn,qdd1..qn")
     header = [h.strip().lower() for h in numbered[0][1]]

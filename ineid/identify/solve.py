@@ -275,18 +275,7 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
     else:
         val_rms = np.full((c, 6), np.nan)
         val_rel = np.full(c, np.nan)
-    meta = {
-        "robot": ds.meta.robot,
-        "source": ds.meta.source,
-        "urdf": ds.meta.urdf,
-        "unknown_links": list(ds.meta.unknown_links),
-        "gravity": np.asarray(ds.meta.gravity).tolist(),
-        "locked_joints": ds.meta.locked_joints,
-        "dataset_path": None if ds.path is None else str(ds.path),
-        "dataset_fingerprint": ds.fingerprint(),
-        "sensor": ds.meta.sensor,
-        "total_seconds": time.perf_counter() - t_start,
-    }
+    meta = results_meta(ds, time.perf_counter() - t_start)
     return SolveResults(
         settings=settings,
         base=base,
@@ -388,6 +377,22 @@ def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress,
                 getattr(fit, f.name)[idx] = getattr(ref, f.name)
     _, _, yy = blocks.weighted(fit.axis_weights)
     return fit, np.sqrt(yy / (6 * blocks.n_frames)), offsets
+
+
+def results_meta(ds, total_seconds: float) -> dict:
+    """What a results file records of its dataset (robot, URDF, links, gravity, sensor, path and fingerprint)."""
+    return {
+        "robot": ds.meta.robot,
+        "source": ds.meta.source,
+        "urdf": ds.meta.urdf,
+        "unknown_links": list(ds.meta.unknown_links),
+        "gravity": np.asarray(ds.meta.gravity).tolist(),
+        "locked_joints": ds.meta.locked_joints,
+        "dataset_path": None if ds.path is None else str(ds.path),
+        "dataset_fingerprint": ds.fingerprint(),
+        "sensor": ds.meta.sensor,
+        "total_seconds": total_seconds,
+    }
 
 
 def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress, sensor=None):

@@ -66,7 +66,7 @@ def solve_with_run(ds, settings, model=None, progress=None):
         IdentificationError: too few frames for the run.
     """
     from ineid.identify.identifiability import base_parameters  # noqa: PLC0415
-    from ineid.identify.solve import SolveResults  # noqa: PLC0415
+    from ineid.identify.solve import SolveResults, results_meta  # noqa: PLC0415
     from ineid.identify.systems import predict_wrench  # noqa: PLC0415
     from ineid.learn.evaluate import predict  # noqa: PLC0415
     from ineid.learn.runs import load_run  # noqa: PLC0415
@@ -108,17 +108,7 @@ def solve_with_run(ds, settings, model=None, progress=None):
     fit_rms, _ = residual(slice(0, n_fit))
     val_rms, val_rel = residual(slice(n_fit, None)) if n_val else (np.full((c, 6), np.nan), np.full(c, np.nan))
     nan = np.full_like(theta, np.nan)
-    meta = {
-        "robot": ds.meta.robot,
-        "source": ds.meta.source,
-        "urdf": ds.meta.urdf,
-        "unknown_links": list(ds.meta.unknown_links),
-        "gravity": np.asarray(ds.meta.gravity).tolist(),
-        "locked_joints": ds.meta.locked_joints,
-        "dataset_path": None if ds.path is None else str(ds.path),
-        "dataset_fingerprint": ds.fingerprint(),
-        "total_seconds": time.perf_counter() - t0,
-    }
+    meta = results_meta(ds, time.perf_counter() - t0)
     return SolveResults(
         settings=settings,
         base=base,
