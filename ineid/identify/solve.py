@@ -165,7 +165,7 @@ def _frame_split(n_frames: int, frames: int | None, rank: int) -> tuple[int, int
     if frames is not None:
         if frames > n_frames:
             raise IdentificationError(
-                f"--frames {frames} but the dataset has {n_frames} frames per configuration; use at most {n_frames}",
+                f"--fit-frames {frames} but the dataset has {n_frames} frames per configuration; use at most {n_frames}",
                 status="too_many_frames",
             )
         check_frames(frames, rank)

@@ -163,7 +163,7 @@ def sweep(ds: Dataset, grid: Grid, base: TrainConfig, out_dir: str | Path, datas
     out_dir = Path(out_dir)
     cfgs = grid.configs(base)
     if not cfgs:
-        raise ValueError("the grid is empty (a Siamese network needs more than one frame: add --frames-list values > 1)")
+        raise ValueError("the grid is empty (a Siamese network needs more than one frame: add --sample-frames values > 1)")
     names = [run_name(cfg) for cfg in cfgs]
     busy = [n for n in names if (out_dir / n).is_dir() and any((out_dir / n).iterdir())]
     if busy and not overwrite:
