@@ -3,6 +3,7 @@ glitchy data, amortized solving, glitch noise, and sweeps on a local Ray cluster
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import jax
@@ -18,6 +19,7 @@ from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
 from ineid.identify import SolveSettings, base_parameters, fit_base, load_results, solve_dataset, stack
 from ineid.learn import Grid, ModelSpec, TrainConfig, evaluate, load_run, predict, sweep, train
 from ineid.learn.wls import WLS, fit_context, prior_estimate, residual_sigma, wls_solve
+from ineid.sensor import SensorPose
 
 from .conftest import SEED
 
@@ -194,6 +196,10 @@ def test_solve_with_a_run_dataset_and_recording(model, glitch_run, tmp_path):
     one = solve_dataset(rec, SolveSettings(method="network", run=str(run_dir)), model=model)
     assert one.theta_true is None
     np.testing.assert_allclose(one.theta_hat[0], expected[0], rtol=1e-9)
+    np.testing.assert_allclose(one.fit_rms[0], res.fit_rms[0], rtol=1e-9)
+    tilted = dataclasses.replace(rec, meta=dataclasses.replace(rec.meta, sensor=SensorPose(rpy=(np.pi, 0.0, 0.0)).to_dict()))
+    with pytest.raises(ineid.IneidError, match="this recording's wrench is in a sensor frame"):
+        solve_dataset(tilted, SolveSettings(method="network", run=str(run_dir)), model=model)
     with pytest.raises(ValueError, match="needs run"):
         SolveSettings(method="network")
     with pytest.raises(ineid.IneidError, match="frames per sample"):

@@ -247,7 +247,7 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
     # frame at the linear estimate): the normal equations give the rss only up to
     # cancellation (eps * ||y||^2), the covariance and the IPOPT noise level need it exact
     lin = linear_estimate(fit, base, prior)
-    sums = _residual_sums(model, ds, n_fit, n_val, lin.theta, sensor, offsets)
+    sums = estimate_residual_sums(model, ds, n_fit, n_val, lin.theta, sensor, offsets)
     fit = with_exact_rss(fit, sums[0])
 
     # 3. standard parameters
@@ -257,24 +257,13 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         start = prior if settings.start == "prior" else physical_start(lin.theta, prior, base.scales)
         est, nlp_seconds = _run_nlp(fit, base, settings, prior, rms, start, progress)
         seconds = seconds + nlp_seconds
-        sums = _residual_sums(model, ds, n_fit, n_val, est.theta, sensor, offsets)
+        sums = estimate_residual_sums(model, ds, n_fit, n_val, est.theta, sensor, offsets)
     bias_hat = bias_std = None
     if with_bias:
         bias_hat, bias_std = _bias_estimate(offsets, est, base)
 
     # 4. residuals of the estimates on the fitted and on the held-out frames
-    ssr_fit, ssr_held, ss_held = sums
-    failed = ~np.all(np.isfinite(est.theta), axis=1)
-    fit_rms = np.sqrt(ssr_fit / n_fit)
-    fit_rms[failed] = np.nan
-    if n_val:
-        val_rms = np.sqrt(ssr_held / n_val)
-        val_rel = np.sqrt(ssr_held.sum(axis=1)) / np.sqrt(ss_held)
-        val_rms[failed] = np.nan
-        val_rel[failed] = np.nan
-    else:
-        val_rms = np.full((c, 6), np.nan)
-        val_rel = np.full(c, np.nan)
+    fit_rms, val_rms, val_rel = residual_summary(sums, n_fit, n_val, est.theta)
     meta = results_meta(ds, time.perf_counter() - t_start)
     return SolveResults(
         settings=settings,
@@ -336,8 +325,8 @@ def _concat_fits(fits: list[BaseFit]) -> BaseFit:
     return BaseFit(dof=fits[0].dof, **cat)
 
 
-def _residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.ndarray, sensor=None,
-                   offsets: Offsets | None = None):
+def estimate_residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.ndarray, sensor=None,
+                           offsets: Offsets | None = None):
     """:func:`ineid.identify.fused.residual_sums` of the unknown links' estimates (NaN rows as zeros),
     in the sensor frame, with the offsets ``b = ybar - Wbar theta`` that go with them."""
     theta = model.full_theta(np.nan_to_num(theta_unknown), ds.theta_known)
@@ -345,6 +334,27 @@ def _residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.ndarray,
     frames = slice(0, n_fit + n_val)
     return residual_sums(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], ds.wrench[:, frames],
                          theta, n_fit, sensor, bias)
+
+
+def residual_summary(sums, n_fit: int, n_val: int, theta_unknown: np.ndarray):
+    """``(fit_rms (C, 6), validation_rms (C, 6), validation_rel (C,))`` from :func:`estimate_residual_sums`.
+
+    ``rms_a = sqrt(ssr_a / frames)`` per wrench axis; ``rel = ||R - predicted|| / ||R||`` over the
+    held-out frames; NaN where ``theta_unknown`` has a non-finite entry (a failed solve) and,
+    for the held-out columns, when no frame is held out.
+    """
+    ssr_fit, ssr_held, ss_held = sums
+    failed = ~np.all(np.isfinite(theta_unknown), axis=1)
+    fit_rms = np.sqrt(ssr_fit / n_fit)
+    fit_rms[failed] = np.nan
+    c = len(theta_unknown)
+    if not n_val:
+        return fit_rms, np.full((c, 6), np.nan), np.full(c, np.nan)
+    val_rms = np.sqrt(ssr_held / n_val)
+    val_rel = np.sqrt(ssr_held.sum(axis=1)) / np.sqrt(ss_held)
+    val_rms[failed] = np.nan
+    val_rel[failed] = np.nan
+    return fit_rms, val_rms, val_rel
 
 
 REFERENCE_ROWS = 200_000

@@ -63,11 +63,15 @@ def solve_with_run(ds, settings, model=None, progress=None):
     Raises:
         TrainingError: the run folder is not a finished run, or it predicts other parameters
             than the dataset's unknown links.
-        IdentificationError: too few frames for the run.
+        IdentificationError: too few frames for the run, or a wrench in a sensor frame.
     """
     from ineid.identify.identifiability import base_parameters  # noqa: PLC0415
-    from ineid.identify.solve import SolveResults, results_meta  # noqa: PLC0415
-    from ineid.identify.systems import predict_wrench  # noqa: PLC0415
+    from ineid.identify.solve import (  # noqa: PLC0415
+        SolveResults,
+        estimate_residual_sums,
+        residual_summary,
+        results_meta,
+    )
     from ineid.learn.evaluate import predict  # noqa: PLC0415
     from ineid.learn.runs import load_run  # noqa: PLC0415
 
@@ -81,6 +85,10 @@ def solve_with_run(ds, settings, model=None, progress=None):
     if 3 * ds.q.shape[-1] + 6 != n_features:
         raise TrainingError(f"the run takes {n_features} features per frame; the dataset's frames have "
                             f"{3 * ds.q.shape[-1] + 6}: it is another robot")  # fmt: skip
+    if ds.meta.sensor_transform() is not None:
+        raise IdentificationError(
+            "a trained run reads wrenches in the base frame; this recording's wrench is in a sensor frame: "
+            "identify it with --method linear, nonlinear or consistent", status="sensor_frame")  # fmt: skip
     model = model or ds.model()
     base = base_parameters(model)
     k = run.config.model.frames
@@ -93,20 +101,8 @@ def solve_with_run(ds, settings, model=None, progress=None):
     if progress is not None:
         progress(c, c)
     ok = np.all(np.isfinite(theta), axis=1)
-    full = np.empty((c, 10 * model.n_links))
-    full[:, model.unknown_index] = np.nan_to_num(theta)
-    full[:, model.known_index] = ds.theta_known
-
-    def residual(sl):
-        meas = ds.wrench[:, sl]
-        res = meas - predict_wrench(model, ds.q[:, sl], ds.qd[:, sl], ds.qdd[:, sl], full)
-        rms = np.sqrt(np.mean(res**2, axis=1))
-        rel = np.linalg.norm(res.reshape(c, -1), axis=1) / np.linalg.norm(meas.reshape(c, -1), axis=1)
-        rms[~ok], rel[~ok] = np.nan, np.nan
-        return rms, rel
-
-    fit_rms, _ = residual(slice(0, n_fit))
-    val_rms, val_rel = residual(slice(n_fit, None)) if n_val else (np.full((c, 6), np.nan), np.full(c, np.nan))
+    sums = estimate_residual_sums(model, ds, n_fit, n_val, theta)
+    fit_rms, val_rms, val_rel = residual_summary(sums, n_fit, n_val, theta)
     nan = np.full_like(theta, np.nan)
     meta = results_meta(ds, time.perf_counter() - t0)
     return SolveResults(
