@@ -22,6 +22,20 @@ def _private_cache(tmp_path_factory):
     mp.undo()
 
 
+@pytest.fixture(scope="session")
+def model():
+    """The built-in sweaty-arm (links upper_arm and forearm unknown); tests must not mutate it."""
+    return ineid.load_robot("sweaty-arm")
+
+
+@pytest.fixture(scope="session")
+def base(model):
+    """Its base parameters (:func:`ineid.identify.base_parameters`)."""
+    from ineid.identify import base_parameters
+
+    return base_parameters(model)
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(SEED)

@@ -36,11 +36,6 @@ from ineid.reference import pinocchio_base_wrench, pinocchio_model
 from .conftest import FIXTURES, SEED, rel_err
 
 
-@pytest.fixture(scope="module")
-def model():
-    return ineid.load_robot("sweaty-arm")
-
-
 def small_spec(**kw) -> DatasetSpec:
     base = {"combination": Combination("factorial", per_link=6), "n_frames": 12, "seed": SEED}
     base.update(kw)

@@ -22,9 +22,8 @@ import textwrap
 import numpy as np
 import pytest
 
-import ineid
 from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
-from ineid.identify import SolveSettings, base_parameters, fit_base, solve_dataset, stack
+from ineid.identify import SolveSettings, fit_base, solve_dataset, stack
 from ineid.identify import casadi_c, fused
 from ineid.identify.linear import NORMAL_MAX_COND, fit_base_blocks, standard_std
 from ineid.identify.systems import stack_casadi
@@ -36,13 +35,8 @@ NOISE = NoiseModel.create(4, force=0.5, moment=0.05, qd=0.01, qdd=0.1)
 
 
 @pytest.fixture(scope="module")
-def arm():
-    return ineid.load_robot("sweaty-arm")
-
-
-@pytest.fixture(scope="module")
-def base(arm):
-    return base_parameters(arm)
+def arm(model):
+    return model  # conftest's sweaty-arm, under this file's name
 
 
 @pytest.fixture(scope="module")

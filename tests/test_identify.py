@@ -39,16 +39,6 @@ NOISE = NoiseModel.create(4, force=0.5, moment=0.05, qd=0.01, qdd=0.1)
 
 
 @pytest.fixture(scope="module")
-def model():
-    return ineid.load_robot("sweaty-arm")
-
-
-@pytest.fixture(scope="module")
-def base(model):
-    return base_parameters(model)
-
-
-@pytest.fixture(scope="module")
 def clean(model):
     return generate_dataset(model, DatasetSpec(Combination("random", n_configs=60), n_frames=30, seed=SEED))
 

@@ -33,11 +33,6 @@ from .conftest import SEED
 
 
 @pytest.fixture(scope="module")
-def model():
-    return ineid.load_robot("sweaty-arm")
-
-
-@pytest.fixture(scope="module")
 def data(model):
     return generate_dataset(model, DatasetSpec(Combination("random", n_configs=120), n_frames=12, seed=SEED))
 

@@ -16,7 +16,7 @@ from jax.test_util import check_grads
 import ineid
 from ineid.cli import main
 from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
-from ineid.identify import SolveSettings, base_parameters, fit_base, load_results, solve_dataset, stack
+from ineid.identify import SolveSettings, fit_base, load_results, solve_dataset, stack
 from ineid.learn import Grid, ModelSpec, TrainConfig, evaluate, load_run, predict, sweep, train
 from ineid.learn.wls import WLS, fit_context, prior_estimate, residual_sigma, wls_solve
 from ineid.sensor import SensorPose
@@ -24,16 +24,6 @@ from ineid.sensor import SensorPose
 from .conftest import SEED
 
 LEVEL1 = {"force": 0.5, "moment": 0.05, "qd": 0.01, "qdd": 0.1}
-
-
-@pytest.fixture(scope="module")
-def model():
-    return ineid.load_robot("sweaty-arm")
-
-
-@pytest.fixture(scope="module")
-def base(model):
-    return base_parameters(model)
 
 
 def _data(model, n_configs, n_frames, seed, glitch=0.0, noise=True):
