@@ -108,7 +108,8 @@ def main() -> None:
     ds = generate_dataset(model, spec)
     n_fit = args.frames - int(0.2 * args.frames)
     sub = ds.select(slice(0, min(args.subset, ds.n_configs)))
-    solve_dataset(ds.select(slice(0, 8)), SolveSettings(), model=model)  # compile the chunk shapes
+    for warm in (SolveSettings(), SolveSettings(weights="estimate")):  # compile the chunk shapes of both kernels
+        solve_dataset(ds.select(slice(0, 8)), warm, model=model)
     print(f"machine: {cpu_description()}; ineid {ineid.__version__}")
     print(
         f"sweaty-arm, upper_arm + forearm unknown (20 parameters, 17 base); {ds.n_configs:,} configurations x "

@@ -1,4 +1,4 @@
-"""ineid's cache folder: generated code of user URDFs and compiled XLA code.
+"""ineid's cache folder: generated code of user URDFs, parsed URDFs and compiled XLA code.
 
 ``$INEID_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/ineid`` or ``~/.cache/ineid``. Deleting
 the folder is always safe: whatever is missing is derived or compiled again.

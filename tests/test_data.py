@@ -414,3 +414,42 @@ def test_csv_errors_name_the_physical_line(model, small, tmp_path):
     (tmp_path / "c.csv").write_text("\n".join(lines) + "\n")
     with pytest.raises(DatasetError, match="line 6, column 'q4'|line 6, column 'qd1'"):
         read_recording_csv(tmp_path / "c.csv", model)
+
+
+def test_parallel_chunk_reads_equal_h5py(small, tmp_path):
+    """Arrays ineid wrote are inflated on all cores; any row range equals h5py's own read,
+    and a file with other filters (no shuffle) goes through h5py."""
+    from ineid.data import read
+    from ineid.data.write import DatasetWriter
+
+    path = tmp_path / "s.h5"
+    per_config = [k for k in small.arrays() if k != "theta_known"]
+    with DatasetWriter(path, small.meta, small.n_configs, small.n_frames, per_config, rows=8) as w:
+        w.write_constant("theta_known", small.theta_known)
+        for name in per_config:
+            w.write(name, 0, small.arrays()[name])
+    with h5py.File(path) as f:
+        dset = f["wrench"]
+        assert read._own_chunks(dset) and dset.chunks[0] == 8
+        for start, stop in [(0, 36), (1, 35), (7, 9), (5, 6), (32, 36), (8, 16)]:  # 36 = 4 x 8 + 4
+            assert np.array_equal(read._read_chunks_parallel(dset, start, stop), dset[start:stop])
+    plain = tmp_path / "plain.h5"
+    with h5py.File(path) as src, h5py.File(plain, "w") as dst:
+        for k, v in src.attrs.items():
+            dst.attrs[k] = v
+        for name in src:
+            data = src[name][()]
+            kw = {"chunks": (7, *data.shape[1:]), "compression": "gzip"} if data.ndim > 1 else {}
+            dst.create_dataset(name, data=data, **kw)
+        assert not read._own_chunks(dst["wrench"])
+    back, mine = load_dataset(plain, configs=slice(3, 30)), load_dataset(path, configs=slice(3, 30))
+    for k in ("q", "qd", "qdd", "wrench", "theta_unknown"):
+        assert np.array_equal(getattr(back, k), getattr(mine, k)) and np.array_equal(getattr(mine, k), getattr(small, k)[3:30])
+
+
+def test_clean_copies_are_read_on_request(model, tmp_path):
+    noise = NoiseModel.create(4, force=0.5, moment=0.05)
+    path = generate_dataset(model, small_spec(noise=noise)).save(tmp_path / "n.h5")
+    assert set(load_dataset(path).clean) == {"wrench"}
+    lean = load_dataset(path, clean=False)
+    assert lean.clean == {} and np.array_equal(lean.wrench, load_dataset(path).wrench)

@@ -313,3 +313,36 @@ def test_cache_command_shows_and_clears(tmp_path, monkeypatch):
     assert r.exit_code == 0 and f"removed {tmp_path / 'xla'} (1 files" in r.output
     assert not (tmp_path / "xla").exists() and (tmp_path / "generated" / "abc" / "m.py").exists()
     assert runner.invoke(main, ["cache", "clear"]).exit_code == 0 and not tmp_path.exists()
+
+
+def test_chunks_on_several_threads_equal_one_thread(arm, base, noisy, monkeypatch):
+    """The configurations split among threads give the one-thread blocks bit for bit, and
+    the progress counts every configuration once, in order."""
+    frames = [a[:, :32] for a in (noisy.q, noisy.qd, noisy.qdd, noisy.wrench)]
+    monkeypatch.setattr(fused, "WORKERS", 1)
+    one = fused.information_blocks(arm, base, *frames, noisy.theta_known)
+    monkeypatch.setattr(fused, "WORKERS", 3)  # 300 configurations, 64 a call: 5 chunks over 3 threads
+    seen = []
+    many = fused.information_blocks(arm, base, *frames, noisy.theta_known, progress=lambda d, n: seen.append((d, n)))
+    for name in ("G", "h", "e"):
+        assert np.array_equal(getattr(one, name), getattr(many, name)), name
+    assert seen[-1] == (300, 300) and [d for d, _ in seen] == sorted(d for d, _ in seen) and len(seen) == 5
+
+
+def test_blocks_summed_with_known_weights_equal_the_per_axis_sum(arm, base, noisy, rng):
+    """Weights known in advance are applied in the kernel: ``G = sum_a d_a^2 G_a`` (and ``h``),
+    the same normal equations as from per-axis blocks; the summed blocks refuse what needs the axes."""
+    frames = [a[:, :32] for a in (noisy.q, noisy.qd, noisy.qdd, noisy.wrench)]
+    d = rng.uniform(0.5, 3.0, size=(noisy.n_configs, 6))
+    per_axis = fused.information_blocks(arm, base, *frames, noisy.theta_known)
+    summed = fused.information_blocks(arm, base, *frames, noisy.theta_known, axis_weights=d)
+    assert summed.G.shape == (noisy.n_configs, base.rank, base.rank)
+    for got, want in zip(summed.weighted(d), per_axis.weighted(d), strict=True):
+        assert rel_err(got, want) < 1e-13
+    assert np.array_equal(summed.e, per_axis.e)
+    with pytest.raises(ValueError, match="other row weights"):
+        summed.weighted(np.ones_like(d))
+    with pytest.raises(ValueError, match="needs per-axis blocks"):
+        summed.axis_rss(np.zeros((noisy.n_configs, base.rank)))
+    with pytest.raises(ValueError, match="per axis"):
+        fused.information_blocks(arm, base, *frames, noisy.theta_known, sums=True, axis_weights=d)

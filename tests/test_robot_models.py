@@ -127,3 +127,34 @@ def test_sampling_bounds_from_urdf():
     assert chain.joints[1].qdd_max == 10.0  # the default
     with pytest.raises(RobotModelError, match="acceleration bound -1.0 must be positive"):
         parse_chain(urdf().replace("<limit", '<ineid acceleration="-1"/><limit', 1))
+
+
+def test_a_parsed_urdf_is_remembered_exactly(tmp_path, monkeypatch):
+    """The second parse of the same text comes from the cache folder (yourdfpy not needed),
+    equal to the first to the last bit; other locked joints or other text parse again."""
+    import sys
+
+    from .conftest import real_robot
+
+    monkeypatch.setenv("INEID_CACHE_DIR", str(tmp_path))
+    path, locked = real_robot("panda")
+    text = path.read_bytes()
+    first = parse_chain(text, source="panda", locked_joints=locked)
+    assert len(list((tmp_path / "chains").glob("*.json"))) == 1
+    monkeypatch.setitem(sys.modules, "yourdfpy", None)  # any parse now fails with ImportError
+    second = parse_chain(text, source="panda", locked_joints=locked)
+    assert (second.name, second.root_link, dict(second.merged_links)) == (first.name, first.root_link, dict(first.merged_links))
+    for a, b in zip(first.joints, second.joints, strict=True):
+        for f in ("name", "type", "continuous", "link", "q_lower", "q_upper", "qd_max", "qdd_max"):
+            assert getattr(a, f) == getattr(b, f), f
+        for f in ("parent_R_joint", "parent_p_joint", "axis", "theta"):
+            assert np.array_equal(getattr(a, f), getattr(b, f)), f
+    assert second.kinematic_fingerprint() == first.kinematic_fingerprint()
+    with pytest.raises(ImportError):  # not the same question: parsed, not remembered
+        parse_chain(text, source="panda", locked_joints={**locked, "panda_joint7": 0.5})
+    monkeypatch.delitem(sys.modules, "yourdfpy")
+    (cached,) = (tmp_path / "chains").glob("*.json")
+    cached.write_text("{not json")  # a damaged entry is parsed again and replaced
+    again = parse_chain(text, source="panda", locked_joints=locked)
+    assert np.array_equal(again.joints[-1].theta, first.joints[-1].theta)
+    assert cached.read_text().startswith('{"name"')

@@ -1,4 +1,4 @@
-"""``ineid cache info|clear``: the cache folder (generated code of user URDFs, compiled XLA code)."""
+"""``ineid cache info|clear``: the cache folder (generated code of user URDFs, parsed URDFs, compiled XLA code)."""
 
 from __future__ import annotations
 
@@ -18,13 +18,15 @@ def _size(path: Path) -> tuple[int, int]:
 
 def _parts() -> dict[str, Path]:
     from ineid.cache import cache_dir, xla_cache_dir  # noqa: PLC0415
+    from ineid.robots.urdf import CHAIN_SUBDIR  # noqa: PLC0415
 
     root = cache_dir()
     xla = xla_cache_dir()
-    parts = {"compiled XLA kernels": xla}
+    chains = root / CHAIN_SUBDIR
+    parts = {"compiled XLA kernels": xla, "parsed URDFs": chains}
     if root.is_dir():
         for child in sorted(root.iterdir()):
-            if child.is_dir() and child != xla:
+            if child.is_dir() and child not in (xla, chains):
                 parts[f"generated code ({child.name})"] = child
     return parts
 

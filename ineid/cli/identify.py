@@ -50,7 +50,7 @@ def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
     if data_path is not None:
         from ineid.data import load_dataset  # noqa: PLC0415
 
-        ds = load_dataset(data_path, configs=[config])
+        ds = load_dataset(data_path, configs=[config], clean=False)
         if ds.meta.joint_names != model.joint_names:
             raise click.BadParameter(f"{data_path} is a dataset of {ds.meta.robot}, not of {model.name}", param_hint="--data")
         q, qd, qdd = ds.q[0], ds.qd[0], ds.qdd[0]
@@ -191,7 +191,7 @@ def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma
         )  # fmt: skip
     except ValueError as e:
         raise click.UsageError(str(e)) from None
-    ds = load_dataset(data_path, configs=idx)
+    ds = load_dataset(data_path, configs=idx, clean=False)
     with ProgressBar(f"solving ({method})", "configurations", quiet(ctx)) as bar:
         res = solve_dataset(ds, settings, progress=bar)
     save_results(res, out, overwrite=overwrite)

@@ -101,7 +101,7 @@ def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, arch, ac
 
     cfg = _train_config(dict(arch=arch, activation=activation, depth=depth, width=width, siamese=siamese,
                              frames=sample_frames), kw)  # fmt: skip
-    ds = load_dataset(data_path)
+    ds = load_dataset(data_path, clean=False)
     model = ds.model()
     with ProgressBar(f"training {cfg.model.name}", "epochs", quiet(ctx)) as bar:
 
@@ -151,7 +151,7 @@ def evaluate_cmd(run_dir, data_path, selection, no_linear, out, overwrite) -> No
 
     out = prepare_output(out or Path(run_dir) / EVALUATION, overwrite)
     run = load_run(run_dir)
-    ds = load_dataset(data_path)
+    ds = load_dataset(data_path, clean=False)
     configs = None if selection is None else parse_selection(selection, ds.n_configs)
     ev = evaluate(run, ds, configs, linear=not no_linear)
     atomic_write(out, json.dumps(ev.to_dict(), indent=1))
@@ -214,7 +214,7 @@ def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, s
             raise ValueError("the grid is empty: a Siamese network needs more than one frame (--sample-frames 10)")
     except ValueError as e:
         raise click.UsageError(str(e)) from None
-    ds = load_dataset(data_path)
+    ds = load_dataset(data_path, clean=False)
     with ProgressBar("sweep", "runs", quiet(ctx)) as bar:
         bar(0, len(cfgs))
         rows = sweep(ds, grid, base, out_dir, dataset_path=str(data_path), progress=lambda i, t, r: bar(i, t),

@@ -37,13 +37,20 @@ structure and frame count (see :func:`ineid.cache.enable_compilation_cache`).
 from __future__ import annotations
 
 import functools
+import os
+import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
+from ineid.cache import enable_compilation_cache
+
 TARGET_FRAMES = 2048
 """Frames (configurations x frames) per compiled call: the chunk the regressor runs fastest on."""
+RESIDUAL_TARGET_FRAMES = 8192
+"""Frames per call of the residual kernel (``base_wrench`` only: cheaper per frame)."""
 MAX_FRAME_CHUNK = 2048
 """Longer configurations (recordings) are reduced over chunks of this many frames."""
 
@@ -61,6 +68,10 @@ class InformationBlocks:
         t: (C, 6) ``sum_k (y[k, a] - y_ref_a)``, or None.
         w_ref, y_ref: (C, 6, 10 n_u), (C, 6) the rows subtracted from every frame before
             ``G, h, e, s, t`` were summed (the first frame's), or None (nothing subtracted).
+        axis_w: None for per-axis blocks; else (C, 6) row weights ``d_a`` the blocks were
+            summed with in the kernel: ``G`` (C, r, r) ``= sum_a d_a^2 G_a``, ``h`` (C, r)
+            ``= sum_a d_a^2 h_a`` (``e`` stays per axis). Six times less memory, for fits
+            whose weights are known before the frames are read (none, noise).
     """
 
     G: np.ndarray
@@ -71,6 +82,11 @@ class InformationBlocks:
     t: np.ndarray | None = None
     w_ref: np.ndarray | None = None
     y_ref: np.ndarray | None = None
+    axis_w: np.ndarray | None = None
+
+    def _per_axis(self, what: str) -> None:
+        if self.axis_w is not None:
+            raise ValueError(f"{what} needs per-axis blocks; these were summed with fixed weights (axis_weights=...)")
 
     def centred(self, base):
         """``(blocks, offsets)``: the blocks of the frames centred per axis, and their means.
@@ -83,6 +99,7 @@ class InformationBlocks:
         """
         from ineid.identify.systems import Offsets  # noqa: PLC0415
 
+        self._per_axis("centring")
         if self.s is None or self.t is None:
             raise ValueError("these blocks carry no frame sums; compute them with sums=True")
         f = self.n_frames
@@ -96,6 +113,10 @@ class InformationBlocks:
 
     def weighted(self, axis_w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(W_b^T D^2 W_b, W_b^T D^2 y, y^T D^2 y)`` for row weights ``axis_w`` (C, 6)."""
+        if self.axis_w is not None:
+            if not np.array_equal(np.broadcast_to(axis_w, self.axis_w.shape), self.axis_w):
+                raise ValueError("these blocks were summed with other row weights; compute them again")
+            return self.G, self.h, np.sum(self.axis_w**2 * self.e, axis=1)
         d2 = (np.asarray(axis_w, dtype=np.float64) ** 2)[:, None, :]  # (C, 1, 6)
         c, _, r, _ = self.G.shape
         a = np.matmul(d2, self.G.reshape(c, 6, r * r)).reshape(c, r, r)
@@ -104,6 +125,7 @@ class InformationBlocks:
 
     def axis_rss(self, beta: np.ndarray) -> np.ndarray:
         """(C, 6) unweighted residual sum of squares per axis, ``e_a - 2 beta.h_a + beta^T G_a beta``."""
+        self._per_axis("the residual per axis")
         gb = np.matmul(self.G, beta[:, None, :, None])[..., 0]  # (C, 6, r)
         quad = np.matmul(gb, beta[:, :, None])[..., 0]
         lin = np.matmul(self.h, beta[:, :, None])[..., 0]
@@ -114,28 +136,40 @@ class InformationBlocks:
             return None if a is None else a[rows]
 
         return InformationBlocks(self.G[rows], self.h[rows], self.e[rows], self.n_frames, pick(self.s), pick(self.t),
-                                 pick(self.w_ref), pick(self.y_ref))
+                                 pick(self.w_ref), pick(self.y_ref), pick(self.axis_w))
 
 
-def _split(n_configs: int, n_frames: int) -> tuple[int, int]:
-    """``(configurations, frames)`` per compiled call."""
+def _split(n_configs: int, n_frames: int, target: int | None = None) -> tuple[int, int]:
+    """``(configurations, frames)`` per compiled call of about ``target`` frames (default :data:`TARGET_FRAMES`)."""
     frames = min(n_frames, MAX_FRAME_CHUNK)
-    return max(1, TARGET_FRAMES // frames), frames
+    return max(1, (target or TARGET_FRAMES) // frames), frames
+
+
+WORKERS = min(os.cpu_count() or 1, 4)
+"""Threads dispatching chunks: XLA:CPU runs each call in its caller's thread, so calls from
+two threads run on two cores (measured 1.3x on two cores over one dispatching thread)."""
 
 
 def _map_chunks(kernel: Callable, frame_arrays: list[np.ndarray], config_arrays: list[np.ndarray],
-                consts: tuple, progress: Callable[[int, int], None] | None = None) -> list[np.ndarray]:
+                consts: tuple, progress: Callable[[int, int], None] | None = None,
+                target: int | None = None) -> list[np.ndarray]:
     """Sum ``kernel(*frame_chunks, mask, *config_chunks, *consts)`` over frame chunks, per configuration chunk.
 
     ``frame_arrays`` are (C, F, .) and ``config_arrays`` (C, .); each call gets (Cc, Fc, .)
     and (Cc, .) zero-padded pieces and the (Cc, Fc) mask of real frames. The kernel returns
     a tuple of (Cc, ...) arrays, summed over frame chunks and concatenated over
-    configurations. Calls are dispatched one ahead so XLA computes while NumPy collects.
+    configurations. The configurations are split among :data:`WORKERS` threads; each
+    dispatches its calls one ahead so XLA computes while NumPy collects.
     """
+    enable_compilation_cache()  # JAX is imported by now: registers the cache-hit log too
     n_configs, n_frames = frame_arrays[0].shape[:2]
-    per, frames = _split(n_configs, n_frames)
-    sums: list[list[np.ndarray]] = []
-    pending: list = []
+    per, frames = _split(n_configs, n_frames, target)
+    starts = list(range(0, n_configs, per))
+    n_workers = max(1, min(WORKERS, len(starts)))
+    results: list = [None] * len(starts)
+    done = [0]
+    lock = threading.Lock()
+    stop_event = threading.Event()
 
     def pad(piece, shape):
         if piece.shape[: len(shape)] == shape:
@@ -144,38 +178,62 @@ def _map_chunks(kernel: Callable, frame_arrays: list[np.ndarray], config_arrays:
         out[tuple(slice(0, k) for k in piece.shape[: len(shape)])] = piece
         return out
 
-    def collect(item):
-        start, stop, outs = item
-        if not sums:
-            sums.extend([] for _ in outs)
-        for k, o in enumerate(outs):
-            sums[k].append(np.asarray(o)[: stop - start])
-        if progress is not None:
-            progress(stop, n_configs)
-
-    for start in range(0, n_configs, per):
+    def collect(k, outs):
+        start = starts[k]
         stop = min(start + per, n_configs)
-        per_config = [pad(a[start:stop], (per,)) for a in config_arrays]
-        total = None
-        for f0 in range(0, n_frames, frames):
-            f1 = min(f0 + frames, n_frames)
-            parts = [pad(a[start:stop, f0:f1], (per, frames)) for a in frame_arrays]
-            mask = np.zeros((per, frames))
-            mask[: stop - start, : f1 - f0] = 1.0
-            outs = kernel(*parts, mask, *per_config, *consts)
-            total = outs if total is None else tuple(t + o for t, o in zip(total, outs, strict=True))
-        pending.append((start, stop, total))
-        if len(pending) > 1:
-            collect(pending.pop(0))
-    for item in pending:
-        collect(item)
-    return [np.concatenate(s) for s in sums]
+        results[k] = [np.asarray(o)[: stop - start] for o in outs]
+        if progress is not None:
+            with lock:
+                done[0] += stop - start
+                progress(done[0], n_configs)
+
+    def work(chunk_ids):
+        pending = []
+        for k in chunk_ids:
+            if stop_event.is_set():
+                return
+            start = starts[k]
+            stop = min(start + per, n_configs)
+            per_config = [pad(a[start:stop], (per,)) for a in config_arrays]
+            total = None
+            for f0 in range(0, n_frames, frames):
+                f1 = min(f0 + frames, n_frames)
+                parts = [pad(a[start:stop, f0:f1], (per, frames)) for a in frame_arrays]
+                mask = np.zeros((per, frames))
+                mask[: stop - start, : f1 - f0] = 1.0
+                outs = kernel(*parts, mask, *per_config, *consts)
+                total = outs if total is None else tuple(t + o for t, o in zip(total, outs, strict=True))
+            pending.append((k, total))
+            if len(pending) > 1:
+                collect(*pending.pop(0))
+        for item in pending:
+            collect(*item)
+
+    # contiguous blocks of chunks per thread; the main thread works too
+    blocks = [list(b) for b in np.array_split(np.arange(len(starts)), n_workers)]
+    if n_workers == 1:
+        work(blocks[0])
+    else:
+        with ThreadPoolExecutor(max_workers=n_workers - 1) as pool:
+            jobs = [pool.submit(work, b) for b in blocks[1:]]
+            try:
+                work(blocks[0])
+                for job in jobs:
+                    job.result()
+            except BaseException:  # Ctrl-C, SIGTERM, an error: the other threads stop at their next chunk
+                stop_event.set()
+                raise
+    return [np.concatenate([r[i] for r in results]) for i in range(len(results[0]))]
 
 
 @functools.lru_cache(maxsize=None)
 def _blocks_kernel(entries_fn, n_cols: int, base_columns: tuple[int, ...], known_columns: tuple[int, ...],
-                   sensor: bool = False, sum_columns: tuple[int, ...] = ()):
+                   sensor: bool = False, sum_columns: tuple[int, ...] = (), summed: bool = False):
     """Jitted ``(q, qd, qdd, wrench, mask, [w_ref, y_ref,] gravity, theta_known, x) -> (G, h, e[, s, t])``.
+
+    ``summed``: ``(q, qd, qdd, wrench, mask, d, gravity, theta_known, x)`` with row weights
+    ``d`` (Cc, 6), and ``G, h`` summed over the axes with weights ``d_a^2`` (see
+    :class:`InformationBlocks`): one (6Fc x r) product per configuration instead of six.
 
     ``sensor``: rows in the sensor frame (``x`` the 6x6 wrench transform; ignored otherwise).
     ``sum_columns`` (the unknown columns, base columns among them): the blocks are of the
@@ -189,7 +247,7 @@ def _blocks_kernel(entries_fn, n_cols: int, base_columns: tuple[int, ...], known
 
     base_pos = tuple(sum_columns.index(c) for c in base_columns) if sum_columns else ()
 
-    def core(q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, x):
+    def core(q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, x, d):
         entries = entries_fn(q, qd, qdd, gravity)
         batch = q.shape[:-1]  # (Cc, Fc)
 
@@ -208,22 +266,30 @@ def _blocks_kernel(entries_fn, n_cols: int, base_columns: tuple[int, ...], known
             w_all = w_b - jnp.moveaxis(w_ref, 1, 0)[..., None] * mask[None, :, None, :]
             y = y - jnp.moveaxis(y_ref, 1, 0)[..., None] * mask[None]
             w_b = w_all[:, :, base_pos, :]
+        e = jnp.einsum("acf,acf->ca", y, y)
+        if d is not None:  # rows weighted, axes and frames contracted together
+            w_d = w_b * jnp.moveaxis(d, 1, 0)[:, :, None, None]
+            y_d = y * jnp.moveaxis(d, 1, 0)[:, :, None]
+            return jnp.einsum("acrf,acsf->crs", w_d, w_d), jnp.einsum("acrf,acf->cr", w_d, y_d), e
         g = jnp.einsum("acrf,acsf->cars", w_b, w_b)
         h = jnp.einsum("acrf,acf->car", w_b, y)
-        e = jnp.einsum("acf,acf->ca", y, y)
         if not sum_columns:
             return g, h, e
         return g, h, e, jnp.einsum("acpf->cap", w_all), jnp.einsum("acf->ca", y)
 
     if sum_columns:
-        return jax.jit(core)
+        return jax.jit(lambda q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, x:
+                       core(q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, x, None))
+    if summed:
+        return jax.jit(lambda q, qd, qdd, wrench, mask, d, gravity, theta_known, x:
+                       core(q, qd, qdd, wrench, mask, None, None, gravity, theta_known, x, d))
     return jax.jit(lambda q, qd, qdd, wrench, mask, gravity, theta_known, x:
-                   core(q, qd, qdd, wrench, mask, None, None, gravity, theta_known, x))
+                   core(q, qd, qdd, wrench, mask, None, None, gravity, theta_known, x, None))
 
 
 def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
                        progress: Callable[[int, int], None] | None = None, sensor: np.ndarray | None = None,
-                       sums: bool = False) -> InformationBlocks:
+                       sums: bool = False, axis_weights: np.ndarray | None = None) -> InformationBlocks:
     """Per-axis blocks ``G, h, e`` of every configuration (see module doc).
 
     Args:
@@ -237,20 +303,31 @@ def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
         sums: also the frame sums ``s, t`` (for :meth:`InformationBlocks.centred`); the
             blocks are then of the frames minus each configuration's first frame (``w_ref,
             y_ref``), which only :meth:`InformationBlocks.centred` should use.
+        axis_weights: (C, 6) or (6,) row weights ``d_a`` known in advance: ``G, h`` come
+            summed over the axes with them (``InformationBlocks.axis_w``); not with ``sums``.
     """
     arrays = [np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench)]
     n_configs, n_frames = arrays[0].shape[:2]
     r, p = base.rank, base.n_params
     if n_configs == 0:
+        if axis_weights is not None:
+            return InformationBlocks(np.zeros((0, r, r)), np.zeros((0, r)), np.zeros((0, 6)), n_frames,
+                                     axis_w=np.zeros((0, 6)))
         return InformationBlocks(np.zeros((0, 6, r, r)), np.zeros((0, 6, r)), np.zeros((0, 6)), n_frames,
                                  np.zeros((0, 6, p)) if sums else None, np.zeros((0, 6)) if sums else None)
     columns = tuple(int(c) for c in np.asarray(model.unknown_index)[base.base_index])
     sum_columns = tuple(int(c) for c in model.unknown_index) if sums else ()
+    if sums and axis_weights is not None:
+        raise ValueError("centred blocks (sums=True) are per axis; leave axis_weights out")
     kernel = _blocks_kernel(model.jax_regressor_entries, 10 * model.n_links, columns,
-                            tuple(int(c) for c in model.known_index), sensor is not None, sum_columns)
+                            tuple(int(c) for c in model.known_index), sensor is not None, sum_columns,
+                            axis_weights is not None)
     x = np.eye(6) if sensor is None else np.asarray(sensor, dtype=np.float64)
     theta_known = np.asarray(theta_known, dtype=np.float64)
     consts = (model.gravity, theta_known, x)
+    if axis_weights is not None:
+        d = np.ascontiguousarray(np.broadcast_to(np.asarray(axis_weights, dtype=np.float64), (n_configs, 6)))
+        return InformationBlocks(*_map_chunks(kernel, arrays, [d], consts, progress), n_frames, axis_w=d)
     if not sums:
         return InformationBlocks(*_map_chunks(kernel, arrays, [], consts, progress), n_frames)
     psi_u, psi_k = model.regressor_split(*(a[:, :1] for a in arrays[:3]))  # the first frames: (C, 1, 6, .)
@@ -306,5 +383,6 @@ def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int, sensor: np.ndarr
     bias = np.zeros((n_configs, 6)) if bias is None else np.asarray(bias, dtype=np.float64)
     kernel = _residual_kernel(model.jax_base_wrench, sensor is not None)
     x = np.eye(6) if sensor is None else np.asarray(sensor, dtype=np.float64)
-    ssr_fit, ssr_held, ss_held = _map_chunks(kernel, [*arrays, fit], [theta, bias], (model.gravity, x))
+    ssr_fit, ssr_held, ss_held = _map_chunks(kernel, [*arrays, fit], [theta, bias], (model.gravity, x),
+                                             target=RESIDUAL_TARGET_FRAMES)
     return ssr_fit, ssr_held, ss_held

@@ -109,7 +109,9 @@ def _weighted_fit(w_b: np.ndarray, y: np.ndarray, axis_w: np.ndarray, base_scale
     return beta, safe_r, rss, rank, cond, resid
 
 
-def _axis_weights(weights: str, axis_sigma, c: int) -> np.ndarray:
+def axis_weights(weights: str, axis_sigma, c: int) -> np.ndarray:
+    """(C, 6) row weights ``d_a`` of a weight mode before any fit: ones, or ``1 / sigma_a`` for ``noise``
+    (``estimate`` starts from ones)."""
     if weights not in WEIGHT_MODES:
         raise ValueError(f"weights must be one of {WEIGHT_MODES}, got {weights!r}")
     if weights != "noise":
@@ -148,7 +150,7 @@ def fit_base(
         axis_sigma: (6,) or (C, 6) wrench noise standard deviations, for ``"noise"``.
     """
     c, n, _ = w.shape
-    axis_w = _axis_weights(weights, axis_sigma, c)
+    axis_w = axis_weights(weights, axis_sigma, c)
     r = base.rank
     w_b = w[:, :, base.base_index]
     scales_b = base.scales[base.base_index]
@@ -168,7 +170,22 @@ def fit_base(
     return BaseFit(beta, rr, rss, dof, sigma2, cov, rank, cond, axis_w)
 
 
+NORMAL_CHUNK = 256
+"""Configurations per batched solve in :func:`_normal_fit`: the temporaries (a few
+``256 x r x r`` arrays) stay in cache instead of faulting in fresh memory for every step."""
+
+
 def _normal_fit(blocks, axis_w: np.ndarray, scales_b: np.ndarray):
+    """:func:`_normal_fit_chunk` over chunks of :data:`NORMAL_CHUNK` configurations."""
+    c = blocks.e.shape[0]
+    if c <= NORMAL_CHUNK:
+        return _normal_fit_chunk(blocks, axis_w, scales_b)
+    parts = [_normal_fit_chunk(blocks.select(slice(i, i + NORMAL_CHUNK)), axis_w[i : i + NORMAL_CHUNK], scales_b)
+             for i in range(0, c, NORMAL_CHUNK)]
+    return tuple(np.concatenate(p) for p in zip(*parts, strict=True))
+
+
+def _normal_fit_chunk(blocks, axis_w: np.ndarray, scales_b: np.ndarray):
     """One weighted solve of the normal equations of every configuration (column-scaled).
 
     ``A_s = S A S = L L^T`` (Cholesky), ``beta = S A_s^-1 S b``, ``R = L^T S^-1`` (upper
@@ -245,7 +262,7 @@ def fit_base_blocks(
         :func:`fit_base` on their stacks.
     """
     c = blocks.e.shape[0]
-    axis_w = _axis_weights(weights, axis_sigma, c)
+    axis_w = axis_weights(weights, axis_sigma, c)
     r = base.rank
     n = 6 * blocks.n_frames
     scales_b = base.scales[base.base_index]
@@ -274,10 +291,14 @@ def with_exact_rss(fit: BaseFit, axis_rss: np.ndarray) -> BaseFit:
     rss = fit.rss.copy()
     rss[ok] = np.einsum("ca,ca->c", fit.axis_weights[ok] ** 2, axis_rss[ok])
     sigma2 = rss / max(fit.dof, 1)
-    cov = fit.cov_beta.copy()
-    if np.any(ok):
-        r_inv = np.linalg.inv(fit.R[ok])
-        cov[ok] = sigma2[ok, None, None] * (r_inv @ np.swapaxes(r_inv, -1, -2))
+    # cov = sigma^2 (R^T R)^-1: rescale where the old sigma^2 was positive, else invert R
+    scale = np.divide(sigma2, fit.sigma2, out=np.zeros_like(sigma2), where=ok & (fit.sigma2 > 0))
+    cov = fit.cov_beta * scale[:, None, None]
+    cov[~ok] = fit.cov_beta[~ok]
+    redo = ok & ~(fit.sigma2 > 0)
+    if np.any(redo):
+        r_inv = np.linalg.inv(fit.R[redo])
+        cov[redo] = sigma2[redo, None, None] * (r_inv @ np.swapaxes(r_inv, -1, -2))
     return dataclasses.replace(fit, rss=rss, sigma2=sigma2, cov_beta=cov)
 
 
@@ -302,7 +323,7 @@ def standard_from_base(beta: np.ndarray, base: BaseParameters, theta_prior: np.n
 def standard_std(cov_beta: np.ndarray, base: BaseParameters) -> np.ndarray:
     """Standard deviations of the standard parameters; NaN where not identifiable. (C, 10 n_u)."""
     t = prior_map(base)
-    var = np.einsum("pr,crs,ps->cp", t, cov_beta, t)
+    var = np.einsum("cps,ps->cp", np.matmul(t, cov_beta), t)  # diag(T cov T^T)
     std = np.sqrt(np.maximum(var, 0.0))
     std[:, ~base.identifiable] = np.nan
     return std
@@ -331,11 +352,17 @@ class Estimate:
     fit: BaseFit
 
 
+def linear_theta(fit: BaseFit, base: BaseParameters, theta_prior: np.ndarray) -> np.ndarray:
+    """(C, 10 n_u) standard parameters from a base fit by the null-space rule; NaN rows where not full rank."""
+    theta = standard_from_base(np.nan_to_num(fit.beta), base, theta_prior)
+    theta[~fit.full_rank] = np.nan
+    return theta
+
+
 def linear_estimate(fit: BaseFit, base: BaseParameters, theta_prior: np.ndarray) -> Estimate:
     """Standard parameters from a base fit by the null-space rule (see module doc)."""
-    theta = standard_from_base(np.nan_to_num(fit.beta), base, theta_prior)
+    theta = linear_theta(fit, base, theta_prior)
     ok = fit.full_rank
-    theta[~ok] = np.nan
     std = standard_std(np.nan_to_num(fit.cov_beta), base)
     std[~ok] = np.nan
     beta_std = np.sqrt(np.maximum(np.diagonal(fit.cov_beta, axis1=1, axis2=2), 0.0))

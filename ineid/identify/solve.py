@@ -27,10 +27,12 @@ from ineid.identify.linear import (
     WEIGHT_MODES,
     BaseFit,
     Estimate,
+    axis_weights,
     fit_base,
     fit_base_blocks,
     fit_base_casadi,
     linear_estimate,
+    linear_theta,
     with_exact_rss,
 )
 from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL, NlpSolver, estimate_from_solves, nlp_estimate
@@ -246,15 +248,15 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
     # 2. the residuals of the least-squares fit itself, exactly (one fused pass over every
     # frame at the linear estimate): the normal equations give the rss only up to
     # cancellation (eps * ||y||^2), the covariance and the IPOPT noise level need it exact
-    lin = linear_estimate(fit, base, prior)
-    sums = estimate_residual_sums(model, ds, n_fit, n_val, lin.theta, sensor, offsets)
+    theta_lin = linear_theta(fit, base, prior)
+    sums = estimate_residual_sums(model, ds, n_fit, n_val, theta_lin, sensor, offsets)
     fit = with_exact_rss(fit, sums[0])
 
     # 3. standard parameters
     if settings.method == "linear":
         est = linear_estimate(fit, base, prior)
     else:
-        start = prior if settings.start == "prior" else physical_start(lin.theta, prior, base.scales)
+        start = prior if settings.start == "prior" else physical_start(theta_lin, prior, base.scales)
         est, nlp_seconds = _run_nlp(fit, base, settings, prior, rms, start, progress)
         seconds = seconds + nlp_seconds
         sums = estimate_residual_sums(model, ds, n_fit, n_val, est.theta, sensor, offsets)
@@ -369,6 +371,9 @@ def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress,
     q, qd, qdd, wrench = (a[:, fit_sl] for a in (ds.q, ds.qd, ds.qdd, ds.wrench))
     with_bias = settings.bias == "estimate"
     extra = {} if sensor is None and not with_bias else {"sensor": sensor, "sums": with_bias}
+    if blocks_fn is information_blocks and not with_bias and settings.weights != "estimate":
+        # the row weights are known before the frames are read: blocks summed over the axes
+        extra["axis_weights"] = axis_weights(settings.weights, axis_sigma, ds.n_configs)
     blocks = blocks_fn(model, base, q, qd, qdd, wrench, ds.theta_known, progress=progress, **extra)
     offsets = None
     if with_bias:

@@ -1,6 +1,7 @@
 """URDF -> :class:`Chain`: the numeric description of a serial arm that ineid works on.
 
-Parsing is yourdfpy's; this module turns its tree into a chain of moving joints:
+Parsing is yourdfpy's (once per URDF text: the result is kept in the cache folder, see
+:func:`parse_chain`); this module turns its tree into a chain of moving joints:
 
 * fixed joints are merged into their parent body, their inertia folded in (as Pinocchio
   does); links welded to the root belong to the fixture and are tared away;
@@ -18,10 +19,11 @@ from __future__ import annotations
 
 import hashlib
 import io
+import json
 import math
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -104,10 +106,78 @@ def load_chain(path: str | Path, locked_joints: Mapping[str, float] | None = Non
 
 
 def parse_chain(text: bytes | str, source: str = "<urdf>", locked_joints: Mapping[str, float] | None = None) -> Chain:
-    """Parse URDF text into a :class:`Chain`; see :func:`load_chain`."""
+    """Parse URDF text into a :class:`Chain`; see :func:`load_chain`.
+
+    A URDF parsed once is remembered in the cache folder (:func:`cached_chain`), so later
+    processes skip yourdfpy (and its trimesh import, about half a second).
+    """
+    data = text.encode() if isinstance(text, str) else text
+    key = _chain_key(data, source, locked_joints)
+    chain = cached_chain(key)
+    if chain is not None:
+        return chain
+    chain = _parse_chain(data, source, locked_joints)
+    _store_chain(key, chain)
+    return chain
+
+
+CHAIN_SUBDIR = "chains"
+"""Parsed URDFs live in ``cache_dir() / CHAIN_SUBDIR`` as JSON, one file per URDF text."""
+
+
+def _chain_key(data: bytes, source: str, locked_joints: Mapping[str, float] | None) -> str:
+    """Hash of what a parse depends on: this module's code, the URDF bytes, the source
+    name (a nameless ``<robot>`` is named after it) and the locked joints."""
+    h = hashlib.sha256(Path(__file__).read_bytes())
+    h.update(json.dumps([source, sorted((str(k), float(v)) for k, v in (locked_joints or {}).items())]).encode())
+    h.update(data)
+    return h.hexdigest()[:32]
+
+
+def _chain_file(key: str) -> Path:
+    from ineid.cache import cache_dir  # noqa: PLC0415
+
+    return cache_dir() / CHAIN_SUBDIR / f"{key}.json"
+
+
+def cached_chain(key: str) -> Chain | None:
+    """The chain parsed earlier under ``key``, or None (not parsed yet, or an unreadable file)."""
+    path = _chain_file(key)
+    try:
+        doc = json.loads(path.read_text())
+        joints = tuple(
+            JointSpec(**{**j, **{k: np.asarray(j[k], dtype=np.float64) for k in _ARRAY_FIELDS}}) for j in doc["joints"]
+        )
+        return Chain(doc["name"], doc["root_link"], joints, {k: tuple(v) for k, v in doc["merged_links"].items()})
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+_ARRAY_FIELDS = ("parent_R_joint", "parent_p_joint", "axis", "theta")
+
+
+def _store_chain(key: str, chain: Chain) -> None:
+    """Remember a parsed chain (JSON: floats round-trip exactly); a read-only cache is skipped."""
+    from ineid._atomic import atomic_write  # noqa: PLC0415
+
+    joints = [
+        {f.name: (getattr(j, f.name).tolist() if f.name in _ARRAY_FIELDS else getattr(j, f.name))
+         for f in fields(JointSpec)}
+        for j in chain.joints
+    ]
+    doc = {"name": chain.name, "root_link": chain.root_link, "joints": joints,
+           "merged_links": {k: list(v) for k, v in chain.merged_links.items()}}
+    path = _chain_file(key)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(path, json.dumps(doc))
+    except OSError:
+        pass
+
+
+def _parse_chain(data: bytes, source: str, locked_joints: Mapping[str, float] | None) -> Chain:
     import yourdfpy  # noqa: PLC0415  (heavy: trimesh)
 
-    data = text.encode() if isinstance(text, str) else text
     try:
         root = ET.fromstring(data)
     except ET.ParseError as e:
