@@ -126,6 +126,7 @@ def read_meta(path: str | Path) -> tuple[DatasetMeta, dict[str, tuple[int, ...]]
                 raise DatasetError(f"{path}: dataset {name!r} is missing; the file is damaged")
         if meta.source == "synthetic" and "theta_unknown" not in shapes:
             raise DatasetError(f"{path}: a synthetic dataset without theta_unknown; the file is damaged")
+    log.info("read %s: %s dataset of %s, %d x %d frames", path, meta.source, meta.robot, *shapes["q"][:2])
     return meta, shapes
 
 
@@ -186,7 +187,6 @@ def load_dataset(path: str | Path, configs=None, frames=None, clean: bool = True
                 check_finite(name, arr, where, None if name == "theta_known" else cidx)
             out[name] = np.asarray(arr, dtype=np.int64 if name == "link_set_index" else np.float64)
     clean_arrays = {k: out.pop(f"{k}_clean") for k in MEASURED_KEYS if f"{k}_clean" in out}
-    log.info("read %s: %s dataset of %s, %d x %d frames", path, meta.source, meta.robot, len(cidx), len(fidx))
     return Dataset(
         meta=meta,
         q=out["q"],
