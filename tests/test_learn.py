@@ -142,6 +142,36 @@ def test_physics_modes_agree(model, data):
     np.testing.assert_allclose(float(va), float(vb), rtol=1e-12)
 
 
+def test_compact_cache_equals_the_full_regressor(model, data, rng):
+    """The compact rows (base columns, entries never zero, axes grouped by their columns) give
+    ``(y - Psi_u theta) / s``: on the arm (forces use 6 base columns, moments all 17: 75
+    numbers a frame) and on a made-up regressor whose groups interleave the axes."""
+    from types import SimpleNamespace
+
+    from ineid.learn.losses import CompactRegressor
+
+    split = split_configs(data.n_configs, 80, 20, 20, SEED)
+    prep = _physics(model, data, "cached", split)
+    compact = prep.physics.compact
+    assert [(len(c), a) for c, a in compact.groups] == [(6, (0, 1, 2)), (17, (3, 4, 5))]
+    assert compact.width == 75 and prep.arrays["compact"].shape[-1] == 75
+    with pytest.raises(ValueError, match="compact cached regressor"):
+        prep.physics.system((None, None))
+
+    r, p = 5, 8
+    b = np.hstack([np.eye(r), rng.normal(size=(r, p - r))])
+    psi_b = rng.normal(size=(40, 6, r))
+    psi_b[:, [0, 2, 5], 3:] = 0.0  # axes 0, 2, 5 use columns 0-2 only: groups (1, 3, 4) and (0, 2, 5)
+    psi_u, y = psi_b @ b, rng.normal(size=(40, 6))
+    scale = rng.uniform(0.5, 2.0, size=6)
+    made_up, rows = CompactRegressor.from_frames(psi_u, y, SimpleNamespace(base_index=np.arange(r), B=b, rank=r), scale)
+    assert [a for _, a in made_up.groups] == [(0, 2, 5), (1, 3, 4)]
+    theta = rng.normal(size=(40, p))
+    got = made_up.residual(jnp.asarray(theta), (jnp.asarray(rows[:, None, 6:]), jnp.asarray(rows[:, None, :6])))
+    want = (y - np.einsum("fap,fp->fa", psi_u, theta)) / scale
+    np.testing.assert_allclose(np.asarray(got)[:, 0], want, rtol=1e-12, atol=1e-12)
+
+
 def test_loss_gradients(model, data):
     split = split_configs(data.n_configs, 80, 20, 20, SEED)
     prep = _physics(model, data, "cached", split)

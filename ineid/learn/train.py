@@ -21,7 +21,7 @@ import numpy as np
 
 from ineid.errors import DatasetError, TrainingError
 from ineid.learn.data import epoch_groups, fixed_groups, frame_features, split_configs
-from ineid.learn.losses import LOSSES, PHYSICS_MODES, Physics, make_loss
+from ineid.learn.losses import LOSSES, PHYSICS_MODES, CompactRegressor, Physics, make_loss
 from ineid.learn.models import ModelSpec
 from ineid.learn.runs import MetricsLog, load_state, save_state, start_run, write_config
 from ineid.learn.scalers import SCALERS, Scaler
@@ -179,6 +179,16 @@ def prepare(ds: Dataset, cfg: TrainConfig, rows: np.ndarray, model: RobotModel, 
         need = sub.n_configs * sub.n_frames * 6 * (n_u + 1) * 8
         if need > CACHE_LIMIT_BYTES:
             physics_mode = "inline"
+    compact = rows_compact = None
+    if physics_mode == "cached":
+        w, y = stack(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known)  # (C, 6F, n_u), (C, 6F)
+        w = w.reshape(sub.n_configs, sub.n_frames, 6, n_u)
+        y = y.reshape(sub.n_configs, sub.n_frames, 6)
+        if not cfg.model.uses_regressor:  # a network that does not read Psi: the compact rows
+            from ineid.identify.identifiability import base_parameters  # noqa: PLC0415
+
+            compact, rows_compact = CompactRegressor.from_frames(w, y, base_parameters(model), wrench_scale)
+            del w, y
     physics = Physics(
         mode=physics_mode,
         regressor=model.jax_regressor,
@@ -189,12 +199,15 @@ def prepare(ds: Dataset, cfg: TrainConfig, rows: np.ndarray, model: RobotModel, 
         wrench_scale=np.asarray(wrench_scale, dtype=np.float64),
         y_center=y_scaler.center,
         y_scale=y_scaler.scale,
+        compact=compact,
     )
-    arrays = {"x": jnp.asarray(x_scaler.transform(feats)), "z": jnp.asarray(y_scaler.transform(sub.theta_unknown))}
-    if physics_mode == "cached":
-        w, y = stack(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known)  # (C, 6F, n_u), (C, 6F)
-        arrays["psi"] = jnp.asarray(w.reshape(sub.n_configs, sub.n_frames, 6, n_u))
-        arrays["yres"] = jnp.asarray(y.reshape(sub.n_configs, sub.n_frames, 6))
+    x = x_scaler.transform(feats)
+    arrays = {"x": jnp.asarray(x), "z": jnp.asarray(y_scaler.transform(sub.theta_unknown))}
+    if compact is not None:  # one row a frame of the physics term's numbers (a plain MSE step never reads it)
+        arrays["compact"] = jnp.asarray(rows_compact)
+    elif physics_mode == "cached":
+        arrays["psi"] = jnp.asarray(w)
+        arrays["yres"] = jnp.asarray(y)
     else:
         arrays.update(q=jnp.asarray(sub.q), qd=jnp.asarray(sub.qd), qdd=jnp.asarray(sub.qdd), wrench=jnp.asarray(sub.wrench))
     return Prepared(rows, x_scaler, y_scaler, arrays, physics, n_u, sub.n_frames)
@@ -214,6 +227,9 @@ def gather_samples(arrays, mode, rows, frames):
     def take(a):
         return jnp.take(a.reshape((-1,) + a.shape[2:]), flat, axis=0)
 
+    if "compact" in arrays:  # compact cached rows: y / s and the kept entries in one gather
+        row = take(arrays["compact"])
+        return take(arrays["x"]), arrays["z"][rows], (row[..., 6:], row[..., :6])
     if mode == "cached":
         inputs = (take(arrays["psi"]), take(arrays["yres"]))
     else:
