@@ -229,6 +229,27 @@ def test_second_process_loads_compiled_kernels(tmp_path):
     assert "DIR None" in _child(env)
 
 
+def test_second_solve_command_logs_its_cache_hits(arm, noisy, tmp_path):
+    """``ineid -v solve`` twice in fresh processes: the second loads the fused kernels from the
+    cache and says so, and parses the URDF from the cache (no yourdfpy import)."""
+    data = noisy.select(slice(0, 12)).save(tmp_path / "d.h5")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_COMPILATION", "JAX_PERSISTENT", "INEID_XLA"))}
+    env["INEID_CACHE_DIR"] = str(tmp_path / "cache")
+    code = ("import sys; from ineid.cli import main\ntry:\n    main()\nfinally:\n"
+            "    print('YOURDFPY', 'yourdfpy' in sys.modules)")
+
+    def solve() -> str:
+        argv = ["-v", "solve", str(data), "--out", str(tmp_path / "r.h5"), "--overwrite"]
+        out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, env=env,
+                             timeout=300)
+        assert out.returncode == 0, out.stderr
+        return out.stdout + out.stderr
+
+    first, second = solve(), solve()
+    assert "cache hit" not in first and "YOURDFPY True" in first
+    assert second.count("ineid: XLA compilation cache hit") >= 2 and "YOURDFPY False" in second
+
+
 def test_user_cache_setting_wins(tmp_path, monkeypatch):
     import jax
 
