@@ -292,9 +292,8 @@ def with_exact_rss(fit: BaseFit, axis_rss: np.ndarray) -> BaseFit:
     rss[ok] = np.einsum("ca,ca->c", fit.axis_weights[ok] ** 2, axis_rss[ok])
     sigma2 = rss / max(fit.dof, 1)
     # cov = sigma^2 (R^T R)^-1: rescale where the old sigma^2 was positive, else invert R
-    scale = np.divide(sigma2, fit.sigma2, out=np.zeros_like(sigma2), where=ok & (fit.sigma2 > 0))
+    scale = np.divide(sigma2, fit.sigma2, out=np.ones_like(sigma2), where=ok & (fit.sigma2 > 0))
     cov = fit.cov_beta * scale[:, None, None]
-    cov[~ok] = fit.cov_beta[~ok]
     redo = ok & ~(fit.sigma2 > 0)
     if np.any(redo):
         r_inv = np.linalg.inv(fit.R[redo])

@@ -265,13 +265,8 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         bias_hat, bias_std = _bias_estimate(offsets, est, base)
 
     # 4. residuals of the estimates on the fitted and on the held-out frames
-    fit_rms, val_rms, val_rel = residual_summary(sums, n_fit, n_val, est.theta)
-    meta = results_meta(ds, time.perf_counter() - t_start)
-    return SolveResults(
-        settings=settings,
-        base=base,
-        param_names=tuple(base.param_names),
-        config_index=np.asarray(ds.config_index, dtype=np.int64),
+    return dataset_results(
+        ds, settings, base, prior, sums, n_fit, n_val, t_start,
         theta_hat=est.theta,
         theta_std=est.theta_std,
         base_hat=est.beta,
@@ -279,16 +274,37 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         success=est.success,
         status=np.asarray(est.status, dtype=object),
         seconds=seconds,
+        bias_hat=bias_hat,
+        bias_std=bias_std,
+    )  # fmt: skip
+
+
+def dataset_results(ds, settings: SolveSettings, base: BaseParameters, theta_prior: np.ndarray, sums,
+                    n_fit: int, n_val: int, t_start: float, **estimates) -> SolveResults:
+    """:class:`SolveResults` of estimates on ``ds``, for every solver (the methods and a trained run).
+
+    What every result records the same way: the configurations' file indices, the residual
+    RMS on the fitted and held-out frames from ``sums`` (:func:`estimate_residual_sums`, see
+    :func:`residual_summary`), the prior, the truth when the dataset has it, and
+    :func:`results_meta` with the seconds since ``t_start`` (``time.perf_counter()``).
+    ``estimates``: the remaining fields (``theta_hat, theta_std, base_hat, base_std,
+    success, status, seconds``, optionally ``bias_hat, bias_std``).
+    """
+    fit_rms, val_rms, val_rel = residual_summary(sums, n_fit, n_val, estimates["theta_hat"])
+    return SolveResults(
+        settings=settings,
+        base=base,
+        param_names=tuple(base.param_names),
+        config_index=np.asarray(ds.config_index, dtype=np.int64),
         fit_rms=fit_rms,
         validation_rms=val_rms,
         validation_rel=val_rel,
         n_frames_fit=n_fit,
         n_frames_validation=n_val,
-        theta_prior=prior,
+        theta_prior=theta_prior,
         theta_true=None if ds.theta_unknown is None else np.asarray(ds.theta_unknown),
-        meta=meta,
-        bias_hat=bias_hat,
-        bias_std=bias_std,
+        meta=results_meta(ds, time.perf_counter() - t_start),
+        **estimates,
     )
 
 

@@ -66,12 +66,7 @@ def solve_with_run(ds, settings, model=None, progress=None):
         IdentificationError: too few frames for the run, or a wrench in a sensor frame.
     """
     from ineid.identify.identifiability import base_parameters  # noqa: PLC0415
-    from ineid.identify.solve import (  # noqa: PLC0415
-        SolveResults,
-        estimate_residual_sums,
-        residual_summary,
-        results_meta,
-    )
+    from ineid.identify.solve import dataset_results, estimate_residual_sums  # noqa: PLC0415
     from ineid.learn.evaluate import predict  # noqa: PLC0415
     from ineid.learn.runs import load_run  # noqa: PLC0415
 
@@ -102,27 +97,14 @@ def solve_with_run(ds, settings, model=None, progress=None):
         progress(c, c)
     ok = np.all(np.isfinite(theta), axis=1)
     sums = estimate_residual_sums(model, ds, n_fit, n_val, theta)
-    fit_rms, val_rms, val_rel = residual_summary(sums, n_fit, n_val, theta)
-    nan = np.full_like(theta, np.nan)
-    meta = results_meta(ds, time.perf_counter() - t0)
-    return SolveResults(
-        settings=settings,
-        base=base,
-        param_names=tuple(base.param_names),
-        config_index=np.asarray(ds.config_index, dtype=np.int64),
+    prior = np.asarray(model.theta_cad[model.unknown_index], dtype=np.float64)
+    return dataset_results(
+        ds, settings, base, prior, sums, n_fit, n_val, t0,
         theta_hat=theta,
-        theta_std=nan,
+        theta_std=np.full_like(theta, np.nan),
         base_hat=theta @ base.B.T,
         base_std=np.full((c, base.rank), np.nan),
         success=ok,
         status=np.where(ok, "ok", "non_finite").astype(object),
         seconds=seconds,
-        fit_rms=fit_rms,
-        validation_rms=val_rms,
-        validation_rel=val_rel,
-        n_frames_fit=n_fit,
-        n_frames_validation=n_val,
-        theta_prior=np.asarray(model.theta_cad[model.unknown_index], dtype=np.float64),
-        theta_true=None if ds.theta_unknown is None else np.asarray(ds.theta_unknown),
-        meta=meta,
-    )
+    )  # fmt: skip
