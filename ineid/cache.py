@@ -1,15 +1,30 @@
-"""ineid's cache folder: generated code of user URDFs, parsed URDFs and compiled XLA code.
+"""ineid's cache folder: generated code of user URDFs, parsed URDFs and compiled code.
 
 ``$INEID_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/ineid`` or ``~/.cache/ineid``. Deleting
 the folder is always safe: whatever is missing is derived or compiled again.
+
+The cache holds code that ineid runs (generated modules, compiled C libraries, JAX's
+compiled XLA executables), so ineid trusts it only when it is private: the folder and
+every folder ineid makes in it (created 0700) belong to the current user and are not
+writable by group or others (:mod:`ineid._trust` has the checks, and the content hashes
+checked before code is loaded). A cache folder that fails this is not used at all: one
+warning line, and the process works in a private temporary folder instead.
+A folder ineid creates is marked with a ``CACHEDIR.TAG`` (backup tools skip it; ``ineid
+cache clear`` removes only ineid's own entries of a marked folder).
 """
 
 from __future__ import annotations
 
+import atexit
 import logging
 import os
+import shutil
 import sys
+import tempfile
+from dataclasses import dataclass
 from pathlib import Path
+
+from ineid._trust import PRIVATE_MODE, Untrusted, make_private_dirs, root_problem
 
 
 def cache_dir() -> Path:
@@ -23,6 +38,15 @@ def cache_dir() -> Path:
 
 XLA_SUBDIR = "xla"
 """JAX's persistent compilation cache lives in ``cache_dir() / XLA_SUBDIR``."""
+SUBDIRS = ("generated", "chains", "casadi-c", XLA_SUBDIR)
+"""Everything ineid puts in its cache folder, besides the :data:`MARKER`."""
+MARKER = "CACHEDIR.TAG"
+SIGNATURE = "Signature: 8a477f597d28d172789f06886806bc55"
+_MARKER_TEXT = (
+    f"{SIGNATURE}\n"
+    "# This file is a cache directory tag created by ineid: this folder is ineid's cache.\n"
+    "# `ineid cache clear` removes ineid's entries in it. See https://bford.info/cachedir/\n"
+)
 DISABLE_ENV = "INEID_XLA_CACHE"
 """Set to ``0`` to keep ineid from turning on JAX's persistent compilation cache."""
 
@@ -35,6 +59,148 @@ def xla_cache_dir() -> Path:
     return cache_dir() / XLA_SUBDIR
 
 
+@dataclass(frozen=True)
+class CacheState:
+    """What ineid makes of its cache folder (nothing is created to find out)."""
+
+    path: Path
+    exists: bool
+    marked: bool
+    """It holds ineid's ``CACHEDIR.TAG``."""
+    problem: str | None
+    """Why ineid does not trust it (owned by another user, writable by others), or None."""
+    foreign: tuple[str, ...]
+    """Entries that are not ineid's (anything but :data:`SUBDIRS` and the marker)."""
+
+    @property
+    def private(self) -> bool:
+        """Owned by the current user and not writable by others: ineid loads code from it."""
+        return self.exists and self.problem is None
+
+
+def cache_state() -> CacheState:
+    """The trust state of :func:`cache_dir`."""
+    root = cache_dir()
+    if not root.exists():
+        return CacheState(root, False, False, None, ())
+    problem = root_problem(root)
+    try:
+        entries = os.listdir(root)
+    except OSError:
+        entries = []
+    foreign = tuple(sorted(set(entries) - {*SUBDIRS, MARKER}))
+    return CacheState(root, True, _is_marked(root), problem, foreign)
+
+
+def _is_marked(root: Path) -> bool:
+    try:
+        with open(root / MARKER, "rb") as f:
+            head = f.read(512).decode("utf-8", "replace")
+    except OSError:
+        return False
+    return head.startswith(SIGNATURE) and "created by ineid" in head
+
+
+def _prepare_root(root: Path) -> str | None:
+    """Create the cache folder (0700, marked) if missing; why it cannot be trusted, or None.
+
+    An existing folder is marked when it holds nothing but ineid's entries (empty, or a
+    cache of an older ineid); a marked folder readable by others is tightened to 0700.
+    """
+    if not root.exists():
+        try:
+            missing = [p for p in (root, *root.parents) if not p.exists()]
+            for p in reversed(missing):
+                try:
+                    os.mkdir(p, PRIVATE_MODE)
+                    os.chmod(p, PRIVATE_MODE)
+                except FileExistsError:  # another process made it first
+                    pass
+        except OSError as e:
+            return f"cannot be created ({e.strerror or e})"
+    problem = root_problem(root)
+    if problem:
+        return problem
+    try:
+        if not _is_marked(root) and set(os.listdir(root)) <= set(SUBDIRS):
+            from ineid._atomic import atomic_write  # noqa: PLC0415
+
+            atomic_write(root / MARKER, _MARKER_TEXT)
+        if _is_marked(root) and os.stat(root).st_mode & 0o077:
+            os.chmod(root, PRIVATE_MODE)
+    except OSError:
+        pass  # a read-only cache can still be read
+    return None
+
+
+_warned: set[str] = set()
+_temporary: list[Path] = []
+
+
+def _warn_once(message: str) -> None:
+    if message not in _warned:
+        _warned.add(message)
+        _log.warning(message)
+
+
+def _temporary_root() -> Path:
+    """This process's private stand-in for an untrusted cache (0700, removed at exit)."""
+    if not _temporary:
+        path = Path(tempfile.mkdtemp(prefix="ineid-cache-"))
+        _temporary.append(path)
+        atexit.register(shutil.rmtree, path, ignore_errors=True)
+    return _temporary[0]
+
+
+def trusted_root() -> Path | None:
+    """:func:`cache_dir`, created if missing, when ineid may load code from it; else None
+    (after one warning line per process naming the folder, the reason and the fix)."""
+    root = cache_dir()
+    problem = _prepare_root(root)
+    if problem is None:
+        return root
+    fix = f"chmod 700 {root}, or set" if "writable" in problem else "set"
+    _warn_once(
+        f"the cache folder {root} {problem}, so ineid loads no code from it and works without a cache "
+        f"this time (in a private temporary folder); fix: {fix} INEID_CACHE_DIR to a folder of your own"
+    )
+    return None
+
+
+def private_folder(*parts: str) -> Path:
+    """``cache_dir() / parts``, created 0700 and checked (see :mod:`ineid._trust`).
+
+    When the cache folder or one of these folders cannot be trusted, the same parts under
+    a private temporary folder of this process (removed at exit) instead, after one
+    warning line: the work is done again rather than loaded.
+    """
+    root = trusted_root()
+    if root is not None:
+        try:
+            return make_private_dirs(root, *parts)
+        except Untrusted as e:
+            _warn_once(
+                f"the cache folder {e.reason}, so ineid loads no code from it and works in a private "
+                f"temporary folder this time; fix: ineid cache clear"
+            )
+    return make_private_dirs(_temporary_root(), *parts)
+
+
+def _private_xla_dir() -> Path | None:
+    """:func:`xla_cache_dir` created 0700 when the cache is private; else None (one warning line)."""
+    root = trusted_root()
+    if root is None:
+        return None
+    try:
+        return make_private_dirs(root, XLA_SUBDIR)
+    except Untrusted as e:
+        _warn_once(
+            f"the cache folder {e.reason}, so JAX's compilation cache (compiled native code) stays off; "
+            f"fix: ineid cache clear --xla-only"
+        )
+        return None
+
+
 def enable_compilation_cache() -> Path | None:
     """Turn on JAX's persistent compilation cache in :func:`xla_cache_dir` (idempotent).
 
@@ -44,30 +210,110 @@ def enable_compilation_cache() -> Path | None:
     (``jax_persistent_cache_min_compile_time_secs = 0``). Cache hits are logged at INFO
     on the ``ineid.cache`` logger (``ineid -v`` shows them).
 
+    The cache holds compiled native code, so it is turned on only when the folder is
+    private: created 0700 (see :func:`private_folder`), owned by the current user and not
+    writable by others; otherwise it stays off, with one warning line.
+
     Nothing changes when the cache is already configured (``JAX_COMPILATION_CACHE_DIR`` or
-    ``jax.config``: yours wins), or when ``INEID_XLA_CACHE=0``. Before JAX is imported
-    this only sets the environment variables JAX reads at import (no JAX import, no
-    start-up cost); after, it updates ``jax.config``. ``ineid cache clear --xla-only`` (or
-    deleting the folder) clears it; it is rebuilt on demand.
+    ``jax.config``: yours wins, unchecked), or when ``INEID_XLA_CACHE=0``. Before JAX is
+    imported this only sets the environment variables JAX reads at import (no JAX import,
+    no start-up cost); after, it updates ``jax.config``. ``ineid cache clear --xla-only``
+    (or deleting the folder) clears it; it is rebuilt on demand.
 
     Returns:
         The cache folder in use, or None when disabled.
     """
     if os.environ.get(DISABLE_ENV, "1").strip().lower() in ("0", "false", "no", "off"):
         return None
-    path = xla_cache_dir()
     if "jax" not in sys.modules:
-        os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(path))
+        if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+            path = _private_xla_dir()
+            if path is None:
+                return None
+            os.environ["JAX_COMPILATION_CACHE_DIR"] = str(path)
         os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
         return Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
     import jax  # noqa: PLC0415
 
     if jax.config.jax_compilation_cache_dir is None:
+        path = _checked_xla.get(str(cache_dir()), ...)
+        if path is ...:
+            path = _checked_xla[str(cache_dir())] = _private_xla_dir()
+        if path is None:
+            return None
         jax.config.update("jax_compilation_cache_dir", str(path))
         if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
             jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     _listen()
     return Path(jax.config.jax_compilation_cache_dir)
+
+
+_checked_xla: dict[str, Path | None] = {}
+"""Per cache folder, the verdict of :func:`_private_xla_dir` (this runs before every kernel call)."""
+
+
+@dataclass(frozen=True)
+class Cleared:
+    """What :func:`clear_cache` removed."""
+
+    path: Path
+    files: int
+    bytes: int
+    adopted: bool
+    """The folder had no marker (a cache of an older ineid) and held only ineid's entries."""
+    kept: tuple[str, ...]
+    """Entries of a marked folder that are not ineid's, left in place."""
+
+
+def _count(path: Path) -> tuple[int, int]:
+    if path.is_symlink() or path.is_file():
+        return 1, path.lstat().st_size
+    files = [p for p in path.rglob("*") if p.is_file() and not p.is_symlink()] if path.is_dir() else []
+    return len(files), sum(p.lstat().st_size for p in files)
+
+
+def clear_cache(xla_only: bool = False) -> Cleared:
+    """Remove what ineid put in :func:`cache_dir`: its :data:`SUBDIRS` (with ``xla_only`` only the
+    XLA folder), then, when nothing else is in it, the marker and the folder itself.
+
+    A folder without ineid's ``CACHEDIR.TAG`` is cleared only when it holds nothing but
+    ineid's entries (a cache made by an older ineid); anything else is refused, nothing removed.
+
+    Raises:
+        CacheError: the folder is not ineid's (no marker and other entries), or not a folder.
+    """
+    from ineid.errors import CacheError  # noqa: PLC0415
+
+    state = cache_state()
+    root = state.path
+    if not state.exists:
+        return Cleared(root, 0, 0, False, ())
+    if not root.is_dir():
+        raise CacheError(f"the cache folder {root} is not a folder; set INEID_CACHE_DIR to a folder of ineid's own")
+    if not state.marked and state.foreign:
+        shown = ", ".join(state.foreign[:3]) + (", ..." if len(state.foreign) > 3 else "")
+        raise CacheError(
+            f"{root} is not an ineid cache folder (no CACHEDIR.TAG from ineid, and it holds {shown}); nothing "
+            f"removed; set INEID_CACHE_DIR to ineid's own cache folder (or unset it) and clear again"
+        )
+    targets = [root / XLA_SUBDIR] if xla_only else [root / name for name in SUBDIRS]
+    files = size = 0
+    for target in targets:
+        if not (target.exists() or target.is_symlink()):
+            continue
+        n, b = _count(target)
+        files, size = files + n, size + b
+        if target.is_dir() and not target.is_symlink():
+            shutil.rmtree(target)
+        else:
+            target.unlink()
+    if not xla_only and not state.foreign:
+        (root / MARKER).unlink(missing_ok=True)
+        try:
+            root.rmdir()
+        except OSError:
+            pass  # something appeared meanwhile: it stays
+    return Cleared(root / XLA_SUBDIR if xla_only else root, files, size, not state.marked, state.foreign)
 
 
 def _listen() -> None:

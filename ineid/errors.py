@@ -54,3 +54,17 @@ class ExcitationError(IneidError):
 
 class OptionalDependencyError(IneidError):
     """A feature needs an optional package that is not installed (the message says how to install it)."""
+
+
+class UntrustedCodeError(CodegenError):
+    """Code on disk that ineid will not run: it does not match the manifest ineid wrote beside it,
+    or (in the cache) a file or folder is owned by another user or writable by others.
+    ``reason`` is the phrase that says which check failed."""
+
+    def __init__(self, message: str, reason: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+class CacheError(IneidError):
+    """The cache folder cannot be used or cleared as asked (a folder ineid did not create, for instance)."""

@@ -71,7 +71,8 @@ def main(ctx: click.Context, verbose: int, quiet: int) -> None:
     terminate_on_sigterm()
     from ineid.cache import enable_compilation_cache  # noqa: PLC0415
 
-    enable_compilation_cache()  # JAX not imported yet: sets the environment variables JAX reads
+    if ctx.invoked_subcommand != "cache":  # `cache info|clear` inspect the folder: never create it
+        enable_compilation_cache()  # JAX not imported yet: sets the environment variables JAX reads
 
 
 from ineid.cli import cache, data, excite, identify, learn, robot  # noqa: E402  (commands register on main)

@@ -135,20 +135,32 @@ def _chain_key(data: bytes, source: str, locked_joints: Mapping[str, float] | No
 
 
 def _chain_file(key: str) -> Path:
-    from ineid.cache import cache_dir  # noqa: PLC0415
+    from ineid.cache import private_folder  # noqa: PLC0415
 
-    return cache_dir() / CHAIN_SUBDIR / f"{key}.json"
+    return private_folder(CHAIN_SUBDIR) / f"{key}.json"
 
 
 def cached_chain(key: str) -> Chain | None:
-    """The chain parsed earlier under ``key``, or None (not parsed yet, or an unreadable file)."""
+    """The chain parsed earlier under ``key``, or None (not parsed yet, or an unreadable file).
+
+    Like code, it is read only from a private cache folder (:mod:`ineid._trust`), and only
+    when the file is owned by you and not writable by others.
+    """
+    import logging  # noqa: PLC0415
+
+    from ineid._trust import Untrusted, read_checked  # noqa: PLC0415
+
     path = _chain_file(key)
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(read_checked(path, private=True))
         joints = tuple(
             JointSpec(**{**j, **{k: np.asarray(j[k], dtype=np.float64) for k in _ARRAY_FIELDS}}) for j in doc["joints"]
         )
         return Chain(doc["name"], doc["root_link"], joints, {k: tuple(v) for k, v in doc["merged_links"].items()})
+    except Untrusted as e:  # e.reason: "<file> is writable by group or others"
+        logging.getLogger(__name__).warning("the cached parsed URDF %s in %s; parsing the URDF again",
+                                            e.reason, path.parent)
+        return None
     except (OSError, ValueError, KeyError, TypeError):
         return None
 
@@ -169,7 +181,6 @@ def _store_chain(key: str, chain: Chain) -> None:
            "merged_links": {k: list(v) for k, v in chain.merged_links.items()}}
     path = _chain_file(key)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write(path, json.dumps(doc))
     except OSError:
         pass
