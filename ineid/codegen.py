@@ -3,8 +3,9 @@
 This module sits above :mod:`ineid.robots` (URDF parsing, :class:`RobotModel`) and
 :mod:`ineid.symbolic` (SymPy derivation): a built-in robot loads its checked-in modules
 from :mod:`ineid.generated`; any other URDF loads its modules from the cache folder keyed
-by its kinematic fingerprint, and derives and writes them first when they are missing or
-stale. ``robots`` never imports ``symbolic``.
+by its kinematic fingerprint, and derives and writes them first when they are missing,
+stale, or fail the checks of :mod:`ineid._trust` (ownership, permissions, content hash).
+``robots`` never imports ``symbolic``.
 """
 
 from __future__ import annotations
@@ -14,8 +15,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import ModuleType
 
-from ineid.cache import cache_dir
-from ineid.errors import RobotModelError
+from ineid.cache import private_folder
+from ineid.errors import RobotModelError, UntrustedCodeError
 from ineid.robots import BUILTIN_ROBOTS, Chain, RobotModel, load_chain
 from ineid.robots.model import DEFAULT_GRAVITY
 
@@ -23,8 +24,12 @@ log = logging.getLogger(__name__)
 
 
 def default_codegen_dir(chain: Chain) -> Path:
-    """The cache folder of a chain's generated modules: ``<cache>/generated/<fingerprint>``."""
-    return cache_dir() / "generated" / chain.kinematic_fingerprint()
+    """The cache folder of a chain's generated modules, ``<cache>/generated/<fingerprint>``, created 0700.
+
+    When the cache cannot be trusted (see :func:`ineid.cache.private_folder`), a private
+    temporary folder of this process instead.
+    """
+    return private_folder("generated", chain.kinematic_fingerprint())
 
 
 def generated_modules_for(
@@ -32,33 +37,49 @@ def generated_modules_for(
 ) -> tuple[ModuleType, ModuleType]:
     """``(jax module, casadi module)`` of a URDF chain, deriving and writing them first if needed.
 
-    The modules are reused when their ``KINEMATIC_FINGERPRINT`` equals the chain's.
+    The modules are reused when their files match the manifest ineid wrote beside them
+    (in the cache, also: owned by you, not writable by others; see :mod:`ineid._trust`)
+    and their ``KINEMATIC_FINGERPRINT`` equals the chain's. Files that fail a check are
+    never run: they are regenerated, with one warning line saying why.
     """
-    from ineid.generated import load_from_directory  # noqa: PLC0415
+    from ineid.generated import file_names, load_from_directory, load_sources  # noqa: PLC0415
 
-    directory = Path(codegen_dir) if codegen_dir is not None else default_codegen_dir(chain)
-    modules = load_from_directory(directory, robot_name)
+    cached = codegen_dir is None
+    directory = default_codegen_dir(chain) if cached else Path(codegen_dir)
+    try:
+        modules = load_from_directory(directory, robot_name, private=cached)
+    except UntrustedCodeError as e:
+        what = "the cached generated code" if cached else "the generated code"
+        log.warning("%s of %s in %s %s; regenerating", what, robot_name, directory, e.reason)
+        modules = None
     if modules is not None and modules[0].KINEMATIC_FINGERPRINT == chain.kinematic_fingerprint():
         log.info("generated code of %s found in %s", robot_name, directory)
         return modules
     log.info("deriving the regressor of %s with SymPy into %s", robot_name, directory)
-    generate_code(chain, robot_name, directory)
-    modules = load_from_directory(directory, robot_name)
-    assert modules is not None
-    return modules
+    emitted = generate_code(chain, robot_name, directory)
+    # the bytes just written and hashed, not a second read of the files
+    return load_sources(directory, robot_name, {n: emitted.files[n].encode() for n in file_names(robot_name)})
 
 
 def generate_code(chain: Chain, robot_name: str, directory: str | Path, regenerate: str | None = None):
     """Derive and emit a chain's modules into ``directory``; returns the :class:`~ineid.symbolic.emit.Emitted` record.
 
     ``regenerate`` is the command named in the files' header (default ``ineid generate ROBOT``).
+    Outside the package's own ``ineid/generated`` (package code, not checked), the SHA-256
+    of each file is recorded in the folder's manifest (:data:`ineid._trust.MANIFEST`),
+    written after the files: what :func:`ineid.generated.load_from_directory` checks.
     """
+    from ineid._trust import write_manifest  # noqa: PLC0415
+    from ineid.generated import BUILTIN_DIR  # noqa: PLC0415
     from ineid.symbolic.emit import emit_modules, write_files  # noqa: PLC0415
     from ineid.symbolic.newton_euler import derive_base_wrench_regressor  # noqa: PLC0415
 
     sym = derive_base_wrench_regressor(chain)
     emitted = emit_modules(sym, robot_name, regenerate or "ineid generate ROBOT")
-    write_files(emitted.files, directory)
+    data = {name: text.encode() for name, text in emitted.files.items()}  # UTF-8: the bytes hashed are the bytes written
+    write_files(data, directory)
+    if Path(directory).resolve() != BUILTIN_DIR:
+        write_manifest(Path(directory), data, private=False)
     return emitted
 
 

@@ -73,8 +73,9 @@ def test_user_urdf_code_is_cached(tmp_path):
     import ineid
 
     m1 = ineid.load_robot(FIXTURES / "mixed_chain.urdf", codegen_dir=tmp_path)
-    files = sorted(p.name for p in tmp_path.iterdir())
+    files = sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".py")
     assert files == ["mixed_chain_casadi.py", "mixed_chain_jax.py"]
+    assert (tmp_path / "MANIFEST.json").is_file()  # what the next load checks the files against
     stamp = (tmp_path / files[0]).stat().st_mtime_ns
     m2 = ineid.load_robot(FIXTURES / "mixed_chain.urdf", codegen_dir=tmp_path)
     assert (tmp_path / files[0]).stat().st_mtime_ns == stamp  # reused, not regenerated

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
-from ineid.errors import CodegenError
+from ineid.errors import CodegenError, UntrustedCodeError
 
 BUILTIN_DIR = Path(__file__).resolve().parent
 
@@ -44,22 +44,49 @@ def load_builtin(robot_name: str) -> tuple[ModuleType, ModuleType]:
         raise CodegenError(f"no generated code for built-in robot {robot_name!r}; run `make generate`") from None
 
 
-def load_from_directory(directory: str | Path, robot_name: str) -> tuple[ModuleType, ModuleType] | None:
-    """Import ``(jax module, casadi module)`` written by ``ineid generate`` into a folder; None if absent."""
+def load_from_directory(
+    directory: str | Path, robot_name: str, *, private: bool = False
+) -> tuple[ModuleType, ModuleType] | None:
+    """Import ``(jax module, casadi module)`` written by ineid into a folder; None if either is absent.
+
+    Each file's bytes are read once and must match the SHA-256 that ineid recorded in the
+    folder's manifest when it wrote them (:mod:`ineid._trust`); the module is compiled from
+    those bytes, never from the path again. With ``private`` (a cache folder), each file
+    must also be owned by the current user and not writable by others.
+
+    Raises:
+        UntrustedCodeError: a file fails a check (``reason`` says which); nothing was run.
+        CodegenError: a verified module fails to import.
+    """
+    from ineid._trust import Untrusted, verified  # noqa: PLC0415
+
     directory = Path(directory)
+    names = file_names(robot_name)
+    try:
+        sources = verified(directory, names, private=private)
+    except FileNotFoundError:
+        return None
+    except Untrusted as e:
+        raise UntrustedCodeError(
+            f"the generated code of {robot_name} in {directory} {e.reason}; regenerate it (ineid generate)",
+            e.reason,
+        ) from None
+    return load_sources(directory, robot_name, sources)
+
+
+def load_sources(directory: str | Path, robot_name: str, sources: dict[str, bytes]) -> tuple[ModuleType, ModuleType]:
+    """``(jax module, casadi module)`` compiled from ``sources`` (``{file name: bytes}``, as
+    :func:`file_names` names them), which are the contents of those files in ``directory``."""
     modules = []
     for name in file_names(robot_name):
-        path = directory / name
-        if not path.is_file():
-            return None
+        path = Path(directory) / name
         key = f"ineid._user_generated.{abs(hash(str(path.resolve())))}_{path.stem}"
-        spec = importlib.util.spec_from_file_location(key, path)
-        if spec is None or spec.loader is None:
-            raise CodegenError(f"cannot import generated module {str(path)!r}")
+        spec = importlib.util.spec_from_loader(key, loader=None, origin=str(path))
         module = importlib.util.module_from_spec(spec)
+        module.__file__ = str(path)
         try:
-            spec.loader.exec_module(module)
-        except Exception as e:  # a truncated or hand-edited file
+            exec(compile(sources[name], str(path), "exec", dont_inherit=True), module.__dict__)  # noqa: S102
+        except Exception as e:  # noqa: BLE001 - e.g. a module ineid generated from an unusable URDF
             raise CodegenError(f"generated module {str(path)!r} fails to import ({e}); regenerate it") from None
         sys.modules[key] = module
         modules.append(module)
