@@ -11,7 +11,8 @@ with ``G_a = sum_k W_b[k, a]^T W_b[k, a]``, ``h_a = sum_k W_b[k, a]^T y[k, a]`` 
 ``e_a = sum_k y[k, a]^2`` exactly as :func:`ineid.identify.fused.information_blocks` (the
 JAX route) defines them, so the same solver (:func:`ineid.identify.linear.fit_base_blocks`)
 finishes both. The compiled library is cached in ``<cache>/casadi-c/`` keyed by a hash of
-the function and the compiler command, so only the first run pays the compiler (seconds).
+the function and the compiler command, so only the first run pays the compiler (seconds);
+its own SHA-256, recorded when it is compiled, is checked before it is loaded.
 
 This is an option (``SolveSettings(backend="casadi-c")``, ``ineid solve --backend
 casadi-c``): the default route needs no compiler.
@@ -26,12 +27,14 @@ import shlex
 import shutil
 import subprocess
 import tempfile
+import threading
 from pathlib import Path
 
 import numpy as np
 
 from ineid._atomic import temporary_path
-from ineid.cache import cache_dir
+from ineid._trust import Untrusted, opened, read_checked, recorded_hashes, sha256, write_manifest
+from ineid.cache import cache_dir, private_folder  # noqa: F401  (cache_dir: tests find the libraries)
 from ineid.errors import CodegenError
 
 log = logging.getLogger(__name__)
@@ -58,6 +61,10 @@ def compile_function(fn, compiler: str | None = None):
 
     The shared library is cached in ``<cache>/casadi-c/<name>_<hash>.so``; the hash covers the
     C source and the compiler command, so a changed function or compiler compiles again.
+    Beside it, ``<name>_<hash>.json`` records the library's SHA-256 when ineid compiles it;
+    a cached library is loaded only when it is owned by you, not writable by others, in a
+    private cache folder, and its bytes match that record (see :mod:`ineid._trust`);
+    otherwise it is compiled again, with one warning line saying why.
 
     Raises:
         CodegenError: no C compiler, or the compiler failed.
@@ -78,24 +85,69 @@ def compile_function(fn, compiler: str | None = None):
         cg.generate(str(Path(tmp)) + os.sep)
         text = source.read_bytes()
         key = hashlib.sha256(text + " ".join((cc, *CFLAGS)).encode()).hexdigest()[:16]
-        library = cache_dir() / "casadi-c" / f"{name}_{key}.so"
-        if library.is_file():
-            log.info("compiled CasADi function %s found in %s", name, library)
-        else:
-            library.parent.mkdir(parents=True, exist_ok=True)
-            partial = temporary_path(library)
-            cmd = [*shlex.split(cc), *CFLAGS, "-o", str(partial), str(source)]
-            log.info("compiling CasADi function %s: %s", name, " ".join(cmd))
+        folder = private_folder("casadi-c")
+        library = folder / f"{name}_{key}.so"
+        record = f"{library.stem}.json"
+        if library.exists() or library.is_symlink():
             try:
-                done = subprocess.run(cmd, capture_output=True, text=True, check=False)
-            except OSError as exc:
-                raise CodegenError(f"the C compiler {cc!r} cannot run ({exc.strerror}); install one or set $CC") from None
-            if done.returncode != 0:
-                partial.unlink(missing_ok=True)
-                first = (done.stderr.strip().splitlines() or ["no message"])[0]
-                raise CodegenError(f"the C compiler {cc!r} failed on {name}.c: {first}")
-            os.replace(partial, library)
-    return ca.external(name, str(library))
+                loaded = _load_checked(name, library, record)
+                log.info("compiled CasADi function %s found in %s", name, library)
+                return loaded
+            except Untrusted as e:
+                log.warning("the cached compiled CasADi function %s in %s %s; compiling it again",
+                            name, folder, e.reason)
+        partial = temporary_path(library)
+        cmd = [*shlex.split(cc), *CFLAGS, "-o", str(partial), str(source)]
+        log.info("compiling CasADi function %s: %s", name, " ".join(cmd))
+        try:
+            done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        except OSError as exc:
+            raise CodegenError(f"the C compiler {cc!r} cannot run ({exc.strerror}); install one or set $CC") from None
+        if done.returncode != 0:
+            partial.unlink(missing_ok=True)
+            first = (done.stderr.strip().splitlines() or ["no message"])[0]
+            raise CodegenError(f"the C compiler {cc!r} failed on {name}.c: {first}")
+        try:
+            data = read_checked(partial, private=True)
+        except Untrusted as e:  # the compiler's output in our private folder: not expected
+            partial.unlink(missing_ok=True)
+            raise CodegenError(f"the compiled library {partial} {e.reason}; run again") from None
+        if library.is_dir() and not library.is_symlink():
+            shutil.rmtree(library)
+        os.replace(partial, library)
+        write_manifest(folder, {library.name: data}, private=True, manifest=record)
+    try:
+        return _load_checked(name, library, record)
+    except Untrusted as e:
+        raise CodegenError(f"the compiled library {library} {e.reason} right after compiling; run again") from None
+
+
+def _load_checked(name: str, library: Path, record: str):
+    """``casadi.external`` of ``library`` after :mod:`ineid._trust`'s checks, from the bytes checked.
+
+    Where ``/proc/self/fd`` exists the library is loaded through the open descriptor whose
+    bytes were hashed (a link to it, removed right after), so a file swapped between the
+    check and the load is never the one loaded.
+
+    Raises:
+        Untrusted: ownership, permissions or hash do not pass.
+    """
+    import casadi as ca  # noqa: PLC0415
+
+    hashes = recorded_hashes(library.parent, private=True, manifest=record)
+    with opened(library, private=True) as (fd, data):
+        if hashes.get(library.name) != sha256(data):
+            raise Untrusted(f"does not match its record {record} ({library.name} was modified after ineid compiled it)")
+        proc = Path(f"/proc/self/fd/{fd}")
+        if not proc.exists():
+            return ca.external(name, str(library))
+        link = library.with_name(f".{library.stem}.{os.getpid()}.{threading.get_ident()}.so")
+        link.unlink(missing_ok=True)
+        os.symlink(proc, link)
+        try:
+            return ca.external(name, str(link))
+        finally:
+            link.unlink(missing_ok=True)
 
 
 def _frame_blocks(model, base):
