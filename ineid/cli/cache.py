@@ -1,34 +1,25 @@
-"""``ineid cache info|clear``: the cache folder (generated code of user URDFs, parsed URDFs, compiled XLA code)."""
+"""``ineid cache info|clear``: the cache folder (generated code of user URDFs, parsed URDFs, compiled code)."""
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import click
 
 from ineid.cli.output import console, table
 
+_PARTS = {
+    "generated": "generated code of URDFs",
+    "chains": "parsed URDFs",
+    "casadi-c": "compiled CasADi functions",
+    "xla": "compiled XLA kernels",
+}
+
 
 def _size(path: Path) -> tuple[int, int]:
     """(files, bytes) under ``path``."""
-    files = [p for p in path.rglob("*") if p.is_file()] if path.is_dir() else []
-    return len(files), sum(p.stat().st_size for p in files)
-
-
-def _parts() -> dict[str, Path]:
-    from ineid.cache import cache_dir, xla_cache_dir  # noqa: PLC0415
-    from ineid.robots.urdf import CHAIN_SUBDIR  # noqa: PLC0415
-
-    root = cache_dir()
-    xla = xla_cache_dir()
-    chains = root / CHAIN_SUBDIR
-    parts = {"compiled XLA kernels": xla, "parsed URDFs": chains}
-    if root.is_dir():
-        for child in sorted(root.iterdir()):
-            if child.is_dir() and child not in (xla, chains):
-                parts[f"generated code ({child.name})"] = child
-    return parts
+    files = [p for p in path.rglob("*") if p.is_file() and not p.is_symlink()] if path.is_dir() else []
+    return len(files), sum(p.lstat().st_size for p in files)
 
 
 @click.group()
@@ -38,27 +29,49 @@ def cache() -> None:
 
 @cache.command("info")
 def cache_info() -> None:
-    """Where the cache is and what it holds."""
-    from ineid.cache import cache_dir  # noqa: PLC0415
+    """Where the cache is, what it holds, and whether ineid trusts it."""
+    from ineid.cache import cache_state  # noqa: PLC0415
 
-    t = table(f"cache {cache_dir()}", ["part", "folder", "files", "MB"], left=(0, 1))
-    for name, path in _parts().items():
-        n, size = _size(path)
-        t.add_row(name, str(path), str(n), f"{size / 1e6:.1f}")
+    state = cache_state()
+    t = table(f"cache {state.path}", ["part", "folder", "files", "MB"], left=(0, 1))
+    for sub, name in _PARTS.items():
+        n, size = _size(state.path / sub)
+        t.add_row(name, str(state.path / sub), str(n), f"{size / 1e6:.1f}")
     console().print(t)
+    if not state.exists:
+        click.echo("trust: the folder does not exist yet (ineid creates it with mode 700 and a CACHEDIR.TAG)")
+        return
+    if state.private:
+        click.echo("trust: private (owned by you, not writable by others): ineid loads code from it "
+                   "after checking each file against the hash it recorded")
+    else:
+        click.echo(f"trust: NOT TRUSTED: the folder {state.problem}; ineid loads no code from it")
+    if state.marked:
+        click.echo("marker: CACHEDIR.TAG present (ineid's folder; `ineid cache clear` removes ineid's entries)")
+    else:
+        click.echo("marker: no CACHEDIR.TAG from ineid (`ineid cache clear` adopts the folder only if it holds "
+                   "nothing but ineid's subfolders)")
+    if state.foreign:
+        click.echo(f"other entries (not ineid's, never removed): {', '.join(state.foreign[:5])}"
+                   + (", ..." if len(state.foreign) > 5 else ""))
 
 
 @cache.command("clear")
 @click.option("--xla-only", is_flag=True, help="Remove only the compiled XLA kernels, keep generated code.")
 def cache_clear(xla_only: bool) -> None:
-    """Delete the cache; whatever is needed is derived or compiled again on the next run."""
-    from ineid.cache import cache_dir, xla_cache_dir  # noqa: PLC0415
+    """Delete what ineid put in the cache; whatever is needed is derived or compiled again on the next run.
 
-    target = xla_cache_dir() if xla_only else cache_dir()
-    n, size = _size(target)
-    if target.is_dir():
-        shutil.rmtree(target)
-    click.echo(f"removed {target} ({n} files, {size / 1e6:.1f} MB)")
+    Only a folder ineid created (marked with a CACHEDIR.TAG) is cleared, and only ineid's
+    entries in it; any other folder is refused.
+    """
+    from ineid.cache import clear_cache  # noqa: PLC0415
+
+    done = clear_cache(xla_only)
+    note = " (a cache folder of an older ineid, without the CACHEDIR.TAG marker)" if done.adopted else ""
+    click.echo(f"removed {done.path} ({done.files} files, {done.bytes / 1e6:.1f} MB){note}")
+    if done.kept:
+        click.echo(f"kept {len(done.kept)} entries that are not ineid's: {', '.join(done.kept[:5])}"
+                   + (", ..." if len(done.kept) > 5 else ""))
 
 
 def register(main: click.Group) -> None:
