@@ -15,7 +15,8 @@ before loading them ineid checks:
   nothing can swap the file between the check and the use.
 
 A failed check raises :class:`Untrusted` with a phrase that completes "the code in DIR
-...": the caller regenerates and says why in one line.
+...", e.g. "has a file that is writable by group or others (arm_jax.py)": the caller
+regenerates and says why in one line.
 """
 
 from __future__ import annotations
@@ -129,13 +130,13 @@ def opened(path: Path, *, private: bool) -> Iterator[tuple[int, bytes]]:
         raise
     except OSError as e:
         if private and os.path.islink(path):
-            raise Untrusted(f"{path.name} is a symbolic link") from None
-        raise Untrusted(f"{path.name} cannot be read ({e.strerror or e})") from None
+            raise Untrusted(f"has a file that is a symbolic link ({path.name})") from None
+        raise Untrusted(f"has a file that cannot be read ({path.name}: {e.strerror or e})") from None
     try:
         st = os.fstat(fd)
         problem = (stat_problem(st) if private else None) or (None if stat.S_ISREG(st.st_mode) else "is not a file")
         if problem:
-            raise Untrusted(f"{path.name} {problem}")
+            raise Untrusted(f"has a file that {problem} ({path.name})")
         chunks = []
         while chunk := os.read(fd, 1 << 20):
             chunks.append(chunk)
@@ -162,8 +163,6 @@ def recorded_hashes(directory: Path, *, private: bool, manifest: str = MANIFEST)
         raise Untrusted(f"has no {manifest} (written by an older ineid, or not by ineid)") from None
     except (ValueError, UnicodeDecodeError):
         raise Untrusted(f"has a damaged {manifest}") from None
-    except Untrusted as e:
-        raise Untrusted(f"has a manifest that {e.reason.split(' ', 1)[1]}") from None
     if not is_manifest_doc(doc):
         raise Untrusted(f"has a {manifest} that ineid did not write")
     return dict(doc["sha256"])

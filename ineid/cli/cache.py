@@ -22,6 +22,15 @@ def _size(path: Path) -> tuple[int, int]:
     return len(files), sum(p.lstat().st_size for p in files)
 
 
+def _part_problem(path: Path) -> str | None:
+    from ineid._trust import stat_problem  # noqa: PLC0415
+
+    try:
+        return stat_problem(path.lstat())
+    except FileNotFoundError:
+        return None
+
+
 @click.group()
 def cache() -> None:
     """ineid's cache folder ($INEID_CACHE_DIR, else ~/.cache/ineid). Deleting it is always safe."""
@@ -51,6 +60,10 @@ def cache_info() -> None:
     else:
         click.echo("marker: no CACHEDIR.TAG from ineid (`ineid cache clear` adopts the folder only if it holds "
                    "nothing but ineid's subfolders)")
+    for sub in _PARTS:
+        problem = _part_problem(state.path / sub)
+        if problem:
+            click.echo(f"NOT TRUSTED: {state.path / sub} {problem}; ineid works without it (fix: ineid cache clear)")
     if state.foreign:
         click.echo(f"other entries (not ineid's, never removed): {', '.join(state.foreign[:5])}"
                    + (", ..." if len(state.foreign) > 5 else ""))

@@ -157,9 +157,9 @@ def cached_chain(key: str) -> Chain | None:
             JointSpec(**{**j, **{k: np.asarray(j[k], dtype=np.float64) for k in _ARRAY_FIELDS}}) for j in doc["joints"]
         )
         return Chain(doc["name"], doc["root_link"], joints, {k: tuple(v) for k, v in doc["merged_links"].items()})
-    except Untrusted as e:  # e.reason: "<file> is writable by group or others"
-        logging.getLogger(__name__).warning("the cached parsed URDF %s in %s; parsing the URDF again",
-                                            e.reason, path.parent)
+    except Untrusted as e:  # e.reason: "has a file that is writable by group or others (<file>)"
+        logging.getLogger(__name__).warning("the cache of parsed URDFs in %s %s; parsing the URDF again",
+                                            path.parent, e.reason)
         return None
     except (OSError, ValueError, KeyError, TypeError):
         return None
