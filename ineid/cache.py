@@ -122,11 +122,13 @@ def _prepare_root(root: Path) -> str | None:
     if problem:
         return problem
     try:
-        if not _is_marked(root) and set(os.listdir(root)) <= set(SUBDIRS):
+        marked = _is_marked(root)
+        if not marked and set(os.listdir(root)) <= set(SUBDIRS):
             from ineid._atomic import atomic_write  # noqa: PLC0415
 
             atomic_write(root / MARKER, _MARKER_TEXT)
-        if _is_marked(root) and os.stat(root).st_mode & 0o077:
+            marked = True
+        if marked and os.stat(root).st_mode & 0o077:
             os.chmod(root, PRIVATE_MODE)
     except OSError:
         pass  # a read-only cache can still be read
