@@ -52,12 +52,14 @@ def generate_code(chain: Chain, robot_name: str, directory: str | Path, regenera
     """Derive and emit a chain's modules into ``directory``; returns the :class:`~ineid.symbolic.emit.Emitted` record.
 
     ``regenerate`` is the command named in the files' header (default ``ineid generate ROBOT``).
-    """
-    from ineid.symbolic.emit import emit_modules, write_files  # noqa: PLC0415
-    from ineid.symbolic.newton_euler import derive_base_wrench_regressor  # noqa: PLC0415
+    Each step is logged at INFO (see :func:`~ineid.symbolic.emit.derive_and_emit`).
 
-    sym = derive_base_wrench_regressor(chain)
-    emitted = emit_modules(sym, robot_name, regenerate or "ineid generate ROBOT")
+    Raises:
+        CodegenError: a chain longer than ``MAX_DERIVED_JOINTS`` (lock joints), or emitted code that fails its check.
+    """
+    from ineid.symbolic.emit import derive_and_emit, write_files  # noqa: PLC0415
+
+    emitted = derive_and_emit(chain, robot_name, regenerate or "ineid generate ROBOT")
     write_files(emitted.files, directory)
     return emitted
 
