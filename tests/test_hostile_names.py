@@ -47,12 +47,13 @@ NASTY = "".join(HOSTILE[k] for k in HOSTILE if k != "long") + "n" * 200
 
 def hostile_urdf(name: str | None) -> str:
     """A 2-DOF arm named ``name`` whose root link, links and joints carry ``name`` too (None: clean names)."""
-    n = {"robot": "clean", "root": "base", "l1": "l1", "l2": "l2", "j1": "j1", "j2": "j2"}
+    n = {"robot": "clean", "root": "base", "l1": "l1", "l2": "l2", "tool": "tool", "j1": "j1", "j2": "j2", "jt": "jt"}
     if name is not None:
-        n = {"robot": name, "root": name + " 0", "l1": name, "l2": name + " 2", "j1": name, "j2": name + " 2"}
+        n = {"robot": name, "root": name + " 0", "l1": name, "l2": name + " 2", "tool": name + " tool",
+             "j1": name, "j2": name + " 2", "jt": name + " tool"}
     robot = ET.Element("robot", name=n["robot"])
     ET.SubElement(robot, "link", name=n["root"])
-    for link, com in ((n["l1"], "0.1 0.02 0.05"), (n["l2"], "0.15 -0.01 0.02")):
+    for link, com in ((n["l1"], "0.1 0.02 0.05"), (n["l2"], "0.15 -0.01 0.02"), (n["tool"], "0 0 0.03")):
         el = ET.SubElement(ET.SubElement(robot, "link", name=link), "inertial")
         ET.SubElement(el, "origin", xyz=com, rpy="0 0 0")
         ET.SubElement(el, "mass", value="1.5")
@@ -65,6 +66,10 @@ def hostile_urdf(name: str | None) -> str:
         ET.SubElement(el, "origin", xyz=xyz, rpy="0 0 0")
         ET.SubElement(el, "axis", xyz=axis)
         ET.SubElement(el, "limit", lower="-2", upper="2", velocity="2", effort="10")
+    el = ET.SubElement(robot, "joint", name=n["jt"], type="fixed")  # a tool welded to the last link
+    ET.SubElement(el, "parent", link=n["l2"])
+    ET.SubElement(el, "child", link=n["tool"])
+    ET.SubElement(el, "origin", xyz="0.2 0 0", rpy="0 0 0")
     return ET.tostring(robot, encoding="unicode")
 
 
@@ -128,8 +133,9 @@ def test_exported_urdf_reads_back(name):
              name + " 2": theta_from_inertial(0.7, np.array([0.05, 0.01, 0.0]), np.diag([0.01, 0.01, 0.015]))}
     text = urdf_with_inertials(hostile_urdf(name), theta)
     root = ET.fromstring(text)
-    assert [el.get("name") for el in root.findall("link")] == [name + " 0", name, name + " 2"]
-    assert not root.findall(".//link/link") and len(root.findall("link")) == 3  # nothing injected
+    assert [el.get("name") for el in root.findall("link")] == [name + " 0", name, name + " 2", name + " tool"]
+    assert not root.findall(".//link/link") and len(root.findall(".//link")) == 4  # nothing injected
+    assert root.findall("link")[3].find("inertial") is None  # the welded tool's inertial went into the estimate
     chain = parse_chain(text, source="exported.urdf")
     assert chain.name == name
     for j in chain.joints:
