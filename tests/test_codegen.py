@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import difflib
+import logging
 import os
 import re
 import subprocess
@@ -126,7 +127,16 @@ def test_chains_beyond_the_limit_are_refused_with_the_fix(tmp_path):
     assert not (tmp_path / "gen").exists()
     r = CliRunner().invoke(main, ["robot", "show", str(path)])
     assert r.exit_code == 1 and r.output.count("\n") == 1 and "lock the joints you do not identify" in r.output
-    check_derivable(load_chain(path, locked_joints={"j0": 0.0}))  # one joint locked: within the limit
+    warnings = logging.Handler(logging.WARNING)
+    warnings.emit = lambda record: seen.append(record.getMessage())
+    seen: list[str] = []
+    logging.getLogger("ineid.symbolic").addHandler(warnings)  # the CLI has turned off propagation
+    try:
+        check_derivable(load_chain(path, locked_joints={"j0": 0.0}))  # one joint locked: within the limit
+        check_derivable(load_chain(FIXTURES / "mixed_chain.urdf"))  # 3 joints: no warning
+    finally:
+        logging.getLogger("ineid.symbolic").removeHandler(warnings)
+    assert len(seen) == 1 and f"has {n} moving joints: deriving its regressor takes minutes to hours" in seen[0]
     assert MAX_DERIVED_JOINTS >= 12  # measured (docs/regressor.md): 12 joints derive, slowly
 
 

@@ -285,7 +285,7 @@ def derive_and_emit(chain: Chain, robot_name: str, regenerate: str = "make gener
         CodegenError: the chain has more than :data:`~ineid.symbolic.newton_euler.MAX_DERIVED_JOINTS`
             moving joints, or an emitted module fails its check.
     """
-    check_derivable(chain)  # before the first step is logged
+    check_derivable(chain)  # refuses before the first step is logged; warns about a slow one
     total = chain.n_dof + STEPS_AFTER_JOINTS
     t0 = time.perf_counter()
     ok = False

@@ -43,6 +43,9 @@ MAX_DERIVED_JOINTS = 16
 """Most moving joints a chain may have to be derived (see ``docs/regressor.md`` for the
 measured times: the common-subexpression elimination grows steeply with the chain)."""
 
+SLOW_DERIVATION_JOINTS = 8
+"""Chains with more moving joints than this get a warning before they are derived (minutes to hours)."""
+
 STEPS_AFTER_JOINTS = 4
 """Logged steps of a derivation after its per-joint ones: the elimination, the two printers
 and the end (``done == total``)."""
@@ -56,18 +59,29 @@ def derivation_step(done: int, total: int, message: str, *args: object) -> None:
              extra={"derivation_step": (done, total), "derivation_text": text})
 
 
+_LOCK = "lock the joints you do not identify with --lock JOINT=POSITION (locked_joints in Python)"
+
+
+def _refuse_long(chain: Chain) -> None:
+    if chain.n_dof > MAX_DERIVED_JOINTS:
+        raise CodegenError(
+            f"{chain.name!r} has {chain.n_dof} moving joints; ineid derives chains of at most {MAX_DERIVED_JOINTS} "
+            f"(the derivation time grows steeply with the chain, see docs/regressor.md); {_LOCK}"
+        )
+
+
 def check_derivable(chain: Chain) -> None:
-    """Refuse a chain too long to derive in reasonable time (:data:`MAX_DERIVED_JOINTS`).
+    """Refuse a chain too long to derive in reasonable time (:data:`MAX_DERIVED_JOINTS`); warn
+    (a WARNING log line) about one longer than :data:`SLOW_DERIVATION_JOINTS`.
 
     Raises:
         CodegenError: naming the count and the fix (lock joints).
     """
-    if chain.n_dof > MAX_DERIVED_JOINTS:
-        raise CodegenError(
-            f"{chain.name!r} has {chain.n_dof} moving joints; ineid derives chains of at most {MAX_DERIVED_JOINTS} "
-            "(the derivation time grows steeply with the chain, see docs/regressor.md); lock the joints you do "
-            "not identify with --lock JOINT=POSITION (locked_joints in Python)"
-        )
+    _refuse_long(chain)
+    if chain.n_dof > SLOW_DERIVATION_JOINTS:
+        log.warning("%r has %d moving joints: deriving its regressor takes minutes to hours (see docs/regressor.md); "
+                    "to shorten it, %s", chain.name, chain.n_dof, _LOCK)
+
 
 Vec = list  # three sympy expressions
 Mat = list  # 3x3 nested list of sympy expressions
@@ -207,7 +221,7 @@ def derive_base_wrench_regressor(chain: Chain) -> SymbolicRegressor:
     Raises:
         CodegenError: the chain has more than :data:`MAX_DERIVED_JOINTS` moving joints.
     """
-    check_derivable(chain)
+    _refuse_long(chain)
     t0 = time.perf_counter()
     n = chain.n_dof
     total = n + STEPS_AFTER_JOINTS
