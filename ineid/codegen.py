@@ -65,17 +65,19 @@ def generate_code(chain: Chain, robot_name: str, directory: str | Path, regenera
     """Derive and emit a chain's modules into ``directory``; returns the :class:`~ineid.symbolic.emit.Emitted` record.
 
     ``regenerate`` is the command named in the files' header (default ``ineid generate ROBOT``).
+    Each step is logged at INFO (see :func:`~ineid.symbolic.emit.derive_and_emit`).
     Outside the package's own ``ineid/generated`` (package code, not checked), the SHA-256
     of each file is recorded in the folder's manifest (:data:`ineid._trust.MANIFEST`),
     written after the files: what :func:`ineid.generated.load_from_directory` checks.
+
+    Raises:
+        CodegenError: a chain longer than ``MAX_DERIVED_JOINTS`` (lock joints), or emitted code that fails its check.
     """
     from ineid._trust import write_manifest  # noqa: PLC0415
     from ineid.generated import BUILTIN_DIR  # noqa: PLC0415
-    from ineid.symbolic.emit import emit_modules, write_files  # noqa: PLC0415
-    from ineid.symbolic.newton_euler import derive_base_wrench_regressor  # noqa: PLC0415
+    from ineid.symbolic.emit import derive_and_emit, write_files  # noqa: PLC0415
 
-    sym = derive_base_wrench_regressor(chain)
-    emitted = emit_modules(sym, robot_name, regenerate or "ineid generate ROBOT")
+    emitted = derive_and_emit(chain, robot_name, regenerate or "ineid generate ROBOT")
     data = {name: text.encode() for name, text in emitted.files.items()}  # UTF-8: the bytes hashed are the bytes written
     write_files(data, directory)
     if Path(directory).resolve() != BUILTIN_DIR:

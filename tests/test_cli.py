@@ -67,6 +67,18 @@ def test_user_errors_are_one_line(run):
     assert one_line_error(run("robot", "show", path, "--lock", "panda_finger_joint1"), code=2)
 
 
+def test_non_finite_joint_origin_is_one_line_and_leaves_no_code(run, tmp_path, monkeypatch):
+    monkeypatch.setenv("INEID_CACHE_DIR", str(tmp_path / "cache"))
+    text = (FIXTURES / "mixed_chain.urdf").read_text()
+    assert text.count('xyz="0 0.1 0.25"') == 1
+    bad = tmp_path / "nan.urdf"
+    bad.write_text(text.replace('xyz="0 0.1 0.25"', 'xyz="0 nan 0.25"'))
+    line = one_line_error(run("robot", "show", bad))
+    assert line == (f"Error: {bad}: joint 'j3': <origin xyz='0 nan 0.25'> holds a non-finite value (nan or inf); "
+                    "give finite numbers")
+    assert not (tmp_path / "cache" / "generated").exists()
+
+
 def test_generate_builtin_to_folder_matches_checked_in(run, tmp_path):
     r = run("generate", "sweaty-arm", "--out", tmp_path)
     assert r.exit_code == 0, r.output

@@ -362,6 +362,9 @@ def test_csv_import_round_trip(model, small, tmp_path):
     shuffled += [",".join([line.split(",")[i] for i in perm] + ["x"]) for line in text[1:]]
     (tmp_path / "shuffled.csv").write_text("# exported by a logger\n" + "\n".join(shuffled) + "\n")
     assert np.array_equal(read_recording_csv(tmp_path / "shuffled.csv", model).q, rec.q)
+    # a UTF-8 byte-order mark (spreadsheet exports) is not part of the first column's name
+    (tmp_path / "bom.csv").write_bytes(b"\xef\xbb\xbf" + csv_path.read_bytes())
+    assert np.array_equal(read_recording_csv(tmp_path / "bom.csv", model).time, rec.time)
 
 
 @pytest.mark.parametrize(

@@ -128,6 +128,13 @@ def test_trajectory_json_and_csv_agree(tmp_path, design):
     traj, record = read_trajectory_json(tmp_path / "t.json")
     assert isinstance(traj, FourierTrajectory) and record["design"]["criterion"] == "d-opt"
     np.testing.assert_array_equal(traj.a, design.trajectory.a)
+    # ineid excite names the joints as a JSON list: names with commas or newlines read back
+    import json
+
+    names = ["a,b", "c\n1,2,3", "[d]", "e"]
+    write_trajectory_csv(tmp_path / "n.csv", t, q, qd, qdd, ["robot x\ny", f"joints: {json.dumps(names)}"])
+    assert load_trajectory(tmp_path / "n.csv").joint_names == tuple(names)
+    np.testing.assert_array_equal(load_trajectory(tmp_path / "n.csv").q, from_csv.q)  # the comments stayed comments
 
 
 def test_failures_are_clear(arm):

@@ -340,7 +340,7 @@ def test_cli_bad_recordings_are_one_line_and_leave_no_file(lab, run, tmp_path):
     cases = [
         ((good, "--joint-topic", "/arm/joint_states"),
          "the bag has no topic '/arm/joint_states'; its JointState topics: /joint_states: pass --joint-topic"),
-        ((three,), "lacks joint upper_arm_yaw"),
+        ((three,), "lacks joint 'upper_arm_yaw'"),
         ((tmp_path / "swapped.csv",), "time does not increase at line 52"),
         ((nan_bag,), "the wrench stream's wrench holds NaN at sample 120"),
         ((good, "--sensor-pose", "0.1,0.2,0.3"), "sensor pose '0.1,0.2,0.3': expected six finite numbers"),

@@ -103,6 +103,18 @@ def test_locked_joints_turn_a_tree_into_a_chain():
          "joint 'j9' refers to link 'ghost', which is not defined"),
         (urdf(extra='<link name="island"/>'), "exactly one root link, found 2"),
         (urdf(joint_type="fixed"), ""),  # legal: one moving joint left
+        (urdf().replace('xyz="0 0 0.2"', 'xyz="0 nan 0.2"'), "joint 'j2': <origin xyz='0 nan 0.2'> holds a non-finite"),
+        (urdf().replace('xyz="0 0 0.2"', 'xyz="0 0 0.2" rpy="inf 0 0"'), "joint 'j2': <origin rpy='inf 0 0'> holds"),
+        (urdf().replace('xyz="0 0 0.2"', 'xyz="-inf 0 0.2"'), "joint 'j2': <origin xyz='-inf 0 0.2'> holds"),
+        (urdf(axis="0 nan 1"), "joint 'j2': <axis xyz='0 nan 1'> holds a non-finite value"),
+        (urdf(axis="0 0 inf"), "joint 'j2': <axis xyz='0 0 inf'> holds a non-finite value"),
+        (urdf(extra='<joint name="j9" type="fixed"><parent link="b"/><child link="c"/><origin rpy="0 nan 0"/></joint>'
+                    '<link name="c"/>'), "joint 'j9': <origin"),
+        (urdf().replace('<origin xyz="0 0 0.1" rpy="0 0 0"/>', '<origin xyz="0 0 nan" rpy="0 0 0"/>', 1),
+         "link 'a': <inertial><origin> holds a non-finite value"),
+        (urdf().replace('name="j2"', 'name="j1"'), "two <joint> elements are named 'j1'; give every joint its own"),
+        (urdf(extra=LINK.format(name="b", m="2", ixx="0.01", iyy="0.01", izz="0.01")),
+         "two <link> elements are named 'b'; give every link its own name"),
         ("<robot name='t'><link name='a'/></robot>", "no moving joint"),
     ],
 )

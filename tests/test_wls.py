@@ -253,6 +253,48 @@ def test_ray_engine_runs_a_sweep_and_reports_a_failed_trial(model, tmp_path):
     assert not ray.is_initialized()  # the local cluster was stopped
 
 
+def test_ray_engine_writes_only_run_files_a_worker_sends(tmp_path, monkeypatch):
+    """File names from a worker are joined onto the run folder: only the plain run files are taken."""
+    import sys
+    import types
+
+    from ineid.learn import ray_engine
+    from ineid.learn.runs import MODEL, RUN_FILES
+    from ineid.learn.sweep import SweepRow, run_name
+
+    cfgs = [TrainConfig(model=ModelSpec("simple", frames=k)) for k in (1, 2, 3, 4)]
+    sent = iter([{MODEL: b"weights", "config.json": b"{}"}, {"../../escaped": b"x"}, {MODEL + "/../../x": b"y"},
+                 {MODEL: "not bytes"}])
+
+    class Ref:
+        def __init__(self, cfg):
+            self.value = (dataclasses.replace(SweepRow.failed(cfg, ""), status="ok"), next(sent))
+
+    class Task:
+        def options(self, **_):
+            return self
+
+        def remote(self, ds, cfg, *_):
+            return Ref(cfg)
+
+    fake = types.SimpleNamespace(is_initialized=lambda: True, remote=lambda fn: Task(), put=lambda x: x,
+                                 wait=lambda refs, num_returns: ([refs[0]], refs[1:]), get=lambda ref: ref.value,
+                                 exceptions=types.SimpleNamespace(RayError=RuntimeError))
+    monkeypatch.setitem(sys.modules, "ray", fake)
+    out = tmp_path / "a" / "b" / "sweep"
+    rows = ray_engine.ray_trials(None, cfgs, out)
+    assert rows[0].status == "ok"
+    assert sorted(p.name for p in (out / run_name(cfgs[0])).iterdir()) == ["config.json", MODEL]
+    for row, bad in zip(rows[1:], ("'../../escaped'", f"'{MODEL}/../../x'", "str instead of the bytes")):
+        assert row.status.startswith("failed: the worker sent back") and bad in row.status, row.status
+        assert "nothing of this trial was written" in row.status and not (out / row.name).exists()
+    assert sorted(p.name for p in tmp_path.rglob("*")) == sorted(["a", "b", "sweep", run_name(cfgs[0]), "config.json",
+                                                                  MODEL])
+    with pytest.raises(ineid.errors.TrainingError, match="refusing to write a file named '../x'"):
+        ray_engine._write_run(tmp_path / "run", {"../x": b""})
+    assert ray_engine.files_problem(dict.fromkeys(RUN_FILES, b"")) is None
+
+
 def test_ray_engine_says_how_to_install_ray(model, tmp_path, monkeypatch):
     import sys
 

@@ -45,13 +45,17 @@ def _version() -> str:
 
 def configure_logging(verbosity: int) -> None:
     """``-v`` INFO (files read, cache hits, code generation), ``-vv`` DEBUG and JAX's compile log."""
-    level = logging.WARNING - 10 * verbosity
+    from ineid.cli.output import show_derivation_progress  # noqa: PLC0415
+
+    level = max(logging.DEBUG, min(logging.CRITICAL, logging.WARNING - 10 * verbosity))
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("ineid: %(message)s"))
+    handler.setLevel(level)  # also for records of a child logger set lower (derivation steps)
     root = logging.getLogger("ineid")
     root.handlers[:] = [handler]
-    root.setLevel(max(logging.DEBUG, min(logging.CRITICAL, level)))
+    root.setLevel(level)
     root.propagate = False
+    show_derivation_progress(verbosity == 0)  # -v logs each step anyway; -q shows nothing
     if verbosity >= 2:
         os.environ.setdefault("JAX_LOG_COMPILES", "1")
 

@@ -19,7 +19,7 @@ from ineid.cli.options import (
     quiet,
     robot_options,
 )
-from ineid.cli.output import ProgressBar, console, table
+from ineid.cli.output import ProgressBar, console, plain, shown, table
 
 _SAMPLING = "ineid.data.sampling"
 
@@ -119,8 +119,9 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
         write_dataset(model, spec, out, overwrite=overwrite, progress=bar)
     seconds = time.perf_counter() - t0
     click.echo(
-        f"wrote {out}: {total:,} configurations x {n_frames} frames of {model.name} "
-        f"({', '.join(model.unknown_links)} unknown) in {seconds:.1f} s ({total * n_frames / seconds:,.0f} frames/s)"
+        f"wrote {out}: {total:,} configurations x {n_frames} frames of {plain(model.name)} "
+        f"({plain(', '.join(model.unknown_links))} unknown) in {seconds:.1f} s "
+        f"({total * n_frames / seconds:,.0f} frames/s)"
     )
 
 
@@ -168,9 +169,9 @@ def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic,
     with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
         ds, summary = import_recording(path, model, settings, joint_topic, wrench_topic, progress=bar)
     ds.save(out, overwrite=overwrite)
-    click.echo(f"wrote {out}: one recording of {model.name}")
+    click.echo(f"wrote {out}: one recording of {plain(model.name)}")
     for line in summary.lines():
-        click.echo(f"  {line}")
+        click.echo(f"  {plain(line)}")
 
 
 @data.command("info")
@@ -185,24 +186,26 @@ def data_info(path: Path) -> None:
     meta, shapes = read_meta(path)
     n_configs, n_frames, n_dof = shapes["q"]
     con = console()
-    con.print(f"[bold]{path}[/bold]  ineid dataset v{meta.version} ({meta.source}), written by ineid {meta.ineid_version}")
+    con.print(f"[bold]{shown(path)}[/bold]  ineid dataset v{shown(meta.version)} ({shown(meta.source)}), "
+              f"written by ineid {shown(meta.ineid_version)}")
     con.print(
         f"{n_configs:,} configuration{'s' if n_configs != 1 else ''} x {n_frames:,} frames = {n_configs * n_frames:,} "
-        f"frames; robot {meta.robot}, {n_dof} joints ({', '.join(meta.joint_names)})"
+        f"frames; robot {shown(meta.robot)}, {n_dof} joints ({shown(', '.join(meta.joint_names))})"
     )
-    con.print(f"unknown links: {', '.join(meta.unknown_links)}; known links: {', '.join(meta.known_links) or '-'}")
+    con.print(f"unknown links: {shown(', '.join(meta.unknown_links))}; "
+              f"known links: {shown(', '.join(meta.known_links) or '-')}")
     con.print(f"gravity {np.asarray(meta.gravity).tolist()} m/s^2" + (f"; seed {meta.seed}" if meta.seed is not None else ""))
     if meta.locked_joints:
-        con.print(f"locked joints: {meta.locked_joints}")
+        con.print(f"locked joints: {shown(meta.locked_joints)}")
     if meta.sampling:
-        con.print(f"sampling: {json.dumps(meta.sampling, sort_keys=True)}")
-    con.print(f"noise (std): {json.dumps(meta.noise) if meta.noise else 'none (clean data)'}")
+        con.print(f"sampling: {shown(json.dumps(meta.sampling, sort_keys=True))}")
+    con.print(f"noise (std): {shown(json.dumps(meta.noise)) if meta.noise else 'none (clean data)'}")
     if meta.origin:
-        con.print(f"origin: {json.dumps(meta.origin, sort_keys=True)}")
+        con.print(f"origin: {shown(json.dumps(meta.origin, sort_keys=True))}")
     pose = meta.sensor_pose()
     if pose is not None:
-        con.print(f"sensor frame in the base frame: {pose.describe()}"
-                  + (f"; wrench messages in frame {pose.frame_id!r}" if pose.frame_id else ""))
+        con.print(f"sensor frame in the base frame: {shown(pose.describe())}"
+                  + (f"; wrench messages in frame {shown(repr(pose.frame_id))}" if pose.frame_id else ""))
     arrays = table("Arrays", ("name", "shape"), left=("name", "shape"))
     for name in sorted(shapes):
         arrays.add_row(name, " x ".join(str(s) for s in shapes[name]) or "scalar")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
@@ -16,7 +17,7 @@ from ineid.cli.options import (
     quiet,
     robot_options,
 )
-from ineid.cli.output import ProgressBar, console, table
+from ineid.cli.output import ProgressBar, console, plain, shown, table
 
 _SETTINGS = "ineid.identify.excite:ExcitationSettings"
 
@@ -83,7 +84,7 @@ def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, r
     comments = [
         (f"ineid excitation trajectory of {model.name}: {res.trajectory.harmonics} harmonics of "
          f"{res.trajectory.base_frequency:g} Hz, {res.trajectory.duration:g} s at {rate:g} Hz"),
-        f"joints: {', '.join(model.joint_names)}",
+        f"joints: {json.dumps(list(model.joint_names))}",  # JSON: names may hold commas
         f"coefficients: {coefficients.name}",
     ]
     write_trajectory_json(coefficients, res.trajectory, {"design": res.to_dict()}, overwrite=overwrite)
@@ -100,7 +101,8 @@ def print_design(res) -> None:
     opt, rnd = res.optimized, res.random
     sigma = res.sigma
     con.print(
-        f"[bold]{res.criterion}[/bold] design of {res.settings['robot']} ({', '.join(res.settings['unknown_links'])} "
+        f"[bold]{res.criterion}[/bold] design of {shown(res.settings['robot'])} "
+        f"({shown(', '.join(res.settings['unknown_links']))} "
         f"unknown{'; sensor offsets estimated' if res.base.bias else ''}): {res.base.rank} base parameters, "
         f"{len(res.starts)} starts in {res.seconds:.1f} s "
         f"(of which compilation {res.compile_seconds:.1f} s)"

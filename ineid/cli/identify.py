@@ -21,7 +21,7 @@ from ineid.cli.options import (
     select_alias,
     select_option,
 )
-from ineid.cli.output import ProgressBar, console, print_results, table
+from ineid.cli.output import ProgressBar, console, plain, print_results, shown, table
 
 _SOLVE = "ineid.identify.solve"
 
@@ -52,7 +52,8 @@ def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
 
         ds = load_dataset(data_path, configs=[config], clean=False)
         if ds.meta.joint_names != model.joint_names:
-            raise click.BadParameter(f"{data_path} is a dataset of {ds.meta.robot}, not of {model.name}", param_hint="--data")
+            raise click.BadParameter(f"{data_path} is a dataset of {ds.meta.robot!r}, not of {model.name!r}",
+                                     param_hint="--data")
         q, qd, qdd = ds.q[0], ds.qd[0], ds.qdd[0]
         source = f"{len(q)} frames of configuration {config} of {data_path}"
     else:
@@ -61,8 +62,9 @@ def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
     a = analyze_frames(model, q, qd, qdd, base, bias=with_bias)
     con = console()
     n = base.n_params
-    con.print(f"[bold]{model.name}[/bold]: unknown links {', '.join(model.unknown_links)} ({n} standard parameters)")
-    con.print(f"frames: {source}")
+    con.print(f"[bold]{shown(model.name)}[/bold]: unknown links {shown(', '.join(model.unknown_links))} "
+              f"({n} standard parameters)")
+    con.print(f"frames: {shown(source)}")
     con.print(
         f"rank {a.rank} of {n}; structural rank {base.rank} (no frames can do better): "
         f"[bold]{base.rank} identifiable combinations[/bold], {n - base.rank} null direction(s)"
@@ -73,7 +75,7 @@ def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
               f"(at least {-(-base.rank // 6)}: 6 equations per frame)")
     con.print("singular values (scaled): " + " ".join(f"{v:.3g}" for v in a.singular_values))
     if a.problem():
-        con.print(f"[bold red]these frames are not enough:[/bold red] {a.problem()}")
+        con.print(f"[bold red]these frames are not enough:[/bold red] {shown(a.problem())}")
     t = table("Base parameters: what the data determine (beta = B theta)", ("#", "base parameter"),
               left=("base parameter",))
     for k, name in enumerate(base.names):
@@ -87,8 +89,8 @@ def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
         con.print(t)
     ident = [p for p, ok in zip(base.param_names, base.identifiable) if ok]
     other = [p for p, ok in zip(base.param_names, base.identifiable) if not ok]
-    con.print(f"individually identifiable ({len(ident)}): {', '.join(ident) or '-'}")
-    con.print(f"only in combinations ({len(other)}): {', '.join(other) or '-'}")
+    con.print(f"individually identifiable ({len(ident)}): {shown(', '.join(ident) or '-')}")
+    con.print(f"only in combinations ({len(other)}): {shown(', '.join(other) or '-')}")
     if base.null_basis.shape[1]:
         con.print(
             "The null directions are structural: mass on a joint axis between two unknown links does not feel "
@@ -115,7 +117,7 @@ def _print_bias_cost(con, model, q, qd, qdd) -> None:
             t.add_row(str(k + 1), text)
         con.print(t)
     if c.lost:
-        con.print(f"no longer individually identifiable: {', '.join(c.lost)}")
+        con.print(f"no longer individually identifiable: {shown(', '.join(c.lost))}")
     t = table("Standard deviation of each base parameter with the offsets / without (same noise, these frames)",
               ("#", "base parameter (with offsets)", "std ratio"), left=("base parameter (with offsets)",))
     for k, (name, r) in enumerate(zip(c.base_bias.names, c.std_inflation, strict=True)):
@@ -200,11 +202,12 @@ def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma
         from ineid.identify.report import plot_validation, validation  # noqa: PLC0415
 
         v = validation(res, ds)
-        plot_validation(v, plot_path, title=f"{res.meta['robot']}, {method}: ")
+        name = plain(res.meta["robot"])  # one line in the title, and not a page long
+        plot_validation(v, plot_path, title=f"{name if len(name) <= 60 else name[:57] + '...'}, {method}: ")
         console().print("residual RMS per axis (fx fy fz N, mx my mz N*m): " + " ".join(f"{r:.3g}" for r in v.rms)
-                        + f"; wrote {plot_path}")
+                        + f"; wrote {shown(plot_path)}")
     elif plot_path is not None:
-        console().print(f"no configuration identified: {plot_path} not written")
+        console().print(f"no configuration identified: {shown(plot_path)} not written")
 
 
 @click.command("export-urdf")
@@ -219,7 +222,8 @@ def export_urdf_cmd(results_path, config, out, overwrite) -> None:
     prepare_output(out, overwrite)
     res = load_results(results_path)
     export_urdf(res, config, out, overwrite=overwrite)
-    click.echo(f"wrote {out}: {', '.join(res.meta['unknown_links'])} of configuration {config} ({res.settings.method})")
+    click.echo(f"wrote {out}: {plain(', '.join(res.meta['unknown_links']))} of configuration {config} "
+               f"({res.settings.method})")
 
 
 @click.group()
@@ -240,12 +244,13 @@ def results_info(path: Path) -> None:
     res = load_results(path)
     m = res.meta
     con = console()
-    con.print(f"[bold]{path}[/bold]  ineid results ({res.settings.method}), written by ineid {m['ineid_version']}")
-    con.print(f"dataset: {m.get('dataset_path') or 'unknown (in memory, or an older file)'}; "
-              f"fingerprint {m.get('dataset_fingerprint') or '-'}")  # fmt: skip
-    con.print(f"robot {m['robot']} ({m['source']}); unknown links {', '.join(m['unknown_links'])}; "
-              f"gravity {m['gravity']} m/s^2")  # fmt: skip
-    con.print(f"settings: {json.dumps(res.settings.to_dict(), sort_keys=True)}")
+    con.print(f"[bold]{shown(path)}[/bold]  ineid results ({shown(res.settings.method)}), "
+              f"written by ineid {shown(m['ineid_version'])}")
+    con.print(f"dataset: {shown(m.get('dataset_path') or 'unknown (in memory, or an older file)')}; "
+              f"fingerprint {shown(m.get('dataset_fingerprint') or '-')}")  # fmt: skip
+    con.print(f"robot {shown(m['robot'])} ({shown(m['source'])}); "
+              f"unknown links {shown(', '.join(m['unknown_links']))}; gravity {shown(m['gravity'])} m/s^2")
+    con.print(f"settings: {shown(json.dumps(res.settings.to_dict(), sort_keys=True))}")
     n_ok = int(res.success.sum())
     con.print(f"{n_ok}/{res.n} configurations identified (indices {int(res.config_index.min())}.."
               f"{int(res.config_index.max())}) in {m['total_seconds']:.2f} s; {res.n_frames_fit} frames fitted, "

@@ -6,7 +6,12 @@ keeps the tables. Nothing here computes: each function renders what the library 
 
 from __future__ import annotations
 
+import logging
 import shutil
+import threading
+import time
+
+import click
 
 
 def console():
@@ -22,11 +27,39 @@ def console_err():
     return Console(stderr=True, highlight=False)
 
 
+def plain(value: object) -> str:
+    """``str(value)`` on one line: control and other unprintable characters shown escaped (``\\n``)."""
+    text = str(value)
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
+
+
+def shown(value: object) -> str:
+    """``value`` (a name or path from an input) as rich markup that prints it literally, on one line.
+
+    A ``[bold]`` or ``[/]`` in a robot, link or joint name is text, not a style (nor a
+    ``MarkupError``); wrap every such value in this before it goes into a string printed
+    with rich markup.
+    """
+    from rich.markup import escape  # noqa: PLC0415
+
+    return escape(plain(value))
+
+
 def table(title: str, columns, left=()):
-    """A rich table with a left-justified title; columns right-justified unless named in ``left``."""
+    """A rich table with a left-justified title; columns right-justified unless named in ``left``.
+
+    The title and the string cells are shown literally (:func:`shown`): they may hold names
+    from the inputs; no cell is markup.
+    """
     from rich.table import Table  # noqa: PLC0415
 
-    t = Table(title=title, title_justify="left")
+    class _Table(Table):
+        def add_row(self, *cells, **kwargs) -> None:
+            super().add_row(*(shown(c) if isinstance(c, str) else c for c in cells), **kwargs)
+
+    t = _Table(title=shown(title), title_justify="left")
     for col in columns:
         t.add_column(col, justify="left" if col in left else "right")
     return t
@@ -56,7 +89,7 @@ class ProgressBar:
             console=console_err(),
         )
         self._task = None
-        self._description = description
+        self._description = shown(description)
 
     def __enter__(self):
         self._progress.__enter__()
@@ -67,7 +100,7 @@ class ProgressBar:
 
     def set_description(self, text: str) -> None:
         if self._task is not None:
-            self._progress.update(self._task, description=text)
+            self._progress.update(self._task, description=shown(text))
 
     def __call__(self, done: int, total: int) -> None:
         if self._task is None:
@@ -78,7 +111,6 @@ class ProgressBar:
 def print_results(res, out) -> None:
     """The summary of ``ineid solve``: successes, held-out error, error tables or the estimates."""
     import numpy as np  # noqa: PLC0415
-    from rich.table import Table  # noqa: PLC0415
 
     from ineid.identify import error_summary  # noqa: PLC0415
 
@@ -86,7 +118,7 @@ def print_results(res, out) -> None:
     n_ok = int(res.success.sum())
     total = res.meta.get("total_seconds", float("nan"))
     con.print(
-        f"[bold]{res.settings.method}[/bold] on {res.meta['robot']}: {n_ok}/{res.n} configurations identified "
+        f"[bold]{res.settings.method}[/bold] on {shown(res.meta['robot'])}: {n_ok}/{res.n} configurations identified "
         f"in {total:.2f} s ({1e3 * total / max(res.n, 1):.2f} ms each); fitted {res.n_frames_fit} frames each"
         + (f", validated on {res.n_frames_validation}" if res.n_frames_validation else "")
     )
@@ -102,70 +134,66 @@ def print_results(res, out) -> None:
             ("standard parameters", res.theta_hat, res.theta_true, res.param_names, res.base.identifiable),
             ("base parameters (what the data determine)", res.base_hat, res.base_true, res.base.names, None),
         ):
-            table = Table(title=f"Relative error, {title}, over {n_ok} configurations", title_justify="left")
-            for col in ("parameter", "median", "95th pct", "within 1%", "within 5%") + (("identifiable",) if ident is not None else ()):
-                table.add_column(col, justify="left" if col in ("parameter", "identifiable") else "right")
+            columns = ("parameter", "median", "95th pct", "within 1%", "within 5%")
+            columns += ("identifiable",) if ident is not None else ()
+            tab = table(f"Relative error, {title}, over {n_ok} configurations", columns,
+                               left=("parameter", "identifiable"))
             for row in error_summary(est, truth, names, res.success, ident):
                 cells = [row.name, f"{row.median:.3g}", f"{row.p95:.3g}", f"{100 * row.within_1:.1f}%",
                          f"{100 * row.within_5:.1f}%"]
                 if ident is not None:
                     cells.append("yes" if row.identifiable else "no (prior)")
-                table.add_row(*cells)
-            con.print(table)
+                tab.add_row(*cells)
+            con.print(tab)
         from ineid.params import all_links_physical  # noqa: PLC0415
 
         valid = all_links_physical(np.nan_to_num(res.theta_hat[res.success]))
         con.print(f"physically valid estimates: {100 * valid.mean():.1f}%")
     elif n_ok:
         i = int(np.flatnonzero(res.success)[0])
-        table = Table(title=f"Estimates of configuration {int(res.config_index[i])} (SI, about each link origin)",
-                      title_justify="left")
-        for col in ("parameter", "estimate", "std", "prior (CAD)", "identifiable"):
-            table.add_column(col, justify="left" if col in ("parameter", "identifiable") else "right")
+        tab = table(f"Estimates of configuration {int(res.config_index[i])} (SI, about each link origin)",
+                           ("parameter", "estimate", "std", "prior (CAD)", "identifiable"),
+                           left=("parameter", "identifiable"))
         for k, name in enumerate(res.param_names):
             std = res.theta_std[i, k]
-            table.add_row(name, f"{res.theta_hat[i, k]:.6g}", "-" if not np.isfinite(std) else f"{std:.3g}",
+            tab.add_row(name, f"{res.theta_hat[i, k]:.6g}", "-" if not np.isfinite(std) else f"{std:.3g}",
                           f"{res.theta_prior[k]:.6g}", "yes" if res.base.identifiable[k] else "no (prior)")
-        con.print(table)
-        table = Table(title="Base parameters", title_justify="left")
-        for col in ("base parameter", "estimate", "std"):
-            table.add_column(col, justify="left" if col == "base parameter" else "right")
+        con.print(tab)
+        tab = table("Base parameters", ("base parameter", "estimate", "std"), left=("base parameter",))
         for k, name in enumerate(res.base.names):
-            table.add_row(name, f"{res.base_hat[i, k]:.6g}", f"{res.base_std[i, k]:.3g}")
-        con.print(table)
+            tab.add_row(name, f"{res.base_hat[i, k]:.6g}", f"{res.base_std[i, k]:.3g}")
+        con.print(tab)
     if res.bias_hat is not None and n_ok:
         i = int(np.flatnonzero(res.success)[0])
         con.print(f"sensor offsets of configuration {int(res.config_index[i])} (N, N*m, the wrench's frame): "
                   + ", ".join(f"{a} {b:.5g} +- {s:.2g}" for a, b, s in
                               zip(("fx", "fy", "fz", "mx", "my", "mz"), res.bias_hat[i], res.bias_std[i], strict=True)))
-    con.print(f"wrote {out}")
+    con.print(f"wrote {shown(out)}")
 
 
 def print_evaluation(ev) -> None:
     """The report of ``ineid evaluate``: the network beside the floor and least squares."""
-    from rich.table import Table  # noqa: PLC0415
 
     con = console()
-    con.print(f"evaluated on {ev.n_configs} configurations ({ev.extra.get('configs')}), {ev.frames_used} frames each")
-    table = Table(title="Relative error of the standard parameters (median / 95th percentile) and R^2", title_justify="left")
-    for col in ("parameter", "network", "p95", "R^2", "floor (null space)", "linear LS", "Gaussian prior",
-                "identifiable"):
-        table.add_column(col, justify="left" if col in ("parameter", "identifiable") else "right")
+    con.print(f"evaluated on {ev.n_configs} configurations ({shown(ev.extra.get('configs'))}), "
+              f"{ev.frames_used} frames each")
+    tab = table("Relative error of the standard parameters (median / 95th percentile) and R^2",
+                       ("parameter", "network", "p95", "R^2", "floor (null space)", "linear LS", "Gaussian prior",
+                        "identifiable"), left=("parameter", "identifiable"))
     for k, name in enumerate(ev.network["names"]):
         lin = f"{ev.linear['median'][k]:.3g}" if ev.linear else "-"
         gp = f"{ev.gaussian['median'][k]:.3g}" if ev.gaussian else "-"
-        table.add_row(name, f"{ev.network['median'][k]:.3g}", f"{ev.network['p95'][k]:.3g}",
+        tab.add_row(name, f"{ev.network['median'][k]:.3g}", f"{ev.network['p95'][k]:.3g}",
                       f"{ev.network['r2'][k]:.3f}", f"{ev.floor['median'][k]:.3g}", lin, gp,
                       "yes" if ev.identifiable[k] else "no")
-    con.print(table)
-    table = Table(title="Relative error of the base parameters (median)", title_justify="left")
-    for col in ("base parameter", "network", "R^2", "linear LS", "Gaussian prior"):
-        table.add_column(col, justify="left" if col == "base parameter" else "right")
+    con.print(tab)
+    tab = table("Relative error of the base parameters (median)",
+                       ("base parameter", "network", "R^2", "linear LS", "Gaussian prior"), left=("base parameter",))
     for k, name in enumerate(ev.network_base["names"]):
         lin = f"{ev.linear_base['median'][k]:.3g}" if ev.linear_base else "-"
         gp = f"{ev.gaussian_base['median'][k]:.3g}" if ev.gaussian_base else "-"
-        table.add_row(name, f"{ev.network_base['median'][k]:.3g}", f"{ev.network_base['r2'][k]:.3f}", lin, gp)
-    con.print(table)
+        tab.add_row(name, f"{ev.network_base['median'][k]:.3g}", f"{ev.network_base['r2'][k]:.3f}", lin, gp)
+    con.print(tab)
     lin = (f"; linear LS: standard {ev.linear['overall_median']:.4g}, base {ev.linear_base['overall_median']:.4g}, "
            f"physical {100 * ev.linear_physical_share:.0f}%") if ev.linear else ""
     if ev.gaussian:
@@ -178,3 +206,108 @@ def print_evaluation(ev) -> None:
     rms = ", ".join(f"{v:.3g}" for v in ev.wrench_rms)
     con.print(f"wrench residual of the predictions, RMS per axis (N, N*m): {rms}; normalized {ev.wrench_normalized:.4g}; "
               f"physically valid predictions {100 * ev.physical_share:.0f}%")
+
+
+class DerivationProgress(logging.Handler):
+    """Shows a SymPy derivation's progress on stderr, from the records :mod:`ineid.symbolic` logs.
+
+    Nothing for a derivation that ends within ``delay`` seconds; after that, a progress bar
+    with the step and the elapsed time on a terminal (it keeps ticking through the long
+    common-subexpression elimination), else one line per step. A record with
+    ``derivation_step = (done, total)`` and ``done == total`` ends the derivation.
+    """
+
+    delay = 1.0
+    """Seconds a derivation runs before its progress is shown."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self._guard = threading.Lock()
+        self._start = 0.0
+        self._timer: threading.Timer | None = None
+        self._progress = None
+        self._task = None
+        self._state: tuple[int, int, str] | None = None
+        self._lines = False
+
+    def emit(self, record: logging.LogRecord) -> None:
+        step = getattr(record, "derivation_step", None)
+        if step is None:
+            return
+        done, total = step
+        text = plain(getattr(record, "derivation_text", record.getMessage()))
+        with self._guard:
+            if done >= total:
+                self._finish(text)
+                return
+            if self._state is None:
+                self._start = time.monotonic()
+            self._state = (done, total, text)
+            if self._progress is not None or self._lines:
+                self._update()
+            elif time.monotonic() - self._start >= self.delay:
+                self._show_now()
+            elif self._timer is None:  # shows it while a long step (the elimination) runs
+                self._timer = threading.Timer(self.delay, self._show)
+                self._timer.daemon = True
+                self._timer.start()
+
+    def _show(self) -> None:
+        with self._guard:
+            if self._state is not None and self._progress is None and not self._lines:
+                self._show_now()
+
+    def _show_now(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        con = console_err()
+        if con.is_terminal:
+            from rich.progress import (  # noqa: PLC0415
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+            )
+
+            self._progress = Progress(
+                TextColumn("deriving the regressor:"), TextColumn("{task.description}", markup=False),
+                BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=con,
+            )
+            self._progress.start()
+            self._task = self._progress.add_task("", total=self._state[1])
+        else:
+            self._lines = True
+        self._update()
+
+    def _update(self) -> None:
+        done, total, text = self._state
+        if self._progress is not None:  # the bar counts finished steps: step `done` is under way
+            self._progress.update(self._task, completed=done - 1, total=total, description=text)
+        elif self._lines:
+            click.echo(f"ineid: deriving the regressor, step {done} of {total}: {text}", err=True)
+
+    def _finish(self, text: str) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+        if self._progress is not None:
+            self._progress.update(self._task, completed=self._state[1], description=text)
+            self._progress.stop()
+        elif self._lines:
+            click.echo(f"ineid: deriving the regressor: {text}", err=True)
+        self._timer = self._progress = self._task = self._state = None
+        self._lines = False
+
+
+def show_derivation_progress(on: bool) -> None:
+    """Show (or stop showing) derivation progress on stderr (:class:`DerivationProgress`); idempotent.
+
+    While on, the ``ineid.symbolic`` logger is at INFO so that its step records are made
+    even when INFO messages are not shown (the ``ineid`` handler's own level drops those).
+    """
+    logger = logging.getLogger("ineid.symbolic")
+    logger.handlers[:] = [h for h in logger.handlers if not isinstance(h, DerivationProgress)]
+    logger.setLevel(logging.INFO if on else logging.NOTSET)
+    if on:
+        logger.addHandler(DerivationProgress())

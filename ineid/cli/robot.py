@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from ineid.cli.options import lock_option, overwrite_option, robot_options
-from ineid.cli.output import console, table
+from ineid.cli.output import console, plain, shown, table
 
 
 @click.group()
@@ -33,9 +33,10 @@ def robot_show(robot) -> None:
 
     model = robot.load()
     con = console()
-    con.print(f"[bold]{model.name}[/bold]  {model.urdf_path}")
+    con.print(f"[bold]{shown(model.name)}[/bold]  {shown(model.urdf_path)}")
     con.print(
-        f"{model.n_dof} moving joints, base link {model.chain.root_link!r}, gravity {model.gravity.tolist()} m/s^2, "
+        f"{model.n_dof} moving joints, base link {shown(repr(model.chain.root_link))}, "
+        f"gravity {model.gravity.tolist()} m/s^2, "
         f"regressor 6 x {10 * model.n_links} ({model.op_count} operations)"
     )
     joints = table("Joints (chain order)", ("#", "joint", "type", "axis", "q range", "|qd| max", "|qdd| max"),
@@ -112,13 +113,13 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
         emitted = generate_code(chain, name, target, regen)
         seconds = time.perf_counter() - t0
         click.echo(
-            f"{name}: {chain.n_dof} DOF, regressor 6 x {10 * chain.n_dof}, {emitted.op_count} operations "
+            f"{plain(name)}: {chain.n_dof} DOF, regressor 6 x {10 * chain.n_dof}, {emitted.op_count} operations "
             f"after CSE ({emitted.n_temporaries} temporaries), {seconds:.2f} s"
         )
         for fname in sorted(emitted.files):
-            click.echo(f"  wrote {Path(target) / fname}")
+            click.echo(f"  wrote {plain(Path(target) / fname)}")
         if Path(target).resolve() != BUILTIN_DIR:
-            click.echo(f"  wrote {Path(target) / MANIFEST} (SHA-256 of each file, checked before ineid loads it)")
+            click.echo(f"  wrote {plain(Path(target) / MANIFEST)} (SHA-256 of each file, checked before ineid loads it)")
 
 
 def register(main: click.Group) -> None:

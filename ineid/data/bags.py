@@ -193,7 +193,8 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
                     if missing:
                         raise DatasetError(
                             f"{path}: joint state message {len(tq)} on {joint_topic} lacks joint"
-                            f"{'s' if len(missing) > 1 else ''} {', '.join(missing)} (it names {', '.join(names) or 'none'}); "
+                            f"{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))} "
+                            f"(it names {', '.join(map(repr, names)) or 'none'}); "
                             "the recording is of another arm, or the URDF's joint names differ"
                         )
                     idx = order_cache[names] = np.array([names.index(j) for j in joint_names])
@@ -217,7 +218,7 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
         raise DatasetError(f"{path}: no messages on {joint_topic if not tq else wrench_topic}")
     if len(frame_ids) > 1:
         raise DatasetError(f"{path}: the wrench messages on {wrench_topic} name several frames "
-                           f"({', '.join(sorted(frame_ids))}); a recording needs one sensor frame")
+                           f"({', '.join(map(repr, sorted(frame_ids)))}); a recording needs one sensor frame")
     t0 = min(tq[0], tw[0], min(tq), min(tw))
     frame_id = frame_ids.pop() or None
     return Streams(

@@ -45,7 +45,8 @@ def read_csv_rows(path: str | Path) -> list[tuple[int, list[str]]]:
     """
     path = Path(path)
     try:
-        with path.open(newline="") as fh:
+        # utf-8-sig: a byte-order mark (spreadsheet exports write one) is not part of the first column's name.
+        with path.open(newline="", encoding="utf-8-sig") as fh:
             return [
                 (k, cells)
                 for k, line in enumerate(fh, start=1)

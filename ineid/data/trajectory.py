@@ -232,12 +232,17 @@ def trajectory_columns(n_dof: int) -> list[str]:
 
 
 def trajectory_csv_text(t, q, qd, qdd, comments: Sequence[str] = ()) -> str:
-    """The CSV text of sampled states: ``#`` comment lines, the header, one row per sample (``%.17g``)."""
+    """The CSV text of sampled states: ``#`` comment lines, the header, one row per sample (``%.17g``).
+
+    A comment's control characters (a newline in a robot name) are written escaped, so each
+    comment stays one ``#`` line.
+    """
     t = np.asarray(t, dtype=np.float64)
     q, qd, qdd = (np.asarray(x, dtype=np.float64) for x in (q, qd, qdd))
     buf = io.StringIO()
     for line in comments:
-        buf.write(f"# {line}\n")
+        one_line = "".join(c if c.isprintable() else ascii(c)[1:-1] for c in str(line))
+        buf.write(f"# {one_line}\n")
     buf.write(",".join(trajectory_columns(q.shape[1])) + "\n")
     np.savetxt(buf, np.concatenate([t[:, None], q, qd, qdd], axis=1), delimiter=",", fmt="%.17g")
     return buf.getvalue()
@@ -403,16 +408,22 @@ def load_trajectory(path: str | Path, rate: float | None = None, n_frames: int |
 
 
 def _csv_joint_names(path: Path) -> tuple[str, ...]:
-    """Joint names from a ``# joints: a, b, c`` comment line, as ineid writes it."""
+    """Joint names from a ``# joints: ["a", "b"]`` comment line (a JSON list, as ineid writes it;
+    ``# joints: a, b`` from older versions is read too); ``()`` when there is none or it is garbled."""
     try:
-        with path.open() as fh:
+        with path.open(encoding="utf-8-sig") as fh:
             for line in fh:
                 if not line.lstrip().startswith("#"):
                     break
                 text = line.lstrip()[1:].strip()
                 if text.startswith("joints:"):
-                    return tuple(n.strip() for n in text[len("joints:"):].split(",") if n.strip())
-    except (OSError, UnicodeDecodeError):
+                    rest = text[len("joints:"):].strip()
+                    if not rest.startswith("["):
+                        return tuple(n.strip() for n in rest.split(",") if n.strip())
+                    names = json.loads(rest)
+                    ok = isinstance(names, list) and all(isinstance(n, str) for n in names)
+                    return tuple(names) if ok else ()
+    except (OSError, UnicodeDecodeError, ValueError):
         return ()
     return ()
 

@@ -6,6 +6,7 @@ rewrites them; a test fails when they drift). This package never imports sympy.
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import importlib.util
 import re
@@ -18,11 +19,24 @@ from ineid.errors import CodegenError, UntrustedCodeError
 BUILTIN_DIR = Path(__file__).resolve().parent
 
 
+SLUG_MAX = 48
+"""Longest slug kept whole; a longer one is cut and suffixed with a hash of the name."""
+
+
 def module_slug(robot_name: str) -> str:
-    """Python module stem of a robot name: ``"sweaty-arm"`` -> ``"sweaty_arm"``."""
-    slug = re.sub(r"\W", "_", robot_name.strip().lower())
+    """Python module stem of a robot name: ``"sweaty-arm"`` -> ``"sweaty_arm"``.
+
+    Safe for any name: only ``[a-z0-9_]`` (path separators, dots and spaces become ``_``),
+    never empty, never starting with a digit, at most ``SLUG_MAX + 9`` characters. A
+    name that is longer or not ASCII gets ``_`` and 8 hex digits of its SHA-256 appended,
+    so such names stay apart.
+    """
+    slug = re.sub(r"[^a-z0-9_]", "_", robot_name.strip().lower())
     if not slug or slug[0].isdigit():
         slug = "robot_" + slug
+    if len(slug) > SLUG_MAX or not robot_name.isascii():
+        digest = hashlib.sha256(robot_name.encode("utf-8", "surrogatepass")).hexdigest()[:8]
+        slug = f"{slug[:SLUG_MAX]}_{digest}"
     return slug
 
 

@@ -7,6 +7,10 @@ frame) and the inertia about the centre of mass *in link-frame axes* (``rpy="0 0
 whatever rotation the original had), and the ``<inertial>`` of each link welded to it is
 removed, with a comment, so nothing is counted twice. Floats are written with ``repr``,
 which reads back bit for bit.
+
+Names (robots, links, joints) stay where ElementTree escapes them, in attributes; the
+comments ineid adds hold none (an XML comment cannot escape ``--``), and the text
+written is parsed back before it is returned.
 """
 
 from __future__ import annotations
@@ -73,9 +77,27 @@ def urdf_with_inertials(urdf_text: str, theta_by_link: dict[str, np.ndarray], lo
             w_old = w_el.find("inertial") if w_el is not None else None
             if w_old is not None:
                 w_el.remove(w_old)
-                w_el.insert(0, ET.Comment(f" inertial folded into the identified {link!r} by ineid "))
+                w_el.insert(0, ET.Comment(" inertial folded by ineid into the identified link this one is welded to "))
     ET.indent(root, space="  ")
-    return '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+    text = '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+    _check_same_names(urdf_text, text)
+    return text
+
+
+def _check_same_names(before: str, after: str) -> None:
+    """The written URDF parses and names the same links and joints as the original (defence in depth)."""
+
+    def names(text: str) -> list[tuple[str, str | None]]:
+        root = ET.fromstring(text)
+        return [(el.tag, el.get("name")) for el in root if el.tag in ("link", "joint")]
+
+    try:
+        same = names(after) == names(before)
+    except ET.ParseError:
+        same = False
+    if not same:
+        raise RobotModelError("the exported URDF would not read back with the original's links and joints; "
+                              "nothing was written (please report this)")
 
 
 def export_urdf(results, config: int, out: str | Path, overwrite: bool = False) -> Path:

@@ -79,7 +79,10 @@ def validation(res, ds, model=None, config: int | None = None) -> Validation:
 
 
 def plot_validation(v: Validation, path: str | Path, title: str = "") -> Path:
-    """Six panels (fx..mz) of measured and predicted wrench over time, RMS in each title; written atomically."""
+    """Six panels (fx..mz) of measured and predicted wrench over time, RMS in each title; written atomically.
+
+    ``title`` (it may hold names from the inputs) is drawn literally: mathtext is off for it.
+    """
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
@@ -100,7 +103,9 @@ def plot_validation(v: Validation, path: str | Path, title: str = "") -> Path:
         ax.set_xlabel("time (s)")
     axes[0, 0].legend(loc="best", fontsize=9)
     which = "held-out frames" if v.held_out else "fitted frames (none held out)"
-    fig.suptitle(f"{title}measured vs predicted wrench, {which}, configuration {v.config}, {v.frame} frame")
+    # The title holds the robot's name: literal text, never mathtext (a "$" in it would be parsed).
+    fig.suptitle(f"{title}measured vs predicted wrench, {which}, configuration {v.config}, {v.frame} frame",
+                 parse_math=False)
     fig.tight_layout()
     try:
         return save_figure(fig, path, dpi=110)

@@ -148,7 +148,8 @@ def plot(rows: list[StudyRow], path: str | Path) -> Path:
     for ax in axes:
         ax.set_xlabel("noise level (x reference)")
         ax.grid(True, alpha=0.3)
-    axes[2].legend(fontsize=7)
+    for text in axes[2].legend(fontsize=7).get_texts():
+        text.set_parse_math(False)  # labels are names, never mathtext
     path = Path(path)
     save_figure(fig, path, dpi=120)
     plt.close(fig)

@@ -21,7 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ineid._atomic import atomic_write
-from ineid.errors import OptionalDependencyError
+from ineid.errors import OptionalDependencyError, TrainingError
 from ineid.learn.runs import MODEL, RUN_FILES
 from ineid.learn.sweep import SweepRow, run_name, run_trial
 from ineid.learn.train import TrainConfig
@@ -105,7 +105,11 @@ def ray_trials(ds, cfgs: list[TrainConfig], out_dir: Path, *, dataset_path: str 
             except ray.exceptions.RayError as e:  # the trial raised, or its worker died
                 row = SweepRow.failed(cfg, _message(e))
             else:
-                _write_run(out_dir / row.name, files)
+                problem = files_problem(files)
+                if problem is None:
+                    _write_run(out_dir / run_name(cfg), files)
+                else:  # a worker that is not ours, or a broken one: write nothing of it
+                    row = SweepRow.failed(cfg, f"the worker sent back {problem}; nothing of this trial was written")
             rows.append(row)
             if progress is not None:
                 progress(len(rows), len(cfgs), row)
@@ -115,9 +119,32 @@ def ray_trials(ds, cfgs: list[TrainConfig], out_dir: Path, *, dataset_path: str 
             ray.shutdown()
 
 
+def files_problem(files: object) -> str | None:
+    """Why a worker's ``{file name: bytes}`` may not be written into a run folder, or None if it may.
+
+    Only the plain names of :data:`~ineid.learn.runs.RUN_FILES` are accepted: a name is
+    joined onto the run folder, so one with a path separator or ``..`` could write anywhere.
+    """
+    if not isinstance(files, dict):
+        return f"{type(files).__name__} instead of the run's files"
+    for name, content in files.items():
+        if not isinstance(name, str) or name not in RUN_FILES:
+            return f"a file named {name!r}, not one of the run files ({', '.join(RUN_FILES)})"
+        if not isinstance(content, bytes):
+            return f"{type(content).__name__} instead of the bytes of {name}"
+    return None
+
+
 def _write_run(run_dir: Path, files: dict[str, bytes]) -> None:
     """Replace the run files in ``run_dir`` by ``files``; ``model.msgpack``, the mark of a finished
-    run (:func:`ineid.learn.load_run`), goes last."""
+    run (:func:`ineid.learn.load_run`), goes last.
+
+    Raises:
+        TrainingError: ``files`` holds anything but run files (:func:`files_problem`).
+    """
+    problem = files_problem(files)
+    if problem is not None:
+        raise TrainingError(f"refusing to write {problem} into {run_dir}")
     run_dir.mkdir(parents=True, exist_ok=True)
     for name in RUN_FILES:
         (run_dir / name).unlink(missing_ok=True)

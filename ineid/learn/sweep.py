@@ -207,7 +207,8 @@ def plot(rows: list[SweepRow], path: Path) -> Path:
     if ok and len({r.frames for r in ok}) == 1 and np.isfinite(ok[0].linear_standard_median):
         # the same frames for every run: one LS line
         ax.axhline(ok[0].linear_standard_median, color="C3", linestyle=":", label="linear least squares (standard)")
-    ax.set_xticks(x, [r.name for r in rows], rotation=60, ha="right", fontsize=7)
+    # Run names are literal text: mathtext off (the y axis keeps it for its log-scale labels).
+    ax.set_xticks(x, [r.name for r in rows], rotation=60, ha="right", fontsize=7, parse_math=False)
     ax.set_ylabel("test median relative error")
     ax.set_yscale("log")
     ax.legend(fontsize=8)

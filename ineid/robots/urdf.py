@@ -215,18 +215,48 @@ def _parse_chain(data: bytes, source: str, locked_joints: Mapping[str, float] | 
 
 
 def _check_elements(root: ET.Element, source: str) -> None:
-    # yourdfpy reports missing names with a bare KeyError; say which element instead.
+    # yourdfpy reports missing names with a bare KeyError, and keeps the last of two
+    # elements with one name; say which element instead.
     for tag in ("link", "joint"):
-        for el in root.iter(tag):
-            if el.get("name") is None and el in list(root):
+        seen: set[str] = set()
+        for el in root.findall(tag):
+            name = el.get("name")
+            if name is None:
                 raise RobotModelError(f"{source}: a <{tag}> element has no name attribute")
-    for j in root.iter("joint"):
-        if j not in list(root):
-            continue
+            if name in seen:
+                raise RobotModelError(
+                    f"{source}: two <{tag}> elements are named {name!r}; give every {tag} its own name"
+                )
+            seen.add(name)
+    for j in root.findall("joint"):
+        for sub, attrs in (("origin", ("xyz", "rpy")), ("axis", ("xyz",))):
+            el = j.find(sub)
+            for attr in attrs:
+                if el is not None and _non_finite(el.get(attr)):
+                    raise RobotModelError(f"{source}: joint {j.get('name')!r}: <{sub} {attr}={el.get(attr)!r}> holds a "
+                                          "non-finite value (nan or inf); give finite numbers")
         for sub in ("parent", "child"):
             s = j.find(sub)
             if s is None or s.get("link") is None:
                 raise RobotModelError(f"{source}: joint {j.get('name')!r} has no <{sub} link=...>")
+
+
+def _non_finite(text: str | None) -> bool:
+    """The attribute holds numbers and one of them is nan or inf (unparsable text is yourdfpy's to report)."""
+    try:
+        return text is not None and not all(math.isfinite(float(v)) for v in text.split())
+    except ValueError:
+        return False
+
+
+def _check_finite_joint(j, source: str) -> None:
+    """A joint's ``<origin>`` and ``<axis>`` hold finite numbers (yourdfpy accepts nan and inf)."""
+    if j.origin is not None and not np.all(np.isfinite(np.asarray(j.origin, dtype=np.float64))):
+        raise RobotModelError(f"{source}: joint {j.name!r}: <origin xyz=... rpy=...> holds a non-finite value "
+                              "(nan or inf); give finite numbers")
+    if j.axis is not None and not np.all(np.isfinite(np.asarray(j.axis, dtype=np.float64))):
+        raise RobotModelError(f"{source}: joint {j.name!r}: <axis xyz=...> holds a non-finite value (nan or inf); "
+                              "give a finite direction")
 
 
 def _transform(origin) -> tuple[np.ndarray, np.ndarray]:
@@ -261,6 +291,11 @@ def _link_theta(link, source: str) -> np.ndarray:
             )
         return np.zeros(10)
     r, p = _transform(inertial.origin)
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(p))):
+        raise RobotModelError(
+            f"{source}: link {link.name!r}: <inertial><origin> holds a non-finite value (nan or inf); "
+            "give finite numbers"
+        )
     theta = theta_from_inertial(m, p, r @ inertia @ r.T)
     problems = physical_violations(theta_from_inertial(m, np.zeros(3), inertia), rtol=1e-9)
     if problems:
@@ -292,6 +327,7 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
     children: dict[str, list] = {name: [] for name in links}
     child_seen: dict[str, str] = {}
     for j in robot.joints:
+        _check_finite_joint(j, source)
         if j.type not in _SUPPORTED and j.name not in locked:
             raise RobotModelError(
                 f"{source}: joint {j.name!r} has type {j.type!r}; ineid supports revolute, continuous, "
@@ -435,6 +471,8 @@ def fixed_frame_pose(
         hint = f" ({frame!r} is a joint; give its child link {joint.child!r})" if joint is not None else ""
         raise RobotModelError(f"{source}: no link named {frame!r}{hint}; links: {', '.join(links)}")
     locked = dict(locked_joints or {})
+    for j in robot.joints:
+        _check_finite_joint(j, source)
     parent_joint = {j.child: j for j in robot.joints}
     r_acc, p_acc = np.eye(3), np.zeros(3)
     name = frame

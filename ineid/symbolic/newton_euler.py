@@ -26,6 +26,7 @@ References:
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -33,7 +34,54 @@ from dataclasses import dataclass
 import numpy as np
 import sympy as sp
 
+from ineid.errors import CodegenError
 from ineid.robots.urdf import Chain
+
+log = logging.getLogger(__name__)
+
+MAX_DERIVED_JOINTS = 16
+"""Most moving joints a chain may have to be derived (see ``docs/regressor.md`` for the
+measured times: the common-subexpression elimination grows steeply with the chain)."""
+
+SLOW_DERIVATION_JOINTS = 8
+"""Chains with more moving joints than this get a warning before they are derived (minutes to hours)."""
+
+STEPS_AFTER_JOINTS = 4
+"""Logged steps of a derivation after its per-joint ones: the elimination, the two printers
+and the end (``done == total``)."""
+
+
+def derivation_step(done: int, total: int, message: str, *args: object) -> None:
+    """Log one step of a derivation at INFO, with ``record.derivation_step = (done, total)`` and
+    ``record.derivation_text``, the step's own words (``message % args``)."""
+    text = message % args
+    log.info("regressor derivation, step %d of %d: %s", done, total, text,
+             extra={"derivation_step": (done, total), "derivation_text": text})
+
+
+_LOCK = "lock the joints you do not identify with --lock JOINT=POSITION (locked_joints in Python)"
+
+
+def _refuse_long(chain: Chain) -> None:
+    if chain.n_dof > MAX_DERIVED_JOINTS:
+        raise CodegenError(
+            f"{chain.name!r} has {chain.n_dof} moving joints; ineid derives chains of at most {MAX_DERIVED_JOINTS} "
+            f"(the derivation time grows steeply with the chain, see docs/regressor.md); {_LOCK}"
+        )
+
+
+def check_derivable(chain: Chain) -> None:
+    """Refuse a chain too long to derive in reasonable time (:data:`MAX_DERIVED_JOINTS`); warn
+    (a WARNING log line) about one longer than :data:`SLOW_DERIVATION_JOINTS`.
+
+    Raises:
+        CodegenError: naming the count and the fix (lock joints).
+    """
+    _refuse_long(chain)
+    if chain.n_dof > SLOW_DERIVATION_JOINTS:
+        log.warning("%r has %d moving joints: deriving its regressor takes minutes to hours (see docs/regressor.md); "
+                    "to shorten it, %s", chain.name, chain.n_dof, _LOCK)
+
 
 Vec = list  # three sympy expressions
 Mat = list  # 3x3 nested list of sympy expressions
@@ -166,9 +214,17 @@ class SymbolicRegressor:
 
 
 def derive_base_wrench_regressor(chain: Chain) -> SymbolicRegressor:
-    """Derive ``Psi`` for a chain, see the module docstring for the equations."""
+    """Derive ``Psi`` for a chain, see the module docstring for the equations.
+
+    Each joint is logged as a step (:func:`derivation_step`) of ``n_dof + STEPS_AFTER_JOINTS``.
+
+    Raises:
+        CodegenError: the chain has more than :data:`MAX_DERIVED_JOINTS` moving joints.
+    """
+    _refuse_long(chain)
     t0 = time.perf_counter()
     n = chain.n_dof
+    total = n + STEPS_AFTER_JOINTS
     q = sp.symbols(f"q0:{n}", real=True)
     qd = sp.symbols(f"qd0:{n}", real=True)
     qdd = sp.symbols(f"qdd0:{n}", real=True)
@@ -183,6 +239,7 @@ def derive_base_wrench_regressor(chain: Chain) -> SymbolicRegressor:
     columns: list[list[sp.Expr]] = []  # 10 * n columns of 6 entries
 
     for i, joint in enumerate(chain.joints):
+        derivation_step(i + 1, total, "Newton-Euler terms of joint %d of %d, %s", i + 1, n, ascii(joint.name))
         P = _const_mat(joint.parent_R_joint)
         r = [_num(x) for x in joint.parent_p_joint]
         axis = [_num(x) for x in joint.axis]

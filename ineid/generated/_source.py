@@ -1,0 +1,103 @@
+"""What a generated module may contain, checked on its text before anything imports it.
+
+Names from a URDF (robot, links, joints) reach a generated module only as escaped string
+literals; this check is the second line of defence: it parses the text (nothing runs)
+and refuses any module whose top level is not exactly the emitter's shape, so a name
+that escaped its literal (a newline in a comment, a closed docstring) cannot add a
+statement that runs on import.
+"""
+
+from __future__ import annotations
+
+import ast
+
+from ineid.errors import CodegenError
+
+_IMPORTS = {"jax": ("jax.numpy", "jnp"), "casadi": ("casadi", "ca")}
+_CONSTANTS = {"ROBOT", "N_DOF", "JOINT_NAMES", "LINK_NAMES", "KINEMATIC_FINGERPRINT", "OP_COUNT", "SHAPE"}
+_SHAPE = {
+    "jax": (_CONSTANTS | {"NONZERO"}, {"_temporaries", "base_wrench_regressor", "base_wrench", "_entries"}),
+    "casadi": (_CONSTANTS, {"_build"}),
+}
+
+
+def check_module_source(text: str, kind: str, where: str = "generated module") -> dict[str, object]:
+    """Parse a generated module's text (without running it) and check its top level.
+
+    Allowed, each once: the module docstring first; ``import jax.numpy as jnp`` (``kind
+    "jax"``) or ``import casadi as ca`` (``"casadi"``); the constants (``ROBOT``,
+    ``JOINT_NAMES``, ...) assigned literal values; the emitter's functions, without
+    decorators, defaults or annotations (they would run on import); and for CasADi the
+    one call ``base_wrench_regressor = _build()``.
+
+    Returns:
+        ``{constant: value}``, the literal constants (``ROBOT``, ``JOINT_NAMES``, ...).
+
+    Raises:
+        CodegenError: the text does not parse or holds anything else.
+    """
+    constants, functions = _SHAPE[kind]
+    try:
+        tree = ast.parse(text)
+    except (SyntaxError, ValueError) as e:
+        raise CodegenError(f"{where} is not valid Python ({e}); regenerate it") from None
+    values: dict[str, object] = {}
+    defined: set[str] = set()
+    for k, node in enumerate(tree.body):
+        problem = _problem(node, k, kind, constants, functions, values)
+        name = _defined_name(node)
+        if problem is None and name is not None and name in defined:
+            problem = f"{name} is defined twice"
+        if problem is not None:
+            raise CodegenError(f"{where} has an unexpected statement at line {node.lineno} ({problem}); "
+                               "it was not imported; regenerate it")
+        if name is not None:
+            defined.add(name)
+    missing = sorted((constants | functions | ({"base_wrench_regressor"} if kind == "casadi" else set())) - defined)
+    if missing:
+        raise CodegenError(f"{where} lacks {', '.join(missing)}; regenerate it")
+    return values
+
+
+def _defined_name(node: ast.stmt) -> str | None:
+    if isinstance(node, ast.FunctionDef):
+        return node.name
+    if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
+        return node.targets[0].id
+    return None
+
+
+def _problem(node: ast.stmt, index: int, kind: str, constants: set[str], functions: set[str],
+             values: dict[str, object]) -> str | None:
+    """Why ``node`` may not be at the top level of a ``kind`` module, or None if it may."""
+    if isinstance(node, ast.Expr):
+        ok = index == 0 and isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)
+        return None if ok else "an expression other than the docstring"
+    if isinstance(node, ast.Import):
+        module, alias = _IMPORTS[kind]
+        ok = len(node.names) == 1 and node.names[0].name == module and node.names[0].asname == alias
+        return None if ok else "an import other than " + f"`import {module} as {alias}`"
+    if isinstance(node, ast.FunctionDef):
+        args = node.args
+        if node.name not in functions:
+            return f"a function {node.name!r} the emitter does not write"
+        every = [*args.posonlyargs, *args.args, *args.kwonlyargs, args.vararg, args.kwarg]
+        annotated = node.returns is not None or any(a is not None and a.annotation is not None for a in every)
+        if node.decorator_list or args.defaults or any(d is not None for d in args.kw_defaults) or annotated:
+            return f"function {node.name} has decorators, defaults or annotations (they run on import)"
+        return None
+    if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
+        name = node.targets[0].id
+        if name in constants:
+            try:
+                values[name] = ast.literal_eval(node.value)
+            except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
+                return f"{name} is not assigned a literal value"
+            return None
+        call = node.value
+        builds = (isinstance(call, ast.Call) and isinstance(call.func, ast.Name) and call.func.id == "_build"
+                  and not call.args and not call.keywords)
+        if kind == "casadi" and name == "base_wrench_regressor" and builds:
+            return None
+        return f"an assignment to {name!r}"
+    return f"a {type(node).__name__} statement"
