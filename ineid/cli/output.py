@@ -95,8 +95,10 @@ def print_results(res, out) -> None:
         con.print("failed: " + "; ".join(f"{c} x {s}" for s, c in zip(statuses, counts)))
     if res.n_frames_validation and n_ok:
         rel = res.validation_rel[res.success]
-        con.print(f"held-out wrench error ||w - Psi theta_hat|| / ||w||: median {np.median(rel):.3g}, "
-                  f"95th percentile {np.percentile(rel, 95):.3g}")
+        with np.errstate(invalid="ignore"):  # inf (a zero wrench) between two values: nan (solve warns)
+            median, p95 = np.median(rel), np.percentile(rel, 95)
+        con.print(f"held-out wrench error ||w - Psi theta_hat|| / ||w||: median {median:.3g}, "
+                  f"95th percentile {p95:.3g}")
     if res.theta_true is not None and n_ok:
         for title, est, truth, names, ident in (
             ("standard parameters", res.theta_hat, res.theta_true, res.param_names, res.base.identifiable),
@@ -178,3 +180,14 @@ def print_evaluation(ev) -> None:
     rms = ", ".join(f"{v:.3g}" for v in ev.wrench_rms)
     con.print(f"wrench residual of the predictions, RMS per axis (N, N*m): {rms}; normalized {ev.wrench_normalized:.4g}; "
               f"physically valid predictions {100 * ev.physical_share:.0f}%")
+
+
+def print_findings(findings) -> None:
+    """Plausibility warnings (:class:`ineid.data.plausibility.Finding`), one line each on stderr.
+
+    Shown with ``-q`` too: a quiet run is the one whose user would not look at the numbers.
+    """
+    import click  # noqa: PLC0415
+
+    for f in findings:
+        click.echo(f"ineid: warning: {f.message}", err=True)
