@@ -5,9 +5,10 @@ estimates of :func:`ineid.identify.solve_dataset`:
 
 * total mass: the estimated mass of the moving links (the unknown links' masses from the
   linear least squares of the same frames, whatever the method, plus the known links' CAD
-  masses; without offsets a base parameter, the force rows' gravity column) is negative (``total_mass_negative``: a flipped wrench, or a sensor turned
-  over without ``--sensor-pose``), or more than :data:`MASS_FACTOR` times above or below the
-  URDF's (``total_mass_scale``: the wrench's unit; the factor that fixes it is suggested);
+  masses; without offsets a base parameter, the force rows' gravity column) is negative
+  (``total_mass_negative``: a flipped wrench, or a sensor turned over without
+  ``--sensor-pose``), or more than :data:`MASS_FACTOR` times above or below the URDF's
+  (``total_mass_scale``: the wrench's unit; the factor that fixes it is suggested);
 * held-out error: the median over the configurations of the relative wrench error on the
   held-out frames (on the fitted frames when none are held out; with offsets estimated,
   relative to the wrench less its mean) above :data:`HELD_OUT_ERROR`
@@ -180,8 +181,9 @@ def check_held_out_error(res, ds) -> Finding | None:
         "held_out_error",
         f"the model explains almost nothing of the {where} wrench ({shown}"
         + (f", median over {len(err)} configurations" if len(err) > 1 else "")
-        + f"): check the units, the wrench's sign (data import --flip-wrench), the sensor pose (--sensor-pose), "
-        f"the time alignment (data import --delay auto){untared}, or whether the wrench channel holds the sensor at all",
+        + "): check the units, the wrench's sign (data import --flip-wrench), the sensor pose (--sensor-pose), "
+        f"the time alignment (data import --delay auto){untared}, "
+        "or whether the wrench channel holds the sensor at all",
     )
 
 
