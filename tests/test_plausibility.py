@@ -225,6 +225,19 @@ def test_sensor_pose_forgotten_is_caught(lab_files, tmp_path):
     assert r.exit_code == 0 and "points against gravity" in line and "--sensor-pose" in line
 
 
+def test_checks_never_stop_a_solve_the_linear_fit_cannot_repeat(model):
+    """A trained run may fit fewer frames than the linear least squares needs: the mass check is left out."""
+    import dataclasses
+
+    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=5), 30, 0))
+    res = solve_dataset(ds, SolveSettings(), model=model)
+    short = dataclasses.replace(res, settings=SolveSettings(method="nonlinear"), n_frames_fit=2,
+                                n_frames_validation=28)  # fmt: skip
+    assert check_solve(ds, short, model) == []
+    res.theta_hat[:, 0::10] *= -1  # negative masses: the linear fit (res itself) says so
+    assert [f.code for f in check_solve(ds, res, model)] == ["total_mass_negative"]
+
+
 # -- the pieces -------------------------------------------------------------------------------------
 
 

@@ -36,6 +36,7 @@ from ineid.data.plausibility import (
     mean_force_in_base,
     moving_mass,
 )
+from ineid.errors import IdentificationError
 
 __all__ = ["Finding", "check_held_out_error", "check_solve", "check_total_mass", "estimated_total_mass",
            "fitted_static_force", "linear_counterpart"]  # fmt: skip
@@ -213,9 +214,12 @@ def check_solve(ds, res, model=None) -> list[Finding]:
     degrees = check_angle_units(model, ds.q)
     if degrees is not None:  # every fit of these frames is garbage: nothing more to learn
         return [degrees]
-    linear = linear_counterpart(ds, res, model)
+    try:
+        linear = linear_counterpart(ds, res, model)
+    except IdentificationError:  # too few frames for the linear fit (a trained run's short samples)
+        linear = None
     fit = res if np.asarray(res.success, dtype=bool).any() else linear  # a method that failed everywhere
-    if not np.asarray(fit.success, dtype=bool).any():
+    if fit is None or not np.asarray(fit.success, dtype=bool).any():
         return []
     static = check_static_force(model, fitted_static_force(fit, ds), "the fitted model's static force"
                                 if fit.bias_hat is not None else "the mean force over the fitted frames")
@@ -225,7 +229,7 @@ def check_solve(ds, res, model=None) -> list[Finding]:
         # offsets the static force is the data's own mean, and pointing up it is the cause (a
         # flipped wrench that a physically consistent fit cannot follow)
         return [static] if static is not None and fit.bias_hat is None else [held]
-    mass = check_total_mass(linear, model)
+    mass = None if linear is None else check_total_mass(linear, model)
     if mass is not None and mass.code == "total_mass_negative":
         return [mass]  # the static force would say the same
     return [f for f in (mass, static) if f is not None]
