@@ -19,7 +19,7 @@ from ineid.cli.options import (
     quiet,
     robot_options,
 )
-from ineid.cli.output import ProgressBar, console, plain, shown, table
+from ineid.cli.output import ProgressBar, console, plain, print_findings, shown, table
 
 _SAMPLING = "ineid.data.sampling"
 
@@ -125,6 +125,15 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
     )
 
 
+def _finite(ctx, param, value: float) -> float:
+    """A finite number (click's FloatRange lets inf through)."""
+    import math  # noqa: PLC0415
+
+    if not math.isfinite(value):
+        raise click.BadParameter(f"{value} is not a finite number")
+    return value
+
+
 def _delay(ctx, param, value: str) -> float | None:
     """``--delay``: seconds, or ``auto`` (None: estimate it)."""
     if value.strip().lower() == "auto":
@@ -153,11 +162,16 @@ def _delay(ctx, param, value: str) -> float | None:
 @click.option("--wrench-topic", default=None, help="Bags: the WrenchStamped topic (needed when there are several).")
 @click.option("--flip-wrench", is_flag=True,
               help="The sensor reports the wrench on the robot (the opposite of ineid's convention); negate it.")
+@click.option("--wrench-scale", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
+              metavar="FACTOR", callback=_finite,
+              help="Multiply every force and moment by FACTOR (0.001 for a wrench in mN and N*mm).")
+@click.option("--angle-unit", type=click.Choice(["rad", "deg"]), default="rad", show_default=True,
+              help="Unit of the revolute joints' angles (and of measured qd, qdd); deg converts them to rad.")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
 @click.pass_context
-def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic, wrench_topic, flip_wrench, out,
-                overwrite) -> None:
+def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic, wrench_topic, flip_wrench,
+                wrench_scale, angle_unit, out, overwrite) -> None:
     """Import a recording: a CSV (time, q1..qn, [qd1..qn, qdd1..qn,] fx fy fz mx my mz), a ROS 1 .bag, or a
     ROS 2 bag folder or .mcap (sensor_msgs/JointState, geometry_msgs/WrenchStamped)."""
     from ineid.data.recording import ImportSettings, import_recording  # noqa: PLC0415
@@ -165,13 +179,17 @@ def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic,
     prepare_output(out, overwrite)
     model = robot.load()
     settings = ImportSettings(sensor_pose=sensor_pose, cutoff=cutoff, rate=rate, delay=delay or 0.0,
-                              estimate_delay=delay is None, flip_wrench=flip_wrench)
+                              estimate_delay=delay is None, flip_wrench=flip_wrench, angle_unit=angle_unit,
+                              wrench_scale=wrench_scale)  # fmt: skip
     with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
         ds, summary = import_recording(path, model, settings, joint_topic, wrench_topic, progress=bar)
     ds.save(out, overwrite=overwrite)
     click.echo(f"wrote {out}: one recording of {plain(model.name)}")
     for line in summary.lines():
         click.echo(f"  {plain(line)}")
+    from ineid.data.plausibility import check_dataset  # noqa: PLC0415
+
+    print_findings(check_dataset(ds, model))
 
 
 @data.command("info")

@@ -21,7 +21,7 @@ from ineid.cli.options import (
     select_alias,
     select_option,
 )
-from ineid.cli.output import ProgressBar, console, plain, print_results, shown, table
+from ineid.cli.output import ProgressBar, console, plain, print_findings, print_results, shown, table
 
 _SOLVE = "ineid.identify.solve"
 
@@ -194,10 +194,16 @@ def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma
     except ValueError as e:
         raise click.UsageError(str(e)) from None
     ds = load_dataset(data_path, configs=idx, clean=False)
+    model = ds.model()
     with ProgressBar(f"solving ({method})", "configurations", quiet(ctx)) as bar:
-        res = solve_dataset(ds, settings, progress=bar)
+        res = solve_dataset(ds, settings, model=model, progress=bar)
+    from ineid.identify.plausibility import check_solve  # noqa: PLC0415
+
+    findings = check_solve(ds, res, model)
+    res.meta["warnings"] = [f.to_dict() for f in findings]
     save_results(res, out, overwrite=overwrite)
     print_results(res, out)
+    print_findings(findings)
     if plot_path is not None and res.success.any():
         from ineid.identify.report import plot_validation, validation  # noqa: PLC0415
 
@@ -256,7 +262,16 @@ def results_info(path: Path) -> None:
               f"{int(res.config_index.max())}) in {m['total_seconds']:.2f} s; {res.n_frames_fit} frames fitted, "
               f"{res.n_frames_validation} validated; {len(res.base.names)} base parameters")  # fmt: skip
     if res.n_frames_validation and n_ok:
-        con.print(f"held-out relative wrench error: median {np.median(res.validation_rel[res.success]):.3g}")
+        with np.errstate(invalid="ignore"):  # inf (a zero wrench) between two values: nan
+            median = np.median(res.validation_rel[res.success])
+        con.print(f"held-out relative wrench error: median {median:.3g}")
+    warnings = m.get("warnings")
+    if warnings is None:
+        con.print("plausibility warnings: not checked when this file was written")
+    else:
+        con.print(f"plausibility warnings: {len(warnings) or 'none'}")
+        for w in warnings:
+            con.print(f"  warning: {w['message']}", markup=False, soft_wrap=True)
 
 
 @click.group()

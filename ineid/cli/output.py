@@ -127,8 +127,10 @@ def print_results(res, out) -> None:
         con.print("failed: " + "; ".join(f"{c} x {s}" for s, c in zip(statuses, counts)))
     if res.n_frames_validation and n_ok:
         rel = res.validation_rel[res.success]
-        con.print(f"held-out wrench error ||w - Psi theta_hat|| / ||w||: median {np.median(rel):.3g}, "
-                  f"95th percentile {np.percentile(rel, 95):.3g}")
+        with np.errstate(invalid="ignore"):  # inf (a zero wrench) between two values: nan (solve warns)
+            median, p95 = np.median(rel), np.percentile(rel, 95)
+        con.print(f"held-out wrench error ||w - Psi theta_hat|| / ||w||: median {median:.3g}, "
+                  f"95th percentile {p95:.3g}")
     if res.theta_true is not None and n_ok:
         for title, est, truth, names, ident in (
             ("standard parameters", res.theta_hat, res.theta_true, res.param_names, res.base.identifiable),
@@ -311,3 +313,14 @@ def show_derivation_progress(on: bool) -> None:
     logger.setLevel(logging.INFO if on else logging.NOTSET)
     if on:
         logger.addHandler(DerivationProgress())
+
+
+def print_findings(findings) -> None:
+    """Plausibility warnings (:class:`ineid.data.plausibility.Finding`), one line each on stderr.
+
+    Shown with ``-q`` too: a quiet run is the one whose user would not look at the numbers.
+    """
+    import click  # noqa: PLC0415
+
+    for f in findings:
+        click.echo(f"ineid: warning: {plain(f.message)}", err=True)

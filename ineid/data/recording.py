@@ -64,6 +64,10 @@ class Streams:
     origin: dict = field(default_factory=dict)
 
 
+ANGLE_UNITS = ("rad", "deg")
+"""Units of a recording's revolute joint angles (``data import --angle-unit``)."""
+
+
 @dataclass(frozen=True)
 class ImportSettings:
     """How to turn :class:`Streams` into frames (the options of ``ineid data import``).
@@ -77,6 +81,11 @@ class ImportSettings:
         rate: Hz, the rate of the frames; None: the slower stream's.
         delay: s, how late the wrench time stamps are against the joints'.
         flip_wrench: the sensor reports the wrench on the robot; negate it.
+        angle_unit: ``"rad"`` or ``"deg"``: the unit of the revolute joints' ``q`` (and of
+            ``qd``, ``qdd`` when given, per s and per s^2); degrees are converted to radians.
+            Prismatic joints stay in m.
+        wrench_scale: every force and moment is multiplied by it (0.001 for a wrench in mN
+            and N*mm); finite and positive (``flip_wrench`` negates).
         estimate_delay: estimate ``delay`` from the model instead
             (:func:`ineid.data.delay.estimate_delay`, within ``+-max_delay`` s).
         max_delay: s, the search range of ``estimate_delay``.
@@ -89,8 +98,15 @@ class ImportSettings:
     flip_wrench: bool = False
     estimate_delay: bool = False
     max_delay: float = 0.05
+    angle_unit: str = "rad"
+    wrench_scale: float = 1.0
 
     def __post_init__(self) -> None:
+        if self.angle_unit not in ANGLE_UNITS:
+            raise DatasetError(f"angle_unit must be one of {', '.join(ANGLE_UNITS)}, got {self.angle_unit!r}")
+        if not (math.isfinite(self.wrench_scale) and self.wrench_scale > 0):
+            raise DatasetError(f"wrench_scale must be a positive finite factor, got {self.wrench_scale}; "
+                               "to negate the wrench use flip_wrench (--flip-wrench)")
         for name in ("cutoff", "rate"):
             v = getattr(self, name)
             if v is not None and not (v > 0 and math.isfinite(v)):
@@ -119,6 +135,7 @@ class ImportSummary:
     sensor: SensorPose
     delay: float
     delay_estimate: DelayEstimate | None = None
+    units: str | None = None
 
     def lines(self) -> list[str]:
         out = [f"{self.n_frames:,} frames at {self.rate:g} Hz over {self.span:.3f} s "
@@ -140,6 +157,8 @@ class ImportSummary:
             out.append(f"measured qd, qdd; every channel low-passed at {self.cutoff:.3g} Hz (given)")
         else:
             out.append("measured qd, qdd used as they are (no filter)")
+        if self.units:
+            out.append(self.units)
         out.append(f"dropped {self.dropped_start:.3f} s at the start and {self.dropped_end:.3f} s at the end "
                    f"({self.dropped_joint_samples:,} joint and {self.dropped_wrench_samples:,} wrench samples: "
                    "filter edges and time covered by one stream only)")
@@ -231,6 +250,11 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
             samples, streams that do not overlap, a cut-off or rate that does not fit the
             sampling, a sensor pose that does not parse.
     """
+    if settings.angle_unit != "rad" or settings.wrench_scale != 1.0:
+        from dataclasses import replace  # noqa: PLC0415
+
+        streams = in_si_units(streams, model, settings.angle_unit, settings.wrench_scale)
+        settings = replace(settings, angle_unit="rad", wrench_scale=1.0)
     if settings.estimate_delay:
         from dataclasses import replace  # noqa: PLC0415
 
@@ -324,7 +348,7 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
         dropped_start=float(grid[0] - min(tq[0], tw[0])), dropped_end=float(max(tq[-1], tw[-1]) - grid[-1]),
         dropped_joint_samples=int(np.sum((tq < grid[0] - 1e-9 * hq) | (tq > grid[-1] + 1e-9 * hq))),
         dropped_wrench_samples=int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw))),
-        resampled=tuple(resampled), sensor=sensor, delay=settings.delay,
+        resampled=tuple(resampled), sensor=sensor, delay=settings.delay, units=_units_note(streams.origin),
     )  # fmt: skip
     meta = DatasetMeta.for_model(
         model, source="recording", origin={**streams.origin, "import": summary.to_dict()}, sensor=sensor.to_dict()
@@ -339,6 +363,43 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
         time=grid[None],
     )
     return ds, summary
+
+
+def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: float = 1.0) -> Streams:
+    """``streams`` with revolute joints' ``q`` (``qd``, ``qdd``) in rad and the wrench multiplied by ``wrench_scale``.
+
+    Args:
+        streams: as read from the file.
+        model: the :class:`ineid.RobotModel` (which joints are revolute: prismatic ones stay in m).
+        angle_unit: ``"rad"`` (nothing to convert) or ``"deg"``.
+        wrench_scale: the factor on every force and moment.
+
+    Returns:
+        A new :class:`Streams`; its ``origin`` records ``angle_unit`` and ``wrench_scale``.
+    """
+    from dataclasses import replace  # noqa: PLC0415
+
+    factor = np.ones(model.n_dof)
+    if angle_unit == "deg":
+        factor[[k for k, kind in enumerate(model.joint_types) if kind == "revolute"]] = math.pi / 180
+    joints = {}
+    for k in ("q", "qd", "qdd"):
+        a = getattr(streams, k)
+        a = None if a is None else np.asarray(a, dtype=np.float64)
+        # a wrongly shaped array is left as it is: recording_dataset names the problem
+        joints[k] = a * factor if a is not None and a.ndim == 2 and a.shape[1] == model.n_dof else a
+    origin = {**streams.origin, "angle_unit": angle_unit, "wrench_scale": float(wrench_scale)}
+    return replace(streams, **joints, wrench=np.asarray(streams.wrench, dtype=np.float64) * wrench_scale, origin=origin)
+
+
+def _units_note(origin: dict) -> str | None:
+    """The summary line of :func:`in_si_units`'s conversions, or None."""
+    parts = []
+    if origin.get("angle_unit") == "deg":
+        parts.append("revolute joint angles (and measured qd, qdd) converted from degrees")
+    if origin.get("wrench_scale", 1.0) != 1.0:
+        parts.append(f"wrench multiplied by {origin['wrench_scale']:g}")
+    return "; ".join(parts) or None
 
 
 def _on_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, bool]:

@@ -55,6 +55,8 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
             a["dataset_path"] = str(res.meta.get("dataset_path") or "")
             a["dataset_fingerprint"] = str(res.meta.get("dataset_fingerprint") or "")
             a["sensor"] = json.dumps(res.meta.get("sensor"), sort_keys=True)
+            if res.meta.get("warnings") is not None:  # plausibility findings ({code, message}) of ineid solve
+                a["warnings"] = json.dumps(list(res.meta["warnings"]))
             arrays = {
                 "config_index": res.config_index,
                 "theta_hat": res.theta_hat,
@@ -137,6 +139,7 @@ def load_results(path: str | Path) -> SolveResults:
             "dataset_path": str(a.get("dataset_path", "")) or None,
             "dataset_fingerprint": str(a.get("dataset_fingerprint", "")) or None,
             "sensor": json.loads(a["sensor"]) if "sensor" in a else None,
+            "warnings": _warnings(path, a),
         }
         return SolveResults(
             settings=settings,
@@ -161,6 +164,17 @@ def load_results(path: str | Path) -> SolveResults:
             bias_std=get("bias_std"),
             meta=meta,
         )
+
+
+def _warnings(path: Path, attrs) -> list[dict] | None:
+    """The plausibility findings a results file records (``warnings``, JSON), or None when it records none."""
+    if "warnings" not in attrs:
+        return None
+    try:
+        found = json.loads(attrs["warnings"])
+        return [{"code": str(w["code"]), "message": str(w["message"])} for w in found]
+    except (TypeError, ValueError, KeyError) as e:
+        raise DatasetError(f"{path}: its 'warnings' attribute is damaged ({e}); solve again to rewrite it") from None
 
 
 def relative_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:

@@ -369,7 +369,8 @@ def residual_summary(sums, n_fit: int, n_val: int, theta_unknown: np.ndarray):
     if not n_val:
         return fit_rms, np.full((c, 6), np.nan), np.full(c, np.nan)
     val_rms = np.sqrt(ssr_held / n_val)
-    val_rel = np.sqrt(ssr_held.sum(axis=1)) / np.sqrt(ss_held)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero wrench: inf (ineid solve warns)
+        val_rel = np.sqrt(ssr_held.sum(axis=1)) / np.sqrt(ss_held)
     val_rms[failed] = np.nan
     val_rel[failed] = np.nan
     return fit_rms, val_rms, val_rel

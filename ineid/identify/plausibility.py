@@ -1,0 +1,235 @@
+"""Plausibility checks of a solve: the fit against the URDF, before a user trusts garbage.
+
+Adds to the data-only checks of :mod:`ineid.data.plausibility` those that need the
+estimates of :func:`ineid.identify.solve_dataset`:
+
+* total mass: the estimated mass of the moving links (the unknown links' masses from the
+  linear least squares of the same frames, whatever the method, plus the known links' CAD
+  masses; without offsets a base parameter, the force rows' gravity column) is negative
+  (``total_mass_negative``: a flipped wrench, or a sensor turned over without
+  ``--sensor-pose``), or more than :data:`MASS_FACTOR` times above or below the URDF's
+  (``total_mass_scale``: the wrench's unit; the factor that fixes it is suggested);
+* held-out error: the median over the configurations of the relative wrench error on the
+  held-out frames (on the fitted frames when none are held out; with offsets estimated,
+  relative to the wrench less its mean) above :data:`HELD_OUT_ERROR`
+  (``held_out_error``: the model explains almost nothing);
+* the fitted static force (the mean of the fitted frames less the estimated offsets, in the
+  base frame) against gravity, as :func:`ineid.data.plausibility.check_static_force`.
+
+:func:`check_solve` runs them all, most basic cause first, and leaves out what would only
+repeat a consequence: angles in degrees make every fit check meaningless; a fit that explains
+nothing makes its mass and fitted static force meaningless (without offsets the static force
+is the data's own mean: pointing up, it is the cause, reported instead); a negative mass
+already says what the static force would.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ineid.data.plausibility import (
+    Finding,
+    check_angle_units,
+    check_static_force,
+    mean_force_in_base,
+    moving_mass,
+)
+from ineid.errors import IdentificationError
+
+__all__ = ["Finding", "check_held_out_error", "check_solve", "check_total_mass", "estimated_total_mass",
+           "fitted_static_force", "linear_counterpart"]  # fmt: skip
+
+MASS_FACTOR = 3.0
+"""An estimated total mass more than this factor above or below the URDF's warns."""
+HELD_OUT_ERROR = 0.5
+"""A median relative held-out wrench error above this warns (1: the model explains nothing)."""
+
+
+def estimated_total_mass(res, model) -> np.ndarray:
+    """Per solved configuration, the estimated mass of the moving links (kg, NaN where the solve failed).
+
+    The unknown links' estimated masses (``theta_hat``, 10 parameters per link, the mass first)
+    plus the known links' CAD masses.
+    """
+    known = float(np.sum(np.asarray(model.theta_cad, dtype=np.float64)[model.known_index][0::10]))
+    theta = np.asarray(res.theta_hat, dtype=np.float64)
+    total = theta[:, 0::10].sum(axis=1) + known
+    return np.where(np.asarray(res.success, dtype=bool), total, np.nan)
+
+
+def _power_of_ten(factor: float) -> float | None:
+    """The power of ten within 2x of ``factor`` (other than 1), or None."""
+    if not (factor > 0 and math.isfinite(factor)):
+        return None
+    p = round(math.log10(factor))
+    return 10.0**p if p != 0 and abs(math.log10(factor) - p) < math.log10(2) else None
+
+
+def _times(ratio: float) -> str:
+    """``1330x``, ``5.2x``, ``0.0012x``: a ratio as a reader says it."""
+    return f"{ratio:.0f}x" if ratio >= 100 else f"{ratio:.2g}x"
+
+
+_UNITS = {1e-3: "mN or N*mm", 1e3: "kN"}
+
+
+def linear_counterpart(ds, res, model):
+    """``res`` itself for the linear method, else the linear least squares of the same frames and settings.
+
+    The total mass is read from the linear fit: a physically consistent fit cannot follow a
+    flipped wrench to a negative mass (it bends elsewhere: 374 kg for the flipped MuJoCo
+    recording with offsets, against the linear fit's -0.42 kg), and a trained run's estimates
+    are what it learnt, not what these frames say.
+    """
+    if res.settings.method == "linear":
+        return res
+    from dataclasses import replace  # noqa: PLC0415
+
+    from ineid.identify.solve import solve_dataset  # noqa: PLC0415
+
+    network = res.settings.method == "network"
+    settings = replace(res.settings, method="linear", frames=res.n_frames_fit, backend="jax", run=None,
+                       weights="none" if network else res.settings.weights,
+                       axis_sigma=None if network else res.settings.axis_sigma)  # fmt: skip
+    return solve_dataset(ds, settings, model=model)
+
+
+def check_total_mass(res, model) -> Finding | None:
+    """A total mass (median over configurations) that is negative or more than :data:`MASS_FACTOR` off the URDF's.
+
+    The factor suggested for ``--wrench-scale`` is the power of ten within 2x of
+    ``URDF mass / estimate`` (a unit mistake); none is suggested otherwise.
+    """
+    m = estimated_total_mass(res, model)
+    m = m[np.isfinite(m)]
+    urdf = moving_mass(model)
+    if not len(m) or urdf <= 0:
+        return None
+    est = float(np.median(m))
+    ratio = est / urdf
+    what = f"the estimated total mass of the moving links {est:.4g} kg" + (
+        f" (median over {len(m)} configurations)" if len(m) > 1 else "")
+    if est < 0:
+        # with offsets estimated the static part is absorbed and a flipped wrench leaves a small
+        # negative mass: only a large one also says something about the unit
+        scale = _power_of_ten(-1 / ratio) if -ratio > MASS_FACTOR else None
+        unit = f"; its size is {_times(-ratio)} the URDF's: also --wrench-scale {scale:g}" if scale else ""
+        return Finding(
+            "total_mass_negative",
+            f"{what} is negative (the URDF's: {urdf:.4g} kg): the wrench's sign looks flipped (data import "
+            f"--flip-wrench), or the sensor is turned over and its pose not given (data import --sensor-pose){unit}",
+        )
+    if 1 / MASS_FACTOR <= ratio <= MASS_FACTOR:
+        return None
+    scale = _power_of_ten(1 / ratio) if ratio > 0 else None
+    if scale is not None:
+        unit = _UNITS.get(scale, "units other than N and N*m")
+        hint = f"is the wrench in {unit}? (data import --wrench-scale {scale:g})"
+    else:
+        hint = ("check the sensor pose (data import --sensor-pose), the wrench's unit (data import --wrench-scale) "
+                "and the URDF's masses")
+    return Finding("total_mass_scale", f"{what} is {_times(ratio)} the URDF's {urdf:.4g} kg: {hint}")
+
+
+def _held_out_errors(res, ds) -> tuple[np.ndarray, str]:
+    """Per configuration the relative wrench error the check uses, and which frames it is on.
+
+    Without offsets, ``validation_rel``. With offsets estimated the offsets explain any constant
+    (a zero wrench too: the fit then cancels the known links and takes their weight as an
+    offset), so the error is taken relative to the wrench less its mean over the fitted frames.
+    """
+    offsets = res.bias_hat is not None
+    if res.n_frames_validation:
+        if not offsets:
+            return np.asarray(res.validation_rel, dtype=np.float64), "held-out"
+        frames, rms, n, where = (slice(res.n_frames_fit, res.n_frames_fit + res.n_frames_validation),
+                                 res.validation_rms, res.n_frames_validation, "held-out")  # fmt: skip
+    else:
+        frames, rms, n, where = slice(0, res.n_frames_fit), res.fit_rms, res.n_frames_fit, "fitted"
+    w = np.asarray(ds.wrench[:, frames], dtype=np.float64)
+    if offsets:
+        w = w - np.asarray(ds.wrench[:, : res.n_frames_fit], dtype=np.float64).mean(axis=1, keepdims=True)
+    ss = np.sum(w**2, axis=(1, 2))
+    ssr = np.sum(np.asarray(rms, dtype=np.float64) ** 2, axis=1) * n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.sqrt(ssr) / np.sqrt(ss), where
+
+
+def check_held_out_error(res, ds) -> Finding | None:
+    """A model that explains almost nothing: median relative wrench error above :data:`HELD_OUT_ERROR`.
+
+    Args:
+        res: the :class:`ineid.identify.SolveResults` of ``ds``.
+        ds: the solved :class:`ineid.data.Dataset` (its configurations in ``res``'s order).
+    """
+    ok = np.asarray(res.success, dtype=bool)
+    if not ok.any():
+        return None
+    err, where = _held_out_errors(res, ds)
+    err = err[ok]
+    err = np.where(np.isnan(err), np.inf, err)  # 0 / 0: a zero wrench and a zero prediction
+    with np.errstate(invalid="ignore"):  # inf - inf between the two middle values: NaN, taken as inf
+        median = float(np.median(err))
+    median = math.inf if math.isnan(median) else median
+    if not median > HELD_OUT_ERROR:
+        return None
+    shown = f"error {median:.3g}" if math.isfinite(median) else (
+        f"the {where} wrench is " + ("constant" if res.bias_hat is not None else "zero"))
+    untared = ", an untared sensor (solve --bias estimate)" if res.settings.bias == "none" else ""
+    return Finding(
+        "held_out_error",
+        f"the model explains almost nothing of the {where} wrench ({shown}"
+        + (f", median over {len(err)} configurations" if len(err) > 1 else "")
+        + "): check the units, the wrench's sign (data import --flip-wrench), the sensor pose (--sensor-pose), "
+        f"the time alignment (data import --delay auto){untared}, "
+        "or whether the wrench channel holds the sensor at all",
+    )
+
+
+def fitted_static_force(res, ds) -> np.ndarray:
+    """The fitted model's static force (3,), N, base frame: the mean over the solved configurations
+    of the fitted frames' mean force less the estimated force offsets (none without ``--bias estimate``)."""
+    ok = np.asarray(res.success, dtype=bool)
+    f = np.asarray(ds.wrench[ok, : res.n_frames_fit, :3], dtype=np.float64).mean(axis=1)
+    if res.bias_hat is not None:
+        f = f - np.asarray(res.bias_hat, dtype=np.float64)[ok, :3]
+    mean = np.concatenate([f.mean(axis=0), np.zeros(3)]) if len(f) else np.zeros(6)
+    return mean_force_in_base(mean, ds.meta.sensor_pose())
+
+
+def check_solve(ds, res, model=None) -> list[Finding]:
+    """Every plausibility check of a solve, most basic cause first (see the module docstring).
+
+    Args:
+        ds: the solved :class:`ineid.data.Dataset` (the selected configurations, in order).
+        res: its :class:`ineid.identify.SolveResults`.
+        model: its :class:`ineid.RobotModel` (default: rebuilt from ``ds``).
+
+    Returns:
+        The findings, at most one per likely mistake; empty when all is plausible.
+    """
+    model = model or ds.model()
+    degrees = check_angle_units(model, ds.q)
+    if degrees is not None:  # every fit of these frames is garbage: nothing more to learn
+        return [degrees]
+    try:
+        linear = linear_counterpart(ds, res, model)
+    except IdentificationError:  # too few frames for the linear fit (a trained run's short samples)
+        linear = None
+    fit = res if np.asarray(res.success, dtype=bool).any() else linear  # a method that failed everywhere
+    if fit is None or not np.asarray(fit.success, dtype=bool).any():
+        return []
+    static = check_static_force(model, fitted_static_force(fit, ds), "the fitted model's static force"
+                                if fit.bias_hat is not None else "the mean force over the fitted frames")
+    held = check_held_out_error(fit, ds)
+    if held is not None:
+        # the fit explains nothing, so its mass and fitted static force mean nothing; without
+        # offsets the static force is the data's own mean, and pointing up it is the cause (a
+        # flipped wrench that a physically consistent fit cannot follow)
+        return [static] if static is not None and fit.bias_hat is None else [held]
+    mass = None if linear is None else check_total_mass(linear, model)
+    if mass is not None and mass.code == "total_mass_negative":
+        return [mass]  # the static force would say the same
+    return [f for f in (mass, static) if f is not None]
