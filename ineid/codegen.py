@@ -73,15 +73,11 @@ def generate_code(chain: Chain, robot_name: str, directory: str | Path, regenera
     Raises:
         CodegenError: a chain longer than ``MAX_DERIVED_JOINTS`` (lock joints), or emitted code that fails its check.
     """
-    from ineid._trust import write_manifest  # noqa: PLC0415
     from ineid.generated import BUILTIN_DIR  # noqa: PLC0415
     from ineid.symbolic.emit import derive_and_emit, write_files  # noqa: PLC0415
 
     emitted = derive_and_emit(chain, robot_name, regenerate or "ineid generate ROBOT")
-    data = {name: text.encode() for name, text in emitted.files.items()}  # UTF-8: the bytes hashed are the bytes written
-    write_files(data, directory)
-    if Path(directory).resolve() != BUILTIN_DIR:
-        write_manifest(Path(directory), data, private=False)
+    write_files(emitted.files, directory, manifest=Path(directory).resolve() != BUILTIN_DIR)
     return emitted
 
 

@@ -299,11 +299,20 @@ def derive_and_emit(chain: Chain, robot_name: str, regenerate: str = "make gener
               time.perf_counter() - t0)
 
 
-def write_files(files: dict[str, str] | dict[str, bytes], directory: str | Path) -> list[Path]:
-    """Write each file atomically (temporary file, then rename)."""
+def write_files(files: dict[str, str] | dict[str, bytes], directory: str | Path, manifest: bool = True) -> list[Path]:
+    """Write each file atomically (temporary file, then rename), then (``manifest``) record
+    their SHA-256 in the folder's manifest (:func:`ineid._trust.write_manifest`), which is what
+    :func:`ineid.generated.load_from_directory` checks before it runs them.
+
+    Text is written as UTF-8, so the bytes hashed are the bytes written. ``manifest=False``
+    only for the package's own ``ineid/generated`` (package code, not checked).
+    """
+    from ineid._trust import write_manifest  # noqa: PLC0415
+
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, text in sorted(files.items()):
-        written.append(atomic_write(directory / name, text))
+    data = {name: text.encode() if isinstance(text, str) else text for name, text in files.items()}
+    written = [atomic_write(directory / name, data[name]) for name in sorted(data)]
+    if manifest:
+        write_manifest(directory, data, private=False)
     return written
