@@ -54,3 +54,11 @@ class ExcitationError(IneidError):
 
 class OptionalDependencyError(IneidError):
     """A feature needs an optional package that is not installed (the message says how to install it)."""
+
+
+class OutputIsInputError(IneidError):
+    """An output would replace one of the command's own inputs (the same file, or a file of an input folder)."""
+
+
+class OutputBusyError(IneidError):
+    """Another process holds the output's lock (:func:`ineid._atomic.output_lock`): it is writing the same output."""
