@@ -25,6 +25,18 @@ from ineid.errors import IneidError
 class IneidGroup(click.Group):
     """A group whose commands turn library errors and interruptions into one clear line."""
 
+    def main(self, args=None, *rest, **kwargs):
+        try:
+            return super().main(args, *rest, **kwargs)
+        except SystemExit as e:
+            if args is None and e.code in (130, 143):  # run as a program (arguments from sys.argv), interrupted
+                # JAX may still be compiling on a thread of its own; tearing the interpreter down under it
+                # crashes (SIGSEGV, exit 139) after the line was printed. Everything ineid cleans up is done.
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os._exit(e.code)
+            raise
+
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
