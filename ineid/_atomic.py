@@ -204,6 +204,11 @@ def output_lock(path: str | Path, option: str = "--out") -> Iterator[Path]:
             raise OutputBusyError(
                 f"another ineid process{holder} is writing {path}; wait for it or choose another {option}"
             ) from None
+        except OSError as e:  # a file system without locks (ENOLCK): write unlocked, as where flock is missing
+            os.close(fd)
+            _log.debug("no lock for %s (%s)", path, e)
+            yield path
+            return
         try:  # the previous holder may have removed the file between our open and flock: lock the new one
             current = os.stat(lock)
             mine = os.fstat(fd)
@@ -301,9 +306,16 @@ def remove_stale_temporaries(path: str | Path) -> list[Path]:
 # -- folders ------------------------------------------------------------------------------------------
 
 
-def staging_folder(path: str | Path) -> Path:
-    """A new empty hidden folder ``.NAME.<pid>.tmp`` beside ``path`` to build its replacement in."""
+def _real(path: str | Path) -> Path:
+    """A symlinked folder is replaced where it points (the link stays)."""
     path = Path(path)
+    return path.resolve() if path.is_symlink() else path
+
+
+def staging_folder(path: str | Path) -> Path:
+    """A new empty hidden folder ``.NAME.<pid>.tmp`` beside ``path`` (or beside the folder a
+    symlink ``path`` points to) to build its replacement in."""
+    path = _real(path)
     staging = temporary_path(path)
     if staging.exists():  # this process's own leftover
         shutil.rmtree(staging)
@@ -339,10 +351,10 @@ def replace_folder(new: str | Path, path: str | Path, keep: tuple[str, ...] | No
         keep: when given, entries of the old folder whose names are not in ``keep`` and are
             not ineid temporaries (files the user put there) are carried into the new folder.
     """
-    new, path = Path(new), Path(path)
+    new, path = Path(new), _real(path)
     aside = path.with_name(f".{path.name}.{os.getpid()}.old")
     with _signals_deferred():
-        if path.is_dir() and not path.is_symlink():
+        if path.is_dir():
             if keep is not None:
                 for entry in path.iterdir():
                     if entry.name not in keep and not _is_temporary(entry.name) and not (new / entry.name).exists():
