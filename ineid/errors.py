@@ -68,3 +68,11 @@ class UntrustedCodeError(CodegenError):
 
 class CacheError(IneidError):
     """The cache folder cannot be used or cleared as asked (a folder ineid did not create, for instance)."""
+
+
+class OutputIsInputError(IneidError):
+    """An output would replace one of the command's own inputs (the same file, or a file of an input folder)."""
+
+
+class OutputBusyError(IneidError):
+    """Another process holds the output's lock (:func:`ineid._atomic.output_lock`): it is writing the same output."""

@@ -6,7 +6,8 @@ shared options in :mod:`.options`, console output in :mod:`.output`. Heavy libra
 CasADi, h5py, yourdfpy) are imported inside the commands, so ``ineid --help`` imports none
 of them. Any :class:`ineid.IneidError` becomes a one-line message and exit status 1; bad
 arguments exit with status 2 (click's usage error); Ctrl-C (130) and SIGTERM (143) leave no
-partial output file and say so in one line.
+partial output file and say so in one line (or say what they left on purpose, such as a run
+to continue with ``--resume``).
 """
 
 from __future__ import annotations
@@ -24,17 +25,34 @@ from ineid.errors import IneidError
 class IneidGroup(click.Group):
     """A group whose commands turn library errors and interruptions into one clear line."""
 
+    def main(self, args=None, *rest, **kwargs):
+        try:
+            return super().main(args, *rest, **kwargs)
+        except SystemExit as e:
+            if args is None and e.code in (130, 143):  # run as a program (arguments from sys.argv), interrupted
+                # JAX may still be compiling on a thread of its own; tearing the interpreter down under it
+                # crashes (SIGSEGV, exit 139) after the line was printed. Everything ineid cleans up is done.
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os._exit(e.code)
+            raise
+
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
         except IneidError as e:
             raise click.ClickException(str(e)) from None
-        except Terminated:
-            click.echo("ineid: terminated (SIGTERM); no partial output file was left", err=True)
+        except Terminated as e:
+            click.echo(f"ineid: terminated (SIGTERM); {_left_behind(e)}", err=True)
             ctx.exit(143)
-        except KeyboardInterrupt:
-            click.echo("ineid: interrupted; no partial output file was left", err=True)
+        except KeyboardInterrupt as e:
+            click.echo(f"ineid: interrupted; {_left_behind(e)}", err=True)
             ctx.exit(130)
+
+
+def _left_behind(e: BaseException) -> str:
+    """What an interrupted command left on purpose (``options.on_interrupt``), else the usual promise."""
+    return getattr(e, "ineid_left_behind", None) or "no partial output file was left"
 
 
 def _version() -> str:

@@ -12,11 +12,13 @@ from ineid.cli.options import (
     LibraryChoice,
     LibraryOption,
     deprecated_alias,
+    folder_inputs,
     noise_model,
     noise_option,
     overwrite_option,
     prepare_output,
     quiet,
+    robot_inputs,
     robot_options,
 )
 from ineid.cli.output import ProgressBar, console, plain, print_findings, shown, table
@@ -84,7 +86,7 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
     if trajectory is not None and frames_given and trajectory.suffix.lower() != ".json":
         raise click.BadParameter("the rows of a trajectory CSV are the frames; drop --n-frames (or give its .json)",
                                  param_hint="--n-frames")
-    prepare_output(out, overwrite)
+    prepare_output(out, overwrite, inputs=[*robot_inputs(robot), ("the trajectory file", trajectory)])
     model = robot.load()
     sampled = None
     if trajectory is not None:
@@ -176,7 +178,7 @@ def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic,
     ROS 2 bag folder or .mcap (sensor_msgs/JointState, geometry_msgs/WrenchStamped)."""
     from ineid.data.recording import ImportSettings, import_recording  # noqa: PLC0415
 
-    prepare_output(out, overwrite)
+    prepare_output(out, overwrite, inputs=[*folder_inputs(path, "the input recording"), *robot_inputs(robot)])
     model = robot.load()
     settings = ImportSettings(sensor_pose=sensor_pose, cutoff=cutoff, rate=rate, delay=delay or 0.0,
                               estimate_delay=delay is None, flip_wrench=flip_wrench, angle_unit=angle_unit,

@@ -15,6 +15,7 @@ from ineid.cli.options import (
     overwrite_option,
     prepare_output,
     quiet,
+    robot_inputs,
     robot_options,
 )
 from ineid.cli.output import ProgressBar, console, plain, shown, table
@@ -70,8 +71,8 @@ def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, r
     coefficients = coefficients if coefficients is not None else out.with_suffix(".json")
     if coefficients.resolve() == out.resolve():
         raise click.BadParameter("the coefficients file must differ from --out", param_hint="--coefficients")
-    prepare_output(out, overwrite)
-    prepare_output(coefficients, overwrite)
+    prepare_output(out, overwrite, inputs=robot_inputs(robot))
+    prepare_output(coefficients, overwrite, option="--coefficients", inputs=robot_inputs(robot))
     model = robot.load()
     settings = ExcitationSettings(
         duration=duration, harmonics=harmonics, base_frequency=base_frequency, criterion=criterion, starts=starts,

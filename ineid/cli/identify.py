@@ -17,7 +17,9 @@ from ineid.cli.options import (
     parse_selection,
     prepare_output,
     quiet,
+    robot_inputs,
     robot_options,
+    run_inputs,
     select_alias,
     select_option,
 )
@@ -170,7 +172,8 @@ def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma
     from ineid.data import load_dataset, read_meta  # noqa: PLC0415
     from ineid.identify import SolveSettings, save_results, solve_dataset  # noqa: PLC0415
 
-    prepare_output(out, overwrite)
+    inputs = [("the input dataset", data_path), *run_inputs(run_dir)]
+    prepare_output(out, overwrite, inputs=inputs)
     if (method == "network") != (run_dir is not None):
         raise click.UsageError("--method network needs --run RUN (a trained run folder), and --run goes with it")
     given = [f"--{n}" for n in ("weights", "sigma", "start", "backend", "workers", "bias")
@@ -180,7 +183,7 @@ def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma
     if method == "network" and given:
         raise click.UsageError(f"{', '.join(given)} do not apply to --method network")
     if plot_path is not None:
-        prepare_output(plot_path, overwrite)
+        prepare_output(plot_path, overwrite, option="--plot", inputs=[*inputs, ("the results file (--out)", out)])
     if sigma is not None and weights != "noise":
         raise click.UsageError("--sigma goes with --weights noise")
     _, shapes = read_meta(data_path)
@@ -225,7 +228,7 @@ def export_urdf_cmd(results_path, config, out, overwrite) -> None:
     """Write the model's URDF with the identified links' inertials of one configuration."""
     from ineid.identify import export_urdf, load_results  # noqa: PLC0415
 
-    prepare_output(out, overwrite)
+    prepare_output(out, overwrite, inputs=[("the input results file", results_path)])
     res = load_results(results_path)
     export_urdf(res, config, out, overwrite=overwrite)
     click.echo(f"wrote {out}: {plain(', '.join(res.meta['unknown_links']))} of configuration {config} "
@@ -303,7 +306,7 @@ def study_noise(ctx, robot, levels, fit_frames, n_configs, methods, seed, worker
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path, png_path = out_dir / "noise_study.csv", out_dir / "noise_study.png"
     for p in (csv_path, png_path):
-        prepare_output(p, overwrite)
+        prepare_output(p, overwrite, inputs=robot_inputs(robot))
     model = robot.load()
     with ProgressBar("noise study", "solves", quiet(ctx)) as bar:
         rows = noise_study(model, levels, fit_frames, n_configs, seed, methods, workers or os.cpu_count() or 1,

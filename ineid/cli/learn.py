@@ -91,32 +91,43 @@ def _train_config(model_kw: dict, kw: dict):
 @click.pass_context
 def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, arch, activation, depth, width, sample_frames,
               siamese, **kw) -> None:
-    """Train a network on DATA.h5 into a run folder, then evaluate it on the test split."""
+    """Train a network on DATA.h5 into a run folder, then evaluate it on the test split.
+
+    With --overwrite, a run already in the folder is replaced only when the new one is
+    finished; an interruption leaves it untouched.
+    """
     import json  # noqa: PLC0415
 
-    from ineid._atomic import Terminated, atomic_write  # noqa: PLC0415
+    from ineid._atomic import atomic_write  # noqa: PLC0415
+    from ineid.cli.options import on_interrupt, prepare_output  # noqa: PLC0415
     from ineid.data import load_dataset  # noqa: PLC0415
     from ineid.learn import evaluate, load_run, train  # noqa: PLC0415
-    from ineid.learn.runs import EVALUATION  # noqa: PLC0415
+    from ineid.learn.runs import CHECKPOINT, EVALUATION, RUN_FILES, holds_run  # noqa: PLC0415
 
     cfg = _train_config(dict(arch=arch, activation=activation, depth=depth, width=width, siamese=siamese,
                              frames=sample_frames), kw)  # fmt: skip
+    prepare_output(run_dir, overwrite, kind="folder", inputs=[("the input dataset", data_path)], contents=RUN_FILES)
+    replacing = overwrite and not resume and holds_run(run_dir)
+
+    def left_behind() -> str | None:
+        if replacing:
+            return f"{run_dir} keeps its previous run, untouched (the new one was not finished)"
+        if (run_dir / CHECKPOINT).is_file():
+            return (f"the run in {run_dir} can be continued with "
+                    f"`ineid train {data_path} ... --out {run_dir} --resume` (the same settings)")
+        return None
+
     ds = load_dataset(data_path, clean=False)
     model = ds.model()
-    with ProgressBar(f"training {cfg.model.name}", "epochs", quiet(ctx)) as bar:
+    with on_interrupt(left_behind), ProgressBar(f"training {cfg.model.name}", "epochs", quiet(ctx)) as bar:
 
         def progress(epoch, total, rec):
             bar(epoch, total)
             bar.set_description(f"training {cfg.model.name}  loss {rec['train_loss']:.4f}  val mse "
                                 f"{rec['val_mse']:.4f}  val phys {rec['val_phys']:.4f}")  # fmt: skip
 
-        try:
-            result = train(ds, cfg, run_dir, dataset_path=str(data_path), resume=resume, overwrite=overwrite,
-                           progress=progress, model=model, physics_mode=physics_mode)
-        except (KeyboardInterrupt, Terminated):
-            raise click.ClickException(
-                f"interrupted; {run_dir} keeps the last finished epoch: continue with the same command and --resume"
-            ) from None
+        result = train(ds, cfg, run_dir, dataset_path=str(data_path), resume=resume, overwrite=overwrite,
+                       progress=progress, model=model, physics_mode=physics_mode)
     click.echo(
         f"{result.epochs_run} epochs in {result.seconds:.1f} s"
         + (" (stopped early)" if result.stopped_early else "")
@@ -144,12 +155,13 @@ def evaluate_cmd(run_dir, data_path, selection, no_linear, out, overwrite) -> No
     import json  # noqa: PLC0415
 
     from ineid._atomic import atomic_write  # noqa: PLC0415
-    from ineid.cli.options import prepare_output  # noqa: PLC0415
+    from ineid.cli.options import prepare_output, run_inputs  # noqa: PLC0415
     from ineid.data import load_dataset  # noqa: PLC0415
     from ineid.learn import evaluate, load_run  # noqa: PLC0415
     from ineid.learn.runs import EVALUATION  # noqa: PLC0415
 
-    out = prepare_output(out or Path(run_dir) / EVALUATION, overwrite)
+    out = prepare_output(out or Path(run_dir) / EVALUATION, overwrite,
+                         inputs=[("the input dataset", data_path), *run_inputs(run_dir)])  # fmt: skip
     run = load_run(run_dir)
     ds = load_dataset(data_path, clean=False)
     configs = None if selection is None else parse_selection(selection, ds.n_configs)
@@ -184,14 +196,22 @@ def evaluate_cmd(run_dir, data_path, selection, no_linear, out, overwrite) -> No
 @click.option("--gpus-per-trial", type=click.FloatRange(min=0), default=0.0, show_default=True,
               help="GPUs each trial reserves (--engine ray).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
+@click.option("--resume", is_flag=True,
+              help="Continue the sweep in --out (same settings): finished trials are kept, interrupted ones resumed.")
 @overwrite_option
 @click.pass_context
 def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, sample_frames, siamese, engine, address,
-              cpus_per_trial, gpus_per_trial, out_dir, overwrite, physics_mode, depth, width, **kw) -> None:
-    """Train a grid of networks (here, or on a Ray cluster); write sweep.csv and sweep.png ranked by test error."""
-    from ineid.cli.options import prepare_output  # noqa: PLC0415
+              cpus_per_trial, gpus_per_trial, out_dir, resume, overwrite, physics_mode, depth, width, **kw) -> None:
+    """Train a grid of networks (here, or on a Ray cluster); write sweep.csv and sweep.png ranked by test error.
+
+    An interrupted sweep keeps its finished trials (and the interrupted one's checkpoint):
+    continue it with the same command and --resume.
+    """
+    from ineid._atomic import check_output  # noqa: PLC0415
+    from ineid.cli.options import on_interrupt, prepare_output  # noqa: PLC0415
     from ineid.data import load_dataset  # noqa: PLC0415
     from ineid.learn import Grid, sweep  # noqa: PLC0415
+    from ineid.learn.sweep import SWEEP_RECORD, check_sweep_folder, run_name, trial_state  # noqa: PLC0415
 
     given = dict(archs=archs, activations=activations, scalers=scalers, optimizers=optimizers, losses=losses,
                  frames=sample_frames)  # fmt: skip
@@ -206,20 +226,34 @@ def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, s
         from ineid.learn.ray_engine import import_ray  # noqa: PLC0415
 
         import_ray()  # says how to install Ray before anything is loaded
-    if out_dir.is_dir():
-        prepare_output(out_dir / "sweep.csv", overwrite)
+    if resume and overwrite:
+        raise click.UsageError("give --resume (continue the sweep) or --overwrite (start it afresh), not both")
     try:
         cfgs = grid.configs(base)
         if not cfgs:
             raise ValueError("the grid is empty: a Siamese network needs more than one frame (--sample-frames 10)")
     except ValueError as e:
         raise click.UsageError(str(e)) from None
+    prepare_output(out_dir, overwrite, kind="folder", inputs=[("the input dataset", data_path)],
+                   contents=("sweep.csv", "sweep.png", SWEEP_RECORD, *(run_name(c) for c in cfgs)))  # fmt: skip
+    if out_dir.is_dir() and not resume:
+        check_output(out_dir / "sweep.csv", overwrite)
+
+    def left_behind() -> str | None:
+        if not (out_dir / SWEEP_RECORD).is_file():
+            return None
+        fingerprint = ds.fingerprint()
+        done = sum(trial_state(out_dir / run_name(c), c, fingerprint) == "finished" for c in cfgs)
+        return (f"{done} of {len(cfgs)} trials in {out_dir} are finished; continue the sweep with "
+                f"`ineid sweep {data_path} ... --out {out_dir} --resume` (the same settings)")
+
     ds = load_dataset(data_path, clean=False)
-    with ProgressBar("sweep", "runs", quiet(ctx)) as bar:
+    check_sweep_folder(ds, grid, base, out_dir, overwrite=overwrite, resume=resume)
+    with on_interrupt(left_behind), ProgressBar("sweep", "runs", quiet(ctx)) as bar:
         bar(0, len(cfgs))
         rows = sweep(ds, grid, base, out_dir, dataset_path=str(data_path), progress=lambda i, t, r: bar(i, t),
                      overwrite=overwrite, physics_mode=physics_mode, engine=engine, address=address,
-                     cpus_per_trial=cpus_per_trial, gpus_per_trial=gpus_per_trial)  # fmt: skip
+                     cpus_per_trial=cpus_per_trial, gpus_per_trial=gpus_per_trial, resume=resume)  # fmt: skip
     t = table(f"Sweep on {data_path}: test median relative error, ranked",
               ("#", "run", "standard", "base", "floor", "linear LS (std / base)", "Gaussian prior (std / base)",
                "physical", "epochs", "s"), left=("run",))  # fmt: skip

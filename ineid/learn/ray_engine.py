@@ -3,8 +3,8 @@
 The driver puts the dataset in Ray's object store once and submits one task per grid
 point, each reserving ``cpus_per_trial`` CPUs and ``gpus_per_trial`` GPUs. A task trains
 and evaluates into a temporary folder on its node and returns the run folder's files with
-its row; the driver writes them into ``OUT/<name>`` (atomically, file by file), so the
-nodes need no shared file system. Without an address, a local cluster is started for the
+its row; the driver writes them into ``OUT/<name>`` (a new folder swapped in whole), so
+the nodes need no shared file system. Without an address, a local cluster is started for the
 sweep and stopped after it (a Ray instance this process already started is used and left
 running). A trial that raises, or whose worker dies, is reported as a failed row; the
 others go on.
@@ -16,13 +16,14 @@ inherit the driver's environment; on a remote one install ineid on every node.
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
-from ineid._atomic import atomic_write
-from ineid.errors import OptionalDependencyError, TrainingError
-from ineid.learn.runs import MODEL, RUN_FILES
+from ineid._atomic import output_lock, replace_folder, staging_folder
+from ineid.errors import IneidError, OptionalDependencyError, TrainingError
+from ineid.learn.runs import RUN_FILES
 from ineid.learn.sweep import SweepRow, run_name, run_trial
 from ineid.learn.train import TrainConfig
 
@@ -38,13 +39,20 @@ def import_ray():
     return ray
 
 
-def _trial(ds, cfg: TrainConfig, dataset_path: str | None, physics_mode: str) -> tuple[SweepRow, dict[str, bytes]]:
-    """One trial on a worker: train and evaluate in a temporary folder; the row and the folder's files."""
+def _trial(ds, cfg: TrainConfig, dataset_path: str | None, physics_mode: str,
+           started: dict[str, bytes] | None = None) -> tuple[SweepRow, dict[str, bytes]]:
+    """One trial on a worker: train and evaluate in a temporary folder; the row and the folder's files.
+
+    ``started``: the files of an interrupted run of this trial, continued from its checkpoint.
+    """
     import ineid  # noqa: F401, PLC0415  (float64 JAX before anything imports jax)
 
     with tempfile.TemporaryDirectory(prefix="ineid-trial-") as tmp:
         run_dir = Path(tmp) / run_name(cfg)
-        row = run_trial(ds, cfg, run_dir, dataset_path, None, physics_mode)
+        run_dir.mkdir()
+        for name, data in (started or {}).items():
+            (run_dir / name).write_bytes(data)
+        row = run_trial(ds, cfg, run_dir, dataset_path, None, physics_mode, "checkpoint" if started else "new")
         files = {name: (run_dir / name).read_bytes() for name in RUN_FILES if (run_dir / name).is_file()}
     return row, files
 
@@ -60,7 +68,7 @@ def _message(err: BaseException) -> str:
 def ray_trials(ds, cfgs: list[TrainConfig], out_dir: Path, *, dataset_path: str | None = None,
                physics_mode: str = "cached", progress: Callable | None = None, address: str | None = None,
                cpus_per_trial: float = 1.0, gpus_per_trial: float = 0.0,
-               ray_init: dict | None = None) -> list[SweepRow]:
+               ray_init: dict | None = None, states: dict[str, str] | None = None) -> list[SweepRow]:
     """Run every trial of ``cfgs`` as a Ray task; rows in completion order (see the module doc).
 
     Args:
@@ -73,6 +81,9 @@ def ray_trials(ds, cfgs: list[TrainConfig], out_dir: Path, *, dataset_path: str 
             None starts a local cluster and stops it afterwards.
         cpus_per_trial, gpus_per_trial: resources each task reserves.
         ray_init: extra ``ray.init`` arguments for the local cluster (e.g. ``num_cpus=2``).
+        states: a resumed sweep's :func:`ineid.learn.sweep.trial_state` per trial name:
+            finished trials (and those only to evaluate) are done here without Ray; an
+            interrupted one is sent with its files and continued from its checkpoint.
 
     Raises:
         OptionalDependencyError: Ray is not installed.
@@ -81,6 +92,22 @@ def ray_trials(ds, cfgs: list[TrainConfig], out_dir: Path, *, dataset_path: str 
     ray = import_ray()
     if cpus_per_trial < 0 or gpus_per_trial < 0:
         raise ValueError(f"resources per trial must be >= 0, got {cpus_per_trial} CPUs and {gpus_per_trial} GPUs")
+    states = states or {}
+    rows: list[SweepRow] = []
+    remote = []
+    for cfg in cfgs:
+        state = states.get(run_name(cfg), "new")
+        if state in ("finished", "evaluate"):
+            try:
+                rows.append(run_trial(ds, cfg, out_dir / run_name(cfg), dataset_path, None, physics_mode, state))
+            except IneidError as e:
+                rows.append(SweepRow.failed(cfg, str(e)))
+            if progress is not None:
+                progress(len(rows), len(cfgs), rows[-1])
+        else:
+            remote.append((cfg, _run_files(out_dir / run_name(cfg)) if state == "checkpoint" else None))
+    if not remote:
+        return rows
     started = False
     if not ray.is_initialized():
         if address is None:
@@ -95,8 +122,7 @@ def ray_trials(ds, cfgs: list[TrainConfig], out_dir: Path, *, dataset_path: str 
     try:
         task = ray.remote(_trial).options(num_cpus=cpus_per_trial, num_gpus=gpus_per_trial, max_retries=0)
         ds_ref = ray.put(ds)
-        pending = {task.remote(ds_ref, cfg, dataset_path, physics_mode): cfg for cfg in cfgs}
-        rows: list[SweepRow] = []
+        pending = {task.remote(ds_ref, cfg, dataset_path, physics_mode, files): cfg for cfg, files in remote}
         while pending:
             (ref,), _ = ray.wait(list(pending), num_returns=1)
             cfg = pending.pop(ref)
@@ -119,6 +145,10 @@ def ray_trials(ds, cfgs: list[TrainConfig], out_dir: Path, *, dataset_path: str 
             ray.shutdown()
 
 
+def _run_files(run_dir: Path) -> dict[str, bytes]:
+    return {name: (run_dir / name).read_bytes() for name in RUN_FILES if (run_dir / name).is_file()}
+
+
 def files_problem(files: object) -> str | None:
     """Why a worker's ``{file name: bytes}`` may not be written into a run folder, or None if it may.
 
@@ -136,8 +166,8 @@ def files_problem(files: object) -> str | None:
 
 
 def _write_run(run_dir: Path, files: dict[str, bytes]) -> None:
-    """Replace the run files in ``run_dir`` by ``files``; ``model.msgpack``, the mark of a finished
-    run (:func:`ineid.learn.load_run`), goes last.
+    """Put a trial's run folder holding ``files`` at ``run_dir``: written beside it and swapped in whole
+    (:func:`ineid._atomic.replace_folder`), so an interruption leaves the old folder, never a mix.
 
     Raises:
         TrainingError: ``files`` holds anything but run files (:func:`files_problem`).
@@ -145,8 +175,12 @@ def _write_run(run_dir: Path, files: dict[str, bytes]) -> None:
     problem = files_problem(files)
     if problem is not None:
         raise TrainingError(f"refusing to write {problem} into {run_dir}")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    for name in RUN_FILES:
-        (run_dir / name).unlink(missing_ok=True)
-    for name in sorted(files, key=lambda n: n == MODEL):
-        atomic_write(run_dir / name, files[name])
+    with output_lock(run_dir):
+        staging = staging_folder(run_dir)
+        try:
+            for name, data in files.items():
+                (staging / name).write_bytes(data)
+            replace_folder(staging, run_dir, keep=RUN_FILES)
+        except BaseException:
+            shutil.rmtree(staging, ignore_errors=True)
+            raise

@@ -10,12 +10,15 @@ A run lives in a folder::
     RUN_DIR/evaluation.json     written by ``ineid evaluate``
 
 Every file is written atomically (:mod:`ineid._atomic`), so an interrupted run leaves the
-previous epoch's files whole, and ``--resume`` continues from them.
+previous epoch's files whole, and ``--resume`` continues from them; a run that replaces
+another is built beside it and swapped in when finished (:func:`writing_run`).
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -191,3 +194,67 @@ def load_run(run_dir: str | Path) -> Run:
     except (ValueError, KeyError, TypeError) as e:
         raise TrainingError(f"{files[2]} does not match the run's network ({e}); the run folder is damaged") from None
     return Run(run_dir, cfg, meta, Scaler.from_dict(sc["x"]), Scaler.from_dict(sc["y"]), params, Split.from_dict(meta["split"]))
+
+
+# -- writing a run folder safely ------------------------------------------------------------------
+
+
+def holds_run(run_dir: Path) -> bool:
+    """Whether ``run_dir`` is a folder with anything in it (a new run needs ``overwrite`` there)."""
+    return run_dir.is_dir() and any(run_dir.iterdir())
+
+
+@contextmanager
+def writing_run(run_dir: str | Path, *, resume: bool, overwrite: bool) -> Iterator[Path]:
+    """Yield the folder to train the run of ``run_dir`` in; what an interruption leaves is decided here.
+
+    The run folder's lock (:func:`ineid._atomic.output_lock`) is held throughout, and
+    temporaries of its files that killed runs left are removed first.
+
+    - ``overwrite`` of a folder holding a run: the new run is trained in a hidden folder
+      beside it (:func:`ineid._atomic.staging_folder`) and swapped in when the block ends
+      normally (:func:`ineid._atomic.replace_folder`; other files of the old folder are
+      carried over). An exception, Ctrl-C or SIGTERM leaves the old run untouched.
+    - A new run (a new or empty folder) is written in place: an interruption after its
+      first checkpoint leaves a run to continue with ``resume``; before it, nothing.
+    - ``resume``: in place, each file replaced atomically.
+
+    Raises:
+        OutputBusyError: another process is writing ``run_dir``.
+    """
+    import shutil  # noqa: PLC0415
+
+    from ineid._atomic import output_lock, remove_stale_temporaries, replace_folder, staging_folder  # noqa: PLC0415
+
+    run_dir = Path(run_dir)
+    run_dir.parent.mkdir(parents=True, exist_ok=True)
+    with output_lock(run_dir):
+        if run_dir.is_dir():
+            for name in RUN_FILES:
+                remove_stale_temporaries(run_dir / name)
+        held, created = holds_run(run_dir), not run_dir.exists()
+        staged = overwrite and not resume and held
+        work = staging_folder(run_dir) if staged else run_dir
+        try:
+            yield work
+        except BaseException:
+            if staged:
+                shutil.rmtree(work, ignore_errors=True)
+            elif not resume and not held:
+                _discard_unstarted(run_dir, created)
+            raise
+        if staged:
+            replace_folder(work, run_dir, keep=RUN_FILES)
+
+
+def _discard_unstarted(run_dir: Path, created: bool) -> None:
+    """A new run interrupted before its first checkpoint has nothing to resume: remove what it wrote."""
+    if (run_dir / CHECKPOINT).is_file():
+        return
+    for name in RUN_FILES:
+        (run_dir / name).unlink(missing_ok=True)
+    if created:
+        try:
+            run_dir.rmdir()
+        except OSError:  # something else was put there meanwhile
+            pass

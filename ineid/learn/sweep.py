@@ -21,7 +21,7 @@ from ineid._atomic import atomic_write, save_figure, write_csv
 from ineid.errors import TrainingError
 from ineid.learn.evaluate import evaluate
 from ineid.learn.models import SIZED
-from ineid.learn.runs import EVALUATION, load_run
+from ineid.learn.runs import CHECKPOINT, CONFIG, EVALUATION, METRICS, MODEL, load_run
 from ineid.learn.train import TrainConfig, train
 
 if TYPE_CHECKING:
@@ -91,6 +91,24 @@ class SweepRow:
     status: str = "ok"
 
     @classmethod
+    def from_evaluation(cls, cfg: TrainConfig, epochs_run: int, seconds: float, ev: dict) -> SweepRow:
+        """The row of a trained trial from its evaluation (:meth:`ineid.learn.Evaluation.to_dict`)."""
+        nan = float("nan")
+
+        def median(key: str) -> float:
+            return ev[key]["overall_median"] if ev.get(key) else nan
+
+        return cls(
+            name=run_name(cfg), arch=cfg.model.arch, activation=cfg.model.activation, scaler=cfg.scaler,
+            optimizer=cfg.optimizer, loss=cfg.loss, frames=cfg.model.frames, siamese=cfg.model.siamese,
+            epochs_run=epochs_run, seconds=seconds, test_standard_median=median("network"),
+            test_base_median=median("network_base"), floor_standard_median=median("floor"),
+            linear_standard_median=median("linear"), linear_base_median=median("linear_base"),
+            physical_share=ev["physical_share"], gaussian_standard_median=median("gaussian"),
+            gaussian_base_median=median("gaussian_base"),
+        )  # fmt: skip
+
+    @classmethod
     def failed(cls, cfg: TrainConfig, message: str) -> SweepRow:
         nan = float("nan")
         return cls(name=run_name(cfg), arch=cfg.model.arch, activation=cfg.model.activation, scaler=cfg.scaler,
@@ -103,38 +121,118 @@ class SweepRow:
 ENGINES = ("sequential", "ray")
 
 
+SWEEP_RECORD = "sweep.json"
+"""The settings of a sweep in its folder (grid, run settings, dataset fingerprint), checked by ``resume``."""
+
+TRIAL_STATES = ("new", "checkpoint", "evaluate", "finished")
+
+
+def trial_state(run_dir: Path, cfg: TrainConfig, fingerprint: str) -> str:
+    """What resuming a sweep does with a trial's folder.
+
+    ``"finished"``: a run of these settings and dataset with its evaluation (kept);
+    ``"evaluate"``: finished training, no evaluation yet; ``"checkpoint"``: interrupted
+    training, continued from its checkpoint; ``"new"``: nothing usable (missing, empty,
+    unreadable, or a run of other settings or data: trained afresh, replacing it).
+    """
+    try:
+        saved = json.loads((run_dir / CONFIG).read_text())
+        same = saved["train"] == cfg.to_dict() and saved["dataset"]["fingerprint"] == fingerprint
+    except (OSError, ValueError, KeyError, TypeError):
+        return "new"
+    if not same:
+        return "new"
+    if (run_dir / MODEL).is_file():
+        return "finished" if (run_dir / EVALUATION).is_file() else "evaluate"
+    return "checkpoint" if (run_dir / CHECKPOINT).is_file() else "new"
+
+
+def _trained(run_dir: Path) -> tuple[int, float]:
+    """Epochs run and training seconds of a run, from its ``metrics.jsonl``."""
+    records = [json.loads(line) for line in (run_dir / METRICS).read_text().splitlines() if line.strip()]
+    return (int(records[-1]["epoch"]) if records else 0), float(sum(r["seconds"] for r in records))
+
+
 def run_trial(ds, cfg: TrainConfig, run_dir: Path, dataset_path: str | None = None, model=None,
-              physics_mode: str = "cached") -> SweepRow:
-    """Train one grid point into ``run_dir`` (replacing a run there), evaluate it on the test
-    split and write its ``evaluation.json``."""
-    result = train(ds, cfg, run_dir, dataset_path=dataset_path, overwrite=True, model=model, physics_mode=physics_mode)
-    ev = evaluate(load_run(run_dir), ds, model=model)
-    atomic_write(run_dir / EVALUATION, json.dumps(ev.to_dict(), indent=1))
-    nan = float("nan")
-    return SweepRow(
-        name=run_name(cfg), arch=cfg.model.arch, activation=cfg.model.activation, scaler=cfg.scaler,
-        optimizer=cfg.optimizer, loss=cfg.loss, frames=cfg.model.frames, siamese=cfg.model.siamese,
-        epochs_run=result.epochs_run, seconds=result.seconds,
-        test_standard_median=ev.network["overall_median"], test_base_median=ev.network_base["overall_median"],
-        floor_standard_median=ev.floor["overall_median"],
-        linear_standard_median=ev.linear["overall_median"] if ev.linear else nan,
-        linear_base_median=ev.linear_base["overall_median"] if ev.linear_base else nan,
-        physical_share=ev.physical_share,
-        gaussian_standard_median=ev.gaussian["overall_median"] if ev.gaussian else nan,
-        gaussian_base_median=ev.gaussian_base["overall_median"] if ev.gaussian_base else nan,
-    )  # fmt: skip
+              physics_mode: str = "cached", state: str = "new") -> SweepRow:
+    """Train one grid point into ``run_dir``, evaluate it on the test split and write its ``evaluation.json``.
+
+    ``state`` (:func:`trial_state`) says how much of it is done: ``"new"`` trains afresh
+    (replacing a run there only once the new one is finished), ``"checkpoint"`` resumes the
+    training, ``"evaluate"`` only evaluates, ``"finished"`` only reads the evaluation back.
+    """
+    if state not in TRIAL_STATES:
+        raise ValueError(f"state must be one of {', '.join(TRIAL_STATES)}, got {state!r}")
+    if state in ("new", "checkpoint"):
+        result = train(ds, cfg, run_dir, dataset_path=dataset_path, resume=state == "checkpoint", overwrite=True,
+                       model=model, physics_mode=physics_mode)  # fmt: skip
+    if state == "finished":
+        ev = json.loads((run_dir / EVALUATION).read_text())
+    else:
+        ev = evaluate(load_run(run_dir), ds, model=model).to_dict()
+        atomic_write(run_dir / EVALUATION, json.dumps(ev, indent=1))
+    epochs_run, seconds = (result.epochs_run, result.seconds) if state == "new" else _trained(run_dir)
+    return SweepRow.from_evaluation(cfg, epochs_run, seconds, ev)
+
+
+def sweep_record(grid: Grid, base: TrainConfig, ds: Dataset) -> dict:
+    """What ``OUT/sweep.json`` holds: the grid, the run settings and the dataset's fingerprint (JSON types)."""
+    return json.loads(json.dumps({"grid": dataclasses.asdict(grid), "run settings": base.to_dict(),
+                                  "dataset": ds.fingerprint()}))  # fmt: skip
+
+
+def check_sweep_folder(ds: Dataset, grid: Grid, base: TrainConfig, out_dir: str | Path, *, overwrite: bool = False,
+                       resume: bool = False) -> dict:
+    """Whether :func:`sweep` may write ``out_dir`` (called by it; the CLI calls it before its progress bar).
+
+    Returns:
+        The sweep's record (:func:`sweep_record`).
+
+    Raises:
+        TrainingError: a trial folder holds a run and neither ``overwrite`` nor ``resume``;
+            ``resume`` of a folder without a sweep, or with another grid, other run
+            settings or another dataset.
+    """
+    out_dir = Path(out_dir)
+    record = sweep_record(grid, base, ds)
+    if resume:
+        try:
+            saved = json.loads((out_dir / SWEEP_RECORD).read_text())
+        except (OSError, ValueError):
+            raise TrainingError(f"{out_dir} holds no sweep to resume (no readable {SWEEP_RECORD}); start it without "
+                                "--resume") from None  # fmt: skip
+        differs = {"grid": "a different grid", "run settings": "different run settings",
+                   "dataset": "a different dataset"}  # fmt: skip
+        for key, what in differs.items():
+            if not isinstance(saved, dict) or saved.get(key) != record[key]:
+                raise TrainingError(f"{out_dir} holds a sweep with {what}; resume it with the same settings and "
+                                    "dataset, or use a new folder")  # fmt: skip
+    elif not overwrite:
+        names = [run_name(c) for c in grid.configs(base)]
+        busy = [n for n in names if (out_dir / n).is_dir() and any((out_dir / n).iterdir())]
+        if busy:
+            raise TrainingError(f"{out_dir / busy[0]} holds a run; pass --overwrite to replace the sweep's runs, or "
+                                "--resume to continue the sweep")  # fmt: skip
+    return record
 
 
 def sweep(ds: Dataset, grid: Grid, base: TrainConfig, out_dir: str | Path, dataset_path: str | None = None,
           model: RobotModel | None = None, progress=None, overwrite: bool = False, physics_mode: str = "cached", *,
           engine: str = "sequential", address: str | None = None, cpus_per_trial: float = 1.0,
-          gpus_per_trial: float = 0.0, ray_init: dict | None = None) -> list[SweepRow]:
+          gpus_per_trial: float = 0.0, ray_init: dict | None = None, resume: bool = False) -> list[SweepRow]:
     """Train and evaluate every configuration of ``grid`` into ``out_dir/<name>``; rows ranked
     by the test median relative error of the standard parameters, failed trials last.
 
     A trial that fails (an :class:`ineid.IneidError` such as a diverging loss; with Ray, any
     error in the trial) becomes a row with ``status = "failed: <why>"`` and NaN errors; the
     sweep goes on.
+
+    The settings go to ``out_dir/sweep.json`` first. An interrupted sweep leaves its
+    finished trials, and the interrupted one up to its last checkpoint (a trial replacing
+    an older run leaves the older run until it finishes): ``resume`` continues it, keeping
+    finished trials (:func:`trial_state`), resuming interrupted ones and running the rest;
+    ``sweep.csv`` and ``sweep.png`` are then written over all the trials. The folder's
+    lock (:func:`ineid._atomic.output_lock`) is held throughout.
 
     Args:
         ds: the dataset (with the truth).
@@ -143,19 +241,24 @@ def sweep(ds: Dataset, grid: Grid, base: TrainConfig, out_dir: str | Path, datas
         dataset_path: recorded in each run's ``config.json``.
         model: the robot model (default: rebuilt from the dataset).
         progress: ``progress(done, total, row)`` after each trial.
-        overwrite: replace run folders that hold runs (else refused before any training).
+        overwrite: replace run folders that hold runs (else refused before any training);
+            each is replaced when its new run is finished.
         physics_mode: ``"cached"`` or ``"inline"`` (see :func:`ineid.learn.train`).
         engine: ``"sequential"`` (this process, one trial after another) or ``"ray"``
             (:mod:`ineid.learn.ray_engine`: one Ray task per trial).
         address: the Ray cluster to join; None starts a local one for the sweep and stops it.
         cpus_per_trial, gpus_per_trial: Ray resources each trial reserves.
         ray_init: extra keyword arguments of ``ray.init`` for the local cluster (e.g. ``num_cpus``).
+        resume: continue the sweep in ``out_dir`` (the same grid, settings and dataset).
 
     Raises:
         ValueError: an empty grid or an unknown engine.
-        TrainingError: a run folder holds a run and ``overwrite`` is off.
+        TrainingError: a run folder holds a run and neither ``overwrite`` nor ``resume`` is on;
+            ``resume`` of a folder without a sweep or with other settings.
+        OutputBusyError: another process is writing ``out_dir``.
         OptionalDependencyError: ``engine="ray"`` without Ray installed.
     """
+    from ineid._atomic import output_lock  # noqa: PLC0415
     from ineid.errors import IneidError  # noqa: PLC0415
 
     if engine not in ENGINES:
@@ -165,29 +268,33 @@ def sweep(ds: Dataset, grid: Grid, base: TrainConfig, out_dir: str | Path, datas
     if not cfgs:
         raise ValueError("the grid is empty (a Siamese network needs more than one frame: add --sample-frames values > 1)")
     names = [run_name(cfg) for cfg in cfgs]
-    busy = [n for n in names if (out_dir / n).is_dir() and any((out_dir / n).iterdir())]
-    if busy and not overwrite:
-        raise TrainingError(f"{out_dir / busy[0]} holds a run; pass --overwrite to replace the sweep's runs")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    if engine == "ray":
-        from ineid.learn.ray_engine import ray_trials  # noqa: PLC0415
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    with output_lock(out_dir):
+        record = check_sweep_folder(ds, grid, base, out_dir, overwrite=overwrite, resume=resume)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write(out_dir / SWEEP_RECORD, json.dumps(record, indent=1))
+        states = {n: trial_state(out_dir / n, cfg, record["dataset"]) if resume else "new"
+                  for n, cfg in zip(names, cfgs, strict=True)}  # fmt: skip
+        if engine == "ray":
+            from ineid.learn.ray_engine import ray_trials  # noqa: PLC0415
 
-        rows = ray_trials(ds, cfgs, out_dir, dataset_path=dataset_path, physics_mode=physics_mode, progress=progress,
-                          address=address, cpus_per_trial=cpus_per_trial, gpus_per_trial=gpus_per_trial,
-                          ray_init=ray_init)  # fmt: skip
-    else:
-        model = model or ds.model()
-        rows = []
-        for i, (cfg, name) in enumerate(zip(cfgs, names, strict=True)):
-            try:
-                rows.append(run_trial(ds, cfg, out_dir / name, dataset_path, model, physics_mode))
-            except IneidError as e:
-                rows.append(SweepRow.failed(cfg, str(e)))
-            if progress is not None:
-                progress(i + 1, len(cfgs), rows[-1])
-    rows.sort(key=lambda r: (r.status != "ok", np.nan_to_num(r.test_standard_median, nan=np.inf), r.name))
-    write_csv(out_dir / "sweep.csv", [f.name for f in dataclasses.fields(SweepRow)], [dataclasses.asdict(r) for r in rows])
-    plot(rows, out_dir / "sweep.png")
+            rows = ray_trials(ds, cfgs, out_dir, dataset_path=dataset_path, physics_mode=physics_mode,
+                              progress=progress, address=address, cpus_per_trial=cpus_per_trial,
+                              gpus_per_trial=gpus_per_trial, ray_init=ray_init, states=states)  # fmt: skip
+        else:
+            model = model or ds.model()
+            rows = []
+            for i, (cfg, name) in enumerate(zip(cfgs, names, strict=True)):
+                try:
+                    rows.append(run_trial(ds, cfg, out_dir / name, dataset_path, model, physics_mode, states[name]))
+                except IneidError as e:
+                    rows.append(SweepRow.failed(cfg, str(e)))
+                if progress is not None:
+                    progress(i + 1, len(cfgs), rows[-1])
+        rows.sort(key=lambda r: (r.status != "ok", np.nan_to_num(r.test_standard_median, nan=np.inf), r.name))
+        write_csv(out_dir / "sweep.csv", [f.name for f in dataclasses.fields(SweepRow)],
+                  [dataclasses.asdict(r) for r in rows])  # fmt: skip
+        plot(rows, out_dir / "sweep.png")
     return rows
 
 

@@ -2,7 +2,8 @@
 early stopping, exact resumption from checkpoints, metrics per epoch.
 
 The run folder's files (config, scalers, metrics, checkpoint, model) are
-:mod:`ineid.learn.runs`; this module is the loop that fills them.
+:mod:`ineid.learn.runs`, the compiled steps :mod:`ineid.learn.steps`; this module is the
+loop that fills them.
 
 Everything random is seeded: initialization by ``seed``, the split by ``(seed, 11)``, the
 frame groups of epoch ``e`` by ``(seed, 12, e)``; so a run resumed from its checkpoint
@@ -21,10 +22,19 @@ import numpy as np
 
 from ineid.errors import DatasetError, TrainingError
 from ineid.learn.data import epoch_groups, fixed_groups, frame_features, split_configs
-from ineid.learn.losses import LOSSES, PHYSICS_MODES, CompactRegressor, Physics, make_loss
+from ineid.learn.losses import LOSSES, PHYSICS_MODES, CompactRegressor, Physics
 from ineid.learn.models import ModelSpec
-from ineid.learn.runs import MetricsLog, load_state, save_state, start_run, write_config
+from ineid.learn.runs import MetricsLog, load_state, save_state, start_run, write_config, writing_run
 from ineid.learn.scalers import SCALERS, Scaler
+from ineid.learn.steps import (  # noqa: F401  (STEPS_PER_CALL, gather_samples, ... were here: still importable)
+    STEPS_PER_CALL,
+    build_functions,
+    evaluate_groups,
+    forward,
+    gather_samples,
+    init_params,
+    run_epoch,
+)
 from ineid.progress import EpochProgress
 
 if TYPE_CHECKING:
@@ -213,44 +223,6 @@ def prepare(ds: Dataset, cfg: TrainConfig, rows: np.ndarray, model: RobotModel, 
     return Prepared(rows, x_scaler, y_scaler, arrays, physics, n_u, sub.n_frames)
 
 
-def gather_samples(arrays, mode, rows, frames):
-    """Batch of samples: positions (B,) and frame indices (B, K) -> (x, z, physics inputs).
-
-    Per-frame arrays are gathered by one flat index ``row * n_frames + frame`` along their
-    first axis: a single-axis ``take``, much cheaper on the CPU than a two-axis gather.
-    """
-    import jax.numpy as jnp  # noqa: PLC0415
-
-    n_frames = arrays["x"].shape[1]
-    flat = rows[:, None] * n_frames + frames
-
-    def take(a):
-        return jnp.take(a.reshape((-1,) + a.shape[2:]), flat, axis=0)
-
-    if "compact" in arrays:  # compact cached rows: y / s and the kept entries in one gather
-        row = take(arrays["compact"])
-        return take(arrays["x"]), arrays["z"][rows], (row[..., 6:], row[..., :6])
-    if mode == "cached":
-        inputs = (take(arrays["psi"]), take(arrays["yres"]))
-    else:
-        inputs = tuple(take(arrays[k]) for k in ("q", "qd", "qdd", "wrench"))
-    return take(arrays["x"]), arrays["z"][rows], inputs
-
-
-def forward(net, spec: ModelSpec, physics: Physics):
-    """``f(params, x, inputs) -> z_hat``: the network on a batch, given its physics inputs when it takes them."""
-    if spec.uses_regressor:
-        return lambda params, x, inputs: net.apply(params, x, *physics.system(inputs))
-    return lambda params, x, inputs: net.apply(params, x)
-
-
-def init_params(net, spec: ModelSpec, prep: Prepared, key):
-    """Initial parameters of ``net`` from the shapes of one sample of ``prep``."""
-    k = spec.frames
-    x, _, inputs = gather_samples(prep.arrays, prep.physics.mode, np.zeros(1, dtype=np.int64), np.arange(k)[None])
-    return net.init(key, x, *prep.physics.system(inputs)) if spec.uses_regressor else net.init(key, x)
-
-
 def wls_context(ds, train_rows: np.ndarray, model, y_scaler: Scaler, wrench_scale: np.ndarray):
     """The constants of a ``wls`` network from the training configurations (:func:`ineid.learn.wls.fit_context`).
 
@@ -271,92 +243,6 @@ def wls_context(ds, train_rows: np.ndarray, model, y_scaler: Scaler, wrench_scal
     return fit_context(sub.theta_unknown, sigma, base_parameters(model), y_scaler.center, y_scaler.scale)
 
 
-def build_functions(net, cfg: TrainConfig, prep: Prepared, optimizer):
-    """Jitted ``train_steps`` (with ``.single`` for one step) and ``eval_batch`` for a run."""
-    import jax  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
-    import optax  # noqa: PLC0415
-
-    loss_fn = make_loss(net.apply, cfg.alpha, cfg.effective_beta, prep.physics, cfg.model.uses_regressor)
-    apply = forward(net, cfg.model, prep.physics)
-    mode = prep.physics.mode
-
-    def one_step(params, opt_state, arrays, rows, frames):
-        x, z, inputs = gather_samples(arrays, mode, rows, frames)
-        (total, (mse, phys)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, x, z, inputs)
-        updates, opt_state = optimizer.update(grads, opt_state, params)
-        return optax.apply_updates(params, updates), opt_state, jnp.stack([total, mse, phys])
-
-    @jax.jit
-    def train_steps(params, opt_state, arrays, rows, frames):
-        """``STEPS_PER_CALL`` steps in one call (a scan): rows (S, B), frames (S, B, K).
-
-        Small networks spend most of a step in dispatch; one call per few steps removes it.
-        """
-
-        def body(carry, batch):
-            p, o, losses = one_step(*carry, arrays, *batch)
-            return (p, o), losses
-
-        (params, opt_state), losses = jax.lax.scan(body, (params, opt_state), (rows, frames))
-        return params, opt_state, losses.sum(axis=0)
-
-    train_steps.single = jax.jit(one_step)
-
-    @jax.jit
-    def eval_batch(params, arrays, rows, frames, mask):
-        """Sums over the masked samples of (mse, phys) and the predictions."""
-        x, z, inputs = gather_samples(arrays, mode, rows, frames)
-        z_hat = apply(params, x, inputs)
-        se = jnp.mean((z_hat - z) ** 2, axis=1)
-        r = prep.physics.residual(z_hat * prep.y_scaler.scale + prep.y_scaler.center, inputs)
-        ph = jnp.mean(r * r, axis=(1, 2))
-        return jnp.sum(se * mask), jnp.sum(ph * mask), z_hat
-
-    return train_steps, eval_batch
-
-
-STEPS_PER_CALL = 16
-"""Training steps per compiled call (see ``train_steps``); the remainder runs one by one."""
-
-
-def run_epoch(train_steps, params, opt_state, arrays, rows, frames, batch: int, n_steps: int):
-    """``n_steps`` steps over consecutive batches; returns params, state and summed losses."""
-    sums = np.zeros(3)
-    full = n_steps - n_steps % STEPS_PER_CALL
-    for s0 in range(0, full, STEPS_PER_CALL):
-        sl = slice(s0 * batch, (s0 + STEPS_PER_CALL) * batch)
-        r = rows[sl].reshape(STEPS_PER_CALL, batch)
-        f = frames[sl].reshape(STEPS_PER_CALL, batch, -1)
-        params, opt_state, losses = train_steps(params, opt_state, arrays, r, f)
-        sums += np.asarray(losses)
-    for s in range(full, n_steps):
-        sl = slice(s * batch, (s + 1) * batch)
-        params, opt_state, losses = train_steps.single(params, opt_state, arrays, rows[sl], frames[sl])
-        sums += np.asarray(losses)
-    return params, opt_state, sums
-
-
-def evaluate_groups(eval_batch, params, arrays, rows, frames, batch: int):
-    """Mean MSE, mean physics term and scaled predictions (S, n_out) over sample groups."""
-    n = len(rows)
-    se = ph = 0.0
-    preds = []
-    for start in range(0, n, batch):
-        r, f = rows[start : start + batch], frames[start : start + batch]
-        m = np.ones(len(r))
-        if len(r) < batch:  # pad to one compiled shape
-            pad = batch - len(r)
-            r = np.concatenate([r, np.repeat(r[-1:], pad)])
-            f = np.concatenate([f, np.repeat(f[-1:], pad, axis=0)])
-            m = np.concatenate([m, np.zeros(pad)])
-        a, b, z = eval_batch(params, arrays, r, f, m)
-        se += float(a)
-        ph += float(b)
-        preds.append(np.asarray(z)[: int(m.sum())])
-    return se / n, ph / n, np.concatenate(preds)
-
-
 @dataclass
 class TrainResult:
     """What :func:`train` returns: epochs run, the best epoch and its validation MSE, early stop, wall-clock seconds."""
@@ -367,8 +253,6 @@ class TrainResult:
     best_val_mse: float
     stopped_early: bool
     seconds: float
-
-
 
 
 def train(
@@ -391,22 +275,35 @@ def train(
         run_dir: the run folder; must be new or empty unless ``resume`` or ``overwrite``.
         dataset_path: recorded in ``config.json`` (for ``ineid evaluate``).
         resume: continue the run in ``run_dir`` from its checkpoint (same settings).
-        overwrite: start afresh in a folder that holds a run.
+        overwrite: replace the run the folder holds, once the new one is finished (an
+            interruption leaves the old run untouched; see :func:`ineid.learn.runs.writing_run`).
         progress: ``progress(epoch, epochs, metrics)`` after every epoch.
         model: the dataset's robot model (default: rebuilt from the dataset).
         physics_mode: ``"cached"`` or ``"inline"`` regressor in the physics loss.
 
     Raises:
         TrainingError: the folder holds another run, or a resume does not match it.
+        OutputBusyError: another process is writing the run folder.
     """
+    ds.require_truth("training")
+    kwargs = {"dataset_path": dataset_path, "resume": resume, "overwrite": overwrite, "progress": progress,
+              "model": model, "physics_mode": physics_mode}  # fmt: skip
+    with writing_run(run_dir, resume=resume, overwrite=overwrite) as work:
+        result = _train_into(ds, cfg, work, **kwargs)
+    result.run_dir = Path(run_dir)
+    return result
+
+
+def _train_into(ds: Dataset, cfg: TrainConfig, run_dir: Path, *, dataset_path: str | None, resume: bool,
+                overwrite: bool, progress: EpochProgress | None, model: RobotModel | None,
+                physics_mode: str) -> TrainResult:
+    """:func:`train` in ``run_dir``: the run folder itself, or the hidden folder of a replacement."""
     import jax  # noqa: PLC0415
     import jax.numpy as jnp  # noqa: PLC0415
 
-    ds.require_truth("training")
     from ineid.cache import enable_compilation_cache  # noqa: PLC0415
 
     enable_compilation_cache()
-    run_dir = Path(run_dir)
     resumed = start_run(run_dir, cfg, ds, resume=resume, overwrite=overwrite)
     model = model or ds.model()
     if resumed is None:

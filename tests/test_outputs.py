@@ -1,0 +1,294 @@
+"""Nothing lost: outputs that are inputs, replacement only when complete, one writer per output,
+stale temporaries, interruptions (130 / 143 and what they leave), resumable sweeps."""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from click.testing import CliRunner
+
+from ineid._atomic import lock_path, output_lock, remove_stale_temporaries
+from ineid.cli import main
+from ineid.errors import OutputBusyError
+
+TRAIN = ("--arch", "simple", "--batch", "16", "--train-configs", "12", "--val-configs", "4", "--patience", "0")
+
+
+@pytest.fixture
+def run():
+    runner = CliRunner()
+
+    def invoke(*args):
+        return runner.invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+    return invoke
+
+
+def last_line(result, code):
+    assert result.exit_code == code, result.output
+    assert "Traceback" not in result.output
+    return [line for line in result.output.splitlines() if line.strip()][-1]
+
+
+def dead_pid() -> int:
+    """A process id no process has now."""
+    for pid in range(999999, 900000, -1):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return pid
+        except PermissionError:
+            continue
+    raise AssertionError("no free pid")
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    """20 configurations x 4 frames of sweaty-arm: enough for a network of a few epochs."""
+    import ineid
+    from ineid.data import Combination, DatasetSpec, write_dataset
+
+    path = tmp_path_factory.mktemp("outputs") / "d.h5"
+    write_dataset(ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=20), n_frames=4, seed=3),
+                  path)  # fmt: skip
+    return path
+
+
+def snapshot(folder):
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+# -- an output that is an input ------------------------------------------------------------------
+
+
+def test_solve_refuses_to_replace_its_dataset(run, data, tmp_path):
+    before = data.read_bytes()
+    line = last_line(run("solve", data, "--out", data, "--overwrite"), 1)
+    assert line == f"Error: --out {data} is the input dataset; choose another file"
+    link = tmp_path / "link.h5"  # another name for the same file
+    link.symlink_to(data)
+    line = last_line(run("solve", data, "--out", link, "--overwrite"), 1)
+    assert line == f"Error: --out {link} is the input dataset; choose another file"
+    assert data.read_bytes() == before
+    line = last_line(run("solve", data, "--out", tmp_path / "r.h5", "--plot", tmp_path / "r.h5"), 1)
+    assert line == f"Error: --plot {tmp_path / 'r.h5'} is the results file (--out); choose another file"
+
+
+@pytest.mark.parametrize("case", ["import", "trajectory", "export", "evaluate", "excite", "train"])
+def test_other_commands_refuse_an_input_as_output(run, tmp_path, case):
+    src = tmp_path / "in.file"
+    src.write_text("time,q1\n")
+    (tmp_path / "run").mkdir()
+    model = tmp_path / "run" / "model.msgpack"
+    model.write_bytes(b"weights")
+    urdf = tmp_path / "arm.urdf"
+    from ineid.robots import BUILTIN_ROBOTS
+
+    urdf.write_text(BUILTIN_ROBOTS["sweaty-arm"].urdf_path.read_text())
+    args, out, what = {
+        "import": (("data", "import", src, "--out", src), src, "the input recording"),
+        "trajectory": (("data", "generate", "--frame-mode", "trajectory", "--trajectory", src, "--out", src), src,
+                       "the trajectory file"),
+        "export": (("export-urdf", src, "--config", 0, "--out", src), src, "the input results file"),
+        "evaluate": (("evaluate", tmp_path / "run", src, "--out", model), model, "the input run's model.msgpack"),
+        "excite": (("excite", urdf, "--duration", 2, "--out", urdf), urdf, "the robot's URDF"),
+        "train": (("train", tmp_path / "run" / "config.json", "--out", tmp_path / "run"), None, None),
+    }[case]  # fmt: skip
+    if case == "train":  # a dataset named like a file of the run folder that --out replaces
+        data = tmp_path / "run" / "config.json"
+        data.write_text("{}")
+        line = last_line(run(*args, "--overwrite"), 1)
+        assert line == (f"Error: --out {tmp_path / 'run'} would replace {data}, the input dataset; "
+                        "choose another folder")  # fmt: skip
+        return
+    before = out.read_bytes()
+    line = last_line(run(*args, "--overwrite"), 1)
+    assert line == f"Error: --out {out} is {what}; choose another file"
+    assert out.read_bytes() == before
+
+
+# -- one writer per output ---------------------------------------------------------------------------
+
+
+def hold_lock(path, pid: int = 4242):
+    """Lock ``path`` as another process would (a separate open file: flock excludes it even in this process)."""
+    fd = os.open(lock_path(path), os.O_RDWR | os.O_CREAT)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    os.write(fd, f"{pid}\n".encode())
+    return fd
+
+
+def test_a_second_writer_gets_one_line(run, data, tmp_path):
+    out = tmp_path / "same.h5"
+    out.write_bytes(b"the first writer's result")
+    fd = hold_lock(out)
+    try:
+        line = last_line(run("data", "generate", "--n-configs", 2, "--n-frames", 2, "--out", out, "--overwrite"), 1)
+        assert line == f"Error: another ineid process (pid 4242) is writing {out}; wait for it or choose another --out"
+        line = last_line(run("solve", data, "--out", out, "--overwrite"), 1)
+        assert "another ineid process (pid 4242) is writing" in line
+    finally:
+        os.close(fd)
+    assert out.read_bytes() == b"the first writer's result"
+    fd = hold_lock(tmp_path / "run", 77)
+    try:
+        line = last_line(run("train", data, *TRAIN, "--epochs", 1, "--out", tmp_path / "run"), 1)
+        assert line == (f"Error: another ineid process (pid 77) is writing {tmp_path / 'run'}; wait for it or choose "
+                        "another --out")  # fmt: skip
+    finally:
+        os.close(fd)
+    assert not (tmp_path / "run").exists()
+    # released: the lock file goes with its holder, and the library takes the lock again
+    with output_lock(out):
+        assert lock_path(out).read_text().strip() == str(os.getpid())
+        with output_lock(out):  # re-entrant in one process
+            pass
+    assert not lock_path(out).exists()
+
+
+def test_two_processes_writing_one_file(tmp_path):
+    """Real processes: the second stops at once with the line, the first finishes its file."""
+    out = tmp_path / "same.h5"
+    code = ("import sys; from ineid._atomic import output_lock, atomic_write\n"
+            "with output_lock(sys.argv[1]):\n    print('locked', flush=True); sys.stdin.readline()\n"
+            "    atomic_write(sys.argv[1], 'first')\n")  # fmt: skip
+    first = subprocess.Popen([sys.executable, "-c", code, out], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                             text=True)  # fmt: skip
+    try:
+        assert first.stdout.readline().strip() == "locked"
+        second = subprocess.run([sys.executable, "-m", "ineid.cli", "data", "generate", "--n-configs", "2",
+                                 "--n-frames", "2", "--out", out], capture_output=True, text=True)  # fmt: skip
+    finally:
+        first.communicate("go\n", timeout=30)
+    assert second.returncode == 1
+    assert second.stderr.strip() == (f"Error: another ineid process (pid {first.pid}) is writing {out}; wait for it "
+                                     "or choose another --out")  # fmt: skip
+    assert out.read_text() == "first"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["same.h5"]
+
+
+# -- what killed runs left ------------------------------------------------------------------------------
+
+
+def test_stale_temporaries_are_removed_by_the_next_write(run, tmp_path):
+    pid = dead_pid()
+    out = tmp_path / "x.h5"
+    stale = tmp_path / f".x.h5.{pid}.tmp"
+    stale.write_bytes(b"\0" * 2_500_000)
+    (tmp_path / f".x.h5.{pid}.tmp.png").write_bytes(b"png")  # a figure's
+    (tmp_path / f".x.h5.{os.getppid()}.tmp").write_bytes(b"")  # a live process's: kept
+    (tmp_path / f".xx.h5.{pid}.tmp").write_bytes(b"")  # another output's: kept
+    r = run("data", "generate", "--n-configs", 2, "--n-frames", 2, "--out", out)
+    assert r.exit_code == 0, r.output
+    assert (f"ineid: removed a stale temporary file .x.h5.{pid}.tmp (2.5 MB) left by an interrupted ineid run"
+            in r.output.splitlines())  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["x.h5", f".x.h5.{os.getppid()}.tmp", f".xx.h5.{pid}.tmp"])
+    # a folder killed between the two renames of a swap: the old one is moved back
+    run_dir = tmp_path / "run"
+    (tmp_path / f".run.{pid}.old").mkdir()
+    (tmp_path / f".run.{pid}.old" / "model.msgpack").write_bytes(b"old")
+    (tmp_path / f".run.{pid}.tmp").mkdir()
+    assert len(remove_stale_temporaries(run_dir)) == 2
+    assert (run_dir / "model.msgpack").read_bytes() == b"old"
+    assert not any(p.name.startswith(".run.") for p in tmp_path.iterdir())
+
+
+# -- runs: replaced only when complete; interruptions ---------------------------------------------------
+
+
+def test_train_overwrite_interrupted_keeps_the_old_run(run, data, tmp_path, monkeypatch):
+    import ineid.learn.runs as runs
+    from ineid.data import load_dataset
+    from ineid.learn import ModelSpec, TrainConfig, load_run, train
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    cfg = TrainConfig(ModelSpec("simple"), batch=16, n_train=12, n_val=4, patience=0, epochs=2)
+    train(load_dataset(data), cfg, out, overwrite=True)  # replaces the folder once finished, keeping notes.txt
+    before = snapshot(out)
+    assert set(before) == {"notes.txt", "config.json", "scalers.json", "metrics.jsonl", "checkpoint.msgpack",
+                           "model.msgpack"}  # fmt: skip
+    save_state = runs.save_state
+
+    def interrupted(run_dir, state, final=False):
+        if int(state["epoch"]) == 2:
+            raise KeyboardInterrupt
+        save_state(run_dir, state, final)
+
+    monkeypatch.setattr(sys.modules["ineid.learn.train"], "save_state", interrupted)
+    line = last_line(run("train", data, *TRAIN, "--epochs", 3, "--out", out, "--overwrite"), 130)
+    assert line == f"ineid: interrupted; {out} keeps its previous run, untouched (the new one was not finished)"
+    assert snapshot(out) == before
+    assert load_run(out).config.epochs == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no lock file, no half-trained folder
+    # a new run interrupted after its first checkpoint is kept, and the line says how to continue
+    line = last_line(run("train", data, *TRAIN, "--epochs", 3, "--out", tmp_path / "new"), 130)
+    assert line == (f"ineid: interrupted; the run in {tmp_path / 'new'} can be continued with `ineid train {data} ... "
+                    f"--out {tmp_path / 'new'} --resume` (the same settings)")  # fmt: skip
+    assert (tmp_path / "new" / "checkpoint.msgpack").is_file()
+
+
+def test_train_sigterm_exits_143(data, tmp_path):
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "ineid.cli", "-q", "train", data, *TRAIN, "--epochs", "100000",
+                             "--out", out], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    deadline = time.time() + 120
+    while time.time() < deadline and not (out / "checkpoint.msgpack").is_file() and proc.poll() is None:
+        time.sleep(0.1)
+    assert (out / "checkpoint.msgpack").is_file(), proc.communicate()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1] == (f"ineid: terminated (SIGTERM); the run in {out} can be continued with "
+                                            f"`ineid train {data} ... --out {out} --resume` (the same settings)")
+
+
+# -- sweeps ------------------------------------------------------------------------------------------------
+
+
+def test_sweep_resumes(run, data, tmp_path, monkeypatch):
+    sweep_module = sys.modules["ineid.learn.sweep"]
+    train_module = sys.modules["ineid.learn.train"]  # (ineid.learn.train is also the function's name)
+
+    out = tmp_path / "sweep"
+    args = ("sweep", data, "--archs", "simple", "--scalers", "robust,standard", "--epochs", 3, "--batch", 16,
+            "--train-configs", 12, "--val-configs", 4, "--patience", 0, "--out", out)  # fmt: skip
+    evaluate = sweep_module.evaluate  # without the least-squares comparisons: what is tested is which trials train
+    monkeypatch.setattr(sweep_module, "evaluate", lambda run, ds, model=None: evaluate(run, ds, model=model, linear=False))
+    save_state = train_module.save_state
+
+    def interrupted(run_dir, state, final=False):
+        if "standard" in run_dir.name and int(state["epoch"]) == 2:
+            raise KeyboardInterrupt
+        save_state(run_dir, state, final)
+
+    monkeypatch.setattr(train_module, "save_state", interrupted)
+    line = last_line(run(*args), 130)
+    assert line == (f"ineid: interrupted; 1 of 2 trials in {out} are finished; continue the sweep with `ineid sweep "
+                    f"{data} ... --out {out} --resume` (the same settings)")  # fmt: skip
+    monkeypatch.setattr(train_module, "save_state", save_state)
+    assert "different run settings" in last_line(run(*args[:-2], "--lr", 0.01, "--out", out, "--resume"), 1)
+    calls = []
+    train = sweep_module.train
+
+    def counted(ds, cfg, run_dir, **kw):
+        calls.append((run_dir.name, kw["resume"]))
+        return train(ds, cfg, run_dir, **kw)
+
+    monkeypatch.setattr(sweep_module, "train", counted)
+    r = run(*args, "--resume")
+    assert r.exit_code == 0, r.output
+    assert calls == [("simple-tanh-single-standard-adam-mse", True)]  # the finished trial kept, the other continued
+    rows = (out / "sweep.csv").read_text().splitlines()
+    assert len(rows) == 3 and all(",ok" in row for row in rows[1:])
+    metrics = (out / "simple-tanh-single-standard-adam-mse" / "metrics.jsonl").read_text().splitlines()
+    assert [json.loads(m)["epoch"] for m in metrics] == [1, 2, 3]
