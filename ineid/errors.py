@@ -54,3 +54,16 @@ class ExcitationError(IneidError):
 
 class OptionalDependencyError(IneidError):
     """A feature needs an optional package that is not installed (the message says how to install it)."""
+
+
+class StorageError(IneidError):
+    """A file cannot be written where asked: not enough free space, a read-only or forbidden folder.
+
+    (The file system's own faults, ``OSError`` with ``ENOSPC``, ``EROFS``, ``EACCES``..., are
+    worded by :func:`ineid._faults.describe_fault`; this is raised before a write that
+    cannot fit.)
+    """
+
+
+class ResourceError(IneidError):
+    """A request needs more memory (or another machine resource) than there is, or than ineid allows."""

@@ -4,9 +4,12 @@ One module per verb group (:mod:`.robot`: robot, generate; :mod:`.data`; :mod:`.
 :mod:`.identify`: identifiability, solve, export-urdf, study, results; :mod:`.learn`: train, evaluate, sweep),
 shared options in :mod:`.options`, console output in :mod:`.output`. Heavy libraries (JAX,
 CasADi, h5py, yourdfpy) are imported inside the commands, so ``ineid --help`` imports none
-of them. Any :class:`ineid.IneidError` becomes a one-line message and exit status 1; bad
-arguments exit with status 2 (click's usage error); Ctrl-C (130) and SIGTERM (143) leave no
-partial output file and say so in one line.
+of them. Any :class:`ineid.IneidError` becomes a one-line message and exit status 1, and so
+does a fault the user can fix (a full disk, a read-only or forbidden folder, a name too
+long, memory run out: :func:`ineid._faults.describe_fault`); any other exception is a bug
+and keeps its traceback. Bad arguments exit with status 2 (click's usage error); Ctrl-C
+(130) and SIGTERM (143) leave no partial output file and say so in one line. The table of
+exit statuses is in ``docs/identification.md``.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import sys
 import click
 
 from ineid._atomic import Terminated, terminate_on_sigterm
+from ineid._faults import describe_fault
 from ineid.errors import IneidError
 
 
@@ -29,6 +33,11 @@ class IneidGroup(click.Group):
             return super().invoke(ctx)
         except IneidError as e:
             raise click.ClickException(str(e)) from None
+        except (OSError, RuntimeError, MemoryError) as e:
+            fault = describe_fault(e)
+            if fault is None:
+                raise  # not the user's to fix: a bug, keep the traceback
+            raise click.ClickException(fault) from None
         except Terminated:
             click.echo("ineid: terminated (SIGTERM); no partial output file was left", err=True)
             ctx.exit(143)

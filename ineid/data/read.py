@@ -24,6 +24,7 @@ from ineid.data.schema import (
     check_shapes,
     expected_shapes,
 )
+from ineid._faults import require_memory
 from ineid.errors import DatasetError
 from ineid.params import PARAM_NAMES
 
@@ -166,6 +167,10 @@ def load_dataset(path: str | Path, configs=None, frames=None, clean: bool = True
     cidx = _index(configs, n_configs, "configuration")
     fidx = _index(frames, n_frames, "frame")
     where = str(path)
+    wanted = [k for k in shapes if k in expected_shapes(meta, 1, 1) and (clean or not k.endswith("_clean"))]
+    per_config = sum(int(np.prod(shapes[k][1:])) for k in wanted if k != "theta_known")
+    require_memory(per_config * len(cidx) * 8, f"reading {len(cidx):,} configurations of {path}",
+                   "select fewer (--select)")  # fmt: skip
     out: dict[str, np.ndarray] = {}
     with _open(path) as f:
         for name in shapes:

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid._atomic import atomic_output, check_output
+from ineid._atomic import atomic_write, check_output
+from ineid._faults import require_disk
 from ineid.errors import DatasetError
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.solve import SolveResults, SolveSettings
@@ -24,6 +25,8 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
     Raises:
         OutputExistsError: ``path`` exists and ``overwrite`` is off.
         DatasetError: ``path`` is a folder or its folder does not exist.
+        StorageError: the file will not fit on its disk (its size is known before the write).
+        OSError: the file system refused the write (read-only, permissions); no file is left.
     """
     import h5py  # noqa: PLC0415
 
@@ -36,54 +39,60 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
     if not path.parent.is_dir():
         raise DatasetError(f"folder {path.parent} does not exist; create it first")
     text = h5py.string_dtype()
-    with atomic_output(path) as tmp:
-        with h5py.File(tmp, "w") as f:
-            a = f.attrs
-            a["format"], a["version"] = FORMAT, VERSION
-            a["method"] = res.settings.method
-            a["settings"] = json.dumps(res.settings.to_dict(), sort_keys=True)
-            a["ineid_version"] = __version__
-            a["param_names"] = np.array(res.param_names, dtype=text)
-            a["base_names"] = np.array(res.base.names, dtype=text)
-            a["n_frames_fit"], a["n_frames_validation"] = res.n_frames_fit, res.n_frames_validation
-            for key in ("robot", "source", "urdf"):
-                a[key] = res.meta[key]
-            a["unknown_links"] = np.array(res.meta["unknown_links"], dtype=text)
-            a["gravity"] = np.asarray(res.meta["gravity"], dtype=np.float64)
-            a["locked_joints"] = json.dumps(res.meta.get("locked_joints") or {}, sort_keys=True)
-            a["total_seconds"] = float(res.meta.get("total_seconds", np.nan))
-            a["dataset_path"] = str(res.meta.get("dataset_path") or "")
-            a["dataset_fingerprint"] = str(res.meta.get("dataset_fingerprint") or "")
-            a["sensor"] = json.dumps(res.meta.get("sensor"), sort_keys=True)
-            arrays = {
-                "config_index": res.config_index,
-                "theta_hat": res.theta_hat,
-                "theta_std": res.theta_std,
-                "base_hat": res.base_hat,
-                "base_std": res.base_std,
-                "base_matrix": res.base.B,
-                "base_index": res.base.base_index,
-                "null_basis": res.base.null_basis,
-                "param_scales": res.base.scales,
-                "theta_prior": res.theta_prior,
-                "success": res.success.astype(np.uint8),
-                "seconds": res.seconds,
-                "fit_rms": res.fit_rms,
-                "validation_rms": res.validation_rms,
-                "validation_rel": res.validation_rel,
-            }
-            if res.bias_hat is not None:
-                arrays["bias_hat"], arrays["bias_std"] = res.bias_hat, res.bias_std
-            if res.theta_true is not None:
-                arrays["theta_true"] = res.theta_true
-                arrays["base_true"] = res.base_true
-                arrays["theta_error"] = relative_error(res.theta_hat, res.theta_true)
-                arrays["base_error"] = relative_error(res.base_hat, res.base_true)
-            for name, arr in arrays.items():
-                # uncompressed: estimates are noise-like floats (gzip saved ~20% of the size
-                # and cost more time than the rest of the write)
-                f.create_dataset(name, data=np.asarray(arr))
-            f.create_dataset("status", data=np.array([str(s) for s in res.status], dtype=text))
+    # Built in memory, then written by Python: HDF5 writing straight to a disk that fills up
+    # fails inside the library's flushes and can crash the interpreter when the file is closed
+    # (a segmentation fault); a Python write fails with a plain OSError (ENOSPC) instead.
+    with h5py.File(f"{path}.in-memory", "w", driver="core", backing_store=False) as f:
+        a = f.attrs
+        a["format"], a["version"] = FORMAT, VERSION
+        a["method"] = res.settings.method
+        a["settings"] = json.dumps(res.settings.to_dict(), sort_keys=True)
+        a["ineid_version"] = __version__
+        a["param_names"] = np.array(res.param_names, dtype=text)
+        a["base_names"] = np.array(res.base.names, dtype=text)
+        a["n_frames_fit"], a["n_frames_validation"] = res.n_frames_fit, res.n_frames_validation
+        for key in ("robot", "source", "urdf"):
+            a[key] = res.meta[key]
+        a["unknown_links"] = np.array(res.meta["unknown_links"], dtype=text)
+        a["gravity"] = np.asarray(res.meta["gravity"], dtype=np.float64)
+        a["locked_joints"] = json.dumps(res.meta.get("locked_joints") or {}, sort_keys=True)
+        a["total_seconds"] = float(res.meta.get("total_seconds", np.nan))
+        a["dataset_path"] = str(res.meta.get("dataset_path") or "")
+        a["dataset_fingerprint"] = str(res.meta.get("dataset_fingerprint") or "")
+        a["sensor"] = json.dumps(res.meta.get("sensor"), sort_keys=True)
+        arrays = {
+            "config_index": res.config_index,
+            "theta_hat": res.theta_hat,
+            "theta_std": res.theta_std,
+            "base_hat": res.base_hat,
+            "base_std": res.base_std,
+            "base_matrix": res.base.B,
+            "base_index": res.base.base_index,
+            "null_basis": res.base.null_basis,
+            "param_scales": res.base.scales,
+            "theta_prior": res.theta_prior,
+            "success": res.success.astype(np.uint8),
+            "seconds": res.seconds,
+            "fit_rms": res.fit_rms,
+            "validation_rms": res.validation_rms,
+            "validation_rel": res.validation_rel,
+        }
+        if res.bias_hat is not None:
+            arrays["bias_hat"], arrays["bias_std"] = res.bias_hat, res.bias_std
+        if res.theta_true is not None:
+            arrays["theta_true"] = res.theta_true
+            arrays["base_true"] = res.base_true
+            arrays["theta_error"] = relative_error(res.theta_hat, res.theta_true)
+            arrays["base_error"] = relative_error(res.base_hat, res.base_true)
+        for name, arr in arrays.items():
+            # uncompressed: estimates are noise-like floats (gzip saved ~20% of the size
+            # and cost more time than the rest of the write)
+            f.create_dataset(name, data=np.asarray(arr))
+        f.create_dataset("status", data=np.array([str(s) for s in res.status], dtype=text))
+        f.flush()
+        image = f.id.get_file_image()
+    require_disk(path, len(image), "the results file", "solve fewer configurations (--select)")
+    atomic_write(path, image)
     return path
 
 
