@@ -23,7 +23,8 @@ from pathlib import Path
 
 from ineid.errors import ResourceError, StorageError
 
-FAULT_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENAMETOOLONG, errno.EIO)
+FAULT_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENAMETOOLONG,
+                errno.EIO)
 """The ``errno`` values :func:`describe_fault` words for the user."""
 
 _ERRNO = re.compile(r"\berrno\s*=\s*(\d+)")
@@ -97,6 +98,9 @@ def describe_fault(exc: BaseException) -> str | None:
     if code in (errno.ENOSPC, errno.EDQUOT):
         what = "no space left on device" if code == errno.ENOSPC else "disk quota exceeded"
         return f"{what}{f' writing {shown}' if path else ''}; free some space or {where}"
+    if code == errno.EFBIG:
+        return (f"file too large for the file system (or the limit of `ulimit -f`){f' writing {shown}' if path else ''}"
+                f"; make a smaller output or {where}")  # fmt: skip
     if code == errno.EROFS:
         return f"{shown or 'the output'} is on a read-only file system; {where}"
     if code in (errno.EACCES, errno.EPERM):

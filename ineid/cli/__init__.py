@@ -9,7 +9,7 @@ does a fault the user can fix (a full disk, a read-only or forbidden folder, a n
 long, memory run out: :func:`ineid._faults.describe_fault`); any other exception is a bug
 and keeps its traceback. Bad arguments exit with status 2 (click's usage error); Ctrl-C
 (130) and SIGTERM (143) leave no partial output file and say so in one line. The table of
-exit statuses is in ``docs/identification.md``.
+exit statuses is in ``README.md`` (The command line).
 """
 
 from __future__ import annotations
