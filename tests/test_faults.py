@@ -205,11 +205,11 @@ def test_file_size_limit_in_hdf5_is_one_line(tmp_path):
     )
     env = dict(os.environ, INEID_XLA_CACHE="0", PYTHONDONTWRITEBYTECODE="1")  # only the dataset meets the limit
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env, check=False)
     assert p.returncode == 1, p.stderr
-    assert p.stderr.strip().splitlines() == [
-        f"Error: file too large for the file system (or the limit of `ulimit -f`) writing {out}; make a smaller "
-        "output or choose another --out"], p.stderr
+    expected = (f"Error: file too large for the file system (or the limit of `ulimit -f`) writing {out}; make a "
+                "smaller output or choose another --out")
+    assert p.stderr.strip().splitlines() == [expected], p.stderr
     assert leftovers(tmp_path) == []
 
 
@@ -223,16 +223,16 @@ def test_real_full_and_read_only_disks(tmp_path, small):
     and a read-only tmpfs."""
     full, ro = tmp_path / "full", tmp_path / "ro"
     full.mkdir(), ro.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(full)]).returncode:
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(full)], check=False).returncode:
         pytest.skip("mount failed")
     try:
-        if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(ro)]).returncode:
+        if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(ro)], check=False).returncode:
             pytest.skip("mount failed")
         try:
             (full / "fill").write_bytes(b"\0" * 240_000)
             disk_full = ("no space left on device writing", "needs about", "would be about")
             p = subprocess.run([sys.executable, "-m", "ineid.cli", "-q", "solve", str(small), *map(str, SOLVE), "--out",
-                                str(full / "r.h5")], capture_output=True, text=True, timeout=120)  # fmt: skip
+                                str(full / "r.h5")], capture_output=True, text=True, timeout=120, check=False)
             lines = p.stderr.strip().splitlines()
             assert p.returncode == 1 and len(lines) == 1 and any(w in lines[0] for w in disk_full), p.stderr
             line = one_line(run("-q", "data", "generate", "--n-configs", 400, "--n-frames", 20, "--out", full / "d.h5"))
@@ -243,9 +243,9 @@ def test_real_full_and_read_only_disks(tmp_path, small):
             assert line == f"Error: {ro / 'd.h5'} is on a read-only file system; choose another --out"
             assert leftovers(full) == ["fill"] and leftovers(ro) == []
         finally:
-            subprocess.run(["umount", str(ro)])
+            subprocess.run(["umount", str(ro)], check=False)
     finally:
-        subprocess.run(["umount", str(full)])
+        subprocess.run(["umount", str(full)], check=False)
 
 
 # -- read-only and forbidden folders ---------------------------------------------------------------
@@ -372,6 +372,7 @@ def test_import_rate_and_delay_are_bounded(tmp_path, recording):
         (("train", "DATA", "--arch", "mlp", "--depth", 2, "--width", 10**9, "--out", "OUT"), 2, "too large"),
         (("train", "DATA", "--lr", "inf", "--out", "OUT"), 2, "finite"),
         (("solve", "DATA", "--workers", 10**6, "--out", "OUT"), 2, "--workers"),
+        (("train", "DATA", "--seed", 10**27, "--out", "OUT"), 2, "--seed"),
     ],
 )
 def test_absurd_values_are_refused(tmp_path, data, args, code, words):

@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import warnings
 
 import click
 
@@ -77,6 +78,10 @@ def main(ctx: click.Context, verbose: int, quiet: int) -> None:
     """
     ctx.obj = {"verbosity": verbose - quiet}
     configure_logging(verbose - quiet)
+    if verbose - quiet < 1:
+        # a full or read-only disk under the cache: JAX warns for every kernel it cannot store
+        # (the kernel still runs, only the next run compiles it again); -v shows them
+        warnings.filterwarnings("ignore", message="Error writing persistent compilation cache entry")
     terminate_on_sigterm()
     from ineid.cache import enable_compilation_cache  # noqa: PLC0415
 

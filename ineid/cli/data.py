@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from ineid.cli.options import (
+    SEED,
     FiniteFloatRange,
     LibraryChoice,
     LibraryOption,
@@ -42,7 +43,7 @@ def data() -> None:
 @click.option("--n-frames", type=click.IntRange(min=1), cls=LibraryOption,
               default_from="ineid.data.generate:DatasetSpec.n_frames", help="Frames per configuration.")
 @deprecated_alias("--frames", "n_frames", "--n-frames", type=click.IntRange(min=1))
-@click.option("--seed", type=click.IntRange(min=0), cls=LibraryOption, default_from="ineid.data.generate:DatasetSpec.seed",
+@click.option("--seed", type=SEED, cls=LibraryOption, default_from="ineid.data.generate:DatasetSpec.seed",
               help="Seed of every random draw.")
 @click.option("--frame-mode", type=LibraryChoice(f"{_SAMPLING}:FRAME_MODES"), cls=LibraryOption,
               default_from=f"{_SAMPLING}:FrameSampling.mode",

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from ineid.cli.options import (
+    SEED,
     FiniteFloatRange,
     LibraryChoice,
     LibraryOption,
@@ -46,7 +47,7 @@ _SETTINGS = "ineid.identify.excite:ExcitationSettings"
 @click.option("--bias", type=LibraryChoice("ineid.identify.solve:BIAS_MODES"), cls=LibraryOption,
               default_from="ineid.identify.solve:SolveSettings.bias",
               help="estimate: design for ineid solve --bias estimate (six sensor offsets identified too).")
-@click.option("--seed", type=click.IntRange(min=0), cls=LibraryOption, default_from=f"{_SETTINGS}.seed",
+@click.option("--seed", type=SEED, cls=LibraryOption, default_from=f"{_SETTINGS}.seed",
               help="Seed of the random starts.")
 @noise_option
 @click.option("--out", type=click.Path(path_type=Path), required=True,

@@ -9,6 +9,7 @@ import click
 
 from ineid.cli.options import (
     NOISE_MAX,
+    SEED,
     WORKERS,
     FiniteFloatRange,
     LibraryChoice,
@@ -34,7 +35,7 @@ _SOLVE = "ineid.identify.solve"
 @click.option("--n-frames", type=click.IntRange(min=1), default=200, show_default=True,
               help="Random frames (uniform within the bounds) to analyse.")
 @deprecated_alias("--frames", "n_frames", "--n-frames", type=click.IntRange(min=1))
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--data", "data_path", type=click.Path(path_type=Path), default=None,
               help="Analyse the frames of a dataset instead (with --config).")
 @click.option("--config", type=click.IntRange(min=0), default=0, show_default=True, help="Configuration of --data.")
@@ -283,7 +284,7 @@ def study() -> None:
 @deprecated_alias("--configs", "n_configs", "--n-configs", type=click.IntRange(min=1))
 @click.option("--methods", default="linear,weighted,consistent", show_default=True,
               callback=names_in("ineid.identify.study:STUDY_METHODS", "--methods"))
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--workers", type=WORKERS, default=None,
               help="Processes for IPOPT (default: CPU count, at most 4 x).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from ineid.cli.options import (
+    SEED,
     FiniteFloatRange,
     LibraryChoice,
     LibraryOption,
@@ -50,7 +51,7 @@ def _run_options(f):
                      help="Validation configurations (default 15 %)."),
         click.option("--test-configs", "n_test", type=click.IntRange(min=1), default=None,
                      help="Test configurations (default: the rest)."),
-        click.option("--seed", type=click.IntRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.seed"),
+        click.option("--seed", type=SEED, cls=LibraryOption, default_from=f"{_CFG}.seed"),
         click.option("--physics-mode", type=LibraryChoice("ineid.learn.losses:PHYSICS_MODES"), default="cached",
                      show_default=True, help="Regressor of the physics loss: computed once per frame, or inside the loss."),
     ]  # fmt: skip

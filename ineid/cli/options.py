@@ -117,6 +117,8 @@ class FiniteFloatRange(click.FloatRange):
 
 FINITE = FiniteFloatRange()
 """Any finite float (``--gravity``)."""
+SEED = click.IntRange(0, 2**63 - 1)
+"""``--seed``: NumPy's and JAX's generators take 64-bit seeds (a larger one was an OverflowError)."""
 MAX_WORKERS = 4 * (os.cpu_count() or 1)
 WORKERS = click.IntRange(1, MAX_WORKERS)
 """``--workers``: each process loads CasADi and the generated code (about 200 MB); more than four per

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ineid._faults import fault_errno, require_memory
 from ineid.data.schema import (
     FORMAT,
     MEASURED_KEYS,
@@ -24,7 +25,6 @@ from ineid.data.schema import (
     check_shapes,
     expected_shapes,
 )
-from ineid._faults import fault_errno, require_memory
 from ineid.errors import DatasetError
 from ineid.params import PARAM_NAMES
 

@@ -190,7 +190,7 @@ class DatasetWriter:
         loc = ", ".join(f"{label} {i}" for label, i in zip(labels, bad, strict=False))
         raise DatasetError(
             f"{self.path}: {name} would hold {what} ({loc}); nothing was written. A dataset holds finite numbers "
-            "only: lower the noise (--noise) or the sampling setting that overflows"
+            "only: lower the value that overflows (--noise, --gravity, a sampling setting)"
         )
 
     def _drain(self, keep: int = 0) -> None:
