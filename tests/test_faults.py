@@ -24,6 +24,8 @@ from click.testing import CliRunner
 from ineid._faults import describe_fault, fault_path
 from ineid.cli import main
 
+from .conftest import FIXTURES
+
 
 def run(*args):
     return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
@@ -305,21 +307,6 @@ def test_unreadable_input_names_the_file(monkeypatch, tmp_path, data):
 # -- absurd option values ----------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("sigma", ["0", "-1", "nan", "inf"])
-def test_sigma_must_be_positive_and_finite(tmp_path, data, sigma):
-    line = one_line(run("solve", data, "--weights", "noise", "--sigma", sigma, 1, 1, 1, 1, 1,
-                        "--out", tmp_path / "r.h5"), code=2)  # fmt: skip
-    assert "--sigma" in line and leftovers(tmp_path) == []
-
-
-@pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
-def test_lock_positions_must_be_finite(value):
-    from .conftest import FIXTURES
-
-    line = one_line(run("robot", "show", FIXTURES / "mixed_chain.urdf", "--lock", f"j2={value}"), code=2)
-    assert "finite position" in line and f"j2={value}" in line
-
-
 def test_noise_is_bounded_and_a_dataset_never_holds_inf(tmp_path, model):
     from ineid.data import Combination, DatasetSpec, NoiseModel, write_dataset
     from ineid.errors import DatasetError
@@ -372,6 +359,10 @@ def test_import_rate_and_delay_are_bounded(tmp_path, recording):
         (("train", "DATA", "--arch", "mlp", "--depth", 2, "--width", 10**9, "--out", "OUT"), 2, "too large"),
         (("train", "DATA", "--lr", "inf", "--out", "OUT"), 2, "finite"),
         (("solve", "DATA", "--workers", 10**6, "--out", "OUT"), 2, "--workers"),
+        *[(("solve", "DATA", "--weights", "noise", "--sigma", v, 1, 1, 1, 1, 1, "--out", "OUT"), 2, "'--sigma'")
+          for v in ("0", "-1", "nan", "inf")],
+        *[(("robot", "show", FIXTURES / "mixed_chain.urdf", "--lock", f"j2={v}"), 2, f"finite position, got 'j2={v}'")
+          for v in ("nan", "inf", "-inf")],
         (("train", "DATA", "--seed", 10**27, "--out", "OUT"), 2, "--seed"),
     ],
 )
@@ -394,9 +385,7 @@ def test_a_dataset_that_does_not_fit_in_memory(monkeypatch, data):
 
 
 def _copy_run(trained: Path, tmp_path: Path) -> Path:
-    run_dir = tmp_path / "run"
-    shutil.copytree(trained, run_dir)
-    return run_dir
+    return Path(shutil.copytree(trained, tmp_path / "run"))
 
 
 def test_damaged_checkpoint_on_resume(tmp_path, data, trained):
@@ -447,7 +436,7 @@ def _damage(src: Path, dst: Path, fn) -> Path:
         (lambda f: f.attrs.__setitem__("version", "x"), "attribute 'version' is not an integer"),
         (lambda f: (f.__delitem__("theta_std"), f.__setitem__("theta_std", np.zeros((3, 5)))),
          "dataset 'theta_std' is float64 of shape (3, 5), expected numbers of shape (2 x 20)"),
-        (lambda f: (f.__delitem__("base_hat"), f.__setitem__("base_hat", np.array([["a"] * 17] * 2, dtype=h5py.string_dtype()))),
+        (lambda f: (f.__delitem__("base_hat"), f.__setitem__("base_hat", np.full((2, 17), "a", h5py.string_dtype()))),
          "dataset 'base_hat' is text"),
     ],
 )
@@ -457,13 +446,6 @@ def test_damaged_results_file(tmp_path, results, damage, words):
         line = one_line(run(*args))
         assert line.startswith(f"Error: {path}: ") and words in line and "solve again" in line, line
     assert leftovers(tmp_path) == ["r.h5"]
-
-
-def test_truncated_results_file(tmp_path, results):
-    path = tmp_path / "r.h5"
-    path.write_bytes(results.read_bytes()[:5000])
-    for args in (("results", "info", path), ("export-urdf", path, "--config", 2, "--out", tmp_path / "x.urdf")):
-        assert "not a readable HDF5 file" in one_line(run(*args))
 
 
 @pytest.mark.parametrize(
@@ -489,19 +471,20 @@ def test_dataset_of_wrong_types(tmp_path, data, damage, words):
     assert leftovers(tmp_path) == ["d.h5"]
 
 
-def test_truncated_dataset(tmp_path, data):
-    path = tmp_path / "d.h5"
-    path.write_bytes(data.read_bytes()[: data.stat().st_size // 2])
-    for args in (("data", "info", path), ("solve", path, "--out", tmp_path / "r.h5")):
-        assert "is not a readable HDF5 file" in one_line(run("-q", *args))
+def test_truncated_dataset_and_results(tmp_path, data, results):
+    for src, commands in ((data, (("data", "info"), ("solve",))), (results, (("results", "info"), ("export-urdf",)))):
+        path = tmp_path / src.name
+        path.write_bytes(src.read_bytes()[: src.stat().st_size // 2])
+        for command in commands:
+            extra = ("--config", 2) if command == ("export-urdf",) else ()
+            outs = () if "info" in command else ("--out", tmp_path / "out")
+            assert "is not a readable HDF5 file" in one_line(run("-q", *command, path, *extra, *outs))
 
 
 def test_damaged_parsed_urdf_in_the_cache_is_parsed_again():
     import json
 
     from ineid.robots.urdf import _chain_file, _chain_key, parse_chain
-
-    from .conftest import FIXTURES
 
     data = (FIXTURES / "mixed_chain.urdf").read_bytes()
     good = parse_chain(data, "m.urdf")

@@ -223,7 +223,8 @@ class DatasetWriter:
             self._file.close()
         except Exception:  # noqa: BLE001 - the file is being discarded anyway
             pass
-        self._tmp.unlink(missing_ok=True)
+        with suppress(OSError):  # never hide the error that brought us here
+            self._tmp.unlink(missing_ok=True)
 
     def __enter__(self) -> DatasetWriter:
         return self
