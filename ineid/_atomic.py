@@ -22,7 +22,7 @@ import shutil
 import signal
 import sys
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 from ineid.errors import OutputBusyError, OutputExistsError
@@ -61,8 +61,14 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
+    except BaseException as e:
+        # never let the cleanup raise (a read-only folder refuses even the unlink): the
+        # first error is the one the user needs to see, naming the file (a failed write()
+        # on a full disk does not)
+        with suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        if isinstance(e, OSError) and e.filename is None:
+            e.filename = str(path)
         raise
 
 

@@ -76,3 +76,16 @@ class OutputIsInputError(IneidError):
 
 class OutputBusyError(IneidError):
     """Another process holds the output's lock (:func:`ineid._atomic.output_lock`): it is writing the same output."""
+
+
+class StorageError(IneidError):
+    """A file cannot be written where asked: not enough free space, a read-only or forbidden folder.
+
+    (The file system's own faults, ``OSError`` with ``ENOSPC``, ``EROFS``, ``EACCES``..., are
+    worded by :func:`ineid._faults.describe_fault`; this is raised before a write that
+    cannot fit.)
+    """
+
+
+class ResourceError(IneidError):
+    """A request needs more memory (or another machine resource) than there is, or than ineid allows."""

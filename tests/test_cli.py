@@ -343,7 +343,7 @@ def test_sigterm_leaves_no_file(tmp_path):
 
     out = tmp_path / "big.h5"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ineid.cli", "-q", "data", "generate", "--n-configs", "2000000", "--n-frames", "100",
+        [sys.executable, "-m", "ineid.cli", "-q", "data", "generate", "--n-configs", "200000", "--n-frames", "100",
          "--out", out], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 120
     while time.time() < deadline and not any(p.name.endswith(".tmp") for p in tmp_path.iterdir()):

@@ -4,10 +4,13 @@ One module per verb group (:mod:`.robot`: robot, generate; :mod:`.data`; :mod:`.
 :mod:`.identify`: identifiability, solve, export-urdf, study, results; :mod:`.learn`: train, evaluate, sweep),
 shared options in :mod:`.options`, console output in :mod:`.output`. Heavy libraries (JAX,
 CasADi, h5py, yourdfpy) are imported inside the commands, so ``ineid --help`` imports none
-of them. Any :class:`ineid.IneidError` becomes a one-line message and exit status 1; bad
-arguments exit with status 2 (click's usage error); Ctrl-C (130) and SIGTERM (143) leave no
-partial output file and say so in one line (or say what they left on purpose, such as a run
-to continue with ``--resume``).
+of them. Any :class:`ineid.IneidError` becomes a one-line message and exit status 1, and so
+does a fault the user can fix (a full disk, a read-only or forbidden folder, a name too
+long, memory run out: :func:`ineid._faults.describe_fault`); any other exception is a bug
+and keeps its traceback. Bad arguments exit with status 2 (click's usage error); Ctrl-C
+(130) and SIGTERM (143) leave no partial output file and say so in one line (or say what they left on purpose, such as a run
+to continue with ``--resume``). The table of
+exit statuses is in ``README.md`` (The command line).
 """
 
 from __future__ import annotations
@@ -15,10 +18,12 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import warnings
 
 import click
 
 from ineid._atomic import Terminated, terminate_on_sigterm
+from ineid._faults import describe_fault
 from ineid.errors import IneidError
 
 
@@ -42,6 +47,11 @@ class IneidGroup(click.Group):
             return super().invoke(ctx)
         except IneidError as e:
             raise click.ClickException(str(e)) from None
+        except (OSError, RuntimeError, MemoryError) as e:
+            fault = describe_fault(e)
+            if fault is None:
+                raise  # not the user's to fix: a bug, keep the traceback
+            raise click.ClickException(fault) from None
         except Terminated as e:
             click.echo(f"ineid: terminated (SIGTERM); {_left_behind(e)}", err=True)
             ctx.exit(143)
@@ -90,6 +100,10 @@ def main(ctx: click.Context, verbose: int, quiet: int) -> None:
     """
     ctx.obj = {"verbosity": verbose - quiet}
     configure_logging(verbose - quiet)
+    if verbose - quiet < 1:
+        # a full or read-only disk under the cache: JAX warns for every kernel it cannot store
+        # (the kernel still runs, only the next run compiles it again); -v shows them
+        warnings.filterwarnings("ignore", message="Error writing persistent compilation cache entry")
     terminate_on_sigterm()
     from ineid.cache import enable_compilation_cache  # noqa: PLC0415
 

@@ -9,6 +9,8 @@ from pathlib import Path
 import click
 
 from ineid.cli.options import (
+    SEED,
+    FiniteFloatRange,
     LibraryChoice,
     LibraryOption,
     deprecated_alias,
@@ -43,7 +45,7 @@ def data() -> None:
 @click.option("--n-frames", type=click.IntRange(min=1), cls=LibraryOption,
               default_from="ineid.data.generate:DatasetSpec.n_frames", help="Frames per configuration.")
 @deprecated_alias("--frames", "n_frames", "--n-frames", type=click.IntRange(min=1))
-@click.option("--seed", type=click.IntRange(min=0), cls=LibraryOption, default_from="ineid.data.generate:DatasetSpec.seed",
+@click.option("--seed", type=SEED, cls=LibraryOption, default_from="ineid.data.generate:DatasetSpec.seed",
               help="Seed of every random draw.")
 @click.option("--frame-mode", type=LibraryChoice(f"{_SAMPLING}:FRAME_MODES"), cls=LibraryOption,
               default_from=f"{_SAMPLING}:FrameSampling.mode",
@@ -53,18 +55,19 @@ def data() -> None:
               metavar="FILE",
               help="With --frame-mode trajectory: ineid excite's CSV (its rows are the frames) or JSON "
                    "(--n-frames samples over its duration, default its CSV's rows).")
-@click.option("--harmonics", type=click.IntRange(min=1), cls=LibraryOption,
-              default_from=f"{_SAMPLING}:FrameSampling.harmonics", help="Fourier harmonics per joint.")
-@click.option("--base-frequency", type=click.FloatRange(min=0, min_open=True), cls=LibraryOption,
-              default_from=f"{_SAMPLING}:FrameSampling.base_frequency", help="Fourier base frequency, Hz; one period is sampled.")
-@click.option("--mass-band", type=click.FloatRange(0, 1, max_open=True), cls=LibraryOption,
+@click.option("--harmonics", type=click.IntRange(1, 1000), cls=LibraryOption,
+              default_from=f"{_SAMPLING}:FrameSampling.harmonics", help="Fourier harmonics per joint (at most 1000).")
+@click.option("--base-frequency", type=FiniteFloatRange(0, 1000, min_open=True), cls=LibraryOption,
+              default_from=f"{_SAMPLING}:FrameSampling.base_frequency",
+              help="Fourier base frequency, Hz (at most 1000); one period is sampled.")
+@click.option("--mass-band", type=FiniteFloatRange(0, 1, max_open=True), cls=LibraryOption,
               default_from=f"{_SAMPLING}:ParameterSampling.mass_rel", help="Mass within CAD * (1 +- band).")
-@click.option("--com-box", type=click.FloatRange(min=0), cls=LibraryOption,
+@click.option("--com-box", type=FiniteFloatRange(min=0), cls=LibraryOption,
               default_from=f"{_SAMPLING}:ParameterSampling.com_box", help="Centre of mass within CAD +- box per axis, m.")
-@click.option("--inertia-band", type=click.FloatRange(0, 1, max_open=True), cls=LibraryOption,
+@click.option("--inertia-band", type=FiniteFloatRange(0, 1, max_open=True), cls=LibraryOption,
               default_from=f"{_SAMPLING}:ParameterSampling.inertia_rel",
               help="Second moments within CAD * (1 +- band), scaled with the mass.")
-@click.option("--rotation", type=click.FloatRange(min=0), cls=LibraryOption,
+@click.option("--rotation", type=FiniteFloatRange(min=0), cls=LibraryOption,
               default_from=f"{_SAMPLING}:ParameterSampling.orientation_deg",
               help="Largest turn of the principal axes from CAD, degrees (180: uniform).")
 @noise_option
@@ -108,14 +111,17 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
             "use --n-configs for a random subset",
             param_hint="--factorial",
         )
-    spec = DatasetSpec(
-        combination=combination,
-        n_frames=n_frames,
-        seed=seed,
-        parameters=ParameterSampling(mass_band, com_box, inertia_band, rotation),
-        frames=FrameSampling(frame_mode, harmonics, base_frequency, trajectory=sampled),
-        noise=noise_model(noise, model.n_dof),
-    )
+    try:
+        spec = DatasetSpec(
+            combination=combination,
+            n_frames=n_frames,
+            seed=seed,
+            parameters=ParameterSampling(mass_band, com_box, inertia_band, rotation),
+            frames=FrameSampling(frame_mode, harmonics, base_frequency, trajectory=sampled),
+            noise=noise_model(noise, model.n_dof),
+        )
+    except ValueError as e:  # a setting the options' own checks let through
+        raise click.UsageError(str(e)) from None
     t0 = time.perf_counter()
     with ProgressBar("generating", "configurations", quiet(ctx)) as bar:
         write_dataset(model, spec, out, overwrite=overwrite, progress=bar)
@@ -152,10 +158,10 @@ def _delay(ctx, param, value: str) -> float | None:
 @click.option("--sensor-pose", default=None, metavar="X,Y,Z,R,P,Y|FRAME",
               help="The sensor frame in the base frame (m, rad, URDF rpy) or a URDF link welded to the base "
                    "(default: the bag's wrench frame_id if the URDF has that link, else the base frame).")
-@click.option("--cutoff", type=click.FloatRange(min=0, min_open=True), default=None, metavar="HZ",
+@click.option("--cutoff", type=FiniteFloatRange(min=0, min_open=True), default=None, metavar="HZ",
               help="Low-pass cut-off of angles and wrench (default: chosen from the joint angles when qd, qdd "
                    "are derived; no filter when they are measured).")
-@click.option("--rate", type=click.FloatRange(min=0, min_open=True), default=None, metavar="HZ",
+@click.option("--rate", type=FiniteFloatRange(min=0, min_open=True), default=None, metavar="HZ",
               help="Rate of the frames (default: the slower stream's).")
 @click.option("--delay", default="0", show_default=True, metavar="S|auto", callback=_delay,
               help="How late the wrench time stamps are against the joints' (s), or auto: estimated from the "

@@ -8,6 +8,8 @@ from pathlib import Path
 import click
 
 from ineid.cli.options import (
+    SEED,
+    FiniteFloatRange,
     LibraryChoice,
     LibraryOption,
     noise_model,
@@ -25,29 +27,29 @@ _SETTINGS = "ineid.identify.excite:ExcitationSettings"
 
 @click.command("excite")
 @robot_options()
-@click.option("--duration", type=click.FloatRange(min=0, min_open=True), required=True,
+@click.option("--duration", type=FiniteFloatRange(min=0, min_open=True), required=True,
               help="Seconds of trajectory: a whole number of periods (and of samples at --rate).")
 @click.option("--harmonics", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_SETTINGS}.harmonics",
               help="Fourier harmonics per joint (at least 2 to start and end at rest).")
-@click.option("--base-frequency", type=click.FloatRange(min=0, min_open=True), default=None,
+@click.option("--base-frequency", type=FiniteFloatRange(min=0, min_open=True), default=None,
               help="Fourier base frequency, Hz.  [default: 1/duration, one period]")
 @click.option("--criterion", type=LibraryChoice("ineid.identify.excite:CRITERIA"), cls=LibraryOption,
               default_from=f"{_SETTINGS}.criterion",
               help="d-opt: -log det of the scaled information; cond: log of the scaled condition number.")
-@click.option("--starts", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_SETTINGS}.starts",
-              help="Random starts; the best design is kept.")
-@click.option("--rate", type=click.FloatRange(min=0, min_open=True), cls=LibraryOption,
+@click.option("--starts", type=click.IntRange(1, 10_000), cls=LibraryOption, default_from=f"{_SETTINGS}.starts",
+              help="Random starts (at most 10,000); the best design is kept.")
+@click.option("--rate", type=FiniteFloatRange(min=0, min_open=True), cls=LibraryOption,
               default_from=f"{_SETTINGS}.rate", help="Samples per second in the CSV, Hz.")
-@click.option("--margin", type=click.FloatRange(0, 0.5, max_open=True), cls=LibraryOption,
+@click.option("--margin", type=FiniteFloatRange(0, 0.5, max_open=True), cls=LibraryOption,
               default_from=f"{_SETTINGS}.margin", help="Fraction of each joint's range kept free at each end.")
-@click.option("--velocity-scale", type=click.FloatRange(0, 1, min_open=True), cls=LibraryOption,
+@click.option("--velocity-scale", type=FiniteFloatRange(0, 1, min_open=True), cls=LibraryOption,
               default_from=f"{_SETTINGS}.velocity_scale", help="Fraction of the model's velocity bounds used.")
-@click.option("--acceleration-scale", type=click.FloatRange(0, 1, min_open=True), cls=LibraryOption,
+@click.option("--acceleration-scale", type=FiniteFloatRange(0, 1, min_open=True), cls=LibraryOption,
               default_from=f"{_SETTINGS}.acceleration_scale", help="Fraction of the model's acceleration bounds used.")
 @click.option("--bias", type=LibraryChoice("ineid.identify.solve:BIAS_MODES"), cls=LibraryOption,
               default_from="ineid.identify.solve:SolveSettings.bias",
               help="estimate: design for ineid solve --bias estimate (six sensor offsets identified too).")
-@click.option("--seed", type=click.IntRange(min=0), cls=LibraryOption, default_from=f"{_SETTINGS}.seed",
+@click.option("--seed", type=SEED, cls=LibraryOption, default_from=f"{_SETTINGS}.seed",
               help="Seed of the random starts.")
 @noise_option
 @click.option("--out", type=click.Path(path_type=Path), required=True,

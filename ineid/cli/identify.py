@@ -8,6 +8,10 @@ from pathlib import Path
 import click
 
 from ineid.cli.options import (
+    NOISE_MAX,
+    SEED,
+    WORKERS,
+    FiniteFloatRange,
     LibraryChoice,
     LibraryOption,
     deprecated_alias,
@@ -33,7 +37,7 @@ _SOLVE = "ineid.identify.solve"
 @click.option("--n-frames", type=click.IntRange(min=1), default=200, show_default=True,
               help="Random frames (uniform within the bounds) to analyse.")
 @deprecated_alias("--frames", "n_frames", "--n-frames", type=click.IntRange(min=1))
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--data", "data_path", type=click.Path(path_type=Path), default=None,
               help="Analyse the frames of a dataset instead (with --config).")
 @click.option("--config", type=click.IntRange(min=0), default=0, show_default=True, help="Configuration of --data.")
@@ -59,8 +63,10 @@ def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
         q, qd, qdd = ds.q[0], ds.qd[0], ds.qdd[0]
         source = f"{len(q)} frames of configuration {config} of {data_path}"
     else:
+        _require_frames_memory(model, n_frames)
         q, qd, qdd = generic_frames(model, n_frames, seed)
         source = f"{n_frames} random frames within the bounds (seed {seed})"
+    _require_frames_memory(model, len(q))
     a = analyze_frames(model, q, qd, qdd, base, bias=with_bias)
     con = console()
     n = base.n_params
@@ -103,6 +109,14 @@ def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
         _print_bias_cost(con, model, q, qd, qdd)
 
 
+def _require_frames_memory(model, n_frames: int) -> None:
+    """The analysis holds the regressor of every frame (6 x 10 n_links) and a few copies of it."""
+    from ineid._faults import require_memory  # noqa: PLC0415
+
+    require_memory(4 * n_frames * 6 * 10 * model.n_links * 8, f"analysing {n_frames:,} frames",
+                   "use fewer frames (--n-frames)")  # fmt: skip
+
+
 def _print_bias_cost(con, model, q, qd, qdd) -> None:
     from ineid.identify import bias_cost  # noqa: PLC0415
 
@@ -142,7 +156,7 @@ def _print_bias_cost(con, model, q, qd, qdd) -> None:
 @click.option("--weights", type=LibraryChoice("ineid.identify.linear:WEIGHT_MODES"), cls=LibraryOption,
               default_from=f"{_SOLVE}:SolveSettings.weights",
               help="Row weights per wrench axis: none, from the noise levels (--sigma or the file), or estimated.")
-@click.option("--sigma", nargs=6, type=float, default=None, metavar="FX FY FZ MX MY MZ",
+@click.option("--sigma", nargs=6, type=FiniteFloatRange(min=0, min_open=True), default=None, metavar="FX FY FZ MX MY MZ",
               help="Wrench noise std per axis (N, N*m) for --weights noise.")
 @click.option("--start", type=LibraryChoice(f"{_SOLVE}:STARTS"), cls=LibraryOption,
               default_from=f"{_SOLVE}:SolveSettings.start",
@@ -151,8 +165,8 @@ def _print_bias_cost(con, model, q, qd, qdd) -> None:
               default_from=f"{_SOLVE}:SolveSettings.backend",
               help="Least squares: fused JAX kernels; CasADi per configuration (linear only); or "
                    "casadi-c, the CasADi route compiled to C (IPOPT problems too; needs a C compiler).")
-@click.option("--workers", type=click.IntRange(min=1), default=None,
-              help="Processes for IPOPT (default: CPU count; fewer than 256 configurations run in one).")
+@click.option("--workers", type=WORKERS, default=None,
+              help="Processes for IPOPT (default: CPU count, at most 4 x; fewer than 256 configurations run in one).")
 @click.option("--bias", type=LibraryChoice(f"{_SOLVE}:BIAS_MODES"), cls=LibraryOption,
               default_from=f"{_SOLVE}:SolveSettings.bias",
               help="estimate: identify six constant sensor offsets with the parameters (an untared sensor).")
@@ -284,7 +298,7 @@ def study() -> None:
 
 @study.command("noise")
 @robot_options(positional="optional", with_gravity=False)
-@click.option("--levels", default="0,0.5,1,2,4", show_default=True, callback=numbers(float, "--levels"),
+@click.option("--levels", default="0,0.5,1,2,4", show_default=True, callback=numbers(float, "--levels", 0, NOISE_MAX),
               help="Noise levels, multiples of force 0.5 N, moment 0.05 N*m, qd 0.01 rad/s, qdd 0.1 rad/s^2.")
 @click.option("--fit-frames", default="10,50,200", show_default=True, callback=numbers(int, "--fit-frames", 1),
               help="Frames fitted per configuration, comma-separated (one study line each).")
@@ -293,8 +307,9 @@ def study() -> None:
 @deprecated_alias("--configs", "n_configs", "--n-configs", type=click.IntRange(min=1))
 @click.option("--methods", default="linear,weighted,consistent", show_default=True,
               callback=names_in("ineid.identify.study:STUDY_METHODS", "--methods"))
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
-@click.option("--workers", type=click.IntRange(min=1), default=None, help="Processes for IPOPT (default: CPU count).")
+@click.option("--seed", type=SEED, default=0, show_default=True)
+@click.option("--workers", type=WORKERS, default=None,
+              help="Processes for IPOPT (default: CPU count, at most 4 x).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Folder for noise_study.csv and noise_study.png.")
 @overwrite_option

@@ -7,6 +7,8 @@ from pathlib import Path
 import click
 
 from ineid.cli.options import (
+    SEED,
+    FiniteFloatRange,
     LibraryChoice,
     LibraryOption,
     deprecated_alias,
@@ -31,15 +33,15 @@ def _run_options(f):
                      help="Hidden layers of --arch mlp (or of the wls frame encoder, default 2)."),
         click.option("--width", type=click.IntRange(min=1), default=None,
                      help="Neurons per layer of --arch mlp (or of the wls frame encoder, default 32)."),
-        click.option("--lr", type=click.FloatRange(min=0, min_open=True), cls=LibraryOption, default_from=f"{_CFG}.lr"),
+        click.option("--lr", type=FiniteFloatRange(min=0, min_open=True), cls=LibraryOption, default_from=f"{_CFG}.lr"),
         click.option("--schedule", type=LibraryChoice("ineid.learn.train:SCHEDULES"), cls=LibraryOption,
                      default_from=f"{_CFG}.schedule"),
         click.option("--epochs", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_CFG}.epochs"),
         click.option("--batch", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_CFG}.batch",
                      help="Samples per step."),
-        click.option("--alpha", type=click.FloatRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.alpha",
+        click.option("--alpha", type=FiniteFloatRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.alpha",
                      help="Weight of the MSE."),
-        click.option("--beta", type=click.FloatRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.beta",
+        click.option("--beta", type=FiniteFloatRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.beta",
                      help="Weight of the wrench residual (physics loss)."),
         click.option("--patience", type=click.IntRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.patience",
                      help="Early stopping: epochs without a better validation MSE (0: off)."),
@@ -49,7 +51,7 @@ def _run_options(f):
                      help="Validation configurations (default 15 %)."),
         click.option("--test-configs", "n_test", type=click.IntRange(min=1), default=None,
                      help="Test configurations (default: the rest)."),
-        click.option("--seed", type=click.IntRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.seed"),
+        click.option("--seed", type=SEED, cls=LibraryOption, default_from=f"{_CFG}.seed"),
         click.option("--physics-mode", type=LibraryChoice("ineid.learn.losses:PHYSICS_MODES"), default="cached",
                      show_default=True, help="Regressor of the physics loss: computed once per frame, or inside the loss."),
     ]  # fmt: skip
@@ -191,9 +193,9 @@ def evaluate_cmd(run_dir, data_path, selection, no_linear, out, overwrite) -> No
               help="Run the trials one after another here, or as tasks on a Ray cluster (pip install 'ineid[ray]').")
 @click.option("--address", default=None, metavar="ADDR",
               help="Ray cluster to join (ray://head:10001, auto); default: a local one started for the sweep.")
-@click.option("--cpus-per-trial", type=click.FloatRange(min=0), default=1.0, show_default=True,
+@click.option("--cpus-per-trial", type=FiniteFloatRange(min=0), default=1.0, show_default=True,
               help="CPUs each trial reserves (--engine ray).")
-@click.option("--gpus-per-trial", type=click.FloatRange(min=0), default=0.0, show_default=True,
+@click.option("--gpus-per-trial", type=FiniteFloatRange(min=0), default=0.0, show_default=True,
               help="GPUs each trial reserves (--engine ray).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
 @click.option("--resume", is_flag=True,

@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import functools
 import importlib
+import math
+import os
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import MISSING, dataclass, fields
@@ -100,6 +102,30 @@ class LibraryChoice(click.ParamType):
         return self.choice.shell_complete(ctx, param, incomplete)
 
 
+class FiniteFloatRange(click.FloatRange):
+    """``click.FloatRange`` that also refuses NaN and infinity (which pass click's range checks).
+
+    Every float option of ineid uses it: a NaN or infinite setting never reaches the library
+    (where it would write NaN into a dataset or allocate without bound).
+    """
+
+    def convert(self, value, param, ctx):
+        rv = click.FLOAT.convert(value, param, ctx)
+        if not math.isfinite(rv):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return super().convert(rv, param, ctx)
+
+
+FINITE = FiniteFloatRange()
+"""Any finite float (``--gravity``)."""
+SEED = click.IntRange(0, 2**63 - 1)
+"""``--seed``: NumPy's and JAX's generators take 64-bit seeds (a larger one was an OverflowError)."""
+MAX_WORKERS = 4 * (os.cpu_count() or 1)
+WORKERS = click.IntRange(1, MAX_WORKERS)
+"""``--workers``: each process loads CasADi and the generated code (about 200 MB); more than four per
+CPU only costs memory (a million would exhaust it)."""
+
+
 def names_in(ref: str, hint: str):
     """Callback: comma-separated names, each one of the library constant ``ref`` -> tuple."""
 
@@ -116,20 +142,19 @@ def names_in(ref: str, hint: str):
     return callback
 
 
-def numbers(cast: type, hint: str, minimum: float = 0):
-    """Callback: comma-separated numbers, each at least ``minimum`` -> tuple."""
+def numbers(cast: type, hint: str, minimum: float = 0, maximum: float = math.inf):
+    """Callback: comma-separated finite numbers, each in ``[minimum, maximum]`` -> tuple."""
 
     def callback(ctx, param, value):
         if value is None:
             return None
         try:
             vals = tuple(cast(v) for v in value.split(",") if v.strip())
-            if not vals or min(vals) < minimum:
+            if not vals or not all(minimum <= v <= maximum and math.isfinite(v) for v in vals):
                 raise ValueError
         except ValueError:
-            raise click.BadParameter(
-                f"expected comma-separated numbers >= {minimum:g}, got {value!r}", param_hint=hint
-            ) from None
+            bound = f"in [{minimum:g}, {maximum:g}]" if math.isfinite(maximum) else f">= {minimum:g}"
+            raise click.BadParameter(f"expected comma-separated numbers {bound}, got {value!r}", param_hint=hint) from None
         return vals
 
     return callback
@@ -170,8 +195,11 @@ def _parse_locked(ctx, param, values: tuple[str, ...]) -> dict[str, float] | Non
             if not sep or not name.strip():
                 raise ValueError
             out[name.strip()] = float(val)
+            if not math.isfinite(out[name.strip()]):
+                raise ValueError
         except ValueError:
-            raise click.BadParameter(f"expected JOINT=POSITION, got {item!r}", param_hint="--lock") from None
+            raise click.BadParameter(f"expected JOINT=POSITION with a finite position, got {item!r}",
+                                     param_hint="--lock") from None  # fmt: skip
     return out or None
 
 
@@ -184,7 +212,7 @@ lock_option = click.option(
     help="Treat a URDF joint as fixed at POS (repeatable).",
 )  # fmt: skip
 gravity_option = click.option(
-    "--gravity", nargs=3, type=float, default=None, metavar="GX GY GZ",
+    "--gravity", nargs=3, type=FINITE, default=None, metavar="GX GY GZ",
     help="m/s^2, base frame (default 0 0 -9.81).",
 )  # fmt: skip
 
@@ -401,6 +429,9 @@ select_option = click.option(
 )  # fmt: skip
 select_alias = deprecated_alias("--configs", "selection", "--select")
 
+NOISE_MAX = 1e6
+"""The largest ``--noise`` value (std in N, N*m, rad, rad/s, rad/s^2, or the glitch scale): far above any
+sensor's, and low enough that noisy values, their squares and sums stay finite in float64."""
 NOISE_KEYS = ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "q", "qd", "qdd", "glitch", "glitch_scale")
 
 
@@ -417,11 +448,12 @@ def _parse_noise(ctx, param, value: str | None) -> dict[str, float] | None:
             if not sep or key not in NOISE_KEYS:
                 raise ValueError
             std[key] = float(val)
-            if not 0 <= std[key] < float("inf"):
+            if not 0 <= std[key] <= NOISE_MAX:  # NaN fails too
                 raise ValueError
         except ValueError:
             raise click.BadParameter(
-                f"expected KEY=STD with KEY in {', '.join(NOISE_KEYS)} and STD >= 0, got {item.strip()!r}",
+                f"expected KEY=STD with KEY in {', '.join(NOISE_KEYS)} and 0 <= STD <= {NOISE_MAX:g}, got "
+                f"{item.strip()!r}",
                 param_hint="--noise",
             ) from None
     return std
@@ -430,7 +462,7 @@ def _parse_noise(ctx, param, value: str | None) -> dict[str, float] | None:
 noise_option = click.option(
     "--noise", default=None, metavar="KEY=STD,...", callback=_parse_noise,
     help="Gaussian noise std: force, moment (or fx..mz) in N, N*m; q, qd, qdd in rad, rad/s, rad/s^2; "
-         "glitch=RATE: that share of frames gets glitch_scale (default 20) times the force noise.",
+         "glitch=RATE: that share of frames gets glitch_scale (default 20) times the force noise. Each at most 1e6.",
 )  # fmt: skip
 
 

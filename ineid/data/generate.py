@@ -73,6 +73,11 @@ class DatasetSpec:
         }
 
 
+MAX_CHUNK_BYTES = 1 << 30
+"""The largest chunk of one array a dataset is generated and stored in (HDF5 allows < 4 GiB; memory
+holds about ten): :data:`ineid.data.sampling.RNG_BLOCK_CONFIGS` configurations of all their frames."""
+
+
 class GenerationPlan:
     """The parts of a generation run shared by the in-memory and the streaming paths."""
 
@@ -80,6 +85,7 @@ class GenerationPlan:
         if not model.unknown_links:
             raise DatasetError("the model has no unknown links; choose the links to identify (--unknown-links)")
         self.model, self.spec = model, spec
+        self._check_memory()
         self.theta_known = np.asarray(model.theta_cad[model.known_index], dtype=np.float64)
         self.theta_unknown, self.link_set_index = sample_configurations(
             model.theta_cad[model.unknown_index], spec.combination, spec.seed, spec.parameters
@@ -110,6 +116,32 @@ class GenerationPlan:
             rows = min(RNG_BLOCK_CONFIGS, self.n_configs)
         self.rows = rows
         self._wrench_fn = None
+
+    def _check_memory(self) -> None:
+        """Refuse sizes whose parameters (all configurations) or one chunk of frames cannot be held.
+
+        The parameters of every configuration are sampled up front, ``11 n_unknown`` numbers
+        each; the frames are made a chunk at a time (at least :data:`RNG_BLOCK_CONFIGS`
+        configurations), about ten arrays of ``rows x n_frames x max(6, n_dof)`` alive at once.
+        """
+        from ineid._faults import format_bytes, require_memory  # noqa: PLC0415
+
+        m, spec = self.model, self.spec
+        n_u = len(m.unknown_links)
+        n_configs = spec.combination.count(n_u)
+        c = spec.combination
+        pool = f" ({c.pool_size():,} parameter sets per link)" if c.mode == "random" and c.per_link else ""
+        nbytes = (c.pool_size() * n_u * 10 + n_configs * 11 * n_u) * 8 * 2  # sets, parameters, indices; temporaries
+        require_memory(nbytes, f"{n_configs:,} configurations{pool}", "make fewer (--n-configs, --factorial, --pool)")
+        rows = min(RNG_BLOCK_CONFIGS, n_configs)
+        chunk = rows * spec.n_frames * max(6, m.n_dof) * 8
+        if chunk >= MAX_CHUNK_BYTES:
+            raise DatasetError(
+                f"{spec.n_frames:,} frames per configuration make chunks of {format_bytes(chunk)} per array ({rows} "
+                f"configurations each), above the {format_bytes(MAX_CHUNK_BYTES)} ineid stores in one piece; "
+                "use fewer frames (--n-frames)"
+            )
+        require_memory(10 * chunk, f"{spec.n_frames:,} frames per configuration", "use fewer frames (--n-frames)")
 
     def _wrench(self, q, qd, qdd, theta) -> np.ndarray:
         import jax  # noqa: PLC0415
@@ -171,6 +203,12 @@ def generate_dataset(model: RobotModel, spec: DatasetSpec = DatasetSpec(), progr
         The :class:`Dataset`; the same ``spec`` gives bit-identical arrays.
     """
     plan = GenerationPlan(model, spec)
+    from ineid._faults import require_memory  # noqa: PLC0415
+
+    per_frame = (3 * model.n_dof + 6) * (2 if plan.noise is not None else 1) + 1  # states, wrench, clean copies, time
+    require_memory(2 * plan.n_configs * spec.n_frames * per_frame * 8,  # the chunks, then their concatenation
+                   f"{plan.n_configs:,} configurations x {spec.n_frames:,} frames in memory",
+                   "make fewer configurations or frames")  # fmt: skip
     collected: dict[str, list[np.ndarray]] = {}
     for start, arrays in plan.chunks():
         for k, v in arrays.items():

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ineid._faults import fault_errno, require_memory
 from ineid.data.schema import (
     FORMAT,
     MEASURED_KEYS,
@@ -40,6 +41,8 @@ def _open(path: Path):
     try:
         return h5py.File(path, "r")
     except OSError as e:
+        if fault_errno(e) is not None:
+            raise  # permission denied, an I/O error: the CLI names the file and the fix
         raise DatasetError(
             f"{path} is not a readable HDF5 file ({_first_line(e)}); it may be truncated or corrupt: "
             "regenerate it or copy it again"
@@ -66,6 +69,46 @@ def _json_attr(attrs, key: str, where: str):
         raise DatasetError(f"{where}: attribute {key!r} is missing or not JSON; the file is damaged") from None
 
 
+def _number_attr(attrs, key: str, where: str, dtype) -> np.ndarray:
+    value = np.asarray(attrs[key])
+    if value.dtype.kind not in ("iu" if dtype is np.int64 else "iuf"):
+        raise DatasetError(f"{where}: attribute {key!r} holds {value.dtype} {value.tolist()!r:.60}, not numbers; "
+                           "the file is damaged")  # fmt: skip
+    return value.astype(dtype)
+
+
+def _describe_dtype(dtype) -> str:
+    return {"O": "text (objects)", "S": "text (bytes)", "U": "text", "c": "complex numbers", "V": "records",
+            "b": "booleans", "i": "integers", "u": "integers"}.get(dtype.kind, str(dtype))  # fmt: skip
+
+
+def _array_shapes(f, where: str, meta: DatasetMeta) -> dict[str, tuple[int, ...]]:
+    """The shapes of the file's datasets; the arrays ineid reads must be datasets of real numbers.
+
+    A file ineid did not write may hold ``q`` as strings, objects, integers or complex
+    numbers: refused here, naming the array, instead of a ``TypeError`` deep in a solver.
+    """
+    known = expected_shapes(meta, 1, 1)
+    shapes = {}
+    for name in f:
+        obj = f[name]
+        if not hasattr(obj, "dtype"):
+            if name in known:
+                raise DatasetError(f"{where}: {name!r} is a group, not an array; the file is damaged or not an ineid "
+                                   "dataset")  # fmt: skip
+            continue
+        if name in known:
+            want = "iu" if name == "link_set_index" else "f"
+            if obj.dtype.kind not in want:
+                raise DatasetError(
+                    f"{where}: {name} holds {_describe_dtype(obj.dtype)}, expected "
+                    f"{'integers' if want == 'iu' else 'floating-point numbers (float64)'}; the file was not written "
+                    "by ineid or is damaged: convert the array or regenerate the file"
+                )
+        shapes[name] = tuple(obj.shape)
+    return shapes
+
+
 def _read_meta(f, where: str) -> DatasetMeta:
     attrs = f.attrs
     fmt = _as_str(attrs.get("format", ""))
@@ -88,14 +131,14 @@ def _read_meta(f, where: str) -> DatasetMeta:
         meta = DatasetMeta(
             robot=_as_str(attrs["robot"]),
             urdf=_as_str(attrs["urdf"]),
-            gravity=np.asarray(attrs["gravity"], dtype=np.float64),
+            gravity=_number_attr(attrs, "gravity", where, np.float64),
             joint_names=_str_tuple(attrs["joint_names"]),
             link_names=_str_tuple(attrs["link_names"]),
             unknown_links=_str_tuple(attrs["unknown_links"]),
             known_links=_str_tuple(attrs["known_links"]),
             locked_joints=_json_attr(attrs, "locked_joints", where) or {},
             source=_as_str(attrs["source"]),
-            seed=int(attrs["seed"]) if "seed" in attrs else None,
+            seed=int(_number_attr(attrs, "seed", where, np.int64)) if "seed" in attrs else None,
             sampling=_json_attr(attrs, "sampling", where),
             noise=_json_attr(attrs, "noise", where),
             origin=_json_attr(attrs, "origin", where),
@@ -119,7 +162,7 @@ def read_meta(path: str | Path) -> tuple[DatasetMeta, dict[str, tuple[int, ...]]
     path = Path(path)
     with _open(path) as f:
         meta = _read_meta(f, str(path))
-        shapes = {name: tuple(f[name].shape) for name in f}
+        shapes = _array_shapes(f, str(path), meta)
         check_shapes(meta, shapes, str(path))
         for name in ("q", "qd", "qdd", "wrench", "theta_known"):
             if name not in shapes:
@@ -166,6 +209,10 @@ def load_dataset(path: str | Path, configs=None, frames=None, clean: bool = True
     cidx = _index(configs, n_configs, "configuration")
     fidx = _index(frames, n_frames, "frame")
     where = str(path)
+    wanted = [k for k in shapes if k in expected_shapes(meta, 1, 1) and (clean or not k.endswith("_clean"))]
+    per_config = sum(int(np.prod(shapes[k][1:])) for k in wanted if k != "theta_known")
+    require_memory(per_config * len(cidx) * 8, f"reading {len(cidx):,} configurations of {path}",
+                   "select fewer (--select)")  # fmt: skip
     out: dict[str, np.ndarray] = {}
     with _open(path) as f:
         for name in shapes:

@@ -225,12 +225,47 @@ def _check_stream(name: str, t: np.ndarray, arrays: dict[str, np.ndarray], sourc
             rows = np.flatnonzero(bad.any(axis=1))
             k = int(rows[0])
             what = "NaN" if np.isnan(a.reshape(len(a), -1)[k]).any() else "an infinite value"
-            when = f", t = {t[k]!r} s" if label != "time" and np.isfinite(t[k]) else ""
+            when = f", t = {float(t[k])!r} s" if label != "time" and np.isfinite(t[k]) else ""
             raise DatasetError(
                 f"{source}: the {name} stream's {label} holds {what} at sample {k}{when} ({len(rows)} sample"
                 f"{'s' if len(rows) != 1 else ''} in all); values must be finite: drop or repair those samples"
             )
     return signals.median_interval(t, f"{source}: the {name} stream")
+
+
+MAX_UPSAMPLING = 100.0
+"""``--rate`` may be at most this multiple of the faster stream's rate: resampling adds no information,
+and beyond it only memory (a 10 s recording at 1e9 Hz wanted 74 GiB)."""
+
+
+def _check_delay(delay: float, tq: np.ndarray, tw: np.ndarray, src: str) -> None:
+    """A delay longer than the whole recording leaves no overlap (and, huge, no time resolution)."""
+    with np.errstate(invalid="ignore"):
+        span = float(np.max([tq.max(), tw.max()]) - np.min([tq.min(), tw.min()])) if tq.size and tw.size else 0.0
+    if math.isfinite(span) and abs(delay) > span:
+        raise DatasetError(
+            f"{src}: a delay of {delay:g} s is longer than the whole recording ({span:.6g} s), so the streams cannot "
+            "overlap; --delay is how late the wrench time stamps are against the joints', in seconds"
+        )
+
+
+def _check_rate(rate: float | None, joint_rate: float, wrench_rate: float, overlap: float, n_dof: int) -> None:
+    """Refuse a ``rate`` above :data:`MAX_UPSAMPLING` x the faster stream's, or frames that do not fit in memory."""
+    if rate is None:
+        return
+    fastest = max(joint_rate, wrench_rate)
+    if rate > MAX_UPSAMPLING * fastest * (1 + 1e-9):  # the median interval of printed time stamps is inexact
+        raise DatasetError(
+            f"--rate {rate:g} Hz is more than {MAX_UPSAMPLING:g} x the faster stream's rate ({fastest:g} Hz): "
+            f"resampling adds no information; use at most {MAX_UPSAMPLING * fastest:g} Hz (default: the slower "
+            "stream's rate)"
+        )
+    from ineid._faults import require_memory  # noqa: PLC0415
+
+    # frames x (q, qd, qdd, wrench, time) in float64, about four copies alive while resampling
+    n_frames = max(overlap, 0.0) * rate
+    require_memory(n_frames * (3 * n_dof + 7) * 8 * 4, f"{n_frames:,.0f} frames at --rate {rate:g} Hz",
+                   "lower --rate")  # fmt: skip
 
 
 def recording_dataset(streams: Streams, model, settings: ImportSettings = ImportSettings()) -> tuple[Dataset, ImportSummary]:
@@ -279,10 +314,12 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     w = np.asarray(streams.wrench, dtype=np.float64) * (-1.0 if settings.flip_wrench else 1.0)
     if w.ndim != 2 or w.shape != (len(tw), 6):
         raise DatasetError(f"{src}: wrench of shape {w.shape} for {len(tw)} time stamps; expected 6 columns")
+    _check_delay(settings.delay, tq, np.asarray(streams.wrench_time, dtype=np.float64), src)
     hq = _check_stream("joint", tq, joint_arrays, src)
     hw = _check_stream("wrench", tw, {"wrench": w}, src)
     sensor = resolve_sensor(settings.sensor_pose, streams.frame_id, model)
     rate = settings.rate or min(1.0 / hq, 1.0 / hw)
+    _check_rate(settings.rate, 1.0 / hq, 1.0 / hw, min(tq[-1], tw[-1]) - max(tq[0], tw[0]), n)
     same_clock = len(tq) == len(tw) and np.array_equal(tq, tw)
 
     # 1. filter (and differentiate) each stream on a uniform grid at its own rate

@@ -33,6 +33,7 @@ not depend on how generation is chunked, and the clean data do not depend on the
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,6 +47,11 @@ STREAM_PAIRING = 2
 STREAM_FRAMES = 3
 STREAM_NOISE = 4
 
+MAX_HARMONICS = 1000
+"""Fourier frames: at most this many harmonics per joint (their coefficients and sines are held
+for a chunk of configurations and frames; 1000 of 0.1 Hz already reach 100 Hz)."""
+MAX_BASE_FREQUENCY = 1000.0
+"""Fourier frames: the largest base frequency, Hz (a robot's joints do not follow kHz motion)."""
 RNG_BLOCK_CONFIGS = 64
 """Configurations per random-number block: the unit of chunked, order-independent draws."""
 
@@ -77,12 +83,12 @@ class ParameterSampling:
     def __post_init__(self) -> None:
         if not 0 <= self.mass_rel < 1:
             raise ValueError(f"mass_rel must be in [0, 1), got {self.mass_rel}")
-        if not self.com_box >= 0:
-            raise ValueError(f"com_box must be >= 0 m, got {self.com_box}")
+        if not 0 <= self.com_box < math.inf:
+            raise ValueError(f"com_box must be a finite number >= 0 m, got {self.com_box}")
         if not 0 <= self.inertia_rel < 1:
             raise ValueError(f"inertia_rel must be in [0, 1), got {self.inertia_rel}")
-        if not 0 <= self.orientation_deg:
-            raise ValueError(f"orientation_deg must be >= 0, got {self.orientation_deg}")
+        if not 0 <= self.orientation_deg < math.inf:
+            raise ValueError(f"orientation_deg must be a finite number >= 0, got {self.orientation_deg}")
         if not 0 < self.min_second_moment_rel <= 1:
             raise ValueError(f"min_second_moment_rel must be in (0, 1], got {self.min_second_moment_rel}")
 
@@ -282,11 +288,11 @@ class FrameSampling:
             raise ValueError(f"frame mode must be one of {', '.join(FRAME_MODES)}, got {self.mode!r}")
         if (self.mode == "trajectory") != (self.trajectory is not None):
             raise ValueError("frame mode 'trajectory' needs a trajectory (--trajectory FILE), and only it takes one")
-        if self.harmonics < 1:
-            raise ValueError(f"harmonics must be >= 1, got {self.harmonics}")
-        if not self.base_frequency > 0:
-            raise ValueError(f"base_frequency must be > 0 Hz, got {self.base_frequency}")
-        if self.duration is not None and not self.duration > 0:
+        if not 1 <= self.harmonics <= MAX_HARMONICS:
+            raise ValueError(f"harmonics must be in 1..{MAX_HARMONICS}, got {self.harmonics}")
+        if not 0 < self.base_frequency <= MAX_BASE_FREQUENCY:
+            raise ValueError(f"base_frequency must be in (0, {MAX_BASE_FREQUENCY:g}] Hz, got {self.base_frequency}")
+        if self.duration is not None and not 0 < self.duration < math.inf:
             raise ValueError(f"duration must be > 0 s, got {self.duration}")
         for name in ("velocity_scale", "acceleration_scale"):
             if not 0 < getattr(self, name) <= 1:

@@ -57,7 +57,7 @@ def median_interval(t: np.ndarray, what: str) -> float:
     if not np.all(dt > 0):
         k = int(np.flatnonzero(~(dt > 0))[0])
         raise DatasetError(
-            f"{what}: time does not increase at sample {k + 1} ({t[k]!r} s, then {t[k + 1]!r} s); "
+            f"{what}: time does not increase at sample {k + 1} ({float(t[k])!r} s, then {float(t[k + 1])!r} s); "
             "sort the samples by time and drop repeated ones"
         )
     return float(np.median(dt))

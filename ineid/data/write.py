@@ -14,13 +14,15 @@ import os
 import zlib
 from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import suppress
 from pathlib import Path
 
 import numpy as np
 
 from ineid._atomic import check_output, temporary_path
+from ineid._faults import format_bytes, free_disk
 from ineid.data.schema import FORMAT, VERSION, Dataset, DatasetMeta, expected_shapes
-from ineid.errors import DatasetError
+from ineid.errors import DatasetError, StorageError
 from ineid.params import PARAM_NAMES
 
 GZIP_LEVEL = 1
@@ -112,9 +114,16 @@ class DatasetWriter:
             raise ValueError(f"not per-configuration datasets: {unknown}")
         self.rows = rows or chunk_rows(self.n_frames, max(6, meta.n_dof), self.n_configs)
         self._tmp = temporary_path(self.path)
-        self._file = h5py.File(self._tmp, "w")
+        try:
+            self._file = h5py.File(self._tmp, "w")
+        except BaseException:
+            # HDF5 may have created the file before failing (a full disk): leave nothing
+            with suppress(OSError):
+                self._tmp.unlink(missing_ok=True)
+            raise
         self._pool = ThreadPoolExecutor(max_workers=workers or os.cpu_count() or 1)
         self._pending: list[tuple[Future, object, tuple[int, ...]]] = []
+        self._space = _SpaceWatch(self.path, arrays, self.n_configs)
         try:
             for key, value in _meta_attrs(meta).items():
                 self._file.attrs[key] = value
@@ -136,14 +145,24 @@ class DatasetWriter:
             raise
 
     def write_constant(self, name: str, array: np.ndarray) -> None:
-        """A small dataset written whole (``theta_known``)."""
+        """A small dataset written whole (``theta_known``).
+
+        Raises:
+            DatasetError: a wrong shape, or NaN or infinite values (nothing is written).
+        """
         array = np.asarray(array, dtype=np.float64)
         if array.shape != self.shapes[name]:
             raise DatasetError(f"{name} has shape {array.shape}, expected {self.shapes[name]}")
+        self._check_finite(name, 0, array)
         self._file.create_dataset(name, data=array)
 
     def write(self, name: str, start: int, array: np.ndarray) -> None:
-        """Store configurations ``start .. start + len(array)`` of ``name``."""
+        """Store configurations ``start .. start + len(array)`` of ``name``.
+
+        Raises:
+            DatasetError: NaN or infinite values (a dataset never holds them: the write
+                stops and the file is dropped), or a projected size above the free disk.
+        """
         dset = self._dsets[name]
         shape = self.shapes[name]
         array = np.ascontiguousarray(array, dtype=dset.dtype)
@@ -151,17 +170,36 @@ class DatasetWriter:
             raise ValueError(f"{name}: block of shape {array.shape} at {start} does not fit chunks of {self.rows}")
         if start + len(array) < shape[0] and len(array) % self.rows:
             raise ValueError(f"{name}: only the last block may end inside a chunk")
+        self._check_finite(name, start, array)
         for c0 in range(0, len(array), self.rows):
             offset = (start + c0,) + (0,) * (array.ndim - 1)
             job = self._pool.submit(_compress_chunk, array[c0 : c0 + self.rows], self.rows)
             self._pending.append((job, dset, offset))
         self._drain(keep=2 * (os.cpu_count() or 1))
 
+    def _check_finite(self, name: str, start: int, array: np.ndarray) -> None:
+        if array.dtype.kind != "f" or np.isfinite(array).all():
+            return
+        bad = np.argwhere(~np.isfinite(array))[0].tolist()
+        what = "NaN" if np.isnan(array[tuple(bad)]) else "an infinite value"
+        if name == "theta_known":
+            labels = ("entry",)
+        else:
+            bad[0] += start
+            labels = ("configuration", "frame" if array.ndim == 3 or name == "time" else "column", "column")
+        loc = ", ".join(f"{label} {i}" for label, i in zip(labels, bad, strict=False))
+        raise DatasetError(
+            f"{self.path}: {name} would hold {what} ({loc}); nothing was written. A dataset holds finite numbers "
+            "only: lower the value that overflows (--noise, --gravity, a sampling setting)"
+        )
+
     def _drain(self, keep: int = 0) -> None:
         # Chunks are stored in submission order by this thread, the only one using h5py.
         while len(self._pending) > keep:
             job, dset, offset = self._pending.pop(0)
-            dset.id.write_direct_chunk(offset, job.result())
+            chunk = job.result()
+            self._space.check(dset.name.lstrip("/"), len(chunk), min(self.rows, self.n_configs - offset[0]))
+            dset.id.write_direct_chunk(offset, chunk)
 
     def commit(self) -> Path:
         """Finish writing and move the file into place."""
@@ -185,7 +223,8 @@ class DatasetWriter:
             self._file.close()
         except Exception:  # noqa: BLE001 - the file is being discarded anyway
             pass
-        self._tmp.unlink(missing_ok=True)
+        with suppress(OSError):  # never hide the error that brought us here
+            self._tmp.unlink(missing_ok=True)
 
     def __enter__(self) -> DatasetWriter:
         return self
@@ -195,6 +234,46 @@ class DatasetWriter:
             self.commit()
         else:
             self.abort()
+
+
+class _SpaceWatch:
+    """Refuse a dataset that will not fit on its disk, projected from the chunks compressed so far.
+
+    The compressed size depends on the data (noise compresses less than clean frames),
+    so it is measured, not guessed: once every array has a stored chunk, and again every
+    :attr:`EVERY` chunks, the size of the whole file is extrapolated per array (bytes per
+    configuration so far, times the configurations) and compared with the free space left.
+    A file that cannot fit stops within its first chunks, not when the disk is full.
+    """
+
+    EVERY = 64
+    SLACK = 1.02
+    """The projection may be off by a little (the last chunks, metadata): refuse only above this."""
+
+    def __init__(self, path: Path, names, n_configs: int) -> None:
+        self.path, self.n_configs = path, n_configs
+        self.stored = dict.fromkeys(names, 0)
+        self.rows = dict.fromkeys(names, 0)
+        self.chunks = 0
+        self.checked = False
+
+    def check(self, name: str, nbytes: int, rows: int) -> None:
+        """Count a compressed chunk of ``rows`` configurations of ``name`` about to be stored."""
+        self.stored[name] += nbytes
+        self.rows[name] += rows
+        self.chunks += 1
+        if not all(self.rows.values()) or (self.checked and self.chunks % self.EVERY):
+            return  # a projection needs every array; then one check every EVERY chunks
+        self.checked = True
+        written = sum(self.stored.values())
+        total = sum(self.stored[k] / self.rows[k] * self.n_configs for k in self.stored if self.rows[k])
+        free = free_disk(self.path)
+        if free is not None and total - written > self.SLACK * free:
+            raise StorageError(
+                f"{self.path} would be about {format_bytes(total)} (measured on its first "
+                f"{min(self.rows.values()):,} configurations), and its disk has {format_bytes(free)} free; "
+                "free some space, choose another --out, or make fewer configurations or frames"
+            )
 
 
 def _compress_chunk(block: np.ndarray, rows: int) -> bytes:

@@ -81,6 +81,11 @@ CRITERIA = ("d-opt", "cond")
 DEFAULT_CHUNK = 160
 """Samples per call of the compiled regressor and its derivatives (the design grid of 5 harmonics)."""
 DESIGN_NOISE = {"force": 0.5, "moment": 0.05}
+MAX_STARTS = 10_000
+"""At most this many random starts (each an IPOPT solve of seconds; all are drawn up front)."""
+MAX_SAMPLES = 1_000_000
+"""At most this many samples (``duration * rate``): the design is evaluated on every one (the
+regressor of each, about 1 KB), and the trajectory CSV has one row each."""
 """Default wrench noise of the design (N, N*m), the reference level of ``ineid study noise``."""
 
 
@@ -782,6 +787,12 @@ def design_excitation(
             f"duration {duration:g} s is not a whole number of samples at {rate:g} Hz; choose a multiple of {1 / rate:g} s",
             reason="duration",
         )
+    if n_rate > MAX_SAMPLES:
+        raise ExcitationError(
+            f"{duration:g} s at {rate:g} Hz is {n_rate:,} samples, more than the {MAX_SAMPLES:,} a design is evaluated "
+            "on; shorten --duration or lower --rate",
+            reason="settings",
+        )
     if harmonics * f0 >= rate / 2.0:
         raise ExcitationError(
             f"the highest harmonic ({harmonics} x {f0:g} Hz = {harmonics * f0:g} Hz) is at or above half the sample rate "
@@ -789,8 +800,8 @@ def design_excitation(
             "--base-frequency), use fewer --harmonics, or raise --rate",
             reason="duration",
         )
-    if starts < 1:
-        raise ExcitationError(f"starts must be >= 1, got {starts}", reason="settings")
+    if not 1 <= starts <= MAX_STARTS:
+        raise ExcitationError(f"starts must be in 1..{MAX_STARTS:,}, got {starts}", reason="settings")
     bounds = design_bounds(model, margin, velocity_scale, acceleration_scale)
     sigma = design_noise(noise)
     design_points = design_points or DEFAULT_CHUNK * math.ceil(32 * harmonics / DEFAULT_CHUNK)

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid._atomic import atomic_output, check_output
+from ineid._atomic import atomic_write, check_output
+from ineid._faults import require_disk
 from ineid.errors import DatasetError
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.solve import SolveResults, SolveSettings
@@ -24,6 +25,8 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
     Raises:
         OutputExistsError: ``path`` exists and ``overwrite`` is off.
         DatasetError: ``path`` is a folder or its folder does not exist.
+        StorageError: the file will not fit on its disk (its size is known before the write).
+        OSError: the file system refused the write (read-only, permissions); no file is left.
     """
     import h5py  # noqa: PLC0415
 
@@ -36,62 +39,76 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
     if not path.parent.is_dir():
         raise DatasetError(f"folder {path.parent} does not exist; create it first")
     text = h5py.string_dtype()
-    with atomic_output(path) as tmp:
-        with h5py.File(tmp, "w") as f:
-            a = f.attrs
-            a["format"], a["version"] = FORMAT, VERSION
-            a["method"] = res.settings.method
-            a["settings"] = json.dumps(res.settings.to_dict(), sort_keys=True)
-            a["ineid_version"] = __version__
-            a["param_names"] = np.array(res.param_names, dtype=text)
-            a["base_names"] = np.array(res.base.names, dtype=text)
-            a["n_frames_fit"], a["n_frames_validation"] = res.n_frames_fit, res.n_frames_validation
-            for key in ("robot", "source", "urdf"):
-                a[key] = res.meta[key]
-            a["unknown_links"] = np.array(res.meta["unknown_links"], dtype=text)
-            a["gravity"] = np.asarray(res.meta["gravity"], dtype=np.float64)
-            a["locked_joints"] = json.dumps(res.meta.get("locked_joints") or {}, sort_keys=True)
-            a["total_seconds"] = float(res.meta.get("total_seconds", np.nan))
-            a["dataset_path"] = str(res.meta.get("dataset_path") or "")
-            a["dataset_fingerprint"] = str(res.meta.get("dataset_fingerprint") or "")
-            a["sensor"] = json.dumps(res.meta.get("sensor"), sort_keys=True)
-            if res.meta.get("warnings") is not None:  # plausibility findings ({code, message}) of ineid solve
-                a["warnings"] = json.dumps(list(res.meta["warnings"]))
-            arrays = {
-                "config_index": res.config_index,
-                "theta_hat": res.theta_hat,
-                "theta_std": res.theta_std,
-                "base_hat": res.base_hat,
-                "base_std": res.base_std,
-                "base_matrix": res.base.B,
-                "base_index": res.base.base_index,
-                "null_basis": res.base.null_basis,
-                "param_scales": res.base.scales,
-                "theta_prior": res.theta_prior,
-                "success": res.success.astype(np.uint8),
-                "seconds": res.seconds,
-                "fit_rms": res.fit_rms,
-                "validation_rms": res.validation_rms,
-                "validation_rel": res.validation_rel,
-            }
-            if res.bias_hat is not None:
-                arrays["bias_hat"], arrays["bias_std"] = res.bias_hat, res.bias_std
-            if res.theta_true is not None:
-                arrays["theta_true"] = res.theta_true
-                arrays["base_true"] = res.base_true
-                arrays["theta_error"] = relative_error(res.theta_hat, res.theta_true)
-                arrays["base_error"] = relative_error(res.base_hat, res.base_true)
-            for name, arr in arrays.items():
-                # uncompressed: estimates are noise-like floats (gzip saved ~20% of the size
-                # and cost more time than the rest of the write)
-                f.create_dataset(name, data=np.asarray(arr))
-            f.create_dataset("status", data=np.array([str(s) for s in res.status], dtype=text))
+    # Built in memory, then written by Python: HDF5 writing straight to a disk that fills up
+    # fails inside the library's flushes and can crash the interpreter when the file is closed
+    # (a segmentation fault); a Python write fails with a plain OSError (ENOSPC) instead.
+    with h5py.File(f"{path}.in-memory", "w", driver="core", backing_store=False) as f:
+        a = f.attrs
+        a["format"], a["version"] = FORMAT, VERSION
+        a["method"] = res.settings.method
+        a["settings"] = json.dumps(res.settings.to_dict(), sort_keys=True)
+        a["ineid_version"] = __version__
+        a["param_names"] = np.array(res.param_names, dtype=text)
+        a["base_names"] = np.array(res.base.names, dtype=text)
+        a["n_frames_fit"], a["n_frames_validation"] = res.n_frames_fit, res.n_frames_validation
+        for key in ("robot", "source", "urdf"):
+            a[key] = res.meta[key]
+        a["unknown_links"] = np.array(res.meta["unknown_links"], dtype=text)
+        a["gravity"] = np.asarray(res.meta["gravity"], dtype=np.float64)
+        a["locked_joints"] = json.dumps(res.meta.get("locked_joints") or {}, sort_keys=True)
+        a["total_seconds"] = float(res.meta.get("total_seconds", np.nan))
+        a["dataset_path"] = str(res.meta.get("dataset_path") or "")
+        a["dataset_fingerprint"] = str(res.meta.get("dataset_fingerprint") or "")
+        a["sensor"] = json.dumps(res.meta.get("sensor"), sort_keys=True)
+        if res.meta.get("warnings") is not None:  # plausibility findings ({code, message}) of ineid solve
+            a["warnings"] = json.dumps(list(res.meta["warnings"]))
+        arrays = {
+            "config_index": res.config_index,
+            "theta_hat": res.theta_hat,
+            "theta_std": res.theta_std,
+            "base_hat": res.base_hat,
+            "base_std": res.base_std,
+            "base_matrix": res.base.B,
+            "base_index": res.base.base_index,
+            "null_basis": res.base.null_basis,
+            "param_scales": res.base.scales,
+            "theta_prior": res.theta_prior,
+            "success": res.success.astype(np.uint8),
+            "seconds": res.seconds,
+            "fit_rms": res.fit_rms,
+            "validation_rms": res.validation_rms,
+            "validation_rel": res.validation_rel,
+        }
+        if res.bias_hat is not None:
+            arrays["bias_hat"], arrays["bias_std"] = res.bias_hat, res.bias_std
+        if res.theta_true is not None:
+            arrays["theta_true"] = res.theta_true
+            arrays["base_true"] = res.base_true
+            arrays["theta_error"] = relative_error(res.theta_hat, res.theta_true)
+            arrays["base_error"] = relative_error(res.base_hat, res.base_true)
+        for name, arr in arrays.items():
+            # uncompressed: estimates are noise-like floats (gzip saved ~20% of the size
+            # and cost more time than the rest of the write)
+            f.create_dataset(name, data=np.asarray(arr))
+        f.create_dataset("status", data=np.array([str(s) for s in res.status], dtype=text))
+        f.flush()
+        image = f.id.get_file_image()
+    require_disk(path, len(image), "the results file", "solve fewer configurations (--select)")
+    atomic_write(path, image)
     return path
 
 
 def load_results(path: str | Path) -> SolveResults:
-    """Read a results file written by :func:`save_results`, checking its format."""
+    """Read a results file written by :func:`save_results`, checking its format.
+
+    Raises:
+        DatasetError: not a readable HDF5 file (truncated, corrupt), another format or a
+            newer version, or a damaged one: an attribute or dataset missing, of the wrong
+            type or shape (named, with the fix).
+    """
     import h5py  # noqa: PLC0415
+
+    from ineid._faults import fault_errno  # noqa: PLC0415
 
     path = Path(path)
     if not path.is_file():
@@ -99,22 +116,117 @@ def load_results(path: str | Path) -> SolveResults:
     try:
         f = h5py.File(path, "r")
     except OSError as e:
+        if fault_errno(e) is not None:
+            raise  # permission denied and the like: the CLI words it
         raise DatasetError(f"{path} is not a readable HDF5 file ({str(e).splitlines()[0]}); truncated or corrupt") from None
     with f:
-        fmt = f.attrs.get("format", "")
+        fmt = _attr_text(f.attrs.get("format", ""))
         if fmt != FORMAT:
             hint = " (it is a dataset: run `ineid solve` on it)" if fmt == "ineid-dataset" else ""
             raise DatasetError(f"{path}: not an ineid results file (format {fmt or 'missing'!r}){hint}")
-        if int(f.attrs["version"]) > VERSION:
-            raise DatasetError(f"{path}: results format version {int(f.attrs['version'])} is newer; upgrade ineid")
-        a = f.attrs
-        names = tuple(str(s) for s in a["param_names"])
-        settings = SolveSettings(**{k: (tuple(v) if k == "axis_sigma" and v is not None else v)
-                                    for k, v in json.loads(a["settings"]).items()})
-        base_matrix = f["base_matrix"][()]
-        base_index = f["base_index"][()]
-        null = f["null_basis"][()]
-        dep = np.array([j for j in range(len(names)) if j not in set(base_index.tolist())], dtype=np.int64)
+        r = _Reader(f, path)
+        version = r.integer("version")
+        if version > VERSION:
+            raise DatasetError(f"{path}: results format version {version} is newer; upgrade ineid")
+        return r.results()
+
+
+def _attr_text(value) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+class _Reader:
+    """Reads one results file, every attribute and dataset checked; a problem is one :class:`DatasetError`."""
+
+    def __init__(self, f, path: Path) -> None:
+        self.f, self.path = f, path
+
+    def damaged(self, what: str) -> DatasetError:
+        return DatasetError(f"{self.path}: {what}; the results file is damaged: solve again (ineid solve ... "
+                            "--overwrite) or restore it")  # fmt: skip
+
+    def attr(self, key: str):
+        if key not in self.f.attrs:
+            raise self.damaged(f"attribute {key!r} is missing")
+        try:
+            return self.f.attrs[key]
+        except (OSError, KeyError, ValueError, TypeError) as e:
+            raise self.damaged(f"attribute {key!r} cannot be read ({e})") from None
+
+    def text(self, key: str) -> str:
+        value = self.attr(key)
+        if not isinstance(value, (str, bytes)):
+            raise self.damaged(f"attribute {key!r} is not text")
+        return _attr_text(value)
+
+    def texts(self, key: str) -> tuple[str, ...]:
+        value = np.atleast_1d(self.attr(key))
+        if value.ndim != 1 or value.dtype.kind not in "OSU":
+            raise self.damaged(f"attribute {key!r} is not a list of names")
+        return tuple(_attr_text(v) for v in value)
+
+    def integer(self, key: str) -> int:
+        value = self.attr(key)
+        if np.ndim(value) or np.asarray(value).dtype.kind not in "iu":
+            raise self.damaged(f"attribute {key!r} is not an integer")
+        return int(value)
+
+    def number(self, key: str) -> float:
+        try:
+            return float(self.attr(key))
+        except (TypeError, ValueError):
+            raise self.damaged(f"attribute {key!r} is not a number") from None
+
+    def json(self, key: str):
+        try:
+            return json.loads(self.text(key))
+        except json.JSONDecodeError as e:
+            raise self.damaged(f"attribute {key!r} is not JSON ({e.msg})") from None
+
+    def array(self, key: str, shape: tuple, kind: str = "f", required: bool = True):
+        """Dataset ``key`` of ``shape`` (None: any length), numbers of ``kind`` ("f": float64 of any real)."""
+        if key not in self.f:
+            if required:
+                raise self.damaged(f"dataset {key!r} is missing")
+            return None
+        dset = self.f[key]
+        if not hasattr(dset, "dtype"):
+            raise self.damaged(f"{key!r} is a group, not a dataset")
+        if kind == "O":
+            ok = dset.dtype.kind in "OSU"
+        else:
+            ok = dset.dtype.kind in ("iub" if kind == "i" else "iufb")
+        got = tuple(dset.shape)
+        if not ok or len(got) != len(shape) or any(e is not None and e != g for e, g in zip(shape, got, strict=True)):
+            want = " x ".join("?" if e is None else str(e) for e in shape)
+            have = "text" if dset.dtype.kind in "OSU" else str(dset.dtype)
+            raise self.damaged(f"dataset {key!r} is {have} of shape {got}, expected "
+                               f"{'text' if kind == 'O' else 'numbers'} of shape ({want})")  # fmt: skip
+        try:
+            value = dset[()]
+        except (OSError, ValueError) as e:
+            raise self.damaged(f"dataset {key!r} cannot be read ({str(e).splitlines()[0]})") from None
+        return value if kind == "O" else np.asarray(value, dtype=np.int64 if kind == "i" else np.float64)
+
+    def results(self) -> SolveResults:
+        try:
+            settings = SolveSettings(**{k: (tuple(v) if k == "axis_sigma" and v is not None else v)
+                                        for k, v in self.json("settings").items()})  # fmt: skip
+        except (TypeError, ValueError, AttributeError) as e:
+            raise self.damaged(f"its settings do not parse ({e})") from None
+        names = self.texts("param_names")
+        base_names = self.texts("base_names")
+        p, nb = len(names), len(base_names)
+        if not 0 < nb <= p:
+            raise self.damaged(f"{nb} base parameters for {p} parameters")
+        config_index = self.array("config_index", (None,), "i")
+        n = len(config_index)
+        base_matrix = self.array("base_matrix", (nb, p))
+        base_index = self.array("base_index", (nb,), "i")
+        if base_index.size and (base_index.min() < 0 or base_index.max() >= p):
+            raise self.damaged("base_index points outside the parameters")
+        null = self.array("null_basis", (p, p - nb))
+        dep = np.array([j for j in range(p) if j not in set(base_index.tolist())], dtype=np.int64)
         base = BaseParameters(
             param_names=names,
             base_index=base_index,
@@ -123,45 +235,49 @@ def load_results(path: str | Path) -> SolveResults:
             B=base_matrix,
             null_basis=null,
             identifiable=~np.any(np.abs(null) > 0, axis=1),
-            names=tuple(str(s) for s in a["base_names"]),
-            scales=f["param_scales"][()],
+            names=base_names,
+            scales=self.array("param_scales", (p,)),
         )
-        get = lambda k: f[k][()] if k in f else None  # noqa: E731
+        prior_shape = (n, p) if "theta_prior" in self.f and self.f["theta_prior"].ndim == 2 else (p,)
+        gravity = np.asarray(self.attr("gravity"))
+        if gravity.shape != (3,) or gravity.dtype.kind not in "iuf":
+            raise self.damaged("attribute 'gravity' is not 3 numbers")
         meta = {
-            "robot": str(a["robot"]),
-            "source": str(a["source"]),
-            "urdf": str(a["urdf"]),
-            "unknown_links": [str(s) for s in a["unknown_links"]],
-            "gravity": a["gravity"].tolist(),
-            "locked_joints": json.loads(a["locked_joints"]),
-            "total_seconds": float(a["total_seconds"]),
-            "ineid_version": str(a["ineid_version"]),
-            "dataset_path": str(a.get("dataset_path", "")) or None,
-            "dataset_fingerprint": str(a.get("dataset_fingerprint", "")) or None,
-            "sensor": json.loads(a["sensor"]) if "sensor" in a else None,
-            "warnings": _warnings(path, a),
+            "robot": self.text("robot"),
+            "source": self.text("source"),
+            "urdf": self.text("urdf"),
+            "unknown_links": list(self.texts("unknown_links")),
+            "gravity": gravity.astype(np.float64).tolist(),
+            "locked_joints": self.json("locked_joints"),
+            "total_seconds": self.number("total_seconds"),
+            "ineid_version": self.text("ineid_version"),
+            "dataset_path": _attr_text(self.f.attrs.get("dataset_path", "")) or None,
+            "dataset_fingerprint": _attr_text(self.f.attrs.get("dataset_fingerprint", "")) or None,
+            "sensor": self.json("sensor") if "sensor" in self.f.attrs else None,
+            "warnings": _warnings(self.path, self.f.attrs),
         }
+        status = self.array("status", (n,), "O")
         return SolveResults(
             settings=settings,
             base=base,
             param_names=names,
-            config_index=get("config_index"),
-            theta_hat=get("theta_hat"),
-            theta_std=get("theta_std"),
-            base_hat=get("base_hat"),
-            base_std=get("base_std"),
-            success=get("success").astype(bool),
-            status=np.array([s.decode() if isinstance(s, bytes) else str(s) for s in f["status"][()]], dtype=object),
-            seconds=get("seconds"),
-            fit_rms=get("fit_rms"),
-            validation_rms=get("validation_rms"),
-            validation_rel=get("validation_rel"),
-            n_frames_fit=int(a["n_frames_fit"]),
-            n_frames_validation=int(a["n_frames_validation"]),
-            theta_prior=get("theta_prior"),
-            theta_true=get("theta_true"),
-            bias_hat=get("bias_hat"),
-            bias_std=get("bias_std"),
+            config_index=config_index,
+            theta_hat=self.array("theta_hat", (n, p)),
+            theta_std=self.array("theta_std", (n, p)),
+            base_hat=self.array("base_hat", (n, nb)),
+            base_std=self.array("base_std", (n, nb)),
+            success=self.array("success", (n,), "i").astype(bool),
+            status=np.array([_attr_text(s) for s in status], dtype=object),
+            seconds=self.array("seconds", (n,)),
+            fit_rms=self.array("fit_rms", (n, 6)),
+            validation_rms=self.array("validation_rms", (n, 6)),
+            validation_rel=self.array("validation_rel", (n,)),
+            n_frames_fit=self.integer("n_frames_fit"),
+            n_frames_validation=self.integer("n_frames_validation"),
+            theta_prior=self.array("theta_prior", prior_shape),
+            theta_true=self.array("theta_true", (n, p), required=False),
+            bias_hat=self.array("bias_hat", (n, 6), required=False),
+            bias_std=self.array("bias_std", (n, 6), required=False),
             meta=meta,
         )
 

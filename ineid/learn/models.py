@@ -63,8 +63,28 @@ SIZED = ("mlp", "wls")
 """Architectures whose sizes ``--depth`` and ``--width`` set (wls: its frame encoder, default 2 x 32)."""
 
 
+MAX_DEPTH = 64
+"""The deepest ``mlp``/``wls`` encoder (compilation time grows with the layers: 100,000 never finished)."""
+MAX_WEIGHTS = 10_000_000
+"""At most this many hidden-to-hidden weights, ``(depth - 1) * width^2 + width``: 80 MB in float64,
+about four times that with the optimizer's state and the best parameters kept."""
+
+
+def _check_size(arch: str, depth: int, width: int) -> None:
+    weights = (depth - 1) * width * width + width
+    if depth > MAX_DEPTH or weights > MAX_WEIGHTS:
+        raise ValueError(
+            f"the {arch} network of depth {depth} and width {width} is too large ({weights:,} weights; at most depth "
+            f"{MAX_DEPTH} and {MAX_WEIGHTS:,} weights, (depth - 1) x width^2 + width); lower --depth or --width"
+        )
+
+
 def hidden_widths(arch: str, n_out: int, depth: int | None = None, width: int | None = None) -> tuple[int, ...]:
-    """Hidden-layer widths of a named architecture (``mlp`` takes ``depth`` and ``width``)."""
+    """Hidden-layer widths of a named architecture (``mlp`` takes ``depth`` and ``width``).
+
+    Raises:
+        ValueError: an unknown name, or sizes below 1 or above :data:`MAX_DEPTH` / :data:`MAX_WEIGHTS`.
+    """
     if arch == "simple":
         return (20,)
     if arch in TABLE1:
@@ -75,6 +95,7 @@ def hidden_widths(arch: str, n_out: int, depth: int | None = None, width: int | 
     if arch == "mlp":
         if not depth or not width or depth < 1 or width < 1:
             raise ValueError("the mlp architecture needs depth >= 1 and width >= 1")
+        _check_size(arch, int(depth), int(width))
         return (int(width),) * int(depth)
     if arch == "wls":
         from ineid.learn.wls import WLS_DEPTH, WLS_WIDTH  # noqa: PLC0415
@@ -82,6 +103,7 @@ def hidden_widths(arch: str, n_out: int, depth: int | None = None, width: int | 
         depth, width = depth or WLS_DEPTH, width or WLS_WIDTH
         if depth < 1 or width < 1:
             raise ValueError("the wls encoder needs depth >= 1 and width >= 1")
+        _check_size(arch, int(depth), int(width))
         return (int(width),) * int(depth)
     raise ValueError(f"architecture must be one of {', '.join(ARCHITECTURES)}, got {arch!r}")
 

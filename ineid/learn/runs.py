@@ -28,6 +28,13 @@ import numpy as np
 from ineid._atomic import atomic_write
 from ineid.errors import TrainingError
 from ineid.learn.data import Split
+from ineid.learn.run_checks import (
+    check_state,
+    read_config,
+    read_metrics,
+    read_msgpack,
+    read_scalers,
+)
 from ineid.learn.scalers import Scaler
 
 if TYPE_CHECKING:
@@ -68,7 +75,7 @@ def start_run(run_dir: Path, cfg: TrainConfig, ds: Dataset, *, resume: bool, ove
         return None
     if not (run_dir / CHECKPOINT).is_file() or not (run_dir / CONFIG).is_file():
         raise TrainingError(f"{run_dir} holds no checkpoint to resume; start the run without --resume")
-    saved = json.loads((run_dir / CONFIG).read_text())
+    saved, _, split = read_config(run_dir)
     if saved["train"] != cfg.to_dict():
         raise TrainingError(
             f"{run_dir} holds a run with other settings; resume it with the same settings, or use a new folder"
@@ -78,9 +85,9 @@ def start_run(run_dir: Path, cfg: TrainConfig, ds: Dataset, *, resume: bool, ove
             f"{run_dir} was trained on another dataset (robot, sizes, seed, sampling or noise differ); "
             "resume it with the same dataset"
         )
-    sc = json.loads((run_dir / SCALERS).read_text())
-    return Resumed(saved, Split.from_dict(saved["split"]), (Scaler.from_dict(sc["x"]), Scaler.from_dict(sc["y"])),
-                   np.asarray(saved["wrench_scale"]))  # fmt: skip
+    if not (run_dir / SCALERS).is_file():
+        raise TrainingError(f"{run_dir} holds no {SCALERS} to resume with; start the run again with --overwrite")
+    return Resumed(saved, split, read_scalers(run_dir), np.asarray(saved["wrench_scale"]))
 
 
 def write_config(run_dir: Path, meta: dict, x_scaler: Scaler, y_scaler: Scaler) -> None:
@@ -100,8 +107,7 @@ class MetricsLog:
         self.path = run_dir / METRICS
         self.lines: list[str] = []
         if keep_through_epoch and self.path.is_file():
-            self.lines = [line for line in self.path.read_text().splitlines()
-                          if line and json.loads(line)["epoch"] <= keep_through_epoch]  # fmt: skip
+            self.lines = read_metrics(self.path, keep_through_epoch)
         self._flush()
 
     def append(self, record: dict) -> None:
@@ -122,11 +128,15 @@ def save_state(run_dir: Path, state: dict, final: bool = False) -> None:
         atomic_write(run_dir / CHECKPOINT, serialization.to_bytes(state))
 
 
-def load_state(run_dir: Path, template: dict) -> dict:
-    """The checkpoint of ``run_dir``, restored into the structure of ``template``."""
-    from flax import serialization  # noqa: PLC0415
+def load_state(run_dir: Path, template: dict, epochs: int | None = None) -> dict:
+    """The checkpoint of ``run_dir``, restored into the structure of ``template``.
 
-    return serialization.from_bytes(template, (run_dir / CHECKPOINT).read_bytes())
+    Raises:
+        TrainingError: the checkpoint is truncated, corrupt, of another network, or (with
+            ``epochs``) its counters are out of range.
+    """
+    state = read_msgpack(run_dir / CHECKPOINT, template)
+    return state if epochs is None else check_state(run_dir / CHECKPOINT, state, epochs)
 
 
 @dataclass
@@ -168,9 +178,6 @@ def load_run(run_dir: str | Path) -> Run:
             not match the run's network.
     """
     import jax  # noqa: PLC0415
-    from flax import serialization  # noqa: PLC0415
-
-    from ineid.learn.train import TrainConfig  # noqa: PLC0415
 
     run_dir = Path(run_dir)
     files = [run_dir / n for n in (CONFIG, SCALERS, MODEL)]
@@ -179,21 +186,17 @@ def load_run(run_dir: str | Path) -> Run:
         hint = " (training was interrupted: finish it with `ineid train ... --resume`)" if (
             run_dir / CHECKPOINT).is_file() else ""
         raise TrainingError(f"{run_dir} is not a finished training run: {', '.join(missing)} missing{hint}")
-    meta = json.loads(files[0].read_text())
-    cfg = TrainConfig.from_dict(meta["train"])
-    sc = json.loads(files[1].read_text())
+    meta, cfg, split = read_config(run_dir)
+    x_scaler, y_scaler = read_scalers(run_dir)
     net = build_net(cfg, meta)
-    x = np.zeros((1, cfg.model.frames, len(sc["x"]["center"])))
+    x = np.zeros((1, cfg.model.frames, len(x_scaler.center)))
     if cfg.model.uses_regressor:
         n_u = meta["n_out"]
         template = net.init(jax.random.key(0), x, np.zeros((1, cfg.model.frames, 6, n_u)), np.zeros((1, cfg.model.frames, 6)))
     else:
         template = net.init(jax.random.key(0), x)
-    try:
-        params = serialization.from_bytes(template, files[2].read_bytes())
-    except (ValueError, KeyError, TypeError) as e:
-        raise TrainingError(f"{files[2]} does not match the run's network ({e}); the run folder is damaged") from None
-    return Run(run_dir, cfg, meta, Scaler.from_dict(sc["x"]), Scaler.from_dict(sc["y"]), params, Split.from_dict(meta["split"]))
+    params = read_msgpack(files[2], template)
+    return Run(run_dir, cfg, meta, x_scaler, y_scaler, params, split)
 
 
 # -- writing a run folder safely ------------------------------------------------------------------

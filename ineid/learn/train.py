@@ -336,7 +336,7 @@ def _train_into(ds: Dataset, cfg: TrainConfig, run_dir: Path, *, dataset_path: s
     state = {"params": params, "opt_state": opt_state, "best_params": params, "epoch": 0,
              "best_val": float("inf"), "best_epoch": 0, "bad_epochs": 0}  # fmt: skip
     if resumed is not None:
-        state = load_state(run_dir, state)
+        state = load_state(run_dir, state, cfg.epochs)
     else:
         meta = {
             "train": cfg.to_dict(),

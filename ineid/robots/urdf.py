@@ -156,16 +156,35 @@ def cached_chain(key: str) -> Chain | None:
         joints = tuple(
             JointSpec(**{**j, **{k: np.asarray(j[k], dtype=np.float64) for k in _ARRAY_FIELDS}}) for j in doc["joints"]
         )
-        return Chain(doc["name"], doc["root_link"], joints, {k: tuple(v) for k, v in doc["merged_links"].items()})
+        chain = Chain(doc["name"], doc["root_link"], joints, {k: tuple(v) for k, v in doc["merged_links"].items()})
     except Untrusted as e:  # e.reason: "has a file that is writable by group or others (<file>)"
         logging.getLogger(__name__).warning("the cache of parsed URDFs in %s %s; parsing the URDF again",
                                             path.parent, e.reason)
         return None
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
+    if not _sound(chain):  # a damaged entry (disk, hand edit): parse the URDF again, which rewrites it
+        return None
+    return chain
 
 
 _ARRAY_FIELDS = ("parent_R_joint", "parent_p_joint", "axis", "theta")
+_ARRAY_SHAPES = {"parent_R_joint": (3, 3), "parent_p_joint": (3,), "axis": (3,), "theta": (10,)}
+
+
+def _sound(chain: Chain) -> bool:
+    """Whether a chain read back from the cache has the types, shapes and finite values a parse gives."""
+    if not chain.joints or not all(isinstance(v, str) for v in (chain.name, chain.root_link)):
+        return False
+    for j in chain.joints:
+        if not all(isinstance(v, str) for v in (j.name, j.type, j.link)) or not isinstance(j.continuous, bool):
+            return False
+        if any(getattr(j, k).shape != shape or not np.all(np.isfinite(getattr(j, k))) for k, shape in _ARRAY_SHAPES.items()):
+            return False
+        bounds = (j.q_lower, j.q_upper, j.qd_max, j.qdd_max)
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and not np.isnan(v) for v in bounds):
+            return False
+    return True
 
 
 def _store_chain(key: str, chain: Chain) -> None:
