@@ -232,7 +232,14 @@ def output_lock(path: str | Path, option: str = "--out") -> Iterator[Path]:
     finally:
         del _held[key]
         # Unlinked before it is released: a process that opened the old file then sees it is gone and retries.
-        lock.unlink(missing_ok=True)
+        # A lock file that cannot be removed (a folder turned read-only meanwhile) blocks nobody once
+        # released, and must not hide the command's own error.
+        try:
+            os.unlink(lock)
+        except FileNotFoundError:
+            pass
+        except OSError as e:
+            _log.debug("lock file %s left behind (%s)", lock, e)
         os.close(fd)
 
 
