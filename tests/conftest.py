@@ -37,6 +37,19 @@ def base(model):
 
 
 @pytest.fixture
+def run():
+    """``run(*args)``: the ``ineid`` command through click's CliRunner (exceptions propagate)."""
+    from click.testing import CliRunner
+
+    from ineid.cli import main
+
+    def invoke(*args):
+        return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+    return invoke
+
+
+@pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(SEED)
 

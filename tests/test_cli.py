@@ -3,23 +3,11 @@
 from __future__ import annotations
 
 import pytest
-from click.testing import CliRunner
 
 from ineid import __version__
-from ineid.cli import main
 from ineid.generated import BUILTIN_DIR
 
 from .conftest import FIXTURES, real_robot
-
-
-@pytest.fixture
-def run():
-    runner = CliRunner()
-
-    def invoke(*args):
-        return runner.invoke(main, [str(a) for a in args], catch_exceptions=False)
-
-    return invoke
 
 
 def one_line_error(result, code=1):

@@ -173,16 +173,6 @@ def test_a_module_with_an_injected_statement_is_refused():
         check_module_source(ca_text.replace("\nbase_wrench_regressor = _build()\n", "\n"), "casadi")
 
 
-@pytest.fixture
-def run():
-    runner = CliRunner()
-
-    def invoke(*args):
-        return runner.invoke(main, [str(a) for a in args], catch_exceptions=False)
-
-    return invoke
-
-
 def ok(result):
     assert result.exit_code == 0, result.output
     assert "Traceback" not in result.output

@@ -12,23 +12,11 @@ import sys
 import time
 
 import pytest
-from click.testing import CliRunner
 
 from ineid._atomic import lock_path, output_lock, remove_stale_temporaries
-from ineid.cli import main
 from ineid.errors import OutputBusyError
 
 TRAIN = ("--arch", "simple", "--batch", "16", "--train-configs", "12", "--val-configs", "4", "--patience", "0")
-
-
-@pytest.fixture
-def run():
-    runner = CliRunner()
-
-    def invoke(*args):
-        return runner.invoke(main, [str(a) for a in args], catch_exceptions=False)
-
-    return invoke
 
 
 def last_line(result, code):

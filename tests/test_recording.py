@@ -289,18 +289,6 @@ def test_offsets_are_what_the_base_frame_solver_cannot_absorb(lab, recordings):
 # -- the command line -----------------------------------------------------------------------------
 
 
-@pytest.fixture
-def run():
-    from click.testing import CliRunner
-
-    from ineid.cli import main
-
-    def invoke(*args):
-        return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
-
-    return invoke
-
-
 def test_cli_import_solve_plot_and_identifiability(lab, run, tmp_path):
     rec = tmp_path / "rec.h5"
     r = run("-q", "data", "import", lab.file("mcap"), "--sensor-pose", POSE_TEXT, "--out", rec)
