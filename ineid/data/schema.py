@@ -109,7 +109,7 @@ class DatasetMeta:
     @classmethod
     def for_model(cls, model: RobotModel, **kwargs) -> DatasetMeta:
         """The metadata of a dataset of ``model`` (a :class:`ineid.RobotModel`)."""
-        from ineid import __version__  # noqa: PLC0415
+        from ineid._version import __version__  # noqa: PLC0415
 
         return cls(
             robot=model.name,

@@ -45,8 +45,7 @@ def _trial(ds, cfg: TrainConfig, dataset_path: str | None, physics_mode: str,
 
     ``started``: the files of an interrupted run of this trial, continued from its checkpoint.
     """
-    import ineid  # noqa: F401, PLC0415  (float64 JAX before anything imports jax)
-
+    # float64 JAX: the worker imported this module, ineid.learn.ray_engine, so ineid/__init__ ran first
     with tempfile.TemporaryDirectory(prefix="ineid-trial-") as tmp:
         run_dir = Path(tmp) / run_name(cfg)
         run_dir.mkdir()
