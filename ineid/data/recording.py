@@ -24,7 +24,7 @@ The wrench stays in the sensor frame: the dataset records the sensor pose (forma
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,36 +32,10 @@ import numpy as np
 from ineid.data import signals
 from ineid.data.delay import DelayEstimate
 from ineid.data.schema import Dataset, DatasetMeta
+from ineid.data.streams import Streams
 from ineid.errors import DatasetError
 from ineid.progress import Progress
 from ineid.sensor import SensorPose, parse_sensor_pose
-
-
-@dataclass
-class Streams:
-    """A recording as read from a file: two streams, each on its own clock.
-
-    Attributes:
-        joint_time: (Nq,) s, increasing.
-        q: (Nq, n_dof) joint angles (rad; m for prismatic joints), chain order.
-        qd, qdd: (Nq, n_dof) measured velocities and accelerations, or None (derived).
-        wrench_time: (Nw,) s, increasing, on the wrench's clock.
-        wrench: (Nw, 6) what the sensor reads: the load of the robot on it, in its frame,
-            moment about its origin (N, N*m).
-        source: the file, for messages.
-        frame_id: the frame the wrench messages name (ROS bags), or None.
-        origin: provenance recorded in the dataset (format, topics, message counts...).
-    """
-
-    joint_time: np.ndarray
-    q: np.ndarray
-    qd: np.ndarray | None
-    qdd: np.ndarray | None
-    wrench_time: np.ndarray
-    wrench: np.ndarray
-    source: str
-    frame_id: str | None = None
-    origin: dict = field(default_factory=dict)
 
 
 ANGLE_UNITS = ("rad", "deg")
@@ -478,3 +452,25 @@ def import_recording(path: str | Path, model, settings: ImportSettings = ImportS
 
         streams = read_csv_streams(path, model, progress)
     return recording_dataset(streams, model, settings)
+
+
+def read_recording_csv(path: str | Path, model, flip_wrench: bool = False, settings=None) -> Dataset:
+    """Read a recording CSV into a :class:`Dataset` of one configuration.
+
+    Args:
+        path: the CSV file (comma-separated; ``#`` lines are comments).
+        model: the :class:`ineid.RobotModel` the arm is.
+        flip_wrench: the sensor reports the wrench on the robot; negate it.
+        settings: an :class:`ImportSettings` (sensor pose, cut-off,
+            rate, delay); its ``flip_wrench`` is overridden by the argument.
+
+    Raises:
+        DatasetError: see :func:`ineid.data.csv_import.read_csv_streams` and
+            :func:`recording_dataset`.
+    """
+    from dataclasses import replace  # noqa: PLC0415
+
+    from ineid.data.csv_import import read_csv_streams  # noqa: PLC0415
+
+    settings = replace(settings or ImportSettings(), flip_wrench=flip_wrench)
+    return recording_dataset(read_csv_streams(path, model), model, settings)[0]
