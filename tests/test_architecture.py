@@ -15,6 +15,9 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
+import numpy as np
+import pytest
+
 PACKAGE = Path(__file__).resolve().parents[1] / "ineid"
 
 LAYERS = ("foundation", "params", "robots", "generated", "symbolic", "channels", "data", "identify", "learn", "cli")
@@ -38,6 +41,12 @@ TOP_LEVEL = {
 
 NUMERIC_PACKAGES = ("ineid.generated", "ineid.channels", "ineid.data", "ineid.identify", "ineid.learn")
 """Never import SymPy: only ``symbolic`` (and ``codegen``, on a cache miss) derives."""
+
+SHIMS = {
+    "ineid.data.delay": "ineid.identify.delay",
+}
+"""Deprecated modules that re-export a name's new home for one release (removed in ineid 0.3): each may
+import its new home whatever the layers, and nothing in the package may import a shim."""
 
 MAX_LINES = 500
 """Hand-written modules stay under this (issue 9); generated modules are exempt."""
@@ -154,8 +163,12 @@ def test_every_module_has_a_layer():
     assert not unknown, f"modules outside the layers {LAYERS}: {unknown}; add them to TOP_LEVEL or a layer package"
 
 
+def _graph_without_shims() -> dict[str, set[str]]:
+    return {m: targets for m, targets in import_graph().items() if m not in SHIMS}
+
+
 def test_no_import_cycles():
-    cycles = _cycles(import_graph())
+    cycles = _cycles(_graph_without_shims())
     assert not cycles, "import cycles (package __init__ re-exports included): " + "; ".join(
         " <-> ".join(c) for c in cycles
     )
@@ -167,12 +180,23 @@ def test_imports_flow_one_way():
     for module, targets in sorted(import_graph().items()):
         if module == "ineid":
             continue
+        if module in SHIMS:
+            targets = targets - {SHIMS[module]}
         for target in sorted(targets):
             if target == "ineid":
                 wrong.append(f"{module} imports the package root (import the defining module instead)")
             elif rank[_layer(target)] > rank[_layer(module)]:
                 wrong.append(f"{module} ({_layer(module)}) imports {target} ({_layer(target)})")
     assert not wrong, "imports against the layers:\n" + "\n".join(wrong)
+
+
+def test_shims_only_point_to_the_new_home():
+    graph = import_graph()
+    users = [f"{m} imports {s}" for m, targets in sorted(graph.items()) for s in sorted(targets & SHIMS.keys())]
+    assert not users, f"deprecated modules imported inside the package: {users}"
+    for shim, home in SHIMS.items():
+        assert home in graph[shim], f"{shim} does not re-export {home}"
+        assert "removed in ineid 0.3" in MODULES[shim].read_text(), f"{shim} does not say when it goes"
 
 
 def test_the_graph_sees_every_kind_of_import():
@@ -219,3 +243,16 @@ def test_numeric_layers_never_import_sympy():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", f"importing {out.stdout.strip()} imports sympy"
+
+
+def test_identify_registers_the_delay_estimate(monkeypatch):
+    """``data`` never imports ``identify``: importing ``ineid.identify`` installs the model-fitted delay estimate."""
+    import ineid.data.recording as recording
+    from ineid.errors import DatasetError
+    from ineid.identify.delay import estimate_delay
+
+    assert recording._delay_estimator is estimate_delay
+    monkeypatch.setattr(recording, "_delay_estimator", None)
+    streams = recording.Streams(np.arange(3.0), np.zeros((3, 1)), None, None, np.arange(3.0), np.zeros((3, 6)), "s")
+    with pytest.raises(DatasetError, match="import ineid.identify first"):
+        recording.recording_dataset(streams, None, recording.ImportSettings(estimate_delay=True))

@@ -7,7 +7,7 @@ turns that into frames ``(q, qd, qdd, wrench)`` on one uniform time base:
 
 1. checks: finite values, increasing time stamps, each stream with enough samples;
 2. the wrench clock is shifted by ``delay`` (a wrench stamped ``t`` was measured at
-   ``t - delay``), given or estimated from the model (:mod:`ineid.data.delay`);
+   ``t - delay``), given or estimated from the model (:mod:`ineid.identify.delay`);
 3. when ``qd``/``qdd`` are missing, joint angles *and* wrench go through the same zero-phase
    low-pass (:mod:`ineid.data.signals`), at a cut-off chosen from the angles' spectrum or
    given, and the angles are differentiated; samples within the filter's edge are dropped.
@@ -24,13 +24,13 @@ The wrench stays in the sensor frame: the dataset records the sensor pose (forma
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ineid.data import signals
-from ineid.data.delay import DelayEstimate
 from ineid.data.schema import Dataset, DatasetMeta
 from ineid.data.streams import Streams
 from ineid.errors import DatasetError
@@ -61,7 +61,7 @@ class ImportSettings:
         wrench_scale: every force and moment is multiplied by it (0.001 for a wrench in mN
             and N*mm); finite and positive (``flip_wrench`` negates).
         estimate_delay: estimate ``delay`` from the model instead
-            (:func:`ineid.data.delay.estimate_delay`, within ``+-max_delay`` s).
+            (:func:`ineid.identify.delay.estimate_delay`, within ``+-max_delay`` s).
         max_delay: s, the search range of ``estimate_delay``.
     """
 
@@ -87,6 +87,32 @@ class ImportSettings:
                 raise DatasetError(f"{name} must be a positive number of Hz, got {v}")
         if not math.isfinite(self.delay):
             raise DatasetError(f"delay must be a finite number of seconds, got {self.delay}")
+
+
+@dataclass(frozen=True)
+class DelayEstimate:
+    """The estimated delay (s) and the linear fit's relative residual ``sqrt(r / ||D y_c||^2)`` at it and at 0."""
+
+    delay: float
+    residual: float
+    residual_at_zero: float
+
+
+DelayEstimator = Callable[[Streams, object, ImportSettings, float], DelayEstimate]
+"""``estimator(streams, model, settings, max_delay)``: the wrench delay that best fits the model."""
+
+_delay_estimator: DelayEstimator | None = None
+
+
+def register_delay_estimator(estimator: DelayEstimator) -> None:
+    """Install what :func:`recording_dataset` calls for ``ImportSettings(estimate_delay=True)``.
+
+    The estimate fits the model, so it lives with the solvers, in :mod:`ineid.identify.delay`,
+    which registers :func:`ineid.identify.delay.estimate_delay` when imported (``import
+    ineid.identify`` does): ``data`` never imports ``identify``.
+    """
+    global _delay_estimator  # noqa: PLW0603
+    _delay_estimator = estimator
 
 
 @dataclass
@@ -267,9 +293,10 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     if settings.estimate_delay:
         from dataclasses import replace  # noqa: PLC0415
 
-        from ineid.data.delay import estimate_delay  # noqa: PLC0415
-
-        estimate = estimate_delay(streams, model, settings, settings.max_delay)
+        if _delay_estimator is None:
+            raise DatasetError("estimating the wrench delay fits the model, which ineid.identify does: import "
+                               "ineid.identify first, or give the delay (ImportSettings(delay=...), --delay S)")
+        estimate = _delay_estimator(streams, model, settings, settings.max_delay)
         ds, summary = recording_dataset(streams, model, replace(settings, delay=estimate.delay, estimate_delay=False))
         summary.delay_estimate = estimate
         ds.meta.origin["import"] = summary.to_dict()
