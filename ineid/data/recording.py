@@ -32,7 +32,7 @@ import numpy as np
 
 from ineid.data import signals
 from ineid.data.schema import Dataset, DatasetMeta
-from ineid.data.streams import Streams
+from ineid.data.streams import Streams, units_note, in_si_units
 from ineid.errors import DatasetError
 from ineid.progress import Progress
 from ineid.sensor import SensorPose, parse_sensor_pose
@@ -386,7 +386,7 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
         dropped_start=float(grid[0] - min(tq[0], tw[0])), dropped_end=float(max(tq[-1], tw[-1]) - grid[-1]),
         dropped_joint_samples=int(np.sum((tq < grid[0] - 1e-9 * hq) | (tq > grid[-1] + 1e-9 * hq))),
         dropped_wrench_samples=int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw))),
-        resampled=tuple(resampled), sensor=sensor, delay=settings.delay, units=_units_note(streams.origin),
+        resampled=tuple(resampled), sensor=sensor, delay=settings.delay, units=units_note(streams.origin),
     )  # fmt: skip
     meta = DatasetMeta.for_model(
         model, source="recording", origin={**streams.origin, "import": summary.to_dict()}, sensor=sensor.to_dict()
@@ -401,43 +401,6 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
         time=grid[None],
     )
     return ds, summary
-
-
-def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: float = 1.0) -> Streams:
-    """``streams`` with revolute joints' ``q`` (``qd``, ``qdd``) in rad and the wrench multiplied by ``wrench_scale``.
-
-    Args:
-        streams: as read from the file.
-        model: the :class:`ineid.RobotModel` (which joints are revolute: prismatic ones stay in m).
-        angle_unit: ``"rad"`` (nothing to convert) or ``"deg"``.
-        wrench_scale: the factor on every force and moment.
-
-    Returns:
-        A new :class:`Streams`; its ``origin`` records ``angle_unit`` and ``wrench_scale``.
-    """
-    from dataclasses import replace  # noqa: PLC0415
-
-    factor = np.ones(model.n_dof)
-    if angle_unit == "deg":
-        factor[[k for k, kind in enumerate(model.joint_types) if kind == "revolute"]] = math.pi / 180
-    joints = {}
-    for k in ("q", "qd", "qdd"):
-        a = getattr(streams, k)
-        a = None if a is None else np.asarray(a, dtype=np.float64)
-        # a wrongly shaped array is left as it is: recording_dataset names the problem
-        joints[k] = a * factor if a is not None and a.ndim == 2 and a.shape[1] == model.n_dof else a
-    origin = {**streams.origin, "angle_unit": angle_unit, "wrench_scale": float(wrench_scale)}
-    return replace(streams, **joints, wrench=np.asarray(streams.wrench, dtype=np.float64) * wrench_scale, origin=origin)
-
-
-def _units_note(origin: dict) -> str | None:
-    """The summary line of :func:`in_si_units`'s conversions, or None."""
-    parts = []
-    if origin.get("angle_unit") == "deg":
-        parts.append("revolute joint angles (and measured qd, qdd) converted from degrees")
-    if origin.get("wrench_scale", 1.0) != 1.0:
-        parts.append(f"wrench multiplied by {origin['wrench_scale']:g}")
-    return "; ".join(parts) or None
 
 
 def _on_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, bool]:
