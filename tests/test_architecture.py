@@ -256,3 +256,17 @@ def test_identify_registers_the_delay_estimate(monkeypatch):
     streams = recording.Streams(np.arange(3.0), np.zeros((3, 1)), None, None, np.arange(3.0), np.zeros((3, 6)), "s")
     with pytest.raises(DatasetError, match="import ineid.identify first"):
         recording.recording_dataset(streams, None, recording.ImportSettings(estimate_delay=True))
+
+
+def test_learn_registers_the_network_method(monkeypatch):
+    """``identify`` never imports ``learn``: importing ``ineid.learn`` registers ``method="network"``."""
+    import ineid.identify.solve as solve
+    import ineid.learn
+    from ineid.errors import IdentificationError
+
+    assert solve.registered_method("network") is ineid.learn.solve_with_run
+    monkeypatch.setattr(solve, "_REGISTERED", {})
+    with pytest.raises(IdentificationError, match="import ineid.learn first"):
+        solve.solve_dataset(None, solve.SolveSettings(method="network", run="some-run"))
+    with pytest.raises(ValueError, match="may be registered"):
+        solve.register_method("linear", ineid.learn.solve_with_run)

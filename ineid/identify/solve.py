@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,7 +40,11 @@ from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL, NlpSolver, estima
 from ineid.identify.systems import Offsets, check_frames, predict_wrench, remove_offsets, stack, stack_casadi
 from ineid.progress import Progress
 
-METHODS = ("linear", "nonlinear", "consistent", "network")
+BUILTIN_METHODS = ("linear", "nonlinear", "consistent")
+"""The methods identify implements itself."""
+METHODS = (*BUILTIN_METHODS, "network")
+"""Every method; ``network`` (a trained run) is implemented by :mod:`ineid.learn.amortized`, which
+registers it when imported (:func:`register_method`): identify never imports learn."""
 STARTS = ("prior", "linear")
 """IPOPT's start: the CAD values, or the linear estimate made physical."""
 BACKENDS = ("jax", "casadi", "casadi-c")
@@ -195,6 +200,34 @@ def _axis_sigma(ds, settings: SolveSettings) -> np.ndarray | None:
     return np.asarray(recorded, dtype=np.float64)
 
 
+SolveMethod = Callable[..., "SolveResults"]
+"""``solve(ds, settings, model, progress) -> SolveResults``, as :func:`solve_dataset`."""
+
+_REGISTERED: dict[str, SolveMethod] = {}
+
+
+def register_method(name: str, solve: SolveMethod) -> None:
+    """Make ``solve_dataset`` run ``solve`` for ``SolveSettings(method=name)``, a method of :data:`METHODS`
+    implemented above identify (``network``: :func:`ineid.learn.amortized.solve_with_run`, registered
+    when ``ineid.learn`` is imported)."""
+    if name not in METHODS or name in BUILTIN_METHODS:
+        raise ValueError(f"only {', '.join(m for m in METHODS if m not in BUILTIN_METHODS)} may be registered, "
+                         f"got {name!r}")
+    _REGISTERED[name] = solve
+
+
+def registered_method(name: str) -> SolveMethod:
+    """The solver registered for ``name`` (:func:`register_method`).
+
+    Raises:
+        IdentificationError: none is: the module that provides it was not imported.
+    """
+    if name not in _REGISTERED:
+        raise IdentificationError(f"method {name!r} runs a trained network, which ineid.learn provides: "
+                                  "import ineid.learn first (it registers the method)", status="unsupported")
+    return _REGISTERED[name]
+
+
 def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, progress: Progress | None = None) -> SolveResults:
     """Identify the unknown links of every configuration in ``ds``.
 
@@ -210,10 +243,8 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
             IPOPT not converging) do not raise: they are recorded in ``success`` and ``status``.
     """
     enable_compilation_cache()
-    if settings.method == "network":  # a trained run as the solver
-        from ineid.learn.amortized import solve_with_run  # noqa: PLC0415
-
-        return solve_with_run(ds, settings, model, progress)
+    if settings.method not in BUILTIN_METHODS:  # a trained run as the solver (registered by ineid.learn)
+        return registered_method(settings.method)(ds, settings, model, progress)
     model = model or ds.model()
     with_bias = settings.bias == "estimate"
     base = base_parameters(model, bias=with_bias)
