@@ -190,6 +190,14 @@ def test_imports_flow_one_way():
     assert not wrong, "imports against the layers:\n" + "\n".join(wrong)
 
 
+def test_submodules_import_their_siblings_directly():
+    """Inside a package, ``from ineid.data.schema import Dataset``, never ``from ineid.data import Dataset``:
+    the package's ``__init__`` re-exports its submodules, so importing it from one is a cycle in waiting."""
+    wrong = [f"{m} imports its package {t}" for m, targets in sorted(import_graph().items()) for t in sorted(targets)
+             if m.startswith(t + ".") and not m.endswith(".__main__")]  # __main__ runs the package's own main()
+    assert not wrong, "\n".join(wrong)
+
+
 def test_shims_only_point_to_the_new_home():
     graph = import_graph()
     users = [f"{m} imports {s}" for m, targets in sorted(graph.items()) for s in sorted(targets & SHIMS.keys())]
