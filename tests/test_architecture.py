@@ -275,9 +275,9 @@ def test_identify_registers_the_delay_estimate(monkeypatch):
 
 def test_learn_registers_the_network_method(monkeypatch):
     """``identify`` never imports ``learn``: importing ``ineid.learn`` registers ``method="network"``."""
-    from ineid.identify import solve
     import ineid.learn
     from ineid.errors import IdentificationError
+    from ineid.identify import solve
 
     assert solve.registered_method("network") is ineid.learn.solve_with_run
     monkeypatch.setattr(solve, "_REGISTERED", {})

@@ -20,8 +20,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ineid.errors import DatasetError, TrainingError
-from ineid.learn.data import epoch_groups, fixed_groups, frame_features, split_configs
 from ineid.learn.config import OPTIMIZERS, SCHEDULES, TrainConfig  # noqa: F401  (re-exported)
+from ineid.learn.data import epoch_groups, fixed_groups, frame_features, split_configs
 from ineid.learn.losses import PHYSICS_MODES, CompactRegressor, Physics
 from ineid.learn.runs import MetricsLog, load_state, save_state, start_run, write_config, writing_run
 from ineid.learn.scalers import Scaler
