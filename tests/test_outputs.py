@@ -14,7 +14,6 @@ import time
 import pytest
 
 from ineid._atomic import lock_path, output_lock, remove_stale_temporaries
-from ineid.errors import OutputBusyError
 
 TRAIN = ("--arch", "simple", "--batch", "16", "--train-configs", "12", "--val-configs", "4", "--patience", "0")
 

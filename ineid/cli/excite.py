@@ -20,7 +20,7 @@ from ineid.cli.options import (
     robot_inputs,
     robot_options,
 )
-from ineid.cli.output import ProgressBar, console, plain, shown, table
+from ineid.cli.output import ProgressBar, console, shown, table
 
 _SETTINGS = "ineid.identify.excite:ExcitationSettings"
 
