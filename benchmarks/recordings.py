@@ -35,10 +35,10 @@ import numpy as np
 
 from machine import cpu_description  # benchmarks/machine.py
 
-from ineid.data.delay import estimate_delay
 from ineid.data.recording import ImportSettings, Streams, import_recording, recording_dataset
 from ineid.data.signals import LowPass, choose_cutoff, derivatives
 from ineid.identify import SolveSettings, solve_dataset
+from ineid.identify.delay import estimate_delay
 
 POSE = "0.03,-0.02,-0.05,3.1,0.2,0.7"
 EDGE_S = 0.1

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import os
 import sys
-from importlib.metadata import PackageNotFoundError, version
 
 os.environ.setdefault("JAX_ENABLE_X64", "1")
 if "jax" in sys.modules:  # imported before ineid: the variable came too late
     sys.modules["jax"].config.update("jax_enable_x64", True)
 
+from ineid._version import __version__  # noqa: E402
 from ineid.errors import (  # noqa: E402
     CodegenError,
     DatasetError,
@@ -36,11 +36,6 @@ from ineid.params import (  # noqa: E402
     pseudo_inertia,
     theta_from_inertial,
 )
-
-try:
-    __version__ = version("ineid")
-except PackageNotFoundError:  # a source tree that was never installed
-    __version__ = "0+unknown"
 
 _LAZY = {
     "BUILTIN_ROBOTS": "ineid.robots",

@@ -17,10 +17,10 @@ import numpy as np
 def main(n_frames: int = 100_000, seed: int = 0) -> None:
     import jax  # noqa: PLC0415
 
-    import ineid  # noqa: PLC0415
+    from ineid.codegen import load_robot  # noqa: PLC0415
     from ineid.data.sampling import model_uniform_states  # noqa: PLC0415
 
-    model = ineid.load_robot("sweaty-arm")
+    model = load_robot("sweaty-arm")
     q, qd, qdd = model_uniform_states(model, n_frames, np.random.default_rng(seed))
 
     f = jax.jit(model.jax_regressor)

@@ -256,7 +256,7 @@ def test_train_sigterm_exits_143(data, tmp_path):
 
 
 def test_sweep_resumes(run, data, tmp_path, monkeypatch):
-    sweep_module = sys.modules["ineid.learn.sweep"]
+    sweep_module = sys.modules["ineid.learn.trials"]  # run_trial's module (it calls train and evaluate)
     train_module = sys.modules["ineid.learn.train"]  # (ineid.learn.train is also the function's name)
 
     out = tmp_path / "sweep"

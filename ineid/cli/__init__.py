@@ -66,7 +66,7 @@ def _left_behind(e: BaseException) -> str:
 
 
 def _version() -> str:
-    from ineid import __version__  # noqa: PLC0415  (package metadata; imports no JAX)
+    from ineid._version import __version__  # noqa: PLC0415  (package metadata; imports no JAX)
 
     return __version__
 

@@ -184,6 +184,9 @@ def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic,
     ROS 2 bag folder or .mcap (sensor_msgs/JointState, geometry_msgs/WrenchStamped)."""
     from ineid.data.recording import ImportSettings, import_recording  # noqa: PLC0415
 
+    if delay is None:  # --delay auto: the estimate fits the model; importing it registers it with the import
+        import ineid.identify.delay  # noqa: F401, PLC0415
+
     prepare_output(out, overwrite, inputs=[*folder_inputs(path, "the input recording"), *robot_inputs(robot)])
     model = robot.load()
     settings = ImportSettings(sensor_pose=sensor_pose, cutoff=cutoff, rate=rate, delay=delay or 0.0,

@@ -196,6 +196,8 @@ def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma
         given.append("--plot")
     if method == "network" and given:
         raise click.UsageError(f"{', '.join(given)} do not apply to --method network")
+    if method == "network":  # a trained run as the solver: ineid.learn registers it with solve_dataset
+        import ineid.learn.amortized  # noqa: F401, PLC0415
     if plot_path is not None:
         prepare_output(plot_path, overwrite, option="--plot", inputs=[*inputs, ("the results file (--out)", out)])
     if sigma is not None and weights != "noise":

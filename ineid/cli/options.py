@@ -173,12 +173,12 @@ class RobotChoice:
     gravity: tuple[float, float, float] | None = None
 
     def load(self):
-        import ineid  # noqa: PLC0415
+        from ineid.codegen import load_robot  # noqa: PLC0415
 
         kwargs = {"unknown_links": self.unknown_links, "locked_joints": self.locked_joints}
         if self.gravity is not None:
             kwargs["gravity"] = self.gravity
-        return ineid.load_robot(self.robot, **kwargs)
+        return load_robot(self.robot, **kwargs)
 
 
 def _split_names(ctx, param, value: str | None) -> tuple[str, ...] | None:

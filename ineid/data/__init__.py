@@ -7,10 +7,11 @@ A recording from a real arm enters through :func:`read_recording_csv`.
 
 from __future__ import annotations
 
-from ineid.data.csv_import import csv_columns, read_recording_csv, write_recording_csv
+from ineid.data.csv_import import csv_columns, write_recording_csv
 from ineid.data.generate import DatasetSpec, generate_dataset, write_dataset
 from ineid.data.noise import NoiseModel
 from ineid.data.read import iter_dataset, load_dataset, read_meta
+from ineid.data.recording import read_recording_csv
 from ineid.data.sampling import (
     Combination,
     FrameSampling,

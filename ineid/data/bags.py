@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ineid.data.streams import Streams
 from ineid.errors import DatasetError
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
@@ -127,7 +128,7 @@ def _stamp_ns(msg, log_ns: int) -> int:
 
 def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: str = "/joint_states",
                      wrench_topic: str | None = None, progress: Callable[[int, int], None] | None = None):
-    """Read joint angles and the sensor wrench from a ROS bag into :class:`ineid.data.recording.Streams`.
+    """Read joint angles and the sensor wrench from a ROS bag into :class:`ineid.data.streams.Streams`.
 
     Args:
         path: ROS 1 ``.bag``, ROS 2 bag folder, or ``.mcap`` file.
@@ -142,8 +143,6 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
             model joint missing from the joint states (named); positions not matching
             names; the wrench ``frame_id`` changing within the recording.
     """
-    from ineid.data.recording import Streams  # noqa: PLC0415
-
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path} does not exist")

@@ -23,16 +23,13 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ineid._atomic import atomic_output
 from ineid.data.schema import Dataset
+from ineid.data.streams import Streams
 from ineid.errors import DatasetError
-
-if TYPE_CHECKING:
-    from ineid.robots import RobotModel
 
 WRENCH_COLUMNS = ("fx", "fy", "fz", "mx", "my", "mz")
 
@@ -67,30 +64,8 @@ def csv_columns(n_dof: int, derivatives: bool = True) -> list[str]:
     return ["time", *joints, *WRENCH_COLUMNS]
 
 
-def read_recording_csv(path: str | Path, model: RobotModel, flip_wrench: bool = False, settings=None) -> Dataset:
-    """Read a recording CSV into a :class:`Dataset` of one configuration.
-
-    Args:
-        path: the CSV file (comma-separated; ``#`` lines are comments).
-        model: the :class:`ineid.RobotModel` the arm is.
-        flip_wrench: the sensor reports the wrench on the robot; negate it.
-        settings: an :class:`ineid.data.recording.ImportSettings` (sensor pose, cut-off,
-            rate, delay); its ``flip_wrench`` is overridden by the argument.
-
-    Raises:
-        DatasetError: see :func:`read_csv_streams` and
-            :func:`ineid.data.recording.recording_dataset`.
-    """
-    from dataclasses import replace  # noqa: PLC0415
-
-    from ineid.data.recording import ImportSettings, recording_dataset  # noqa: PLC0415
-
-    settings = replace(settings or ImportSettings(), flip_wrench=flip_wrench)
-    return recording_dataset(read_csv_streams(path, model), model, settings)[0]
-
-
 def read_csv_streams(path: str | Path, model, progress=None):
-    """Read a recording CSV into :class:`ineid.data.recording.Streams` (no processing yet).
+    """Read a recording CSV into :class:`ineid.data.streams.Streams` (no processing yet).
 
     Raises:
         DatasetError: the file missing, unreadable or empty; a repeated column; joint
@@ -99,8 +74,6 @@ def read_csv_streams(path: str | Path, model, progress=None):
             not a number; a row with only some of a stream's cells; NaN or infinite
             values; time not increasing within a stream. Cell errors name the line.
     """
-    from ineid.data.recording import Streams  # noqa: PLC0415
-
     path = Path(path)
     n = model.n_dof
     numbered = read_csv_rows(path)

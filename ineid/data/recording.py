@@ -7,7 +7,7 @@ turns that into frames ``(q, qd, qdd, wrench)`` on one uniform time base:
 
 1. checks: finite values, increasing time stamps, each stream with enough samples;
 2. the wrench clock is shifted by ``delay`` (a wrench stamped ``t`` was measured at
-   ``t - delay``), given or estimated from the model (:mod:`ineid.data.delay`);
+   ``t - delay``), given or estimated from the model (:mod:`ineid.identify.delay`);
 3. when ``qd``/``qdd`` are missing, joint angles *and* wrench go through the same zero-phase
    low-pass (:mod:`ineid.data.signals`), at a cut-off chosen from the angles' spectrum or
    given, and the angles are differentiated; samples within the filter's edge are dropped.
@@ -24,45 +24,18 @@ The wrench stays in the sensor frame: the dataset records the sensor pose (forma
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ineid.data import signals
-from ineid.data.delay import DelayEstimate
 from ineid.data.schema import Dataset, DatasetMeta
+from ineid.data.streams import Streams, in_si_units, units_note
 from ineid.errors import DatasetError
 from ineid.progress import Progress
 from ineid.sensor import SensorPose, parse_sensor_pose
-
-
-@dataclass
-class Streams:
-    """A recording as read from a file: two streams, each on its own clock.
-
-    Attributes:
-        joint_time: (Nq,) s, increasing.
-        q: (Nq, n_dof) joint angles (rad; m for prismatic joints), chain order.
-        qd, qdd: (Nq, n_dof) measured velocities and accelerations, or None (derived).
-        wrench_time: (Nw,) s, increasing, on the wrench's clock.
-        wrench: (Nw, 6) what the sensor reads: the load of the robot on it, in its frame,
-            moment about its origin (N, N*m).
-        source: the file, for messages.
-        frame_id: the frame the wrench messages name (ROS bags), or None.
-        origin: provenance recorded in the dataset (format, topics, message counts...).
-    """
-
-    joint_time: np.ndarray
-    q: np.ndarray
-    qd: np.ndarray | None
-    qdd: np.ndarray | None
-    wrench_time: np.ndarray
-    wrench: np.ndarray
-    source: str
-    frame_id: str | None = None
-    origin: dict = field(default_factory=dict)
-
 
 ANGLE_UNITS = ("rad", "deg")
 """Units of a recording's revolute joint angles (``data import --angle-unit``)."""
@@ -87,7 +60,7 @@ class ImportSettings:
         wrench_scale: every force and moment is multiplied by it (0.001 for a wrench in mN
             and N*mm); finite and positive (``flip_wrench`` negates).
         estimate_delay: estimate ``delay`` from the model instead
-            (:func:`ineid.data.delay.estimate_delay`, within ``+-max_delay`` s).
+            (:func:`ineid.identify.delay.estimate_delay`, within ``+-max_delay`` s).
         max_delay: s, the search range of ``estimate_delay``.
     """
 
@@ -113,6 +86,32 @@ class ImportSettings:
                 raise DatasetError(f"{name} must be a positive number of Hz, got {v}")
         if not math.isfinite(self.delay):
             raise DatasetError(f"delay must be a finite number of seconds, got {self.delay}")
+
+
+@dataclass(frozen=True)
+class DelayEstimate:
+    """The estimated delay (s) and the linear fit's relative residual ``sqrt(r / ||D y_c||^2)`` at it and at 0."""
+
+    delay: float
+    residual: float
+    residual_at_zero: float
+
+
+DelayEstimator = Callable[[Streams, object, ImportSettings, float], DelayEstimate]
+"""``estimator(streams, model, settings, max_delay)``: the wrench delay that best fits the model."""
+
+_delay_estimator: DelayEstimator | None = None
+
+
+def register_delay_estimator(estimator: DelayEstimator) -> None:
+    """Install what :func:`recording_dataset` calls for ``ImportSettings(estimate_delay=True)``.
+
+    The estimate fits the model, so it lives with the solvers, in :mod:`ineid.identify.delay`,
+    which registers :func:`ineid.identify.delay.estimate_delay` when imported (``import
+    ineid.identify`` does): ``data`` never imports ``identify``.
+    """
+    global _delay_estimator  # noqa: PLW0603
+    _delay_estimator = estimator
 
 
 @dataclass
@@ -293,9 +292,10 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     if settings.estimate_delay:
         from dataclasses import replace  # noqa: PLC0415
 
-        from ineid.data.delay import estimate_delay  # noqa: PLC0415
-
-        estimate = estimate_delay(streams, model, settings, settings.max_delay)
+        if _delay_estimator is None:
+            raise DatasetError("estimating the wrench delay fits the model, which ineid.identify does: import "
+                               "ineid.identify first, or give the delay (ImportSettings(delay=...), --delay S)")
+        estimate = _delay_estimator(streams, model, settings, settings.max_delay)
         ds, summary = recording_dataset(streams, model, replace(settings, delay=estimate.delay, estimate_delay=False))
         summary.delay_estimate = estimate
         ds.meta.origin["import"] = summary.to_dict()
@@ -385,7 +385,7 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
         dropped_start=float(grid[0] - min(tq[0], tw[0])), dropped_end=float(max(tq[-1], tw[-1]) - grid[-1]),
         dropped_joint_samples=int(np.sum((tq < grid[0] - 1e-9 * hq) | (tq > grid[-1] + 1e-9 * hq))),
         dropped_wrench_samples=int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw))),
-        resampled=tuple(resampled), sensor=sensor, delay=settings.delay, units=_units_note(streams.origin),
+        resampled=tuple(resampled), sensor=sensor, delay=settings.delay, units=units_note(streams.origin),
     )  # fmt: skip
     meta = DatasetMeta.for_model(
         model, source="recording", origin={**streams.origin, "import": summary.to_dict()}, sensor=sensor.to_dict()
@@ -400,43 +400,6 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
         time=grid[None],
     )
     return ds, summary
-
-
-def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: float = 1.0) -> Streams:
-    """``streams`` with revolute joints' ``q`` (``qd``, ``qdd``) in rad and the wrench multiplied by ``wrench_scale``.
-
-    Args:
-        streams: as read from the file.
-        model: the :class:`ineid.RobotModel` (which joints are revolute: prismatic ones stay in m).
-        angle_unit: ``"rad"`` (nothing to convert) or ``"deg"``.
-        wrench_scale: the factor on every force and moment.
-
-    Returns:
-        A new :class:`Streams`; its ``origin`` records ``angle_unit`` and ``wrench_scale``.
-    """
-    from dataclasses import replace  # noqa: PLC0415
-
-    factor = np.ones(model.n_dof)
-    if angle_unit == "deg":
-        factor[[k for k, kind in enumerate(model.joint_types) if kind == "revolute"]] = math.pi / 180
-    joints = {}
-    for k in ("q", "qd", "qdd"):
-        a = getattr(streams, k)
-        a = None if a is None else np.asarray(a, dtype=np.float64)
-        # a wrongly shaped array is left as it is: recording_dataset names the problem
-        joints[k] = a * factor if a is not None and a.ndim == 2 and a.shape[1] == model.n_dof else a
-    origin = {**streams.origin, "angle_unit": angle_unit, "wrench_scale": float(wrench_scale)}
-    return replace(streams, **joints, wrench=np.asarray(streams.wrench, dtype=np.float64) * wrench_scale, origin=origin)
-
-
-def _units_note(origin: dict) -> str | None:
-    """The summary line of :func:`in_si_units`'s conversions, or None."""
-    parts = []
-    if origin.get("angle_unit") == "deg":
-        parts.append("revolute joint angles (and measured qd, qdd) converted from degrees")
-    if origin.get("wrench_scale", 1.0) != 1.0:
-        parts.append(f"wrench multiplied by {origin['wrench_scale']:g}")
-    return "; ".join(parts) or None
 
 
 def _on_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -478,3 +441,25 @@ def import_recording(path: str | Path, model, settings: ImportSettings = ImportS
 
         streams = read_csv_streams(path, model, progress)
     return recording_dataset(streams, model, settings)
+
+
+def read_recording_csv(path: str | Path, model, flip_wrench: bool = False, settings=None) -> Dataset:
+    """Read a recording CSV into a :class:`Dataset` of one configuration.
+
+    Args:
+        path: the CSV file (comma-separated; ``#`` lines are comments).
+        model: the :class:`ineid.RobotModel` the arm is.
+        flip_wrench: the sensor reports the wrench on the robot; negate it.
+        settings: an :class:`ImportSettings` (sensor pose, cut-off,
+            rate, delay); its ``flip_wrench`` is overridden by the argument.
+
+    Raises:
+        DatasetError: see :func:`ineid.data.csv_import.read_csv_streams` and
+            :func:`recording_dataset`.
+    """
+    from dataclasses import replace  # noqa: PLC0415
+
+    from ineid.data.csv_import import read_csv_streams  # noqa: PLC0415
+
+    settings = replace(settings or ImportSettings(), flip_wrench=flip_wrench)
+    return recording_dataset(read_csv_streams(path, model), model, settings)[0]

@@ -21,7 +21,7 @@ import numpy as np
 
 from ineid._atomic import check_output, temporary_path
 from ineid._faults import format_bytes, free_disk
-from ineid.data.schema import FORMAT, VERSION, Dataset, DatasetMeta, expected_shapes
+from ineid.data.meta import FORMAT, VERSION, DatasetMeta, expected_shapes
 from ineid.errors import DatasetError, StorageError
 from ineid.params import PARAM_NAMES
 
@@ -284,8 +284,8 @@ def _compress_chunk(block: np.ndarray, rows: int) -> bytes:
     return zlib.compress(np.ascontiguousarray(raw.T).tobytes(), GZIP_LEVEL)
 
 
-def save_dataset(ds: Dataset, path: str | Path, overwrite: bool = False) -> Path:
-    """Write an in-memory :class:`Dataset` to ``path`` (atomic; see :class:`DatasetWriter`)."""
+def save_dataset(ds, path: str | Path, overwrite: bool = False) -> Path:
+    """Write an in-memory :class:`ineid.data.schema.Dataset` to ``path`` (atomic; see :class:`DatasetWriter`)."""
     per_config = [k for k in ds.arrays() if k != "theta_known"]
     with DatasetWriter(path, ds.meta, ds.n_configs, ds.n_frames, per_config, overwrite=overwrite) as w:
         w.write_constant("theta_known", ds.theta_known)

@@ -8,6 +8,7 @@ results -> :func:`save_results` / :func:`export_urdf`. Never imports sympy.
 
 from __future__ import annotations
 
+from ineid.identify.delay import estimate_delay  # importing it registers the estimate with data.recording
 from ineid.identify.export import export_urdf, urdf_with_inertials
 from ineid.identify.identifiability import (
     BaseParameters,
@@ -40,6 +41,7 @@ __all__ = [
     "base_parameters_from_regressor",
     "bias_cost",
     "error_summary",
+    "estimate_delay",
     "export_urdf",
     "fit_base",
     "generic_frames",

@@ -53,7 +53,7 @@ def validation(res, ds, model=None, config: int | None = None) -> Validation:
     Raises:
         DatasetError: the configuration was not solved, or none was.
     """
-    from ineid.identify.solve import predicted_wrench  # noqa: PLC0415
+    from ineid.identify.steps import predicted_wrench  # noqa: PLC0415
 
     model = model or ds.model()
     solved = np.flatnonzero(res.success)

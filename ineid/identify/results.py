@@ -30,7 +30,7 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
     """
     import h5py  # noqa: PLC0415
 
-    from ineid import __version__  # noqa: PLC0415
+    from ineid._version import __version__  # noqa: PLC0415
 
     path = Path(path)
     if path.is_dir():

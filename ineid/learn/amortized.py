@@ -17,6 +17,7 @@ import time
 import numpy as np
 
 from ineid.errors import IdentificationError, TrainingError
+from ineid.identify.solve import register_method
 
 HOLDOUT_FRACTION = 0.2
 """Without ``frames``, about this share of each configuration's frames is held out (as for the other methods)."""
@@ -108,3 +109,6 @@ def solve_with_run(ds, settings, model=None, progress=None):
         status=np.where(ok, "ok", "non_finite").astype(object),
         seconds=seconds,
     )  # fmt: skip
+
+
+register_method("network", solve_with_run)  # SolveSettings(method="network"), `ineid solve --method network`

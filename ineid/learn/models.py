@@ -40,14 +40,7 @@ from dataclasses import dataclass
 import flax.linen as nn
 import jax.numpy as jnp
 
-ACTIVATIONS = {
-    "tanh": nn.tanh,
-    "relu": nn.relu,
-    "gelu": nn.gelu,
-    "sigmoid": nn.sigmoid,
-    "elu": nn.elu,
-    "silu": nn.silu,
-}
+from ineid.learn.layers import ACTIVATIONS, Encoder
 
 TABLE1 = {  # name: (depth, width factor of N_out)
     "net1": (8, 1),
@@ -106,20 +99,6 @@ def hidden_widths(arch: str, n_out: int, depth: int | None = None, width: int | 
         _check_size(arch, int(depth), int(width))
         return (int(width),) * int(depth)
     raise ValueError(f"architecture must be one of {', '.join(ARCHITECTURES)}, got {arch!r}")
-
-
-class Encoder(nn.Module):
-    """The hidden layers of an architecture: (..., F) -> (..., last width)."""
-
-    hidden: Sequence[int]
-    activation: str = "tanh"
-
-    @nn.compact
-    def __call__(self, x):
-        act = ACTIVATIONS[self.activation]
-        for i, w in enumerate(self.hidden):
-            x = act(nn.Dense(w, param_dtype=jnp.float64, name=f"hidden_{i}")(x))
-        return x
 
 
 class MLP(nn.Module):

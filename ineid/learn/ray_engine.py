@@ -24,8 +24,8 @@ from pathlib import Path
 from ineid._atomic import output_lock, replace_folder, staging_folder
 from ineid.errors import IneidError, OptionalDependencyError, TrainingError
 from ineid.learn.runs import RUN_FILES
-from ineid.learn.sweep import SweepRow, run_name, run_trial
 from ineid.learn.train import TrainConfig
+from ineid.learn.trials import SweepRow, run_name, run_trial
 
 INSTALL_HINT = "the ray engine needs Ray: pip install 'ineid[ray]' (or pip install 'ray[default]')"
 
@@ -45,8 +45,7 @@ def _trial(ds, cfg: TrainConfig, dataset_path: str | None, physics_mode: str,
 
     ``started``: the files of an interrupted run of this trial, continued from its checkpoint.
     """
-    import ineid  # noqa: F401, PLC0415  (float64 JAX before anything imports jax)
-
+    # float64 JAX: the worker imported this module, ineid.learn.ray_engine, so ineid/__init__ ran first
     with tempfile.TemporaryDirectory(prefix="ineid-trial-") as tmp:
         run_dir = Path(tmp) / run_name(cfg)
         run_dir.mkdir()
@@ -81,7 +80,7 @@ def ray_trials(ds, cfgs: list[TrainConfig], out_dir: Path, *, dataset_path: str 
             None starts a local cluster and stops it afterwards.
         cpus_per_trial, gpus_per_trial: resources each task reserves.
         ray_init: extra ``ray.init`` arguments for the local cluster (e.g. ``num_cpus=2``).
-        states: a resumed sweep's :func:`ineid.learn.sweep.trial_state` per trial name:
+        states: a resumed sweep's :func:`ineid.learn.trials.trial_state` per trial name:
             finished trials (and those only to evaluate) are done here without Ray; an
             interrupted one is sent with its files and continued from its checkpoint.
 

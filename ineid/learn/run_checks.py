@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ineid.errors import TrainingError
+from ineid.learn.config import TrainConfig
 from ineid.learn.data import Split
 from ineid.learn.scalers import SCALERS, Scaler
 
@@ -70,8 +71,6 @@ def read_config(run_dir: Path) -> tuple[dict, object, Split]:
         TrainingError: the file is not JSON, lacks a key, or holds a value of the wrong
             type (settings that no longer build a network, a split that is not indices).
     """
-    from ineid.learn.train import TrainConfig  # noqa: PLC0415  (train imports runs, which imports this)
-
     path = run_dir / "config.json"
     meta = read_json(path)
     if not isinstance(meta, dict):

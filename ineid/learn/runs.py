@@ -39,7 +39,7 @@ from ineid.learn.scalers import Scaler
 
 if TYPE_CHECKING:
     from ineid.data import Dataset
-    from ineid.learn.train import TrainConfig
+    from ineid.learn.config import TrainConfig
 
 CONFIG, SCALERS, METRICS, CHECKPOINT, MODEL, EVALUATION = (
     "config.json", "scalers.json", "metrics.jsonl", "checkpoint.msgpack", "model.msgpack", "evaluation.json",

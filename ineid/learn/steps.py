@@ -8,6 +8,7 @@ an epoch's batches. The loop around them (splits, checkpoints, early stopping) i
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -15,9 +16,30 @@ import numpy as np
 from ineid.learn.losses import make_loss
 
 if TYPE_CHECKING:
+    from ineid.learn.config import TrainConfig
     from ineid.learn.losses import Physics
     from ineid.learn.models import ModelSpec
-    from ineid.learn.train import Prepared, TrainConfig
+    from ineid.learn.scalers import Scaler
+
+
+@dataclass
+class Prepared:
+    """The configurations of a run made ready: scalers and device arrays.
+
+    Arrays hold only the configurations in ``rows`` (dataset indices), in that order;
+    ``local(indices)`` maps dataset indices to positions in them.
+    """
+
+    rows: np.ndarray
+    x_scaler: Scaler
+    y_scaler: Scaler
+    arrays: dict
+    physics: Physics
+    n_out: int
+    n_frames: int
+
+    def local(self, dataset_indices: np.ndarray) -> np.ndarray:
+        return np.searchsorted(self.rows, dataset_indices)
 
 
 def gather_samples(arrays, mode, rows, frames):

@@ -19,10 +19,9 @@ import numpy as np
 
 from ineid._atomic import atomic_write, save_figure, write_csv
 from ineid.errors import TrainingError
-from ineid.learn.evaluate import evaluate
 from ineid.learn.models import SIZED
-from ineid.learn.runs import CHECKPOINT, CONFIG, EVALUATION, METRICS, MODEL, load_run
-from ineid.learn.train import TrainConfig, train
+from ineid.learn.train import TrainConfig
+from ineid.learn.trials import TRIAL_STATES, SweepRow, run_name, run_trial, trial_state  # noqa: F401  (re-exported)
 
 if TYPE_CHECKING:
     from ineid.data import Dataset
@@ -58,122 +57,11 @@ class Grid:
         return out
 
 
-def run_name(cfg: TrainConfig) -> str:
-    return f"{cfg.model.name}-{cfg.scaler}-{cfg.optimizer}-{cfg.loss}"
-
-
-@dataclass
-class SweepRow:
-    """One trial of a sweep: its settings, training time, and test errors beside the floor and least squares (NaN
-    and ``status = "failed: <why>"`` when it failed).
-
-    Errors are median relative errors over the test split's parameters (standard and base).
-    """
-
-    name: str
-    arch: str
-    activation: str
-    scaler: str
-    optimizer: str
-    loss: str
-    frames: int
-    siamese: bool
-    epochs_run: int
-    seconds: float
-    test_standard_median: float
-    test_base_median: float
-    floor_standard_median: float
-    linear_standard_median: float
-    linear_base_median: float
-    physical_share: float
-    gaussian_standard_median: float = float("nan")
-    gaussian_base_median: float = float("nan")
-    status: str = "ok"
-
-    @classmethod
-    def from_evaluation(cls, cfg: TrainConfig, epochs_run: int, seconds: float, ev: dict) -> SweepRow:
-        """The row of a trained trial from its evaluation (:meth:`ineid.learn.Evaluation.to_dict`)."""
-        nan = float("nan")
-
-        def median(key: str) -> float:
-            return ev[key]["overall_median"] if ev.get(key) else nan
-
-        return cls(
-            name=run_name(cfg), arch=cfg.model.arch, activation=cfg.model.activation, scaler=cfg.scaler,
-            optimizer=cfg.optimizer, loss=cfg.loss, frames=cfg.model.frames, siamese=cfg.model.siamese,
-            epochs_run=epochs_run, seconds=seconds, test_standard_median=median("network"),
-            test_base_median=median("network_base"), floor_standard_median=median("floor"),
-            linear_standard_median=median("linear"), linear_base_median=median("linear_base"),
-            physical_share=ev["physical_share"], gaussian_standard_median=median("gaussian"),
-            gaussian_base_median=median("gaussian_base"),
-        )  # fmt: skip
-
-    @classmethod
-    def failed(cls, cfg: TrainConfig, message: str) -> SweepRow:
-        nan = float("nan")
-        return cls(name=run_name(cfg), arch=cfg.model.arch, activation=cfg.model.activation, scaler=cfg.scaler,
-                   optimizer=cfg.optimizer, loss=cfg.loss, frames=cfg.model.frames, siamese=cfg.model.siamese,
-                   epochs_run=0, seconds=nan, test_standard_median=nan, test_base_median=nan,
-                   floor_standard_median=nan, linear_standard_median=nan, linear_base_median=nan,
-                   physical_share=nan, status=f"failed: {message}")  # fmt: skip
-
-
 ENGINES = ("sequential", "ray")
 
 
 SWEEP_RECORD = "sweep.json"
 """The settings of a sweep in its folder (grid, run settings, dataset fingerprint), checked by ``resume``."""
-
-TRIAL_STATES = ("new", "checkpoint", "evaluate", "finished")
-
-
-def trial_state(run_dir: Path, cfg: TrainConfig, fingerprint: str) -> str:
-    """What resuming a sweep does with a trial's folder.
-
-    ``"finished"``: a run of these settings and dataset with its evaluation (kept);
-    ``"evaluate"``: finished training, no evaluation yet; ``"checkpoint"``: interrupted
-    training, continued from its checkpoint; ``"new"``: nothing usable (missing, empty,
-    unreadable, or a run of other settings or data: trained afresh, replacing it).
-    """
-    try:
-        saved = json.loads((run_dir / CONFIG).read_text())
-        same = saved["train"] == cfg.to_dict() and saved["dataset"]["fingerprint"] == fingerprint
-    except (OSError, ValueError, KeyError, TypeError):
-        return "new"
-    if not same:
-        return "new"
-    if (run_dir / MODEL).is_file():
-        return "finished" if (run_dir / EVALUATION).is_file() else "evaluate"
-    return "checkpoint" if (run_dir / CHECKPOINT).is_file() else "new"
-
-
-def _trained(run_dir: Path) -> tuple[int, float]:
-    """Epochs run and training seconds of a run, from its ``metrics.jsonl``."""
-    records = [json.loads(line) for line in (run_dir / METRICS).read_text().splitlines() if line.strip()]
-    return (int(records[-1]["epoch"]) if records else 0), float(sum(r["seconds"] for r in records))
-
-
-def run_trial(ds, cfg: TrainConfig, run_dir: Path, dataset_path: str | None = None, model=None,
-              physics_mode: str = "cached", state: str = "new") -> SweepRow:
-    """Train one grid point into ``run_dir``, evaluate it on the test split and write its ``evaluation.json``.
-
-    ``state`` (:func:`trial_state`) says how much of it is done: ``"new"`` trains afresh
-    (replacing a run there only once the new one is finished), ``"checkpoint"`` resumes the
-    training, ``"evaluate"`` only evaluates, ``"finished"`` only reads the evaluation back.
-    """
-    if state not in TRIAL_STATES:
-        raise ValueError(f"state must be one of {', '.join(TRIAL_STATES)}, got {state!r}")
-    if state in ("new", "checkpoint"):
-        result = train(ds, cfg, run_dir, dataset_path=dataset_path, resume=state == "checkpoint", overwrite=True,
-                       model=model, physics_mode=physics_mode)  # fmt: skip
-    if state == "finished":
-        ev = json.loads((run_dir / EVALUATION).read_text())
-    else:
-        ev = evaluate(load_run(run_dir), ds, model=model).to_dict()
-        atomic_write(run_dir / EVALUATION, json.dumps(ev, indent=1))
-    epochs_run, seconds = (result.epochs_run, result.seconds) if state == "new" else _trained(run_dir)
-    return SweepRow.from_evaluation(cfg, epochs_run, seconds, ev)
-
 
 def sweep_record(grid: Grid, base: TrainConfig, ds: Dataset) -> dict:
     """What ``OUT/sweep.json`` holds: the grid, the run settings and the dataset's fingerprint (JSON types)."""

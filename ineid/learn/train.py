@@ -12,22 +12,22 @@ ends bit for bit where the uninterrupted run would have.
 
 from __future__ import annotations
 
-import dataclasses
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ineid.errors import DatasetError, TrainingError
+from ineid.learn.config import OPTIMIZERS, SCHEDULES, TrainConfig  # noqa: F401  (re-exported)
 from ineid.learn.data import epoch_groups, fixed_groups, frame_features, split_configs
-from ineid.learn.losses import LOSSES, PHYSICS_MODES, CompactRegressor, Physics
-from ineid.learn.models import ModelSpec
+from ineid.learn.losses import PHYSICS_MODES, CompactRegressor, Physics
 from ineid.learn.runs import MetricsLog, load_state, save_state, start_run, write_config, writing_run
-from ineid.learn.scalers import SCALERS, Scaler
+from ineid.learn.scalers import Scaler
 from ineid.learn.steps import (  # noqa: F401  (STEPS_PER_CALL, gather_samples, ... were here: still importable)
     STEPS_PER_CALL,
+    Prepared,
     build_functions,
     evaluate_groups,
     forward,
@@ -41,76 +41,6 @@ if TYPE_CHECKING:
     from ineid.data import Dataset
     from ineid.robots import RobotModel
 
-OPTIMIZERS = ("sgd", "adam", "adamw")
-SCHEDULES = ("constant", "cosine")
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """Settings of a training run (see ``docs/learning.md``).
-
-    Attributes:
-        model: architecture, activation, Siamese, frames per sample.
-        scaler: feature and target scaler kind.
-        loss: ``"mse"`` or ``"physics"`` (``alpha * MSE + beta * wrench residual``).
-        alpha, beta: loss weights (``beta`` used by the physics loss only).
-        optimizer: ``"sgd"`` (with ``momentum``), ``"adam"``, ``"adamw"`` (``weight_decay``).
-        lr, schedule: learning rate and its schedule (``constant`` or ``cosine`` decay to 0).
-        epochs, batch: epochs and samples per step.
-        patience: stop after this many epochs without a better validation MSE (0: never).
-        seed: the one seed of the run.
-        n_train, n_val, n_test: configurations per split (defaults 70 / 15 / 15 %).
-    """
-
-    model: ModelSpec = field(default_factory=ModelSpec)
-    scaler: str = "standard"
-    loss: str = "mse"
-    alpha: float = 1.0
-    beta: float = 1.0
-    optimizer: str = "adam"
-    lr: float = 1e-3
-    momentum: float = 0.9
-    weight_decay: float = 1e-4
-    schedule: str = "constant"
-    epochs: int = 100
-    batch: int = 256
-    patience: int = 20
-    seed: int = 0
-    n_train: int | None = None
-    n_val: int | None = None
-    n_test: int | None = None
-
-    def __post_init__(self) -> None:
-        checks = [
-            (self.scaler in SCALERS, f"scaler must be one of {', '.join(SCALERS)}"),
-            (self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}"),
-            (self.optimizer in OPTIMIZERS, f"optimizer must be one of {', '.join(OPTIMIZERS)}"),
-            (self.schedule in SCHEDULES, f"schedule must be one of {', '.join(SCHEDULES)}"),
-            (self.lr > 0 and self.epochs >= 1 and self.batch >= 1 and self.patience >= 0,
-             "lr, epochs and batch must be positive and patience >= 0"),
-            (self.alpha >= 0 and self.beta >= 0 and (self.alpha > 0 or (self.loss == "physics" and self.beta > 0)),
-             "alpha and beta must be >= 0 and the loss not identically zero"),
-        ]  # fmt: skip
-        for ok, message in checks:
-            if not ok:
-                raise ValueError(message)
-
-    @property
-    def effective_beta(self) -> float:
-        return self.beta if self.loss == "physics" else 0.0
-
-    def to_dict(self) -> dict:
-        d = dataclasses.asdict(self)
-        d["model"] = dataclasses.asdict(self.model)
-        return d
-
-    @classmethod
-    def from_dict(cls, d: dict) -> TrainConfig:
-        d = dict(d)
-        d["model"] = ModelSpec(**d["model"])
-        return cls(**d)
-
-
 def make_optimizer(cfg: TrainConfig, steps_per_epoch: int):
     import optax  # noqa: PLC0415
 
@@ -123,26 +53,6 @@ def make_optimizer(cfg: TrainConfig, steps_per_epoch: int):
     if cfg.optimizer == "adam":
         return optax.adam(lr)
     return optax.adamw(lr, weight_decay=cfg.weight_decay)
-
-
-@dataclass
-class Prepared:
-    """The configurations of a run made ready: scalers and device arrays.
-
-    Arrays hold only the configurations in ``rows`` (dataset indices), in that order;
-    ``local(indices)`` maps dataset indices to positions in them.
-    """
-
-    rows: np.ndarray
-    x_scaler: Scaler
-    y_scaler: Scaler
-    arrays: dict
-    physics: Physics
-    n_out: int
-    n_frames: int
-
-    def local(self, dataset_indices: np.ndarray) -> np.ndarray:
-        return np.searchsorted(self.rows, dataset_indices)
 
 
 CACHE_LIMIT_BYTES = 6 * 2**30

@@ -63,7 +63,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ineid.learn.models import ACTIVATIONS, Encoder
+from ineid.learn.layers import ACTIVATIONS, Encoder
 
 WLS_DEPTH, WLS_WIDTH = 2, 32
 """Default hidden layers of the wls encoder and their width (``--depth``, ``--width``)."""

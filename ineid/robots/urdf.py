@@ -13,6 +13,9 @@ Parsing is yourdfpy's (once per URDF text: the result is kept in the cache folde
 Sampling bounds: ``<limit velocity=...>`` bounds ``|qd|``; the acceleration bound, which
 URDF has no field for, comes from an optional ``<ineid acceleration="..."/>`` element
 inside a ``<joint>`` (ignored by other URDF readers), else :data:`DEFAULT_QDD_MAX`.
+
+:class:`Chain` and :class:`JointSpec` are defined in :mod:`ineid.robots.chain` (importable
+from here too).
 """
 
 from __future__ import annotations
@@ -23,13 +26,14 @@ import json
 import math
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 
 from ineid.errors import RobotModelError
 from ineid.params import physical_violations, theta_from_inertial
+from ineid.robots.chain import Chain, JointSpec
 
 DEFAULT_QD_MAX = 3.0
 """rad/s (m/s for prismatic): velocity bound for sampling where the URDF gives none."""
@@ -38,56 +42,6 @@ DEFAULT_QDD_MAX = 10.0
 
 _MOVING = {"revolute", "continuous", "prismatic"}
 _SUPPORTED = _MOVING | {"fixed"}
-
-
-@dataclass(frozen=True, eq=False)
-class JointSpec:
-    """One moving joint and the rigid body it carries.
-
-    The joint frame is placed in the parent body frame by ``parent_R_joint`` and
-    ``parent_p_joint``; the child body frame is the joint frame moved by ``q`` about
-    (revolute) or along (prismatic) ``axis``, a unit vector in the joint frame.
-    """
-
-    name: str
-    type: str  # "revolute" or "prismatic"
-    continuous: bool
-    parent_R_joint: np.ndarray
-    parent_p_joint: np.ndarray
-    axis: np.ndarray
-    link: str
-    theta: np.ndarray  # (10,) the body's parameters in its frame, about its origin
-    q_lower: float
-    q_upper: float
-    qd_max: float
-    qdd_max: float
-
-
-@dataclass(frozen=True, eq=False)
-class Chain:
-    """A serial chain of moving joints from the fixed root body, in URDF joint order."""
-
-    name: str
-    root_link: str
-    joints: tuple[JointSpec, ...]
-    merged_links: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
-
-    @property
-    def n_dof(self) -> int:
-        return len(self.joints)
-
-    def kinematic_fingerprint(self) -> str:
-        """Hash of everything the base-wrench regressor depends on (not the inertia).
-
-        The regressor depends on joint types, axes and origins only; masses do not enter
-        it. Two URDFs with the same fingerprint share generated code.
-        """
-        h = hashlib.sha256()
-        for j in self.joints:
-            h.update(j.type.encode())
-            for v in (*j.parent_R_joint.ravel(), *j.parent_p_joint, *j.axis):
-                h.update(float(v).hex().encode())
-        return h.hexdigest()[:16]
 
 
 def load_chain(path: str | Path, locked_joints: Mapping[str, float] | None = None) -> Chain:

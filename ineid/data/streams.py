@@ -1,0 +1,77 @@
+"""What a lab records, as read from a file: joint angles and the sensor wrench, each on its own clock.
+
+The file readers (:mod:`ineid.data.csv_import`, :mod:`ineid.data.bags`) produce
+:class:`Streams`, :func:`in_si_units` converts a lab's units, and
+:func:`ineid.data.recording.recording_dataset` turns them into frames.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Streams:
+    """A recording as read from a file: two streams, each on its own clock.
+
+    Attributes:
+        joint_time: (Nq,) s, increasing.
+        q: (Nq, n_dof) joint angles (rad; m for prismatic joints), chain order.
+        qd, qdd: (Nq, n_dof) measured velocities and accelerations, or None (derived).
+        wrench_time: (Nw,) s, increasing, on the wrench's clock.
+        wrench: (Nw, 6) what the sensor reads: the load of the robot on it, in its frame,
+            moment about its origin (N, N*m).
+        source: the file, for messages.
+        frame_id: the frame the wrench messages name (ROS bags), or None.
+        origin: provenance recorded in the dataset (format, topics, message counts...).
+    """
+
+    joint_time: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray | None
+    qdd: np.ndarray | None
+    wrench_time: np.ndarray
+    wrench: np.ndarray
+    source: str
+    frame_id: str | None = None
+    origin: dict = field(default_factory=dict)
+
+
+def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: float = 1.0) -> Streams:
+    """``streams`` with revolute joints' ``q`` (``qd``, ``qdd``) in rad and the wrench multiplied by ``wrench_scale``.
+
+    Args:
+        streams: as read from the file.
+        model: the :class:`ineid.RobotModel` (which joints are revolute: prismatic ones stay in m).
+        angle_unit: ``"rad"`` (nothing to convert) or ``"deg"``.
+        wrench_scale: the factor on every force and moment.
+
+    Returns:
+        A new :class:`Streams`; its ``origin`` records ``angle_unit`` and ``wrench_scale``.
+    """
+    from dataclasses import replace  # noqa: PLC0415
+
+    factor = np.ones(model.n_dof)
+    if angle_unit == "deg":
+        factor[[k for k, kind in enumerate(model.joint_types) if kind == "revolute"]] = math.pi / 180
+    joints = {}
+    for k in ("q", "qd", "qdd"):
+        a = getattr(streams, k)
+        a = None if a is None else np.asarray(a, dtype=np.float64)
+        # a wrongly shaped array is left as it is: recording_dataset names the problem
+        joints[k] = a * factor if a is not None and a.ndim == 2 and a.shape[1] == model.n_dof else a
+    origin = {**streams.origin, "angle_unit": angle_unit, "wrench_scale": float(wrench_scale)}
+    return replace(streams, **joints, wrench=np.asarray(streams.wrench, dtype=np.float64) * wrench_scale, origin=origin)
+
+
+def units_note(origin: dict) -> str | None:
+    """The summary line of :func:`in_si_units`'s conversions, or None."""
+    parts = []
+    if origin.get("angle_unit") == "deg":
+        parts.append("revolute joint angles (and measured qd, qdd) converted from degrees")
+    if origin.get("wrench_scale", 1.0) != 1.0:
+        parts.append(f"wrench multiplied by {origin['wrench_scale']:g}")
+    return "; ".join(parts) or None

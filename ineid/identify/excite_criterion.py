@@ -1,0 +1,232 @@
+"""The excitation design's criterion: the scaled information of a trajectory's samples and its gradient.
+
+The base parameters a design is for (:class:`DesignBase`), the scaled regressor
+``Phi_k = D^-1 Psi_k[:, base columns] S`` and its exact derivatives along the states
+(forward-mode AD of the generated JAX regressor), the criteria ``-log det M``
+(D-optimality) and ``log cond Phi`` with their gradients ``df/dPhi``, and the evaluation of
+a finished trajectory (:class:`DesignEvaluation`). The maths is in :mod:`ineid.identify.excite`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ineid.data.noise import NoiseModel
+from ineid.errors import ExcitationError
+from ineid.identify.identifiability import BaseParameters, base_parameters, numerical_rank
+
+CRITERIA = ("d-opt", "cond")
+DEFAULT_CHUNK = 160
+"""Samples per call of the compiled regressor and its derivatives (the design grid of 5 harmonics)."""
+DESIGN_NOISE = {"force": 0.5, "moment": 0.05}
+"""Default wrench noise of the design (N, N*m), the reference level of ``ineid study noise``."""
+
+
+@dataclass(frozen=True)
+class DesignBase:
+    """The base parameters a design is for: the unknown links', with or without sensor offsets.
+
+    Attributes:
+        names: (r,) base parameter names.
+        columns: (r,) each one's column in ``[I_6 | Psi]`` (``6 +`` its column in the
+            ``10 n_links`` regressor columns).
+        scales: (r,) characteristic scales ``S`` (SI units of each parameter).
+        cad: (r,) the CAD values ``B theta_cad``.
+        base: the underlying :class:`BaseParameters`.
+        bias: six constant offsets are identified too (the regressor is centred per axis).
+    """
+
+    names: tuple[str, ...]
+    columns: np.ndarray
+    scales: np.ndarray
+    cad: np.ndarray
+    base: BaseParameters
+    bias: bool
+
+    @property
+    def rank(self) -> int:
+        return len(self.names)
+
+
+def design_base(model, bias: bool = False) -> DesignBase:
+    """The structural base parameters of ``model``'s unknown links, as ``ineid solve`` identifies
+    them (:func:`ineid.identify.base_parameters`, with ``bias`` for ``--bias estimate``)."""
+    base = base_parameters(model, bias=bias)
+    idx = base.base_index
+    return DesignBase(
+        names=base.names,
+        columns=6 + model.unknown_index[idx],
+        scales=base.scales[idx],
+        cad=base.B @ model.theta_cad[model.unknown_index],
+        base=base,
+        bias=bool(bias),
+    )
+
+
+def centred(phi: np.ndarray) -> np.ndarray:
+    """``Phi_k - mean_j Phi_j`` (N, 6, r): the offsets of every axis profiled out."""
+    return phi - phi.mean(axis=0, keepdims=True)
+
+
+def design_noise(noise: NoiseModel | None = None) -> np.ndarray:
+    """(6,) wrench noise std per axis of the design: ``noise.wrench``, default :data:`DESIGN_NOISE`."""
+    if noise is None:
+        return np.array([DESIGN_NOISE["force"]] * 3 + [DESIGN_NOISE["moment"]] * 3)
+    sigma = np.asarray(noise.wrench, dtype=np.float64)
+    if sigma.shape != (6,) or not np.all(sigma > 0):
+        raise ExcitationError(
+            f"the design needs a positive wrench noise on every axis, got {sigma.tolist()}; give force= and moment= levels",
+            reason="noise",
+        )
+    return sigma
+
+
+def scaled_regressor(y_full: np.ndarray, base: DesignBase, sigma: np.ndarray) -> np.ndarray:
+    """``Phi_k = D^-1 [I_6 | Psi_k][:, columns] S``: (N, 6, 10 n_links) -> (N, 6, r)."""
+    n = y_full.shape[0]
+    ext = np.concatenate([np.broadcast_to(np.eye(6), (n, 6, 6)), y_full], axis=-1)
+    return ext[..., base.columns] * base.scales / sigma[:, None]
+
+
+def criterion_and_gradient(phi: np.ndarray, criterion: str, gradient: bool = True):
+    """``(f, df/dPhi)`` of the per-sample information ``M = Phi^T Phi / N`` (see module doc).
+
+    Args:
+        phi: (N, 6, r) scaled regressor.
+        criterion: ``"d-opt"`` (``-log det M``) or ``"cond"`` (``log cond Phi``).
+
+    Returns:
+        ``f`` (inf where ``M`` is singular) and (N, 6, r) ``df/dPhi`` (None without
+        ``gradient`` or where ``f`` is inf). With ``dM = df/dM`` symmetric,
+        ``df/dPhi_k = (2/N) Phi_k dM``.
+    """
+    n, _, r = phi.shape
+    a = phi.reshape(-1, r)
+    m = a.T @ a / n
+    if criterion == "d-opt":
+        try:
+            chol = np.linalg.cholesky(m)
+        except np.linalg.LinAlgError:
+            return math.inf, None
+        f = -2.0 * float(np.sum(np.log(np.diag(chol))))
+        if not gradient:
+            return f, None
+        inv_l = np.linalg.solve(chol, np.eye(r))
+        dm = -(inv_l.T @ inv_l)
+    elif criterion == "cond":
+        lam, vec = np.linalg.eigh(m)
+        if not lam[0] > 0:
+            return math.inf, None
+        f = 0.5 * float(np.log(lam[-1] / lam[0]))
+        if not gradient:
+            return f, None
+        dm = 0.5 * (np.outer(vec[:, -1], vec[:, -1]) / lam[-1] - np.outer(vec[:, 0], vec[:, 0]) / lam[0])
+    else:
+        raise ValueError(f"criterion must be one of {CRITERIA}, got {criterion!r}")
+    return f, (2.0 / n) * phi @ dm
+
+
+@dataclass(frozen=True)
+class DesignEvaluation:
+    """How well the samples of one trajectory identify the base parameters.
+
+    Attributes:
+        n_samples: samples (frames) used.
+        d_opt: ``-log det M`` of the per-sample scaled information.
+        condition_number: ``cond(Phi)`` of the scaled regressor (inf when rank deficient).
+        rank: numerical rank of ``Phi`` (relative tolerance ``RANK_RTOL``).
+        std: (r,) expected standard deviations of the base parameters (their units)
+            under the design's wrench noise, from all the samples.
+        rel_std: (r,) ``std / scales``.
+    """
+
+    n_samples: int
+    d_opt: float
+    condition_number: float
+    rank: int
+    std: np.ndarray
+    rel_std: np.ndarray
+
+    def criterion(self, name: str) -> float:
+        return self.d_opt if name == "d-opt" else math.log(self.condition_number)
+
+    def to_dict(self) -> dict:
+        return {"n_samples": self.n_samples, "d_opt": self.d_opt, "condition_number": self.condition_number,
+                "rank": self.rank, "std": self.std.tolist(), "rel_std": self.rel_std.tolist()}
+
+
+def evaluate_design(model, q, qd, qdd, base: DesignBase, sigma: np.ndarray) -> DesignEvaluation:
+    """Criteria, rank and expected base-parameter std of frames ``q, qd, qdd`` (F, n_dof)."""
+    q, qd, qdd = (np.atleast_2d(np.asarray(x, dtype=np.float64)) for x in (q, qd, qdd))
+    f = len(q)
+    psi, _ = regressor_and_derivatives(model, q, qd, qdd, derivatives=False)
+    phi = scaled_regressor(psi, base, sigma)
+    phi = centred(phi) if base.bias else phi
+    a = phi.reshape(-1, base.rank)
+    sv = np.linalg.svd(a, compute_uv=False)
+    rank = numerical_rank(sv)
+    r = base.rank
+    ok = rank >= r and sv[r - 1] > 0
+    d_opt = criterion_and_gradient(phi, "d-opt", gradient=False)[0] if ok else math.inf
+    cond = float(sv[0] / sv[r - 1]) if ok else math.inf
+    if ok:
+        inv = np.linalg.inv(a.T @ a)
+        rel = np.sqrt(np.maximum(np.diag(inv), 0.0))
+    else:
+        rel = np.full(r, np.inf)
+    return DesignEvaluation(f, d_opt, cond, rank, rel * base.scales, rel)
+
+
+@functools.cache
+def _regressor_jet(jax_regressor):
+    """Jitted ``(q, qd, qdd, g) -> (Psi, dPsi)``: the regressor and its exact derivatives.
+
+    ``Psi`` (N, 6, 10 n_links); ``dPsi[d]`` (3 n_dof, N, 6, 10 n_links) its derivative along
+    state coordinate ``d`` of every sample (``q_1..q_n, qd_1..qd_n, qdd_1..qdd_n``), by
+    forward-mode AD (``jax.jvp``, vmapped over the ``3 n`` directions). Cached per
+    generated module: every design of a robot shares the one compilation. Measured on the
+    7-joint Z1 (2-core machine, CPU time): forward mode compiles in 46 s and runs in 20 ms
+    for 160 samples; the reverse-mode pull-back (``jax.vjp``) compiled in 47 s and ran in
+    54 ms (both under the same load).
+    """
+    import jax  # noqa: PLC0415
+    import jax.numpy as jnp  # noqa: PLC0415
+
+    def jet(q, qd, qdd, gravity):
+        n = q.shape[-1]
+
+        def along(direction):
+            tangents = tuple(jnp.broadcast_to(direction[k * n : (k + 1) * n], q.shape) for k in range(3))
+            return jax.jvp(lambda a, b, c: jax_regressor(a, b, c, gravity), (q, qd, qdd), tangents)
+
+        psi, _ = along(jnp.zeros(3 * n))
+        return psi, jax.vmap(lambda d: along(d)[1])(jnp.eye(3 * n))
+
+    return jax.jit(jet)
+
+
+def regressor_and_derivatives(model, q, qd, qdd, chunk: int = DEFAULT_CHUNK, derivatives: bool = True):
+    """``Psi(q_k, qd_k, qdd_k)`` (F, 6, 10 n_links) and, with ``derivatives``, ``dPsi`` (3 n_dof, F, 6, 10 n_links).
+
+    Evaluated in padded chunks of ``chunk`` samples, so one compilation serves every size.
+    """
+    q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (q, qd, qdd))
+    fn = _regressor_jet(model.jax_regressor)
+    gravity = np.asarray(model.gravity, dtype=np.float64)
+    f = len(q)
+    psis, jets = [], []
+    for start in range(0, f, chunk):
+        part = [a[start : start + chunk] for a in (q, qd, qdd)]
+        m = len(part[0])
+        if m < chunk:
+            part = [np.concatenate([a, np.zeros((chunk - m, a.shape[1]))]) for a in part]
+        psi, jet = fn(*part, gravity)
+        psis.append(np.asarray(psi)[:m])
+        if derivatives:
+            jets.append(np.asarray(jet)[:, :m])
+    psi = np.concatenate(psis)
+    return (psi, np.concatenate(jets, axis=1)) if derivatives else (psi, None)

@@ -1,0 +1,274 @@
+"""The steps of :func:`ineid.identify.solve.solve_dataset`, method by method.
+
+The base least-squares fit of every configuration, from fused normal-equation blocks
+(:func:`_fused_fit`) or through CasADi one configuration at a time (:func:`_casadi_fits`);
+the sensor offsets and their standard deviations (:func:`_bias_estimate`); the IPOPT
+solves of ``nonlinear`` and ``consistent``, in worker processes when there are many
+(:func:`_run_nlp`) from a physical start (:func:`physical_start`); and the residuals of the
+estimates on the fitted and held-out frames (:func:`estimate_residual_sums`,
+:func:`residual_summary`, :func:`predicted_wrench`). ``settings`` is a
+:class:`ineid.identify.solve.SolveSettings`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from ineid.identify.fused import information_blocks, residual_sums
+from ineid.identify.identifiability import BaseParameters
+from ineid.identify.linear import BaseFit, Estimate, axis_weights, fit_base, fit_base_blocks, fit_base_casadi
+from ineid.identify.nlp import NlpSolver, estimate_from_solves, nlp_estimate
+from ineid.identify.systems import Offsets, predict_wrench, remove_offsets, stack, stack_casadi
+
+PARALLEL_MIN_CONFIGS = 256
+"""Fewer configurations are solved in this process: starting workers costs about a second."""
+
+
+def _offset_dof(fit: BaseFit) -> None:
+    """Six more fitted unknowns (the offsets): ``s^2 = rss / (6F - r - 6)``, covariance alike."""
+    scale = fit.dof / max(fit.dof - 6, 1)
+    fit.dof -= 6
+    fit.sigma2 *= scale
+    fit.cov_beta *= scale
+
+
+def _bias_estimate(off: Offsets, est: Estimate, base: BaseParameters):
+    """Offsets ``b = ybar - Wbar theta_hat`` (C, 6) and their standard deviations.
+
+    ``ybar``'s noise is independent of ``beta_hat`` (fitted on the centred frames), so
+    ``var(b_a) = s^2 / (d_a^2 F) + (Wbar T cov(beta) T^T Wbar^T)_aa`` with ``d_a`` the axis
+    weight and ``T`` the null-space rule's map (:func:`ineid.identify.linear.prior_map`;
+    the linearization for the IPOPT methods). Where a solve failed: NaN.
+    """
+    from ineid.identify.linear import prior_map  # noqa: PLC0415
+
+    bias = off.bias(est.theta)
+    g = np.einsum("cap,pr->car", off.w_mean, prior_map(base))
+    var = np.einsum("car,crs,cas->ca", g, np.nan_to_num(est.fit.cov_beta), g)
+    var += est.fit.sigma2[:, None] / (est.fit.axis_weights**2 * off.n_frames)
+    std = np.sqrt(np.maximum(var, 0.0))
+    bad = ~est.success
+    bias[bad], std[bad] = np.nan, np.nan
+    return bias, std
+
+
+def _concat_fits(fits: list[BaseFit]) -> BaseFit:
+    if len(fits) == 1:
+        return fits[0]
+    cat = {f.name: np.concatenate([getattr(x, f.name) for x in fits]) for f in dataclasses.fields(BaseFit) if f.name != "dof"}
+    return BaseFit(dof=fits[0].dof, **cat)
+
+
+def estimate_residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.ndarray, sensor=None,
+                           offsets: Offsets | None = None):
+    """:func:`ineid.identify.fused.residual_sums` of the unknown links' estimates (NaN rows as zeros),
+    in the sensor frame, with the offsets ``b = ybar - Wbar theta`` that go with them."""
+    theta = model.full_theta(np.nan_to_num(theta_unknown), ds.theta_known)
+    bias = None if offsets is None else np.nan_to_num(offsets.bias(theta_unknown))
+    frames = slice(0, n_fit + n_val)
+    return residual_sums(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], ds.wrench[:, frames],
+                         theta, n_fit, sensor, bias)
+
+
+def residual_summary(sums, n_fit: int, n_val: int, theta_unknown: np.ndarray):
+    """``(fit_rms (C, 6), validation_rms (C, 6), validation_rel (C,))`` from :func:`estimate_residual_sums`.
+
+    ``rms_a = sqrt(ssr_a / frames)`` per wrench axis; ``rel = ||R - predicted|| / ||R||`` over the
+    held-out frames; NaN where ``theta_unknown`` has a non-finite entry (a failed solve) and,
+    for the held-out columns, when no frame is held out.
+    """
+    ssr_fit, ssr_held, ss_held = sums
+    failed = ~np.all(np.isfinite(theta_unknown), axis=1)
+    fit_rms = np.sqrt(ssr_fit / n_fit)
+    fit_rms[failed] = np.nan
+    c = len(theta_unknown)
+    if not n_val:
+        return fit_rms, np.full((c, 6), np.nan), np.full(c, np.nan)
+    val_rms = np.sqrt(ssr_held / n_val)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero wrench: inf (ineid solve warns)
+        val_rel = np.sqrt(ssr_held.sum(axis=1)) / np.sqrt(ss_held)
+    val_rms[failed] = np.nan
+    val_rel[failed] = np.nan
+    return fit_rms, val_rms, val_rel
+
+
+REFERENCE_ROWS = 200_000
+"""Frames per batch when configurations are refitted through the stacked QR (reference)."""
+
+
+def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress,
+               blocks_fn=information_blocks, sensor=None) -> tuple[BaseFit, np.ndarray, Offsets | None]:
+    """The base fit of every configuration from fused normal-equation blocks (``blocks_fn``),
+    ill-conditioned ones refitted through QR of their stacks; the RMS of the weighted data, (C,);
+    with ``settings.bias == "estimate"`` the fit of the frames centred per axis, and the means taken out."""
+    q, qd, qdd, wrench = (a[:, fit_sl] for a in (ds.q, ds.qd, ds.qdd, ds.wrench))
+    with_bias = settings.bias == "estimate"
+    extra = {} if sensor is None and not with_bias else {"sensor": sensor, "sums": with_bias}
+    if blocks_fn is information_blocks and not with_bias and settings.weights != "estimate":
+        # the row weights are known before the frames are read: blocks summed over the axes
+        extra["axis_weights"] = axis_weights(settings.weights, axis_sigma, ds.n_configs)
+    blocks = blocks_fn(model, base, q, qd, qdd, wrench, ds.theta_known, progress=progress, **extra)
+    offsets = None
+    if with_bias:
+        blocks, offsets = blocks.centred(base)
+    fit, refit = fit_base_blocks(blocks, base, settings.weights, axis_sigma)
+    rows = np.flatnonzero(refit)
+    per = max(1, REFERENCE_ROWS // max(blocks.n_frames, 1))
+    for start in range(0, len(rows), per):
+        idx = rows[start : start + per]
+        w, y = stack(model, q[idx], qd[idx], qdd[idx], wrench[idx], ds.theta_known, sensor)
+        if with_bias:
+            w, y, _ = remove_offsets(w, y)
+        ref = fit_base(w, y, base, settings.weights, axis_sigma)
+        for f in dataclasses.fields(BaseFit):
+            if f.name != "dof":
+                getattr(fit, f.name)[idx] = getattr(ref, f.name)
+    _, _, yy = blocks.weighted(fit.axis_weights)
+    return fit, np.sqrt(yy / (6 * blocks.n_frames)), offsets
+
+
+def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress, sensor=None):
+    """The linear fit through CasADi, one configuration at a time (an independent route)."""
+    fits, rms, seconds, offsets = [], np.empty(ds.n_configs), np.zeros(ds.n_configs), []
+    for i in range(ds.n_configs):
+        t0 = time.perf_counter()
+        w, y = stack_casadi(model, ds.q[i, fit_sl], ds.qd[i, fit_sl], ds.qdd[i, fit_sl], ds.wrench[i, fit_sl],
+                            ds.theta_known, sensor)
+        if settings.bias == "estimate":
+            wc, yc, off = remove_offsets(w[None], y[None])
+            w, y = wc[0], yc[0]
+            offsets.append(off)
+        f = fit_base(w[None], y[None], base, settings.weights, axis_sigma)
+        beta = fit_base_casadi(w, y, base, f.axis_weights[0])
+        if f.full_rank[0]:
+            f.beta[0] = beta
+        fits.append(f)
+        rows = np.tile(f.axis_weights[0], y.shape[0] // 6)
+        rms[i] = np.sqrt(np.mean((y * rows) ** 2))
+        seconds[i] = time.perf_counter() - t0
+        if progress is not None:
+            progress(i + 1, ds.n_configs)
+    return fits, rms, seconds, offsets
+
+
+def physical_start(theta_lin: np.ndarray, prior: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """Linear estimates as IPOPT starts, moved towards the prior until they are rigid bodies.
+
+    Per configuration, ``prior + t (theta_lin - prior)`` with the largest ``t`` in
+    ``1, 1/2, ..., 1/64`` whose links all have a positive definite pseudo-inertia, in each
+    link's mass and length units (smallest eigenvalue at least 1e-4 of the largest);
+    the prior where none does (it must be physical).
+    """
+    from ineid.identify.nlp import scaled_pseudo_inertia  # noqa: PLC0415
+
+    lin = np.where(np.isfinite(theta_lin), theta_lin, prior)
+    c = len(lin)
+    start = np.broadcast_to(prior, lin.shape).copy()
+    pending = np.ones(c, dtype=bool)
+    for t in 0.5 ** np.arange(7):
+        cand = prior + t * (lin - prior)
+        good = pending.copy()
+        for i in np.flatnonzero(pending):
+            w = np.linalg.eigvalsh(scaled_pseudo_inertia(cand[i], scales))
+            good[i] = bool(np.all(w[:, 0] >= 1e-4 * w[:, -1]))
+        start[good] = cand[good]
+        pending &= ~good
+    return start
+
+
+BIAS_MAX_ITER = 3000
+"""IPOPT iterations with offsets estimated (500 otherwise): centring the frames worsens the scaled
+problem's conditioning (``sweaty-arm``: 52 -> 279) and the consistent solver from the CAD start
+took 807 iterations on the MuJoCo test recording (a few tenths of a second)."""
+
+
+def _nlp_options(settings) -> dict | None:
+    return {"max_iter": BIAS_MAX_ITER} if settings.bias == "estimate" else None
+
+
+def _nlp_worker_init(method, base, prior, pull, entropic, compiled, options=None):
+    global _WORKER_SOLVER  # noqa: PLW0603 - one compiled solver per worker process
+    _WORKER_SOLVER = NlpSolver.build(method, base, prior, pull, entropic, options, compiled=compiled)
+
+
+def _nlp_worker(args):
+    r, beta, sigma2, rms, start, full_rank = args
+    out = []
+    for i in range(len(r)):
+        t0 = time.perf_counter()
+        if not full_rank[i]:
+            out.append((None, False, None, time.perf_counter() - t0))
+            continue
+        th, ok, status, _ = _WORKER_SOLVER.solve_one(r[i], beta[i], sigma2[i], rms[i], start[i])
+        out.append((th, ok, status, time.perf_counter() - t0))
+    return out
+
+
+def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate, np.ndarray]:
+    c = fit.beta.shape[0]
+    start = np.broadcast_to(start, (c, base.n_params))
+    workers = settings.workers or 1
+    seconds = np.zeros(c)
+    if workers <= 1 or c < PARALLEL_MIN_CONFIGS:
+        solver = NlpSolver.build(settings.method, base, prior, settings.pull, settings.entropic,
+                                 _nlp_options(settings), compiled=settings.backend == "casadi-c")
+        t = [time.perf_counter()]
+
+        def timed(done, total):
+            now = time.perf_counter()
+            seconds[done - 1] = now - t[0]
+            t[0] = now
+            if progress is not None:
+                progress(done, total)
+
+        est = nlp_estimate(fit, solver, rms, start, progress=timed)
+        return est, seconds
+    import multiprocessing as mp  # noqa: PLC0415
+    from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
+
+    block = max(8, min(256, c // (4 * workers)))
+    jobs = [
+        (fit.R[i:i + block], fit.beta[i:i + block], fit.sigma2[i:i + block], rms[i:i + block], start[i:i + block],
+         fit.full_rank[i:i + block])
+        for i in range(0, c, block)
+    ]  # fmt: skip
+    theta = np.full((c, base.n_params), np.nan)
+    success = np.zeros(c, dtype=bool)
+    status = np.empty(c, dtype=object)
+    ctx = mp.get_context("spawn")  # JAX's threads and fork do not mix
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_nlp_worker_init,
+                             initargs=(settings.method, base, prior, settings.pull, settings.entropic,
+                                       settings.backend == "casadi-c", _nlp_options(settings))) as pool:
+        done = 0
+        for j, out in enumerate(pool.map(_nlp_worker, jobs)):
+            for k, (th, ok, st, sec) in enumerate(out):
+                i = j * block + k
+                seconds[i] = sec
+                if th is None:
+                    status[i] = f"rank_deficient ({fit.rank[i]} of {base.rank})"
+                    continue
+                success[i] = ok
+                status[i] = "ok" if ok else st
+                if ok:
+                    theta[i] = th
+            done += len(out)
+            if progress is not None:
+                progress(done, c)
+    return estimate_from_solves(theta, success, status, fit, base), seconds
+
+
+def predicted_wrench(model, ds, theta_u, frames=slice(None), sensor=None, bias=None) -> np.ndarray:
+    """What the estimates predict the sensor reads: ``X Psi theta + b`` (C, F, 6) on ``frames`` of ``ds``.
+
+    Args:
+        theta_u: (C, 10 n_u) the unknown links' estimates (the known links' come from ``ds``).
+        sensor: the 6x6 wrench transform (default: the dataset's sensor pose).
+        bias: (C, 6) estimated offsets, or None.
+    """
+    sensor = ds.meta.sensor_transform() if sensor is None else sensor
+    theta = model.full_theta(np.nan_to_num(theta_u), ds.theta_known)
+    w = predict_wrench(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], theta, sensor)
+    return w if bias is None else w + np.nan_to_num(bias)[:, None, :]

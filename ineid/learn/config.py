@@ -1,0 +1,79 @@
+"""A training run's settings (:class:`TrainConfig`), as ``config.json`` records them."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from ineid.learn.losses import LOSSES
+from ineid.learn.models import ModelSpec
+from ineid.learn.scalers import SCALERS
+
+OPTIMIZERS = ("sgd", "adam", "adamw")
+SCHEDULES = ("constant", "cosine")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Settings of a training run (see ``docs/learning.md``).
+
+    Attributes:
+        model: architecture, activation, Siamese, frames per sample.
+        scaler: feature and target scaler kind.
+        loss: ``"mse"`` or ``"physics"`` (``alpha * MSE + beta * wrench residual``).
+        alpha, beta: loss weights (``beta`` used by the physics loss only).
+        optimizer: ``"sgd"`` (with ``momentum``), ``"adam"``, ``"adamw"`` (``weight_decay``).
+        lr, schedule: learning rate and its schedule (``constant`` or ``cosine`` decay to 0).
+        epochs, batch: epochs and samples per step.
+        patience: stop after this many epochs without a better validation MSE (0: never).
+        seed: the one seed of the run.
+        n_train, n_val, n_test: configurations per split (defaults 70 / 15 / 15 %).
+    """
+
+    model: ModelSpec = field(default_factory=ModelSpec)
+    scaler: str = "standard"
+    loss: str = "mse"
+    alpha: float = 1.0
+    beta: float = 1.0
+    optimizer: str = "adam"
+    lr: float = 1e-3
+    momentum: float = 0.9
+    weight_decay: float = 1e-4
+    schedule: str = "constant"
+    epochs: int = 100
+    batch: int = 256
+    patience: int = 20
+    seed: int = 0
+    n_train: int | None = None
+    n_val: int | None = None
+    n_test: int | None = None
+
+    def __post_init__(self) -> None:
+        checks = [
+            (self.scaler in SCALERS, f"scaler must be one of {', '.join(SCALERS)}"),
+            (self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}"),
+            (self.optimizer in OPTIMIZERS, f"optimizer must be one of {', '.join(OPTIMIZERS)}"),
+            (self.schedule in SCHEDULES, f"schedule must be one of {', '.join(SCHEDULES)}"),
+            (self.lr > 0 and self.epochs >= 1 and self.batch >= 1 and self.patience >= 0,
+             "lr, epochs and batch must be positive and patience >= 0"),
+            (self.alpha >= 0 and self.beta >= 0 and (self.alpha > 0 or (self.loss == "physics" and self.beta > 0)),
+             "alpha and beta must be >= 0 and the loss not identically zero"),
+        ]  # fmt: skip
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(message)
+
+    @property
+    def effective_beta(self) -> float:
+        return self.beta if self.loss == "physics" else 0.0
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["model"] = dataclasses.asdict(self.model)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrainConfig:
+        d = dict(d)
+        d["model"] = ModelSpec(**d["model"])
+        return cls(**d)
