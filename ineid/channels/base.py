@@ -39,7 +39,7 @@ import re
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
@@ -90,6 +90,26 @@ def check_key(key, where: str = "channel") -> str:
             f"'_' (at most 32, a letter first), not ending in '_clean' nor one of {', '.join(sorted(RESERVED_KEYS))}"
         )
     return key
+
+
+class ChannelStructure(NamedTuple):
+    """What compiled kernels of a channel depend on (:meth:`Channel.structure`); ``T``'s values are arguments.
+
+    Attributes:
+        entries: :meth:`Channel.entries_function` (the fused normal-equation kernels).
+        phi_theta: :meth:`Channel.phi_theta_function` (the residual kernels).
+        n_axes: ``n_a``.
+        transformed: ``T`` is not the identity (the kernels apply the ``T`` they are given).
+        extra_rows: :meth:`Channel.extra_rows_function`, or None.
+        n_extra: the number of extra kept columns.
+    """
+
+    entries: Callable
+    phi_theta: Callable
+    n_axes: int
+    transformed: bool
+    extra_rows: Callable | None
+    n_extra: int
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -164,16 +184,25 @@ class Channel(ABC):
         """Per row of ``Phi`` (before ``T``) the columns that are not identically zero (default: all)."""
         return (tuple(range(10 * model.n_links)),) * self.n_axes(model)
 
+    def phi_function(self, model) -> Callable:
+        """``f(q, qd, qdd, gravity) -> (..., n_a, p)``: ``Phi`` in the model's frame (before ``T``), pure and
+        jit-safe; the same object on every call. Default: stacked from :meth:`entries_function`."""
+        return _rows_from_entries(self.entries_function(model), self.n_axes(model), 10 * model.n_links, None)
+
+    def phi_theta_function(self, model) -> Callable:
+        """``f(q, qd, qdd, gravity, theta) -> (..., n_a)``: ``Phi theta`` in the model's frame (before ``T``),
+        jit-safe; ``theta`` (p,) or (..., p) broadcasting with the frames; the same object on every call.
+        Default: :meth:`phi_function` contracted with ``theta``; a channel whose generated code
+        contracts inside its loops (never forming ``Phi``, several times faster) overrides it."""
+        return _predict_from_rows(self.phi_function(model))
+
     def jax_rows_function(self, model) -> Callable:
-        """``f(q, qd, qdd, gravity) -> (..., n_a, p)``: ``T Phi``, pure and jit-safe (``T`` baked in)."""
-        return _rows_from_entries(self.entries_function(model), self.n_axes(model), 10 * model.n_links,
-                                  _matrix_key(self.transform()))
+        """``f(q, qd, qdd, gravity) -> (..., n_a, p)``: ``T Phi``, pure and jit-safe (``T`` a constant in it)."""
+        return transformed_rows(self.phi_function(model), _matrix_key(self.transform()))
 
     def jax_predict_function(self, model) -> Callable:
-        """``f(q, qd, qdd, gravity, theta) -> (..., n_a)``: ``T Phi theta``, jit-safe; ``theta`` (p,) or
-        (..., p) broadcasting with the frames. Default: the rows contracted with ``theta``; a
-        channel whose generated code contracts inside its loops (never forming ``Phi``) overrides it."""
-        return _predict_from_rows(self.jax_rows_function(model))
+        """``f(q, qd, qdd, gravity, theta) -> (..., n_a)``: ``T Phi theta``, jit-safe (``T`` a constant in it)."""
+        return transformed_predict(self.phi_theta_function(model), _matrix_key(self.transform()))
 
     # -- extension points (issue 21): extra kept columns ---------------------------------------
     def extra_names(self, model) -> tuple[str, ...]:
@@ -231,12 +260,12 @@ class Channel(ABC):
         """``"<key>.<axis>.offset"`` per axis with offsets identified, else none."""
         return tuple(f"{self.key}.{a}.offset" for a in self.axes(model)) if self.offsets else ()
 
-    def structure(self, model) -> tuple:
-        """What a compiled kernel of this channel depends on, hashable: the entries function, the
-        number of axes, whether ``T`` is not the identity, and the extra rows function. ``T``'s values
-        are not in it: kernels take them as arguments, so a new sensor pose does not recompile."""
-        return (self.entries_function(model), self.n_axes(model), self.transform() is not None,
-                self.extra_rows_function(model), len(self.extra_names(model)))
+    def structure(self, model) -> ChannelStructure:
+        """What a compiled kernel of this channel depends on (hashable). ``T``'s values are not in it:
+        kernels take them as arguments, so a new sensor pose does not recompile."""
+        return ChannelStructure(self.entries_function(model), self.phi_theta_function(model), self.n_axes(model),
+                                self.transform() is not None, self.extra_rows_function(model),
+                                len(self.extra_names(model)))
 
     def to_dict(self) -> dict:
         """The JSON-able record: ``kind``, ``key``, ``offsets``, :attr:`RECORD_FIELDS` (:func:`channel_from_dict`)."""

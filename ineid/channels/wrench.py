@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ineid.channels.base import Channel, _matrix_key, register, transformed_predict, transformed_rows
+from ineid.channels.base import Channel, register
 from ineid.channels.pose import SensorPose, regressor_in_sensor, wrench_in_sensor
 from ineid.errors import DatasetError
 
@@ -81,13 +81,13 @@ class BaseWrench(Channel):
     def casadi_function(self, model):
         return model.casadi_regressor
 
-    def jax_rows_function(self, model):
-        """The generated ``base_wrench_regressor`` (``X`` applied after it when a sensor frame is set)."""
-        return transformed_rows(model.jax_regressor, _matrix_key(self.transform()))
+    def phi_function(self, model):
+        """The generated ``base_wrench_regressor``."""
+        return model.jax_regressor
 
-    def jax_predict_function(self, model):
-        """The generated ``base_wrench`` (``Psi theta`` without forming ``Psi``), ``X`` applied after it."""
-        return transformed_predict(model.jax_base_wrench, _matrix_key(self.transform()))
+    def phi_theta_function(self, model):
+        """The generated ``base_wrench`` (``Psi theta`` without forming ``Psi``)."""
+        return model.jax_base_wrench
 
     # -- eager: the robot model's chunked evaluators, X applied as identification always did
     def rows(self, model, q, qd, qdd) -> np.ndarray:

@@ -376,7 +376,7 @@ def identify_frames(
         model: the :class:`ineid.RobotModel` (unknown links, gravity, CAD prior).
         q, qd, qdd: (F, n_dof); wrench: (F, 6), the sensor reading in ineid's convention.
         method, weights, axis_sigma, start, bias: as in :class:`SolveSettings`.
-        sensor_pose: the :class:`ineid.sensor.SensorPose` the wrench is read in (None: the base frame).
+        sensor_pose: the :class:`ineid.channels.SensorPose` the wrench is read in (None: the base frame).
 
     Returns:
         One-row :class:`SolveResults` (``theta_hat[0]``, ``theta_std[0]``, ``base_hat[0]``, ...).

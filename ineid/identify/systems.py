@@ -21,7 +21,7 @@ import numpy as np
 
 from ineid.errors import IdentificationError
 from ineid.params import N_PARAMS_PER_LINK
-from ineid.sensor import regressor_in_sensor, wrench_in_sensor
+from ineid.channels.pose import regressor_in_sensor, wrench_in_sensor
 
 
 def parameter_scales(theta_cad_unknown: np.ndarray) -> np.ndarray:
