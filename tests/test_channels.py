@@ -8,6 +8,7 @@ regressor takes seconds to compile) proves it is generic.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 from dataclasses import dataclass
@@ -303,3 +304,67 @@ def test_select_names_what_is_there():
     with pytest.raises(DatasetError, match="no torque measurements here .*choose among wrench, pull"):
         channels.select(["torque"])
     assert channels.select(None) is channels
+
+
+# -- channels through the layers: datasets, identification -----------------------------------------
+
+
+@pytest.fixture(scope="module")
+def two_channels(model, tmp_path_factory):
+    """A clean synthetic dataset of two channels: the base wrench in the base frame (``wrench``) and the
+    same wrench in a sensor frame (``wrench_sensor``), written to a file and read back."""
+    from ineid.data import Combination, DatasetSpec, generate_dataset, load_dataset
+
+    channels = ChannelSet.of(BaseWrench(), BaseWrench(key="wrench_sensor", sensor=POSE))
+    # 30 frames, as test_identify's clean data: the one-channel solve reuses its compiled kernels in a full run
+    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=4), n_frames=30, seed=3,
+                                             channels=channels))
+    return load_dataset(ds.save(tmp_path_factory.mktemp("two") / "two.h5"))
+
+
+def test_a_dataset_of_two_channels_solves_like_one(model, two_channels):
+    from ineid.identify import SolveSettings, solve_dataset
+
+    ds = two_channels
+    assert ds.meta.version == 3 and ds.meta.channels.keys == ("wrench", "wrench_sensor")
+    assert np.allclose(ds.channel_values["wrench_sensor"], ds.wrench @ POSE.transform().T, rtol=1e-12, atol=1e-12)
+    both = solve_dataset(ds, SolveSettings(), model=model)
+    one = solve_dataset(dataclasses.replace(ds, meta=ds.meta.with_channels(ChannelSet.of(BaseWrench())),
+                                            channel_values={}), SolveSettings(), model=model)
+    scales = both.base.scales[both.base.base_index]
+    assert both.base.names == one.base.names and both.success.all()
+    assert np.abs((both.base_hat - one.base_hat) / scales).max() < 1e-10  # clean data: both exact
+    assert np.abs((both.base_hat - both.base_true) / scales).max() < 1e-10
+    assert both.axes[6:8] == ("wrench_sensor.fx", "wrench_sensor.fy") and both.fit_rms.shape == (4, 12)
+    assert both.meta["channels"] == ds.meta.channels.to_list() and both.units[3] == "N*m"
+
+
+def test_old_layouts_and_bad_records_read_as_one_line(model, two_channels, tmp_path):
+    import h5py
+
+    from ineid.data import load_dataset
+
+    path = two_channels.save(tmp_path / "v2.h5")
+    with h5py.File(path, "r+") as f:  # the layout of versions 1 and 2: one wrench, its pose in `sensor`
+        del f["wrench_sensor"], f.attrs["channels"]
+        f.attrs["version"] = 2
+        f.attrs["sensor"] = json.dumps(POSE.to_dict())
+    v2 = load_dataset(path)
+    assert v2.meta.version == 2 and v2.meta.channels == ChannelSet.of(BaseWrench(sensor=POSE))
+    assert v2.meta.sensor == POSE.to_dict() and np.array_equal(v2.wrench, two_channels.wrench)
+    with h5py.File(path, "r+") as f:
+        f.attrs["version"] = 1
+        del f.attrs["sensor"]
+    assert load_dataset(path).meta.channels == ChannelSet.of(BaseWrench())
+    bad = [({"channels": json.dumps([{"kind": "imu", "key": "imu"}])}, "channels\\[0\\]: unknown measurement channel"),
+           ({"channels": json.dumps([{"kind": "wrench", "key": "wrench", "offsets": 1}])}, "true or false"),
+           ({"channels": "[]"}, "no measurement channel"),
+           ({"channels": json.dumps([{"kind": "wrench", "key": "wrench"}, {"kind": "wrench", "key": "more"}])},
+            "'more' is missing")]
+    for attrs, message in bad:
+        with h5py.File(path, "r+") as f:
+            f.attrs["version"] = 3
+            f.attrs.update(attrs)
+        with pytest.raises(DatasetError, match=message) as info:
+            load_dataset(path)
+        assert "\n" not in str(info.value) and str(path) in str(info.value)

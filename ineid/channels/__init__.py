@@ -25,9 +25,10 @@ from ineid.channels.pose import (
     wrench_in_sensor,
     wrench_transform,
 )
-from ineid.channels.wrench import WRENCH_AXES, WRENCH_UNITS, BaseWrench
+from ineid.channels.wrench import BASE_WRENCH, WRENCH_AXES, WRENCH_UNITS, BaseWrench
 
 __all__ = [
+    "BASE_WRENCH",
     "WRENCH_AXES",
     "WRENCH_UNITS",
     "AxisBlock",

@@ -177,7 +177,11 @@ class Channel(ABC):
 
     # -- the model: defaults a subclass may override ----------------------------------------
     def transform(self) -> np.ndarray | None:
-        """``T`` (n_a, n_a) into the sensor's axes, or None for the identity (the default)."""
+        """``T`` (n_a, n_a) into the sensor's axes, invertible, or None for the identity (the default).
+
+        Invertible: a sensor that reads fewer numbers is a channel with fewer axes, not a
+        singular ``T``; so ranks, base parameters and null spaces are those of ``Phi``.
+        """
         return None
 
     def nonzero(self, model) -> tuple[tuple[int, ...], ...]:

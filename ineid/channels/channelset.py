@@ -260,11 +260,14 @@ class ChannelSet:
         parts = [c.predict(model, q, qd, qdd, theta) for c in self.channels]
         return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=-1)
 
-    def casadi_rows(self, model):
-        """``casadi.Function`` ``(q, qd, qdd) -> Y`` (n_axes x p): the stacked ``T Phi``, the model's gravity."""
-        if len(self.channels) == 1 and self.channels[0].transform() is None:
+    def casadi_rows(self, model, transformed: bool = True):
+        """``casadi.Function`` ``(q, qd, qdd) -> Y`` (n_axes x p): the stacked ``T Phi``, the model's gravity;
+        ``transformed=False``: the stacked ``Phi`` (each ``T`` is invertible, so ranks, base parameters
+        and null spaces are those of ``Phi``)."""
+        if len(self.channels) == 1 and (self.channels[0].transform() is None or not transformed):
             return self.channels[0].casadi_function(model)
-        return _casadi_cached(self, model, "rows", _build_casadi_rows)
+        return _casadi_cached(self, model, "rows" if transformed else "phi",
+                              functools.partial(_build_casadi_rows, transformed=transformed))
 
     # -- extra kept columns ------------------------------------------------------------------
     def extra_names(self, model) -> tuple[str, ...]:
@@ -343,14 +346,14 @@ def _casadi_cached(channels: ChannelSet, model, what: str, build: Callable):
     return per_model[key]
 
 
-def _build_casadi_rows(channels: ChannelSet, model):
+def _build_casadi_rows(channels: ChannelSet, model, transformed: bool = True):
     import casadi as ca  # noqa: PLC0415
 
     q, qd, qdd = (ca.SX.sym(s, model.n_dof) for s in ("q", "qd", "qdd"))
     blocks = []
     for c in channels:
         y = c.casadi_function(model)(q, qd, qdd)
-        t = c.transform()
+        t = c.transform() if transformed else None
         blocks.append(y if t is None else ca.mtimes(ca.DM(t), y))
     return ca.Function("channel_rows", [q, qd, qdd], [ca.vertcat(*blocks)], ["q", "qd", "qdd"], ["Y"])
 

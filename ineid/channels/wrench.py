@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ineid.channels.base import Channel, register
+from ineid.channels.channelset import ChannelSet
 from ineid.channels.pose import SensorPose, regressor_in_sensor, wrench_in_sensor
 from ineid.errors import DatasetError
 
@@ -111,3 +112,8 @@ class BaseWrench(Channel):
         if sensor is not None and not isinstance(sensor, Mapping):
             raise DatasetError(f"{where}: the wrench channel's sensor must be a pose record or null, got {sensor!r}")
         return {"sensor": None if sensor is None else SensorPose.from_dict(sensor, f"{where}: sensor")}
+
+
+BASE_WRENCH = ChannelSet.of(BaseWrench())
+"""The measurement of versions 1 and 2 of the dataset format, and of every function given no channels:
+the base wrench under ``wrench``, in the base frame."""
