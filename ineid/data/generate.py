@@ -188,7 +188,8 @@ class GenerationPlan:
             if spec.frames.mode in ("fourier", "trajectory"):
                 out["time"] = np.concatenate([p[3] for p in parts])
             values = self._values(q, qd, qdd, self.theta_unknown[start:stop])
-            out.update(self.channels.split(values, self.meta) if len(self.channels) > 1 else {self.channels.keys[0]: values})
+            one = len(self.channels) == 1
+            out.update({self.channels.keys[0]: values} if one else self.channels.split(values, self.meta))
             if self.noise is not None:
                 # the noise streams draw six wrench numbers a frame whatever the channels (files stay identical)
                 wrench = out.get("wrench", np.zeros(q.shape[:-1] + (6,)))

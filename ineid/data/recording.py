@@ -30,12 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ineid.channels.pose import SensorPose, parse_sensor_pose
 from ineid.data import signals
 from ineid.data.schema import Dataset, DatasetMeta
 from ineid.data.streams import Streams, in_si_units, units_note
 from ineid.errors import DatasetError
 from ineid.progress import Progress
-from ineid.channels.pose import SensorPose, parse_sensor_pose
 
 ANGLE_UNITS = ("rad", "deg")
 """Units of a recording's revolute joint angles (``data import --angle-unit``)."""

@@ -381,7 +381,8 @@ def design_excitation(
     samples = n_rate + 1
     if base.n_axes * samples < base.rank:
         raise ExcitationError(
-            f"{samples} samples give {base.n_axes * samples} equations for {base.rank} base parameters; lengthen --duration "
+            f"{samples} samples give {base.n_axes * samples} equations for {base.rank} base parameters; "
+            "lengthen --duration "
             "or raise --rate",
             reason="duration",
         )

@@ -210,7 +210,8 @@ def _regressor_jet(jax_regressor):
     ``Psi`` (N, A, 10 n_links); ``dPsi[d]`` (3 n_dof, N, A, 10 n_links) its derivative along
     state coordinate ``d`` of every sample (``q_1..q_n, qd_1..qd_n, qdd_1..qdd_n``), by
     forward-mode AD (``jax.jvp``, vmapped over the ``3 n`` directions). Cached per
-    rows function (the base wrench's: the generated module's): every design of a robot shares the one compilation. Measured on the
+    rows function (the base wrench's: the generated module's): every design of a robot
+    shares the one compilation. Measured on the
     7-joint Z1 (2-core machine, CPU time): forward mode compiles in 46 s and runs in 20 ms
     for 160 samples; the reverse-mode pull-back (``jax.vjp``) compiled in 47 s and ran in
     54 ms (both under the same load).

@@ -212,8 +212,8 @@ def _phi_key(model, channels: ChannelSet | None) -> tuple:
 
 
 def _offset_mask(channels: ChannelSet | None, model, bias: bool) -> np.ndarray | None:
-    """The axes centred for offsets: every axis with ``bias`` (the channels' :meth:`~ineid.channels.ChannelSet.offset_mask`
-    once they are set up with offsets), none without."""
+    """The axes centred for offsets: every axis with ``bias`` (the channels'
+    :meth:`~ineid.channels.ChannelSet.offset_mask` once they are set up with offsets), none without."""
     return (BASE_WRENCH if channels is None else channels).with_offsets(True).offset_mask(model) if bias else None
 
 
@@ -295,7 +295,8 @@ class FrameAnalysis:
         needed = -(-self.structural_rank // self.n_axes)
         if self.n_axes * self.n_frames < self.structural_rank:
             return (
-                f"{self.n_frames} frame{'s' if self.n_frames != 1 else ''} give {self.n_axes * self.n_frames} equations for "
+                f"{self.n_frames} frame{'s' if self.n_frames != 1 else ''} give {self.n_axes * self.n_frames} "
+                "equations for "
                 f"{self.structural_rank} identifiable parameters; use at least {needed} frames (more with noise)"
             )
         shown = ", ".join(self.undetermined[:4]) + (", ..." if len(self.undetermined) > 4 else "")

@@ -106,7 +106,8 @@ REFERENCE_ROWS = 200_000
 
 
 def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress,
-               blocks_fn=information_blocks, channels: ChannelSet | None = None) -> tuple[BaseFit, np.ndarray, Offsets | None]:
+               blocks_fn=information_blocks,
+               channels: ChannelSet | None = None) -> tuple[BaseFit, np.ndarray, Offsets | None]:
     """The base fit of every configuration from fused normal-equation blocks (``blocks_fn``) of ``channels``
     (default: the dataset's), ill-conditioned ones refitted through QR of their stacks; the RMS of the
     weighted data, (C,); with offsets (``settings.bias == "estimate"``) the fit of the frames centred per
@@ -275,7 +276,8 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
     return estimate_from_solves(theta, success, status, fit, base), seconds
 
 
-def predicted_wrench(model, ds, theta_u, frames=slice(None), bias=None, channels: ChannelSet | None = None) -> np.ndarray:
+def predicted_wrench(model, ds, theta_u, frames=slice(None), bias=None,
+                     channels: ChannelSet | None = None) -> np.ndarray:
     """What the estimates predict the sensors read: ``T Phi theta + b`` (C, F, A) on ``frames`` of ``ds``.
 
     Args:

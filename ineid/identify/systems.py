@@ -146,7 +146,7 @@ class Offsets:
         return int(self.y_mean.shape[-1] if self.mask is None else np.count_nonzero(self.mask))
 
     def bias(self, theta_u: np.ndarray) -> np.ndarray:
-        """``b = ybar - Wbar theta`` (C, A) for the unknown links' parameters ``theta_u`` (C, 10 n_u); 0 off the mask."""
+        """``b = ybar - Wbar theta`` (C, A) for the unknown links' parameters ``theta_u`` (C, 10 n_u); 0 off the mask"""
         b = self.y_mean - np.einsum("cap,cp->ca", self.w_mean, np.nan_to_num(theta_u))
         return b if self.mask is None else b * self.mask
 

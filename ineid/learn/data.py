@@ -2,7 +2,8 @@
 
 A *sample* is K frames of one configuration; its target is that configuration's unknown
 parameters. Features of a frame: ``[q, qd, qdd, wrench]`` (3 n_dof + 6; 18 for the 4-DOF
-arm; the values of every measurement channel, stacked, where the dataset has more than the wrench), scaled by a scaler fitted on the training configurations. During training each
+arm; the values of every measurement channel, stacked, where the dataset has more than
+the wrench), scaled by a scaler fitted on the training configurations. During training each
 epoch regroups every configuration's frames at random into disjoint groups of K (seeded
 by ``(seed, epoch)``, so a resumed run sees the same groups); evaluation uses the fixed
 groups ``[0, K), [K, 2K), ...``.

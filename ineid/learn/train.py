@@ -136,7 +136,8 @@ def prepare(ds: Dataset, cfg: TrainConfig, rows: np.ndarray, model: RobotModel, 
         arrays["psi"] = jnp.asarray(w)
         arrays["yres"] = jnp.asarray(y)
     else:
-        arrays.update(q=jnp.asarray(sub.q), qd=jnp.asarray(sub.qd), qdd=jnp.asarray(sub.qdd), wrench=jnp.asarray(values))
+        arrays.update(q=jnp.asarray(sub.q), qd=jnp.asarray(sub.qd), qdd=jnp.asarray(sub.qdd),
+                      wrench=jnp.asarray(values))
     return Prepared(rows, x_scaler, y_scaler, arrays, physics, n_u, sub.n_frames)
 
 
