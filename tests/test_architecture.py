@@ -34,7 +34,7 @@ TOP_LEVEL = {
     "ineid.progress": "foundation",
     "ineid.params": "params",
     "ineid.codegen": "symbolic",  # finds or derives generated code: it may call SymPy (lazily)
-    "ineid.sensor": "channels",  # the base F/T sensor's pose: a measurement channel's geometry
+    "ineid.sensor": "channels",  # moved to ineid.channels.pose: a deprecated re-export (SHIMS)
     "ineid.reference": "cli",  # Pinocchio, for tests and benchmarks
     "ineid.demo": "cli",
 }
@@ -45,6 +45,7 @@ NUMERIC_PACKAGES = ("ineid.generated", "ineid.channels", "ineid.data", "ineid.id
 
 SHIMS = {
     "ineid.data.delay": "ineid.identify.delay",
+    "ineid.sensor": "ineid.channels.pose",
 }
 """Deprecated modules that re-export a name's new home for one release (removed in ineid 0.3): each may
 import its new home whatever the layers, and nothing in the package may import a shim."""

@@ -3,6 +3,8 @@ joint angles only, two clocks, CSV and ROS bags, and the identified parameters."
 
 from __future__ import annotations
 
+import json
+
 import h5py
 import numpy as np
 import pytest
@@ -94,17 +96,25 @@ def test_sensor_pose_from_numbers_or_a_urdf_frame():
             parse_sensor_pose(bad, SENSOR_URDF if "," in bad else None)
 
 
-def test_version_2_stores_the_sensor_and_version_1_still_reads(lab, tmp_path):
+def test_version_3_stores_the_channels_and_versions_2_and_1_still_read(lab, tmp_path):
     ds, _ = import_recording(lab.file("csv"), lab.model, ImportSettings(sensor_pose=POSE_TEXT))
-    path = ds.save(tmp_path / "v2.h5")
+    path = ds.save(tmp_path / "v3.h5")
     back = load_dataset(path)
-    assert back.meta.version == 2 and back.meta.sensor_pose() == SensorPose((0.03, -0.02, -0.05), (3.1, 0.2, 0.7))
+    assert back.meta.version == 3 and back.meta.sensor_pose() == SensorPose((0.03, -0.02, -0.05), (3.1, 0.2, 0.7))
     assert np.allclose(back.meta.sensor_transform(), lab.pose.transform())
-    with h5py.File(path, "r+") as f:  # what ineid 0.1 wrote: version 1, no sensor attribute
+    assert back.meta.channels == ds.meta.channels and back.fingerprint() == ds.fingerprint()
+    with h5py.File(path, "r+") as f:  # what ineid 0.1 wrote after issue 11: version 2, the sensor attribute
+        f.attrs["version"] = 2
+        f.attrs["sensor"] = json.dumps(back.meta.sensor, sort_keys=True)
+        del f.attrs["channels"]
+    v2 = load_dataset(path)
+    assert v2.meta.version == 2 and v2.meta.channels == back.meta.channels and v2.fingerprint() == back.fingerprint()
+    with h5py.File(path, "r+") as f:  # what ineid 0.1 wrote first: version 1, no sensor attribute
         f.attrs["version"] = 1
         del f.attrs["sensor"]
     old = load_dataset(path)
     assert old.meta.version == 1 and old.meta.sensor is None and old.meta.sensor_transform() is None
+    assert old.meta.channels.keys == ("wrench",) and old.meta.channels["wrench"].transform() is None
     assert np.array_equal(old.wrench, back.wrench)
 
 

@@ -231,10 +231,16 @@ def data_info(path: Path) -> None:
     con.print(f"noise (std): {shown(json.dumps(meta.noise)) if meta.noise else 'none (clean data)'}")
     if meta.origin:
         con.print(f"origin: {shown(json.dumps(meta.origin, sort_keys=True))}")
-    pose = meta.sensor_pose()
-    if pose is not None:
-        con.print(f"sensor frame in the base frame: {shown(pose.describe())}"
-                  + (f"; wrench messages in frame {shown(repr(pose.frame_id))}" if pose.frame_id else ""))
+    from ineid.channels import BaseWrench  # noqa: PLC0415
+
+    several = len(meta.channels) > 1
+    if several:
+        con.print(f"measurement channels: {shown(meta.channels.describe())}")
+    for c in meta.channels:
+        pose = c.sensor if isinstance(c, BaseWrench) else None
+        if pose is not None:
+            con.print(f"sensor frame{f' of {c.key}' if several else ''} in the base frame: {shown(pose.describe())}"
+                      + (f"; wrench messages in frame {shown(repr(pose.frame_id))}" if pose.frame_id else ""))
     arrays = table("Arrays", ("name", "shape"), left=("name", "shape"))
     for name in sorted(shapes):
         arrays.add_row(name, " x ".join(str(s) for s in shapes[name]) or "scalar")
@@ -263,12 +269,20 @@ def data_info(path: Path) -> None:
             link = name.rpartition(".")[0]
             t.add_row(name, f"{cad[link][k % 10]:.5g}", f"{lo[k]:.5g}", f"{mean[k]:.5g}", f"{hi[k]:.5g}")
         con.print(t)
-    lo, hi, mean = ranges("wrench", 6)
-    frame = "base frame, about the base origin" if pose is None else "sensor frame, about the sensor origin"
-    t = table(f"Wrench (N, N*m; {frame})", ("axis", "min", "mean", "max"), left=("axis",))
-    for k, axis in enumerate(("fx", "fy", "fz", "mx", "my", "mz")):
-        t.add_row(axis, f"{lo[k]:.4g}", f"{mean[k]:.4g}", f"{hi[k]:.4g}")
-    con.print(t)
+    for c in meta.channels:  # each channel's values, axis by axis, in its own units
+        axes = c.axes(meta)
+        lo, hi, mean = ranges(c.key, len(axes))
+        units = ", ".join(dict.fromkeys(c.units(meta)))
+        if isinstance(c, BaseWrench):
+            frame = ("base frame, about the base origin" if c.sensor is None
+                     else "sensor frame, about the sensor origin")
+            title = f"{'Wrench' if c.key == 'wrench' else shown(c.key)} ({units}; {frame})"
+        else:
+            title = f"{shown(c.key)}: {shown(c.describe())} ({units})"
+        t = table(title, ("axis", "min", "mean", "max"), left=("axis",))
+        for k, axis in enumerate(axes):
+            t.add_row(shown(axis), f"{lo[k]:.4g}", f"{mean[k]:.4g}", f"{hi[k]:.4g}")
+        con.print(t)
 
 
 def register(main: click.Group) -> None:

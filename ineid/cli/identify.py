@@ -52,7 +52,7 @@ def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
 
     model = robot.load()
     with_bias = bias == "estimate"
-    base = base_parameters(model, bias=with_bias)
+    channels = None  # the base wrench, or what --data measures
     if data_path is not None:
         from ineid.data import load_dataset  # noqa: PLC0415
 
@@ -62,12 +62,14 @@ def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
                                      param_hint="--data")
         q, qd, qdd = ds.q[0], ds.qd[0], ds.qdd[0]
         source = f"{len(q)} frames of configuration {config} of {data_path}"
+        channels = ds.meta.channels
     else:
         _require_frames_memory(model, n_frames)
         q, qd, qdd = generic_frames(model, n_frames, seed)
         source = f"{n_frames} random frames within the bounds (seed {seed})"
     _require_frames_memory(model, len(q))
-    a = analyze_frames(model, q, qd, qdd, base, bias=with_bias)
+    base = base_parameters(model, bias=with_bias, channels=channels)
+    a = analyze_frames(model, q, qd, qdd, base, bias=with_bias, channels=channels)
     con = console()
     n = base.n_params
     con.print(f"[bold]{shown(model.name)}[/bold]: unknown links {shown(', '.join(model.unknown_links))} "
@@ -80,7 +82,7 @@ def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
     cond = "inf" if not np.isfinite(a.condition_number) else f"{a.condition_number:.4g}"
     con.print(f"condition number (scaled, identifiable part): {cond}; fewest leading frames reaching rank "
               f"{base.rank}: {a.min_frames if a.min_frames is not None else 'never'} "
-              f"(at least {-(-base.rank // 6)}: 6 equations per frame)")
+              f"(at least {-(-base.rank // a.n_axes)}: {a.n_axes} equations per frame)")
     con.print("singular values (scaled): " + " ".join(f"{v:.3g}" for v in a.singular_values))
     if a.problem():
         con.print(f"[bold red]these frames are not enough:[/bold red] {shown(a.problem())}")
@@ -106,7 +108,7 @@ def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
             "parameters need prior knowledge (ineid uses the CAD values) or constraints."
         )
     if with_bias:
-        _print_bias_cost(con, model, q, qd, qdd)
+        _print_bias_cost(con, model, q, qd, qdd, channels)
 
 
 def _require_frames_memory(model, n_frames: int) -> None:
@@ -117,10 +119,10 @@ def _require_frames_memory(model, n_frames: int) -> None:
                    "use fewer frames (--n-frames)")  # fmt: skip
 
 
-def _print_bias_cost(con, model, q, qd, qdd) -> None:
+def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
     from ineid.identify import bias_cost  # noqa: PLC0415
 
-    c = bias_cost(model, q, qd, qdd)
+    c = bias_cost(model, q, qd, qdd, channels)
     con.print(
         f"[bold]What the six sensor offsets cost[/bold]: a wrench constant over the whole recording cannot be told "
         f"from them. Structural rank {c.base.rank} without offsets, {c.base_bias.rank} with; condition number "

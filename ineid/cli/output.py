@@ -167,9 +167,12 @@ def print_results(res, out) -> None:
         con.print(tab)
     if res.bias_hat is not None and n_ok:
         i = int(np.flatnonzero(res.success)[0])
-        con.print(f"sensor offsets of configuration {int(res.config_index[i])} (N, N*m, the wrench's frame): "
-                  + ", ".join(f"{a} {b:.5g} +- {s:.2g}" for a, b, s in
-                              zip(("fx", "fy", "fz", "mx", "my", "mz"), res.bias_hat[i], res.bias_std[i], strict=True)))
+        # the axes and their units are the fitted channels' (the base wrench: fx..mz in N and N*m)
+        units = ", ".join(dict.fromkeys(res.units))
+        frame = "the wrench's frame" if len(res.axes) == 6 else "each sensor's frame"
+        con.print(f"sensor offsets of configuration {int(res.config_index[i])} ({units}, {frame}): "
+                  + ", ".join(f"{shown(a)} {b:.5g} +- {s:.2g}" for a, b, s in
+                              zip(res.axes, res.bias_hat[i], res.bias_std[i], strict=True) if np.isfinite(b)))
     con.print(f"wrote {shown(out)}")
 
 

@@ -187,7 +187,11 @@ def write_recording_csv(path: str | Path, dataset: Dataset, config: int = 0, fli
     """Write one configuration of a dataset as a recording CSV (the inverse of the import).
 
     ``derivatives=False`` leaves out ``qd``/``qdd``, as an encoder-only recording has them.
+    The CSV holds the base wrench (the channel ``wrench``, in its sensor's frame).
     """
+    if dataset.wrench is None:
+        raise DatasetError(f"a recording CSV holds the wrench, and this dataset measures "
+                           f"{dataset.meta.channels.describe()} without one: write another dataset")
     n = dataset.n_dof
     t = dataset.time[config] if dataset.time is not None else np.arange(dataset.n_frames) * 0.01
     sign = -1.0 if flip_wrench else 1.0

@@ -1,8 +1,9 @@
-"""Synthetic ground truth: sample parameters and frames, compute the base wrench, add noise.
+"""Synthetic ground truth: sample parameters and frames, compute what the sensors read, add noise.
 
-The wrench of every frame comes from the generated JAX function ``base_wrench`` of the
-model (``[F; M] = Psi(q, qd, qdd) @ theta``, contracted inside one fused loop), evaluated
-a chunk of configurations at a time. Generation streams: only one chunk of frames is in
+The values of every measurement channel come from the channel's prediction (for the base
+wrench, the generated JAX function ``base_wrench`` of the model, ``[F; M] = Psi(q, qd,
+qdd) @ theta`` contracted inside one fused loop), evaluated a chunk of configurations at a
+time. Generation streams: only one chunk of frames is in
 memory, so the size of a dataset is bounded by the disk, not the RAM.
 """
 
@@ -15,6 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ineid.channels import ChannelSet
 from ineid.data.noise import NoiseModel
 from ineid.data.sampling import (
     RNG_BLOCK_CONFIGS,
@@ -28,7 +30,7 @@ from ineid.data.sampling import (
     sample_frames,
 )
 from ineid.data.schema import Dataset, DatasetMeta
-from ineid.data.write import DatasetWriter, chunk_rows
+from ineid.data.write import DatasetWriter, chunk_rows, row_width
 from ineid.errors import DatasetError
 from ineid.params import all_links_physical
 from ineid.progress import Progress
@@ -48,7 +50,10 @@ class DatasetSpec:
         seed: the one seed every random stream derives from.
         parameters: bands of the parameter sampling.
         frames: frame sampling mode and settings.
-        noise: measurement noise, or ``None`` for clean data.
+        noise: measurement noise, or ``None`` for clean data. Its wrench noise goes to the
+            channel keyed ``wrench``; other channels are noise-free.
+        channels: the measurement channels to simulate (an :class:`ineid.channels.ChannelSet`);
+            ``None``: the base wrench in the base frame, under ``wrench``.
     """
 
     combination: Combination = field(default_factory=Combination)
@@ -57,6 +62,7 @@ class DatasetSpec:
     parameters: ParameterSampling = field(default_factory=ParameterSampling)
     frames: FrameSampling = field(default_factory=FrameSampling)
     noise: NoiseModel | None = None
+    channels: ChannelSet | None = None
 
     def __post_init__(self) -> None:
         if self.n_frames < 1:
@@ -101,21 +107,26 @@ class GenerationPlan:
             seed=int(spec.seed),
             sampling=spec.sampling_dict(),
             noise=None if self.noise is None else self.noise.to_dict(),
+            channels=spec.channels,
         )
-        names = ["q", "qd", "qdd", "wrench", "theta_unknown", "link_set_index"]
+        self.channels = self.meta.channels
+        if self.noise is not None and "wrench" not in self.channels.keys and np.any(self.noise.wrench > 0):
+            raise DatasetError(f"wrench noise is for the channel keyed wrench, and the channels are "
+                               f"{', '.join(self.channels.keys)}; give no force or moment noise, or add that channel")
+        names = ["q", "qd", "qdd", *self.channels.keys, "theta_unknown", "link_set_index"]
         if spec.frames.mode in ("fourier", "trajectory"):
             names.append("time")
         if self.noise is not None:
             names += [f"{k}_clean" for k in self.noise.noisy_keys()]
         self.array_names = names
         # Chunks are whole random-number blocks, about 1 MiB of the widest array.
-        rows = chunk_rows(spec.n_frames, max(6, model.n_dof), self.n_configs)
+        rows = chunk_rows(spec.n_frames, row_width(self.meta), self.n_configs)
         if rows >= RNG_BLOCK_CONFIGS:
             rows -= rows % RNG_BLOCK_CONFIGS
         elif rows < self.n_configs:
             rows = min(RNG_BLOCK_CONFIGS, self.n_configs)
         self.rows = rows
-        self._wrench_fn = None
+        self._values_fn = None
 
     def _check_memory(self) -> None:
         """Refuse sizes whose parameters (all configurations) or one chunk of frames cannot be held.
@@ -143,21 +154,22 @@ class GenerationPlan:
             )
         require_memory(10 * chunk, f"{spec.n_frames:,} frames per configuration", "use fewer frames (--n-frames)")
 
-    def _wrench(self, q, qd, qdd, theta) -> np.ndarray:
+    def _values(self, q, qd, qdd, theta) -> np.ndarray:
+        """What the channels read, stacked: (n, F, n_axes) (the base wrench alone: the generated ``base_wrench``)."""
         import jax  # noqa: PLC0415
 
-        if self._wrench_fn is None:
+        if self._values_fn is None:
             from ineid.cache import enable_compilation_cache  # noqa: PLC0415
 
             enable_compilation_cache()
-            self._wrench_fn = jax.jit(self.model.jax_base_wrench)
+            self._values_fn = jax.jit(self.channels.jax_predict_function(self.model))
         n = len(q)
         if n < self.rows:  # pad the last chunk: one compiled shape for the whole run
             pad = self.rows - n
             q, qd, qdd = (np.concatenate([a, np.zeros((pad,) + a.shape[1:])]) for a in (q, qd, qdd))
             theta = np.concatenate([theta, np.repeat(theta[-1:], pad, axis=0)])
         full = self.model.full_theta(theta, self.theta_known)[:, None, :]
-        return np.asarray(self._wrench_fn(q, qd, qdd, self.model.gravity, full))[:n]
+        return np.asarray(self._values_fn(q, qd, qdd, self.model.gravity, full))[:n]
 
     def chunks(self) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
         """Yield ``(first configuration, arrays)`` chunk by chunk."""
@@ -175,13 +187,18 @@ class GenerationPlan:
             out = {"q": q, "qd": qd, "qdd": qdd}
             if spec.frames.mode in ("fourier", "trajectory"):
                 out["time"] = np.concatenate([p[3] for p in parts])
-            out["wrench"] = self._wrench(q, qd, qdd, self.theta_unknown[start:stop])
+            values = self._values(q, qd, qdd, self.theta_unknown[start:stop])
+            one = len(self.channels) == 1
+            out.update({self.channels.keys[0]: values} if one else self.channels.split(values, self.meta))
             if self.noise is not None:
+                # the noise streams draw six wrench numbers a frame whatever the channels (files stay identical)
+                wrench = out.get("wrench", np.zeros(q.shape[:-1] + (6,)))
                 noisy = []
                 for b0 in range(start, stop, RNG_BLOCK_CONFIGS):
                     sl = slice(b0 - start, min(b0 + RNG_BLOCK_CONFIGS, stop) - start)
                     rng = block_rng(spec.seed, STREAM_NOISE, b0 // RNG_BLOCK_CONFIGS)
-                    noisy.append(self.noise.apply({k: out[k][sl] for k in ("q", "qd", "qdd", "wrench")}, rng))
+                    noisy.append(self.noise.apply({**{k: out[k][sl] for k in ("q", "qd", "qdd")}, "wrench": wrench[sl]},
+                                                  rng))
                 for k in self.noise.noisy_keys():
                     out[f"{k}_clean"] = out[k]
                     out[k] = np.concatenate([n[k] for n in noisy])
@@ -205,7 +222,8 @@ def generate_dataset(model: RobotModel, spec: DatasetSpec = DatasetSpec(), progr
     plan = GenerationPlan(model, spec)
     from ineid._faults import require_memory  # noqa: PLC0415
 
-    per_frame = (3 * model.n_dof + 6) * (2 if plan.noise is not None else 1) + 1  # states, wrench, clean copies, time
+    per_frame = (3 * model.n_dof + plan.channels.n_axes(plan.meta)) * (2 if plan.noise is not None else 1) + 1
+    # states, the channels' values, clean copies, time
     require_memory(2 * plan.n_configs * spec.n_frames * per_frame * 8,  # the chunks, then their concatenation
                    f"{plan.n_configs:,} configurations x {spec.n_frames:,} frames in memory",
                    "make fewer configurations or frames")  # fmt: skip
@@ -222,7 +240,8 @@ def generate_dataset(model: RobotModel, spec: DatasetSpec = DatasetSpec(), progr
         q=arrays["q"],
         qd=arrays["qd"],
         qdd=arrays["qdd"],
-        wrench=arrays["wrench"],
+        wrench=arrays.get("wrench"),
+        channel_values={k: arrays[k] for k in plan.channels.keys if k != "wrench"},
         theta_known=plan.theta_known,
         theta_unknown=arrays["theta_unknown"],
         clean=clean,

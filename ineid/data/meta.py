@@ -7,12 +7,13 @@ documented field by field in ``docs/dataset.md``.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import InitVar, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ineid.channels import BaseWrench, ChannelSet, SensorPose
 from ineid.errors import DatasetError
 from ineid.params import N_PARAMS_PER_LINK, full_theta, param_names
 
@@ -20,15 +21,27 @@ if TYPE_CHECKING:
     from ineid.robots import RobotModel
 
 FORMAT = "ineid-dataset"
-VERSION = 2
+VERSION = 3
 """Format version this ineid writes and the newest it reads.
 
-Version 2 added the ``sensor`` attribute (the F/T sensor's pose in the base frame); a
-version-1 file reads as one whose wrench is in the base frame (``sensor = None``).
+Version 3 stores the measurement channels: the ``channels`` attribute holds one record per
+channel (:meth:`ineid.channels.ChannelSet.to_list`), and each channel's values are the
+dataset named by its key (the base wrench: ``wrench``). Version 2 added the ``sensor``
+attribute (the F/T sensor's pose in the base frame). A version-1 or version-2 file reads as
+one base-wrench channel under ``wrench``, in the base frame (version 1) or its ``sensor``'s.
 """
 
 STATE_KEYS = ("q", "qd", "qdd")
 MEASURED_KEYS = (*STATE_KEYS, "wrench")
+"""The measured arrays of a file with the default channel (:meth:`DatasetMeta.measured_keys` in general)."""
+
+
+class _Unset:
+    def __repr__(self) -> str:
+        return "<from the channels>"
+
+
+_UNSET = _Unset()
 
 
 @dataclass
@@ -48,9 +61,15 @@ class DatasetMeta:
         sampling: parameter, combination and frame settings (JSON-able).
         noise: noise settings, or ``None`` for clean data.
         origin: free-form provenance (e.g. the CSV file and its sign convention).
-        sensor: the F/T sensor's pose (:meth:`ineid.sensor.SensorPose.to_dict`); the
-            ``wrench`` array is then what the sensor reads, in its frame, moment about its
-            origin. ``None``: the wrench is in the base frame, about the base origin.
+        channels: the measurement channels (:class:`ineid.channels.ChannelSet`; a list of
+            their records is accepted too); default: one base wrench under ``wrench``.
+        sensor: init-only, the legacy way to say where the base wrench is measured: the
+            F/T sensor's pose (:meth:`ineid.channels.SensorPose.to_dict`) given to the
+            channel ``wrench`` (the wrench is then what the sensor reads, in its frame,
+            moment about its origin; ``None``: the base frame, about the base origin).
+            Reading ``meta.sensor`` gives that channel's pose record (None for the base frame).
+            ``dataclasses.replace`` passes it on, so ``replace(meta, sensor=...)`` moves the base
+            wrench; to change the channels use :meth:`with_channels`.
         ineid_version: the ineid that wrote the file.
         version: the format version.
     """
@@ -68,28 +87,56 @@ class DatasetMeta:
     sampling: dict | None = None
     noise: dict | None = None
     origin: dict | None = None
-    sensor: dict | None = None
+    sensor: InitVar[dict | None] = _UNSET
     ineid_version: str = ""
     version: int = VERSION
+    channels: ChannelSet | None = None
+
+    def __post_init__(self, sensor) -> None:
+        channels = self.channels
+        if channels is not None and not isinstance(channels, ChannelSet):
+            channels = ChannelSet.from_list(channels, "dataset channels")
+        if sensor is not _UNSET and sensor is not None and not isinstance(sensor, Mapping):
+            raise DatasetError(f"dataset sensor: expected a pose record (SensorPose.to_dict()) or None, got {sensor!r}")
+        pose = None if sensor is _UNSET or sensor is None else SensorPose.from_dict(sensor, "dataset sensor")
+        if channels is None:
+            channels = ChannelSet.of(BaseWrench(sensor=pose))
+        elif sensor is not _UNSET:  # a pose given beside the channels: it is the base wrench's
+            wrench = channels.get("wrench")
+            if isinstance(wrench, BaseWrench):
+                channels = channels.replace(wrench.with_sensor(pose))
+            elif pose is not None:
+                raise DatasetError("dataset sensor: a sensor pose but no base-wrench channel 'wrench' to give it to")
+        self.channels = channels
+        self._sensor = None if sensor is _UNSET else sensor
 
     @property
     def n_dof(self) -> int:
         return len(self.joint_names)
 
+    def with_channels(self, channels: ChannelSet) -> DatasetMeta:
+        """A copy measuring ``channels`` (their own poses: the legacy ``sensor`` is not carried over)."""
+        import dataclasses  # noqa: PLC0415
+
+        return dataclasses.replace(self, channels=channels, sensor=_UNSET)
+
+    def measured_keys(self) -> tuple[str, ...]:
+        """The measured arrays: ``q, qd, qdd`` and every channel's values (their noise-free copies are ``*_clean``)."""
+        return (*STATE_KEYS, *self.channels.keys)
+
     @property
     def unknown_param_names(self) -> list[str]:
         return param_names(self.unknown_links)
 
-    def sensor_pose(self):
-        """The :class:`ineid.sensor.SensorPose` of the wrench, or None for the base frame."""
-        from ineid.sensor import SensorPose  # noqa: PLC0415
-
-        return None if self.sensor is None else SensorPose.from_dict(self.sensor)
+    def sensor_pose(self) -> SensorPose | None:
+        """The :class:`ineid.channels.SensorPose` of the base wrench ``wrench``, or None for the base frame."""
+        wrench = self.channels.get("wrench")
+        return wrench.sensor if isinstance(wrench, BaseWrench) else None
 
     def sensor_transform(self) -> np.ndarray | None:
-        """``X`` (6, 6) with ``wrench = X @ base wrench`` (:func:`ineid.sensor.wrench_transform`), or None."""
-        pose = self.sensor_pose()
-        return None if pose is None or pose.is_identity else pose.transform()
+        """``X`` (6, 6) with ``wrench = X @ base wrench`` (:func:`ineid.channels.wrench_transform`), or None."""
+        wrench = self.channels.get("wrench")
+        return wrench.transform() if isinstance(wrench, BaseWrench) else None
 
     @classmethod
     def for_model(cls, model: RobotModel, **kwargs) -> DatasetMeta:
@@ -108,6 +155,21 @@ class DatasetMeta:
             ineid_version=__version__,
             **kwargs,
         )
+
+def _sensor_record(meta: DatasetMeta) -> dict | None:
+    """``meta.sensor``: the pose record given at construction, else the base wrench channel's (None: base frame)."""
+    pose = meta.sensor_pose()
+    if pose is None:
+        return None
+    given = meta._sensor  # the caller's own record (keeps its numbers as written: fingerprints)
+    return given if given is not None and SensorPose.from_dict(given) == pose else pose.to_dict()
+
+
+# ``sensor`` is an init-only argument of the dataclass (so ``dataclasses.replace(meta, sensor=...)``
+# moves the base wrench and ``replace(meta, channels=...)`` does not undo it) and a read-only
+# property of the instances: set after the decorator made ``__init__``.
+DatasetMeta.sensor = property(_sensor_record, doc=_sensor_record.__doc__)  # type: ignore[assignment]
+
 
 def assemble_theta(meta: DatasetMeta, theta_unknown: np.ndarray, theta_known: np.ndarray) -> np.ndarray:
     """Stack unknown (..., 10 n_unknown) and known (10 n_known,) parameters in chain order (:func:`ineid.params.full_theta`)."""
@@ -150,8 +212,9 @@ def model_from_meta(meta: DatasetMeta, codegen_dir: str | Path | None = None) ->
 def expected_shapes(meta: DatasetMeta, n_configs: int, n_frames: int) -> dict[str, tuple[int, ...]]:
     n_dof, n_u, n_k = meta.n_dof, len(meta.unknown_links), len(meta.known_links)
     shapes = {k: (n_configs, n_frames, n_dof) for k in STATE_KEYS}
-    shapes["wrench"] = (n_configs, n_frames, 6)
-    shapes.update({f"{k}_clean": shapes[k] for k in MEASURED_KEYS})
+    for c in meta.channels:
+        shapes[c.key] = (n_configs, n_frames, c.n_axes(meta))
+    shapes.update({f"{k}_clean": shapes[k] for k in meta.measured_keys()})
     shapes["theta_unknown"] = (n_configs, N_PARAMS_PER_LINK * n_u)
     shapes["theta_known"] = (N_PARAMS_PER_LINK * n_k,)
     shapes["time"] = (n_configs, n_frames)

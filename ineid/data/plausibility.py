@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ineid.channels import BaseWrench
+
 DEGREE_SHARE = 0.05
 """Share of a joint's samples beyond ``2 pi + 1`` rad (and its limits) that makes degrees likely."""
 DEGREE_FIT_SHARE = 0.99
@@ -102,7 +104,7 @@ def mean_force_in_base(wrench, sensor_pose=None) -> np.ndarray:
 
     Args:
         wrench: the dataset's wrench, in the sensor frame when ``sensor_pose`` is given.
-        sensor_pose: the :class:`ineid.sensor.SensorPose` of the wrench, or None (base frame).
+        sensor_pose: the :class:`ineid.channels.SensorPose` of the wrench, or None (base frame).
             A force is a free vector: ``F_base = base_R_sensor F_sensor`` (the sensor's offset
             from the base origin changes only the moment).
     """
@@ -144,12 +146,16 @@ def check_static_force(model, force_base, what: str = "the mean force over the f
 
 
 def check_dataset(ds, model) -> list[Finding]:
-    """The data-only checks on a dataset: angles in degrees, the raw static force's direction.
+    """The data-only checks on a dataset: angles in degrees, the raw static force's direction
+    (for each base-wrench channel, in the frame its sensor pose names).
 
     Args:
-        ds: a :class:`ineid.data.Dataset` (its wrench in the frame its ``meta.sensor`` names).
+        ds: a :class:`ineid.data.Dataset`.
         model: its :class:`ineid.RobotModel`.
     """
-    found = [check_angle_units(model, ds.q),
-             check_static_force(model, mean_force_in_base(ds.wrench, ds.meta.sensor_pose()))]
+    found = [check_angle_units(model, ds.q)]
+    wrenches = [c for c in ds.meta.channels if isinstance(c, BaseWrench)]
+    for c in wrenches:
+        what = "the mean force over the frames" + (f" of {c.key}" if len(wrenches) > 1 else "")
+        found.append(check_static_force(model, mean_force_in_base(ds.measurements[c.key], c.sensor), what))
     return [f for f in found if f is not None]

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from ineid._faults import fault_errno, require_memory
+from ineid.channels import ChannelSet, SensorPose
 from ineid.data.schema import (
     FORMAT,
-    MEASURED_KEYS,
     VERSION,
     Dataset,
     DatasetMeta,
@@ -142,19 +142,39 @@ def _read_meta(f, where: str) -> DatasetMeta:
             sampling=_json_attr(attrs, "sampling", where),
             noise=_json_attr(attrs, "noise", where),
             origin=_json_attr(attrs, "origin", where),
-            sensor=_json_attr(attrs, "sensor", where) if version >= 2 else None,
             ineid_version=_as_str(attrs.get("ineid_version", "")),
             version=version,
+            **_channels(attrs, version, where),
         )
     except KeyError as e:
         raise DatasetError(f"{where}: attribute {e.args[0]!r} is missing; the file is damaged") from None
     if order != PARAM_NAMES:
         raise DatasetError(f"{where}: parameter order {list(order)} differs from ineid's {list(PARAM_NAMES)}")
-    if meta.sensor is not None:
-        meta.sensor_pose()  # raises DatasetError naming what is wrong
     if meta.gravity.shape != (3,) or not np.all(np.isfinite(meta.gravity)):
         raise DatasetError(f"{where}: gravity must be 3 finite numbers, got {meta.gravity.tolist()}")
     return meta
+
+
+def _channels(attrs, version: int, where: str) -> dict:
+    """The measurement channels' arguments of :class:`DatasetMeta`: version 3 stores their records
+    (``channels``); versions 1 and 2 measured one base wrench under ``wrench`` (version 2 with its
+    ``sensor`` pose), which is what :class:`DatasetMeta` makes of ``sensor``. Bad records raise
+    :class:`DatasetError` naming the file and the record."""
+    if version <= 2:
+        sensor = _json_attr(attrs, "sensor", where) if version == 2 else None
+        if sensor is not None and not isinstance(sensor, dict):
+            raise DatasetError(f"{where}: the sensor attribute must be a pose record, got {sensor!r}")
+        if sensor is not None:
+            _checked(lambda: SensorPose.from_dict(sensor, "sensor"), where)
+        return {"sensor": sensor}
+    return {"channels": _checked(lambda: ChannelSet.from_list(_json_attr(attrs, "channels", where), "channels"), where)}
+
+
+def _checked(build, where: str):
+    try:
+        return build()
+    except DatasetError as e:
+        raise DatasetError(f"{where}: {e}") from None
 
 
 def read_meta(path: str | Path) -> tuple[DatasetMeta, dict[str, tuple[int, ...]]]:
@@ -164,7 +184,7 @@ def read_meta(path: str | Path) -> tuple[DatasetMeta, dict[str, tuple[int, ...]]
         meta = _read_meta(f, str(path))
         shapes = _array_shapes(f, str(path), meta)
         check_shapes(meta, shapes, str(path))
-        for name in ("q", "qd", "qdd", "wrench", "theta_known"):
+        for name in ("q", "qd", "qdd", *meta.channels.keys, "theta_known"):
             if name not in shapes:
                 raise DatasetError(f"{path}: dataset {name!r} is missing; the file is damaged")
         if meta.source == "synthetic" and "theta_unknown" not in shapes:
@@ -233,13 +253,14 @@ def load_dataset(path: str | Path, configs=None, frames=None, clean: bool = True
             if name != "link_set_index":
                 check_finite(name, arr, where, None if name == "theta_known" else cidx)
             out[name] = np.asarray(arr, dtype=np.int64 if name == "link_set_index" else np.float64)
-    clean_arrays = {k: out.pop(f"{k}_clean") for k in MEASURED_KEYS if f"{k}_clean" in out}
+    clean_arrays = {k: out.pop(f"{k}_clean") for k in meta.measured_keys() if f"{k}_clean" in out}
     return Dataset(
         meta=meta,
         q=out["q"],
         qd=out["qd"],
         qdd=out["qdd"],
-        wrench=out["wrench"],
+        wrench=out.get("wrench") if "wrench" in meta.channels.keys else None,
+        channel_values={k: out[k] for k in meta.channels.keys if k != "wrench"},
         theta_known=out["theta_known"],
         theta_unknown=out.get("theta_unknown"),
         clean=clean_arrays,

@@ -18,7 +18,7 @@ turns that into frames ``(q, qd, qdd, wrench)`` on one uniform time base:
    are, so one CSV with one time column and measured derivatives passes through unchanged).
 
 The wrench stays in the sensor frame: the dataset records the sensor pose (format version
-2) and identification transforms the regressor (:mod:`ineid.sensor`).
+2) and identification transforms the regressor (:mod:`ineid.channels.pose`).
 """
 
 from __future__ import annotations
@@ -30,12 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ineid.channels.pose import SensorPose, parse_sensor_pose
 from ineid.data import signals
 from ineid.data.schema import Dataset, DatasetMeta
 from ineid.data.streams import Streams, in_si_units, units_note
 from ineid.errors import DatasetError
 from ineid.progress import Progress
-from ineid.sensor import SensorPose, parse_sensor_pose
 
 ANGLE_UNITS = ("rad", "deg")
 """Units of a recording's revolute joint angles (``data import --angle-unit``)."""

@@ -8,12 +8,16 @@ dataset                   shape                                 unit
 ========================  ====================================  ================
 ``q, qd, qdd``            (n_configs, n_frames, n_dof)          rad, rad/s, ...
 ``wrench``                (n_configs, n_frames, 6)              N, N*m
+``<channel key>``         (n_configs, n_frames, n_axes)         the channel's
 ``theta_unknown``         (n_configs, 10 * n_unknown)           kg, kg*m, kg*m^2
 ``theta_known``           (10 * n_known,)                       same
 ``*_clean``               as the noisy array                    same
 ``time``                  (n_configs, n_frames), optional       s
 ``link_set_index``        (n_configs, n_unknown), optional      -
 ========================  ====================================  ================
+
+``wrench`` is the values of the base-wrench channel; every measurement channel of the
+file (``meta.channels``, :mod:`ineid.channels`) has its values under its key.
 
 This module holds what a dataset is in memory (:class:`Dataset`); its metadata, format
 version and the checks on its arrays' shapes are :mod:`ineid.data.meta` (re-exported
@@ -28,6 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ineid.channels import BaseWrench, ChannelSet
 from ineid.data.meta import (  # noqa: F401  (re-exported: the schema's names)
     FORMAT,
     MEASURED_KEYS,
@@ -52,13 +57,17 @@ class Dataset:
     Every array is float64 except the integer indices ``link_set_index`` and
     ``config_index`` (int64). ``config_index`` holds each configuration's index in the file
     it came from, so results on a selection can be traced back.
+
+    The measurement channels are ``meta.channels``: the values of the one keyed ``wrench``
+    (the base wrench) are :attr:`wrench`, those of any other in :attr:`channel_values` by key
+    (:attr:`measurements` has them all; :meth:`measured` stacks them).
     """
 
     meta: DatasetMeta
     q: np.ndarray
     qd: np.ndarray
     qdd: np.ndarray
-    wrench: np.ndarray
+    wrench: np.ndarray | None
     theta_known: np.ndarray
     theta_unknown: np.ndarray | None = None
     clean: dict[str, np.ndarray] = field(default_factory=dict)
@@ -67,11 +76,32 @@ class Dataset:
     config_index: np.ndarray | None = None
     path: Path | None = None
     """The file the dataset was read from (None when made in memory)."""
+    channel_values: dict[str, np.ndarray] = field(default_factory=dict)
+    """Values (n_configs, n_frames, n_axes) of the channels other than ``wrench``, by key."""
 
     def __post_init__(self) -> None:
         if self.config_index is None:
             self.config_index = np.arange(self.q.shape[0], dtype=np.int64)
+        keys = set(self.meta.channels.keys)
+        have = set(self.channel_values) | ({"wrench"} if self.wrench is not None else set())
+        if "wrench" in self.channel_values:
+            raise DatasetError("dataset: the base wrench's values are Dataset.wrench, not channel_values['wrench']")
+        if have != keys:
+            missing, extra = sorted(keys - have), sorted(have - keys)
+            raise DatasetError(f"dataset: the channels {', '.join(self.meta.channels.keys)} need values for each; "
+                               + (f"missing {', '.join(missing)}" if missing else f"no channel {', '.join(extra)}"))
         check_shapes(self.meta, {k: v.shape for k, v in self.arrays().items()}, "dataset")
+
+    @property
+    def measurements(self) -> dict[str, np.ndarray]:
+        """Every channel's values by key, in the channels' order (the arrays themselves, not copies)."""
+        return {k: self.wrench if k == "wrench" else self.channel_values[k] for k in self.meta.channels.keys}
+
+    def measured(self, channels=None) -> np.ndarray:
+        """The stacked values (n_configs, n_frames, n_axes) of ``channels`` (a :class:`ineid.channels.ChannelSet`
+        of this dataset's; default all of them). One channel's are its own array, not a copy."""
+        channels = self.meta.channels if channels is None else channels
+        return channels.values(self.measurements, self.meta)
 
     @property
     def n_configs(self) -> int:
@@ -91,7 +121,7 @@ class Dataset:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Every stored array by its dataset name."""
-        out = {"q": self.q, "qd": self.qd, "qdd": self.qdd, "wrench": self.wrench, "theta_known": self.theta_known}
+        out = {"q": self.q, "qd": self.qd, "qdd": self.qdd, **self.measurements, "theta_known": self.theta_known}
         if self.theta_unknown is not None:
             out["theta_unknown"] = self.theta_unknown
         for k, v in self.clean.items():
@@ -144,13 +174,16 @@ class Dataset:
             link_set_index=pick(self.link_set_index, False),
             config_index=np.asarray(self.config_index)[c],
             path=self.path,
+            channel_values={k: pick(v) for k, v in self.channel_values.items()},
         )
 
     def fingerprint(self) -> str:
         """16 hex digits identifying the content: robot, URDF, sizes, seed, sampling, noise.
 
         A recording (no seed) adds a digest of its wrenches, its numbers being its identity.
-        Results and training runs record it, so their dataset can be recognized later.
+        Results and training runs record it, so their dataset can be recognized later. The
+        channels count where they are not the single base wrench of versions 1 and 2 (so
+        those files keep their fingerprints).
         """
         import hashlib  # noqa: PLC0415
         import json  # noqa: PLC0415
@@ -158,10 +191,14 @@ class Dataset:
         m = self.meta
         key = json.dumps([m.robot, m.urdf, list(m.unknown_links), np.asarray(m.gravity).tolist(), self.n_configs,
                           self.n_frames, m.seed, m.sampling, m.noise, m.source], sort_keys=True, default=str)
+        legacy = m.channels == ChannelSet.of(BaseWrench(sensor=m.sensor_pose()))
         if m.seed is None:
-            key += hashlib.sha256(np.ascontiguousarray(self.wrench).tobytes()).hexdigest()
+            for k, v in self.measurements.items():
+                key += ("" if legacy else k) + hashlib.sha256(np.ascontiguousarray(v).tobytes()).hexdigest()
         if m.sensor is not None:  # absent from version-1 keys, so their fingerprints stay
             key += json.dumps(m.sensor, sort_keys=True)
+        if not legacy:
+            key += json.dumps(m.channels.to_list(), sort_keys=True)
         return hashlib.sha256(key.encode()).hexdigest()[:16]
 
     def model(self, codegen_dir: str | Path | None = None) -> RobotModel:

@@ -54,12 +54,17 @@ def _meta_attrs(meta: DatasetMeta) -> dict:
         "sampling": json.dumps(meta.sampling, sort_keys=True),
         "noise": json.dumps(meta.noise, sort_keys=True),
         "origin": json.dumps(meta.origin, sort_keys=True),
-        "sensor": json.dumps(meta.sensor, sort_keys=True),
+        "channels": json.dumps(meta.channels.to_list(), sort_keys=True),
         "ineid_version": meta.ineid_version,
     }
     if meta.seed is not None:
         attrs["seed"] = np.int64(meta.seed)
     return attrs
+
+
+def row_width(meta: DatasetMeta) -> int:
+    """The widest per-frame array of a dataset: ``n_dof`` or a channel's axes (at least 6)."""
+    return max(6, meta.n_dof, *(c.n_axes(meta) for c in meta.channels))
 
 
 def chunk_rows(n_frames: int, width: int, n_configs: int) -> int:
@@ -112,7 +117,7 @@ class DatasetWriter:
         unknown = [a for a in arrays if a not in self.shapes or a == "theta_known"]
         if unknown:
             raise ValueError(f"not per-configuration datasets: {unknown}")
-        self.rows = rows or chunk_rows(self.n_frames, max(6, meta.n_dof), self.n_configs)
+        self.rows = rows or chunk_rows(self.n_frames, row_width(meta), self.n_configs)
         self._tmp = temporary_path(self.path)
         try:
             self._file = h5py.File(self._tmp, "w")

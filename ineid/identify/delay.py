@@ -71,9 +71,9 @@ def estimate_delay(streams, model, settings, max_delay: float = MAX_DELAY) -> De
                            "record longer or give --delay")
     spline = make_interp_spline(tw_u, w_u, k=3, axis=0)
     t = t[keep]
-    sensor = ds.meta.sensor_transform()
+    # a recording's one channel: the base wrench, in its sensor's frame
     w, y0 = stack(model, ds.q[:, keep], ds.qd[:, keep], ds.qdd[:, keep], np.zeros((1, len(t), 6)), ds.theta_known,
-                  sensor=sensor)
+                  ds.meta.channels)
     wc, _, _ = remove_offsets(w, np.zeros_like(y0))
     scale = spline(t).std(axis=0)
     scale = np.where(scale > 0, scale, 1.0)

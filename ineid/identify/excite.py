@@ -70,6 +70,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ineid.channels import ChannelSet
 from ineid.data.noise import NoiseModel
 from ineid.data.trajectory import FourierTrajectory, whole_count
 from ineid.errors import ExcitationError
@@ -201,7 +202,7 @@ class ExcitationResult:
             the median criterion), both from the samples at ``rate`` over the duration.
         random_trajectory: that random trajectory.
         base: the base parameters designed for.
-        sigma: (6,) wrench noise std of the expected standard deviations (N, N*m).
+        sigma: (A,) noise std per measured axis of the expected standard deviations (the wrench: N, N*m).
         bounds: the bounds the design keeps at every instant.
         rate: Hz of the samples that the evaluations use (and a CSV has).
         starts: one record per random start.
@@ -261,6 +262,8 @@ class ExcitationSettings:
         velocity_scale, acceleration_scale: fractions of the model's bounds, in (0, 1].
         bias: design for identification with six constant sensor offsets estimated
             jointly (``ineid solve --bias estimate``).
+        channels: the measurement channels designed for (:class:`ineid.channels.ChannelSet`,
+            their rows); None: the base wrench.
         seed: of the random starts.
         design_points: samples per period of the criterion (None: ``32 H`` rounded up to a
             multiple of :data:`DEFAULT_CHUNK`, the compiled block size).
@@ -283,9 +286,15 @@ class ExcitationSettings:
     constraint_points: int | None = None
     max_iter: int = 150
     tol: float = 1e-6
+    channels: ChannelSet | None = None
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        if self.channels is None:
+            del d["channels"]  # the base wrench: the record of ineid 0.1
+        else:
+            d["channels"] = self.channels.to_list()
+        return d
 
 
 def design_excitation(
@@ -365,14 +374,15 @@ def design_excitation(
     if not 1 <= starts <= MAX_STARTS:
         raise ExcitationError(f"starts must be in 1..{MAX_STARTS:,}, got {starts}", reason="settings")
     bounds = design_bounds(model, margin, velocity_scale, acceleration_scale)
-    sigma = design_noise(noise)
+    sigma = design_noise(noise, settings.channels)
     design_points = design_points or DEFAULT_CHUNK * math.ceil(32 * harmonics / DEFAULT_CHUNK)
     constraint_points = constraint_points or 32 * harmonics
-    base = design_base(model, bias)
+    base = design_base(model, bias, settings.channels)
     samples = n_rate + 1
-    if 6 * samples < base.rank:
+    if base.n_axes * samples < base.rank:
         raise ExcitationError(
-            f"{samples} samples give {6 * samples} equations for {base.rank} base parameters; lengthen --duration "
+            f"{samples} samples give {base.n_axes * samples} equations for {base.rank} base parameters; "
+            "lengthen --duration "
             "or raise --rate",
             reason="duration",
         )

@@ -2,7 +2,8 @@
 
 The base parameters a design is for (:class:`DesignBase`), the scaled regressor
 ``Phi_k = D^-1 Psi_k[:, base columns] S`` and its exact derivatives along the states
-(forward-mode AD of the generated JAX regressor), the criteria ``-log det M``
+(forward-mode AD of the measurement channels' jit-safe rows, :meth:`ineid.channels.ChannelSet.jax_rows_function`:
+the generated JAX regressor of the base wrench by default), the criteria ``-log det M``
 (D-optimality) and ``log cond Phi`` with their gradients ``df/dPhi``, and the evaluation of
 a finished trajectory (:class:`DesignEvaluation`). The maths is in :mod:`ineid.identify.excite`.
 """
@@ -15,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ineid.channels import BASE_WRENCH, BaseWrench, ChannelSet
 from ineid.data.noise import NoiseModel
 from ineid.errors import ExcitationError
 from ineid.identify.identifiability import BaseParameters, base_parameters, numerical_rank
@@ -32,12 +34,14 @@ class DesignBase:
 
     Attributes:
         names: (r,) base parameter names.
-        columns: (r,) each one's column in ``[I_6 | Psi]`` (``6 +`` its column in the
-            ``10 n_links`` regressor columns).
+        columns: (r,) each one's column in ``[I_A | Psi]`` (``A +`` its column in the
+            ``10 n_links`` regressor columns; ``A`` the channels' axes, six for the base wrench).
         scales: (r,) characteristic scales ``S`` (SI units of each parameter).
         cad: (r,) the CAD values ``B theta_cad``.
         base: the underlying :class:`BaseParameters`.
-        bias: six constant offsets are identified too (the regressor is centred per axis).
+        bias: constant offsets are identified too (the regressor is centred per axis).
+        channels: the measurement channels designed for (their rows ``T Phi``).
+        n_axes: ``A``.
     """
 
     names: tuple[str, ...]
@@ -46,49 +50,67 @@ class DesignBase:
     cad: np.ndarray
     base: BaseParameters
     bias: bool
+    channels: ChannelSet = BASE_WRENCH
+    n_axes: int = 6
 
     @property
     def rank(self) -> int:
         return len(self.names)
 
 
-def design_base(model, bias: bool = False) -> DesignBase:
+def design_base(model, bias: bool = False, channels: ChannelSet | None = None) -> DesignBase:
     """The structural base parameters of ``model``'s unknown links, as ``ineid solve`` identifies
-    them (:func:`ineid.identify.base_parameters`, with ``bias`` for ``--bias estimate``)."""
-    base = base_parameters(model, bias=bias)
+    them from ``channels`` (default: the base wrench) (:func:`ineid.identify.base_parameters`, with
+    ``bias`` for ``--bias estimate``)."""
+    channels = BASE_WRENCH if channels is None else channels
+    base = base_parameters(model, bias=bias, channels=None if channels == BASE_WRENCH else channels)
+    n_axes = channels.n_axes(model)
     idx = base.base_index
     return DesignBase(
         names=base.names,
-        columns=6 + model.unknown_index[idx],
+        columns=n_axes + model.unknown_index[idx],
         scales=base.scales[idx],
         cad=base.B @ model.theta_cad[model.unknown_index],
         base=base,
         bias=bool(bias),
+        channels=channels,
+        n_axes=n_axes,
     )
 
 
 def centred(phi: np.ndarray) -> np.ndarray:
-    """``Phi_k - mean_j Phi_j`` (N, 6, r): the offsets of every axis profiled out."""
+    """``Phi_k - mean_j Phi_j`` (N, A, r): the offsets of every axis profiled out."""
     return phi - phi.mean(axis=0, keepdims=True)
 
 
-def design_noise(noise: NoiseModel | None = None) -> np.ndarray:
-    """(6,) wrench noise std per axis of the design: ``noise.wrench``, default :data:`DESIGN_NOISE`."""
+def design_noise(noise: NoiseModel | None = None, channels: ChannelSet | None = None) -> np.ndarray:
+    """(A,) noise std per axis of the design, the channels' axes stacked (default: the base wrench's six):
+    ``noise.wrench`` for every base-wrench channel (its sensor's axes), default :data:`DESIGN_NOISE`.
+
+    Raises:
+        ExcitationError: a zero wrench noise, or a channel the noise model says nothing about.
+    """
     if noise is None:
-        return np.array([DESIGN_NOISE["force"]] * 3 + [DESIGN_NOISE["moment"]] * 3)
-    sigma = np.asarray(noise.wrench, dtype=np.float64)
-    if sigma.shape != (6,) or not np.all(sigma > 0):
-        raise ExcitationError(
-            f"the design needs a positive wrench noise on every axis, got {sigma.tolist()}; give force= and moment= levels",
-            reason="noise",
-        )
-    return sigma
+        sigma = np.array([DESIGN_NOISE["force"]] * 3 + [DESIGN_NOISE["moment"]] * 3)
+    else:
+        sigma = np.asarray(noise.wrench, dtype=np.float64)
+        if sigma.shape != (6,) or not np.all(sigma > 0):
+            raise ExcitationError(
+                f"the design needs a positive wrench noise on every axis, got {sigma.tolist()}; give force= and "
+                "moment= levels", reason="noise",
+            )
+    channels = BASE_WRENCH if channels is None else channels
+    other = [c.key for c in channels if not isinstance(c, BaseWrench)]
+    if other:
+        raise ExcitationError(f"the design's noise model knows the wrench only, not channel {other[0]!r}; "
+                              "design for the wrench channels", reason="noise")
+    return sigma if len(channels) == 1 else np.tile(sigma, len(channels))
 
 
 def scaled_regressor(y_full: np.ndarray, base: DesignBase, sigma: np.ndarray) -> np.ndarray:
-    """``Phi_k = D^-1 [I_6 | Psi_k][:, columns] S``: (N, 6, 10 n_links) -> (N, 6, r)."""
-    n = y_full.shape[0]
-    ext = np.concatenate([np.broadcast_to(np.eye(6), (n, 6, 6)), y_full], axis=-1)
+    """``Phi_k = D^-1 [I_A | Psi_k][:, columns] S``: (N, A, 10 n_links) -> (N, A, r)."""
+    n, a = y_full.shape[:2]
+    ext = np.concatenate([np.broadcast_to(np.eye(a), (n, a, a)), y_full], axis=-1)
     return ext[..., base.columns] * base.scales / sigma[:, None]
 
 
@@ -96,11 +118,11 @@ def criterion_and_gradient(phi: np.ndarray, criterion: str, gradient: bool = Tru
     """``(f, df/dPhi)`` of the per-sample information ``M = Phi^T Phi / N`` (see module doc).
 
     Args:
-        phi: (N, 6, r) scaled regressor.
+        phi: (N, A, r) scaled regressor.
         criterion: ``"d-opt"`` (``-log det M``) or ``"cond"`` (``log cond Phi``).
 
     Returns:
-        ``f`` (inf where ``M`` is singular) and (N, 6, r) ``df/dPhi`` (None without
+        ``f`` (inf where ``M`` is singular) and (N, A, r) ``df/dPhi`` (None without
         ``gradient`` or where ``f`` is inf). With ``dM = df/dM`` symmetric,
         ``df/dPhi_k = (2/N) Phi_k dM``.
     """
@@ -163,7 +185,7 @@ def evaluate_design(model, q, qd, qdd, base: DesignBase, sigma: np.ndarray) -> D
     """Criteria, rank and expected base-parameter std of frames ``q, qd, qdd`` (F, n_dof)."""
     q, qd, qdd = (np.atleast_2d(np.asarray(x, dtype=np.float64)) for x in (q, qd, qdd))
     f = len(q)
-    psi, _ = regressor_and_derivatives(model, q, qd, qdd, derivatives=False)
+    psi, _ = regressor_and_derivatives(model, q, qd, qdd, derivatives=False, channels=base.channels)
     phi = scaled_regressor(psi, base, sigma)
     phi = centred(phi) if base.bias else phi
     a = phi.reshape(-1, base.rank)
@@ -183,12 +205,13 @@ def evaluate_design(model, q, qd, qdd, base: DesignBase, sigma: np.ndarray) -> D
 
 @functools.cache
 def _regressor_jet(jax_regressor):
-    """Jitted ``(q, qd, qdd, g) -> (Psi, dPsi)``: the regressor and its exact derivatives.
+    """Jitted ``(q, qd, qdd, g) -> (Psi, dPsi)``: the regressor (any jit-safe rows function) and its exact derivatives.
 
-    ``Psi`` (N, 6, 10 n_links); ``dPsi[d]`` (3 n_dof, N, 6, 10 n_links) its derivative along
+    ``Psi`` (N, A, 10 n_links); ``dPsi[d]`` (3 n_dof, N, A, 10 n_links) its derivative along
     state coordinate ``d`` of every sample (``q_1..q_n, qd_1..qd_n, qdd_1..qdd_n``), by
     forward-mode AD (``jax.jvp``, vmapped over the ``3 n`` directions). Cached per
-    generated module: every design of a robot shares the one compilation. Measured on the
+    rows function (the base wrench's: the generated module's): every design of a robot
+    shares the one compilation. Measured on the
     7-joint Z1 (2-core machine, CPU time): forward mode compiles in 46 s and runs in 20 ms
     for 160 samples; the reverse-mode pull-back (``jax.vjp``) compiled in 47 s and ran in
     54 ms (both under the same load).
@@ -209,13 +232,15 @@ def _regressor_jet(jax_regressor):
     return jax.jit(jet)
 
 
-def regressor_and_derivatives(model, q, qd, qdd, chunk: int = DEFAULT_CHUNK, derivatives: bool = True):
-    """``Psi(q_k, qd_k, qdd_k)`` (F, 6, 10 n_links) and, with ``derivatives``, ``dPsi`` (3 n_dof, F, 6, 10 n_links).
+def regressor_and_derivatives(model, q, qd, qdd, chunk: int = DEFAULT_CHUNK, derivatives: bool = True,
+                               channels: ChannelSet | None = None):
+    """The channels' rows ``Psi = T Phi(q_k, qd_k, qdd_k)`` (F, A, 10 n_links) and, with ``derivatives``,
+    ``dPsi`` (3 n_dof, F, A, 10 n_links); ``channels`` default the base wrench (``A = 6``).
 
     Evaluated in padded chunks of ``chunk`` samples, so one compilation serves every size.
     """
     q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (q, qd, qdd))
-    fn = _regressor_jet(model.jax_regressor)
+    fn = _regressor_jet((BASE_WRENCH if channels is None else channels).jax_rows_function(model))
     gravity = np.asarray(model.gravity, dtype=np.float64)
     f = len(q)
     psis, jets = [], []

@@ -133,19 +133,20 @@ class _Problem:
 
     # -- objective -------------------------------------------------------------------------
     def _evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(Phi, dPhi)`` on the design grid: (N, 6, r) and (3 n_dof, N, 6, r) (last one cached)."""
+        """``(Phi, dPhi)`` on the design grid: (N, A, r) and (3 n_dof, N, A, r) (last one cached)."""
         key = np.asarray(x, dtype=np.float64).tobytes()
         if self._last is not None and self._last[0] == key:
             return self._last[1]
         q, qd, qdd = self.design_states(x)
-        psi, dpsi = regressor_and_derivatives(self.model, q, qd, qdd)
+        psi, dpsi = regressor_and_derivatives(self.model, q, qd, qdd, channels=self.base.channels)
         self.n_evals += 1
         phi = scaled_regressor(psi, self.base, self.sigma)
         # centring: df/dPhi_k = G_k - mean(G) = G_k, as G_k = (2/N) Phi_c_k dM sums to zero
         phi = centred(phi) if self.base.bias else phi
-        sel = self.base.columns >= 6  # every column (the offsets are profiled out, not columns)
-        weight = (self.base.scales[sel] / self.sigma[:, None])  # (6, r)
-        dphi = dpsi[..., self.base.columns[sel] - 6] * weight
+        a = self.base.n_axes
+        sel = self.base.columns >= a  # every column (the offsets are profiled out, not columns)
+        weight = (self.base.scales[sel] / self.sigma[:, None])  # (A, r)
+        dphi = dpsi[..., self.base.columns[sel] - a] * weight
         self._last = (key, (phi, dphi, sel))
         return self._last[1]
 

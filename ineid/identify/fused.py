@@ -1,10 +1,12 @@
 """Fused kernels of the linear identification: what a batch of configurations needs, never the stacks.
 
 For configuration ``c`` with frames ``k = 1..F`` the base least squares (see
-:mod:`ineid.identify.linear`) uses ``W_b`` (6F x r, the unknown links' base columns of
-``Psi``) and ``y`` (6F, the wrench minus the known links' share) only through
+:mod:`ineid.identify.linear`) uses ``W_b`` (AF x r, the unknown links' base columns of the
+measurement channels' stacked rows ``T Phi``, :class:`ineid.channels.ChannelSet`; ``A``
+axes a frame, six for the base wrench) and ``y`` (AF, the measured values minus the known
+links' share) only through
 
-    G_a = sum_k W_b[k, a]^T W_b[k, a]        (r x r)   per wrench axis a = fx..mz
+    G_a = sum_k W_b[k, a]^T W_b[k, a]        (r x r)   per axis a (fx..mz for the base wrench)
     h_a = sum_k W_b[k, a]^T y[k, a]           (r,)
     e_a = sum_k y[k, a]^2
 
@@ -14,24 +16,27 @@ so that, with row weights ``d_a`` per axis (``D`` in :mod:`ineid.identify.linear
 
 and the per-axis residual sum of squares of any ``beta`` is ``e_a - 2 beta.h_a + beta^T G_a beta``.
 :func:`information_blocks` computes ``G, h, e`` in one jitted function per chunk of
-configurations: the generated regressor's entries of the base columns and the known links'
-contraction are formed and reduced inside it, so the ``(C, 6F, n)`` stacks never exist (the
-memory is the blocks', ``6 r^2`` numbers per configuration). :func:`residual_sums` is the
-same for the wrench residual of given parameters (the generated ``base_wrench``, which
-never forms ``Psi``), over fitted and held-out frames in one pass.
+configurations: each channel's generated entries (:meth:`ineid.channels.Channel.entries_function`)
+of the base columns and the known links' contraction are formed and reduced inside it, so the
+``(C, AF, n)`` stacks never exist (the memory is the blocks', ``A r^2`` numbers per
+configuration). :func:`residual_sums` is the same for the residual of given parameters (each
+channel's ``Phi theta``, for the base wrench the generated ``base_wrench``, which never forms
+``Psi``), over fitted and held-out frames in one pass.
 
-A dataset with an F/T sensor pose (:mod:`ineid.sensor`) is fitted in the sensor's frame: the
-kernel applies the 6x6 wrench transform ``X`` to the regressor rows and to the known links'
-share before reducing (``W_b[k] -> X W_b[k]``), so the axes ``a`` are the sensor's. For six
-constant offsets (the bias) the kernel also returns the sums over the frames ``s_a = sum_k
-Psi_u[k, a]`` (all unknown columns) and ``t_a = sum_k y[k, a]``, and
-:meth:`InformationBlocks.centred` turns the blocks into those of the frames centred per axis
-(``G_a - s_a s_a^T / F``, ...), which is the joint fit of the parameters and the offsets
-(:class:`ineid.identify.systems.Offsets`).
+A channel with a transform ``T`` (a base wrench in an F/T sensor's frame: the 6x6 wrench
+transform ``X``) is fitted in its own axes: the kernel applies ``T`` to the regressor rows and
+to the known links' share before reducing (``W_b[k] -> T W_b[k]``); ``T``'s values are
+arguments, so a new sensor pose does not recompile. For constant offsets (the bias) the
+kernel also returns the sums over the frames ``s_a = sum_k Psi_u[k, a]`` (all unknown
+columns) and ``t_a = sum_k y[k, a]``, and :meth:`InformationBlocks.centred` turns the blocks
+into those of the frames centred per axis (``G_a - s_a s_a^T / F``, ...), which is the joint
+fit of the parameters and the offsets (:class:`ineid.identify.systems.Offsets`).
 
 One compiled shape serves every chunk: configurations are padded to a fixed count and long
 recordings are split into frame chunks (masked). Compiled once per robot, link split, base
-structure and frame count (see :func:`ineid.cache.enable_compilation_cache`).
+structure, channels' structure (:meth:`ineid.channels.ChannelSet.structure`) and frame count
+(see :func:`ineid.cache.enable_compilation_cache`); one base wrench compiles what it
+compiled before channels existed.
 """
 
 from __future__ import annotations
@@ -46,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.cache import enable_compilation_cache
+from ineid.channels import BASE_WRENCH, ChannelSet
 
 TARGET_FRAMES = 2048
 """Frames (configurations x frames) per compiled call: the chunk the regressor runs fastest on."""
@@ -59,18 +65,20 @@ MAX_FRAME_CHUNK = 2048
 class InformationBlocks:
     """Per-axis normal-equation blocks of a batch of configurations (see module doc).
 
+    ``A`` is the number of stacked axes of the channels (six for the base wrench).
+
     Attributes:
-        G: (C, 6, r, r) ``sum_k W_b[k, a]^T W_b[k, a]`` per wrench axis ``a``.
-        h: (C, 6, r) ``sum_k W_b[k, a]^T y[k, a]``.
-        e: (C, 6) ``sum_k y[k, a]^2``.
-        n_frames: frames per configuration ``F`` (rows ``6F``).
-        s: (C, 6, 10 n_u) ``sum_k (Psi_u[k, a] - w_ref_a)`` (every unknown column), or None.
-        t: (C, 6) ``sum_k (y[k, a] - y_ref_a)``, or None.
-        w_ref, y_ref: (C, 6, 10 n_u), (C, 6) the rows subtracted from every frame before
+        G: (C, A, r, r) ``sum_k W_b[k, a]^T W_b[k, a]`` per axis ``a``.
+        h: (C, A, r) ``sum_k W_b[k, a]^T y[k, a]``.
+        e: (C, A) ``sum_k y[k, a]^2``.
+        n_frames: frames per configuration ``F`` (rows ``AF``).
+        s: (C, A, 10 n_u) ``sum_k (Psi_u[k, a] - w_ref_a)`` (every unknown column), or None.
+        t: (C, A) ``sum_k (y[k, a] - y_ref_a)``, or None.
+        w_ref, y_ref: (C, A, 10 n_u), (C, A) the rows subtracted from every frame before
             ``G, h, e, s, t`` were summed (the first frame's), or None (nothing subtracted).
-        axis_w: None for per-axis blocks; else (C, 6) row weights ``d_a`` the blocks were
+        axis_w: None for per-axis blocks; else (C, A) row weights ``d_a`` the blocks were
             summed with in the kernel: ``G`` (C, r, r) ``= sum_a d_a^2 G_a``, ``h`` (C, r)
-            ``= sum_a d_a^2 h_a`` (``e`` stays per axis). Six times less memory, for fits
+            ``= sum_a d_a^2 h_a`` (``e`` stays per axis). ``A`` times less memory, for fits
             whose weights are known before the frames are read (none, noise).
     """
 
@@ -88,14 +96,16 @@ class InformationBlocks:
         if self.axis_w is not None:
             raise ValueError(f"{what} needs per-axis blocks; these were summed with fixed weights (axis_weights=...)")
 
-    def centred(self, base):
+    def centred(self, base, mask: np.ndarray | None = None):
         """``(blocks, offsets)``: the blocks of the frames centred per axis, and their means.
 
         With ``sb_a = s_a[base columns]``: ``G_a - sb_a sb_a^T / F``, ``h_a - sb_a t_a / F``,
         ``e_a - t_a^2 / F`` (``sum_k (x_k - xbar)(z_k - zbar) = sum_k x_k z_k - F xbar zbar``);
         ``offsets`` holds ``Wbar = s / F + w_ref`` and ``ybar = t / F + y_ref``
         (:class:`ineid.identify.systems.Offsets`). The shift by ``w_ref, y_ref`` leaves the
-        centred blocks as they are and keeps them from cancelling.
+        centred blocks as they are and keeps them from cancelling. ``mask`` (A,) bool: only
+        those axes have offsets and are centred (:meth:`ineid.channels.ChannelSet.offset_mask`);
+        None: every axis.
         """
         from ineid.identify.systems import Offsets  # noqa: PLC0415
 
@@ -103,30 +113,32 @@ class InformationBlocks:
         if self.s is None or self.t is None:
             raise ValueError("these blocks carry no frame sums; compute them with sums=True")
         f = self.n_frames
-        sb = self.s[..., base.base_index]
+        mask = None if mask is None or np.all(mask) else np.asarray(mask, dtype=bool)
+        s, t = (self.s, self.t) if mask is None else (self.s * mask[:, None], self.t * mask)
+        sb = s[..., base.base_index]
         g = self.G - np.einsum("car,cas->cars", sb, sb) / f
-        h = self.h - sb * (self.t / f)[..., None]
-        e = self.e - self.t**2 / f
+        h = self.h - sb * (t / f)[..., None]
+        e = self.e - t**2 / f
         w_ref = 0.0 if self.w_ref is None else self.w_ref
         y_ref = 0.0 if self.y_ref is None else self.y_ref
-        return InformationBlocks(g, h, e, f), Offsets(self.s / f + w_ref, self.t / f + y_ref, f)
+        return InformationBlocks(g, h, e, f), Offsets(self.s / f + w_ref, self.t / f + y_ref, f, mask)
 
     def weighted(self, axis_w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(W_b^T D^2 W_b, W_b^T D^2 y, y^T D^2 y)`` for row weights ``axis_w`` (C, 6)."""
+        """``(W_b^T D^2 W_b, W_b^T D^2 y, y^T D^2 y)`` for row weights ``axis_w`` (C, A)."""
         if self.axis_w is not None:
             if not np.array_equal(np.broadcast_to(axis_w, self.axis_w.shape), self.axis_w):
                 raise ValueError("these blocks were summed with other row weights; compute them again")
             return self.G, self.h, np.sum(self.axis_w**2 * self.e, axis=1)
-        d2 = (np.asarray(axis_w, dtype=np.float64) ** 2)[:, None, :]  # (C, 1, 6)
-        c, _, r, _ = self.G.shape
-        a = np.matmul(d2, self.G.reshape(c, 6, r * r)).reshape(c, r, r)
+        d2 = (np.asarray(axis_w, dtype=np.float64) ** 2)[:, None, :]  # (C, 1, A)
+        c, n_axes, r, _ = self.G.shape
+        a = np.matmul(d2, self.G.reshape(c, n_axes, r * r)).reshape(c, r, r)
         b = np.matmul(d2, self.h)[:, 0]
         return a, b, np.matmul(d2, self.e[:, :, None])[:, 0, 0]
 
     def axis_rss(self, beta: np.ndarray) -> np.ndarray:
-        """(C, 6) unweighted residual sum of squares per axis, ``e_a - 2 beta.h_a + beta^T G_a beta``."""
+        """(C, A) unweighted residual sum of squares per axis, ``e_a - 2 beta.h_a + beta^T G_a beta``."""
         self._per_axis("the residual per axis")
-        gb = np.matmul(self.G, beta[:, None, :, None])[..., 0]  # (C, 6, r)
+        gb = np.matmul(self.G, beta[:, None, :, None])[..., 0]  # (C, A, r)
         quad = np.matmul(gb, beta[:, :, None])[..., 0]
         lin = np.matmul(self.h, beta[:, :, None])[..., 0]
         return np.maximum(self.e - 2.0 * lin + quad, 0.0)
@@ -227,18 +239,19 @@ def _map_chunks(kernel: Callable, frame_arrays: list[np.ndarray], config_arrays:
 
 
 @functools.lru_cache(maxsize=None)
-def _blocks_kernel(entries_fn, n_cols: int, base_columns: tuple[int, ...], known_columns: tuple[int, ...],
-                   sensor: bool = False, sum_columns: tuple[int, ...] = (), summed: bool = False):
-    """Jitted ``(q, qd, qdd, wrench, mask, [w_ref, y_ref,] gravity, theta_known, x) -> (G, h, e[, s, t])``.
+def _blocks_kernel(structure: tuple, n_cols: int, base_columns: tuple[int, ...], known_columns: tuple[int, ...],
+                   sum_columns: tuple[int, ...] = (), summed: bool = False):
+    """Jitted ``(q, qd, qdd, values, mask, [w_ref, y_ref,] gravity, theta_known, xs) -> (G, h, e[, s, t])``.
 
-    ``summed``: ``(q, qd, qdd, wrench, mask, d, gravity, theta_known, x)`` with row weights
-    ``d`` (Cc, 6), and ``G, h`` summed over the axes with weights ``d_a^2`` (see
-    :class:`InformationBlocks`): one (6Fc x r) product per configuration instead of six.
-
-    ``sensor``: rows in the sensor frame (``x`` the 6x6 wrench transform; ignored otherwise).
+    ``structure``: :meth:`ineid.channels.ChannelSet.structure` of the channels, whose rows
+    are stacked in order; ``xs`` their transforms ``T`` (n_a x n_a each, read where the
+    channel has one): the rows and the known links' share are in the channels' own axes.
+    ``summed``: ``(q, qd, qdd, values, mask, d, gravity, theta_known, xs)`` with row weights
+    ``d`` (Cc, A), and ``G, h`` summed over the axes with weights ``d_a^2`` (see
+    :class:`InformationBlocks`): one (AFc x r) product per configuration instead of A.
     ``sum_columns`` (the unknown columns, base columns among them): the blocks are of the
-    frames minus a reference row per configuration and axis (``w_ref`` (Cc, 6, p), ``y_ref``
-    (Cc, 6): the first frame's), and the frame sums ``s`` of those columns and ``t`` of ``y``
+    frames minus a reference row per configuration and axis (``w_ref`` (Cc, A, p), ``y_ref``
+    (Cc, A): the first frame's), and the frame sums ``s`` of those columns and ``t`` of ``y``
     come too. Centring is invariant to the shift, and the shift takes the large constant part
     (offsets, the weight of the links) out of the sums before they cancel.
     """
@@ -246,22 +259,34 @@ def _blocks_kernel(entries_fn, n_cols: int, base_columns: tuple[int, ...], known
     import jax.numpy as jnp  # noqa: PLC0415
 
     base_pos = tuple(sum_columns.index(c) for c in base_columns) if sum_columns else ()
+    columns = sum_columns or base_columns
 
-    def core(q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, x, d):
-        entries = entries_fn(q, qd, qdd, gravity)
-        batch = q.shape[:-1]  # (Cc, Fc)
-
+    def channel_rows(entries, n_axes, batch, mask, theta_known, dtype):
         def entry(a, col):
-            return jnp.broadcast_to(entries[a * n_cols + col], batch).astype(q.dtype) * mask
+            return jnp.broadcast_to(entries[a * n_cols + col], batch).astype(dtype) * mask
 
-        # (6, Cc, r, Fc): frames last, each entry one contiguous run (XLA:CPU's fast layout)
-        w_b = jnp.stack([jnp.stack([entry(a, c) for c in sum_columns or base_columns], axis=1) for a in range(6)])
+        # (n_a, Cc, r, Fc): frames last, each entry one contiguous run (XLA:CPU's fast layout)
+        w = jnp.stack([jnp.stack([entry(a, c) for c in columns], axis=1) for a in range(n_axes)])
         known = jnp.stack([sum((entries[a * n_cols + c] * theta_known[k] for k, c in enumerate(known_columns)),
-                               start=jnp.zeros(batch, q.dtype)) for a in range(6)])  # (6, Cc, Fc)
-        if sensor:  # the sensor's axes: X applied to every regressor row and to the known share
-            w_b = jnp.einsum("ab,bcrf->acrf", x, w_b)
-            known = jnp.einsum("ab,bcf->acf", x, known)
-        y = jnp.stack([(wrench[..., a] - known[a]) * mask for a in range(6)])  # (6, Cc, Fc)
+                               start=jnp.zeros(batch, dtype)) for a in range(n_axes)])  # (n_a, Cc, Fc)
+        return w, known
+
+    def core(q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs, d):
+        batch = q.shape[:-1]  # (Cc, Fc)
+        evaluated: dict = {}  # two channels of one regressor evaluate it once
+        w_parts, known_parts = [], []
+        for channel, x in zip(structure, xs, strict=True):
+            if channel.entries not in evaluated:
+                evaluated[channel.entries] = channel.entries(q, qd, qdd, gravity)
+            w, known = channel_rows(evaluated[channel.entries], channel.n_axes, batch, mask, theta_known, q.dtype)
+            if channel.transformed:  # the channel's axes: T applied to every regressor row and to the known share
+                w = jnp.einsum("ab,bcrf->acrf", x, w)
+                known = jnp.einsum("ab,bcf->acf", x, known)
+            w_parts.append(w)
+            known_parts.append(known)
+        w_b = w_parts[0] if len(w_parts) == 1 else jnp.concatenate(w_parts)  # (A, Cc, r, Fc)
+        known = known_parts[0] if len(known_parts) == 1 else jnp.concatenate(known_parts)
+        y = jnp.stack([(wrench[..., a] - known[a]) * mask for a in range(w_b.shape[0])])  # (A, Cc, Fc)
         if sum_columns:
             w_all = w_b - jnp.moveaxis(w_ref, 1, 0)[..., None] * mask[None, :, None, :]
             y = y - jnp.moveaxis(y_ref, 1, 0)[..., None] * mask[None]
@@ -278,76 +303,98 @@ def _blocks_kernel(entries_fn, n_cols: int, base_columns: tuple[int, ...], known
         return g, h, e, jnp.einsum("acpf->cap", w_all), jnp.einsum("acf->ca", y)
 
     if sum_columns:
-        return jax.jit(lambda q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, x:
-                       core(q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, x, None))
+        return jax.jit(lambda q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs:
+                       core(q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs, None))
     if summed:
-        return jax.jit(lambda q, qd, qdd, wrench, mask, d, gravity, theta_known, x:
-                       core(q, qd, qdd, wrench, mask, None, None, gravity, theta_known, x, d))
-    return jax.jit(lambda q, qd, qdd, wrench, mask, gravity, theta_known, x:
-                   core(q, qd, qdd, wrench, mask, None, None, gravity, theta_known, x, None))
+        return jax.jit(lambda q, qd, qdd, wrench, mask, d, gravity, theta_known, xs:
+                       core(q, qd, qdd, wrench, mask, None, None, gravity, theta_known, xs, d))
+    return jax.jit(lambda q, qd, qdd, wrench, mask, gravity, theta_known, xs:
+                   core(q, qd, qdd, wrench, mask, None, None, gravity, theta_known, xs, None))
+
+
+def _transforms(channels: ChannelSet, model) -> tuple[np.ndarray, ...]:
+    """Each channel's ``T`` as a kernel argument (the identity where it has none: not read)."""
+    return tuple(np.eye(c.n_axes(model)) if t is None else np.asarray(t, dtype=np.float64)
+                 for c, t in zip(channels, channels.transforms(), strict=True))
+
+
+def check_no_extra_columns(channels: ChannelSet, model) -> None:
+    """Refuse channels with extra kept columns: the solvers do not identify them yet (issue 21)."""
+    from ineid.errors import IdentificationError  # noqa: PLC0415
+
+    extra = channels.extra_names(model)
+    if extra:
+        raise IdentificationError(f"the channels carry extra parameters ({', '.join(extra[:3])}, ...) that this "
+                                  "ineid cannot identify yet; leave them out", status="unsupported")
 
 
 def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
-                       progress: Callable[[int, int], None] | None = None, sensor: np.ndarray | None = None,
-                       sums: bool = False, axis_weights: np.ndarray | None = None) -> InformationBlocks:
+                       progress: Callable[[int, int], None] | None = None, sums: bool = False,
+                       axis_weights: np.ndarray | None = None, channels: ChannelSet | None = None) -> InformationBlocks:
     """Per-axis blocks ``G, h, e`` of every configuration (see module doc).
 
     Args:
         model: the :class:`ineid.RobotModel` (unknown links, gravity, generated code).
         base: the :class:`~ineid.identify.identifiability.BaseParameters` of its unknown links.
-        q, qd, qdd: (C, F, n_dof) frames; wrench: (C, F, 6) measured.
+        q, qd, qdd: (C, F, n_dof) frames; wrench: (C, F, A) the channels' measured values, stacked.
         theta_known: (10 n_known,) the known links' parameters.
         progress: ``progress(done, total)`` over configurations.
-        sensor: the 6x6 wrench transform ``X`` of the sensor frame ``wrench`` is in
-            (:func:`ineid.sensor.wrench_transform`); None: the base frame.
         sums: also the frame sums ``s, t`` (for :meth:`InformationBlocks.centred`); the
             blocks are then of the frames minus each configuration's first frame (``w_ref,
             y_ref``), which only :meth:`InformationBlocks.centred` should use.
-        axis_weights: (C, 6) or (6,) row weights ``d_a`` known in advance: ``G, h`` come
+        axis_weights: (C, A) or (A,) row weights ``d_a`` known in advance: ``G, h`` come
             summed over the axes with them (``InformationBlocks.axis_w``); not with ``sums``.
+        channels: the :class:`ineid.channels.ChannelSet` measured (rows, transforms); None:
+            the base wrench in the base frame.
     """
+    channels = BASE_WRENCH if channels is None else channels
+    check_no_extra_columns(channels, model)
+    n_axes = channels.n_axes(model)
     arrays = [np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench)]
     n_configs, n_frames = arrays[0].shape[:2]
+    if arrays[3].shape[-1] != n_axes:
+        raise ValueError(f"the measured values have {arrays[3].shape[-1]} axes, the channels {n_axes}")
     r, p = base.rank, base.n_params
     if n_configs == 0:
         if axis_weights is not None:
-            return InformationBlocks(np.zeros((0, r, r)), np.zeros((0, r)), np.zeros((0, 6)), n_frames,
-                                     axis_w=np.zeros((0, 6)))
-        return InformationBlocks(np.zeros((0, 6, r, r)), np.zeros((0, 6, r)), np.zeros((0, 6)), n_frames,
-                                 np.zeros((0, 6, p)) if sums else None, np.zeros((0, 6)) if sums else None)
+            return InformationBlocks(np.zeros((0, r, r)), np.zeros((0, r)), np.zeros((0, n_axes)), n_frames,
+                                     axis_w=np.zeros((0, n_axes)))
+        return InformationBlocks(np.zeros((0, n_axes, r, r)), np.zeros((0, n_axes, r)), np.zeros((0, n_axes)),
+                                 n_frames, np.zeros((0, n_axes, p)) if sums else None,
+                                 np.zeros((0, n_axes)) if sums else None)
     columns = tuple(int(c) for c in np.asarray(model.unknown_index)[base.base_index])
     sum_columns = tuple(int(c) for c in model.unknown_index) if sums else ()
     if sums and axis_weights is not None:
         raise ValueError("centred blocks (sums=True) are per axis; leave axis_weights out")
-    kernel = _blocks_kernel(model.jax_regressor_entries, 10 * model.n_links, columns,
-                            tuple(int(c) for c in model.known_index), sensor is not None, sum_columns,
-                            axis_weights is not None)
-    x = np.eye(6) if sensor is None else np.asarray(sensor, dtype=np.float64)
+    kernel = _blocks_kernel(channels.structure(model), 10 * model.n_links, columns,
+                            tuple(int(c) for c in model.known_index), sum_columns, axis_weights is not None)
     theta_known = np.asarray(theta_known, dtype=np.float64)
-    consts = (model.gravity, theta_known, x)
+    consts = (model.gravity, theta_known, _transforms(channels, model))
     if axis_weights is not None:
-        d = np.ascontiguousarray(np.broadcast_to(np.asarray(axis_weights, dtype=np.float64), (n_configs, 6)))
+        d = np.ascontiguousarray(np.broadcast_to(np.asarray(axis_weights, dtype=np.float64), (n_configs, n_axes)))
         return InformationBlocks(*_map_chunks(kernel, arrays, [d], consts, progress), n_frames, axis_w=d)
     if not sums:
         return InformationBlocks(*_map_chunks(kernel, arrays, [], consts, progress), n_frames)
-    psi_u, psi_k = model.regressor_split(*(a[:, :1] for a in arrays[:3]))  # the first frames: (C, 1, 6, .)
-    w_ref = x @ np.asarray(psi_u)[:, 0]
-    y_ref = arrays[3][:, 0] - (np.asarray(psi_k)[:, 0] @ theta_known) @ x.T
+    rows_u, rows_k = channels.rows_split(model, *(a[:, :1] for a in arrays[:3]))  # the first frames: (C, 1, A, .)
+    w_ref = np.asarray(rows_u)[:, 0]
+    y_ref = arrays[3][:, 0] - np.asarray(rows_k)[:, 0] @ theta_known
     out = _map_chunks(kernel, arrays, [w_ref, y_ref], consts, progress)
     return InformationBlocks(*out[:3], n_frames, out[3], out[4], w_ref, y_ref)
 
 
 @functools.lru_cache(maxsize=None)
-def _residual_kernel(base_wrench_fn, sensor: bool = False):
-    """Jitted ``(q, qd, qdd, wrench, fit, mask, theta, bias, gravity, x) -> (ssr_fit, ssr_held, ss_held)``."""
+def _residual_kernel(structure: tuple):
+    """Jitted ``(q, qd, qdd, values, fit, mask, theta, bias, gravity, xs) -> (ssr_fit, ssr_held, ss_held)``."""
     import jax  # noqa: PLC0415
     import jax.numpy as jnp  # noqa: PLC0415
 
-    def kernel(q, qd, qdd, wrench, fit, mask, theta, bias, gravity, x):
-        # fit: (Cc, Fc, 1) 1 on fitted frames, 0 on held-out ones; theta: (Cc, 10 n); bias: (Cc, 6)
-        predicted = base_wrench_fn(q, qd, qdd, gravity, theta[:, None, :])
-        if sensor:
-            predicted = predicted @ x.T
+    def kernel(q, qd, qdd, wrench, fit, mask, theta, bias, gravity, xs):
+        # fit: (Cc, Fc, 1) 1 on fitted frames, 0 on held-out ones; theta: (Cc, 10 n); bias: (Cc, A)
+        parts = []
+        for channel, x in zip(structure, xs, strict=True):
+            predicted = channel.phi_theta(q, qd, qdd, gravity, theta[:, None, :])
+            parts.append(predicted @ x.T if channel.transformed else predicted)
+        predicted = parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=-1)
         predicted = predicted + bias[:, None, :]
         r2 = (wrench - predicted) ** 2 * mask[..., None]
         held = (1.0 - fit) * mask[..., None]
@@ -356,33 +403,35 @@ def _residual_kernel(base_wrench_fn, sensor: bool = False):
     return jax.jit(kernel)
 
 
-def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int, sensor: np.ndarray | None = None,
-                  bias: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sums of squares of ``wrench - (X Psi theta + b)`` per configuration: fitted and held-out frames.
+def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int, bias: np.ndarray | None = None,
+                  channels: ChannelSet | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sums of squares of ``values - (T Phi theta + b)`` per configuration: fitted and held-out frames.
 
     Args:
         model: the :class:`ineid.RobotModel`.
-        q, qd, qdd: (C, F, n_dof); wrench: (C, F, 6).
+        q, qd, qdd: (C, F, n_dof); wrench: (C, F, A) the channels' measured values, stacked.
         theta: (C, 10 n_links) every link's parameters, per configuration.
         n_fit: the first ``n_fit`` frames are the fitted ones, the rest held out.
-        sensor: the 6x6 wrench transform ``X`` (None: the base frame, ``X = I``).
-        bias: (C, 6) sensor offsets ``b`` (None: zero).
+        bias: (C, A) offsets ``b`` (None: zero).
+        channels: the :class:`ineid.channels.ChannelSet` (None: the base wrench in the base frame).
 
     Returns:
-        ``(ssr_fit (C, 6), ssr_held (C, 6), ss_held (C,))``: per axis, the sum over the
+        ``(ssr_fit (C, A), ssr_held (C, A), ss_held (C,))``: per axis, the sum over the
         fitted and over the held-out frames of the squared residual, and the sum of the
-        squared measured wrench over the held-out frames (all axes).
+        squared measured values over the held-out frames (all axes).
     """
+    channels = BASE_WRENCH if channels is None else channels
+    n_axes = channels.n_axes(model)
     arrays = [np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench)]
     n_configs, n_frames = arrays[0].shape[:2]
     if n_configs == 0:
-        return np.zeros((0, 6)), np.zeros((0, 6)), np.zeros(0)
+        return np.zeros((0, n_axes)), np.zeros((0, n_axes)), np.zeros(0)
     fit = (np.arange(n_frames) < n_fit).astype(np.float64)
     fit = np.broadcast_to(fit[None, :, None], (n_configs, n_frames, 1))
     theta = np.asarray(theta, dtype=np.float64)
-    bias = np.zeros((n_configs, 6)) if bias is None else np.asarray(bias, dtype=np.float64)
-    kernel = _residual_kernel(model.jax_base_wrench, sensor is not None)
-    x = np.eye(6) if sensor is None else np.asarray(sensor, dtype=np.float64)
-    ssr_fit, ssr_held, ss_held = _map_chunks(kernel, [*arrays, fit], [theta, bias], (model.gravity, x),
+    bias = np.zeros((n_configs, n_axes)) if bias is None else np.asarray(bias, dtype=np.float64)
+    kernel = _residual_kernel(channels.structure(model))
+    ssr_fit, ssr_held, ss_held = _map_chunks(kernel, [*arrays, fit], [theta, bias],
+                                             (model.gravity, _transforms(channels, model)),
                                              target=RESIDUAL_TARGET_FRAMES)
     return ssr_fit, ssr_held, ss_held

@@ -1,6 +1,8 @@
-"""Which combinations of the unknown parameters the base wrench determines.
+"""Which combinations of the unknown parameters the measurements determine.
 
-The stacked regressor ``W`` (6F x 10n) of generic frames has a structural rank ``r``
+The stacked regressor ``W`` (AF x 10n: the rows of the measurement channels,
+:class:`ineid.channels.ChannelSet`, ``A`` axes a frame; the base wrench by default, six) of
+generic frames has a structural rank ``r``
 that no choice of frames can raise: some directions ``n`` of parameter space give
 ``W n = 0`` for every motion. With links 3 and 4 of the built-in arm unknown, ``r = 17``
 of 20: mass on the elbow axis does not feel the elbow turn, so link 4's mass, its first
@@ -34,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ineid.channels import BASE_WRENCH, ChannelSet
 from ineid.errors import IdentificationError
 from ineid.identify.systems import parameter_scales, stack_casadi
 from ineid.params import param_names
@@ -182,45 +185,76 @@ def generic_frames(model, n_frames: int = STRUCTURAL_FRAMES, seed: int = 0):
     return model_uniform_states(model, n_frames, np.random.default_rng(seed))
 
 
-def _regressor_unknown(model, q, qd, qdd) -> np.ndarray:
-    """Stacked regressor (6F, 10 n_u) of the unknown links through the generated CasADi
-    function: a one-off analysis needs no compilation (milliseconds for hundreds of frames)."""
-    theta_known = model.theta_cad[model.known_index]
-    w, _ = stack_casadi(model, q, qd, qdd, np.zeros((len(q), 6)), theta_known)
-    return w
+def _regressor_unknown(model, q, qd, qdd, channels: ChannelSet | None = None) -> np.ndarray:
+    """Stacked ``Phi`` (AF, 10 n_u) of the unknown links through the generated CasADi functions:
+    a one-off analysis needs no compilation (milliseconds for hundreds of frames).
+
+    In the model's frame: each channel's ``T`` is invertible, so ranks, base parameters and
+    null spaces are those of ``Phi`` (and the analysis of a base wrench in a sensor frame is
+    that of the base frame, as it always was)."""
+    if channels is None or len(channels) == 1:  # one channel: the stacks of its Phi (the reference's own route)
+        channels = BASE_WRENCH if channels is None else channels
+        if channels.transform(model) is None:
+            theta_known = model.theta_cad[model.known_index]
+            w, _ = stack_casadi(model, q, qd, qdd, np.zeros((len(q), channels.n_axes(model))), theta_known, channels)
+            return w
+    n_axes = channels.n_axes(model)
+    f = len(q)
+    phi = np.array(channels.casadi_rows(model, transformed=False).map(f)(
+        np.asarray(q, dtype=np.float64).T, np.asarray(qd, dtype=np.float64).T, np.asarray(qdd, dtype=np.float64).T))
+    return phi.reshape(n_axes, f, -1).transpose(1, 0, 2)[..., model.unknown_index].reshape(n_axes * f, -1)
 
 
-def base_parameters(model, bias: bool = False) -> BaseParameters:
-    """The structural base parameters of ``model``'s unknown links (cached per model).
+def _phi_key(model, channels: ChannelSet | None) -> tuple:
+    """What the structural analysis depends on: each channel's ``Phi`` (not its ``T``, key or offsets), named by
+    its entries function (the same object on every call: :meth:`ineid.channels.Channel.entries_function`)."""
+    return tuple(c.entries_function(model) for c in (BASE_WRENCH if channels is None else channels))
+
+
+def _offset_mask(channels: ChannelSet | None, model, bias: bool) -> np.ndarray | None:
+    """The axes centred for offsets: every axis with ``bias`` (the channels'
+    :meth:`~ineid.channels.ChannelSet.offset_mask` once they are set up with offsets), none without."""
+    return (BASE_WRENCH if channels is None else channels).with_offsets(True).offset_mask(model) if bias else None
+
+
+def base_parameters(model, bias: bool = False, channels: ChannelSet | None = None) -> BaseParameters:
+    """The structural base parameters of ``model``'s unknown links (cached per model and channels).
 
     From :data:`STRUCTURAL_FRAMES` generic frames (:func:`generic_frames`), evaluated by the
-    generated CasADi function: milliseconds, no JAX compilation. ``bias=True``: with six
-    constant sensor offsets identified too, a wrench that is constant over every motion
-    cannot be told from them, so the base parameters are those of the regressor centred
-    per axis (:func:`centred_regressor`).
+    generated CasADi functions: milliseconds, no JAX compilation. ``bias=True``: with
+    constant offsets identified too (six for the base wrench), a reading that is constant
+    over every motion cannot be told from them, so the base parameters are those of the
+    regressor centred per axis (:func:`centred_regressor`). ``channels``: the measurement
+    channels whose rows are analysed (:class:`ineid.channels.ChannelSet`); None: the base
+    wrench. Their ``T`` (a sensor frame) is invertible and changes no base parameter: the
+    analysis is of ``Phi``.
     """
-    key = (tuple(model.unknown_links), bool(bias))
+    phi = _phi_key(model, channels)
+    key = (tuple(model.unknown_links), bool(bias)) + (() if phi == _phi_key(model, None) else (phi,))
     cache = _CACHE.setdefault(model, {})
     if key not in cache:
         q, qd, qdd = generic_frames(model)
         scales = parameter_scales(model.theta_cad[model.unknown_index])
-        w = _regressor_unknown(model, q, qd, qdd)
-        w = centred_regressor(w) if bias else w
+        w = _regressor_unknown(model, q, qd, qdd, channels)
+        n_axes = (BASE_WRENCH if channels is None else channels).n_axes(model)
+        w = centred_regressor(w, n_axes, _offset_mask(channels, model, bias)) if bias else w
         cache[key] = base_parameters_from_regressor(w, param_names(model.unknown_links), scales)
     return cache[key]
 
 
-def centred_regressor(w: np.ndarray) -> np.ndarray:
-    """A stacked regressor (6F, p) minus its mean over the frames, per wrench axis.
+def centred_regressor(w: np.ndarray, n_axes: int = 6, mask: np.ndarray | None = None) -> np.ndarray:
+    """A stacked regressor (AF, p) minus its mean over the frames, per axis (``n_axes`` a frame; only
+    ``mask``'s axes when given).
 
     A column that the centring cancels to round-off (``||W_c|| <= 1e-9 ||W||``: a
-    parameter whose whole effect is a constant wrench) is set to zero exactly, so that
+    parameter whose whole effect is a constant reading) is set to zero exactly, so that
     rank decisions do not see its round-off as a direction.
     """
     w = np.asarray(w, dtype=np.float64)
-    f = w.shape[0] // 6
-    w3 = w.reshape(f, 6, -1)
-    wc = (w3 - w3.mean(axis=0)).reshape(6 * f, -1)
+    f = w.shape[0] // n_axes
+    w3 = w.reshape(f, n_axes, -1)
+    mean = w3.mean(axis=0) if mask is None or np.all(mask) else w3.mean(axis=0) * np.asarray(mask)[:, None]
+    wc = (w3 - mean).reshape(n_axes * f, -1)
     tiny = np.linalg.norm(wc, axis=0) <= 1e-9 * np.linalg.norm(w, axis=0)
     wc[:, tiny] = 0.0
     return wc
@@ -238,6 +272,7 @@ class FrameAnalysis:
         condition_number: ``s_1 / s_r`` over the identifiable part (inf when deficient).
         min_frames: fewest leading frames that reach ``structural_rank`` (None if never).
         undetermined: base parameters these frames leave undetermined.
+        n_axes: measured axes a frame (six: the base wrench).
     """
 
     n_frames: int
@@ -247,6 +282,7 @@ class FrameAnalysis:
     condition_number: float
     min_frames: int | None
     undetermined: tuple[str, ...]
+    n_axes: int = 6
 
     @property
     def ok(self) -> bool:
@@ -256,10 +292,11 @@ class FrameAnalysis:
         """A one-line explanation of what is missing, or None when the frames suffice."""
         if self.ok:
             return None
-        needed = -(-self.structural_rank // 6)
-        if 6 * self.n_frames < self.structural_rank:
+        needed = -(-self.structural_rank // self.n_axes)
+        if self.n_axes * self.n_frames < self.structural_rank:
             return (
-                f"{self.n_frames} frame{'s' if self.n_frames != 1 else ''} give {6 * self.n_frames} equations for "
+                f"{self.n_frames} frame{'s' if self.n_frames != 1 else ''} give {self.n_axes * self.n_frames} "
+                "equations for "
                 f"{self.structural_rank} identifiable parameters; use at least {needed} frames (more with noise)"
             )
         shown = ", ".join(self.undetermined[:4]) + (", ..." if len(self.undetermined) > 4 else "")
@@ -270,26 +307,29 @@ class FrameAnalysis:
         )
 
 
-def analyze_frames(model, q, qd, qdd, base: BaseParameters | None = None, bias: bool = False) -> FrameAnalysis:
+def analyze_frames(model, q, qd, qdd, base: BaseParameters | None = None, bias: bool = False,
+                   channels: ChannelSet | None = None) -> FrameAnalysis:
     """Rank, singular values, conditioning and missing directions of one set of frames.
 
     Args:
         model: the :class:`ineid.RobotModel`.
         q, qd, qdd: (F, n_dof) frames.
         base: the structural base parameters (default: :func:`base_parameters` with ``bias``).
-        bias: six constant offsets are identified too (the regressor is centred per axis).
+        bias: constant offsets are identified too (the regressor is centred per axis).
+        channels: the measurement channels (None: the base wrench).
     """
-    base = base or base_parameters(model, bias)
+    base = base or base_parameters(model, bias, channels)
+    n_axes = (BASE_WRENCH if channels is None else channels).n_axes(model)
     q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (q, qd, qdd))
-    w = _regressor_unknown(model, q, qd, qdd)
-    ws = (centred_regressor(w) if bias else w) * base.scales
+    w = _regressor_unknown(model, q, qd, qdd, channels)
+    ws = (centred_regressor(w, n_axes, _offset_mask(channels, model, bias)) if bias else w) * base.scales
     sv = np.linalg.svd(ws, compute_uv=False)
     rank = numerical_rank(sv)
     r = base.rank
     cond = float(sv[0] / sv[r - 1]) if rank >= r and sv[r - 1] > 0 else float("inf")
     min_frames = None
-    for k in range(-(-r // 6), len(q) + 1):
-        if numerical_rank(np.linalg.svd(ws[: 6 * k], compute_uv=False)) >= r:
+    for k in range(-(-r // n_axes), len(q) + 1):
+        if numerical_rank(np.linalg.svd(ws[: n_axes * k], compute_uv=False)) >= r:
             min_frames = k
             break
     undetermined: tuple[str, ...] = ()
@@ -297,7 +337,7 @@ def analyze_frames(model, q, qd, qdd, base: BaseParameters | None = None, bias: 
         wb = ws[:, base.base_index]
         kept = set(_greedy_independent(wb, rtol=1e-6))
         undetermined = tuple(base.names[i] for i in range(r) if i not in kept)
-    return FrameAnalysis(len(q), rank, r, sv, cond, min_frames, undetermined)
+    return FrameAnalysis(len(q), rank, r, sv, cond, min_frames, undetermined, n_axes)
 
 
 @dataclass(frozen=True)
@@ -328,18 +368,20 @@ class BiasCost:
     condition: tuple[float, float]
 
 
-def bias_cost(model, q, qd, qdd) -> BiasCost:
-    """Compare identification with and without six constant offsets on frames ``q, qd, qdd`` (F, n_dof).
+def bias_cost(model, q, qd, qdd, channels: ChannelSet | None = None) -> BiasCost:
+    """Compare identification with and without constant offsets on frames ``q, qd, qdd`` (F, n_dof)
+    of ``channels`` (None: the base wrench, six offsets).
 
     The standard deviations assume the same white noise on every row: ``cov(beta) ~
     (W_b^T W_b)^-1``. Each base parameter of the offset case is a combination
     ``beta_c = M beta`` of the base parameters without offsets (``M = B_c B^+``), so
     its variance without offsets is ``M cov(beta) M^T``.
     """
-    base, base_c = base_parameters(model), base_parameters(model, bias=True)
+    base, base_c = base_parameters(model, channels=channels), base_parameters(model, bias=True, channels=channels)
     q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (q, qd, qdd))
-    w = _regressor_unknown(model, q, qd, qdd)
-    wc = centred_regressor(w)
+    w = _regressor_unknown(model, q, qd, qdd, channels)
+    wc = centred_regressor(w, (BASE_WRENCH if channels is None else channels).n_axes(model),
+                           _offset_mask(channels, model, True))
 
     def cov(a: np.ndarray) -> np.ndarray:
         return np.linalg.pinv(a.T @ a)

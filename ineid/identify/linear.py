@@ -7,10 +7,11 @@ columns, so
 
     beta_hat = argmin || D (W_b beta - y) ||^2         (QR of D W_b)
 
-with ``D`` optional row weights, one per wrench axis: ``1/sigma_axis`` from known noise
+with ``D`` optional row weights, one per measured axis (``A`` a frame: the stacked axes of
+the measurement channels, six for the base wrench): ``1/sigma_axis`` from known noise
 levels, or estimated from the residuals per axis (an unweighted fit, then
 ``ESTIMATE_ROUNDS`` reweighted refits). The residual
-variance ``s^2 = ||D r||^2 / (6F - r)`` gives ``cov(beta_hat) = s^2 (R^T R)^-1``.
+variance ``s^2 = ||D r||^2 / (AF - r)`` gives ``cov(beta_hat) = s^2 (R^T R)^-1``.
 
 **Two routes, the same numbers.** :func:`fit_base` factors the stacked ``D W_b`` (QR); it
 is the reference. :func:`fit_base_blocks` solves the normal equations
@@ -65,14 +66,14 @@ class BaseFit:
         beta: (C, r) estimates.
         R: (C, r, r) upper-triangular factor of the weighted base regressor.
         rss: (C,) weighted residual sum of squares.
-        dof: degrees of freedom ``6F - r``.
+        dof: degrees of freedom ``AF - r`` (less the offsets, when identified).
         sigma2: (C,) residual variance in weighted units (1 when weights are exact).
         cov_beta: (C, r, r).
         rank: (C,) numerical rank of the base columns for these frames.
         cond: (C,) condition number of the scaled base regressor (exact from QR; from the
             normal equations an upper bound at most ``sqrt(r)`` above it; inf when not
             full rank).
-        axis_weights: (C, 6) the row weights ``D`` per wrench axis.
+        axis_weights: (C, A) the row weights ``D`` per measured axis.
     """
 
     beta: np.ndarray
@@ -92,7 +93,7 @@ class BaseFit:
 
 def _weighted_fit(w_b: np.ndarray, y: np.ndarray, axis_w: np.ndarray, base_scales: np.ndarray):
     c, n, r = w_b.shape
-    rows = np.tile(axis_w, (1, n // 6))  # (C, N): frame-major rows, fx..mz per frame
+    rows = np.tile(axis_w, (1, n // axis_w.shape[1]))  # (C, N): frame-major rows, the axes per frame
     a = w_b * rows[:, :, None]
     b = y * rows
     q, rr = np.linalg.qr(a)
@@ -109,24 +110,28 @@ def _weighted_fit(w_b: np.ndarray, y: np.ndarray, axis_w: np.ndarray, base_scale
     return beta, safe_r, rss, rank, cond, resid
 
 
-def axis_weights(weights: str, axis_sigma, c: int) -> np.ndarray:
-    """(C, 6) row weights ``d_a`` of a weight mode before any fit: ones, or ``1 / sigma_a`` for ``noise``
-    (``estimate`` starts from ones)."""
+def axis_weights(weights: str, axis_sigma, c: int, n_axes: int = 6) -> np.ndarray:
+    """(C, A) row weights ``d_a`` of a weight mode before any fit: ones, or ``1 / sigma_a`` for ``noise``
+    (``estimate`` starts from ones); ``A = n_axes``."""
     if weights not in WEIGHT_MODES:
         raise ValueError(f"weights must be one of {WEIGHT_MODES}, got {weights!r}")
     if weights != "noise":
-        return np.ones((c, 6))
+        return np.ones((c, n_axes))
     if axis_sigma is None:
-        raise ValueError("weights='noise' needs axis_sigma, the wrench noise per axis")
-    sig = np.broadcast_to(np.asarray(axis_sigma, dtype=np.float64), (c, 6))
+        raise ValueError("weights='noise' needs axis_sigma, the noise per measured axis")
+    try:
+        sig = np.broadcast_to(np.asarray(axis_sigma, dtype=np.float64), (c, n_axes))
+    except ValueError:
+        raise ValueError(f"axis_sigma must hold {n_axes} numbers (one per measured axis), "
+                         f"got {np.asarray(axis_sigma).tolist()}") from None
     if np.any(sig <= 0) or not np.all(np.isfinite(sig)):
         raise ValueError(f"axis_sigma must be positive and finite, got {np.asarray(axis_sigma).tolist()}")
     return 1.0 / sig
 
 
 def _reweight(per_axis_rss: np.ndarray, dof: int) -> np.ndarray:
-    """Row weights ``1/sigma_a`` from unweighted per-axis residual sums of squares (C, 6)."""
-    ms = per_axis_rss / (dof / 6)
+    """Row weights ``1/sigma_a`` from unweighted per-axis residual sums of squares (C, A)."""
+    ms = per_axis_rss / (dof / per_axis_rss.shape[1])
     sig = np.sqrt(np.maximum(ms, 1e-300))
     sig = np.maximum(sig, 1e-9 * np.max(sig, axis=1, keepdims=True))  # an axis that fits exactly
     return 1.0 / sig
@@ -138,19 +143,21 @@ def fit_base(
     base: BaseParameters,
     weights: str = "none",
     axis_sigma: np.ndarray | None = None,
+    n_axes: int = 6,
 ) -> BaseFit:
     """Least-squares base parameters of each configuration.
 
     Args:
-        w: (C, 6F, 10 n_u) stacked regressors of the unknown links.
-        y: (C, 6F) measured wrenches minus the known links' share.
+        w: (C, AF, 10 n_u) stacked regressors of the unknown links (:func:`ineid.identify.systems.stack`).
+        y: (C, AF) measured values minus the known links' share.
         base: the base parameters (which columns, which combinations).
         weights: ``"none"``; ``"noise"``: rows weighted by ``1/axis_sigma``;
             ``"estimate"``: per-axis noise estimated from an unweighted fit, then refit.
-        axis_sigma: (6,) or (C, 6) wrench noise standard deviations, for ``"noise"``.
+        axis_sigma: (A,) or (C, A) noise standard deviations per measured axis, for ``"noise"``.
+        n_axes: ``A``, the measured axes a frame (six: the base wrench).
     """
     c, n, _ = w.shape
-    axis_w = axis_weights(weights, axis_sigma, c)
+    axis_w = axis_weights(weights, axis_sigma, c, n_axes)
     r = base.rank
     w_b = w[:, :, base.base_index]
     scales_b = base.scales[base.base_index]
@@ -160,7 +167,7 @@ def fit_base(
         # Feasible weighted least squares: per-axis noise from the residuals, refit,
         # repeat (a few rounds remove the leakage of noisy axes into the others' residuals).
         for _ in range(ESTIMATE_ROUNDS):
-            per_axis = resid.reshape(c, n // 6, 6) / axis_w[:, None, :]
+            per_axis = resid.reshape(c, n // n_axes, n_axes) / axis_w[:, None, :]
             axis_w = _reweight(np.einsum("cfa,cfa->ca", per_axis, per_axis), dof)
             beta, rr, rss, rank, cond, resid = _weighted_fit(w_b, y, axis_w, scales_b)
     sigma2 = rss / max(dof, 1)
@@ -246,7 +253,7 @@ def fit_base_blocks(
     """:func:`fit_base` from per-axis normal-equation blocks (:func:`ineid.identify.fused.information_blocks`).
 
     The same estimates as :func:`fit_base` on the stacks the blocks summarize (to about
-    1e-10 relative in the scaled parameters), from ``6 r^2`` numbers per configuration:
+    1e-10 relative in the scaled parameters), from ``A r^2`` numbers per configuration:
     ``A = sum_a d_a^2 G_a``, ``b = sum_a d_a^2 h_a``, solved by one batched Cholesky
     factorization; ``weights="estimate"`` reweights from the per-axis residual sums
     ``e_a - 2 beta.h_a + beta^T G_a beta`` without touching the frames again.
@@ -261,10 +268,10 @@ def fit_base_blocks(
         round; their rows of ``fit`` are placeholders (NaN estimates) to be replaced by
         :func:`fit_base` on their stacks.
     """
-    c = blocks.e.shape[0]
-    axis_w = axis_weights(weights, axis_sigma, c)
+    c, n_axes = blocks.e.shape
+    axis_w = axis_weights(weights, axis_sigma, c, n_axes)
     r = base.rank
-    n = 6 * blocks.n_frames
+    n = n_axes * blocks.n_frames
     scales_b = base.scales[base.base_index]
     beta, rr, rss, rank, cond, a_inv, refit = _normal_fit(blocks, axis_w, scales_b)
     dof = n - r
@@ -282,7 +289,7 @@ def fit_base_blocks(
 def with_exact_rss(fit: BaseFit, axis_rss: np.ndarray) -> BaseFit:
     """``fit`` with ``rss = sum_a d_a^2 axis_rss_a`` and the variance and covariance that follow.
 
-    ``axis_rss`` (C, 6): per wrench axis, the residual sum of squares of the fitted frames
+    ``axis_rss`` (C, A): per measured axis, the residual sum of squares of the fitted frames
     at the estimate, evaluated directly (:func:`ineid.identify.fused.residual_sums`), where
     the normal equations only give ``y^T D^2 y - beta^T b``, a difference that loses
     ``eps * ||D y||^2`` (all of it on noise-free data). Rows that are not full rank are kept.
@@ -372,12 +379,13 @@ def linear_estimate(fit: BaseFit, base: BaseParameters, theta_prior: np.ndarray)
 def fit_base_casadi(w: np.ndarray, y: np.ndarray, base: BaseParameters, axis_w: np.ndarray | None = None):
     """One configuration's base fit through CasADi's QR (an independent route); (r,) beta.
 
-    ``w`` (6F, 10 n_u) and ``y`` (6F,); ``axis_w`` (6,) optional row weights.
+    ``w`` (AF, 10 n_u) and ``y`` (AF,); ``axis_w`` (A,) optional row weights (default: none, six axes).
     """
     import casadi as ca  # noqa: PLC0415
 
     n = w.shape[0]
-    rows = np.tile(np.ones(6) if axis_w is None else np.asarray(axis_w, dtype=np.float64), n // 6)
+    axis_w = np.ones(6) if axis_w is None else np.asarray(axis_w, dtype=np.float64)
+    rows = np.tile(axis_w, n // len(axis_w))
     a = ca.DM(w[:, base.base_index] * rows[:, None])
     b = ca.DM(y * rows)
     q, r = ca.qr(a)

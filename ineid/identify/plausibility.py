@@ -29,6 +29,7 @@ import math
 
 import numpy as np
 
+from ineid.channels import BaseWrench, ChannelSet
 from ineid.data.plausibility import (
     Finding,
     check_angle_units,
@@ -148,9 +149,10 @@ def _held_out_errors(res, ds) -> tuple[np.ndarray, str]:
                                  res.validation_rms, res.n_frames_validation, "held-out")  # fmt: skip
     else:
         frames, rms, n, where = slice(0, res.n_frames_fit), res.fit_rms, res.n_frames_fit, "fitted"
-    w = np.asarray(ds.wrench[:, frames], dtype=np.float64)
+    measured = ds.measured(fitted_channels(res, ds))  # every axis the fit saw
+    w = np.asarray(measured[:, frames], dtype=np.float64)
     if offsets:
-        w = w - np.asarray(ds.wrench[:, : res.n_frames_fit], dtype=np.float64).mean(axis=1, keepdims=True)
+        w = w - np.asarray(measured[:, : res.n_frames_fit], dtype=np.float64).mean(axis=1, keepdims=True)
     ss = np.sum(w**2, axis=(1, 2))
     ssr = np.sum(np.asarray(rms, dtype=np.float64) ** 2, axis=1) * n
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -188,15 +190,25 @@ def check_held_out_error(res, ds) -> Finding | None:
     )
 
 
-def fitted_static_force(res, ds) -> np.ndarray:
+def fitted_channels(res, ds) -> ChannelSet:
+    """The measurement channels ``res`` was fitted on (its records; a results file of ineid 0.1: the dataset's)."""
+    records = res.meta.get("channels")
+    return ds.meta.channels if records is None else ChannelSet.from_list(records, "the results' channels")
+
+
+def fitted_static_force(res, ds) -> np.ndarray | None:
     """The fitted model's static force (3,), N, base frame: the mean over the solved configurations
-    of the fitted frames' mean force less the estimated force offsets (none without ``--bias estimate``)."""
+    of the fitted frames' mean force less the estimated force offsets (none without ``--bias estimate``),
+    from the first base-wrench channel fitted; None when none was."""
+    block = next((b for b in fitted_channels(res, ds).blocks(ds.meta) if isinstance(b.channel, BaseWrench)), None)
+    if block is None:
+        return None
     ok = np.asarray(res.success, dtype=bool)
-    f = np.asarray(ds.wrench[ok, : res.n_frames_fit, :3], dtype=np.float64).mean(axis=1)
+    f = np.asarray(ds.measurements[block.channel.key][ok, : res.n_frames_fit, :3], dtype=np.float64).mean(axis=1)
     if res.bias_hat is not None:
-        f = f - np.asarray(res.bias_hat, dtype=np.float64)[ok, :3]
+        f = f - np.asarray(res.bias_hat, dtype=np.float64)[ok, block.start : block.start + 3]
     mean = np.concatenate([f.mean(axis=0), np.zeros(3)]) if len(f) else np.zeros(6)
-    return mean_force_in_base(mean, ds.meta.sensor_pose())
+    return mean_force_in_base(mean, block.channel.sensor)
 
 
 def check_solve(ds, res, model=None) -> list[Finding]:
@@ -221,8 +233,10 @@ def check_solve(ds, res, model=None) -> list[Finding]:
     fit = res if np.asarray(res.success, dtype=bool).any() else linear  # a method that failed everywhere
     if fit is None or not np.asarray(fit.success, dtype=bool).any():
         return []
-    static = check_static_force(model, fitted_static_force(fit, ds), "the fitted model's static force"
-                                if fit.bias_hat is not None else "the mean force over the fitted frames")
+    force = fitted_static_force(fit, ds)
+    static = None if force is None else check_static_force(
+        model, force, "the fitted model's static force" if fit.bias_hat is not None
+        else "the mean force over the fitted frames")
     held = check_held_out_error(fit, ds)
     if held is not None:
         # the fit explains nothing, so its mass and fitted static force mean nothing; without

@@ -4,6 +4,8 @@ For one configuration (a recording has one) the held-out frames' measured wrench
 estimate's prediction ``X Psi(q, qd, qdd) theta_hat + b_hat`` (sensor frame, offsets
 included when estimated), one panel per axis, with the residual's RMS per axis in each
 panel's title. Without held-out frames the fitted frames are shown, and the title says so.
+Any other measurement channels the results were fitted on are shown the same way, one
+panel per stacked axis, named and in the units the channels give.
 """
 
 from __future__ import annotations
@@ -13,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ineid.channels import WRENCH_AXES as AXES
+from ineid.channels import WRENCH_UNITS as UNITS
+from ineid.channels import ChannelSet
 from ineid.errors import DatasetError
-
-AXES = ("fx", "fy", "fz", "mx", "my", "mz")
-UNITS = ("N", "N", "N", "N*m", "N*m", "N*m")
 
 
 @dataclass
@@ -25,11 +27,12 @@ class Validation:
 
     Attributes:
         time: (F,) s (frame numbers when the dataset has no time stamps).
-        measured, predicted: (F, 6) N, N*m, the dataset's wrench frame.
-        rms: (6,) RMS of ``measured - predicted`` per axis.
+        measured, predicted: (F, A) the channels' values (the base wrench: N, N*m, its sensor's frame).
+        rms: (A,) RMS of ``measured - predicted`` per axis.
         held_out: the frames were held out of the fit (else: the fitted frames).
         config: the configuration's index in the dataset file.
         frame: ``"sensor"`` or ``"base"``.
+        axes, units: the names and units of the A axes.
     """
 
     time: np.ndarray
@@ -39,6 +42,8 @@ class Validation:
     held_out: bool
     config: int
     frame: str
+    axes: tuple[str, ...] = AXES
+    units: tuple[str, ...] = UNITS
 
 
 def validation(res, ds, model=None, config: int | None = None) -> Validation:
@@ -69,17 +74,21 @@ def validation(res, ds, model=None, config: int | None = None) -> Validation:
     held_out = res.n_frames_validation > 0
     frames = slice(res.n_frames_fit, res.n_frames_fit + res.n_frames_validation) if held_out else slice(0, res.n_frames_fit)
     one = ds.select(configs=[i])
+    records = res.meta.get("channels")  # the channels fitted (a results file of ineid 0.1: the dataset's)
+    channels = ds.meta.channels if records is None else ChannelSet.from_list(records, "the results' channels")
     bias = None if res.bias_hat is None else res.bias_hat[i : i + 1]
-    pred = predicted_wrench(model, one, res.theta_hat[i : i + 1], frames, bias=bias)[0]
-    meas = one.wrench[0, frames]
+    pred = predicted_wrench(model, one, res.theta_hat[i : i + 1], frames, bias=bias, channels=channels)[0]
+    meas = one.measured(channels)[0, frames]
     t = one.time[0, frames] if one.time is not None else np.arange(ds.n_frames, dtype=np.float64)[frames]
     rms = np.sqrt(np.mean((meas - pred) ** 2, axis=0))
-    frame = "sensor" if ds.meta.sensor_transform() is not None else "base"
-    return Validation(t, meas, pred, rms, held_out, int(res.config_index[i]), frame)
+    frame = "sensor" if channels.transform(model) is not None else "base"
+    return Validation(t, meas, pred, rms, held_out, int(res.config_index[i]), frame, channels.axes(model),
+                      channels.units(model))
 
 
 def plot_validation(v: Validation, path: str | Path, title: str = "") -> Path:
-    """Six panels (fx..mz) of measured and predicted wrench over time, RMS in each title; written atomically.
+    """One panel per axis (fx..mz for the base wrench) of measured and predicted values over time, RMS in
+    each title, the axes down two columns; written atomically.
 
     ``title`` (it may hold names from the inputs) is drawn literally: mathtext is off for it.
     """
@@ -90,14 +99,19 @@ def plot_validation(v: Validation, path: str | Path, title: str = "") -> Path:
 
     from ineid._atomic import save_figure  # noqa: PLC0415
 
-    fig, axes = plt.subplots(3, 2, figsize=(12, 9), sharex=True)
+    n_rows = -(-len(v.axes) // 2)
+    fig, axes = plt.subplots(n_rows, 2, figsize=(12, 3 * n_rows), sharex=True, squeeze=False)
     for k, ax in enumerate(axes.T.ravel()):
+        if k >= len(v.axes):
+            ax.set_visible(False)
+            continue
         ax.plot(v.time, v.measured[:, k], lw=1.2, color="0.3", label="measured")
         ax.plot(v.time, v.predicted[:, k], lw=0.9, color="tab:red", ls="--", label="predicted")
         scale = np.sqrt(np.mean(v.measured[:, k] ** 2))
         rel = f", {100 * v.rms[k] / scale:.2g} % of RMS" if scale > 0 else ""
-        ax.set_title(f"{AXES[k]}: residual RMS {v.rms[k]:.3g} {UNITS[k]}{rel}", fontsize=10)
-        ax.set_ylabel(f"{AXES[k]} ({UNITS[k]})")
+        # axis names may come from the inputs (joint names): literal text
+        ax.set_title(f"{v.axes[k]}: residual RMS {v.rms[k]:.3g} {v.units[k]}{rel}", fontsize=10, parse_math=False)
+        ax.set_ylabel(f"{v.axes[k]} ({v.units[k]})", parse_math=False)
         ax.grid(alpha=0.3)
     for ax in axes[-1]:
         ax.set_xlabel("time (s)")

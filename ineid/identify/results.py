@@ -11,12 +11,16 @@ import numpy as np
 
 from ineid._atomic import atomic_write, check_output
 from ineid._faults import require_disk
+from ineid.channels import WRENCH_AXES
 from ineid.errors import DatasetError
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.solve import SolveResults, SolveSettings
 
 FORMAT = "ineid-results"
-VERSION = 1
+VERSION = 2
+"""Results format this ineid writes and the newest it reads. Version 2 records the measurement channels
+fitted (``channels``: their records; ``axes``, ``units``: the names and units of the per-axis arrays'
+columns, which run over the channels' stacked axes). A version-1 file reads as the base wrench's six axes."""
 
 
 def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -> Path:
@@ -60,6 +64,9 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
         a["dataset_path"] = str(res.meta.get("dataset_path") or "")
         a["dataset_fingerprint"] = str(res.meta.get("dataset_fingerprint") or "")
         a["sensor"] = json.dumps(res.meta.get("sensor"), sort_keys=True)
+        a["channels"] = json.dumps(res.meta.get("channels"), sort_keys=True)
+        a["axes"] = np.array(res.axes, dtype=text)
+        a["units"] = np.array(res.units, dtype=text)
         if res.meta.get("warnings") is not None:  # plausibility findings ({code, message}) of ineid solve
             a["warnings"] = json.dumps(list(res.meta["warnings"]))
         arrays = {
@@ -256,6 +263,11 @@ class _Reader:
             "sensor": self.json("sensor") if "sensor" in self.f.attrs else None,
             "warnings": _warnings(self.path, self.f.attrs),
         }
+        if "axes" in self.f.attrs:  # version 2: the channels fitted and the per-axis columns' names
+            meta.update(channels=self.json("channels"), axes=list(self.texts("axes")), units=list(self.texts("units")))
+            if len(meta["units"]) != len(meta["axes"]):
+                raise self.damaged(f"{len(meta['axes'])} axes but {len(meta['units'])} units")
+        n_axes = len(meta.get("axes") or WRENCH_AXES)
         status = self.array("status", (n,), "O")
         return SolveResults(
             settings=settings,
@@ -269,15 +281,15 @@ class _Reader:
             success=self.array("success", (n,), "i").astype(bool),
             status=np.array([_attr_text(s) for s in status], dtype=object),
             seconds=self.array("seconds", (n,)),
-            fit_rms=self.array("fit_rms", (n, 6)),
-            validation_rms=self.array("validation_rms", (n, 6)),
+            fit_rms=self.array("fit_rms", (n, n_axes)),
+            validation_rms=self.array("validation_rms", (n, n_axes)),
             validation_rel=self.array("validation_rel", (n,)),
             n_frames_fit=self.integer("n_frames_fit"),
             n_frames_validation=self.integer("n_frames_validation"),
             theta_prior=self.array("theta_prior", prior_shape),
             theta_true=self.array("theta_true", (n, p), required=False),
-            bias_hat=self.array("bias_hat", (n, 6), required=False),
-            bias_std=self.array("bias_std", (n, 6), required=False),
+            bias_hat=self.array("bias_hat", (n, n_axes), required=False),
+            bias_std=self.array("bias_std", (n, n_axes), required=False),
             meta=meta,
         )
 

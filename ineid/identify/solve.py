@@ -1,7 +1,10 @@
 """Solve every selected configuration of a dataset: the engine behind ``ineid solve``.
 
 Per configuration the first ``K`` frames are fitted; the remaining frames (if any) are
-held out and the estimate's wrench prediction error on them is reported. All methods
+held out and the estimate's prediction error on them is reported. What is fitted is the
+dataset's measurement channels (``ds.meta.channels``, :class:`ineid.channels.ChannelSet`: the
+base wrench, in the frame of its sensor), their axes stacked; every per-axis array (weights,
+residual RMS, offsets) runs over those axes. All methods
 share the base least-squares fit: from per-axis normal-equation blocks accumulated by one
 fused kernel over the frames (:mod:`ineid.identify.fused`,
 :func:`ineid.identify.linear.fit_base_blocks`), with the QR of the stacks
@@ -22,8 +25,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ineid.cache import enable_compilation_cache
+from ineid.channels import BaseWrench, ChannelSet
 from ineid.errors import IdentificationError
-from ineid.identify.fused import information_blocks
+from ineid.identify.fused import check_no_extra_columns, information_blocks
 from ineid.identify.identifiability import BaseParameters, base_parameters
 from ineid.identify.linear import WEIGHT_MODES, linear_estimate, linear_theta, with_exact_rss
 from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL
@@ -56,7 +60,8 @@ BACKENDS = ("jax", "casadi", "casadi-c")
 """The least-squares engine: fused JAX kernels; CasADi per configuration (QR, an independent
 route; linear method only); or the fused blocks through CasADi's C code, compiled (needs a C compiler)."""
 BIAS_MODES = ("none", "estimate")
-"""The sensor's six constant offsets: absent (a tared sensor), or identified with the parameters."""
+"""The sensors' constant offsets (six for the base wrench): absent (a tared sensor), or identified with the
+parameters (every channel's, :meth:`ineid.channels.ChannelSet.with_offsets`)."""
 HOLDOUT_FRACTION = 0.2
 """Without ``frames``, this share of each configuration's frames is held out for validation."""
 
@@ -70,9 +75,10 @@ class SolveSettings:
             form) or ``"consistent"`` (log-Cholesky, always physical).
         frames: frames fitted per configuration (the first ``frames``); the rest are held
             out for validation. ``None``: all but the last 20 % (all, when too few).
-        weights: ``"none"``, ``"noise"`` (``1/sigma`` per wrench axis from ``axis_sigma``, or
+        weights: ``"none"``, ``"noise"`` (``1/sigma`` per measured axis from ``axis_sigma``, or
             from the dataset's recorded noise) or ``"estimate"`` (from the residuals).
-        axis_sigma: (6,) wrench noise standard deviations for ``weights="noise"``.
+        axis_sigma: (A,) noise standard deviations per measured axis (the base wrench: fx..mz)
+            for ``weights="noise"``.
         start: IPOPT start, ``"prior"`` (the CAD values) or ``"linear"`` (the linear
             estimate, made physical for ``consistent`` if needed).
         pull, entropic: prior weights of the IPOPT solvers (see :mod:`ineid.identify.nlp`).
@@ -84,8 +90,8 @@ class SolveSettings:
         workers: processes for the IPOPT solvers (default 1); used from
             :data:`ineid.identify.steps.PARALLEL_MIN_CONFIGS` configurations on. More than one uses spawned
             processes (multiprocessing): call from under ``if __name__ == "__main__":``.
-        bias: ``"none"`` (the wrench holds no offset) or ``"estimate"``: six constant offsets,
-            one per sensor axis, identified jointly with the parameters (every method;
+        bias: ``"none"`` (the wrench holds no offset) or ``"estimate"``: constant offsets,
+            one per sensor axis (six for the base wrench), identified jointly with the parameters (every method;
             :class:`ineid.identify.systems.Offsets`). They also take the weight of whatever
             sits between the sensor and the first joint.
         run: the trained run folder of ``method="network"`` (:mod:`ineid.learn.amortized`).
@@ -135,8 +141,10 @@ class SolveSettings:
 class SolveResults:
     """Estimates of the selected configurations of one dataset (see ``docs/identification.md``).
 
-    Arrays have one row per solved configuration, in selection order. ``bias_hat`` and
-    ``bias_std`` (C, 6) are the sensor offsets (N, N*m, sensor frame) with ``bias="estimate"``.
+    Arrays have one row per solved configuration, in selection order. Per-axis arrays
+    (``fit_rms``, ``validation_rms``; ``bias_hat`` and ``bias_std``, the sensor offsets with
+    ``bias="estimate"``) are (C, A) over the fitted channels' stacked axes, named in
+    :attr:`axes` (the base wrench: fx..mz, N and N*m, sensor frame).
     """
 
     settings: SolveSettings
@@ -162,6 +170,16 @@ class SolveResults:
     bias_std: np.ndarray | None = None
 
     @property
+    def axes(self) -> tuple[str, ...]:
+        """The names of the per-axis arrays' columns (``meta["axes"]``; a file of ineid 0.1: the base wrench's)."""
+        return tuple(self.meta.get("axes") or ("fx", "fy", "fz", "mx", "my", "mz"))
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        """The units of the per-axis arrays' columns."""
+        return tuple(self.meta.get("units") or ("N", "N", "N", "N*m", "N*m", "N*m"))
+
+    @property
     def base_true(self) -> np.ndarray | None:
         return None if self.theta_true is None else self.theta_true @ self.base.B.T
 
@@ -170,36 +188,65 @@ class SolveResults:
         return len(self.config_index)
 
 
-def _frame_split(n_frames: int, frames: int | None, rank: int) -> tuple[int, int]:
+def _frame_split(n_frames: int, frames: int | None, rank: int, n_axes: int = 6) -> tuple[int, int]:
     if frames is not None:
         if frames > n_frames:
             raise IdentificationError(
                 f"--fit-frames {frames} but the dataset has {n_frames} frames per configuration; use at most {n_frames}",
                 status="too_many_frames",
             )
-        check_frames(frames, rank)
+        check_frames(frames, rank, n_axes)
         return frames, n_frames - frames
     held = int(HOLDOUT_FRACTION * n_frames)
     fit = n_frames - held
-    if 6 * fit < 2 * rank:  # too few to spare any: fit them all
+    if n_axes * fit < 2 * rank:  # too few to spare any: fit them all
         fit, held = n_frames, 0
-    check_frames(fit, rank)
+    check_frames(fit, rank, n_axes)
     return fit, held
 
 
-def _axis_sigma(ds, settings: SolveSettings) -> np.ndarray | None:
+def _axis_sigma(ds, settings: SolveSettings, channels: ChannelSet | None = None, model=None) -> np.ndarray | None:
+    """The noise per measured axis for ``weights="noise"``: given, or recorded with the data (per channel)."""
     if settings.weights != "noise":
         return None
+    channels = ds.meta.channels if channels is None else channels
+    n_axes = channels.n_axes(model or ds.meta)
     if settings.axis_sigma is not None:
-        return np.asarray(settings.axis_sigma, dtype=np.float64)
-    recorded = (ds.meta.noise or {}).get("wrench")
-    if recorded is None or not np.all(np.asarray(recorded) > 0):
+        sigma = np.asarray(settings.axis_sigma, dtype=np.float64)
+        if sigma.shape != (n_axes,):
+            raise IdentificationError(
+                f"axis_sigma holds {sigma.size} numbers; the channels measure {n_axes} axes "
+                f"({', '.join(channels.axes(model or ds.meta))}): give one per axis", status="bad_noise_levels")
+        return sigma
+    recorded = channels.noise_std(ds.meta.noise, model or ds.meta)
+    if recorded is None:
+        what = "the wrench noise" if channels.keys == ("wrench",) else "the noise of every channel"
         raise IdentificationError(
-            "weights='noise' needs the wrench noise per axis: give axis_sigma (--sigma FX FY FZ MX MY MZ) "
+            f"weights='noise' needs {what} per axis: give axis_sigma (--sigma FX FY FZ MX MY MZ) "
             "or use weights='estimate'",
             status="no_noise_levels",
         )
-    return np.asarray(recorded, dtype=np.float64)
+    return recorded
+
+
+def solve_channels(ds, settings: SolveSettings, model) -> ChannelSet:
+    """The channels ``solve_dataset`` fits: the dataset's, each with offsets when ``settings.bias == "estimate"``.
+
+    Raises:
+        IdentificationError: channels this ineid cannot fit with ``settings`` (extra kept
+            columns; ``casadi-c`` with anything but one base wrench in the base frame).
+    """
+    channels = ds.meta.channels.with_offsets(settings.bias == "estimate")
+    check_no_extra_columns(channels, model)
+    if settings.backend == "casadi-c":
+        (first, *rest) = channels
+        if rest or not isinstance(first, BaseWrench):
+            raise IdentificationError(f"backend 'casadi-c' fits one base wrench; this dataset measures "
+                                      f"{channels.describe()}: use backend 'jax' or 'casadi'", status="unsupported")
+        if first.transform() is not None:
+            raise IdentificationError("backend 'casadi-c' fits in the base frame only; this dataset's wrench is in a "
+                                      "sensor frame: use backend 'jax' or 'casadi'", status="unsupported")
+    return channels
 
 
 SolveMethod = Callable[..., "SolveResults"]
@@ -249,14 +296,13 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         return registered_method(settings.method)(ds, settings, model, progress)
     model = model or ds.model()
     with_bias = settings.bias == "estimate"
-    base = base_parameters(model, bias=with_bias)
-    sensor = ds.meta.sensor_transform()
-    if sensor is not None and settings.backend == "casadi-c":
-        raise IdentificationError("backend 'casadi-c' fits in the base frame only; this dataset's wrench is in a "
-                                  "sensor frame: use backend 'jax' or 'casadi'", status="unsupported")
+    channels = solve_channels(ds, settings, model)
+    n_axes = channels.n_axes(model)
+    base = base_parameters(model, bias=with_bias, channels=channels)
     prior = np.asarray(model.theta_cad[model.unknown_index], dtype=np.float64)
-    n_fit, n_val = _frame_split(ds.n_frames, settings.frames, base.rank + 6 * with_bias)
-    axis_sigma = _axis_sigma(ds, settings)
+    n_offsets = int(channels.offset_mask(model).sum())
+    n_fit, n_val = _frame_split(ds.n_frames, settings.frames, base.rank + n_offsets, n_axes)
+    axis_sigma = _axis_sigma(ds, settings, channels, model)
     c = ds.n_configs
     fit_sl = slice(0, n_fit)
     t_start = time.perf_counter()
@@ -264,7 +310,7 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
     # 1. base least squares, batched (or per configuration through CasADi)
     offsets = None
     if settings.backend == "casadi":
-        fits, rms, seconds, parts = _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress, sensor)
+        fits, rms, seconds, parts = _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress, channels)
         fit = _concat_fits(fits)
         offsets = Offsets.concat(parts) if with_bias else None
     else:
@@ -273,16 +319,16 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         if settings.backend == "casadi-c":
             from ineid.identify.casadi_c import information_blocks_c as blocks_fn  # noqa: PLC0415
         fit, rms, offsets = _fused_fit(model, ds, fit_sl, base, settings, axis_sigma,
-                                       progress if settings.method == "linear" else None, blocks_fn, sensor)
+                                       progress if settings.method == "linear" else None, blocks_fn, channels)
         seconds = np.full(c, (time.perf_counter() - t0) / max(c, 1))
     if with_bias:
-        _offset_dof(fit)
+        _offset_dof(fit, n_offsets)
 
     # 2. the residuals of the least-squares fit itself, exactly (one fused pass over every
     # frame at the linear estimate): the normal equations give the rss only up to
     # cancellation (eps * ||y||^2), the covariance and the IPOPT noise level need it exact
     theta_lin = linear_theta(fit, base, prior)
-    sums = estimate_residual_sums(model, ds, n_fit, n_val, theta_lin, sensor, offsets)
+    sums = estimate_residual_sums(model, ds, n_fit, n_val, theta_lin, channels, offsets)
     fit = with_exact_rss(fit, sums[0])
 
     # 3. standard parameters
@@ -292,14 +338,14 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         start = prior if settings.start == "prior" else physical_start(theta_lin, prior, base.scales)
         est, nlp_seconds = _run_nlp(fit, base, settings, prior, rms, start, progress)
         seconds = seconds + nlp_seconds
-        sums = estimate_residual_sums(model, ds, n_fit, n_val, est.theta, sensor, offsets)
+        sums = estimate_residual_sums(model, ds, n_fit, n_val, est.theta, channels, offsets)
     bias_hat = bias_std = None
     if with_bias:
         bias_hat, bias_std = _bias_estimate(offsets, est, base)
 
     # 4. residuals of the estimates on the fitted and on the held-out frames
     return dataset_results(
-        ds, settings, base, prior, sums, n_fit, n_val, t_start,
+        ds, settings, base, prior, sums, n_fit, n_val, t_start, channels=channels, model=model,
         theta_hat=est.theta,
         theta_std=est.theta_std,
         base_hat=est.beta,
@@ -313,14 +359,16 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
 
 
 def dataset_results(ds, settings: SolveSettings, base: BaseParameters, theta_prior: np.ndarray, sums,
-                    n_fit: int, n_val: int, t_start: float, **estimates) -> SolveResults:
+                    n_fit: int, n_val: int, t_start: float, channels: ChannelSet | None = None, model=None,
+                    **estimates) -> SolveResults:
     """:class:`SolveResults` of estimates on ``ds``, for every solver (the methods and a trained run).
 
     What every result records the same way: the configurations' file indices, the residual
     RMS on the fitted and held-out frames from ``sums`` (:func:`estimate_residual_sums`, see
     :func:`residual_summary`), the prior, the truth when the dataset has it, and
-    :func:`results_meta` with the seconds since ``t_start`` (``time.perf_counter()``).
-    ``estimates``: the remaining fields (``theta_hat, theta_std, base_hat, base_std,
+    :func:`results_meta` with the seconds since ``t_start`` (``time.perf_counter()``) and the
+    channels fitted (default: the dataset's; ``model`` names their axes, default the dataset's
+    metadata). ``estimates``: the remaining fields (``theta_hat, theta_std, base_hat, base_std,
     success, status, seconds``, optionally ``bias_hat, bias_std``).
     """
     fit_rms, val_rms, val_rel = residual_summary(sums, n_fit, n_val, estimates["theta_hat"])
@@ -336,13 +384,16 @@ def dataset_results(ds, settings: SolveSettings, base: BaseParameters, theta_pri
         n_frames_validation=n_val,
         theta_prior=theta_prior,
         theta_true=None if ds.theta_unknown is None else np.asarray(ds.theta_unknown),
-        meta=results_meta(ds, time.perf_counter() - t_start),
+        meta=results_meta(ds, time.perf_counter() - t_start, channels, model),
         **estimates,
     )
 
 
-def results_meta(ds, total_seconds: float) -> dict:
-    """What a results file records of its dataset (robot, URDF, links, gravity, sensor, path and fingerprint)."""
+def results_meta(ds, total_seconds: float, channels: ChannelSet | None = None, model=None) -> dict:
+    """What a results file records of its dataset (robot, URDF, links, gravity, sensor, path and fingerprint)
+    and of the channels fitted (their records, the stacked axes' names and units)."""
+    channels = ds.meta.channels if channels is None else channels
+    names = model or ds.meta
     return {
         "robot": ds.meta.robot,
         "source": ds.meta.source,
@@ -353,6 +404,9 @@ def results_meta(ds, total_seconds: float) -> dict:
         "dataset_path": None if ds.path is None else str(ds.path),
         "dataset_fingerprint": ds.fingerprint(),
         "sensor": ds.meta.sensor,
+        "channels": channels.to_list(),
+        "axes": list(channels.axes(names)),
+        "units": list(channels.units(names)),
         "total_seconds": total_seconds,
     }
 
@@ -376,7 +430,7 @@ def identify_frames(
         model: the :class:`ineid.RobotModel` (unknown links, gravity, CAD prior).
         q, qd, qdd: (F, n_dof); wrench: (F, 6), the sensor reading in ineid's convention.
         method, weights, axis_sigma, start, bias: as in :class:`SolveSettings`.
-        sensor_pose: the :class:`ineid.sensor.SensorPose` the wrench is read in (None: the base frame).
+        sensor_pose: the :class:`ineid.channels.SensorPose` the wrench is read in (None: the base frame).
 
     Returns:
         One-row :class:`SolveResults` (``theta_hat[0]``, ``theta_std[0]``, ``base_hat[0]``, ...).

@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from ineid.channels import ChannelSet
 from ineid.identify.fused import information_blocks, residual_sums
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.linear import BaseFit, Estimate, axis_weights, fit_base, fit_base_blocks, fit_base_casadi
@@ -27,16 +28,17 @@ PARALLEL_MIN_CONFIGS = 256
 """Fewer configurations are solved in this process: starting workers costs about a second."""
 
 
-def _offset_dof(fit: BaseFit) -> None:
-    """Six more fitted unknowns (the offsets): ``s^2 = rss / (6F - r - 6)``, covariance alike."""
-    scale = fit.dof / max(fit.dof - 6, 1)
-    fit.dof -= 6
+def _offset_dof(fit: BaseFit, n_offsets: int = 6) -> None:
+    """``n_offsets`` more fitted unknowns (the offsets; six for the base wrench): ``s^2 = rss / (AF - r - n_offsets)``,
+    covariance alike."""
+    scale = fit.dof / max(fit.dof - n_offsets, 1)
+    fit.dof -= n_offsets
     fit.sigma2 *= scale
     fit.cov_beta *= scale
 
 
 def _bias_estimate(off: Offsets, est: Estimate, base: BaseParameters):
-    """Offsets ``b = ybar - Wbar theta_hat`` (C, 6) and their standard deviations.
+    """Offsets ``b = ybar - Wbar theta_hat`` (C, A) and their standard deviations (NaN on axes without offsets).
 
     ``ybar``'s noise is independent of ``beta_hat`` (fitted on the centred frames), so
     ``var(b_a) = s^2 / (d_a^2 F) + (Wbar T cov(beta) T^T Wbar^T)_aa`` with ``d_a`` the axis
@@ -52,6 +54,8 @@ def _bias_estimate(off: Offsets, est: Estimate, base: BaseParameters):
     std = np.sqrt(np.maximum(var, 0.0))
     bad = ~est.success
     bias[bad], std[bad] = np.nan, np.nan
+    if off.mask is not None:
+        bias[:, ~off.mask], std[:, ~off.mask] = np.nan, np.nan
     return bias, std
 
 
@@ -62,21 +66,23 @@ def _concat_fits(fits: list[BaseFit]) -> BaseFit:
     return BaseFit(dof=fits[0].dof, **cat)
 
 
-def estimate_residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.ndarray, sensor=None,
-                           offsets: Offsets | None = None):
-    """:func:`ineid.identify.fused.residual_sums` of the unknown links' estimates (NaN rows as zeros),
-    in the sensor frame, with the offsets ``b = ybar - Wbar theta`` that go with them."""
+def estimate_residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.ndarray,
+                           channels: ChannelSet | None = None, offsets: Offsets | None = None):
+    """:func:`ineid.identify.fused.residual_sums` of the unknown links' estimates (NaN rows as zeros) on
+    ``channels`` (default: the dataset's), in each channel's own axes, with the offsets
+    ``b = ybar - Wbar theta`` that go with them."""
+    channels = ds.meta.channels if channels is None else channels
     theta = model.full_theta(np.nan_to_num(theta_unknown), ds.theta_known)
     bias = None if offsets is None else np.nan_to_num(offsets.bias(theta_unknown))
     frames = slice(0, n_fit + n_val)
-    return residual_sums(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], ds.wrench[:, frames],
-                         theta, n_fit, sensor, bias)
+    return residual_sums(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames],
+                         ds.measured(channels)[:, frames], theta, n_fit, bias, channels)
 
 
 def residual_summary(sums, n_fit: int, n_val: int, theta_unknown: np.ndarray):
-    """``(fit_rms (C, 6), validation_rms (C, 6), validation_rel (C,))`` from :func:`estimate_residual_sums`.
+    """``(fit_rms (C, A), validation_rms (C, A), validation_rel (C,))`` from :func:`estimate_residual_sums`.
 
-    ``rms_a = sqrt(ssr_a / frames)`` per wrench axis; ``rel = ||R - predicted|| / ||R||`` over the
+    ``rms_a = sqrt(ssr_a / frames)`` per measured axis; ``rel = ||R - predicted|| / ||R||`` over the
     held-out frames; NaN where ``theta_unknown`` has a non-finite entry (a failed solve) and,
     for the held-out columns, when no frame is held out.
     """
@@ -86,7 +92,7 @@ def residual_summary(sums, n_fit: int, n_val: int, theta_unknown: np.ndarray):
     fit_rms[failed] = np.nan
     c = len(theta_unknown)
     if not n_val:
-        return fit_rms, np.full((c, 6), np.nan), np.full(c, np.nan)
+        return fit_rms, np.full(ssr_fit.shape, np.nan), np.full(c, np.nan)
     val_rms = np.sqrt(ssr_held / n_val)
     with np.errstate(divide="ignore", invalid="ignore"):  # a zero wrench: inf (ineid solve warns)
         val_rel = np.sqrt(ssr_held.sum(axis=1)) / np.sqrt(ss_held)
@@ -100,53 +106,63 @@ REFERENCE_ROWS = 200_000
 
 
 def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress,
-               blocks_fn=information_blocks, sensor=None) -> tuple[BaseFit, np.ndarray, Offsets | None]:
-    """The base fit of every configuration from fused normal-equation blocks (``blocks_fn``),
-    ill-conditioned ones refitted through QR of their stacks; the RMS of the weighted data, (C,);
-    with ``settings.bias == "estimate"`` the fit of the frames centred per axis, and the means taken out."""
-    q, qd, qdd, wrench = (a[:, fit_sl] for a in (ds.q, ds.qd, ds.qdd, ds.wrench))
+               blocks_fn=information_blocks,
+               channels: ChannelSet | None = None) -> tuple[BaseFit, np.ndarray, Offsets | None]:
+    """The base fit of every configuration from fused normal-equation blocks (``blocks_fn``) of ``channels``
+    (default: the dataset's), ill-conditioned ones refitted through QR of their stacks; the RMS of the
+    weighted data, (C,); with offsets (``settings.bias == "estimate"``) the fit of the frames centred per
+    axis, and the means taken out."""
+    channels = ds.meta.channels if channels is None else channels
+    n_axes = channels.n_axes(model)
+    mask = channels.offset_mask(model)
+    q, qd, qdd = (a[:, fit_sl] for a in (ds.q, ds.qd, ds.qdd))
+    wrench = ds.measured(channels)[:, fit_sl]
     with_bias = settings.bias == "estimate"
-    extra = {} if sensor is None and not with_bias else {"sensor": sensor, "sums": with_bias}
+    # casadi-c fits one base wrench in the base frame, without offsets (refused otherwise: solve_channels)
+    extra: dict = {"channels": channels, "sums": with_bias} if blocks_fn is information_blocks else {}
     if blocks_fn is information_blocks and not with_bias and settings.weights != "estimate":
         # the row weights are known before the frames are read: blocks summed over the axes
-        extra["axis_weights"] = axis_weights(settings.weights, axis_sigma, ds.n_configs)
+        extra["axis_weights"] = axis_weights(settings.weights, axis_sigma, ds.n_configs, n_axes)
     blocks = blocks_fn(model, base, q, qd, qdd, wrench, ds.theta_known, progress=progress, **extra)
     offsets = None
     if with_bias:
-        blocks, offsets = blocks.centred(base)
+        blocks, offsets = blocks.centred(base, mask)
     fit, refit = fit_base_blocks(blocks, base, settings.weights, axis_sigma)
     rows = np.flatnonzero(refit)
     per = max(1, REFERENCE_ROWS // max(blocks.n_frames, 1))
     for start in range(0, len(rows), per):
         idx = rows[start : start + per]
-        w, y = stack(model, q[idx], qd[idx], qdd[idx], wrench[idx], ds.theta_known, sensor)
+        w, y = stack(model, q[idx], qd[idx], qdd[idx], wrench[idx], ds.theta_known, channels)
         if with_bias:
-            w, y, _ = remove_offsets(w, y)
-        ref = fit_base(w, y, base, settings.weights, axis_sigma)
+            w, y, _ = remove_offsets(w, y, n_axes, mask)
+        ref = fit_base(w, y, base, settings.weights, axis_sigma, n_axes)
         for f in dataclasses.fields(BaseFit):
             if f.name != "dof":
                 getattr(fit, f.name)[idx] = getattr(ref, f.name)
     _, _, yy = blocks.weighted(fit.axis_weights)
-    return fit, np.sqrt(yy / (6 * blocks.n_frames)), offsets
+    return fit, np.sqrt(yy / (n_axes * blocks.n_frames)), offsets
 
 
-def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress, sensor=None):
+def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress, channels: ChannelSet | None = None):
     """The linear fit through CasADi, one configuration at a time (an independent route)."""
+    channels = ds.meta.channels if channels is None else channels
+    n_axes = channels.n_axes(model)
+    values = ds.measured(channels)
     fits, rms, seconds, offsets = [], np.empty(ds.n_configs), np.zeros(ds.n_configs), []
     for i in range(ds.n_configs):
         t0 = time.perf_counter()
-        w, y = stack_casadi(model, ds.q[i, fit_sl], ds.qd[i, fit_sl], ds.qdd[i, fit_sl], ds.wrench[i, fit_sl],
-                            ds.theta_known, sensor)
+        w, y = stack_casadi(model, ds.q[i, fit_sl], ds.qd[i, fit_sl], ds.qdd[i, fit_sl], values[i, fit_sl],
+                            ds.theta_known, channels)
         if settings.bias == "estimate":
-            wc, yc, off = remove_offsets(w[None], y[None])
+            wc, yc, off = remove_offsets(w[None], y[None], n_axes, channels.offset_mask(model))
             w, y = wc[0], yc[0]
             offsets.append(off)
-        f = fit_base(w[None], y[None], base, settings.weights, axis_sigma)
+        f = fit_base(w[None], y[None], base, settings.weights, axis_sigma, n_axes)
         beta = fit_base_casadi(w, y, base, f.axis_weights[0])
         if f.full_rank[0]:
             f.beta[0] = beta
         fits.append(f)
-        rows = np.tile(f.axis_weights[0], y.shape[0] // 6)
+        rows = np.tile(f.axis_weights[0], y.shape[0] // n_axes)
         rms[i] = np.sqrt(np.mean((y * rows) ** 2))
         seconds[i] = time.perf_counter() - t0
         if progress is not None:
@@ -260,15 +276,16 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
     return estimate_from_solves(theta, success, status, fit, base), seconds
 
 
-def predicted_wrench(model, ds, theta_u, frames=slice(None), sensor=None, bias=None) -> np.ndarray:
-    """What the estimates predict the sensor reads: ``X Psi theta + b`` (C, F, 6) on ``frames`` of ``ds``.
+def predicted_wrench(model, ds, theta_u, frames=slice(None), bias=None,
+                     channels: ChannelSet | None = None) -> np.ndarray:
+    """What the estimates predict the sensors read: ``T Phi theta + b`` (C, F, A) on ``frames`` of ``ds``.
 
     Args:
         theta_u: (C, 10 n_u) the unknown links' estimates (the known links' come from ``ds``).
-        sensor: the 6x6 wrench transform (default: the dataset's sensor pose).
-        bias: (C, 6) estimated offsets, or None.
+        bias: (C, A) estimated offsets, or None.
+        channels: the channels predicted (default: the dataset's; the base wrench in its sensor's frame).
     """
-    sensor = ds.meta.sensor_transform() if sensor is None else sensor
+    channels = ds.meta.channels if channels is None else channels
     theta = model.full_theta(np.nan_to_num(theta_u), ds.theta_known)
-    w = predict_wrench(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], theta, sensor)
+    w = predict_wrench(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], theta, channels)
     return w if bias is None else w + np.nan_to_num(bias)[:, None, :]

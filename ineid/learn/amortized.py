@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from ineid.channels import BASE_WRENCH, ChannelSet
 from ineid.errors import IdentificationError, TrainingError
 from ineid.identify.solve import register_method
 
@@ -45,6 +46,35 @@ def network_frames(n_frames: int, k: int, frames: int | None) -> int:
         return frames
     fit = (n_frames - int(HOLDOUT_FRACTION * n_frames)) // k * k
     return fit if fit >= k else n_frames // k * k
+
+
+def trained_channels(run) -> ChannelSet:
+    """The measurement channels a run was trained on (its dataset's; a run of ineid 0.1: the base wrench)."""
+    records = run.meta.get("dataset", {}).get("channels")
+    return BASE_WRENCH if records is None else ChannelSet.from_list(records, f"{run.run_dir}: channels")
+
+
+def _check_channels(trained: ChannelSet, measured: ChannelSet) -> None:
+    """Refuse data a run cannot read: other channels, or the same in other frames (a transform it never saw).
+
+    Raises:
+        IdentificationError: naming what differs and the methods that can identify the data.
+    """
+    same = trained.keys == measured.keys and all(
+        type(a) is type(b) and _same_transform(a.transform(), b.transform()) for a, b in zip(trained, measured))
+    if same:
+        return
+    if trained.keys == measured.keys and all(type(a) is type(b) for a, b in zip(trained, measured)):
+        raise IdentificationError(
+            "a trained run reads wrenches in the base frame; this recording's wrench is in a sensor frame: "
+            "identify it with --method linear, nonlinear or consistent", status="sensor_frame")  # fmt: skip
+    raise IdentificationError(f"the run was trained on {trained.describe()}; this dataset measures "
+                              f"{measured.describe()}: identify it with --method linear, nonlinear or consistent",
+                              status="channels")
+
+
+def _same_transform(a, b) -> bool:
+    return (a is None and b is None) or (a is not None and b is not None and np.allclose(a, b, rtol=0, atol=1e-12))
 
 
 def solve_with_run(ds, settings, model=None, progress=None):
@@ -78,15 +108,13 @@ def solve_with_run(ds, settings, model=None, progress=None):
             f"the dataset's unknown parameters ({', '.join(ds.meta.unknown_param_names[:2])}, ...) differ"
         )
     n_features = len(run.x_scaler.center)
-    if 3 * ds.q.shape[-1] + 6 != n_features:
+    width = 3 * ds.q.shape[-1] + ds.meta.channels.n_axes(ds.meta)
+    if width != n_features:
         raise TrainingError(f"the run takes {n_features} features per frame; the dataset's frames have "
-                            f"{3 * ds.q.shape[-1] + 6}: it is another robot")  # fmt: skip
-    if ds.meta.sensor_transform() is not None:
-        raise IdentificationError(
-            "a trained run reads wrenches in the base frame; this recording's wrench is in a sensor frame: "
-            "identify it with --method linear, nonlinear or consistent", status="sensor_frame")  # fmt: skip
+                            f"{width}: it is another robot")  # fmt: skip
+    _check_channels(trained_channels(run), ds.meta.channels)
     model = model or ds.model()
-    base = base_parameters(model)
+    base = base_parameters(model, channels=ds.meta.channels)
     k = run.config.model.frames
     n_fit = network_frames(ds.n_frames, k, settings.frames)
     n_val = ds.n_frames - n_fit

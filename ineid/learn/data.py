@@ -2,7 +2,8 @@
 
 A *sample* is K frames of one configuration; its target is that configuration's unknown
 parameters. Features of a frame: ``[q, qd, qdd, wrench]`` (3 n_dof + 6; 18 for the 4-DOF
-arm), scaled by a scaler fitted on the training configurations. During training each
+arm; the values of every measurement channel, stacked, where the dataset has more than
+the wrench), scaled by a scaler fitted on the training configurations. During training each
 epoch regroups every configuration's frames at random into disjoint groups of K (seeded
 by ``(seed, epoch)``, so a resumed run sees the same groups); evaluation uses the fixed
 groups ``[0, K), [K, 2K), ...``.
@@ -55,8 +56,9 @@ def split_configs(n_configs: int, n_train: int | None, n_val: int | None, n_test
 
 
 def frame_features(ds) -> np.ndarray:
-    """(C, F, 3 n_dof + 6) raw features ``[q, qd, qdd, wrench]`` of every frame."""
-    return np.concatenate([ds.q, ds.qd, ds.qdd, ds.wrench], axis=-1)
+    """(C, F, 3 n_dof + A) raw features ``[q, qd, qdd, values]`` of every frame (the channels' values stacked:
+    the base wrench, ``A = 6``)."""
+    return np.concatenate([ds.q, ds.qd, ds.qdd, ds.measured()], axis=-1)
 
 
 def epoch_groups(n_configs: int, n_frames: int, k: int, seed: int, epoch: int) -> tuple[np.ndarray, np.ndarray]:

@@ -75,8 +75,11 @@ def predict(run: Run, ds: Dataset, configs: np.ndarray, batch: int = 1024, model
         pos, frames = fixed_groups(sub.n_configs, sub.n_frames, k)
         arrays = [x]
         if structured:
-            w, y = stack(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known)
-            arrays += [w.reshape(sub.n_configs, sub.n_frames, 6, -1), y.reshape(sub.n_configs, sub.n_frames, 6)]
+            channels = ds.meta.channels
+            n_axes = channels.n_axes(model)
+            w, y = stack(model, sub.q, sub.qd, sub.qdd, sub.measured(channels), sub.theta_known, channels)
+            arrays += [w.reshape(sub.n_configs, sub.n_frames, n_axes, -1),
+                       y.reshape(sub.n_configs, sub.n_frames, n_axes)]
         for start in range(0, len(pos), batch):
             parts = [a[pos[start : start + batch, None], frames[start : start + batch]] for a in arrays]
             n = len(parts[0])
@@ -173,14 +176,15 @@ def evaluate(run: Run, ds: Dataset, configs: np.ndarray | None = None, model: Ro
         configs = run.split.test if same else np.arange(ds.n_configs)
     configs = np.asarray(configs, dtype=np.int64)
     model = model or ds.model()
-    base = base_parameters(model)
+    channels = ds.meta.channels
+    base = base_parameters(model, channels=channels)
     theta_hat, per_sample, f_used = predict(run, ds, configs, model=model)
     truth = ds.theta_unknown[configs]
     names = run.meta["param_names"]
     floor = _floor(ds.theta_unknown, run.split.train if same else None, configs, base.B)
     sub = ds.select(configs, slice(0, f_used))
     full = model.full_theta(theta_hat, ds.theta_known)
-    resid = sub.wrench - predict_wrench(model, sub.q, sub.qd, sub.qdd, full)
+    resid = sub.measured(channels) - predict_wrench(model, sub.q, sub.qd, sub.qdd, full, channels)
     scale = np.asarray(run.meta["wrench_scale"])
     ev = Evaluation(
         n_configs=len(configs),
@@ -194,7 +198,7 @@ def evaluate(run: Run, ds: Dataset, configs: np.ndarray | None = None, model: Ro
         physical_share=float(all_links_physical(theta_hat).mean()),
         identifiable=base.identifiable.tolist(),
     )
-    if linear and 6 * f_used >= base.rank:
+    if linear and channels.n_axes(model) * f_used >= base.rank:
         res = solve_dataset(sub, SolveSettings(frames=f_used), model=model)
         ok = res.success
         ev.linear = _stats(res.theta_hat[ok], truth[ok], names)
@@ -238,14 +242,15 @@ def gaussian_prior_estimates(run: Run, ds, configs: np.ndarray, f_used: int, mod
                     wls_context(ds, run.split.train, model, run.y_scaler, scale)]  # fmt: skip
         fold = np.zeros(n, dtype=np.int64)
     else:
-        if n < 5 * (base_parameters(model).rank + 2):
+        if n < 5 * (base_parameters(model, channels=ds.meta.channels).rank + 2):
             return None
         fold = np.arange(n) % 5
         contexts = [wls_context(ds, configs[fold != k], model, run.y_scaler, scale) for k in range(5)]
     sub = ds.select(configs, slice(0, f_used))
     theta = np.empty((n, len(run.meta["param_names"])))
     beta = np.empty((n, contexts[0].rank))
-    for sl, w, y in iter_systems(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known):
+    for sl, w, y in iter_systems(model, sub.q, sub.qd, sub.qdd, sub.measured(), sub.theta_known,
+                                 channels=ds.meta.channels):
         for k, ctx in enumerate(contexts):
             rows = np.flatnonzero(fold[sl] == k)
             if rows.size:

@@ -6,10 +6,11 @@
   the network is trained on anyway;
 * the second is the wrench residual of the predicted parameters over the sample's K
   frames, in physical units: ``theta_hat`` is the unscaled prediction of the unknown
-  links, completed by the known links' CAD values, ``Psi_j`` is the generated JAX
-  regressor of the robot (see :class:`Physics` for the cached and inline forms), and
-  ``s_a`` is the standard deviation of the measured
-  wrench on axis ``a`` over the training set (N for forces, N*m for moments), so each
+  links, completed by the known links' CAD values, ``Psi_j`` is the rows of the dataset's
+  measurement channels (:meth:`ineid.channels.ChannelSet.jax_rows_function`: for the base
+  wrench the generated JAX regressor of the robot; see :class:`Physics` for the cached and
+  inline forms), and ``s_a`` is the standard deviation of the measured
+  values on axis ``a`` over the training set (N for forces, N*m for moments), so each
   axis counts alike and the term is dimensionless: 1 means "as large as the wrench's
   spread". At the true parameters of clean data it is zero (round-off). On the built-in
   arm it is small, about 0.016 for an untrained network or the training-mean parameters
@@ -59,11 +60,12 @@ class Physics:
 
     Attributes:
         mode: ``"cached"`` or ``"inline"``.
-        regressor: the generated ``f(q, qd, qdd, gravity) -> (..., 6, 10 n_links)`` (inline).
+        regressor: the channels' jit-safe rows ``f(q, qd, qdd, gravity) -> (..., A, 10 n_links)`` (inline;
+            the base wrench: the generated regressor, ``A = 6``).
         gravity: (3,) m/s^2.
         unknown_index, known_index: columns of ``theta`` of the unknown and known links.
         theta_known: (10 n_known,) known links' parameters.
-        wrench_scale: (6,) per-axis normalization ``s_a``.
+        wrench_scale: (A,) per-axis normalization ``s_a``.
         y_center, y_scale: the output scaler, to unscale predictions.
         compact: the compact cached form (see above), or None.
     """
@@ -79,8 +81,13 @@ class Physics:
     y_scale: np.ndarray
     compact: CompactRegressor | None = None
 
+    @property
+    def n_axes(self) -> int:
+        """``A``, the measured axes of a frame."""
+        return len(self.wrench_scale)
+
     def system(self, inputs):
-        """``(psi_u (B, K, 6, 10 n_u), y (B, K, 6))``: the batch's frames as ``y = Psi_u theta_u``.
+        """``(psi_u (B, K, A, 10 n_u), y (B, K, A))``: the batch's frames as ``y = Psi_u theta_u``.
 
         Args:
             inputs: ``(psi_u, y)`` when cached, else ``(q, qd, qdd, wrench)`` of the frames.
@@ -97,11 +104,11 @@ class Physics:
         return psi[..., self.unknown_index], wrench - psi[..., self.known_index] @ jnp.asarray(self.theta_known)
 
     def residual(self, theta_unknown, inputs):
-        """Normalized wrench residual ``(R - Psi theta) / s``: (B, K, 6).
+        """Normalized residual ``(R - Psi theta) / s``: (B, K, A).
 
         Args:
             theta_unknown: (B, 10 n_u) physical units.
-            inputs: ``(psi_u (B, K, 6, 10 n_u), y (B, K, 6))`` when cached, else
+            inputs: ``(psi_u (B, K, A, 10 n_u), y (B, K, A))`` when cached, else
                 ``(q, qd, qdd, wrench)`` of the batch's frames; compact: ``(values, y / s)``
                 (:meth:`CompactRegressor.residual`).
         """
@@ -122,7 +129,7 @@ class Physics:
 class CompactRegressor:
     """The compact cached regressor of the physics term (see :class:`Physics`).
 
-    The wrench axes are grouped by the base columns they use (on the built-in arm: the
+    The measured axes are grouped by the base columns they use (on the built-in arm's wrench: the
     forces use 6, the moments all 17); a frame keeps, per group ``g``, the entries
     ``Psi_b[a, c] / s_a`` for its axes ``a`` and columns ``c`` (axis-major), and ``y / s``
     with the axes in group order. Then, with ``beta = B theta``,
@@ -139,22 +146,27 @@ class CompactRegressor:
 
     @property
     def axis_order(self) -> np.ndarray:
-        """The wrench axes in the order the compact rows hold them."""
+        """The measured axes in the order the compact rows hold them."""
         return np.array([a for _, axes in self.groups for a in axes])
+
+    @property
+    def n_axes(self) -> int:
+        """``A``: the first ``A`` numbers of a compact row are ``y / s``."""
+        return sum(len(a) for _, a in self.groups)
 
     @property
     def width(self) -> int:
         """Numbers a frame: ``y / s`` and the kept entries."""
-        return 6 + sum(len(c) * len(a) for c, a in self.groups)
+        return self.n_axes + sum(len(c) * len(a) for c, a in self.groups)
 
     @staticmethod
     def from_frames(psi_u: np.ndarray, y: np.ndarray, base, wrench_scale: np.ndarray):
-        """``(compact, rows (..., width))`` from ``psi_u`` (..., 6, 10 n_u) and ``y`` (..., 6) of every frame."""
+        """``(compact, rows (..., width))`` from ``psi_u`` (..., A, 10 n_u) and ``y`` (..., A) of every frame."""
         scale = np.asarray(wrench_scale, dtype=np.float64)
         psi_b = psi_u[..., base.base_index] / scale[:, None]
-        kept = np.any(psi_b != 0, axis=tuple(range(psi_b.ndim - 2)))  # (6, r): not zero in some frame
+        kept = np.any(psi_b != 0, axis=tuple(range(psi_b.ndim - 2)))  # (A, r): not zero in some frame
         by_cols: dict[tuple[int, ...], list[int]] = {}
-        for a in range(6):
+        for a in range(psi_b.shape[-2]):
             by_cols.setdefault(tuple(int(c) for c in np.flatnonzero(kept[a])), []).append(a)
         groups = tuple((cols, tuple(axes)) for cols, axes in by_cols.items())
         compact = CompactRegressor(np.asarray(base.B, dtype=np.float64), groups)
@@ -165,7 +177,7 @@ class CompactRegressor:
         return compact, np.concatenate(parts, axis=-1)
 
     def residual(self, theta_unknown, inputs):
-        """(B, K, 6) normalized residual from ``theta_unknown`` (B, 10 n_u) and ``(values, y / s)``."""
+        """(B, K, A) normalized residual from ``theta_unknown`` (B, 10 n_u) and ``(values, y / s)``."""
         values, y_s = inputs
         beta = theta_unknown @ jnp.asarray(self.base_map.T)  # (B, r)
         predicted, start = [], 0
@@ -176,7 +188,7 @@ class CompactRegressor:
             start += n
         r = y_s - jnp.concatenate(predicted, axis=-1)
         order = self.axis_order
-        if np.array_equal(order, np.arange(6)):
+        if np.array_equal(order, np.arange(len(order))):
             return r
         return r[..., np.argsort(order)]
 

@@ -192,7 +192,9 @@ def load_run(run_dir: str | Path) -> Run:
     x = np.zeros((1, cfg.model.frames, len(x_scaler.center)))
     if cfg.model.uses_regressor:
         n_u = meta["n_out"]
-        template = net.init(jax.random.key(0), x, np.zeros((1, cfg.model.frames, 6, n_u)), np.zeros((1, cfg.model.frames, 6)))
+        n_axes = len(meta["wrench_scale"])  # the measured axes of a frame (the wrench: six)
+        template = net.init(jax.random.key(0), x, np.zeros((1, cfg.model.frames, n_axes, n_u)),
+                            np.zeros((1, cfg.model.frames, n_axes)))
     else:
         template = net.init(jax.random.key(0), x)
     params = read_msgpack(files[2], template)

@@ -42,8 +42,11 @@ class Prepared:
         return np.searchsorted(self.rows, dataset_indices)
 
 
-def gather_samples(arrays, mode, rows, frames):
+def gather_samples(arrays, mode, rows, frames, n_axes: int = 6):
     """Batch of samples: positions (B,) and frame indices (B, K) -> (x, z, physics inputs).
+
+    ``n_axes``: the measured axes of a frame (:attr:`ineid.learn.losses.Physics.n_axes`), the
+    first numbers of a compact row.
 
     Per-frame arrays are gathered by one flat index ``row * n_frames + frame`` along their
     first axis: a single-axis ``take``, much cheaper on the CPU than a two-axis gather.
@@ -58,7 +61,7 @@ def gather_samples(arrays, mode, rows, frames):
 
     if "compact" in arrays:  # compact cached rows: y / s and the kept entries in one gather
         row = take(arrays["compact"])
-        return take(arrays["x"]), arrays["z"][rows], (row[..., 6:], row[..., :6])
+        return take(arrays["x"]), arrays["z"][rows], (row[..., n_axes:], row[..., :n_axes])
     if mode == "cached":
         inputs = (take(arrays["psi"]), take(arrays["yres"]))
     else:
@@ -76,7 +79,8 @@ def forward(net, spec: ModelSpec, physics: Physics):
 def init_params(net, spec: ModelSpec, prep: Prepared, key):
     """Initial parameters of ``net`` from the shapes of one sample of ``prep``."""
     k = spec.frames
-    x, _, inputs = gather_samples(prep.arrays, prep.physics.mode, np.zeros(1, dtype=np.int64), np.arange(k)[None])
+    x, _, inputs = gather_samples(prep.arrays, prep.physics.mode, np.zeros(1, dtype=np.int64), np.arange(k)[None],
+                                  prep.physics.n_axes)
     return net.init(key, x, *prep.physics.system(inputs)) if spec.uses_regressor else net.init(key, x)
 
 
@@ -88,10 +92,10 @@ def build_functions(net, cfg: TrainConfig, prep: Prepared, optimizer):
 
     loss_fn = make_loss(net.apply, cfg.alpha, cfg.effective_beta, prep.physics, cfg.model.uses_regressor)
     apply = forward(net, cfg.model, prep.physics)
-    mode = prep.physics.mode
+    mode, n_axes = prep.physics.mode, prep.physics.n_axes
 
     def one_step(params, opt_state, arrays, rows, frames):
-        x, z, inputs = gather_samples(arrays, mode, rows, frames)
+        x, z, inputs = gather_samples(arrays, mode, rows, frames, n_axes)
         (total, (mse, phys)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, x, z, inputs)
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return optax.apply_updates(params, updates), opt_state, jnp.stack([total, mse, phys])
@@ -115,7 +119,7 @@ def build_functions(net, cfg: TrainConfig, prep: Prepared, optimizer):
     @jax.jit
     def eval_batch(params, arrays, rows, frames, mask):
         """Sums over the masked samples of (mse, phys) and the predictions."""
-        x, z, inputs = gather_samples(arrays, mode, rows, frames)
+        x, z, inputs = gather_samples(arrays, mode, rows, frames, n_axes)
         z_hat = apply(params, x, inputs)
         se = jnp.mean((z_hat - z) ** 2, axis=1)
         r = prep.physics.residual(z_hat * prep.y_scaler.scale + prep.y_scaler.center, inputs)

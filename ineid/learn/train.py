@@ -72,6 +72,9 @@ def prepare(ds: Dataset, cfg: TrainConfig, rows: np.ndarray, model: RobotModel, 
         fit_rows: configurations to fit the scalers and the wrench scale on (the training split).
         wrench_scale: the physics term's per-axis normalization of an existing run.
         physics_mode: ``"cached"`` or ``"inline"`` (see :class:`ineid.learn.losses.Physics`).
+
+    The physics term is over the dataset's measurement channels (``ds.meta.channels``: their
+    rows, their values stacked, one normalization per axis).
     """
     import jax.numpy as jnp  # noqa: PLC0415
 
@@ -85,33 +88,37 @@ def prepare(ds: Dataset, cfg: TrainConfig, rows: np.ndarray, model: RobotModel, 
         raise ValueError(f"physics_mode must be one of {', '.join(PHYSICS_MODES)}, got {physics_mode!r}")
     rows = np.asarray(rows, dtype=np.int64)
     sub = ds.select(rows)
+    channels = ds.meta.channels
+    n_axes = channels.n_axes(model)
+    values = sub.measured(channels)  # (C, F, A): the wrench itself for one base wrench
     feats = frame_features(sub)
     if scalers is None:
         fit_local = np.searchsorted(rows, fit_rows)
         x_scaler = Scaler.fit(cfg.scaler, feats[fit_local].reshape(-1, feats.shape[-1]))
         y_scaler = Scaler.fit(cfg.scaler, sub.theta_unknown[fit_local])
-        ws = sub.wrench[fit_local].reshape(-1, 6).std(axis=0)
+        ws = values[fit_local].reshape(-1, n_axes).std(axis=0)
         wrench_scale = np.where(ws > 0, ws, 1.0)
     else:
         x_scaler, y_scaler = scalers
     n_u = sub.theta_unknown.shape[1]
     if physics_mode == "cached":
-        need = sub.n_configs * sub.n_frames * 6 * (n_u + 1) * 8
+        need = sub.n_configs * sub.n_frames * n_axes * (n_u + 1) * 8
         if need > CACHE_LIMIT_BYTES:
             physics_mode = "inline"
     compact = rows_compact = None
     if physics_mode == "cached":
-        w, y = stack(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known)  # (C, 6F, n_u), (C, 6F)
-        w = w.reshape(sub.n_configs, sub.n_frames, 6, n_u)
-        y = y.reshape(sub.n_configs, sub.n_frames, 6)
+        w, y = stack(model, sub.q, sub.qd, sub.qdd, values, sub.theta_known, channels)  # (C, AF, n_u), (C, AF)
+        w = w.reshape(sub.n_configs, sub.n_frames, n_axes, n_u)
+        y = y.reshape(sub.n_configs, sub.n_frames, n_axes)
         if not cfg.model.uses_regressor:  # a network that does not read Psi: the compact rows
             from ineid.identify.identifiability import base_parameters  # noqa: PLC0415
 
-            compact, rows_compact = CompactRegressor.from_frames(w, y, base_parameters(model), wrench_scale)
+            compact, rows_compact = CompactRegressor.from_frames(w, y, base_parameters(model, channels=channels),
+                                                                 wrench_scale)
             del w, y
     physics = Physics(
         mode=physics_mode,
-        regressor=model.jax_regressor,
+        regressor=channels.jax_rows_function(model),  # the base wrench: the generated regressor itself
         gravity=np.asarray(model.gravity),
         unknown_index=np.asarray(model.unknown_index),
         known_index=np.asarray(model.known_index),
@@ -129,28 +136,33 @@ def prepare(ds: Dataset, cfg: TrainConfig, rows: np.ndarray, model: RobotModel, 
         arrays["psi"] = jnp.asarray(w)
         arrays["yres"] = jnp.asarray(y)
     else:
-        arrays.update(q=jnp.asarray(sub.q), qd=jnp.asarray(sub.qd), qdd=jnp.asarray(sub.qdd), wrench=jnp.asarray(sub.wrench))
+        arrays.update(q=jnp.asarray(sub.q), qd=jnp.asarray(sub.qd), qdd=jnp.asarray(sub.qdd),
+                      wrench=jnp.asarray(values))
     return Prepared(rows, x_scaler, y_scaler, arrays, physics, n_u, sub.n_frames)
 
 
 def wls_context(ds, train_rows: np.ndarray, model, y_scaler: Scaler, wrench_scale: np.ndarray):
     """The constants of a ``wls`` network from the training configurations (:func:`ineid.learn.wls.fit_context`).
 
-    The noise model is the per-axis RMS of the wrench residual at the true parameters over
-    every training frame (:func:`ineid.learn.wls.residual_sigma`), computed a chunk of
+    The noise model is the per-axis RMS of the residual of the dataset's channels (the wrench) at
+    the true parameters over every training frame (:func:`ineid.learn.wls.residual_sigma`), computed a chunk of
     configurations at a time.
     """
     from ineid.identify import base_parameters  # noqa: PLC0415
     from ineid.learn.wls import SIGMA_FLOOR, fit_context, iter_systems  # noqa: PLC0415
 
     sub = ds.select(np.asarray(train_rows))
-    sq, n = np.zeros(6), 0
-    for sl, w, y in iter_systems(model, sub.q, sub.qd, sub.qdd, sub.wrench, sub.theta_known):
-        res = (y - np.einsum("cnp,cp->cn", w, sub.theta_unknown[sl])).reshape(-1, 6)
+    channels = ds.meta.channels
+    n_axes = channels.n_axes(model)
+    sq, n = np.zeros(n_axes), 0
+    for sl, w, y in iter_systems(model, sub.q, sub.qd, sub.qdd, sub.measured(channels), sub.theta_known,
+                                 channels=channels):
+        res = (y - np.einsum("cnp,cp->cn", w, sub.theta_unknown[sl])).reshape(-1, n_axes)
         sq += np.sum(res**2, axis=0)
         n += len(res)
     sigma = np.maximum(np.sqrt(sq / max(n, 1)), SIGMA_FLOOR * np.asarray(wrench_scale))
-    return fit_context(sub.theta_unknown, sigma, base_parameters(model), y_scaler.center, y_scaler.scale)
+    return fit_context(sub.theta_unknown, sigma, base_parameters(model, channels=channels), y_scaler.center,
+                       y_scaler.scale)
 
 
 @dataclass
@@ -254,7 +266,7 @@ def _train_into(ds: Dataset, cfg: TrainConfig, run_dir: Path, *, dataset_path: s
             "physics_mode": prep.physics.mode,
             "dataset": {"path": dataset_path, "robot": ds.meta.robot, "n_configs": ds.n_configs,
                         "n_frames": ds.n_frames, "seed": ds.meta.seed, "noise": ds.meta.noise,
-                        "fingerprint": ds.fingerprint()},
+                        "fingerprint": ds.fingerprint(), "channels": ds.meta.channels.to_list()},
             "n_out": prep.n_out,
             "param_names": ds.meta.unknown_param_names,
             "unknown_links": list(ds.meta.unknown_links),

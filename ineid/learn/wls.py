@@ -86,7 +86,7 @@ class WlsContext:
         base_scale: (r,) ``s``, scales of the base parameters (SI units of each).
         mu_beta: (r,) training mean of the true base parameters.
         l_inv: (r, r) ``L^-1``, the inverse Cholesky factor of their training covariance.
-        sigma: (6,) per-axis residual RMS at the truth (N, N*m): the noise model.
+        sigma: (A,) per-axis residual RMS at the truth (the wrench: N, N*m): the noise model.
         mu_theta: (n_u,) training mean of the true standard parameters.
         gain: (n_u, r) ``G``, the null-space rule ``theta = mu_theta + G (beta - mu_beta)``.
         b: (r, n_u) ``B``, the base parameters ``beta = B theta``.
@@ -161,31 +161,33 @@ def _whitening(beta_fit: np.ndarray, scale: np.ndarray) -> np.ndarray:
 
 
 def residual_sigma(w, y, theta, wrench_scale: np.ndarray) -> np.ndarray:
-    """Per-axis RMS of ``y - W theta`` over every frame: (6,), floored (see :data:`SIGMA_FLOOR`).
+    """Per-axis RMS of ``y - W theta`` over every frame: (A,), floored (see :data:`SIGMA_FLOOR`).
 
     Args:
-        w: (C, 6F, n_u) stacked regressors; y: (C, 6F); theta: (C, n_u) true parameters.
-        wrench_scale: (6,) the wrench's spread per axis.
+        w: (C, AF, n_u) stacked regressors; y: (C, AF); theta: (C, n_u) true parameters.
+        wrench_scale: (A,) the measured values' spread per axis (the wrench: six).
     """
-    res = (y - np.einsum("cnp,cp->cn", w, theta)).reshape(-1, 6)
+    res = (y - np.einsum("cnp,cp->cn", w, theta)).reshape(-1, len(wrench_scale))
     rms = np.sqrt(np.mean(res**2, axis=0))
     return np.maximum(rms, SIGMA_FLOOR * np.asarray(wrench_scale))
 
 
-def iter_systems(model, q, qd, qdd, wrench, theta_known, max_frames: int = 200_000):
-    """``(slice, W (c, 6F, n_u), y (c, 6F))`` of chunks of configurations, about ``max_frames`` frames
-    at a time (:func:`ineid.identify.systems.stack`, which holds a whole chunk in memory)."""
+def iter_systems(model, q, qd, qdd, wrench, theta_known, max_frames: int = 200_000, channels=None):
+    """``(slice, W (c, AF, n_u), y (c, AF))`` of chunks of configurations, about ``max_frames`` frames
+    at a time (:func:`ineid.identify.systems.stack` of ``channels``, default the base wrench, which
+    holds a whole chunk in memory); ``wrench`` (C, F, A) the channels' values."""
     from ineid.identify.systems import stack  # noqa: PLC0415
 
     n_configs, n_frames = q.shape[:2]
     per = max(1, max_frames // max(n_frames, 1))
     for start in range(0, n_configs, per):
         sl = slice(start, min(start + per, n_configs))
-        yield (sl, *stack(model, q[sl], qd[sl], qdd[sl], wrench[sl], theta_known))
+        yield (sl, *stack(model, q[sl], qd[sl], qdd[sl], wrench[sl], theta_known, channels))
 
 
 def fit_context(theta_fit: np.ndarray, sigma: np.ndarray, base, y_center: np.ndarray, y_scale: np.ndarray) -> WlsContext:
-    """The :class:`WlsContext` from training truth ``theta_fit`` (C, n_u) and the noise model ``sigma`` (6,).
+    """The :class:`WlsContext` from training truth ``theta_fit`` (C, n_u) and the noise model ``sigma`` (A,), one per
+    measured axis (the wrench: six).
 
     Args:
         base: the :class:`ineid.identify.BaseParameters` of the unknown links.
@@ -245,7 +247,9 @@ def _soft_bound(x):
 
 
 class WLS(nn.Module):
-    """Learned weighted least squares with a learned prior; (B, K, F), (B, K, 6, n_u), (B, K, 6) -> (B, n_u).
+    """Learned weighted least squares with a learned prior; (B, K, F), (B, K, A, n_u), (B, K, A) -> (B, n_u).
+
+    ``A`` is the measured axes of a frame (the base wrench: six; the context's ``sigma`` has one per axis).
 
     Inputs: ``x`` the K frames' scaled features (as every ineid network takes), ``psi_u``
     the unknown links' regressor of each frame and ``y`` its wrench minus the known links'
@@ -271,21 +275,22 @@ class WLS(nn.Module):
         idx = jnp.asarray(c.base_index)
         bsz, k = x.shape[:2]
         r = c.rank
-        w_b = jnp.take(psi_u, idx, axis=-1)  # (B, K, 6, r)
-        a = (w_b * jnp.asarray(c.base_scale)).reshape(bsz, 6 * k, r)
-        e = (y - w_b @ jnp.asarray(c.mu_beta)).reshape(bsz, 6 * k)
-        inv_sigma = jnp.tile(1.0 / jnp.asarray(c.sigma), k)  # frame-major rows, fx..mz per frame
-        d0 = jnp.broadcast_to(inv_sigma, (bsz, 6 * k))
+        n_axes = len(c.sigma)
+        w_b = jnp.take(psi_u, idx, axis=-1)  # (B, K, A, r)
+        a = (w_b * jnp.asarray(c.base_scale)).reshape(bsz, n_axes * k, r)
+        e = (y - w_b @ jnp.asarray(c.mu_beta)).reshape(bsz, n_axes * k)
+        inv_sigma = jnp.tile(1.0 / jnp.asarray(c.sigma), k)  # frame-major rows, the axes (fx..mz) per frame
+        d0 = jnp.broadcast_to(inv_sigma, (bsz, n_axes * k))
         p = jnp.asarray(c.prior_rows)
         g0 = jnp.full((bsz, r), 1.0 if self.prior else 0.0)
         zero_m = jnp.zeros((bsz, r))
         u0 = wls_solve(a, e, d0, p, g0, zero_m)  # the Gaussian-prior (or weighted LS) estimate
-        r0 = ((e - jnp.einsum("bnr,br->bn", a, u0)) * d0).reshape(bsz, k, 6)  # normalized residuals
+        r0 = ((e - jnp.einsum("bnr,br->bn", a, u0)) * d0).reshape(bsz, k, n_axes)  # normalized residuals
         feats = jnp.concatenate([x, r0, jnp.log1p(r0 * r0)], axis=-1)
         h = Encoder(tuple(self.hidden), self.activation, name="encoder")(feats)  # (B, K, H): shared weights
         zeros = nn.initializers.zeros
-        delta = _soft_bound(nn.Dense(6, param_dtype=jnp.float64, kernel_init=zeros, name="log_weight")(h))
-        d = d0 * jnp.exp(delta).reshape(bsz, 6 * k)
+        delta = _soft_bound(nn.Dense(n_axes, param_dtype=jnp.float64, kernel_init=zeros, name="log_weight")(h))
+        d = d0 * jnp.exp(delta).reshape(bsz, n_axes * k)
         if self.prior:
             v0 = u0 @ p.T  # whitened first estimate
             pooled = jnp.concatenate([h.mean(axis=1), v0], axis=-1)
@@ -303,20 +308,20 @@ def prior_estimate(context: WlsContext, w: np.ndarray, y: np.ndarray, prior: boo
     """The untrained model by another route: the Gaussian-prior (posterior-mean) estimate.
 
     ``beta = argmin ||D (y - W_b beta)||^2 + ||L^-1 (beta - mu_beta)||^2`` with
-    ``D = diag(1 / sigma)`` per wrench axis, by a QR factorization of the stacked weighted
+    ``D = diag(1 / sigma)`` per measured axis, by a QR factorization of the stacked weighted
     rows (NumPy, batched), and ``theta = mu_theta + G (beta - mu_beta)``. With
     ``prior=False`` it is the noise-weighted least squares.
 
     Args:
         context: the constants (prior, noise model, null-space rule).
-        w: (C, 6F, n_u) stacked regressors; y: (C, 6F) wrenches minus the known links' share.
+        w: (C, AF, n_u) stacked regressors; y: (C, AF) measured values minus the known links' share.
 
     Returns:
         ``(theta (C, n_u), beta (C, r))``.
     """
     c, n, _ = w.shape
     wb = w[:, :, context.base_index]
-    d = np.tile(1.0 / context.sigma, n // 6)
+    d = np.tile(1.0 / context.sigma, n // len(context.sigma))
     a = wb * context.base_scale * d[None, :, None]
     e = (y - wb @ context.mu_beta) * d
     if prior:
