@@ -23,6 +23,7 @@ from click.testing import CliRunner
 from ineid.cli import main
 from ineid._trust import MANIFEST
 from ineid.generated import file_names, load_from_directory, module_slug
+from ineid.robots.program import casadi_functions, jax_functions
 from ineid.robots.urdf import parse_chain
 
 CANARY = Path(tempfile.gettempdir()) / f"ineid-hostile-canary-{os.getpid()}"
@@ -96,7 +97,7 @@ def clean(tmp_path_factory):
     q, qd, qdd = (rng.uniform(-1, 1, (5, 2)) for _ in range(3))
     g = np.array([0.0, 0.3, -9.81])
     return dataclasses.make_dataclass("Clean", ["chain", "sym", "states", "Y"])(
-        chain, sym, (q, qd, qdd, g), np.asarray(jax_mod.base_wrench_regressor(q, qd, qdd, g)))
+        chain, sym, (q, qd, qdd, g), np.asarray(jax_functions(jax_mod).regressor(q, qd, qdd, g)))
 
 
 @pytest.mark.parametrize("name", list(HOSTILE.values()), ids=list(HOSTILE))
@@ -121,8 +122,9 @@ def test_generated_code_holds_names_as_data(name, clean, tmp_path):
         assert mod.ROBOT == name
         assert mod.JOINT_NAMES == (name, name + " 2") and mod.LINK_NAMES == (name, name + " 2")
     q, qd, qdd, g = clean.states
-    np.testing.assert_array_equal(np.asarray(jax_mod.base_wrench_regressor(q, qd, qdd, g)), clean.Y)
-    np.testing.assert_array_equal(np.asarray(ca_mod.base_wrench_regressor(q[0], qd[0], qdd[0], g)), clean.Y[0])
+    np.testing.assert_array_equal(np.asarray(jax_functions(jax_mod).regressor(q, qd, qdd, g)), clean.Y)
+    y_ca = np.asarray(casadi_functions(ca_mod).regressor(q[0], qd[0], qdd[0], g))
+    np.testing.assert_allclose(y_ca, clean.Y[0], rtol=0, atol=1e-14 * np.abs(clean.Y[0]).max())
 
 
 @pytest.mark.parametrize("name", list(HOSTILE.values()), ids=list(HOSTILE))
@@ -165,12 +167,16 @@ def test_a_module_with_an_injected_statement_is_refused():
     assert check_module_source(ca_text, "casadi")["N_DOF"] == 4
     at_import = "\nimport jax.numpy as jnp\n"
     for evil in (f"\n{CODE}\n", "\nimport os\n", "\nX = __import__('os').getcwd()\n",
-                 "\ndef f(a=print('x')):\n    pass\n", "\n@print\ndef _entries(**t):\n    pass\n",
+                 "\ndef f(a=print('x')):\n    pass\n", "\n@print\ndef program(q, qd, qdd, gravity):\n    pass\n",
                  "\nROBOT = open('/etc/passwd').read()\n", "\nclass A:\n    print('x')\n", "\nprint('x')\n"):
         with pytest.raises(CodegenError, match="unexpected statement|defined twice"):
             check_module_source(jax_text.replace(at_import, at_import + evil, 1), "jax")
-    with pytest.raises(CodegenError, match="lacks base_wrench_regressor"):
-        check_module_source(ca_text.replace("\nbase_wrench_regressor = _build()\n", "\n"), "casadi")
+    with pytest.raises(CodegenError, match="unexpected statement"):  # no call runs on import, not even ours
+        check_module_source(ca_text + "\nY = program([0.0] * 4, [0.0] * 4, [0.0] * 4, [0.0] * 3)\n", "casadi")
+    with pytest.raises(CodegenError, match="lacks program"):
+        check_module_source(ca_text[: ca_text.index("\ndef program(")], "casadi")
+    with pytest.raises(CodegenError, match="not 4 names|joint type other than"):
+        check_module_source(jax_text.replace("JOINT_TYPES = ('revolute',", "JOINT_TYPES = ('os.system',"), "jax")
 
 
 def ok(result):

@@ -217,8 +217,8 @@ class DerivationProgress(logging.Handler):
     """Shows a SymPy derivation's progress on stderr, from the records :mod:`ineid.symbolic` logs.
 
     Nothing for a derivation that ends within ``delay`` seconds; after that, a progress bar
-    with the step and the elapsed time on a terminal (it keeps ticking through the long
-    common-subexpression elimination), else one line per step. A record with
+    with the step and the elapsed time on a terminal (it keeps ticking through a long step),
+    else one line per step. A record with
     ``derivation_step = (done, total)`` and ``done == total`` ends the derivation.
     """
 

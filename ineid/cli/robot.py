@@ -114,7 +114,7 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
         seconds = time.perf_counter() - t0
         click.echo(
             f"{plain(name)}: {chain.n_dof} DOF, regressor 6 x {10 * chain.n_dof}, {emitted.op_count} operations "
-            f"after CSE ({emitted.n_temporaries} temporaries), {seconds:.2f} s"
+            f"in {emitted.n_lines} named values, {seconds:.2f} s"
         )
         for fname in sorted(emitted.files):
             click.echo(f"  wrote {plain(Path(target) / fname)}")

@@ -14,11 +14,9 @@ import ast
 from ineid.errors import CodegenError
 
 _IMPORTS = {"jax": ("jax.numpy", "jnp"), "casadi": ("casadi", "ca")}
-_CONSTANTS = {"ROBOT", "N_DOF", "JOINT_NAMES", "LINK_NAMES", "KINEMATIC_FINGERPRINT", "OP_COUNT", "SHAPE"}
-_SHAPE = {
-    "jax": (_CONSTANTS | {"NONZERO"}, {"_temporaries", "base_wrench_regressor", "base_wrench", "_entries"}),
-    "casadi": (_CONSTANTS, {"_build"}),
-}
+_CONSTANTS = {"ROBOT", "N_DOF", "JOINT_NAMES", "LINK_NAMES", "JOINT_TYPES", "KINEMATIC_FINGERPRINT", "OP_COUNT",
+              "SHAPE", "NONZERO"}
+_FUNCTIONS = {"program"}
 
 
 def check_module_source(text: str, kind: str, where: str = "generated module") -> dict[str, object]:
@@ -26,9 +24,9 @@ def check_module_source(text: str, kind: str, where: str = "generated module") -
 
     Allowed, each once: the module docstring first; ``import jax.numpy as jnp`` (``kind
     "jax"``) or ``import casadi as ca`` (``"casadi"``); the constants (``ROBOT``,
-    ``JOINT_NAMES``, ...) assigned literal values; the emitter's functions, without
-    decorators, defaults or annotations (they would run on import); and for CasADi the
-    one call ``base_wrench_regressor = _build()``.
+    ``JOINT_NAMES``, ...) assigned literal values of the emitter's shape; the emitter's one
+    function, ``program``, without decorators, defaults or annotations (they would run on
+    import). Nothing else, so importing the module runs no code of its own.
 
     Returns:
         ``{constant: value}``, the literal constants (``ROBOT``, ``JOINT_NAMES``, ...).
@@ -36,7 +34,9 @@ def check_module_source(text: str, kind: str, where: str = "generated module") -
     Raises:
         CodegenError: the text does not parse or holds anything else.
     """
-    constants, functions = _SHAPE[kind]
+    constants, functions = _CONSTANTS, _FUNCTIONS
+    if kind not in _IMPORTS:
+        raise ValueError(f"kind must be one of {', '.join(_IMPORTS)}, got {kind!r}")
     try:
         tree = ast.parse(text)
     except (SyntaxError, ValueError) as e:
@@ -53,10 +53,36 @@ def check_module_source(text: str, kind: str, where: str = "generated module") -
                                "it was not imported; regenerate it")
         if name is not None:
             defined.add(name)
-    missing = sorted((constants | functions | ({"base_wrench_regressor"} if kind == "casadi" else set())) - defined)
+    missing = sorted((constants | functions) - defined)
     if missing:
         raise CodegenError(f"{where} lacks {', '.join(missing)}; regenerate it")
+    problem = _constants_problem(values)
+    if problem is not None:
+        raise CodegenError(f"{where} has {problem}; it was not imported; regenerate it")
     return values
+
+
+def _constants_problem(values: dict[str, object]) -> str | None:
+    """Why the constants do not have the emitter's types and sizes, or None."""
+    n = values["N_DOF"]
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        return f"N_DOF = {n!r}, not a positive integer"
+    for key in ("JOINT_NAMES", "LINK_NAMES", "JOINT_TYPES"):
+        v = values[key]
+        if not (isinstance(v, tuple) and len(v) == n and all(isinstance(x, str) for x in v)):
+            return f"{key} that is not {n} names"
+    if not isinstance(values["ROBOT"], str) or not isinstance(values["KINEMATIC_FINGERPRINT"], str):
+        return "a ROBOT or KINEMATIC_FINGERPRINT that is not a string"
+    if any(t not in ("revolute", "prismatic") for t in values["JOINT_TYPES"]):
+        return "a joint type other than revolute and prismatic"
+    if values["SHAPE"] != (6, 10 * n):
+        return f"SHAPE = {values['SHAPE']!r}, not (6, {10 * n})"
+    nz = values["NONZERO"]
+    ok = isinstance(nz, tuple) and len(nz) == 6 and all(
+        isinstance(row, tuple) and all(isinstance(c, int) and 0 <= c < 10 * n for c in row) for row in nz)
+    if not ok or not isinstance(values["OP_COUNT"], int):
+        return "a NONZERO or OP_COUNT of the wrong shape"
+    return None
 
 
 def _defined_name(node: ast.stmt) -> str | None:
@@ -93,11 +119,6 @@ def _problem(node: ast.stmt, index: int, kind: str, constants: set[str], functio
                 values[name] = ast.literal_eval(node.value)
             except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
                 return f"{name} is not assigned a literal value"
-            return None
-        call = node.value
-        builds = (isinstance(call, ast.Call) and isinstance(call.func, ast.Name) and call.func.id == "_build"
-                  and not call.args and not call.keywords)
-        if kind == "casadi" and name == "base_wrench_regressor" and builds:
             return None
         return f"an assignment to {name!r}"
     return f"a {type(node).__name__} statement"

@@ -1,4 +1,4 @@
-"""RobotModel: a serial arm, its parameters, and its generated base-wrench regressor."""
+"""RobotModel: a serial arm, its parameters, and its generated Newton-Euler program and regressors."""
 
 from __future__ import annotations
 
@@ -158,7 +158,7 @@ class RobotModel:
 
     @property
     def op_count(self) -> int:
-        """Arithmetic operations of the generated regressor after CSE."""
+        """Arithmetic operations of the generated program (the Newton-Euler recursion, every output)."""
         return int(self._jax.OP_COUNT)
 
     # -- regressor -------------------------------------------------------------------
@@ -169,16 +169,43 @@ class RobotModel:
 
     @property
     def jax_regressor_entries(self):
-        """The generated pure function ``f(q, qd, qdd, gravity) -> (Psi_00, Psi_01, ..., Psi_5m)``.
+        """The pure function ``f(q, qd, qdd, gravity) -> (Psi_00, Psi_01, ..., Psi_5m)``.
 
         The ``6 * 10 n_links`` entries of ``Psi`` in row-major order, each of the batch shape
-        (or the number 0 where identically zero), sharing one set of common subexpressions:
-        ``jnp.stack(f(...), -1).reshape(..., 6, 10 n_links) == jax_regressor(...)``. Stacking
-        only the entries needed, frames last, is what XLA:CPU evaluates fastest (the public
-        evaluators and the fused identification do). The same object for every model of
-        the robot, so it can key compilation caches.
+        (or the number 0 where identically zero), all from one evaluation of the generated
+        program: ``jnp.stack(f(...), -1).reshape(..., 6, 10 n_links) == jax_regressor(...)``.
+        Stacking only the entries needed, frames last, is what XLA:CPU evaluates fastest (the
+        public evaluators and the fused identification do). The same object for every model
+        of the robot, so it can key compilation caches.
         """
-        return _entries_function(self._jax)
+        return _jax_functions(self._jax).entries
+
+    @property
+    def jax_program(self):
+        """The generated program, ``f(q, qd, qdd, gravity) -> {output: nested tuples}``, pure and jit-safe.
+
+        The building block of every regressor (see ``docs/regressor.md`` and
+        :mod:`ineid.robots.program`): per link ``"R"`` (``base_R_i``, 3 x 3 row-major),
+        ``"p"`` (``base_p_i``), ``"w"``, ``"wd"``, ``"a"`` (link frame, ``a`` minus gravity),
+        ``"Yn"`` (6 x 10: the columns of the link's net wrench, base frame, about the base
+        origin); per joint ``"axis"`` (``z_j``) and ``"moment"`` (``p_j x z_j``), base frame.
+        Each entry an array of the batch shape or a Python number.
+        """
+        return self._jax.program
+
+    @property
+    def casadi_program(self):
+        """The same program on CasADi symbols (``q, qd, qdd`` n x 1, ``gravity`` 3 x 1 ``SX``), same outputs."""
+        return self._casadi.program
+
+    @property
+    def jax_link_poses(self):
+        """Pure, jit-safe ``f(q) -> (base_R (..., n_links, 3, 3), base_p (..., n_links, 3))``.
+
+        Every moving link's frame in the base frame (``x_base = base_R @ x_link + base_p``),
+        links in chain order, for ``q`` (..., n_dof); differentiable (forward and reverse).
+        """
+        return _jax_functions(self._jax).link_poses
 
     def _states(self, q, qd, qdd, theta=None):
         """``q, qd, qdd`` (and ``theta`` when per frame) flattened to (N, .) float64 NumPy, and the batch shape."""
@@ -266,9 +293,9 @@ class RobotModel:
 
         Force (N) and moment about the base origin (N*m), base frame. ``theta`` (10 n_links,)
         or (..., 10 n_links) broadcasting with the states; default :attr:`theta_cad`.
-        Evaluated by the generated ``base_wrench``, which contracts with ``theta`` inside the
-        fused loops instead of forming ``Psi`` (several times faster), compiled once per
-        robot and chunked like :meth:`regressor`. Inside ``jax.jit`` use :attr:`jax_base_wrench`.
+        Evaluated by :attr:`jax_base_wrench`, which contracts with ``theta`` link by link
+        instead of forming ``Psi`` (several times faster), compiled once per robot and
+        chunked like :meth:`regressor`. Inside ``jax.jit`` use :attr:`jax_base_wrench`.
         """
         theta = _host("theta", self.theta_cad if theta is None else theta)
         n_par = 10 * self.n_links
@@ -293,20 +320,23 @@ class RobotModel:
 
     @property
     def jax_base_wrench(self):
-        """The generated pure function ``f(q, qd, qdd, gravity, theta) -> (..., 6)``, for use inside ``jax.jit``.
+        """Pure function ``f(q, qd, qdd, gravity, theta) -> (..., 6)``, for use inside ``jax.jit``.
 
-        ``f(q, qd, qdd, g, theta) == jax_regressor(q, qd, qdd, g) @ theta`` (round-off).
+        ``f(q, qd, qdd, g, theta) == jax_regressor(q, qd, qdd, g) @ theta`` (round-off), without
+        forming ``Psi`` (:func:`ineid.robots.program.base_wrench`). The same object for every
+        model of the robot.
         """
-        return self._jax.base_wrench
+        return _jax_functions(self._jax).wrench
 
     @property
     def jax_regressor(self):
-        """The generated pure function ``f(q, qd, qdd, gravity) -> (..., 6, 10 * n_links)``, for use inside ``jax.jit``.
+        """Pure function ``f(q, qd, qdd, gravity) -> (..., 6, 10 * n_links)``, for use inside ``jax.jit``.
 
         ``f(q, qd, qdd, g) @ theta`` is the base wrench; :meth:`regressor` is the same with
-        ``g`` the model's gravity, evaluated eagerly into NumPy.
+        ``g`` the model's gravity, evaluated eagerly into NumPy. The same object for every
+        model of the robot.
         """
-        return self._jax.base_wrench_regressor
+        return _jax_functions(self._jax).regressor
 
     @cached_property
     def casadi_regressor(self):
@@ -316,10 +346,24 @@ class RobotModel:
         """
         import casadi as ca  # noqa: PLC0415
 
-        full = self._casadi.base_wrench_regressor
+        full = _casadi_functions(self._casadi).regressor
         q, qd, qdd = (ca.SX.sym(s, self.n_dof) for s in ("q", "qd", "qdd"))
         y = full(q, qd, qdd, ca.DM(self.gravity))
         return ca.Function("base_wrench_regressor", [q, qd, qdd], [y], ["q", "qd", "qdd"], ["Y"])
+
+    @cached_property
+    def casadi_base_wrench(self):
+        """``casadi.Function`` ``(q, qd, qdd, theta) -> w`` (n_dof x 1, 10 n_links x 1 -> 6 x 1), gravity applied.
+
+        ``w == Y(q, qd, qdd) @ theta`` (round-off), without forming ``Y``.
+        """
+        import casadi as ca  # noqa: PLC0415
+
+        full = _casadi_functions(self._casadi).wrench
+        q, qd, qdd = (ca.SX.sym(s, self.n_dof) for s in ("q", "qd", "qdd"))
+        theta = ca.SX.sym("theta", 10 * self.n_links)
+        w = full(q, qd, qdd, ca.DM(self.gravity), theta)
+        return ca.Function("base_wrench", [q, qd, qdd, theta], [w], ["q", "qd", "qdd", "theta"], ["w"])
 
 
 # -- chunked evaluation ----------------------------------------------------------------
@@ -348,15 +392,16 @@ def _nonzero_flat(nonzero: tuple[tuple[int, ...], ...], n_cols: int) -> np.ndarr
     return np.array([r * n_cols + c for r, cols in enumerate(nonzero) for c in cols], dtype=np.int64)
 
 
-@functools.lru_cache(maxsize=None)
-def _entries_function(module):
-    """``f(q, qd, qdd, gravity) -> entries of Psi`` of a generated module (its emitter's
-    ``_temporaries`` and ``_entries``), one function object per module."""
+def _jax_functions(module):
+    from ineid.robots.program import jax_functions  # noqa: PLC0415
 
-    def entries(q, qd, qdd, gravity):
-        return module._entries(**module._temporaries(q, qd, qdd, gravity))
+    return jax_functions(module)
 
-    return entries
+
+def _casadi_functions(module):
+    from ineid.robots.program import casadi_functions  # noqa: PLC0415
+
+    return casadi_functions(module)
 
 
 @functools.lru_cache(maxsize=None)
@@ -365,7 +410,7 @@ def _entries_kernel_cached(module, entries: tuple[int, ...]):
     import jax.numpy as jnp  # noqa: PLC0415
 
     def kernel(q, qd, qdd, gravity):
-        values = _entries_function(module)(q, qd, qdd, gravity)
+        values = _jax_functions(module).entries(q, qd, qdd, gravity)
         batch = q.shape[:-1]
         return jnp.stack([jnp.broadcast_to(values[i], batch).astype(q.dtype) for i in entries], axis=0)
 
@@ -381,12 +426,14 @@ def _entries_kernel(module, entries: np.ndarray):
 
 @functools.lru_cache(maxsize=None)
 def _wrench_kernel(module):
-    """Jitted ``(q, qd, qdd, theta, gravity) -> (N, 6)``, the generated ``base_wrench``;
+    """Jitted ``(q, qd, qdd, theta, gravity) -> (N, 6)``, the composed base wrench;
     theta (N, 10n) per frame or (10n,) for all."""
     import jax  # noqa: PLC0415
 
+    wrench = _jax_functions(module).wrench
+
     def kernel(q, qd, qdd, theta, gravity):
-        return module.base_wrench(q, qd, qdd, gravity, theta)
+        return wrench(q, qd, qdd, gravity, theta)
 
     return jax.jit(kernel)
 

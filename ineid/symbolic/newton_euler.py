@@ -1,4 +1,4 @@
-"""Newton-Euler base-wrench regressor of a serial chain, derived with SymPy.
+"""The Newton-Euler recursion of a serial chain as a straight-line program, derived with SymPy.
 
 For each moving link ``i`` the forward pass propagates, in the link frame, the angular
 velocity ``w_i``, angular acceleration ``wd_i`` and the acceleration of the link origin
@@ -10,14 +10,18 @@ link origin give the net wrench on the link, in its frame, linear in its paramet
     f_i = m a_i + wd_i x h + w_i x (w_i x h)
     n_i = I_O wd_i + w_i x (I_O w_i) + h x a_i
 
-The fixture supplies the sum of these over the moving links (joint forces are internal),
-so the wrench the robot exerts on its fixture, in the base frame about its origin, is::
+Rotated into the base frame, moment about the base origin, its 10 columns are
+``Yn_i`` (6 x 10, rows ``[F; M]``): ``[F; M]_i = Yn_i theta_i``. The fixture supplies the sum
+over the moving links (joint forces are internal), so the wrench the robot exerts on its
+fixture, base frame, about its origin, is ``[F; M] = Psi theta`` with ``Psi = -[Yn_1 ... Yn_n]``.
 
-    F = -sum_i base_R_i f_i
-    M = -sum_i (base_R_i n_i + base_p_i x base_R_i f_i)
-
-and ``[F; M] = Psi(q, qd, qdd; g) @ theta`` with ``theta`` the links' parameters stacked
-in chain order. At rest ``F = m_total * g``: the arm's weight loads the fixture.
+The program mirrors the recursion: per joint, the joint transform and the link's ``w, wd, a,
+base_R, base_p``; per link, ``Yn_i``; per joint, its axis in base Pluecker coordinates
+``(z_j, p_j x z_j)``. SymPy only simplifies each step's expressions of the previous steps'
+*named* results, folding the URDF's constants (exact 0 and +-1 after snapping, zero terms
+dropped), and each non-trivial result is bound to a fresh name: the program grows linearly
+with the chain, and no global common-subexpression elimination is needed (it took hours at
+12 joints). See ``docs/regressor.md``.
 
 References:
     Featherstone (2008), Rigid Body Dynamics Algorithms, ch. 5 (RNEA).
@@ -26,29 +30,32 @@ References:
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import sympy as sp
 
 from ineid.errors import CodegenError
-from ineid.robots.urdf import Chain
+from ineid.robots.chain import Chain
 
 log = logging.getLogger(__name__)
 
-MAX_DERIVED_JOINTS = 16
-"""Most moving joints a chain may have to be derived (see ``docs/regressor.md`` for the
-measured times: the common-subexpression elimination grows steeply with the chain)."""
+MAX_DERIVED_JOINTS = 32
+"""Most moving joints a chain may have to be derived. The derivation itself is linear in the
+chain (about 5 s at 24 joints, 10 s at 48; ``benchmarks/compile.py``); the limit guards what
+follows it: XLA's compile time of the kernels grows faster (24 joints: about a minute per
+kernel on a busy 2-core machine, see ``docs/regressor.md``)."""
 
-SLOW_DERIVATION_JOINTS = 8
-"""Chains with more moving joints than this get a warning before they are derived (minutes to hours)."""
+SLOW_DERIVATION_JOINTS = 16
+"""Chains with more moving joints than this get a warning before they are derived (compiling
+their kernels takes a minute or more)."""
 
-STEPS_AFTER_JOINTS = 4
-"""Logged steps of a derivation after its per-joint ones: the elimination, the two printers
-and the end (``done == total``)."""
+STEPS_AFTER_JOINTS = 3
+"""Logged steps of a derivation after its per-joint ones: the two printers and the end
+(``done == total``)."""
 
 
 def derivation_step(done: int, total: int, message: str, *args: object) -> None:
@@ -66,26 +73,28 @@ def _refuse_long(chain: Chain) -> None:
     if chain.n_dof > MAX_DERIVED_JOINTS:
         raise CodegenError(
             f"{chain.name!r} has {chain.n_dof} moving joints; ineid derives chains of at most {MAX_DERIVED_JOINTS} "
-            f"(the derivation time grows steeply with the chain, see docs/regressor.md); {_LOCK}"
+            f"(compiling the kernels of a longer chain takes too long and too much memory, see docs/regressor.md); "
+            f"{_LOCK}"
         )
 
 
 def check_derivable(chain: Chain) -> None:
-    """Refuse a chain too long to derive in reasonable time (:data:`MAX_DERIVED_JOINTS`); warn
-    (a WARNING log line) about one longer than :data:`SLOW_DERIVATION_JOINTS`.
+    """Refuse a chain too long to derive and compile (:data:`MAX_DERIVED_JOINTS`); warn (a
+    WARNING log line) about one longer than :data:`SLOW_DERIVATION_JOINTS`.
 
     Raises:
         CodegenError: naming the count and the fix (lock joints).
     """
     _refuse_long(chain)
     if chain.n_dof > SLOW_DERIVATION_JOINTS:
-        log.warning("%r has %d moving joints: deriving its regressor takes minutes to hours (see docs/regressor.md); "
+        log.warning("%r has %d moving joints: compiling its regressor's kernels takes a minute or more "
+                    "(see docs/regressor.md); "
                     "to shorten it, %s", chain.name, chain.n_dof, _LOCK)
 
 
 Vec = list  # three sympy expressions
 Mat = list  # 3x3 nested list of sympy expressions
-
+ZERO = sp.Integer(0)
 _SNAP = 1e-14
 
 
@@ -102,20 +111,21 @@ def _num(x: float) -> sp.Expr:
     return sp.Float(x)
 
 
-def _const_mat(m: np.ndarray) -> Mat:
-    return [[_num(m[r, c]) for c in range(3)] for r in range(3)]
+def _eye() -> Mat:
+    return [[sp.Integer(int(r == c)) for c in range(3)] for r in range(3)]
 
 
 def _matmul(a: Mat, b: Mat) -> Mat:
-    return [[sum((a[r][k] * b[k][c] for k in range(3)), sp.Integer(0)) for c in range(3)] for r in range(3)]
+    return [[sum((a[r][k] * b[k][c] for k in range(3)), ZERO) for c in range(3)] for r in range(3)]
 
 
 def _matvec(a: Mat, v: Vec) -> Vec:
-    return [sum((a[r][k] * v[k] for k in range(3)), sp.Integer(0)) for r in range(3)]
+    return [sum((a[r][k] * v[k] for k in range(3)), ZERO) for r in range(3)]
 
 
-def _transpose(a: Mat) -> Mat:
-    return [[a[c][r] for c in range(3)] for r in range(3)]
+def _tmatvec(a: Mat, v: Vec) -> Vec:
+    """``a^T v``."""
+    return [sum((a[k][r] * v[k] for k in range(3)), ZERO) for r in range(3)]
 
 
 def _cross(u: Vec, v: Vec) -> Vec:
@@ -123,7 +133,7 @@ def _cross(u: Vec, v: Vec) -> Vec:
 
 
 def _add(*vs: Vec) -> Vec:
-    return [sum((v[k] for v in vs), sp.Integer(0)) for k in range(3)]
+    return [sum((v[k] for v in vs), ZERO) for k in range(3)]
 
 
 def _scale(v: Vec, s: sp.Expr) -> Vec:
@@ -131,34 +141,97 @@ def _scale(v: Vec, s: sp.Expr) -> Vec:
 
 
 def _skew(v: Vec) -> Mat:
-    z = sp.Integer(0)
-    return [[z, -v[2], v[1]], [v[2], z, -v[0]], [-v[1], v[0], z]]
+    return [[ZERO, -v[2], v[1]], [v[2], ZERO, -v[0]], [-v[1], v[0], ZERO]]
 
 
 def _axis_rotation(axis: Vec, c: sp.Expr, s: sp.Expr) -> Mat:
-    """Rodrigues: ``R = 1 + s K + (1 - c) K^2`` for a unit axis ``k``, ``K = S(k)``."""
+    """Rodrigues: ``R = 1 + s K + (1 - c) K^2`` for a unit axis ``k``, ``K = S(k)``, expanded
+    (sparse for an axis along a frame axis)."""
     k = _skew(axis)
     k2 = _matmul(k, k)
-    eye = [[sp.Integer(int(r == col)) for col in range(3)] for r in range(3)]
+    eye = _eye()
     return [[sp.expand(eye[r][col] + s * k[r][col] + (1 - c) * k2[r][col]) for col in range(3)] for r in range(3)]
 
 
 def _inertia_map(v: Vec) -> list[list[sp.Expr]]:
     """``L(v)`` with ``I_O v = L(v) @ [Ixx, Ixy, Iyy, Ixz, Iyz, Izz]`` (Pinocchio order)."""
-    z = sp.Integer(0)
     return [
-        [v[0], v[1], z, v[2], z, z],
-        [z, v[0], v[1], z, v[2], z],
-        [z, z, z, v[0], v[1], v[2]],
+        [v[0], v[1], ZERO, v[2], ZERO, ZERO],
+        [ZERO, v[0], v[1], ZERO, v[2], ZERO],
+        [ZERO, ZERO, ZERO, v[0], v[1], v[2]],
     ]
+
+
+def _is_identity(m: Mat) -> bool:
+    return all(m[r][c] == (1 if r == c else 0) for r in range(3) for c in range(3))
+
+
+@dataclass
+class _Builder:
+    """Collects the program: each non-trivial expression bound to a fresh name."""
+
+    lines: list = field(default_factory=list)
+    barriers: list = field(default_factory=list)
+    named: set = field(default_factory=set)  # the names of lines other than the trigonometric ones
+    known: dict = field(default_factory=dict)  # expression -> its name, so that none is computed twice
+
+    def let(self, expr: sp.Expr, prefix: str = "t") -> sp.Expr:
+        """``expr`` expanded, bound to a new name unless it is a number, a name or minus a name,
+        or already named (itself or its negative: ``qd0**2`` and ``-qd0**2`` share one line)."""
+        expr = sp.expand(expr)
+        if expr.is_Number or expr.is_Symbol or (expr.is_Mul and len(expr.args) == 2 and expr.args[0] == -1
+                                                 and expr.args[1].is_Symbol):
+            return expr
+        if expr in self.known:
+            return self.known[expr]
+        negated = -expr
+        if negated in self.known:
+            return -self.known[negated]
+        name = sp.Symbol(f"{prefix}{len(self.lines)}", real=True)
+        self.lines.append((name, expr))
+        self.named.add(name)
+        self.known[expr] = name
+        return name
+
+    def vec(self, v: Vec, prefix: str = "t") -> Vec:
+        return [self.let(x, prefix) for x in v]
+
+    def mat(self, m: Mat, prefix: str = "t") -> Mat:
+        return [[self.let(x, prefix) for x in row] for row in m]
+
+    def trig_pair(self, i: int, angle: sp.Symbol) -> tuple[sp.Symbol, sp.Symbol]:
+        c, s = sp.Symbol(f"c{i}", real=True), sp.Symbol(f"s{i}", real=True)
+        self.lines += [(c, sp.cos(angle)), (s, sp.sin(angle))]
+        return c, s
+
+    def barrier(self, values) -> None:
+        """Mark the named values among ``values`` (a name or minus a name) to be materialised here."""
+        names = []
+        for v in values:
+            sym = v if v.is_Symbol else (-v if (-v).is_Symbol else None)
+            if sym is not None and sym in self.named and sym not in names:
+                names.append(sym)
+        if names:
+            self.barriers.append((len(self.lines), tuple(names)))
 
 
 @dataclass(frozen=True)
 class SymbolicRegressor:
-    """``Psi(q, qd, qdd; g)`` as SymPy expressions, with the symbols it depends on.
+    """The structured program of a chain: named lines and the outputs, expressions of its names.
 
-    ``Y[r][c]`` is row ``r`` of ``[Fx, Fy, Fz, Mx, My, Mz]`` (load on the fixture, base
-    frame, moment about the base origin) and column ``c = 10 * link + param``.
+    Every output entry is a SymPy number (exact 0, +-1 or a float), an input or line name,
+    or minus a name. Frames: ``w, wd, a`` of link ``i`` in its own frame, the rest in the
+    base frame (moments about the base origin). Links and joints in chain order.
+
+    Attributes:
+        lines: ``(name, expression)`` in dependency order (trigonometric lines
+            ``c_i = cos(q_i)``, ``s_i = sin(q_i)`` among them).
+        barriers: ``(line count, names)``: after that many lines, these values are complete
+            (a link's pose, then its motion): where the JAX printer materialises them.
+        R: per link ``base_R_i`` (3x3, row-major); p: ``base_p_i`` (3).
+        w, wd, a: per link, link frame (a: origin acceleration minus gravity).
+        axis, moment: per joint, ``z_j`` and ``p_j x z_j`` (its Pluecker coordinates).
+        Yn: per link the 6 x 10 columns of its net wrench, rows ``[F; M]``.
     """
 
     chain: Chain
@@ -166,7 +239,16 @@ class SymbolicRegressor:
     qd: tuple[sp.Symbol, ...]
     qdd: tuple[sp.Symbol, ...]
     gravity: tuple[sp.Symbol, sp.Symbol, sp.Symbol]
-    Y: tuple[tuple[sp.Expr, ...], ...]
+    lines: tuple[tuple[sp.Symbol, sp.Expr], ...]
+    barriers: tuple[tuple[int, tuple[sp.Symbol, ...]], ...]
+    R: tuple
+    p: tuple
+    w: tuple
+    wd: tuple
+    a: tuple
+    axis: tuple
+    moment: tuple
+    Yn: tuple
     seconds: float
 
     @property
@@ -177,29 +259,33 @@ class SymbolicRegressor:
     def shape(self) -> tuple[int, int]:
         return (6, 10 * self.n_dof)
 
-    def split(self, unknown_links: Sequence[int]) -> tuple[sp.Matrix, sp.Matrix]:
-        """``(Psi_unknown, Psi_known)``: the columns of the chosen links and of the rest."""
-        unknown = sorted(set(unknown_links))
-        known = [i for i in range(self.n_dof) if i not in unknown]
+    @property
+    def Y(self) -> tuple[tuple[sp.Expr, ...], ...]:
+        """``Psi`` (6 x 10 n) as expressions of the program's names: ``Psi[r][10 i + k] = -Yn[i][r][k]``."""
+        return tuple(tuple(-self.Yn[c // 10][r][c % 10] for c in range(10 * self.n_dof)) for r in range(6))
 
-        def cols(links: list[int]) -> sp.Matrix:
-            idx = [10 * i + k for i in links for k in range(10)]
-            return sp.Matrix(6, len(idx), lambda r, c: self.Y[r][idx[c]])
+    @property
+    def nonzero(self) -> tuple[tuple[int, ...], ...]:
+        """Per row of ``Psi``, the columns that are not identically zero."""
+        return tuple(tuple(c for c, e in enumerate(row) if e != 0) for row in self.Y)
 
-        return cols(unknown), cols(known)
+    @functools.cached_property
+    def op_count(self) -> int:
+        """Arithmetic operations of the program's lines: ``k - 1`` per sum or product of ``k``
+        terms, one per negation, power, sine or cosine (SymPy's ``count_ops`` counts alike, 20x slower)."""
+        return sum(_ops(rhs) for _, rhs in self.lines)
 
-    def numpy_function(self, cse: bool = True):
-        """SymPy's own evaluation, through ``lambdify`` with NumPy (SymPy's printer, not ours).
-
-        Args:
-            cse: let lambdify eliminate common subexpressions (much faster to build for
-                large arms; without it, each entry is evaluated as one expanded tree).
+    def numpy_function(self):
+        """SymPy's own evaluation of ``Psi``, through ``lambdify`` with NumPy (SymPy's printer, not ours),
+        the program's lines given to it as its common subexpressions.
 
         Returns:
             ``f(q, qd, qdd, gravity) -> (..., 6, 10 * n_dof)`` for ``q`` of shape (..., n_dof).
         """
         flat = [e for row in self.Y for e in row]
-        fn = sp.lambdify((self.q, self.qd, self.qdd, self.gravity), flat, modules="numpy", cse=cse)
+        lines = list(self.lines)
+        fn = sp.lambdify((self.q, self.qd, self.qdd, self.gravity), flat, modules="numpy",
+                         cse=lambda exprs: (lines, list(exprs)))
 
         def f(q, qd, qdd, gravity):
             q, qd, qdd = (np.asarray(x, dtype=np.float64) for x in (q, qd, qdd))
@@ -213,8 +299,120 @@ class SymbolicRegressor:
         return f
 
 
+def _ops(expr: sp.Expr) -> int:
+    """Arithmetic operations of one expression (see :attr:`SymbolicRegressor.op_count`)."""
+    if expr.is_Atom:
+        return 0
+    args = expr.args
+    if expr.is_Mul and args[0] == -1:  # a negation, then the product of the rest
+        return 1 + (len(args) - 2) + sum(_ops(a) for a in args[1:])
+    own = len(args) - 1 if (expr.is_Add or expr.is_Mul) else 1
+    return own + sum(_ops(a) for a in args)
+
+
+def _net_wrench_columns(b: _Builder, R: Mat, p: Vec, w: Vec, wd: Vec, a: Vec) -> tuple:
+    """``Yn`` of one link (6 x 10 rows ``[F; M]``): its net wrench's columns in the base frame,
+    moment about the base origin, from its motion in its own frame."""
+    sw = _skew(w)
+    h_map = b.mat([[_skew(wd)[r][c] + sum((sw[r][m] * sw[m][c] for m in range(3)), ZERO) for c in range(3)]
+                   for r in range(3)])  # f = h_map h: wd x h + w x (w x h)
+    l_w, l_wd = _inertia_map(w), _inertia_map(wd)
+    l_map = b.mat([[l_wd[r][c] + sum((sw[r][m] * l_w[m][c] for m in range(3)), ZERO) for c in range(6)]
+                   for r in range(3)])  # n = l_map vech(I): I wd + w x (I w)
+    f_m = b.vec(_matvec(R, a), "f")  # the mass column: f = m a, n = 0
+    cols = [(f_m, b.vec(_cross(p, f_m), "n"))]
+    f_h = b.mat(_matmul(R, h_map), "f")
+    n_h = b.mat(_matmul(R, [[-x for x in row] for row in _skew(a)]))  # n = h x a = -S(a) h
+    for c in range(3):
+        f = [f_h[r][c] for r in range(3)]
+        cols.append((f, b.vec(_add([n_h[r][c] for r in range(3)], _cross(p, f)), "n")))
+    r_l = [[b.let(sum((R[r][m] * l_map[m][c] for m in range(3)), ZERO), "n") for c in range(6)] for r in range(3)]
+    cols += [([ZERO] * 3, [r_l[r][c] for r in range(3)]) for c in range(6)]
+    return tuple(tuple((cols[c][0] + cols[c][1])[r] for c in range(10)) for r in range(6))
+
+
+_PRIME = 2**61 - 1
+"""A Mersenne prime: the program evaluated modulo it, exactly (:func:`_vanishing`)."""
+
+
+def _mod_value(expr: sp.Expr, env: dict) -> int:
+    """``expr`` (numbers, names, ``+``, ``*``, integer powers) evaluated exactly modulo :data:`_PRIME`."""
+    if expr.is_Symbol:
+        return env[expr]
+    if expr.is_Rational:
+        return expr.p * pow(expr.q, -1, _PRIME) % _PRIME
+    if expr.is_Float:
+        num, den = float(expr).as_integer_ratio()  # a URDF constant is a binary fraction, exactly
+        return num * pow(den, -1, _PRIME) % _PRIME
+    if expr.is_Add:
+        return sum(_mod_value(a, env) for a in expr.args) % _PRIME
+    if expr.is_Mul:
+        out = 1
+        for a in expr.args:
+            out = out * _mod_value(a, env) % _PRIME
+        return out
+    if expr.is_Pow and expr.exp.is_Integer:
+        return pow(_mod_value(expr.base, env), int(expr.exp), _PRIME)
+    raise ValueError(f"no modular evaluation of {expr.func.__name__}")
+
+
+def _vanishing(sym_inputs, lines, entries, n_points: int = 2) -> list[bool]:
+    """Which ``entries`` (expressions of the program's names) vanish identically.
+
+    Named intermediates hide cancellations that expanding everything would show (``c^2 + s^2 =
+    1`` among them), so an entry that is zero for every state can come out as round-off.
+    Each is evaluated exactly, in the integers modulo a 61-bit prime, at random points with
+    ``cos``/``sin`` of each angle parametrized rationally (``c = (1 - t^2)/(1 + t^2)``,
+    ``s = 2 t/(1 + t^2)``, so ``c^2 + s^2 = 1`` holds exactly): an entry that is not
+    identically zero vanishes at such a point with probability below ``1e-15``. The URDF's
+    constants enter as the binary fractions they are (a rotation read from ``rpy`` is not
+    exactly orthogonal), as SymPy's expansion saw them. Seeded: the same program, the same answer.
+    """
+    import random  # noqa: PLC0415
+
+    rng = random.Random(len(lines))
+    zero = [True] * len(entries)
+    for _ in range(n_points):
+        env = {s: rng.randrange(1, _PRIME) for s in sym_inputs}
+        angle_t: dict = {}  # one t per angle: its cosine and sine
+        for lhs, rhs in lines:
+            if isinstance(rhs, (sp.sin, sp.cos)):
+                t = angle_t.setdefault(rhs.args[0], rng.randrange(1, _PRIME))
+                inv = pow(1 + t * t, -1, _PRIME)  # never 0: -1 is not a square modulo this prime
+                env[lhs] = ((1 - t * t) if isinstance(rhs, sp.cos) else 2 * t) * inv % _PRIME
+            else:
+                env[lhs] = _mod_value(rhs, env)
+        for k, e in enumerate(entries):
+            if zero[k] and _mod_value(e, env) != 0:
+                zero[k] = False
+    return zero
+
+
+def _prune(lines: list, barriers: list, outputs) -> tuple[list, list]:
+    """The lines (and barrier names) that the outputs need, in their order."""
+    used: set = set()
+    for e in outputs:
+        used |= e.free_symbols
+    kept = []
+    for lhs, rhs in reversed(lines):
+        if lhs in used:
+            kept.append((lhs, rhs))
+            used |= rhs.free_symbols
+    kept.reverse()
+    names = {lhs for lhs, _ in kept}
+    position = [0]  # kept lines among the first k
+    for lhs, _ in lines:
+        position.append(position[-1] + (lhs in names))
+    bars = []
+    for at, values in barriers:
+        values = tuple(v for v in values if v in names)
+        if values:
+            bars.append((position[at], values))
+    return kept, bars
+
+
 def derive_base_wrench_regressor(chain: Chain) -> SymbolicRegressor:
-    """Derive ``Psi`` for a chain, see the module docstring for the equations.
+    """Derive the structured program of a chain, see the module docstring for the equations.
 
     Each joint is logged as a step (:func:`derivation_step`) of ``n_dof + STEPS_AFTER_JOINTS``.
 
@@ -229,62 +427,71 @@ def derive_base_wrench_regressor(chain: Chain) -> SymbolicRegressor:
     qd = sp.symbols(f"qd0:{n}", real=True)
     qdd = sp.symbols(f"qdd0:{n}", real=True)
     g = sp.symbols("g0:3", real=True)
-    zero = sp.Integer(0)
-
-    w: Vec = [zero, zero, zero]
-    wd: Vec = [zero, zero, zero]
+    b = _Builder()
+    w: Vec = [ZERO] * 3
+    wd: Vec = [ZERO] * 3
     a: Vec = [-g[0], -g[1], -g[2]]
-    base_R: Mat = [[sp.Integer(int(r == c)) for c in range(3)] for r in range(3)]
-    base_p: Vec = [zero, zero, zero]
-    columns: list[list[sp.Expr]] = []  # 10 * n columns of 6 entries
-
+    R: Mat = _eye()
+    p: Vec = [ZERO] * 3
+    out: dict[str, list] = {k: [] for k in ("R", "p", "w", "wd", "a", "axis", "moment", "Yn")}
     for i, joint in enumerate(chain.joints):
         derivation_step(i + 1, total, "Newton-Euler terms of joint %d of %d, %s", i + 1, n, ascii(joint.name))
-        P = _const_mat(joint.parent_R_joint)
-        r = [_num(x) for x in joint.parent_p_joint]
-        axis = [_num(x) for x in joint.axis]
-        if joint.type == "revolute":
-            rq = _axis_rotation(axis, sp.cos(q[i]), sp.sin(q[i]))
-            parent_R_i = _matmul(P, rq)
-            offset = r
+        P = [[_num(joint.parent_R_joint[r, c]) for c in range(3)] for r in range(3)]
+        r_ = [_num(x) for x in joint.parent_p_joint]
+        k = [_num(x) for x in joint.axis]
+        revolute = joint.type == "revolute"
+        if revolute:
+            rq = _axis_rotation(k, *b.trig_pair(i, q[i]))
+            offset = r_
         else:  # prismatic: translation along the axis, no rotation
-            parent_R_i = P
-            offset = _add(r, _scale(_matvec(P, axis), q[i]))
-        i_R_parent = _transpose(parent_R_i)
-        # Origin acceleration in the parent frame, then rotated into link i.
-        a_parent = _add(a, _cross(wd, offset), _cross(w, _cross(w, offset)))
-        a_new = _matvec(i_R_parent, a_parent)
-        w_rot = _matvec(i_R_parent, w)
-        wd_rot = _matvec(i_R_parent, wd)
-        if joint.type == "revolute":
-            w_new = _add(w_rot, _scale(axis, qd[i]))
-            wd_new = _add(wd_rot, _scale(axis, qdd[i]), _cross(w_rot, _scale(axis, qd[i])))
+            rq = _eye()
+            offset = b.vec(_add(r_, _scale(_matvec(P, k), q[i])))
+        # the pose: base_p_i at the joint origin, base_R_i = base_R_{i-1} P Rq
+        p_new = b.vec(_add(p, _matvec(R, offset)), "p")
+        ident = _is_identity(P)
+        r_p = R if ident else b.mat(_matmul(R, P))
+        R_new = b.mat(_matmul(r_p, rq), "R")
+        b.barrier([*p_new, *(x for row in R_new for x in row)])
+
+        def to_link(v: Vec) -> Vec:
+            """``(P Rq)^T v``, each stage named."""
+            if all(x == 0 for x in v):
+                return [ZERO] * 3
+            v1 = v if ident else b.vec(_tmatvec(P, v))
+            return b.vec(_tmatvec(rq, v1))
+
+        # origin acceleration in the parent frame, then everything rotated into link i
+        w_r = b.vec(_cross(w, offset))
+        a_new = to_link(b.vec(_add(a, _cross(wd, offset), _cross(w, w_r))))
+        w_rot, wd_rot = to_link(w), to_link(wd)
+        if revolute:
+            w_new = b.vec(_add(w_rot, _scale(k, qd[i])))
+            wd_new = b.vec(_add(wd_rot, _scale(k, qdd[i]), _cross(w_rot, _scale(k, qd[i]))))
         else:
             w_new, wd_new = w_rot, wd_rot
-            a_new = _add(a_new, _scale(_cross(w_new, axis), 2 * qd[i]), _scale(axis, qdd[i]))
-        base_p = _add(base_p, _matvec(base_R, offset))
-        base_R = _matmul(base_R, parent_R_i)
-        w, wd, a = w_new, wd_new, a_new
+            a_new = b.vec(_add(a_new, _scale(_cross(w_new, k), 2 * qd[i]), _scale(k, qdd[i])))
+        w, wd, a, R, p = w_new, wd_new, a_new, R_new, p_new
+        b.barrier([*w, *wd, *a])
+        z = b.vec(_matvec(R, k), "z")  # the joint axis (constant in the link frame), base frame
+        out["axis"].append(tuple(z))
+        out["moment"].append(tuple(b.vec(_cross(p, z), "m")))
+        for key, value in (("R", tuple(tuple(row) for row in R)), ("p", tuple(p)), ("w", tuple(w)),
+                           ("wd", tuple(wd)), ("a", tuple(a))):
+            out[key].append(value)
+        out["Yn"].append(_net_wrench_columns(b, R, p, w, wd, a))
+    # columns that vanish identically become exact zeros (structure the solvers and NONZERO rely on)
+    flat = [e for yn in out["Yn"] for row in yn for e in row]
+    zero = iter(_vanishing((*q, *qd, *qdd, *g), b.lines, flat))
+    out["Yn"] = [tuple(tuple(ZERO if next(zero) else e for e in row) for row in yn) for yn in out["Yn"]]
+    every = [e for key in out for e in _flatten(out[key])]
+    lines, barriers = _prune(b.lines, b.barriers, [e for e in every if isinstance(e, sp.Basic)])
+    return SymbolicRegressor(chain, q, qd, qdd, g, tuple(lines), tuple(barriers),
+                             **{k: tuple(v) for k, v in out.items()}, seconds=time.perf_counter() - t0)
 
-        # Link-frame regressor blocks: f = A_f theta, n = A_n theta.
-        s_wd, s_w = _skew(wd), _skew(w)
-        s_w2 = _matmul(s_w, s_w)
-        h_map = [[s_wd[r_][c] + s_w2[r_][c] for c in range(3)] for r_ in range(3)]
-        l_wd, l_w = _inertia_map(wd), _inertia_map(w)
-        s_w_l_w = [[sum((s_w[r_][k] * l_w[k][c] for k in range(3)), zero) for c in range(6)] for r_ in range(3)]
-        neg_s_a = [[-x for x in row] for row in _skew(a)]
-        for c in range(10):
-            if c == 0:
-                f_col, n_col = list(a), [zero, zero, zero]
-            elif c < 4:
-                f_col = [h_map[r_][c - 1] for r_ in range(3)]
-                n_col = [neg_s_a[r_][c - 1] for r_ in range(3)]
-            else:
-                f_col = [zero, zero, zero]
-                n_col = [l_wd[r_][c - 4] + s_w_l_w[r_][c - 4] for r_ in range(3)]
-            f_base = _matvec(base_R, f_col)
-            n_base = _add(_matvec(base_R, n_col), _cross(base_p, f_base))
-            columns.append([-x for x in (*f_base, *n_base)])
 
-    Y = tuple(tuple(columns[c][r_] for c in range(10 * n)) for r_ in range(6))
-    return SymbolicRegressor(chain, q, qd, qdd, g, Y, time.perf_counter() - t0)
+def _flatten(x):
+    if isinstance(x, (tuple, list)):
+        for v in x:
+            yield from _flatten(v)
+    else:
+        yield x
