@@ -48,6 +48,7 @@ generate: setup
 
 bench: setup-dev
 	$(PY) benchmarks/regressor.py
+	$(PY) benchmarks/compile.py
 	$(PY) benchmarks/public_api.py
 	$(PY) benchmarks/data.py
 	$(PY) benchmarks/identify.py

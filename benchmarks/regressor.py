@@ -15,8 +15,9 @@ each chunk is waited for (``block_until_ready``) and dropped, so at most one chu
 output is held. Chunk size (and map mode, Pinocchio route) are picked by one probe pass
 over <= 100k frames; the time is the best of ``--repeats`` passes.
 
-Table 2: seconds to derive the regressor (SymPy) and to emit the code (CSE + printing),
-and the op count, for sweaty-arm and the 7-DOF Panda of example-robot-data (fingers locked).
+Table 2: seconds to derive the structured Newton-Euler program (SymPy) and to print its JAX
+and CasADi modules, its operation count and named values, for sweaty-arm and the 7-DOF Panda of
+example-robot-data (fingers locked). ``benchmarks/compile.py`` has the compile times.
 """
 
 from __future__ import annotations
@@ -205,7 +206,7 @@ def measure(candidates, n: int, repeats: int, ref: np.ndarray, frames=np.asarray
 
 
 def codegen_rows() -> list[tuple]:
-    """(robot, dof, derive s, emit s, of which CSE s, ops, temporaries) for sweaty-arm and the Panda."""
+    """(robot, dof, derive s, print s, ops, named values) for sweaty-arm and the Panda."""
     from ineid.robots.urdf import load_chain  # noqa: PLC0415
     from ineid.symbolic.emit import emit_modules  # noqa: PLC0415
     from ineid.symbolic.newton_euler import derive_base_wrench_regressor  # noqa: PLC0415
@@ -221,8 +222,7 @@ def codegen_rows() -> list[tuple]:
         t1 = time.perf_counter()
         emitted = emit_modules(sym, name)
         t2 = time.perf_counter()
-        rows.append((name, chain.n_dof, t1 - t0, t2 - t1, emitted.cse_seconds, emitted.op_count,
-                     emitted.n_temporaries))
+        rows.append((name, chain.n_dof, t1 - t0, t2 - t1, emitted.op_count, emitted.n_lines))
     return rows
 
 
@@ -275,10 +275,10 @@ def main(argv=None) -> None:
         ratio = results[key][1] / results[key][2] / pin_fps
         print(f"floor >= 5x Pinocchio frames/s: {what}: {ratio:.2f}x -> {'MET' if ratio >= 5 else 'NOT MET'}")
 
-    print("\ncode generation: derive = SymPy Newton-Euler; emit = CSE + printing of the JAX and CasADi modules")
-    print(f"{'robot':<12} {'DOF':>4} {'derive s':>9} {'emit s':>8} {'(CSE s)':>8} {'ops':>7} {'temporaries':>12}")
-    for name, dof, t_derive, t_emit, t_cse, ops, temps in codegen_rows():
-        print(f"{name:<12} {dof:>4} {t_derive:>9.2f} {t_emit:>8.2f} {t_cse:>8.2f} {ops:>7,} {temps:>12,}")
+    print("\ncode generation: derive = SymPy Newton-Euler program; print = the JAX and CasADi modules")
+    print(f"{'robot':<12} {'DOF':>4} {'derive s':>9} {'print s':>8} {'ops':>7} {'named values':>13}")
+    for name, dof, t_derive, t_print, ops, lines in codegen_rows():
+        print(f"{name:<12} {dof:>4} {t_derive:>9.2f} {t_print:>8.2f} {ops:>7,} {lines:>13,}")
 
 
 if __name__ == "__main__":

@@ -72,7 +72,8 @@ def _version() -> str:
 
 
 def configure_logging(verbosity: int) -> None:
-    """``-v`` INFO (files read, cache hits, code generation), ``-vv`` DEBUG and JAX's compile log."""
+    """``-v`` INFO (files read, cache hits, code generation), ``-vv`` DEBUG, JAX's compile log and
+    XLA's own C++ log lines (silenced below ``-vv``)."""
     from ineid.cli.output import show_derivation_progress  # noqa: PLC0415
 
     level = max(logging.DEBUG, min(logging.CRITICAL, logging.WARNING - 10 * verbosity))
@@ -86,6 +87,12 @@ def configure_logging(verbosity: int) -> None:
     show_derivation_progress(verbosity == 0)  # -v logs each step anyway; -q shows nothing
     if verbosity >= 2:
         os.environ.setdefault("JAX_LOG_COMPILES", "1")
+    elif "jax" not in sys.modules:
+        # XLA's C++ log (``E... slow_operation_alarm.cc] Constant folding an instruction is taking
+        # > 1s``, ...) writes raw lines to stderr at ERROR level: only FATAL below -vv. XLA reads
+        # the level when JAX is first imported (JAX itself sets 1, warnings and errors); a value
+        # the user set wins.
+        os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
 
 @click.group(cls=IneidGroup, context_settings={"help_option_names": ["-h", "--help"]})
