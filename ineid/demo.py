@@ -46,7 +46,7 @@ def main(n_frames: int = 100_000, seed: int = 0) -> None:
 
     print(f"\n{model!r}")
     print(f"unknown links {', '.join(model.unknown_links)} -> {len(model.unknown_index)} parameters to identify")
-    print(f"regressor Psi(q, qd, qdd): 6 x {10 * model.n_links}, {model.op_count} operations after CSE")
+    print(f"regressor Psi(q, qd, qdd): 6 x {10 * model.n_links}, {model.op_count} operations in its generated program")
     print(f"JAX regressor: {n_frames:,} frames in {seconds * 1e3:.1f} ms = {n_frames / seconds / 1e6:.2f} M frames/s")
     print(f"JAX wrench Psi@theta (fused): {seconds_w * 1e3:.1f} ms = {n_frames / seconds_w / 1e6:.2f} M frames/s")
     print(f"CasADi vs JAX on {n_check} frames: max relative difference {agree:.1e}")
