@@ -179,10 +179,14 @@ def test_ill_conditioned_configurations_take_the_qr_route(arm, base):
     assert not np.isfinite(fit.cond[slow]) or fit.cond[slow] > NORMAL_MAX_COND
     res = solve_dataset(ds, SolveSettings(), model=arm)
     assert res.n_frames_fit == 32
-    w, y = stack(arm, *fitted, ds.theta_known)
-    ref = fit_base(w, y, base)
-    assert res.success[slow] == ref.full_rank[slow]
-    np.testing.assert_allclose(res.base_hat[slow], ref.beta[slow], rtol=1e-12)  # the same QR
+    # a refit of this few frames stacks through CasADi (SMALL_JOB_FRAMES: no kernel compiled for it)
+    assert 32 <= model_module.SMALL_JOB_FRAMES
+    w, y = stack_casadi(arm, *(a[slow] for a in fitted), ds.theta_known)
+    ref = fit_base(w[None], y[None], base)
+    assert res.success[slow] == ref.full_rank[0]
+    np.testing.assert_allclose(res.base_hat[slow], ref.beta[0], rtol=1e-12)  # the same QR
+    w, y = stack(arm, *fitted, ds.theta_known)  # the JAX stacks: the same to round-off, amplified by cond
+    np.testing.assert_allclose(res.base_hat[slow], fit_base(w, y, base).beta[slow], rtol=1e-9)
 
 
 def test_base_parameters_from_casadi_equal_the_jax_stacks(arm, base):
@@ -247,7 +251,8 @@ def test_second_solve_command_logs_its_cache_hits(arm, noisy, tmp_path):
 
     first, second = solve(), solve()
     assert "cache hit" not in first and "YOURDFPY True" in first
-    assert second.count("ineid: XLA compilation cache hit") >= 2 and "YOURDFPY False" in second
+    # one kernel, the blocks: this small job's residuals come from CasADi (SMALL_JOB_FRAMES)
+    assert second.count("ineid: XLA compilation cache hit") == 1 and "YOURDFPY False" in second
 
 
 def test_user_cache_setting_wins(tmp_path, monkeypatch):

@@ -155,7 +155,12 @@ class GenerationPlan:
         require_memory(10 * chunk, f"{spec.n_frames:,} frames per configuration", "use fewer frames (--n-frames)")
 
     def _values(self, q, qd, qdd, theta) -> np.ndarray:
-        """What the channels read, stacked: (n, F, n_axes) (the base wrench alone: the generated ``base_wrench``)."""
+        """What the channels read, stacked: (n, F, n_axes) (the base wrench alone: the composed ``base_wrench``);
+        through CasADi for a dataset of at most :data:`ineid.robots.model.SMALL_JOB_FRAMES` frames."""
+        from ineid.robots.model import SMALL_JOB_FRAMES  # noqa: PLC0415
+
+        if self.n_configs * self.spec.n_frames <= SMALL_JOB_FRAMES:  # a small dataset: CasADi, no compilation
+            return self._values_casadi(q, qd, qdd, theta)
         import jax  # noqa: PLC0415
 
         if self._values_fn is None:
@@ -170,6 +175,16 @@ class GenerationPlan:
             theta = np.concatenate([theta, np.repeat(theta[-1:], pad, axis=0)])
         full = self.model.full_theta(theta, self.theta_known)[:, None, :]
         return np.asarray(self._values_fn(q, qd, qdd, self.model.gravity, full))[:n]
+
+    def _values_casadi(self, q, qd, qdd, theta) -> np.ndarray:
+        """:meth:`_values` through the channels' CasADi rows ``T Phi`` (the same values to round-off)."""
+        n, f = q.shape[:2]
+        rows_fn = self.channels.casadi_rows(self.model)
+        flat = [a.reshape(n * f, -1).T for a in (q, qd, qdd)]
+        n_axes = self.channels.n_axes(self.model)
+        rows = np.array(rows_fn.map(n * f)(*flat)).reshape(n_axes, n * f, -1).transpose(1, 0, 2)
+        full = self.model.full_theta(theta, self.theta_known)
+        return np.einsum("nfap,np->nfa", rows.reshape(n, f, n_axes, -1), full)
 
     def chunks(self) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
         """Yield ``(first configuration, arrays)`` chunk by chunk."""

@@ -52,6 +52,7 @@ import numpy as np
 
 from ineid.cache import enable_compilation_cache
 from ineid.channels import BASE_WRENCH, ChannelSet
+from ineid.robots.model import SMALL_JOB_FRAMES
 
 TARGET_FRAMES = 2048
 """Frames (configurations x frames) per compiled call: the chunk the regressor runs fastest on."""
@@ -419,6 +420,9 @@ def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int, bias: np.ndarray
         ``(ssr_fit (C, A), ssr_held (C, A), ss_held (C,))``: per axis, the sum over the
         fitted and over the held-out frames of the squared residual, and the sum of the
         squared measured values over the held-out frames (all axes).
+
+    A job of at most :data:`ineid.robots.model.SMALL_JOB_FRAMES` frames is evaluated through CasADi (the same
+    sums to round-off), a larger one by a compiled kernel.
     """
     channels = BASE_WRENCH if channels is None else channels
     n_axes = channels.n_axes(model)
@@ -430,8 +434,22 @@ def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int, bias: np.ndarray
     fit = np.broadcast_to(fit[None, :, None], (n_configs, n_frames, 1))
     theta = np.asarray(theta, dtype=np.float64)
     bias = np.zeros((n_configs, n_axes)) if bias is None else np.asarray(bias, dtype=np.float64)
+    if n_configs * n_frames <= SMALL_JOB_FRAMES:
+        return _residual_sums_casadi(model, channels, arrays, theta, bias, n_fit)
     kernel = _residual_kernel(channels.structure(model))
     ssr_fit, ssr_held, ss_held = _map_chunks(kernel, [*arrays, fit], [theta, bias],
                                              (model.gravity, _transforms(channels, model)),
                                              target=RESIDUAL_TARGET_FRAMES)
     return ssr_fit, ssr_held, ss_held
+
+
+def _residual_sums_casadi(model, channels: ChannelSet, arrays, theta, bias, n_fit: int):
+    """:func:`residual_sums` of a small job through CasADi's stacked rows ``T Phi`` (no compilation)."""
+    q, qd, qdd, wrench = arrays
+    n_configs, n_frames, n_axes = wrench.shape
+    n = n_configs * n_frames
+    flat = [a.reshape(n, -1).T for a in (q, qd, qdd)]
+    rows = np.array(channels.casadi_rows(model).map(n)(*flat)).reshape(n_axes, n, -1).transpose(1, 0, 2)
+    predicted = np.einsum("cfap,cp->cfa", rows.reshape(n_configs, n_frames, n_axes, -1), theta) + bias[:, None, :]
+    r2 = (wrench - predicted) ** 2
+    return r2[:, :n_fit].sum(axis=1), r2[:, n_fit:].sum(axis=1), (wrench[:, n_fit:] ** 2).sum(axis=(1, 2))

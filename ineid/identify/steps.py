@@ -23,6 +23,7 @@ from ineid.identify.identifiability import BaseParameters
 from ineid.identify.linear import BaseFit, Estimate, axis_weights, fit_base, fit_base_blocks, fit_base_casadi
 from ineid.identify.nlp import NlpSolver, estimate_from_solves, nlp_estimate
 from ineid.identify.systems import Offsets, predict_wrench, remove_offsets, stack, stack_casadi
+from ineid.robots.model import SMALL_JOB_FRAMES
 
 PARALLEL_MIN_CONFIGS = 256
 """Fewer configurations are solved in this process: starting workers costs about a second."""
@@ -105,6 +106,15 @@ REFERENCE_ROWS = 200_000
 """Frames per batch when configurations are refitted through the stacked QR (reference)."""
 
 
+def _refit_stack(model, q, qd, qdd, wrench, theta_known, channels):
+    """:func:`stack` of a few configurations, through CasADi when they are few frames
+    (:data:`ineid.robots.model.SMALL_JOB_FRAMES`: no regressor kernel compiled for them)."""
+    if q.shape[0] * q.shape[1] > SMALL_JOB_FRAMES:
+        return stack(model, q, qd, qdd, wrench, theta_known, channels)
+    pairs = [stack_casadi(model, q[c], qd[c], qdd[c], wrench[c], theta_known, channels) for c in range(q.shape[0])]
+    return np.stack([w for w, _ in pairs]), np.stack([y for _, y in pairs])
+
+
 def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress,
                blocks_fn=information_blocks,
                channels: ChannelSet | None = None) -> tuple[BaseFit, np.ndarray, Offsets | None]:
@@ -132,7 +142,7 @@ def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress,
     per = max(1, REFERENCE_ROWS // max(blocks.n_frames, 1))
     for start in range(0, len(rows), per):
         idx = rows[start : start + per]
-        w, y = stack(model, q[idx], qd[idx], qdd[idx], wrench[idx], ds.theta_known, channels)
+        w, y = _refit_stack(model, q[idx], qd[idx], qdd[idx], wrench[idx], ds.theta_known, channels)
         if with_bias:
             w, y, _ = remove_offsets(w, y, n_axes, mask)
         ref = fit_base(w, y, base, settings.weights, axis_sigma, n_axes)

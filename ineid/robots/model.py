@@ -370,6 +370,12 @@ class RobotModel:
 CHUNK_FRAMES = 2048
 """Frames per compiled call of the public evaluators. XLA:CPU keeps a chunk's temporaries
 in cache up to a few thousand frames; throughput falls beyond (benchmarks/regressor.py)."""
+SMALL_JOB_FRAMES = 10_000
+"""Jobs of at most this many frames that a compiled kernel would serve once (a small dataset's
+generation, its solver's refits and residuals) evaluate through CasADi instead: its virtual
+machine needs no compilation and takes about 10 us a frame for a 7-joint arm, where XLA
+compiles each kernel for seconds (3 s of CPU for a 7-joint arm, ``benchmarks/compile.py``)
+before its first call."""
 SMALL_FRAMES = 64
 """Calls of at most this many frames, and remainders this short, use a second, small
 compiled shape instead of a padded full chunk."""
