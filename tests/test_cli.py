@@ -27,7 +27,7 @@ def test_robot_list_and_show(run):
     assert r.exit_code == 0 and r.output.startswith("sweaty-arm")
     r = run("robot", "show", "sweaty-arm")
     assert r.exit_code == 0
-    for word in ("shoulder_pitch", "upper_arm_yaw", "forearm", "hand", "Ixy", "1256 operations"):
+    for word in ("shoulder_pitch", "upper_arm_yaw", "forearm", "hand", "Ixy", "1173 operations"):
         assert word in r.output
     cells = [[c.strip() for c in line.split("│")[1:-1]] for line in r.output.splitlines() if line.startswith("│")]
     roles = {row[0]: row[1] for row in cells if row[1] in ("known", "unknown")}
@@ -70,7 +70,7 @@ def test_non_finite_joint_origin_is_one_line_and_leaves_no_code(run, tmp_path, m
 def test_generate_builtin_to_folder_matches_checked_in(run, tmp_path):
     r = run("generate", "sweaty-arm", "--out", tmp_path)
     assert r.exit_code == 0, r.output
-    assert "1256 operations" in r.output
+    assert "1173 operations" in r.output
     for name in ("sweaty_arm_jax.py", "sweaty_arm_casadi.py"):
         assert (tmp_path / name).read_bytes() == (BUILTIN_DIR / name).read_bytes()
 
