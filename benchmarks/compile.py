@@ -17,7 +17,9 @@ inertias; seeded) the table gives, per chain:
   of ``computeJointTorqueRegressor`` (the n x 10n joint-torque regressor), ``rnea`` and
   ineid.reference's base regressor (``jointBodyRegressor`` blocks), best of 3 passes of 300.
 
-JAX's persistent compilation cache is off, so every compile is a real one. Every result is
+Compile and derivation times are also given in CPU seconds of this process (the steadier
+figure on a shared machine). JAX's persistent compilation cache is off, so every compile is
+a real one. Every result is
 checked against Pinocchio's base regressor on 20 frames (1e-12 relative) before it is timed.
 The load average (``os.getloadavg``) is printed before and after: the machine is often shared.
 """
@@ -199,8 +201,8 @@ def main(argv=None) -> None:
     us = 1e6
     print(f"\nfirst run of a new chain: seconds, except the per-frame times (us); JAX on {CHUNK}-frame chunks, "
           "compile = XLA, first = first call of the compiled executable")
-    print("(derive+print and compile also as CPU seconds, 'wall/cpu': the compiler uses one core, so CPU seconds "
-          "are what a quiet machine would take)")
+    print("(derive+print and compile also as CPU seconds, 'wall/cpu': the compiler uses one core, so on a shared "
+          "machine its CPU seconds are the steadier figure; contention still inflates them)")
     head = (f"{'joints':>6} {'derive':>7} {'print':>6} {'cpu':>5} {'ops':>6} {'load':>6} | {'reg lower':>9} "
             f"{'compile wall/cpu':>16} {'first':>6} {'us/fr':>6} | {'wrench compile':>14} {'us/fr':>6} | "
             f"{'CasADi build':>12} {'us/fr':>6} | "
