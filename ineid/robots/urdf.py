@@ -7,8 +7,9 @@ Parsing is yourdfpy's (once per URDF text: the result is kept in the cache folde
   does); links welded to the root belong to the fixture and are tared away;
 * ``locked_joints`` turns chosen moving joints into fixed ones at a given position (the
   way to drop a gripper's fingers, for example); a joint that ``<mimic>``s a locked joint is
-  locked with it, at ``multiplier * position + offset``; :func:`tip_locks` locks every joint
-  off the path from the root to a chosen tip link;
+  locked with it, at ``multiplier * position + offset``;
+* joint ``rpy`` angles within :data:`~ineid.robots.cad_rounding.ANGLE_ATOL` of a multiple of
+  pi/2 are CAD rounding (``3.14159265359``) and are snapped to it (:mod:`ineid.robots.cad_rounding`);
 * continuous joints are revolute joints without position limits;
 * each link's ``<inertial>`` is read by :func:`ineid.robots.inertial.link_inertial`: links
   without mass are frames, point masses are accepted, a non-physical body with real mass is
@@ -37,6 +38,7 @@ import numpy as np
 
 from ineid.errors import RobotModelError
 from ineid.params import theta_from_inertial
+from ineid.robots.cad_rounding import snap_joint_angles
 from ineid.robots.chain import BodyLink, Chain, JointSpec
 from ineid.robots.inertial import link_inertial
 from ineid.robots.urdf_cache import CHAIN_SUBDIR, _chain_file, _chain_key, _store_chain, cached_chain  # noqa: F401
@@ -106,7 +108,8 @@ def _parse_chain(data: bytes, source: str, locked_joints: Mapping[str, float] | 
         for j in root.iter("joint")
         if j.find("ineid") is not None and j.find("ineid").get("acceleration") is not None
     }
-    return _build_chain(robot, source, dict(locked_joints or {}), qdd_bounds)
+    notes = snap_joint_angles(root, robot)
+    return _build_chain(robot, source, dict(locked_joints or {}), qdd_bounds, notes)
 
 
 def _check_elements(root: ET.Element, source: str) -> None:
@@ -182,7 +185,7 @@ def _fold(theta: np.ndarray, parent_R: np.ndarray, parent_p: np.ndarray) -> np.n
     return theta_from_inertial(m, parent_R @ c + parent_p, parent_R @ ic @ parent_R.T)
 
 
-_LOCK_HINT = "lock them with --lock JOINT=POS, or keep one arm with --tip LINK (Python: locked_joints={name: position})"
+_LOCK_HINT = "lock the joints of the other branches with --lock JOINT=POS (Python: locked_joints={name: position})"
 
 
 def _mimic_locks(robot, locked: dict[str, float]) -> tuple[dict[str, float], list[str]]:
@@ -205,7 +208,9 @@ def _mimic_locks(robot, locked: dict[str, float]) -> tuple[dict[str, float], lis
     return locked, notes
 
 
-def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[str, str]) -> Chain:
+def _build_chain(
+    robot, source: str, locked: dict[str, float], qdd_bounds: dict[str, str], notes: list[str]
+) -> Chain:
     links = {link.name: link for link in robot.links}
     if not links:
         raise RobotModelError(f"{source}: the URDF has no <link>")
@@ -213,7 +218,8 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
     for name in locked:
         if name not in joints_by_name:
             raise RobotModelError(f"{source}: locked joint {name!r} is not in the URDF (joints: {', '.join(joints_by_name)})")
-    locked, notes = _mimic_locks(robot, locked)
+    locked, mimic_notes = _mimic_locks(robot, locked)
+    notes = [*notes, *mimic_notes]
     children: dict[str, list] = {name: [] for name in links}
     child_seen: dict[str, str] = {}
     for j in robot.joints:
@@ -404,60 +410,3 @@ def fixed_frame_pose(
         name = j.parent
     return r_acc, p_acc
 
-
-def tip_locks(
-    text: bytes | str, tip: str, locked_joints: Mapping[str, float] | None = None, source: str = "<urdf>"
-) -> tuple[dict[str, float], tuple[str, ...]]:
-    """The locks that keep only the chain from the root to link ``tip`` moving (``--tip LINK``).
-
-    Every joint that is not fixed and not on the path from the root to ``tip`` (other
-    branches, and whatever lies beyond the tip) is locked at 0, clamped into its limits;
-    the positions in ``locked_joints`` win. A joint that mimics a joint locked here is left
-    to the parse, which locks it with its leader (:func:`parse_chain`).
-
-    Returns:
-        ``(locked, added)``: every lock (``locked_joints`` included) and the joints added, in URDF order.
-
-    Raises:
-        RobotModelError: the URDF is not XML, or has no link ``tip``.
-    """
-    data = text.encode() if isinstance(text, str) else text
-    try:
-        root = ET.fromstring(data)
-    except ET.ParseError as e:
-        raise RobotModelError(f"{source}: malformed XML ({e}); fix the file so that it is well-formed XML") from None
-    links = [el.get("name") for el in root.findall("link")]
-    joints = root.findall("joint")
-    if tip not in links:
-        hint = next((f" ({tip!r} is a joint; give its child link)" for j in joints if j.get("name") == tip), "")
-        raise RobotModelError(f"{source}: --tip {tip!r} is not a link of the URDF{hint}; links: {', '.join(links)}")
-    parent_joint = {(j.find("child").get("link") if j.find("child") is not None else None): j for j in joints}
-    path, name, seen = set(), tip, set()
-    while name in parent_joint and name not in seen:  # a cycle is the parse's to report
-        seen.add(name)
-        path.add(parent_joint[name].get("name"))
-        name = parent_joint[name].find("parent").get("link") if parent_joint[name].find("parent") is not None else None
-    locked = {str(k): float(v) for k, v in (locked_joints or {}).items()}
-    off = [j for j in joints if j.get("type") != "fixed" and j.get("name") not in path]
-    locking = {j.get("name") for j in off} | set(locked)
-    added = []
-    for j in off:
-        name, mimic = j.get("name"), j.find("mimic")
-        if name in locked or (mimic is not None and mimic.get("joint") in locking):
-            continue
-        locked[name] = _clamped_zero(j)
-        added.append(name)
-    return locked, tuple(added)
-
-
-def _clamped_zero(joint: ET.Element) -> float:
-    """0 within the joint's ``<limit lower upper>`` (the nearer limit when 0 lies outside; 0 without limits)."""
-    limit = joint.find("limit")
-    try:
-        lower = float(limit.get("lower", "nan")) if limit is not None else math.nan
-        upper = float(limit.get("upper", "nan")) if limit is not None else math.nan
-    except ValueError:
-        return 0.0
-    if joint.get("type") == "continuous" or not (math.isfinite(lower) and math.isfinite(upper)) or lower > upper:
-        return 0.0
-    return min(max(0.0, lower), upper)
