@@ -123,7 +123,7 @@ def test_mimic_followers_are_locked_with_their_leader():
     assert any("locked with joint 'j2', which they mimic: j3 at -0.4" in n for n in chain.notes)
 
 
-def test_so101_loads_and_its_regressor_equals_pinocchios():
+def test_so101_loads_and_its_regressor_equals_pinocchios(run):
     """SO-101 (a 1e-9 kg dummy link, CAD-rounded angles), gripper locked to keep the test short."""
     path = example_robot_data_dir() / "so_arm_description/urdf/so101.urdf"
     locked = {"gripper": 0.0}
@@ -134,6 +134,8 @@ def test_so101_loads_and_its_regressor_equals_pinocchios():
     q, qd, qdd = random_states(model, 20, np.random.default_rng(5))
     y = np.array(model.casadi_regressor.map(20)(q.T, qd.T, qdd.T)).reshape(6, 20, -1).transpose(1, 0, 2)
     assert rel_err(y, pinocchio_base_regressor(pin, q, qd, qdd)) < 1e-10
+    shown = " ".join(run("robot", "show", path, "--lock", "gripper=0").output.split())
+    assert "note: link 'gripper_frame_link': mass 1e-09 kg with inertia of at most 0 kg*m^2 is a frame; dropped" in shown
 
 
 # -- payloads ---------------------------------------------------------------------------------
@@ -187,6 +189,14 @@ def test_payload_columns_are_the_bodys_through_the_fold(payload_case):
     assert rel_err(y[..., 60:], y_pin[..., 50:] @ fold) < 1e-10  # the payload's columns
     assert rel_err(y @ model.theta_cad, pinocchio_base_wrench(pin, q, qd, qdd)) < 1e-10  # wrist_3 keeps the rest
     assert base_parameters(model).rank == 10  # every payload parameter, on a 6-DOF arm
+
+
+def test_robot_show_lists_the_welded_links(payload_case, run):
+    _, cad, _ = payload_case
+    shown = run("robot", "show", cad, "--unknown-links", "payload").output
+    rows = {line.split("│")[1].strip(): line for line in shown.splitlines() if line.count("│") == 6}
+    assert "unknown (payload)" in rows["payload"] and "wrist_3_link" in rows["payload"]
+    assert "frame" in rows["ee_link"] and "frame" in rows["tool0"]
 
 
 def test_payload_is_recovered_exactly_and_exported_in_place(payload_case, tmp_path):
@@ -254,7 +264,8 @@ def test_payload_std_by_the_delta_method_matches_monte_carlo(payload_case):
     base = base_parameters(model)
     rng = np.random.default_rng(9)
     q, qd, qdd = random_states(model, 80, rng)
-    wrench = casadi_rows(model, q, qd, qdd) @ model.theta_cad + rng.normal(0, [0.5, 0.5, 0.5, 0.05, 0.05, 0.05], (80, 6))
+    noise = rng.normal(0, [0.5, 0.5, 0.5, 0.05, 0.05, 0.05], (80, 6))  # N, N*m
+    wrench = casadi_rows(model, q, qd, qdd) @ model.theta_cad + noise
     w, y = stack_casadi(model, q, qd, qdd, wrench, model.theta_cad[model.known_index])
     wb = w[:, base.base_index]
     beta = np.linalg.lstsq(wb, y, rcond=None)[0]

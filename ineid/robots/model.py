@@ -54,7 +54,7 @@ class RobotModel:
             raise RobotModelError(f"gravity must be 3 finite numbers (m/s^2, base frame), got {gravity!r}")
         unknown = list(dict.fromkeys(unknown_links))
         self.payloads = resolve_payloads(chain, unknown, name)
-        """Welded links identified on their own (:mod:`ineid.robots.payload`), after their body in :attr:`link_names`."""
+        """Welded links identified on their own (:mod:`ineid.robots.payload`); after their body in ``link_names``."""
         self._links = extended_links(chain, self.payloads)
         links = self.link_names
         # Keep chain order whatever order the caller gave.

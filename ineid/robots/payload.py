@@ -54,7 +54,8 @@ def resolve_payloads(chain: Chain, unknown: Sequence[str], robot: str) -> tuple[
             tared = name in chain.merged_links.get(chain.root_link, ())
             why = (f"link {name!r} is welded to the root link {chain.root_link!r}: its weight is tared with the "
                    "fixture" if tared else f"unknown link {name!r} is not a moving link of {robot}")
-            choices = ", ".join(moving) + (f"; or a link welded to one, as a payload: {', '.join(welded)}" if welded else "")
+            payload_hint = f"; or a link welded to one, as a payload: {', '.join(welded)}" if welded else ""
+            choices = ", ".join(moving) + payload_hint
             raise RobotModelError(f"{why}; choose from {choices}")
         if link.body in unknown:
             raise RobotModelError(

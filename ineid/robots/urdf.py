@@ -171,7 +171,7 @@ def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 def _link_theta(link, source: str) -> np.ndarray:
-    """The link's own parameters about its frame origin, zero for a frame (:func:`~ineid.robots.inertial.link_inertial`)."""
+    """The link's own parameters about its frame origin, zero for a frame (``inertial.link_inertial``)."""
     return link_inertial(link, source)[0]
 
 
@@ -204,7 +204,8 @@ def _mimic_locks(robot, locked: dict[str, float]) -> tuple[dict[str, float], lis
             locked[j.name] = mult * locked[j.mimic.joint] + offset
             followers.setdefault(j.mimic.joint, []).append(f"{j.name} at {locked[j.name]:g}")
             changed = True
-    notes = [f"locked with joint {leader!r}, which they mimic: {', '.join(names)}" for leader, names in followers.items()]
+    notes = [f"locked with joint {leader!r}, which they mimic: {', '.join(names)}"
+             for leader, names in followers.items()]
     return locked, notes
 
 

@@ -68,7 +68,8 @@ def cached_chain(key: str) -> Chain | None:
         chain = Chain(doc["name"], doc["root_link"], joints, {k: tuple(v) for k, v in doc["merged_links"].items()},
                       links, tuple(doc["notes"]))
     except Untrusted as e:  # e.reason: "has a file that is writable by group or others (<file>)"
-        logging.getLogger(__name__).warning("the cache of parsed URDFs in %s %s; parsing the URDF again",
+        # logged under the parser's name, as before this module was split from it
+        logging.getLogger("ineid.robots.urdf").warning("the cache of parsed URDFs in %s %s; parsing the URDF again",
                                             path.parent, e.reason)
         return None
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
