@@ -302,6 +302,7 @@ def test_payload_delta_method_jacobian_matches_finite_differences():
         (["nope"], "unknown link 'nope' is not a moving link of ur5; choose from shoulder_link.*payload"),
         (["base_link"], "link 'base_link' is welded to the root link .*tared"),
         (["payload", "wrist_3_link"], "payload link 'payload' is welded to 'wrist_3_link', which is unknown too"),
+        (["tool0", "payload"], "payload links 'tool0' and 'payload' are both welded to 'wrist_3_link'"),
     ],
 )
 def test_bad_payload_names_are_refused_in_one_line_and_write_nothing(payload_case, run, tmp_path, links, message):

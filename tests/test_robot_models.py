@@ -51,8 +51,10 @@ def test_unknown_links_choice():
     # chain order, whatever order given
     m = ineid.load_robot("sweaty-arm", unknown_links=["forearm", "upper_arm"])
     assert m.unknown_links == ("upper_arm", "forearm")
-    with pytest.raises(RobotModelError, match="'hand' is not a moving link of sweaty-arm; choose from"):
-        ineid.load_robot("sweaty-arm", unknown_links=["hand"])
+    with pytest.raises(RobotModelError, match="'palm' is not a moving link of sweaty-arm; choose from .*: hand$"):
+        ineid.load_robot("sweaty-arm", unknown_links=["palm"])
+    m = ineid.load_robot("sweaty-arm", unknown_links=["hand"])  # welded to the forearm: a payload
+    assert m.link_names[-2:] == ("forearm", "hand") and m.unknown_links == ("hand",)
 
 
 def test_urdf_default_unknown_is_every_moving_link():

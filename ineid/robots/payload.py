@@ -41,7 +41,8 @@ def resolve_payloads(chain: Chain, unknown: Sequence[str], robot: str) -> tuple[
 
     Raises:
         RobotModelError: a name is no link of a moving body (one line naming the choices), or a
-            payload's body is unknown too (their parameters cannot be told apart).
+            payload's body is unknown too, or another payload is welded to the same body (their
+            parameters cannot be told apart).
     """
     moving = [j.link for j in chain.joints]
     payloads = []
@@ -61,6 +62,12 @@ def resolve_payloads(chain: Chain, unknown: Sequence[str], robot: str) -> tuple[
             raise RobotModelError(
                 f"payload link {name!r} is welded to {link.body!r}, which is unknown too: the data cannot tell their "
                 f"parameters apart; name one of them in --unknown-links"
+            )
+        twin = next((p.link for p in payloads if p.body == link.body), None)
+        if twin is not None:
+            raise RobotModelError(
+                f"payload links {twin!r} and {name!r} are both welded to {link.body!r}: the data cannot tell their "
+                "parameters apart (they move as one body); name one of them in --unknown-links"
             )
         payloads.append(Payload(name, link.body, transform_matrix(link.body_R_link, link.body_p_link)))
     return tuple(payloads)
