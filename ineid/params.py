@@ -180,6 +180,23 @@ def theta_from_pseudo_inertia(j) -> np.ndarray:
     return out
 
 
+def transform_matrix(rotation: np.ndarray, position: np.ndarray) -> np.ndarray:
+    """``X`` (10, 10) with ``theta_parent = X @ theta_child``: a body's parameters in another frame.
+
+    The child frame sits in the parent frame at ``parent_R_child`` (``rotation``, (3, 3)) and
+    ``parent_p_child`` (``position``, (3,), m); ``theta_child`` is about the child origin in
+    child axes, ``theta_parent`` about the parent origin in parent axes. The pseudo-inertia
+    transforms as ``J_parent = T J_child T^T`` with ``T = [[R, p], [0, 1]]``, which is linear
+    in ``theta``: ``X`` is that map, exact for any parameters (massless and non-physical ones
+    included), so ``X(T_a) @ X(T_b) == X(T_a T_b)``.
+    """
+    t = np.eye(4)
+    t[:3, :3] = np.asarray(rotation, dtype=np.float64)
+    t[:3, 3] = np.asarray(position, dtype=np.float64)
+    images = theta_from_pseudo_inertia(t @ pseudo_inertia(np.eye(10)) @ t.T)  # row k: the image of e_k
+    return images.T
+
+
 def physical_violations(theta, rtol: float = 1e-12) -> list[str]:
     """What makes one link's parameters non-physical; an empty list when they are valid.
 

@@ -286,6 +286,8 @@ def results_info(path: Path) -> None:
         with np.errstate(invalid="ignore"):  # inf (a zero wrench) between two values: nan
             median = np.median(res.validation_rel[res.success])
         con.print(f"held-out relative wrench error: median {median:.3g}")
+    if res.payload:
+        _print_payload(con, res)
     warnings = m.get("warnings")
     if warnings is None:
         con.print("plausibility warnings: not checked when this file was written")
@@ -293,6 +295,28 @@ def results_info(path: Path) -> None:
         con.print(f"plausibility warnings: {len(warnings) or 'none'}")
         for w in warnings:
             con.print(f"  warning: {w['message']}", markup=False, soft_wrap=True)
+
+
+def _print_payload(con, res) -> None:
+    """Per payload link, its first identified configuration: mass, centre of mass, inertia about it, +- std."""
+    import numpy as np  # noqa: PLC0415
+
+    from ineid.identify.payload import INERTIA_NAMES  # noqa: PLC0415
+
+    ok = np.flatnonzero(res.success)
+    if not ok.size:
+        return
+    i = int(ok[0])
+    for link, q in res.payload.items():
+        rows = table(f"Payload {link}, configuration {int(res.config_index[i])} (link frame, SI)",
+                     ("quantity", "value", "std"), left=("quantity",))
+        entries = [("mass kg", q["mass"][i], q["mass_std"][i])]
+        entries += [(f"com {a} m", q["com"][i, k], q["com_std"][i, k]) for k, a in enumerate("xyz")]
+        entries += [(f"{name} about com kg*m^2", q["inertia"][i, k], q["inertia_std"][i, k])
+                    for k, name in enumerate(INERTIA_NAMES)]
+        for name, value, std in entries:
+            rows.add_row(name, f"{value:.6g}", f"{std:.3g}")
+        con.print(rows)
 
 
 @click.group()

@@ -205,7 +205,8 @@ def _parse_locked(ctx, param, values: tuple[str, ...]) -> dict[str, float] | Non
 
 unknown_links_option = click.option(
     "--unknown-links", metavar="LINK,LINK", default=None, callback=_split_names,
-    help="Comma-separated links to identify (default: the built-in's choice, or all moving links).",
+    help="Comma-separated links to identify: moving links, or links welded to one (a payload, identified in its "
+         "own frame; its body keeps its CAD). Default: the built-in's choice, or all moving links.",
 )  # fmt: skip
 lock_option = click.option(
     "--lock", "locked", multiple=True, metavar="JOINT=POS", callback=_parse_locked,

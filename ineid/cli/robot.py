@@ -55,6 +55,17 @@ def robot_show(robot) -> None:
         com = " ".join(f"{v:.4f}" for v in coms[i])
         links.add_row(name, role, welded, f"{masses[i]:.4f}", com)
     con.print(links)
+    welded = [b for b in model.chain.body_links.values() if b.parent]
+    if welded:
+        extra = table("Links welded to a moving link (name one in --unknown-links to identify it as a payload)",
+                      ("link", "welded to", "role", "mass kg", "origin m (body frame)"),
+                      left=("link", "welded to", "role", "origin m (body frame)"))
+        for b in welded:
+            role = "unknown (payload)" if b.name in model.unknown_links else ("frame" if b.theta[0] <= 0 else "known")
+            extra.add_row(b.name, b.body, role, f"{b.theta[0]:.4f}", " ".join(f"{v:.4f}" for v in b.body_p_link))
+        con.print(extra)
+    for note in model.chain.notes:
+        con.print(f"note: {shown(note)}")
     params = table("CAD parameters, about each link origin, link frame (SI)", ("link", *PARAM_NAMES), left=("link",))
     for i, name in enumerate(model.link_names):
         params.add_row(name, *(f"{v:.5g}" for v in model.theta_cad[10 * i : 10 * i + 10]))

@@ -90,6 +90,14 @@ class GenerationPlan:
     def __init__(self, model, spec: DatasetSpec) -> None:
         if not model.unknown_links:
             raise DatasetError("the model has no unknown links; choose the links to identify (--unknown-links)")
+        cad_masses = model.theta_cad[model.unknown_index][0::10]
+        massless = [link for link, m in zip(model.unknown_links, cad_masses, strict=True) if m <= 0]
+        if massless:  # the sampler draws around the CAD: around nothing, there is nothing to draw
+            raise DatasetError(
+                f"unknown link {massless[0]!r} has no mass in the URDF, and synthetic configurations are sampled "
+                "around the CAD values: give it an <inertial> with your best guess (a recording is identified "
+                "without one)"
+            )
         self.model, self.spec = model, spec
         self._check_memory()
         self.theta_known = np.asarray(model.theta_cad[model.known_index], dtype=np.float64)

@@ -5,7 +5,9 @@ links welded to it by fixed joints are folded in, as when the model was built). 
 link's ``<inertial>`` gets the identified body: mass, centre of mass (``origin xyz``, link
 frame) and the inertia about the centre of mass *in link-frame axes* (``rpy="0 0 0"``,
 whatever rotation the original had), and the ``<inertial>`` of each link welded to it is
-removed, with a comment, so nothing is counted twice. Floats are written with ``repr``,
+removed, with a comment, so nothing is counted twice. A payload (a welded link identified on
+its own, :mod:`ineid.robots.payload`) gets its own ``<inertial>`` back, in its own frame, and
+nothing else changes. Floats are written with ``repr``,
 which reads back bit for bit.
 
 Names (robots, links, joints) stay where ElementTree escapes them, in attributes; the
@@ -30,7 +32,8 @@ def urdf_with_inertials(urdf_text: str, theta_by_link: dict[str, np.ndarray], lo
 
     Args:
         urdf_text: the model's URDF.
-        theta_by_link: ``{link: (10,) parameters}`` about the link origin, link frame.
+        theta_by_link: ``{link: (10,) parameters}`` about the link origin, link frame (a moving
+            link with what is welded to it, or a payload link alone).
         locked_joints: as when the model was loaded (for the welded-link bookkeeping).
 
     Raises:
@@ -42,9 +45,11 @@ def urdf_with_inertials(urdf_text: str, theta_by_link: dict[str, np.ndarray], lo
 
     chain = parse_chain(urdf_text, locked_joints=locked_joints or None)
     moving = {j.link for j in chain.joints}
+    payloads = {b.name for b in chain.body_links.values() if b.parent}
     for link, theta in theta_by_link.items():
-        if link not in moving:
-            raise RobotModelError(f"{link!r} is not a moving link of the URDF ({', '.join(sorted(moving))})")
+        if link not in moving | payloads:
+            raise RobotModelError(f"{link!r} is not a moving link of the URDF ({', '.join(sorted(moving))}) nor a "
+                                  "link welded to one")
         problems = physical_violations(np.asarray(theta, dtype=np.float64), rtol=0.0)
         if problems:
             raise IdentificationError(
@@ -72,6 +77,8 @@ def urdf_with_inertials(urdf_text: str, theta_by_link: dict[str, np.ndarray], lo
         )  # fmt: skip
         el.insert(index, ET.Comment(" identified by ineid (mass, centre of mass, inertia about it in link axes) "))
         el.insert(index + 1, inertial)
+        if link in payloads:  # a payload's own inertial, in its frame: its body and the rest stay as they are
+            continue
         for welded in chain.merged_links.get(link, (link,))[1:]:
             w_el = links.get(welded)
             w_old = w_el.find("inertial") if w_el is not None else None

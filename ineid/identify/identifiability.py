@@ -22,7 +22,8 @@ that parameter of a later link onto the earlier link's parameters. A standard pa
 individually identifiable when no null direction touches it.
 
 Ranks are taken on the regressor scaled by :func:`ineid.identify.systems.parameter_scales`
-(unit-consistent columns), with a relative tolerance on the singular values.
+(unit-consistent columns), with one tolerance relative to its largest singular value
+(:func:`rank_tolerance`), used by the SVD and the column scan alike.
 
 References:
     Gautier (1990), Numerical calculation of the base inertial parameters of robots.
@@ -55,21 +56,34 @@ def numerical_rank(singular_values: np.ndarray, rtol: float = RANK_RTOL) -> int:
     return int(np.sum(s > rtol * s.max())) if s.size and s.max() > 0 else 0
 
 
-def _greedy_independent(w: np.ndarray, rtol: float = 1e-7) -> list[int]:
-    """Columns of ``w`` kept in order when each adds a new direction (Gram-Schmidt)."""
+def _greedy_independent(w: np.ndarray, rtol: float = 1e-7, atol: float | None = None) -> list[int]:
+    """Columns of ``w`` kept in order when each adds a new direction (Gram-Schmidt).
+
+    A column is kept when its residual after the kept ones exceeds ``atol`` (an absolute
+    tolerance: the rank decisions' own, see :func:`rank_tolerance`) or, without ``atol``,
+    ``rtol`` of its own norm.
+    """
     kept: list[int] = []
     basis = np.zeros((w.shape[0], 0))
     for j in range(w.shape[1]):
         col = w[:, j]
         norm = np.linalg.norm(col)
-        if norm == 0:
+        if norm == 0 or (atol is not None and norm <= atol):
             continue
         resid = col - basis @ (basis.T @ col)
         resid = resid - basis @ (basis.T @ resid)  # re-orthogonalize once
-        if np.linalg.norm(resid) > rtol * norm:
+        if np.linalg.norm(resid) > (rtol * norm if atol is None else atol):
             kept.append(j)
             basis = np.column_stack([basis, resid / np.linalg.norm(resid)])
     return kept
+
+
+def rank_tolerance(singular_values: np.ndarray, rtol: float = RANK_RTOL) -> float:
+    """The one absolute tolerance of the rank decisions on a scaled regressor: ``rtol`` times its
+    largest singular value (the regressor's scale; its columns are already in units of the
+    parameters' physical scales, :func:`ineid.identify.systems.parameter_scales`)."""
+    s = np.asarray(singular_values)
+    return float(rtol * s.max()) if s.size else 0.0
 
 
 @dataclass(frozen=True)
@@ -135,9 +149,15 @@ def base_parameters_from_regressor(w: np.ndarray, names, scales: np.ndarray) -> 
     """The base parameters of a stacked regressor ``w`` (rows x 10 n_u) of generic frames."""
     w = np.asarray(w, dtype=np.float64)
     ws = w * scales
-    sv = np.linalg.svd(ws, compute_uv=False)
+    _, sv, vt = np.linalg.svd(ws, full_matrices=False)
     rank = numerical_rank(sv)
-    kept = _greedy_independent(ws)
+    # The column scan runs on the rank-r part of ws (its truncated SVD, r x n: the same column
+    # geometry without the directions below the SVD's tolerance) with the SVD's tolerance, so the
+    # two agree by construction: it can keep no more than r columns, and a column that is zero up
+    # to round-off (a CAD-rounded angle's 1e-12) is zero. Fewer than r only on ill-conditioned frames.
+    tol = rank_tolerance(sv)
+    core = sv[:rank, None] * vt[:rank]
+    kept = _greedy_independent(core, atol=tol)
     if len(kept) != rank:
         raise IdentificationError(
             f"the frames are too ill-conditioned to find the base parameters (column scan finds {len(kept)} "
@@ -147,7 +167,7 @@ def base_parameters_from_regressor(w: np.ndarray, names, scales: np.ndarray) -> 
     base = np.array(kept, dtype=np.int64)
     dep = np.array([j for j in range(w.shape[1]) if j not in set(kept)], dtype=np.int64)
     if dep.size:
-        k_scaled, *_ = np.linalg.lstsq(ws[:, base], ws[:, dep], rcond=None)
+        k_scaled = np.linalg.solve(core[:, base], core[:, dep])  # r x r, independent by the scan
         k = k_scaled * scales[base][:, None] / scales[dep][None, :]  # back to SI units
         k[np.abs(k_scaled) < 1e-9] = 0.0
     else:

@@ -98,6 +98,11 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
             # and cost more time than the rest of the write)
             f.create_dataset(name, data=np.asarray(arr))
         f.create_dataset("status", data=np.array([str(s) for s in res.status], dtype=text))
+        if res.payload:  # datasets payload/<k>/<quantity>, k indexing the attribute payload_links (names are data)
+            a["payload_links"] = np.array(list(res.payload), dtype=text)
+            for k, quantities in enumerate(res.payload.values()):
+                for key, value in quantities.items():
+                    f.create_dataset(f"payload/{k}/{key}", data=np.asarray(value, dtype=np.float64))
         f.flush()
         image = f.id.get_file_image()
     require_disk(path, len(image), "the results file", "solve fewer configurations (--select)")
@@ -291,7 +296,17 @@ class _Reader:
             bias_hat=self.array("bias_hat", (n, n_axes), required=False),
             bias_std=self.array("bias_std", (n, n_axes), required=False),
             meta=meta,
+            payload=self.payload(n),
         )
+
+    def payload(self, n: int) -> dict | None:
+        """The ``payload`` section (:mod:`ineid.identify.payload`), or None when the file has none."""
+        if "payload_links" not in self.f.attrs:
+            return None
+        shapes = {"mass": (n,), "mass_std": (n,), "com": (n, 3), "com_std": (n, 3), "inertia": (n, 6),
+                  "inertia_std": (n, 6)}
+        return {link: {key: self.array(f"payload/{k}/{key}", shape) for key, shape in shapes.items()}
+                for k, link in enumerate(self.texts("payload_links"))}
 
 
 def _warnings(path: Path, attrs) -> list[dict] | None:

@@ -31,6 +31,7 @@ from ineid.identify.fused import check_no_extra_columns, information_blocks
 from ineid.identify.identifiability import BaseParameters, base_parameters
 from ineid.identify.linear import WEIGHT_MODES, linear_estimate, linear_theta, with_exact_rss
 from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL
+from ineid.identify.payload import payload_section
 from ineid.identify.steps import (  # noqa: F401  (PARALLEL_MIN_CONFIGS, physical_start, ... were here: still importable)
     BIAS_MAX_ITER,
     PARALLEL_MIN_CONFIGS,
@@ -168,6 +169,8 @@ class SolveResults:
     meta: dict = field(default_factory=dict)
     bias_hat: np.ndarray | None = None
     bias_std: np.ndarray | None = None
+    payload: dict | None = None
+    """Per payload link (:mod:`ineid.identify.payload`): mass, centre of mass, inertia about it, with std."""
 
     @property
     def axes(self) -> tuple[str, ...]:
@@ -355,6 +358,7 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         seconds=seconds,
         bias_hat=bias_hat,
         bias_std=bias_std,
+        payload=payload_section(model, base, est.theta, est.fit.cov_beta, est.success),
     )  # fmt: skip
 
 

@@ -28,6 +28,10 @@ from ineid.errors import IdentificationError
 from ineid.params import N_PARAMS_PER_LINK
 
 
+MASSLESS_KG = 1e-6
+"""kg: a CAD mass at or below this is none (:data:`ineid.robots.inertial.FRAME_MASS`)."""
+
+
 def parameter_scales(theta_cad_unknown: np.ndarray) -> np.ndarray:
     """Typical magnitude of each unknown parameter, from the CAD values (same units).
 
@@ -46,6 +50,14 @@ def parameter_scales(theta_cad_unknown: np.ndarray) -> np.ndarray:
     m = np.abs(cad[:, 0])
     trace = cad[:, 4] + cad[:, 6] + cad[:, 9]
     length = np.sqrt(np.maximum(trace, 1e-12) / (2.0 * np.maximum(m, 1e-12)))
+    # A link whose CAD has no mass (a frame, a tool flange named as a payload) has no scale of its
+    # own: it gets the mean mass and length of the unknown links with mass (1 kg, 0.1 m if none),
+    # not 1e-12, which would make its columns vanish from every rank decision.
+    massless = m <= MASSLESS_KG
+    if np.any(massless):
+        heavy = ~massless
+        m = np.where(massless, float(np.mean(m[heavy])) if heavy.any() else 1.0, m)
+        length = np.where(massless, float(np.mean(length[heavy])) if heavy.any() else 0.1, length)
     scales = np.empty_like(cad)
     scales[:, 0] = m
     scales[:, 1:4] = (m * length)[:, None]

@@ -36,13 +36,41 @@ class JointSpec:
 
 
 @dataclass(frozen=True, eq=False)
+class BodyLink:
+    """A URDF link of a moving body: the moving link itself, or a link welded to it by fixed
+    (or locked) joints, with its own inertial kept apart (the body's ``JointSpec.theta`` is the sum).
+
+    ``body_R_link``, ``body_p_link`` place the link frame in the body frame (the moving link's);
+    ``theta`` is the link's own ``<inertial>`` about its origin, in its axes (zeros for a frame:
+    no ``<inertial>``, or a massless one). ``parent`` is its URDF parent link ("" for the moving
+    link itself), so the links welded beyond it can be found.
+    """
+
+    name: str
+    body: str
+    parent: str
+    body_R_link: np.ndarray
+    body_p_link: np.ndarray
+    theta: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
 class Chain:
-    """A serial chain of moving joints from the fixed root body, in URDF joint order."""
+    """A serial chain of moving joints from the fixed root body, in URDF joint order.
+
+    ``merged_links``: per body (the root link and each moving link) the URDF links merged into
+    it, itself first. ``body_links``: every link of a moving body with its own inertial and pose
+    (:class:`BodyLink`; what lets a welded payload be identified on its own). ``notes``: what the
+    parse decided that a user should see (frames whose tiny mass was dropped, mimic joints locked
+    with their leader), one line each; ``ineid robot show`` prints them.
+    """
 
     name: str
     root_link: str
     joints: tuple[JointSpec, ...]
     merged_links: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    body_links: Mapping[str, BodyLink] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
 
     @property
     def n_dof(self) -> int:

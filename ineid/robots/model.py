@@ -13,6 +13,7 @@ import numpy as np
 from ineid.cache import enable_compilation_cache
 from ineid.errors import CodegenError, RobotModelError
 from ineid.params import full_theta, param_names
+from ineid.robots.payload import column_map, extended_links, extended_theta_cad, payload_modules, resolve_payloads
 from ineid.robots.urdf import Chain
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
@@ -51,13 +52,11 @@ class RobotModel:
         self.gravity = np.asarray(gravity, dtype=np.float64)
         if self.gravity.shape != (3,) or not np.all(np.isfinite(self.gravity)):
             raise RobotModelError(f"gravity must be 3 finite numbers (m/s^2, base frame), got {gravity!r}")
-        links = self.link_names
         unknown = list(dict.fromkeys(unknown_links))
-        for link in unknown:
-            if link not in links:
-                raise RobotModelError(
-                    f"unknown link {link!r} is not a moving link of {name}; choose from {', '.join(links)}"
-                )
+        self.payloads = resolve_payloads(chain, unknown, name)
+        """Welded links identified on their own (:mod:`ineid.robots.payload`); after their body in ``link_names``."""
+        self._links = extended_links(chain, self.payloads)
+        links = self.link_names
         # Keep chain order whatever order the caller gave.
         self.unknown_links: tuple[str, ...] = tuple(l for l in links if l in unknown)
         self.known_links: tuple[str, ...] = tuple(l for l in links if l not in unknown)
@@ -67,6 +66,8 @@ class RobotModel:
                     f"generated code {module.__name__} is stale for {name} (fingerprint "
                     f"{module.KINEMATIC_FINGERPRINT}, model {chain.kinematic_fingerprint()}); regenerate it"
                 )
+        if self.payloads:  # the regressor's columns seen through theta = M theta_ext
+            jax_module, casadi_module = payload_modules(jax_module, casadi_module, column_map(chain, self.payloads))
         self._jax = jax_module
         self._casadi = casadi_module
 
@@ -90,8 +91,8 @@ class RobotModel:
 
     @property
     def n_links(self) -> int:
-        """Moving links (bodies), one per moving joint."""
-        return self.chain.n_dof
+        """Parameter blocks: the moving links (one per moving joint) and the payloads."""
+        return len(self._links)
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -103,8 +104,8 @@ class RobotModel:
 
     @property
     def link_names(self) -> tuple[str, ...]:
-        """Moving links in chain order: the child link of each moving joint."""
-        return tuple(j.link for j in self.chain.joints)
+        """Moving links in chain order (the child link of each moving joint), each followed by its payloads."""
+        return self._links
 
     @property
     def param_names(self) -> list[str]:
@@ -127,7 +128,10 @@ class RobotModel:
     # -- parameters and bounds -------------------------------------------------------
     @property
     def theta_cad(self) -> np.ndarray:
-        """(10 * n_links,) the URDF's parameters, fixed links folded in, Pinocchio order."""
+        """(10 * n_links,) the URDF's parameters, fixed links folded in, Pinocchio order (a payload's
+        own, in its frame; its body's without it)."""
+        if self.payloads:
+            return extended_theta_cad(self.chain, self.payloads)
         return np.concatenate([j.theta for j in self.chain.joints])
 
     def full_theta(self, theta_unknown: np.ndarray, theta_known: np.ndarray | None = None) -> np.ndarray:

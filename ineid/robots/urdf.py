@@ -6,9 +6,17 @@ Parsing is yourdfpy's (once per URDF text: the result is kept in the cache folde
 * fixed joints are merged into their parent body, their inertia folded in (as Pinocchio
   does); links welded to the root belong to the fixture and are tared away;
 * ``locked_joints`` turns chosen moving joints into fixed ones at a given position (the
-  way to drop a gripper's fingers, for example);
+  way to drop a gripper's fingers, for example); a joint that ``<mimic>``s a locked joint is
+  locked with it, at ``multiplier * position + offset``;
+* joint ``rpy`` angles within :data:`~ineid.robots.cad_rounding.ANGLE_ATOL` of a multiple of
+  pi/2 are CAD rounding (``3.14159265359``) and are snapped to it (:mod:`ineid.robots.cad_rounding`);
 * continuous joints are revolute joints without position limits;
-* every moving body must carry a physical ``<inertial>`` (its own, or one folded in).
+* each link's ``<inertial>`` is read by :func:`ineid.robots.inertial.link_inertial`: links
+  without mass are frames, point masses are accepted, a non-physical body with real mass is
+  refused; every link of a moving body keeps its own inertial and pose
+  (:attr:`Chain.body_links`), so a welded payload can be identified on its own;
+* a moving link without mass is kept (a known link contributing nothing), but a chain whose
+  moving links carry no mass at all is refused.
 
 Sampling bounds: ``<limit velocity=...>`` bounds ``|qd|``; the acceleration bound, which
 URDF has no field for, comes from an optional ``<ineid acceleration="..."/>`` element
@@ -20,20 +28,20 @@ from here too).
 
 from __future__ import annotations
 
-import hashlib
 import io
-import json
 import math
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
-from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 
 from ineid.errors import RobotModelError
-from ineid.params import physical_violations, theta_from_inertial
-from ineid.robots.chain import Chain, JointSpec
+from ineid.params import theta_from_inertial
+from ineid.robots.cad_rounding import snap_joint_angles
+from ineid.robots.chain import BodyLink, Chain, JointSpec
+from ineid.robots.inertial import link_inertial
+from ineid.robots.urdf_cache import CHAIN_SUBDIR, _chain_file, _chain_key, _store_chain, cached_chain  # noqa: F401
 
 DEFAULT_QD_MAX = 3.0
 """rad/s (m/s for prismatic): velocity bound for sampling where the URDF gives none."""
@@ -75,90 +83,6 @@ def parse_chain(text: bytes | str, source: str = "<urdf>", locked_joints: Mappin
     return chain
 
 
-CHAIN_SUBDIR = "chains"
-"""Parsed URDFs live in ``cache_dir() / CHAIN_SUBDIR`` as JSON, one file per URDF text."""
-
-
-def _chain_key(data: bytes, source: str, locked_joints: Mapping[str, float] | None) -> str:
-    """Hash of what a parse depends on: this module's code, the URDF bytes, the source
-    name (a nameless ``<robot>`` is named after it) and the locked joints."""
-    h = hashlib.sha256(Path(__file__).read_bytes())
-    h.update(json.dumps([source, sorted((str(k), float(v)) for k, v in (locked_joints or {}).items())]).encode())
-    h.update(data)
-    return h.hexdigest()[:32]
-
-
-def _chain_file(key: str) -> Path:
-    from ineid.cache import private_folder  # noqa: PLC0415
-
-    return private_folder(CHAIN_SUBDIR) / f"{key}.json"
-
-
-def cached_chain(key: str) -> Chain | None:
-    """The chain parsed earlier under ``key``, or None (not parsed yet, or an unreadable file).
-
-    Like code, it is read only from a private cache folder (:mod:`ineid._trust`), and only
-    when the file is owned by you and not writable by others.
-    """
-    import logging  # noqa: PLC0415
-
-    from ineid._trust import Untrusted, read_checked  # noqa: PLC0415
-
-    path = _chain_file(key)
-    try:
-        doc = json.loads(read_checked(path, private=True))
-        joints = tuple(
-            JointSpec(**{**j, **{k: np.asarray(j[k], dtype=np.float64) for k in _ARRAY_FIELDS}}) for j in doc["joints"]
-        )
-        chain = Chain(doc["name"], doc["root_link"], joints, {k: tuple(v) for k, v in doc["merged_links"].items()})
-    except Untrusted as e:  # e.reason: "has a file that is writable by group or others (<file>)"
-        logging.getLogger(__name__).warning("the cache of parsed URDFs in %s %s; parsing the URDF again",
-                                            path.parent, e.reason)
-        return None
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        return None
-    if not _sound(chain):  # a damaged entry (disk, hand edit): parse the URDF again, which rewrites it
-        return None
-    return chain
-
-
-_ARRAY_FIELDS = ("parent_R_joint", "parent_p_joint", "axis", "theta")
-_ARRAY_SHAPES = {"parent_R_joint": (3, 3), "parent_p_joint": (3,), "axis": (3,), "theta": (10,)}
-
-
-def _sound(chain: Chain) -> bool:
-    """Whether a chain read back from the cache has the types, shapes and finite values a parse gives."""
-    if not chain.joints or not all(isinstance(v, str) for v in (chain.name, chain.root_link)):
-        return False
-    for j in chain.joints:
-        if not all(isinstance(v, str) for v in (j.name, j.type, j.link)) or not isinstance(j.continuous, bool):
-            return False
-        if any(getattr(j, k).shape != shape or not np.all(np.isfinite(getattr(j, k))) for k, shape in _ARRAY_SHAPES.items()):
-            return False
-        bounds = (j.q_lower, j.q_upper, j.qd_max, j.qdd_max)
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and not np.isnan(v) for v in bounds):
-            return False
-    return True
-
-
-def _store_chain(key: str, chain: Chain) -> None:
-    """Remember a parsed chain (JSON: floats round-trip exactly); a read-only cache is skipped."""
-    from ineid._atomic import atomic_write  # noqa: PLC0415
-
-    joints = [
-        {f.name: (getattr(j, f.name).tolist() if f.name in _ARRAY_FIELDS else getattr(j, f.name))
-         for f in fields(JointSpec)}
-        for j in chain.joints
-    ]
-    doc = {"name": chain.name, "root_link": chain.root_link, "joints": joints,
-           "merged_links": {k: list(v) for k, v in chain.merged_links.items()}}
-    path = _chain_file(key)
-    try:
-        atomic_write(path, json.dumps(doc))
-    except OSError:
-        pass
-
-
 def _parse_chain(data: bytes, source: str, locked_joints: Mapping[str, float] | None) -> Chain:
     import yourdfpy  # noqa: PLC0415  (heavy: trimesh)
 
@@ -184,7 +108,8 @@ def _parse_chain(data: bytes, source: str, locked_joints: Mapping[str, float] | 
         for j in root.iter("joint")
         if j.find("ineid") is not None and j.find("ineid").get("acceleration") is not None
     }
-    return _build_chain(robot, source, dict(locked_joints or {}), qdd_bounds)
+    notes = snap_joint_angles(root, robot)
+    return _build_chain(robot, source, dict(locked_joints or {}), qdd_bounds, notes)
 
 
 def _check_elements(root: ET.Element, source: str) -> None:
@@ -246,37 +171,8 @@ def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 def _link_theta(link, source: str) -> np.ndarray:
-    """The link's own parameters about its frame origin, zero if it has no mass."""
-    inertial = link.inertial
-    if inertial is None:
-        return np.zeros(10)
-    m = float(inertial.mass if inertial.mass is not None else 0.0)
-    inertia = np.asarray(inertial.inertia if inertial.inertia is not None else np.zeros((3, 3)), dtype=np.float64)
-    if not (math.isfinite(m) and np.all(np.isfinite(inertia))):
-        raise RobotModelError(f"{source}: link {link.name!r}: <inertial> holds a non-finite value")
-    if m < 0:
-        raise RobotModelError(f"{source}: link {link.name!r}: mass {m:g} kg is negative; give it a positive mass")
-    if m == 0:
-        if np.any(inertia != 0):
-            raise RobotModelError(
-                f"{source}: link {link.name!r}: zero mass with a non-zero inertia is not a rigid body; "
-                "give it a positive mass or remove the <inertial>"
-            )
-        return np.zeros(10)
-    r, p = _transform(inertial.origin)
-    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(p))):
-        raise RobotModelError(
-            f"{source}: link {link.name!r}: <inertial><origin> holds a non-finite value (nan or inf); "
-            "give finite numbers"
-        )
-    theta = theta_from_inertial(m, p, r @ inertia @ r.T)
-    problems = physical_violations(theta_from_inertial(m, np.zeros(3), inertia), rtol=1e-9)
-    if problems:
-        raise RobotModelError(
-            f"{source}: link {link.name!r}: non-physical <inertial>: {'; '.join(problems)}; "
-            "fix the <inertia> values"
-        )
-    return theta
+    """The link's own parameters about its frame origin, zero for a frame (``inertial.link_inertial``)."""
+    return link_inertial(link, source)[0]
 
 
 def _fold(theta: np.ndarray, parent_R: np.ndarray, parent_p: np.ndarray) -> np.ndarray:
@@ -289,7 +185,33 @@ def _fold(theta: np.ndarray, parent_R: np.ndarray, parent_p: np.ndarray) -> np.n
     return theta_from_inertial(m, parent_R @ c + parent_p, parent_R @ ic @ parent_R.T)
 
 
-def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[str, str]) -> Chain:
+_LOCK_HINT = "lock the joints of the other branches with --lock JOINT=POS (Python: locked_joints={name: position})"
+
+
+def _mimic_locks(robot, locked: dict[str, float]) -> tuple[dict[str, float], list[str]]:
+    """``locked`` with every joint that mimics a locked joint locked too, at ``multiplier * q + offset``
+    (followers of followers included); and one note per leader. An explicit position wins."""
+    locked = dict(locked)
+    followers: dict[str, list[str]] = {}
+    changed = True
+    while changed:
+        changed = False
+        for j in robot.joints:
+            if j.mimic is None or j.name in locked or j.mimic.joint not in locked:
+                continue
+            mult = 1.0 if j.mimic.multiplier is None else float(j.mimic.multiplier)
+            offset = 0.0 if j.mimic.offset is None else float(j.mimic.offset)
+            locked[j.name] = mult * locked[j.mimic.joint] + offset
+            followers.setdefault(j.mimic.joint, []).append(f"{j.name} at {locked[j.name]:g}")
+            changed = True
+    notes = [f"locked with joint {leader!r}, which they mimic: {', '.join(names)}"
+             for leader, names in followers.items()]
+    return locked, notes
+
+
+def _build_chain(
+    robot, source: str, locked: dict[str, float], qdd_bounds: dict[str, str], notes: list[str]
+) -> Chain:
     links = {link.name: link for link in robot.links}
     if not links:
         raise RobotModelError(f"{source}: the URDF has no <link>")
@@ -297,6 +219,8 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
     for name in locked:
         if name not in joints_by_name:
             raise RobotModelError(f"{source}: locked joint {name!r} is not in the URDF (joints: {', '.join(joints_by_name)})")
+    locked, mimic_notes = _mimic_locks(robot, locked)
+    notes = [*notes, *mimic_notes]
     children: dict[str, list] = {name: [] for name in links}
     child_seen: dict[str, str] = {}
     for j in robot.joints:
@@ -304,7 +228,8 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
         if j.type not in _SUPPORTED and j.name not in locked:
             raise RobotModelError(
                 f"{source}: joint {j.name!r} has type {j.type!r}; ineid supports revolute, continuous, "
-                "prismatic and fixed joints (lock it with locked_joints to treat it as fixed)"
+                f"prismatic and fixed joints: lock it with --lock {j.name}=POS to treat it as fixed "
+                "(Python: locked_joints={name: position})"
             )
         for end in (j.parent, j.child):
             if end not in links:
@@ -320,9 +245,21 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
     def is_moving(j) -> bool:
         return j.type in _MOVING and j.name not in locked
 
-    def collect_body(link_name: str) -> tuple[np.ndarray, list, list[str]]:
-        """Merge link_name and everything welded to it: (theta, moving joints out, link names)."""
-        theta = _link_theta(links[link_name], source)
+    def inertial(name: str) -> np.ndarray:
+        theta, note = link_inertial(links[name], source)
+        if note:
+            notes.append(note)
+        return theta
+
+    body_links: dict[str, BodyLink] = {}
+
+    def collect_body(link_name: str, tared: bool = False) -> tuple[np.ndarray, list, list[str]]:
+        """Merge link_name and everything welded to it: (theta, moving joints out, link names).
+
+        The root body is tared away (the sensor is zeroed with it): its links' inertials are not read."""
+        theta = np.zeros(10) if tared else inertial(link_name)
+        if not tared:
+            body_links[link_name] = BodyLink(link_name, link_name, "", np.eye(3), np.zeros(3), theta)
         moving_out: list = []
         names = [link_name]
         stack = [(link_name, np.eye(3), np.zeros(3))]
@@ -341,13 +278,16 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
                     moving_out.append((j, body_R, body_p))
                     continue
                 child_R, child_p = body_R @ r, body_R @ p + body_p
-                theta = theta + _fold(_link_theta(links[j.child], source), child_R, child_p)
+                if not tared:
+                    own = inertial(j.child)
+                    theta = theta + _fold(own, child_R, child_p)
+                    body_links[j.child] = BodyLink(j.child, link_name, name, child_R, child_p, own)
                 names.append(j.child)
                 stack.append((j.child, child_R, child_p))
         return theta, moving_out, names
 
     merged: dict[str, tuple[str, ...]] = {}
-    _, moving_out, names = collect_body(roots[0])
+    _, moving_out, names = collect_body(roots[0], tared=True)
     merged[roots[0]] = tuple(names)
     specs: list[JointSpec] = []
     while moving_out:
@@ -355,14 +295,14 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
             where = specs[-1].link if specs else roots[0]
             raise RobotModelError(
                 f"{source}: branching tree: body {where!r} has {len(moving_out)} moving child joints "
-                f"({', '.join(j.name for j, _, _ in moving_out)}); ineid needs a serial chain, "
-                "lock the extra joints with locked_joints={name: position}"
+                f"({', '.join(j.name for j, _, _ in moving_out)}); ineid needs a serial chain: {_LOCK_HINT}"
             )
         j, body_R, body_p = moving_out[0]
         if j.mimic is not None:
             raise RobotModelError(
-                f"{source}: joint {j.name!r} mimics {j.mimic.joint!r}; coupled joints are not supported, "
-                "lock it with locked_joints"
+                f"{source}: joint {j.name!r} mimics {j.mimic.joint!r}; coupled joints are not supported: lock "
+                f"{j.mimic.joint!r} with --lock {j.mimic.joint}=POS (its mimic joints are locked with it; "
+                "Python: locked_joints={name: position})"
             )
         axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
         norm = float(np.linalg.norm(axis))
@@ -371,15 +311,18 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
         r, p = _transform(j.origin)
         theta, moving_out, names = collect_body(j.child)
         merged[j.child] = tuple(names)
-        if theta[0] <= 0:
-            raise RobotModelError(
-                f"{source}: moving link {j.child!r} has no mass (no <inertial>, and nothing with mass is "
-                "fixed to it); add an <inertial> element with a positive mass"
-            )
+        if theta[0] <= 0:  # a massless moving link: known, contributes nothing, not identified by default
+            notes.append(f"moving link {j.child!r} has no mass (no <inertial>, and nothing with mass is welded "
+                         "to it): a known link contributing nothing")
         specs.append(_joint_spec(j, source, body_R @ r, body_R @ p + body_p, axis / norm, theta, qdd_bounds))
     if not specs:
-        raise RobotModelError(f"{source}: the URDF has no moving joint; nothing would move the base wrench")
-    return Chain(name=robot.name or Path(source).stem, root_link=roots[0], joints=tuple(specs), merged_links=merged)
+        raise RobotModelError(f"{source}: the URDF has no moving joint (every joint is fixed or locked); nothing "
+                              "would move the base wrench: lock fewer joints, or give a URDF with a moving chain")
+    if all(s.theta[0] <= 0 for s in specs):
+        raise RobotModelError(f"{source}: no moving link carries mass ({', '.join(s.link for s in specs)}); nothing "
+                              "would move the base wrench: give the moving links <inertial> elements")
+    return Chain(name=robot.name or Path(source).stem, root_link=roots[0], joints=tuple(specs), merged_links=merged,
+                 body_links=body_links, notes=tuple(notes))
 
 
 def _joint_spec(j, source, parent_R, parent_p, axis, theta, qdd_bounds) -> JointSpec:
@@ -467,3 +410,4 @@ def fixed_frame_pose(
         r_acc, p_acc = r @ r_acc, r @ p_acc + p
         name = j.parent
     return r_acc, p_acc
+
