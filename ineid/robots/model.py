@@ -13,7 +13,7 @@ import numpy as np
 from ineid.cache import enable_compilation_cache
 from ineid.errors import CodegenError, RobotModelError
 from ineid.params import full_theta, param_names
-from ineid.robots.payload import column_map, extended_links, extended_theta_cad, payload_modules, resolve_payloads
+from ineid.robots.payload import extended_links, extended_theta_cad, payload_modules, resolve_payloads
 from ineid.robots.urdf import Chain
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
@@ -67,7 +67,7 @@ class RobotModel:
                     f"{module.KINEMATIC_FINGERPRINT}, model {chain.kinematic_fingerprint()}); regenerate it"
                 )
         if self.payloads:  # the regressor's columns seen through theta = M theta_ext
-            jax_module, casadi_module = payload_modules(jax_module, casadi_module, column_map(chain, self.payloads))
+            jax_module, casadi_module = payload_modules(jax_module, casadi_module, chain, self.payloads)
         self._jax = jax_module
         self._casadi = casadi_module
 

@@ -105,63 +105,86 @@ def extended_theta_cad(chain: Chain, payloads: Sequence[Payload]) -> np.ndarray:
     return np.concatenate(parts)
 
 
-def payload_modules(jax_module, casadi_module, m: np.ndarray):
-    """The generated modules seen through ``M``: ``(jax, casadi)`` with the same interface
-    (``_temporaries``/``_entries``, ``NONZERO``, ``base_wrench``, ``base_wrench_regressor``,
-    ``OP_COUNT``, ``KINEMATIC_FINGERPRINT``) over the extended columns. One pair of objects per
-    modules and map, so compiled kernels keyed by module are shared by every such model."""
-    return _wrapped(jax_module, casadi_module, tuple(map(tuple, np.asarray(m, dtype=np.float64))))
+def payload_modules(jax_module, casadi_module, chain: Chain, payloads: Sequence[Payload]):
+    """The generated modules seen with the payloads as links of their own: ``(jax, casadi)``
+    with the same interface (``program``, ``LINK_NAMES``, ``NONZERO``, ``OP_COUNT``,
+    ``KINEMATIC_FINGERPRINT``, ``N_DOF``) over the extended links (:func:`extended_links`).
+
+    The views' ``program`` inserts after each body ``B`` the outputs of a frame ``P`` welded to
+    it at ``B_R_P, B_p_P = t``: ``base_R_P = base_R_B B_R_P``, ``base_p_P = base_p_B + base_R_B t``,
+    ``w_P = B_R_P^T w_B``, ``wd_P = B_R_P^T wd_B``, ``a_P = B_R_P^T (a_B + wd_B x t + w_B x (w_B x t))``
+    and ``Yn_P = Yn_B X_P`` (the columns of ``Psi M``). Every composition of
+    :mod:`ineid.robots.program` (``Psi``, ``Psi theta``, link poses) then holds for the extended
+    parameters. One pair of objects per modules and payloads, so compiled kernels keyed by
+    module are shared by every such model.
+    """
+    moving = [j.link for j in chain.joints]
+    spec = tuple(
+        (moving.index(p.body), tuple(map(tuple, chain.body_links[p.link].body_R_link)),
+         tuple(chain.body_links[p.link].body_p_link), tuple(map(tuple, p.fold)))
+        for p in payloads
+    )
+    m = column_map(chain, payloads)
+    return _wrapped(jax_module, casadi_module, spec, extended_links(chain, payloads), tuple(map(tuple, m)))
 
 
 class _ModuleView:
-    """A generated module seen through ``M`` (hashable by identity, like a module: it keys compile caches)."""
+    """A generated module seen with its payloads (hashable by identity, like a module: it keys compile caches)."""
 
     def __init__(self, **attributes) -> None:
         self.__dict__.update(attributes)
 
 
+_PER_LINK = ("R", "p", "w", "wd", "a", "Yn")
+
+
+def _welded_outputs(out: dict, body: int, rotation, t, fold) -> dict:
+    """The program outputs of a frame welded to link ``body`` (see :func:`payload_modules`)."""
+    from ineid.robots.program import add, cross, matvec, mul  # noqa: PLC0415
+
+    r_b, w, wd, a = (out[k][body] for k in ("R", "w", "wd", "a"))
+    rt = tuple(tuple(rotation[r][c] for r in range(3)) for c in range(3))  # B_R_P^T
+    r_p = tuple(tuple(add(*(mul(r_b[r][k], rotation[k][c]) for k in range(3))) for c in range(3)) for r in range(3))
+    p_p = tuple(add(x, y) for x, y in zip(out["p"][body], matvec(r_b, t), strict=True))
+    a_origin = tuple(add(x, y, z) for x, y, z in zip(a, cross(wd, t), cross(w, cross(w, t)), strict=True))
+    yn = tuple(tuple(add(*(mul(row[k], fold[k][c]) for k in range(10))) for c in range(10)) for row in out["Yn"][body])
+    return {"R": r_p, "p": p_p, "w": matvec(rt, w), "wd": matvec(rt, wd), "a": matvec(rt, a_origin), "Yn": yn}
+
+
 @functools.lru_cache(maxsize=None)
-def _wrapped(jax_module, casadi_module, m_rows: tuple):
+def _wrapped(jax_module, casadi_module, spec: tuple, links: tuple[str, ...], m_rows: tuple):
     m = np.array(m_rows)
     n, n_ext = m.shape
-    # per extended column: the original columns it combines, with their weights
-    combos = [[(int(k), float(m[k, c])) for k in np.flatnonzero(m[:, c])] for c in range(n_ext)]
-    nonzero = tuple(
-        tuple(c for c in range(n_ext) if any(k in set(cols) for k, _ in combos[c]))
-        for cols in jax_module.NONZERO
-    )
+    after = {}
+    for body, rotation, t, fold in spec:
+        after.setdefault(body, []).append((rotation, t, fold))
 
-    def temporaries(q, qd, qdd, gravity):
-        return {"entries": jax_module._entries(**jax_module._temporaries(q, qd, qdd, gravity))}
+    def extended(program):
+        def view(q, qd, qdd, gravity):
+            out = program(q, qd, qdd, gravity)
+            ext = {k: v for k, v in out.items() if k not in _PER_LINK}
+            lists = {k: [] for k in _PER_LINK}
+            for i in range(len(out["Yn"])):
+                for k in _PER_LINK:
+                    lists[k].append(out[k][i])
+                for rotation, t, fold in after.get(i, ()):
+                    welded = _welded_outputs(out, i, rotation, t, fold)
+                    for k in _PER_LINK:
+                        lists[k].append(welded[k])
+            ext.update({k: tuple(v) for k, v in lists.items()})
+            return ext
 
-    def entries(entries):
-        out = []
-        for r in range(6):
-            for c in range(n_ext):
-                terms = [w * entries[r * n + k] if w != 1.0 else entries[r * n + k] for k, w in combos[c]]
-                terms = [t for t in terms if not (isinstance(t, (int, float)) and t == 0)]
-                out.append(sum(terms[1:], terms[0]) if terms else 0)
-        return tuple(out)
+        return view
 
-    def base_wrench_regressor(q, qd, qdd, gravity):
-        return jax_module.base_wrench_regressor(q, qd, qdd, gravity) @ m
+    # per extended column, the original columns it combines (the structural nonzeros of Psi M)
+    sources = [set(np.flatnonzero(m[:, c]).tolist()) for c in range(n_ext)]
+    nonzero = tuple(tuple(c for c in range(n_ext) if sources[c] & set(cols)) for cols in jax_module.NONZERO)
 
-    def base_wrench(q, qd, qdd, gravity, theta):
-        return jax_module.base_wrench(q, qd, qdd, gravity, theta @ m.T)
+    def view_of(module, suffix):
+        return _ModuleView(
+            __name__=f"{module.__name__} ({suffix})", KINEMATIC_FINGERPRINT=module.KINEMATIC_FINGERPRINT,
+            N_DOF=module.N_DOF, LINK_NAMES=links, OP_COUNT=getattr(module, "OP_COUNT", 0), NONZERO=nonzero,
+            program=extended(module.program),
+        )
 
-    jax_view = _ModuleView(
-        __name__=f"{jax_module.__name__} (payload columns)", KINEMATIC_FINGERPRINT=jax_module.KINEMATIC_FINGERPRINT,
-        OP_COUNT=jax_module.OP_COUNT, NONZERO=nonzero, _temporaries=temporaries, _entries=entries,
-        base_wrench_regressor=base_wrench_regressor, base_wrench=base_wrench,
-    )
-
-    def casadi_regressor(q, qd, qdd, gravity):
-        import casadi as ca  # noqa: PLC0415
-
-        return casadi_module.base_wrench_regressor(q, qd, qdd, gravity) @ ca.DM(m)
-
-    casadi_view = _ModuleView(
-        __name__=f"{casadi_module.__name__} (payload columns)",
-        KINEMATIC_FINGERPRINT=casadi_module.KINEMATIC_FINGERPRINT, base_wrench_regressor=casadi_regressor,
-    )
-    return jax_view, casadi_view
+    return view_of(jax_module, "payload links"), view_of(casadi_module, "payload links")

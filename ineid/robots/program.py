@@ -156,7 +156,7 @@ def jax_functions(module: ModuleType) -> JaxFunctions:
     import jax.numpy as jnp  # noqa: PLC0415
 
     program = module.program
-    n = module.N_DOF
+    n = len(module.LINK_NAMES)  # parameter blocks (payload views add links after their body)
 
     def entries(q, qd, qdd, gravity):
         return base_entries(program(q, qd, qdd, gravity))
@@ -202,8 +202,8 @@ def casadi_functions(module: ModuleType) -> CasadiFunctions:
     """The compositions of one generated CasADi module, built once per module (an ``SX`` graph of the program)."""
     import casadi as ca  # noqa: PLC0415
 
-    n = module.N_DOF
-    q, qd, qdd = (ca.SX.sym(s, n) for s in ("q", "qd", "qdd"))
+    n = len(module.LINK_NAMES)  # parameter blocks (payload views add links after their body)
+    q, qd, qdd = (ca.SX.sym(s, module.N_DOF) for s in ("q", "qd", "qdd"))
     gravity = ca.SX.sym("gravity", 3)
     theta = ca.SX.sym("theta", 10 * n)
     out = module.program(q, qd, qdd, gravity)
