@@ -157,7 +157,8 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
 @select_alias
 @click.option("--weights", type=LibraryChoice("ineid.identify.linear:WEIGHT_MODES"), cls=LibraryOption,
               default_from=f"{_SOLVE}:SolveSettings.weights",
-              help="Row weights per wrench axis: none, from the noise levels (--sigma or the file), or estimated.")
+              help="Row weights per wrench axis: estimated from the residuals (default: calibrated std when the noise "
+                   "differs per axis), from the noise levels (--sigma or the file), or none (equal noise assumed).")
 @click.option("--sigma", nargs=6, type=FiniteFloatRange(min=0, min_open=True), default=None, metavar="FX FY FZ MX MY MZ",
               help="Wrench noise std per axis (N, N*m) for --weights noise.")
 @click.option("--start", type=LibraryChoice(f"{_SOLVE}:STARTS"), cls=LibraryOption,

@@ -75,8 +75,10 @@ class SolveSettings:
             form) or ``"consistent"`` (log-Cholesky, always physical).
         frames: frames fitted per configuration (the first ``frames``); the rest are held
             out for validation. ``None``: all but the last 20 % (all, when too few).
-        weights: ``"none"``, ``"noise"`` (``1/sigma`` per measured axis from ``axis_sigma``, or
-            from the dataset's recorded noise) or ``"estimate"`` (from the residuals).
+        weights: ``"estimate"`` (the default: the noise of each measured axis estimated from the
+            residuals, :mod:`ineid.identify.weighting`), ``"noise"`` (``1/sigma`` per measured axis
+            from ``axis_sigma``, or from the dataset's recorded noise) or ``"none"`` (equal noise on
+            every axis assumed: the standard deviations are wrong where it differs).
         axis_sigma: (A,) noise standard deviations per measured axis (the base wrench: fx..mz)
             for ``weights="noise"``.
         start: IPOPT start, ``"prior"`` (the CAD values) or ``"linear"`` (the linear
@@ -99,7 +101,7 @@ class SolveSettings:
 
     method: str = "linear"
     frames: int | None = None
-    weights: str = "none"
+    weights: str = "estimate"
     axis_sigma: tuple[float, ...] | None = None
     start: str = "prior"
     pull: float = DEFAULT_PULL
@@ -418,7 +420,7 @@ def identify_frames(
     qdd,
     wrench,
     method: str = "linear",
-    weights: str = "none",
+    weights: str = "estimate",
     axis_sigma=None,
     start: str = "prior",
     bias: str = "none",
