@@ -173,6 +173,11 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
 @click.option("--bias", type=LibraryChoice(f"{_SOLVE}:BIAS_MODES"), cls=LibraryOption,
               default_from=f"{_SOLVE}:SolveSettings.bias",
               help="estimate: identify six constant sensor offsets with the parameters (an untared sensor).")
+@click.option("--known-uncertainty", "known_uncertainty", multiple=True, metavar="[LINK=]FRACTION",
+              callback=lambda ctx, param, v: _known_uncertainty(v),
+              help="The known links' CAD uncertainty, added to the reported std: each known parameter off by "
+                   "FRACTION of max(|CAD value|, the link's scale) (0.05: 5 %); LINK=FRACTION for one link "
+                   "(repeatable; overrides a plain FRACTION). Default: the CAD taken as exact.")
 @click.option("--plot", "plot_path", type=click.Path(path_type=Path), default=None, metavar="FILE",
               help="Write measured vs predicted wrench of the held-out frames (first solved configuration), "
                    "per axis with the residual RMS (.png, .pdf, .svg).")
@@ -180,7 +185,7 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
 @overwrite_option
 @click.pass_context
 def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma, start, backend, workers, bias,
-          plot_path, out, overwrite) -> None:
+          known_uncertainty, plot_path, out, overwrite) -> None:
     """Identify the unknown links of every selected configuration of DATA.h5.
 
     --method network: a trained run (--run RUN) estimates all configurations in batches; with
@@ -193,7 +198,8 @@ def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma
     prepare_output(out, overwrite, inputs=inputs)
     if (method == "network") != (run_dir is not None):
         raise click.UsageError("--method network needs --run RUN (a trained run folder), and --run goes with it")
-    given = [f"--{n}" for n in ("weights", "sigma", "start", "backend", "workers", "bias")
+    given = [f"--{n.replace('_', '-')}" for n in ("weights", "sigma", "start", "backend", "workers", "bias",
+                                                  "known_uncertainty")
              if ctx.get_parameter_source(n) is click.core.ParameterSource.COMMANDLINE]  # fmt: skip
     if method == "network" and plot_path is not None:
         given.append("--plot")
@@ -211,7 +217,7 @@ def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma
         settings = SolveSettings(
             method=method, frames=fit_frames, weights=weights, axis_sigma=tuple(sigma) if sigma else None, start=start,
             backend=backend, workers=workers or os.cpu_count() or 1, bias=bias,
-            run=None if run_dir is None else str(run_dir),
+            run=None if run_dir is None else str(run_dir), known_uncertainty=known_uncertainty,
         )  # fmt: skip
     except ValueError as e:
         raise click.UsageError(str(e)) from None
@@ -236,6 +242,24 @@ def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma
                         + f"; wrote {shown(plot_path)}")
     elif plot_path is not None:
         console().print(f"no configuration identified: {shown(plot_path)} not written")
+
+
+def _known_uncertainty(values) -> tuple[tuple[str, float], ...]:
+    """``--known-uncertainty`` values as ``(link, fraction)`` pairs (link ``*``: every known link)."""
+    import math  # noqa: PLC0415
+
+    pairs = []
+    for v in values:
+        link, _, text = v.rpartition("=")
+        try:
+            f = float(text)
+        except ValueError:
+            f = math.nan
+        if not (math.isfinite(f) and 0 <= f < 10) or (v.count("=") and not link):
+            raise click.BadParameter(f"{v!r} is not FRACTION or LINK=FRACTION with 0 <= FRACTION < 10 (0.05: 5 %)",
+                                     param_hint="'--known-uncertainty'")
+        pairs.append((link or "*", f))
+    return tuple(pairs)
 
 
 @click.command("export-urdf")

@@ -217,8 +217,8 @@ class _Reader:
 
     def results(self) -> SolveResults:
         try:
-            settings = SolveSettings(**{k: (tuple(v) if k == "axis_sigma" and v is not None else v)
-                                        for k, v in self.json("settings").items()})  # fmt: skip
+            settings = SolveSettings(**{k: (tuple(v) if k in ("axis_sigma", "known_uncertainty") and v is not None
+                                            else v) for k, v in self.json("settings").items()})  # fmt: skip
         except (TypeError, ValueError, AttributeError) as e:
             raise self.damaged(f"its settings do not parse ({e})") from None
         names = self.texts("param_names")

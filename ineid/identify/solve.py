@@ -97,6 +97,10 @@ class SolveSettings:
             :class:`ineid.identify.systems.Offsets`). They also take the weight of whatever
             sits between the sensor and the first joint.
         run: the trained run folder of ``method="network"`` (:mod:`ineid.learn.amortized`).
+        known_uncertainty: ``(link, fraction)`` pairs, the known links' CAD uncertainty
+            (:mod:`ineid.identify.known`: std ``fraction * max(|theta_cad|, scale)`` per
+            parameter) added to the reported covariance; link ``"*"`` for every known link.
+            Empty: the CAD values are taken as exact.
     """
 
     method: str = "linear"
@@ -110,6 +114,7 @@ class SolveSettings:
     workers: int | None = None
     bias: str = "none"
     run: str | None = None
+    known_uncertainty: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -132,10 +137,18 @@ class SolveSettings:
             raise ValueError("method='network' estimates no sensor offsets; use bias='none'")
         if (self.method == "network") != (self.run is not None):
             raise ValueError("method='network' needs run (a trained run folder), and run goes with method='network'")
+        pairs = tuple((str(link), float(f)) for link, f in self.known_uncertainty)
+        object.__setattr__(self, "known_uncertainty", pairs)  # lists from a results file: hashable pairs
+        for link, f in pairs:
+            if not (np.isfinite(f) and f >= 0):
+                raise ValueError(f"known_uncertainty of {link!r} must be a fraction >= 0, got {f}")
+        if pairs and self.method == "network":
+            raise ValueError("method='network' does not propagate the known links' uncertainty")
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["axis_sigma"] = None if self.axis_sigma is None else list(self.axis_sigma)
+        d["known_uncertainty"] = [list(p) for p in self.known_uncertainty]
         return d
 
 
@@ -332,6 +345,8 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
     theta_lin = linear_theta(fit, base, prior)
     sums = estimate_residual_sums(model, ds, n_fit, n_val, theta_lin, channels, offsets)
     fit = with_exact_rss(fit, sums[0])
+    if settings.known_uncertainty:  # the known links' CAD uncertainty (ineid.identify.known)
+        fit = _with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings)
 
     # 3. standard parameters
     if settings.method == "linear":
@@ -358,6 +373,23 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         bias_hat=bias_hat,
         bias_std=bias_std,
     )  # fmt: skip
+
+
+def _with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings):
+    """``fit`` with ``S Sigma_k S^T`` added to the covariance of its full-rank configurations."""
+    from ineid.identify.known import known_covariance, known_std  # noqa: PLC0415
+
+    std_k = known_std(model, settings.known_uncertainty)
+    ok = np.flatnonzero(fit.full_rank)
+    mask = channels.offset_mask(model) if settings.bias == "estimate" else None
+    cov, sigma2 = fit.cov_beta.copy(), fit.sigma2.copy()  # sigma2 of the fit itself stays (IPOPT's noise level)
+    cad, extra = known_covariance(model, base, *(a[ok][:, fit_sl] for a in (ds.q, ds.qd, ds.qdd)), channels,
+                                  fit.axis_weights[ok], std_k, mask)
+    # the CAD errors' share of the residuals is not noise: s^2 without it (ineid.identify.known)
+    sigma2[ok] = np.maximum(fit.rss[ok] - extra, 0.0) / max(fit.dof, 1)
+    scale = np.divide(sigma2[ok], fit.sigma2[ok], out=np.zeros(len(ok)), where=fit.sigma2[ok] > 0)
+    cov[ok] = cov[ok] * scale[:, None, None] + cad
+    return dataclasses.replace(fit, cov_beta=cov)
 
 
 def dataset_results(ds, settings: SolveSettings, base: BaseParameters, theta_prior: np.ndarray, sums,
