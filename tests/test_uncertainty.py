@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
-from ineid.identify import SolveSettings, fused, solve_dataset
+from ineid.identify import SolveSettings, base_parameters, fused, solve_dataset
 from ineid.identify.linear import fit_base_blocks
 
 AXIS_NOISE = NoiseModel.create(4, force=[0.2, 0.5, 1.5], moment=[0.02, 0.05, 0.1])
@@ -75,3 +75,73 @@ def test_known_uncertainty_per_link_and_bad_links(model):
     for link, what in (("forearm", "an unknown"), ("nope", "not a link")):
         with pytest.raises(IdentificationError, match=what):
             known_std(model, [(link, 0.05)])
+
+
+# -- several recordings, validation on a separate one --------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sessions(model):
+    """Three 'recordings' of the same configurations (the same links), 30 frames each, offsets of their own."""
+    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=3), n_frames=90, seed=5,
+                                             noise=NoiseModel.create(4, force=0.3, moment=0.03)))
+    parts = [ds.select(frames=slice(30 * k, 30 * (k + 1))) for k in range(3)]
+    offsets = np.random.default_rng(2).normal(0.0, [2, 2, 2, 0.2, 0.2, 0.2], size=(3, 6))
+    for p, b in zip(parts, offsets, strict=True):
+        p.wrench = p.wrench + b
+    return parts, offsets
+
+
+def test_joint_fit_has_its_own_offsets_per_recording_and_validates_on_another(model, base, sessions):
+    from ineid.identify import fit_base, stack
+    from ineid.identify.joint import solve_recordings
+    from ineid.identify.systems import remove_offsets
+
+    (a, b, c), offsets = sessions
+    res = solve_recordings([a, b], SolveSettings(bias="estimate", weights="none"), model=model, validate=c)
+    assert res.n_frames_fit == 60 and res.n_frames_validation == 30 and res.success.all()
+    # the reference: each recording centred on its own, stacked, one QR
+    parts = [remove_offsets(*stack(model, d.q, d.qd, d.qdd, d.wrench, d.theta_known), 6)[:2] for d in (a, b)]
+    bias_base = base_parameters(model, bias=True)
+    ref = fit_base(np.concatenate([w for w, _ in parts], 1), np.concatenate([y for _, y in parts], 1), bias_base,
+                   "none", axis_offsets=np.full(6, 2.0))
+    np.testing.assert_allclose(res.base_hat, ref.beta, rtol=1e-8, atol=1e-10)
+    # each recording's offsets: up to what a constant wrench cannot be told from (the weight of mass at the
+    # shoulder, the same in both), so their difference is the difference of the true offsets
+    (b0, s0), (b1, s1) = ((np.asarray(r["bias_hat"]), np.asarray(r["bias_std"])) for r in res.meta["recordings"])
+    assert np.all(np.abs((b0 - b1) - (offsets[0] - offsets[1])) < 5 * (s0 + s1))
+    # validation: c's own offsets fitted alone with theta fixed, then the RMS of what is left
+    theta = model.full_theta(res.theta_hat, c.theta_known)
+    resid = c.wrench - model.base_wrench(c.q, c.qd, c.qdd, theta[:, None, :])
+    resid -= resid.mean(axis=1, keepdims=True)
+    np.testing.assert_allclose(res.validation_rms, np.sqrt(np.mean(resid**2, axis=1)), rtol=1e-9)
+    assert np.all(res.validation_rms < 2 * np.array([0.3] * 3 + [0.03] * 3))  # the noise level: a good fit
+    assert res.meta["validation"]["offsets"].startswith("fitted alone")
+
+
+def test_solve_several_recordings_cli(run, tmp_path, sessions):
+    import dataclasses
+
+    from ineid.data import save_dataset
+    from ineid.identify import load_results
+
+    (a, b, c), _ = sessions
+    paths = [save_dataset(d, tmp_path / f"{n}.h5") for n, d in zip("abc", (a, b, c), strict=True)]
+    out = tmp_path / "r.h5"
+    r = run("solve", paths[0], paths[1], "--validate", paths[2], "--bias", "estimate", "--out", out)
+    assert r.exit_code == 0, r.output
+    assert "validation on" in r.output and "relative error" in r.output
+    res = load_results(out)
+    assert [x["path"] for x in res.meta["recordings"]] == [str(p) for p in paths[:2]]
+    assert res.meta["validation"]["path"] == str(paths[2]) and np.isfinite(res.meta["validation"]["rel"])
+    info = run("results", "info", out)
+    assert "recording 2:" in info.output and "validation:" in info.output and "fitted alone" in info.output
+    # another robot's recording: one line naming both, no file
+    other = dataclasses.replace(c, meta=dataclasses.replace(
+        c.meta, robot="other-arm", urdf=c.meta.urdf.replace('name="sweaty-arm"', 'name="other-arm"')))
+    bad = save_dataset(other, tmp_path / "other.h5")
+    for args in ((paths[0], "--validate", bad), (paths[0], bad)):
+        r = run("solve", *args, "--out", tmp_path / "x.h5")
+        assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1, r.output
+        assert "'other-arm'" in r.output and "'sweaty-arm'" in r.output and "one robot" in r.output
+        assert not (tmp_path / "x.h5").exists()

@@ -86,27 +86,36 @@ def known_covariance(model, base, q, qd, qdd, channels, axis_weights: np.ndarray
 
     Args:
         model, base: the robot and its base parameters (``base.base_index`` into the unknown columns).
-        q, qd, qdd: (C, F, n_dof) the fitted frames.
+        q, qd, qdd: (C, F, n_dof) the fitted frames, or lists of them, one per recording fitted
+            jointly (each centred on its own when offsets are fitted).
         channels: the :class:`ineid.channels.ChannelSet` fitted.
         axis_weights: (C, A) the fit's row weights ``d_a``.
         std_k: (10 n_k,) from :func:`known_std`.
         offset_mask: (A,) bool, the axes whose offsets were fitted (their rows centred); None: none.
     """
-    c, f, _ = q.shape
+    segments = list(zip(q, qd, qdd, strict=True)) if isinstance(q, (list, tuple)) else [(q, qd, qdd)]
+    c = segments[0][0].shape[0]
+    f = sum(seg[0].shape[1] for seg in segments)
     r = len(base.base_index)
     out, extra = np.zeros((c, r, r)), np.zeros(c)
     if not np.any(std_k > 0):
         return out, extra
     scales = base.scales[base.base_index]
+    centre = offset_mask is not None and np.any(offset_mask)
     per = max(1, CHUNK_ROWS // max(f, 1))
     for i in range(0, c, per):
         sl = slice(i, i + per)
-        rows_u, rows_k = channels.rows_split(model, q[sl], qd[sl], qdd[sl])  # (c, F, A, p)
-        w_b = rows_u[..., base.base_index] * scales  # scaled columns: the QR stays well conditioned
-        rows_k = rows_k * std_k
-        if offset_mask is not None and np.any(offset_mask):
-            w_b = w_b - w_b.mean(axis=1, keepdims=True) * offset_mask[:, None]
-            rows_k = rows_k - rows_k.mean(axis=1, keepdims=True) * offset_mask[:, None]
+        parts_u, parts_k = [], []
+        for sq, sqd, sqdd in segments:  # each recording centred on its own (its own offsets)
+            rows_u, rows_k = channels.rows_split(model, sq[sl], sqd[sl], sqdd[sl])  # (c, F, A, p)
+            w_b = rows_u[..., base.base_index] * scales  # scaled columns: the QR stays well conditioned
+            rows_k = rows_k * std_k
+            if centre:
+                w_b = w_b - w_b.mean(axis=1, keepdims=True) * offset_mask[:, None]
+                rows_k = rows_k - rows_k.mean(axis=1, keepdims=True) * offset_mask[:, None]
+            parts_u.append(w_b)
+            parts_k.append(rows_k)
+        w_b, rows_k = np.concatenate(parts_u, axis=1), np.concatenate(parts_k, axis=1)
         d = axis_weights[sl][:, None, :, None]
         n = w_b.shape[0]
         qq, rr = np.linalg.qr((w_b * d).reshape(n, -1, r))

@@ -376,15 +376,17 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
 
 
 def _with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings):
-    """``fit`` with ``S Sigma_k S^T`` added to the covariance of its full-rank configurations."""
+    """``fit`` with ``S Sigma_k S^T`` added to the covariance of its full-rank configurations (``ds``: a
+    dataset, or a list of datasets fitted jointly, all their frames)."""
     from ineid.identify.known import known_covariance, known_std  # noqa: PLC0415
 
     std_k = known_std(model, settings.known_uncertainty)
     ok = np.flatnonzero(fit.full_rank)
     mask = channels.offset_mask(model) if settings.bias == "estimate" else None
     cov, sigma2 = fit.cov_beta.copy(), fit.sigma2.copy()  # sigma2 of the fit itself stays (IPOPT's noise level)
-    cad, extra = known_covariance(model, base, *(a[ok][:, fit_sl] for a in (ds.q, ds.qd, ds.qdd)), channels,
-                                  fit.axis_weights[ok], std_k, mask)
+    parts = ds if isinstance(ds, list) else [ds]
+    frames = [[getattr(d, k)[ok][:, fit_sl] for d in parts] for k in ("q", "qd", "qdd")]
+    cad, extra = known_covariance(model, base, *frames, channels, fit.axis_weights[ok], std_k, mask)
     # the CAD errors' share of the residuals is not noise: s^2 without it (ineid.identify.known)
     sigma2[ok] = np.maximum(fit.rss[ok] - extra, 0.0) / max(fit.dof, 1)
     scale = np.divide(sigma2[ok], fit.sigma2[ok], out=np.zeros(len(ok)), where=fit.sigma2[ok] > 0)
