@@ -24,11 +24,11 @@ import numpy as np
 from ineid.errors import IdentificationError
 from ineid.identify.fused import InformationBlocks, information_blocks
 from ineid.identify.identifiability import base_parameters
+from ineid.identify.known import with_known_uncertainty
 from ineid.identify.linear import fit_base, fit_base_blocks, linear_estimate, linear_theta, with_exact_rss
 from ineid.identify.solve import (
     SolveResults,
     _axis_sigma,
-    _with_known_uncertainty,
     physical_start,
     results_meta,
     solve_channels,
@@ -150,7 +150,7 @@ def solve_recordings(datasets, settings, model=None, validate=None, progress=Non
     theta_lin = linear_theta(fit, base, prior)
     fit = with_exact_rss(fit, residuals(theta_lin))
     if settings.known_uncertainty:
-        fit = _with_known_uncertainty(fit, model, base, datasets, slice(None), channels, settings)
+        fit = with_known_uncertainty(fit, model, base, datasets, slice(None), channels, settings)
 
     # 3. standard parameters
     if settings.method == "linear":

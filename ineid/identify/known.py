@@ -33,6 +33,7 @@ fit. The offsets' standard deviations (``--bias estimate``) follow through ``cov
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable
 
 import numpy as np
@@ -125,3 +126,24 @@ def known_covariance(model, base, q, qd, qdd, channels, axis_weights: np.ndarray
         s = np.linalg.solve(rr, proj) * scales[:, None]  # back to the parameters' units
         out[sl] = s @ np.swapaxes(s, 1, 2)
     return out, np.maximum(extra, 0.0)
+
+
+def with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings):
+    """``fit`` (a :class:`ineid.identify.linear.BaseFit`) with ``S Sigma_k S^T`` added to the covariance of its
+    full-rank configurations and the CAD errors' share taken out of its noise part (module doc).
+
+    ``ds``: a dataset, or a list of datasets fitted jointly (``fit_sl`` of each one's frames);
+    ``settings.known_uncertainty`` the fractions; offsets centred when ``settings.bias == "estimate"``.
+    """
+    std_k = known_std(model, settings.known_uncertainty)
+    ok = np.flatnonzero(fit.full_rank)
+    mask = channels.offset_mask(model) if settings.bias == "estimate" else None
+    cov, sigma2 = fit.cov_beta.copy(), fit.sigma2.copy()  # sigma2 of the fit itself stays (IPOPT's noise level)
+    parts = ds if isinstance(ds, list) else [ds]
+    frames = [[getattr(d, k)[ok][:, fit_sl] for d in parts] for k in ("q", "qd", "qdd")]
+    cad, extra = known_covariance(model, base, *frames, channels, fit.axis_weights[ok], std_k, mask)
+    # the CAD errors' share of the residuals is not noise: s^2 without it (ineid.identify.known)
+    sigma2[ok] = np.maximum(fit.rss[ok] - extra, 0.0) / max(fit.dof, 1)
+    scale = np.divide(sigma2[ok], fit.sigma2[ok], out=np.zeros(len(ok)), where=fit.sigma2[ok] > 0)
+    cov[ok] = cov[ok] * scale[:, None, None] + cad
+    return dataclasses.replace(fit, cov_beta=cov)

@@ -346,7 +346,9 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
     sums = estimate_residual_sums(model, ds, n_fit, n_val, theta_lin, channels, offsets)
     fit = with_exact_rss(fit, sums[0])
     if settings.known_uncertainty:  # the known links' CAD uncertainty (ineid.identify.known)
-        fit = _with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings)
+        from ineid.identify.known import with_known_uncertainty  # noqa: PLC0415
+
+        fit = with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings)
 
     # 3. standard parameters
     if settings.method == "linear":
@@ -373,25 +375,6 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         bias_hat=bias_hat,
         bias_std=bias_std,
     )  # fmt: skip
-
-
-def _with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings):
-    """``fit`` with ``S Sigma_k S^T`` added to the covariance of its full-rank configurations (``ds``: a
-    dataset, or a list of datasets fitted jointly, all their frames)."""
-    from ineid.identify.known import known_covariance, known_std  # noqa: PLC0415
-
-    std_k = known_std(model, settings.known_uncertainty)
-    ok = np.flatnonzero(fit.full_rank)
-    mask = channels.offset_mask(model) if settings.bias == "estimate" else None
-    cov, sigma2 = fit.cov_beta.copy(), fit.sigma2.copy()  # sigma2 of the fit itself stays (IPOPT's noise level)
-    parts = ds if isinstance(ds, list) else [ds]
-    frames = [[getattr(d, k)[ok][:, fit_sl] for d in parts] for k in ("q", "qd", "qdd")]
-    cad, extra = known_covariance(model, base, *frames, channels, fit.axis_weights[ok], std_k, mask)
-    # the CAD errors' share of the residuals is not noise: s^2 without it (ineid.identify.known)
-    sigma2[ok] = np.maximum(fit.rss[ok] - extra, 0.0) / max(fit.dof, 1)
-    scale = np.divide(sigma2[ok], fit.sigma2[ok], out=np.zeros(len(ok)), where=fit.sigma2[ok] > 0)
-    cov[ok] = cov[ok] * scale[:, None, None] + cad
-    return dataclasses.replace(fit, cov_beta=cov)
 
 
 def dataset_results(ds, settings: SolveSettings, base: BaseParameters, theta_prior: np.ndarray, sums,
