@@ -93,15 +93,21 @@ def sessions(model):
 
 
 def test_joint_fit_has_its_own_offsets_per_recording_and_validates_on_another(model, base, sessions):
-    from ineid.identify import fit_base, stack
+    from ineid.identify import fit_base, stack_casadi
     from ineid.identify.joint import solve_recordings
     from ineid.identify.systems import remove_offsets
 
     (a, b, c), offsets = sessions
     res = solve_recordings([a, b], SolveSettings(bias="estimate", weights="none"), model=model, validate=c)
     assert res.n_frames_fit == 60 and res.n_frames_validation == 30 and res.success.all()
+
+    def rows(d):  # through CasADi: an independent route, nothing to compile
+        w, y = zip(*(stack_casadi(model, d.q[i], d.qd[i], d.qdd[i], d.wrench[i], d.theta_known)
+                     for i in range(d.n_configs)), strict=True)
+        return np.array(w), np.array(y)
+
     # the reference: each recording centred on its own, stacked, one QR
-    parts = [remove_offsets(*stack(model, d.q, d.qd, d.qdd, d.wrench, d.theta_known), 6)[:2] for d in (a, b)]
+    parts = [remove_offsets(*rows(d), 6)[:2] for d in (a, b)]
     bias_base = base_parameters(model, bias=True)
     ref = fit_base(np.concatenate([w for w, _ in parts], 1), np.concatenate([y for _, y in parts], 1), bias_base,
                    "none", axis_offsets=np.full(6, 2.0))
@@ -111,8 +117,8 @@ def test_joint_fit_has_its_own_offsets_per_recording_and_validates_on_another(mo
     (b0, s0), (b1, s1) = ((np.asarray(r["bias_hat"]), np.asarray(r["bias_std"])) for r in res.meta["recordings"])
     assert np.all(np.abs((b0 - b1) - (offsets[0] - offsets[1])) < 5 * (s0 + s1))
     # validation: c's own offsets fitted alone with theta fixed, then the RMS of what is left
-    theta = model.full_theta(res.theta_hat, c.theta_known)
-    resid = c.wrench - model.base_wrench(c.q, c.qd, c.qdd, theta[:, None, :])
+    w, y = rows(c)
+    resid = (y - np.einsum("cnp,cp->cn", w, res.theta_hat)).reshape(c.n_configs, c.n_frames, 6)
     resid -= resid.mean(axis=1, keepdims=True)
     np.testing.assert_allclose(res.validation_rms, np.sqrt(np.mean(resid**2, axis=1)), rtol=1e-9)
     assert np.all(res.validation_rms < 2 * np.array([0.3] * 3 + [0.03] * 3))  # the noise level: a good fit
@@ -128,12 +134,19 @@ def test_solve_several_recordings_cli(run, tmp_path, sessions):
     (a, b, c), _ = sessions
     paths = [save_dataset(d, tmp_path / f"{n}.h5") for n, d in zip("abc", (a, b, c), strict=True)]
     out = tmp_path / "r.h5"
-    r = run("solve", paths[0], paths[1], "--validate", paths[2], "--bias", "estimate", "--out", out)
+    r = run("solve", paths[0], paths[1], "--validate", paths[2], "--bias", "estimate", "--known-uncertainty", "0.03",
+            "--known-uncertainty", "shoulder_roll_link=0.1", "--out", out)
     assert r.exit_code == 0, r.output
     assert "validation on" in r.output and "relative error" in r.output
     res = load_results(out)
     assert [x["path"] for x in res.meta["recordings"]] == [str(p) for p in paths[:2]]
     assert res.meta["validation"]["path"] == str(paths[2]) and np.isfinite(res.meta["validation"]["rel"])
+    assert res.settings.known_uncertainty == (("*", 0.03), ("shoulder_roll_link", 0.1))
+    for bad in ("abc", "=0.1", "-0.1", "forearm=nan"):
+        r = run("solve", paths[0], "--known-uncertainty", bad, "--out", tmp_path / "x.h5")
+        assert r.exit_code == 2 and "--known-uncertainty" in r.output, (bad, r.output)
+    r = run("solve", paths[0], paths[1], "--known-uncertainty", "forearm=0.1", "--out", tmp_path / "x.h5")
+    assert r.exit_code == 1 and "is an unknown (identified) link" in r.output
     info = run("results", "info", out)
     assert "recording 2:" in info.output and "validation:" in info.output and "fitted alone" in info.output
     # another robot's recording: one line naming both, no file
@@ -145,3 +158,7 @@ def test_solve_several_recordings_cli(run, tmp_path, sessions):
         assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1, r.output
         assert "'other-arm'" in r.output and "'sweaty-arm'" in r.output and "one robot" in r.output
         assert not (tmp_path / "x.h5").exists()
+    # synthetic datasets of other true parameters: nothing joint to fit
+    odd = save_dataset(dataclasses.replace(c, theta_unknown=c.theta_unknown * 1.1), tmp_path / "odd.h5")
+    r = run("solve", paths[0], odd, "--out", tmp_path / "x.h5")
+    assert r.exit_code == 1 and "different true parameters" in r.output and not (tmp_path / "x.h5").exists()

@@ -187,8 +187,8 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Results file (.h5).")
 @overwrite_option
 @click.pass_context
-def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection, weights, sigma, start, backend, workers, bias,
-          known_uncertainty, plot_path, out, overwrite) -> None:
+def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection, weights, sigma, start, backend,
+          workers, bias, known_uncertainty, plot_path, out, overwrite) -> None:
     """Identify the unknown links of every selected configuration of DATA.h5.
 
     Several DATA files (recordings of one robot): configuration i of each is fitted jointly from

@@ -51,8 +51,9 @@ def check_same_robot(datasets, validate=None) -> None:
     """Refuse recordings of different robots (URDF, unknown links, gravity, locked joints, channels) in one line.
 
     Raises:
-        IdentificationError: status ``different_robots``; or ``config_mismatch`` when the inputs
-            hold different numbers of configurations.
+        IdentificationError: status ``different_robots``; ``config_mismatch`` when the inputs
+            hold different numbers of configurations; ``different_bodies`` for synthetic datasets
+            whose true parameters differ (nothing joint to fit).
     """
     everything = [*datasets, *([] if validate is None else [validate])]
     first = everything[0]
@@ -70,6 +71,12 @@ def check_same_robot(datasets, validate=None) -> None:
                 f"{_label(ds, i)} holds {ds.n_configs} configurations and {_label(first, 0)} {first.n_configs}: "
                 "select the same number from each (--select), configuration i of each is fitted together",
                 status="config_mismatch")
+        if ds.theta_unknown is not None and first.theta_unknown is not None and not np.allclose(
+                ds.theta_unknown, first.theta_unknown, rtol=1e-12, atol=0.0):
+            raise IdentificationError(
+                f"{_label(ds, i)} and {_label(first, 0)} are synthetic datasets of different true parameters "
+                "(other seeds or sampling): a joint fit needs recordings of the same bodies; split one dataset's "
+                "frames instead", status="different_bodies")
 
 
 def solve_recordings(datasets, settings, model=None, validate=None, progress=None) -> SolveResults:
