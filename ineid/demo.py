@@ -77,7 +77,7 @@ def identification(model, seed: int = 0, per_link: int = 12, n_frames: int = 100
     )
     print(f"{'method':28s} {'base err':>9s} {'std err':>9s} {'identifiable':>13s} {'physical':>9s} {'seconds':>8s}")
     for label, settings in (
-        ("linear least squares", SolveSettings()),
+        ("linear least squares", SolveSettings(weights="none")),
         ("weighted least squares", SolveSettings(weights="estimate")),
         ("consistent (log-Cholesky)", SolveSettings(method="consistent", weights="estimate")),
     ):

@@ -105,7 +105,7 @@ def test_public_evaluators_refuse_tracers_and_bad_shapes(arm):
 # -- fused linear identification ------------------------------------------------------------
 
 def test_fused_linear_equals_lstsq_per_configuration(arm, base, noisy):
-    res = solve_dataset(noisy, SolveSettings(), model=arm)
+    res = solve_dataset(noisy, SolveSettings(weights="none"), model=arm)
     n_fit = res.n_frames_fit
     assert (n_fit, res.n_frames_validation) == (32, 8)
     beta_ref, rms_fit, rms_val, rel_val = [], [], [], []
@@ -174,19 +174,19 @@ def test_ill_conditioned_configurations_take_the_qr_route(arm, base):
                                       arm.full_theta(ds.theta_unknown[slow], ds.theta_known))
     fitted = [a[:, :32] for a in (ds.q, ds.qd, ds.qdd, ds.wrench)]
     blocks = fused.information_blocks(arm, base, *fitted, ds.theta_known)
-    fit, refit = fit_base_blocks(blocks, base)
+    fit, refit = fit_base_blocks(blocks, base, "none")  # unweighted: the slow frames' scale shows
     assert refit.tolist() == [i == slow for i in range(6)]
     assert not np.isfinite(fit.cond[slow]) or fit.cond[slow] > NORMAL_MAX_COND
-    res = solve_dataset(ds, SolveSettings(), model=arm)
+    res = solve_dataset(ds, SolveSettings(weights="none"), model=arm)
     assert res.n_frames_fit == 32
     # a refit of this few frames stacks through CasADi (SMALL_JOB_FRAMES: no kernel compiled for it)
     assert 32 <= model_module.SMALL_JOB_FRAMES
     w, y = stack_casadi(arm, *(a[slow] for a in fitted), ds.theta_known)
-    ref = fit_base(w[None], y[None], base)
+    ref = fit_base(w[None], y[None], base, "none")
     assert res.success[slow] == ref.full_rank[0]
     np.testing.assert_allclose(res.base_hat[slow], ref.beta[0], rtol=1e-12)  # the same QR
     w, y = stack(arm, *fitted, ds.theta_known)  # the JAX stacks: the same to round-off, amplified by cond
-    np.testing.assert_allclose(res.base_hat[slow], fit_base(w, y, base).beta[slow], rtol=1e-9)
+    np.testing.assert_allclose(res.base_hat[slow], fit_base(w, y, base, "none").beta[slow], rtol=1e-9)
 
 
 def test_base_parameters_from_casadi_equal_the_jax_stacks(arm, base):

@@ -144,7 +144,10 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
 
 
 @click.command()
-@click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
+@click.argument("data_paths", metavar="DATA.h5...", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--validate", "validate_path", type=click.Path(path_type=Path), default=None, metavar="REC.h5",
+              help="A separate recording of the same robot: the fitted parameters' prediction error on it "
+                   "(RMS per axis, relative). With --bias estimate its own offsets are fitted alone on it.")
 @click.option("--method", type=LibraryChoice(f"{_SOLVE}:METHODS"), cls=LibraryOption,
               default_from=f"{_SOLVE}:SolveSettings.method",
               help="network: a trained run (--run) identifies every configuration at once.")
@@ -157,7 +160,8 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
 @select_alias
 @click.option("--weights", type=LibraryChoice("ineid.identify.linear:WEIGHT_MODES"), cls=LibraryOption,
               default_from=f"{_SOLVE}:SolveSettings.weights",
-              help="Row weights per wrench axis: none, from the noise levels (--sigma or the file), or estimated.")
+              help="Row weights per wrench axis: estimated from the residuals (default: calibrated std when the noise "
+                   "differs per axis), from the noise levels (--sigma or the file), or none (equal noise assumed).")
 @click.option("--sigma", nargs=6, type=FiniteFloatRange(min=0, min_open=True), default=None, metavar="FX FY FZ MX MY MZ",
               help="Wrench noise std per axis (N, N*m) for --weights noise.")
 @click.option("--start", type=LibraryChoice(f"{_SOLVE}:STARTS"), cls=LibraryOption,
@@ -172,15 +176,24 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
 @click.option("--bias", type=LibraryChoice(f"{_SOLVE}:BIAS_MODES"), cls=LibraryOption,
               default_from=f"{_SOLVE}:SolveSettings.bias",
               help="estimate: identify six constant sensor offsets with the parameters (an untared sensor).")
+@click.option("--known-uncertainty", "known_uncertainty", multiple=True, metavar="[LINK=]FRACTION",
+              callback=lambda ctx, param, v: _known_uncertainty(v),
+              help="The known links' CAD uncertainty, added to the reported std: each known parameter off by "
+                   "FRACTION of max(|CAD value|, the link's scale) (0.05: 5 %); LINK=FRACTION for one link "
+                   "(repeatable; overrides a plain FRACTION). Default: the CAD taken as exact.")
 @click.option("--plot", "plot_path", type=click.Path(path_type=Path), default=None, metavar="FILE",
               help="Write measured vs predicted wrench of the held-out frames (first solved configuration), "
                    "per axis with the residual RMS (.png, .pdf, .svg).")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Results file (.h5).")
 @overwrite_option
 @click.pass_context
-def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma, start, backend, workers, bias,
-          plot_path, out, overwrite) -> None:
+def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection, weights, sigma, start, backend,
+          workers, bias, known_uncertainty, plot_path, out, overwrite) -> None:
     """Identify the unknown links of every selected configuration of DATA.h5.
+
+    Several DATA files (recordings of one robot): configuration i of each is fitted jointly from
+    all their frames (each with its own offsets under --bias estimate); --validate REC.h5 reports
+    the prediction error on a separate recording.
 
     --method network: a trained run (--run RUN) estimates all configurations in batches; with
     --fit-frames, a multiple of the run's frames per sample.
@@ -188,11 +201,16 @@ def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma
     from ineid.data import load_dataset, read_meta  # noqa: PLC0415
     from ineid.identify import SolveSettings, save_results, solve_dataset  # noqa: PLC0415
 
-    inputs = [("the input dataset", data_path), *run_inputs(run_dir)]
+    data_path = data_paths[0]
+    joint = len(data_paths) > 1 or validate_path is not None
+    inputs = [*(("the input dataset", p) for p in data_paths), *run_inputs(run_dir)]
+    if validate_path is not None:
+        inputs.append(("the validation recording (--validate)", validate_path))
     prepare_output(out, overwrite, inputs=inputs)
     if (method == "network") != (run_dir is not None):
         raise click.UsageError("--method network needs --run RUN (a trained run folder), and --run goes with it")
-    given = [f"--{n}" for n in ("weights", "sigma", "start", "backend", "workers", "bias")
+    given = [f"--{n.replace('_', '-')}" for n in ("weights", "sigma", "start", "backend", "workers", "bias",
+                                                  "known_uncertainty")
              if ctx.get_parameter_source(n) is click.core.ParameterSource.COMMANDLINE]  # fmt: skip
     if method == "network" and plot_path is not None:
         given.append("--plot")
@@ -210,20 +228,37 @@ def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma
         settings = SolveSettings(
             method=method, frames=fit_frames, weights=weights, axis_sigma=tuple(sigma) if sigma else None, start=start,
             backend=backend, workers=workers or os.cpu_count() or 1, bias=bias,
-            run=None if run_dir is None else str(run_dir),
+            run=None if run_dir is None else str(run_dir), known_uncertainty=known_uncertainty,
         )  # fmt: skip
     except ValueError as e:
         raise click.UsageError(str(e)) from None
+    if joint:
+        for opt, bad in (("--fit-frames", fit_frames is not None), ("--plot", plot_path is not None),
+                         ("--method network", method == "network"), ("--backend", backend != "jax")):
+            if bad:
+                raise click.UsageError(f"{opt} does not apply to several recordings or --validate "
+                                       "(every frame of the inputs is fitted, by the jax backend)")
     ds = load_dataset(data_path, configs=idx, clean=False)
     model = ds.model()
-    with ProgressBar(f"solving ({method})", "configurations", quiet(ctx)) as bar:
-        res = solve_dataset(ds, settings, model=model, progress=bar)
+    if joint:
+        from ineid.identify.joint import solve_recordings  # noqa: PLC0415
+
+        more = [load_dataset(p, configs=idx, clean=False) for p in data_paths[1:]]
+        val = None if validate_path is None else load_dataset(validate_path, configs=idx, clean=False)
+        with ProgressBar(f"solving ({method})", "configurations", quiet(ctx)) as bar:
+            res = solve_recordings([ds, *more], settings, model=model, validate=val, progress=bar)
+        ds = _joined(ds, more)  # the plausibility checks see every frame fitted
+    else:
+        with ProgressBar(f"solving ({method})", "configurations", quiet(ctx)) as bar:
+            res = solve_dataset(ds, settings, model=model, progress=bar)
     from ineid.identify.plausibility import check_solve  # noqa: PLC0415
 
     findings = check_solve(ds, res, model)
     res.meta["warnings"] = [f.to_dict() for f in findings]
     save_results(res, out, overwrite=overwrite)
     print_results(res, out)
+    if res.meta.get("validation"):
+        _print_validation(res)
     print_findings(findings)
     if plot_path is not None and res.success.any():
         from ineid.identify.report import plot_validation, validation  # noqa: PLC0415
@@ -235,6 +270,50 @@ def solve(ctx, data_path, method, run_dir, fit_frames, selection, weights, sigma
                         + f"; wrote {shown(plot_path)}")
     elif plot_path is not None:
         console().print(f"no configuration identified: {shown(plot_path)} not written")
+
+
+def _joined(ds, more):
+    """One dataset of the frames of ``ds`` and ``more`` (same robot, configurations), for the plausibility checks."""
+    import dataclasses  # noqa: PLC0415
+
+    import numpy as np  # noqa: PLC0415
+
+    if not more:
+        return ds
+    every = (ds, *more)
+    arrays = {k: np.concatenate([getattr(d, k) for d in every], axis=1) for k in ("q", "qd", "qdd")}
+    if ds.wrench is not None:
+        arrays["wrench"] = np.concatenate([d.wrench for d in every], axis=1)
+    arrays["channel_values"] = {k: np.concatenate([d.channel_values[k] for d in every], axis=1)
+                                for k in ds.channel_values}
+    return dataclasses.replace(ds, **arrays, clean={}, time=None)
+
+
+def _print_validation(res) -> None:
+    v = res.meta["validation"]
+    if v.get("rel") is None:
+        return
+    console().print(f"validation on {shown(v['path'] or 'the validation recording')} ({v['n_frames']} frames; offsets "
+                    f"{v['offsets']}): residual RMS per axis ({' '.join(res.axes)}) "
+                    + " ".join(f"{r:.3g}" for r in v["rms"]) + f"; relative error {v['rel']:.3g} (median)")
+
+
+def _known_uncertainty(values) -> tuple[tuple[str, float], ...]:
+    """``--known-uncertainty`` values as ``(link, fraction)`` pairs (link ``*``: every known link)."""
+    import math  # noqa: PLC0415
+
+    pairs = []
+    for v in values:
+        link, _, text = v.rpartition("=")
+        try:
+            f = float(text)
+        except ValueError:
+            f = math.nan
+        if not (math.isfinite(f) and 0 <= f < 10) or (v.count("=") and not link):
+            raise click.BadParameter(f"{v!r} is not FRACTION or LINK=FRACTION with 0 <= FRACTION < 10 (0.05: 5 %)",
+                                     param_hint="'--known-uncertainty'")
+        pairs.append((link or "*", f))
+    return tuple(pairs)
 
 
 @click.command("export-urdf")
@@ -286,6 +365,15 @@ def results_info(path: Path) -> None:
         with np.errstate(invalid="ignore"):  # inf (a zero wrench) between two values: nan
             median = np.median(res.validation_rel[res.success])
         con.print(f"held-out relative wrench error: median {median:.3g}")
+    for k, rec in enumerate(m.get("recordings") or []):
+        con.print(f"recording {k + 1}: {shown(rec.get('path') or 'in memory')}, fingerprint "
+                  f"{shown(rec.get('fingerprint'))}, {rec.get('n_frames')} frames fitted")
+    v = m.get("validation")
+    if v:
+        rms = " ".join("-" if r is None else f"{r:.3g}" for r in (v.get("rms") or []))
+        con.print(f"validation: {shown(v.get('path') or 'in memory')}, fingerprint {shown(v.get('fingerprint'))}, "
+                  f"{v.get('n_frames')} frames; offsets {shown(v.get('offsets'))}; RMS per axis ({' '.join(res.axes)}) "
+                  f"{rms or '-'}; relative error {'-' if v.get('rel') is None else format(v['rel'], '.3g')} (median)")
     if res.payload:
         _print_payload(con, res)
     warnings = m.get("warnings")

@@ -7,11 +7,13 @@ columns, so
 
     beta_hat = argmin || D (W_b beta - y) ||^2         (QR of D W_b)
 
-with ``D`` optional row weights, one per measured axis (``A`` a frame: the stacked axes of
-the measurement channels, six for the base wrench): ``1/sigma_axis`` from known noise
-levels, or estimated from the residuals per axis (an unweighted fit, then
-``ESTIMATE_ROUNDS`` reweighted refits). The residual
-variance ``s^2 = ||D r||^2 / (AF - r)`` gives ``cov(beta_hat) = s^2 (R^T R)^-1``.
+with ``D`` row weights, one per measured axis (``A`` a frame: the stacked axes of
+the measurement channels, six for the base wrench): estimated from the residuals per axis
+(the default, :mod:`ineid.identify.weighting`: an unweighted fit, then
+``ESTIMATE_ROUNDS`` reweighted refits), ``1/sigma_axis`` from known noise levels, or none
+(equal noise on every axis assumed). The residual variance ``s^2 = ||D r||^2 / (AF - r)``
+gives ``cov(beta_hat) = s^2 (R^T R)^-1``, plus, for estimated weights, what estimating them
+adds (:func:`ineid.identify.weighting.estimated_weights_inflation`).
 
 **Two routes, the same numbers.** :func:`fit_base` factors the stacked ``D W_b`` (QR); it
 is the reference. :func:`fit_base_blocks` solves the normal equations
@@ -46,10 +48,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.identify.identifiability import BaseParameters, numerical_rank
+from ineid.identify.weighting import (  # noqa: F401  (ESTIMATE_ROUNDS was defined here)
+    ESTIMATE_ROUNDS,
+    estimated_axis_weights,
+    estimated_weights_inflation,
+)
 
-WEIGHT_MODES = ("none", "noise", "estimate")
-ESTIMATE_ROUNDS = 3
-"""Reweighting rounds of ``weights="estimate"``."""
+WEIGHT_MODES = ("estimate", "noise", "none")
+"""Row weights per measured axis: estimated from the residuals (the default), ``1/sigma`` of given noise
+levels, or none (equal noise on every axis assumed)."""
 NORMAL_MAX_COND = 1e3
 """Largest condition number of the scaled base regressor solved through the normal
 equations (error ``~ eps * cond^2 <= 2e-10``); above it, through QR of the stacks."""
@@ -129,21 +136,14 @@ def axis_weights(weights: str, axis_sigma, c: int, n_axes: int = 6) -> np.ndarra
     return 1.0 / sig
 
 
-def _reweight(per_axis_rss: np.ndarray, dof: int) -> np.ndarray:
-    """Row weights ``1/sigma_a`` from unweighted per-axis residual sums of squares (C, A)."""
-    ms = per_axis_rss / (dof / per_axis_rss.shape[1])
-    sig = np.sqrt(np.maximum(ms, 1e-300))
-    sig = np.maximum(sig, 1e-9 * np.max(sig, axis=1, keepdims=True))  # an axis that fits exactly
-    return 1.0 / sig
-
-
 def fit_base(
     w: np.ndarray,
     y: np.ndarray,
     base: BaseParameters,
-    weights: str = "none",
+    weights: str = "estimate",
     axis_sigma: np.ndarray | None = None,
     n_axes: int = 6,
+    axis_offsets: np.ndarray | None = None,
 ) -> BaseFit:
     """Least-squares base parameters of each configuration.
 
@@ -151,10 +151,14 @@ def fit_base(
         w: (C, AF, 10 n_u) stacked regressors of the unknown links (:func:`ineid.identify.systems.stack`).
         y: (C, AF) measured values minus the known links' share.
         base: the base parameters (which columns, which combinations).
-        weights: ``"none"``; ``"noise"``: rows weighted by ``1/axis_sigma``;
-            ``"estimate"``: per-axis noise estimated from an unweighted fit, then refit.
+        weights: ``"estimate"``: per-axis noise estimated from an unweighted fit, then refit
+            (:mod:`ineid.identify.weighting`); ``"noise"``: rows weighted by ``1/axis_sigma``;
+            ``"none"``: equal noise on every axis assumed.
         axis_sigma: (A,) or (C, A) noise standard deviations per measured axis, for ``"noise"``.
         n_axes: ``A``, the measured axes a frame (six: the base wrench).
+        axis_offsets: (A,) offsets taken out of each axis before the fit (the frames centred:
+            1 per recording on axes with offsets), each one residual degree of freedom of that
+            axis; None: none.
     """
     c, n, _ = w.shape
     axis_w = axis_weights(weights, axis_sigma, c, n_axes)
@@ -163,18 +167,38 @@ def fit_base(
     scales_b = base.scales[base.base_index]
     beta, rr, rss, rank, cond, resid = _weighted_fit(w_b, y, axis_w, scales_b)
     dof = n - r
+    g = None
     if weights == "estimate" and dof > 0:
-        # Feasible weighted least squares: per-axis noise from the residuals, refit,
-        # repeat (a few rounds remove the leakage of noisy axes into the others' residuals).
+        # Feasible weighted least squares (ineid.identify.weighting): per-axis noise from the
+        # residuals with each axis's own degrees of freedom, refit, a few rounds.
+        w4 = w_b.reshape(c, n // n_axes, n_axes, r)
+        g = np.einsum("cfar,cfas->cars", w4, w4)
+        frames = _axis_frames(n // n_axes, n_axes, axis_offsets)
+        signal = np.einsum("cfa,cfa->ca", y.reshape(c, -1, n_axes), y.reshape(c, -1, n_axes))
         for _ in range(ESTIMATE_ROUNDS):
             per_axis = resid.reshape(c, n // n_axes, n_axes) / axis_w[:, None, :]
-            axis_w = _reweight(np.einsum("cfa,cfa->ca", per_axis, per_axis), dof)
+            axis_w = estimated_axis_weights(np.einsum("cfa,cfa->ca", per_axis, per_axis), g, axis_w,
+                                            _r_inverse(rr), frames, signal)
             beta, rr, rss, rank, cond, resid = _weighted_fit(w_b, y, axis_w, scales_b)
     sigma2 = rss / max(dof, 1)
-    r_inv = np.linalg.solve(rr, np.broadcast_to(np.eye(r), rr.shape))
-    cov = sigma2[:, None, None] * r_inv @ np.swapaxes(r_inv, -1, -2)
+    a_inv = _r_inverse(rr)
+    if g is not None:
+        a_inv = a_inv + estimated_weights_inflation(g, axis_w, a_inv, _axis_frames(n // n_axes, n_axes, axis_offsets))
+    cov = sigma2[:, None, None] * a_inv
     cov[rank < r] = np.nan
     return BaseFit(beta, rr, rss, dof, sigma2, cov, rank, cond, axis_w)
+
+
+def _r_inverse(rr: np.ndarray) -> np.ndarray:
+    """``(R^T R)^-1`` of upper-triangular factors (C, r, r)."""
+    r_inv = np.linalg.solve(rr, np.broadcast_to(np.eye(rr.shape[-1]), rr.shape))
+    return r_inv @ np.swapaxes(r_inv, -1, -2)
+
+
+def _axis_frames(n_frames: int, n_axes: int, axis_offsets: np.ndarray | None) -> np.ndarray:
+    """(A,) ``F_a``: the frames of each axis less the offsets taken out of it."""
+    frames = np.full(n_axes, float(n_frames))
+    return frames if axis_offsets is None else frames - np.asarray(axis_offsets, dtype=np.float64)
 
 
 NORMAL_CHUNK = 256
@@ -247,8 +271,9 @@ def _is_positive_definite(m: np.ndarray) -> bool:
 def fit_base_blocks(
     blocks,
     base: BaseParameters,
-    weights: str = "none",
+    weights: str = "estimate",
     axis_sigma: np.ndarray | None = None,
+    axis_offsets: np.ndarray | None = None,
 ) -> tuple[BaseFit, np.ndarray]:
     """:func:`fit_base` from per-axis normal-equation blocks (:func:`ineid.identify.fused.information_blocks`).
 
@@ -256,11 +281,12 @@ def fit_base_blocks(
     1e-10 relative in the scaled parameters), from ``A r^2`` numbers per configuration:
     ``A = sum_a d_a^2 G_a``, ``b = sum_a d_a^2 h_a``, solved by one batched Cholesky
     factorization; ``weights="estimate"`` reweights from the per-axis residual sums
-    ``e_a - 2 beta.h_a + beta^T G_a beta`` without touching the frames again.
+    ``e_a - 2 beta.h_a + beta^T G_a beta`` and the leverage ``d_a^2 tr(G_a A^-1)`` without
+    touching the frames again.
 
     Args:
         blocks: an :class:`ineid.identify.fused.InformationBlocks` of C configurations.
-        base, weights, axis_sigma: as in :func:`fit_base`.
+        base, weights, axis_sigma, axis_offsets: as in :func:`fit_base`.
 
     Returns:
         ``(fit, refit)``: the fit, and a (C,) mask of configurations whose normal equations
@@ -275,11 +301,15 @@ def fit_base_blocks(
     scales_b = base.scales[base.base_index]
     beta, rr, rss, rank, cond, a_inv, refit = _normal_fit(blocks, axis_w, scales_b)
     dof = n - r
-    if weights == "estimate" and dof > 0:
+    estimated = weights == "estimate" and dof > 0
+    frames = _axis_frames(blocks.n_frames, n_axes, axis_offsets)
+    if estimated:
         for _ in range(ESTIMATE_ROUNDS):
-            axis_w = _reweight(blocks.axis_rss(np.nan_to_num(beta)), dof)
+            axis_w = estimated_axis_weights(blocks.axis_rss(np.nan_to_num(beta)), blocks.G, axis_w, a_inv, frames,
+                                            blocks.e)
             beta, rr, rss, rank, cond, a_inv, bad = _normal_fit(blocks, axis_w, scales_b)
             refit |= bad
+        a_inv = a_inv + estimated_weights_inflation(blocks.G, axis_w, a_inv, frames)
     sigma2 = rss / max(dof, 1)
     cov = sigma2[:, None, None] * a_inv
     cov[refit] = np.nan

@@ -238,12 +238,15 @@ def check_solve(ds, res, model=None) -> list[Finding]:
         model, force, "the fitted model's static force" if fit.bias_hat is not None
         else "the mean force over the fitted frames")
     held = check_held_out_error(fit, ds)
-    if held is not None:
-        # the fit explains nothing, so its mass and fitted static force mean nothing; without
-        # offsets the static force is the data's own mean, and pointing up it is the cause (a
-        # flipped wrench that a physically consistent fit cannot follow)
-        return [static] if static is not None and fit.bias_hat is None else [held]
     mass = None if linear is None else check_total_mass(linear, model)
+    if held is not None:
+        # the fit explains nothing, so its own mass and fitted static force mean nothing; without
+        # offsets the static force is the data's own mean, and pointing up it is the cause (a
+        # flipped wrench that a physically consistent fit cannot follow); with offsets the linear
+        # fit's negative mass says the same
+        if static is not None and fit.bias_hat is None:
+            return [static]
+        return [mass] if mass is not None and mass.code == "total_mass_negative" else [held]
     if mass is not None and mass.code == "total_mass_negative":
         return [mass]  # the static force would say the same
     return [f for f in (mass, static) if f is not None]

@@ -67,6 +67,9 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
         a["channels"] = json.dumps(res.meta.get("channels"), sort_keys=True)
         a["axes"] = np.array(res.axes, dtype=text)
         a["units"] = np.array(res.units, dtype=text)
+        for key in ("recordings", "validation"):  # several recordings fitted jointly, a separate one validating
+            if res.meta.get(key) is not None:
+                a[key] = json.dumps(res.meta[key], sort_keys=True)
         if res.meta.get("warnings") is not None:  # plausibility findings ({code, message}) of ineid solve
             a["warnings"] = json.dumps(list(res.meta["warnings"]))
         arrays = {
@@ -222,8 +225,8 @@ class _Reader:
 
     def results(self) -> SolveResults:
         try:
-            settings = SolveSettings(**{k: (tuple(v) if k == "axis_sigma" and v is not None else v)
-                                        for k, v in self.json("settings").items()})  # fmt: skip
+            settings = SolveSettings(**{k: (tuple(v) if k in ("axis_sigma", "known_uncertainty") and v is not None
+                                            else v) for k, v in self.json("settings").items()})  # fmt: skip
         except (TypeError, ValueError, AttributeError) as e:
             raise self.damaged(f"its settings do not parse ({e})") from None
         names = self.texts("param_names")
@@ -267,6 +270,7 @@ class _Reader:
             "dataset_fingerprint": _attr_text(self.f.attrs.get("dataset_fingerprint", "")) or None,
             "sensor": self.json("sensor") if "sensor" in self.f.attrs else None,
             "warnings": _warnings(self.path, self.f.attrs),
+            **{k: self.json(k) for k in ("recordings", "validation") if k in self.f.attrs},
         }
         if "axes" in self.f.attrs:  # version 2: the channels fitted and the per-axis columns' names
             meta.update(channels=self.json("channels"), axes=list(self.texts("axes")), units=list(self.texts("units")))

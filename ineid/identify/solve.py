@@ -76,8 +76,10 @@ class SolveSettings:
             form) or ``"consistent"`` (log-Cholesky, always physical).
         frames: frames fitted per configuration (the first ``frames``); the rest are held
             out for validation. ``None``: all but the last 20 % (all, when too few).
-        weights: ``"none"``, ``"noise"`` (``1/sigma`` per measured axis from ``axis_sigma``, or
-            from the dataset's recorded noise) or ``"estimate"`` (from the residuals).
+        weights: ``"estimate"`` (the default: the noise of each measured axis estimated from the
+            residuals, :mod:`ineid.identify.weighting`), ``"noise"`` (``1/sigma`` per measured axis
+            from ``axis_sigma``, or from the dataset's recorded noise) or ``"none"`` (equal noise on
+            every axis assumed: the standard deviations are wrong where it differs).
         axis_sigma: (A,) noise standard deviations per measured axis (the base wrench: fx..mz)
             for ``weights="noise"``.
         start: IPOPT start, ``"prior"`` (the CAD values) or ``"linear"`` (the linear
@@ -96,11 +98,15 @@ class SolveSettings:
             :class:`ineid.identify.systems.Offsets`). They also take the weight of whatever
             sits between the sensor and the first joint.
         run: the trained run folder of ``method="network"`` (:mod:`ineid.learn.amortized`).
+        known_uncertainty: ``(link, fraction)`` pairs, the known links' CAD uncertainty
+            (:mod:`ineid.identify.known`: std ``fraction * max(|theta_cad|, scale)`` per
+            parameter) added to the reported covariance; link ``"*"`` for every known link.
+            Empty: the CAD values are taken as exact.
     """
 
     method: str = "linear"
     frames: int | None = None
-    weights: str = "none"
+    weights: str = "estimate"
     axis_sigma: tuple[float, ...] | None = None
     start: str = "prior"
     pull: float = DEFAULT_PULL
@@ -109,6 +115,7 @@ class SolveSettings:
     workers: int | None = None
     bias: str = "none"
     run: str | None = None
+    known_uncertainty: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -131,10 +138,18 @@ class SolveSettings:
             raise ValueError("method='network' estimates no sensor offsets; use bias='none'")
         if (self.method == "network") != (self.run is not None):
             raise ValueError("method='network' needs run (a trained run folder), and run goes with method='network'")
+        pairs = tuple((str(link), float(f)) for link, f in self.known_uncertainty)
+        object.__setattr__(self, "known_uncertainty", pairs)  # lists from a results file: hashable pairs
+        for link, f in pairs:
+            if not (np.isfinite(f) and f >= 0):
+                raise ValueError(f"known_uncertainty of {link!r} must be a fraction >= 0, got {f}")
+        if pairs and self.method == "network":
+            raise ValueError("method='network' does not propagate the known links' uncertainty")
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["axis_sigma"] = None if self.axis_sigma is None else list(self.axis_sigma)
+        d["known_uncertainty"] = [list(p) for p in self.known_uncertainty]
         return d
 
 
@@ -333,6 +348,10 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
     theta_lin = linear_theta(fit, base, prior)
     sums = estimate_residual_sums(model, ds, n_fit, n_val, theta_lin, channels, offsets)
     fit = with_exact_rss(fit, sums[0])
+    if settings.known_uncertainty:  # the known links' CAD uncertainty (ineid.identify.known)
+        from ineid.identify.known import with_known_uncertainty  # noqa: PLC0415
+
+        fit = with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings)
 
     # 3. standard parameters
     if settings.method == "linear":
@@ -422,7 +441,7 @@ def identify_frames(
     qdd,
     wrench,
     method: str = "linear",
-    weights: str = "none",
+    weights: str = "estimate",
     axis_sigma=None,
     start: str = "prior",
     bias: str = "none",

@@ -135,9 +135,10 @@ def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress,
         extra["axis_weights"] = axis_weights(settings.weights, axis_sigma, ds.n_configs, n_axes)
     blocks = blocks_fn(model, base, q, qd, qdd, wrench, ds.theta_known, progress=progress, **extra)
     offsets = None
+    lost = mask.astype(np.float64) if with_bias else None  # a residual degree of freedom per offset
     if with_bias:
         blocks, offsets = blocks.centred(base, mask)
-    fit, refit = fit_base_blocks(blocks, base, settings.weights, axis_sigma)
+    fit, refit = fit_base_blocks(blocks, base, settings.weights, axis_sigma, lost)
     rows = np.flatnonzero(refit)
     per = max(1, REFERENCE_ROWS // max(blocks.n_frames, 1))
     for start in range(0, len(rows), per):
@@ -145,7 +146,7 @@ def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress,
         w, y = _refit_stack(model, q[idx], qd[idx], qdd[idx], wrench[idx], ds.theta_known, channels)
         if with_bias:
             w, y, _ = remove_offsets(w, y, n_axes, mask)
-        ref = fit_base(w, y, base, settings.weights, axis_sigma, n_axes)
+        ref = fit_base(w, y, base, settings.weights, axis_sigma, n_axes, lost)
         for f in dataclasses.fields(BaseFit):
             if f.name != "dof":
                 getattr(fit, f.name)[idx] = getattr(ref, f.name)
@@ -163,11 +164,13 @@ def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress, channe
         t0 = time.perf_counter()
         w, y = stack_casadi(model, ds.q[i, fit_sl], ds.qd[i, fit_sl], ds.qdd[i, fit_sl], values[i, fit_sl],
                             ds.theta_known, channels)
+        lost = None
         if settings.bias == "estimate":
-            wc, yc, off = remove_offsets(w[None], y[None], n_axes, channels.offset_mask(model))
-            w, y = wc[0], yc[0]
+            mask = channels.offset_mask(model)
+            wc, yc, off = remove_offsets(w[None], y[None], n_axes, mask)
+            w, y, lost = wc[0], yc[0], np.asarray(mask, dtype=np.float64)
             offsets.append(off)
-        f = fit_base(w[None], y[None], base, settings.weights, axis_sigma, n_axes)
+        f = fit_base(w[None], y[None], base, settings.weights, axis_sigma, n_axes, lost)
         beta = fit_base_casadi(w, y, base, f.axis_weights[0])
         if f.full_rank[0]:
             f.beta[0] = beta

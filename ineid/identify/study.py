@@ -30,7 +30,7 @@ REFERENCE_NOISE = {"force": 0.5, "moment": 0.05, "q": 0.0, "qd": 0.01, "qdd": 0.
 """Standard deviations at noise level 1 (N, N*m, rad, rad/s, rad/s^2)."""
 
 STUDY_METHODS = {
-    "linear": SolveSettings(method="linear"),
+    "linear": SolveSettings(method="linear", weights="none"),
     "weighted": SolveSettings(method="linear", weights="estimate"),
     "consistent": SolveSettings(method="consistent", weights="estimate"),
 }

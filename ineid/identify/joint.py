@@ -1,0 +1,229 @@
+"""Several recordings of one robot fitted jointly, and the prediction error on a separate one.
+
+``ineid solve a.h5 b.h5 ... --validate c.h5``: configuration ``i`` of every input (the same
+selection of each; a recording has one) is one identification, fitted from the frames of
+all inputs together. The per-axis normal-equation blocks (:mod:`ineid.identify.fused`) are
+sums over frames, so the joint fit is the sum of each input's blocks; with
+``bias="estimate"`` each input is centred on its own first (its own offsets: a sensor tared
+differently, or not at all, per session; Frisch-Waugh-Lovell as in
+:class:`ineid.identify.systems.Offsets`), which costs one residual degree of freedom per
+offset and input. Every frame of the inputs is fitted (no frames held out); the validation
+recording is predicted with the fitted parameters, its residual RMS per axis and relative
+error ``||w - w_hat|| / ||w||`` reported. With ``bias="estimate"`` its own offsets are
+unknown too: they are fitted alone on it with the parameters fixed (the mean residual per
+axis taken out), so the figures measure the parameters, not the offsets.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from ineid.errors import IdentificationError
+from ineid.identify.fused import InformationBlocks, information_blocks
+from ineid.identify.identifiability import base_parameters
+from ineid.identify.known import with_known_uncertainty
+from ineid.identify.linear import fit_base, fit_base_blocks, linear_estimate, linear_theta, with_exact_rss
+from ineid.identify.solve import (
+    SolveResults,
+    _axis_sigma,
+    physical_start,
+    results_meta,
+    solve_channels,
+)
+from ineid.identify.steps import _bias_estimate, _offset_dof, _run_nlp, estimate_residual_sums, predicted_wrench
+from ineid.identify.systems import check_frames, remove_offsets, stack
+
+
+def _robot_of(ds) -> tuple:
+    m = ds.meta
+    return (m.urdf, tuple(m.unknown_links), np.asarray(m.gravity).tolist(), m.locked_joints or {},
+            m.channels.to_list())
+
+
+def _label(ds, i: int) -> str:
+    return str(ds.path) if ds.path is not None else f"input {i + 1}"
+
+
+def check_same_robot(datasets, validate=None) -> None:
+    """Refuse recordings of different robots (URDF, unknown links, gravity, locked joints, channels) in one line.
+
+    Raises:
+        IdentificationError: status ``different_robots``; ``config_mismatch`` when the inputs
+            hold different numbers of configurations; ``different_bodies`` for synthetic datasets
+            whose true parameters differ (nothing joint to fit).
+    """
+    everything = [*datasets, *([] if validate is None else [validate])]
+    first = everything[0]
+    for i, ds in enumerate(everything[1:], start=1):
+        if _robot_of(ds) != _robot_of(first):
+            what = [n for n, a, b in zip(("URDF", "unknown links", "gravity", "locked joints", "channels"),
+                                         _robot_of(first), _robot_of(ds), strict=True) if a != b]
+            role = "--validate" if validate is not None and ds is validate else "input"
+            raise IdentificationError(
+                f"{role} {_label(ds, i)} is a recording of robot {ds.meta.robot!r} but {_label(first, 0)} is of "
+                f"{first.meta.robot!r} (they differ in {', '.join(what)}): fit and validate with recordings of one "
+                "robot, the same URDF, unknown links and channels", status="different_robots")
+        if ds.n_configs != first.n_configs:
+            raise IdentificationError(
+                f"{_label(ds, i)} holds {ds.n_configs} configurations and {_label(first, 0)} {first.n_configs}: "
+                "select the same number from each (--select), configuration i of each is fitted together",
+                status="config_mismatch")
+        if ds.theta_unknown is not None and first.theta_unknown is not None and not np.allclose(
+                ds.theta_unknown, first.theta_unknown, rtol=1e-12, atol=0.0):
+            raise IdentificationError(
+                f"{_label(ds, i)} and {_label(first, 0)} are synthetic datasets of different true parameters "
+                "(other seeds or sampling): a joint fit needs recordings of the same bodies; split one dataset's "
+                "frames instead", status="different_bodies")
+
+
+def solve_recordings(datasets, settings, model=None, validate=None, progress=None) -> SolveResults:
+    """Identify from several recordings jointly; optionally report the prediction error on ``validate``.
+
+    Args:
+        datasets: :class:`ineid.data.Dataset` s of one robot, the same number of configurations each.
+        settings: a :class:`ineid.identify.SolveSettings` (``backend="jax"``; ``frames`` must be None:
+            every frame of the inputs is fitted).
+        model: the robot (default: rebuilt from the first dataset).
+        validate: a dataset of the same robot (same configurations count), or None.
+        progress: ``progress(done, total)`` over configurations of the IPOPT methods.
+
+    Returns:
+        :class:`SolveResults` whose ``fit_rms`` is over all inputs' frames and whose
+        ``validation_rms``, ``validation_rel`` and ``n_frames_validation`` are of ``validate``
+        (NaN, 0 without it); ``meta["recordings"]`` lists the inputs (path, fingerprint, frames,
+        and their offsets with ``bias="estimate"``), ``meta["validation"]`` the validation
+        recording and its figures.
+
+    Raises:
+        IdentificationError: recordings of different robots, different configuration counts,
+            too few frames, or settings this route does not take.
+    """
+    datasets = list(datasets)
+    check_same_robot(datasets, validate)
+    if settings.method not in ("linear", "nonlinear", "consistent") or settings.backend != "jax":
+        raise IdentificationError("several recordings or --validate are fitted by the linear, nonlinear and "
+                                  "consistent methods with backend 'jax'", status="unsupported")
+    if settings.frames is not None:
+        raise IdentificationError("with several recordings or --validate every frame of the inputs is fitted: "
+                                  "leave out --fit-frames (--validate holds out a whole recording)",
+                                  status="unsupported")
+    t_start = time.perf_counter()
+    ds0 = datasets[0]
+    model = model or ds0.model()
+    with_bias = settings.bias == "estimate"
+    channels = solve_channels(ds0, settings, model)
+    n_axes = channels.n_axes(model)
+    mask = channels.offset_mask(model)
+    base = base_parameters(model, bias=with_bias, channels=channels)
+    prior = np.asarray(model.theta_cad[model.unknown_index], dtype=np.float64)
+    n_offsets = int(mask.sum()) if with_bias else 0
+    n_total = sum(d.n_frames for d in datasets)
+    check_frames(n_total, base.rank + n_offsets * len(datasets), n_axes)
+    axis_sigma = _axis_sigma(ds0, settings, channels, model)
+
+    # 1. the blocks of each input (centred on its own with offsets), summed
+    total, offsets = None, []
+    for ds in datasets:
+        blocks = information_blocks(model, base, ds.q, ds.qd, ds.qdd, ds.measured(channels), ds.theta_known,
+                                    sums=with_bias, channels=channels)
+        if with_bias:
+            blocks, off = blocks.centred(base, mask)
+            offsets.append(off)
+        total = blocks if total is None else InformationBlocks(total.G + blocks.G, total.h + blocks.h,
+                                                               total.e + blocks.e, total.n_frames + blocks.n_frames)
+    lost = mask.astype(np.float64) * len(datasets) if with_bias else None
+    fit, refit = fit_base_blocks(total, base, settings.weights, axis_sigma, lost)
+    for i in np.flatnonzero(refit):  # ill-conditioned: QR of the stacked, centred frames of every input
+        parts = [stack(model, d.q[i:i + 1], d.qd[i:i + 1], d.qdd[i:i + 1], d.measured(channels)[i:i + 1],
+                       d.theta_known, channels) for d in datasets]
+        if with_bias:
+            parts = [remove_offsets(w, y, n_axes, mask)[:2] for w, y in parts]
+        ref = fit_base(np.concatenate([w for w, _ in parts], axis=1), np.concatenate([y for _, y in parts], axis=1),
+                       base, settings.weights, axis_sigma, n_axes, lost)
+        for f in dataclasses.fields(type(fit)):
+            if f.name != "dof":
+                getattr(fit, f.name)[i] = getattr(ref, f.name)[0]
+    if with_bias:
+        _offset_dof(fit, n_offsets * len(datasets))
+
+    # 2. the exact residuals of every input at the linear estimate
+    def residuals(theta_u):
+        return sum(estimate_residual_sums(model, d, d.n_frames, 0, theta_u, channels,
+                                          offsets[k] if with_bias else None)[0] for k, d in enumerate(datasets))
+
+    theta_lin = linear_theta(fit, base, prior)
+    fit = with_exact_rss(fit, residuals(theta_lin))
+    if settings.known_uncertainty:
+        fit = with_known_uncertainty(fit, model, base, datasets, slice(None), channels, settings)
+
+    # 3. standard parameters
+    if settings.method == "linear":
+        est = linear_estimate(fit, base, prior)
+    else:
+        _, _, yy = total.weighted(fit.axis_weights)
+        rms = np.sqrt(yy / (n_axes * total.n_frames))
+        start = prior if settings.start == "prior" else physical_start(theta_lin, prior, base.scales)
+        est, _ = _run_nlp(fit, base, settings, prior, rms, start, progress)
+    ssr = residuals(est.theta)
+    failed = ~np.all(np.isfinite(est.theta), axis=1)
+    fit_rms = np.sqrt(ssr / n_total)
+    fit_rms[failed] = np.nan
+    recordings = []
+    for k, d in enumerate(datasets):
+        rec = {"path": None if d.path is None else str(d.path), "fingerprint": d.fingerprint(), "n_frames": d.n_frames}
+        if with_bias:
+            b, s = _bias_estimate(offsets[k], est, base)
+            rec.update(bias_hat=b.tolist(), bias_std=s.tolist())
+        recordings.append(rec)
+    bias_hat = bias_std = None
+    if with_bias:
+        bias_hat, bias_std = (np.asarray(recordings[0][k]) for k in ("bias_hat", "bias_std"))
+
+    # 4. the validation recording
+    c = ds0.n_configs
+    val_rms, val_rel, n_val = np.full((c, n_axes), np.nan), np.full(c, np.nan), 0
+    meta = results_meta(ds0, 0.0, channels, model)
+    if validate is not None:
+        val_rms, val_rel = validation_error(model, validate, est.theta, channels, mask if with_bias else None)
+        n_val = validate.n_frames
+        ok = est.success
+        meta["validation"] = {
+            "path": None if validate.path is None else str(validate.path), "fingerprint": validate.fingerprint(),
+            "n_frames": n_val, "offsets": "fitted alone on it, parameters fixed" if with_bias else "none",
+            "rms": np.median(val_rms[ok], axis=0).tolist() if ok.any() else None,
+            "rel": float(np.median(val_rel[ok])) if ok.any() else None,
+        }
+    meta["recordings"] = recordings
+    meta["total_seconds"] = time.perf_counter() - t_start
+    return SolveResults(
+        settings=settings, base=base, param_names=tuple(base.param_names),
+        config_index=np.asarray(ds0.config_index, dtype=np.int64),
+        theta_hat=est.theta, theta_std=est.theta_std, base_hat=est.beta, base_std=est.beta_std,
+        success=est.success, status=np.asarray(est.status, dtype=object),
+        seconds=np.full(c, meta["total_seconds"] / max(c, 1)),
+        fit_rms=fit_rms, validation_rms=val_rms, validation_rel=val_rel,
+        n_frames_fit=n_total, n_frames_validation=n_val, theta_prior=prior,
+        theta_true=None if ds0.theta_unknown is None else np.asarray(ds0.theta_unknown),
+        meta=meta, bias_hat=bias_hat, bias_std=bias_std,
+    )  # fmt: skip
+
+
+def validation_error(model, ds, theta_u, channels, offset_mask=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(rms (C, A), rel (C,))`` of ``ds``'s measurements against the prediction of ``theta_u`` (C, 10 n_u).
+
+    ``offset_mask`` (A,) bool: those axes' offsets are fitted alone on ``ds`` with the
+    parameters fixed (the mean residual taken out); None: none. NaN where ``theta_u`` is not finite.
+    """
+    measured = ds.measured(channels)
+    resid = measured - predicted_wrench(model, ds, theta_u, channels=channels)
+    if offset_mask is not None:
+        resid = resid - resid.mean(axis=1, keepdims=True) * offset_mask
+    rms = np.sqrt(np.mean(resid**2, axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.linalg.norm(resid, axis=(1, 2)) / np.linalg.norm(measured, axis=(1, 2))
+    failed = ~np.all(np.isfinite(theta_u), axis=1)
+    rms[failed], rel[failed] = np.nan, np.nan
+    return rms, rel
