@@ -117,7 +117,7 @@ def check_limits(model, limits: SafetyLimits) -> None:
     for axis, sign, bound, label in limits.half_spaces():
         if first.type == "revolute" and sign * (o1[axis] - bound) < 0:
             raise ExcitationError(
-                f"{label} excludes link {names[0]!r}'s origin, fixed at {_AXES[axis]} = {o1[axis]:.4g} m by joint "
+                f"{label} excludes the origin of link {names[0]!r}, fixed at {_AXES[axis]} = {o1[axis]:.4g} m by joint "
                 f"{first.name!r} (the mount; base frame, origin at the base link): "
                 f"{'lower --floor' if label.startswith('--floor') else 'widen the --workspace box'} to include it",
                 reason="workspace")
