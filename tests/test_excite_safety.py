@@ -144,3 +144,75 @@ def test_cli_floor_summary_record_and_one_line_errors(tmp_path):
         assert not bad.exists() and not bad.with_suffix(".json").exists()
     r = _run("excite", "sweaty-arm", "--duration", 5, "--workspace", "1,2,3", "--out", tmp_path / "x.csv")
     assert r.exit_code == 2 and "six numbers" in r.output
+
+
+# the sweaty arm with collision geometry (the same kinematics: its generated code and compilation are reused)
+_COLLISION = {
+    "base_link": '<origin xyz="0.1 0.15 0.0"/><geometry><sphere radius="0.12"/></geometry>',
+    "shoulder_roll_link": '<origin xyz="0 0 -0.03"/><geometry><sphere radius="0.04"/></geometry>',
+    "upper_arm": '<origin xyz="0 0 -0.11"/><geometry><cylinder radius="0.035" length="0.22"/></geometry>',
+    "forearm": '<origin xyz="0 0 -0.13"/><geometry><cylinder radius="0.03" length="0.26"/></geometry>',
+    "hand": '<origin xyz="0 0 -0.05" rpy="0.3 0 0"/><geometry><box size="0.03 0.08 0.1"/></geometry>',
+}
+
+
+@pytest.fixture(scope="module")
+def collision_arm(arm):
+    from ineid.robots import RobotModel
+    from ineid.robots.urdf import parse_chain
+
+    text = arm.urdf_text
+    for link, xml in _COLLISION.items():
+        text = text.replace(f'<link name="{link}">', f'<link name="{link}">\n    <collision>{xml}</collision>', 1)
+    return RobotModel(parse_chain(text), None, "sweaty-arm-collision", arm.gravity, arm.unknown_links, arm._jax,
+                      arm._casadi, urdf_text=text)
+
+
+def test_bounding_capsules_contain_the_shapes(collision_arm):
+    from ineid.robots.collision import body_capsules, segment_distance
+
+    found = body_capsules(collision_arm.urdf_text, collision_arm.chain)
+    assert [c.shape for c in found.capsules] == ["sphere", "sphere", "cylinder", "cylinder", "box"]
+    assert found.notes == ["link 'shoulder_pitch_link' has no collision geometry"]
+    hand = found.capsules[-1]
+    assert hand.link == 3  # welded to the forearm, in its frame
+    # every corner of the hand's box (rotated, offset by the welded joint) lies inside its capsule
+    from ineid.robots.kinematics import _rpy
+
+    corners = np.array([[x, y, z] for x in (-0.015, 0.015) for y in (-0.04, 0.04) for z in (-0.05, 0.05)])
+    corners = np.array([0, 0, -0.26]) + np.array([0, 0, -0.05]) + corners @ _rpy((0.3, 0, 0)).T
+    d, _, _ = segment_distance(hand.a, hand.b, corners, corners)
+    assert np.all(d <= hand.radius + 1e-12) and hand.radius < 0.065
+
+
+def test_self_collision_kept_at_every_instant_where_the_free_design_collides(collision_arm):
+    from ineid.identify.excite_collision import CollisionPairs
+
+    pairs = CollisionPairs(collision_arm, collision_arm.qd_max)
+    assert len(pairs.labels()) == 6 and "'base_link' and 'hand'" in pairs.labels()  # non-adjacent bodies only
+    free = design_excitation(collision_arm, ExcitationSettings(**FAST, self_collision=False))
+    q = free.trajectory.evaluate(np.linspace(0.0, 5.0, 20_001))[0]
+    assert pairs.clearances(q).min() < -0.01
+    kept = design_excitation(collision_arm, ExcitationSettings(**FAST))
+    q = kept.trajectory.evaluate(np.linspace(0.0, 5.0, 50_001))[0]
+    assert pairs.clearances(q).min() >= 0
+    assert kept.safety["self_collision"]["pairs"] == pairs.labels()
+    assert kept.safety["samples"]["min_clearance"] >= 0
+
+
+def test_mesh_geometry_gives_bounding_capsules():
+    import sysconfig
+    from pathlib import Path
+
+    from ineid.robots.collision import body_capsules
+    from ineid.robots.urdf import load_chain
+
+    path = Path(sysconfig.get_paths()["purelib"]) / UR5
+    if not path.exists():
+        pytest.skip(f"example-robot-data is not installed ({path})")
+    found = body_capsules(path.read_text(), load_chain(path), path)
+    assert not found.notes and [c.shape for c in found.capsules].count("mesh") == 7
+    assert all(0.03 < c.radius < 0.1 for c in found.capsules if c.shape == "mesh")
+    moved = body_capsules(path.read_text().replace("meshes/ur5/collision/", "meshes/nowhere/"),
+                          load_chain(path), path)
+    assert any("not readable, skipped" in n for n in moved.notes)

@@ -65,6 +65,8 @@ def _workspace(ctx, param, value):
               help="Multiple of the model's acceleration bounds used (above 1: beyond them, with a warning).")
 @click.option("--floor", type=FiniteFloatRange(), default=None,
               help="Keep every link frame and the tool frame at z >= FLOOR (m, base frame) at every instant.")
+@click.option("--self-collision/--no-self-collision", default=True, show_default=True,
+              help="Keep bounding capsules of non-adjacent links (from the URDF's collision geometry) apart.")
 @click.option("--workspace", callback=_workspace, default=None, metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX",
               help="Keep every link frame and the tool frame inside this box (m, base frame) at every instant.")
 @click.option("--bias", type=LibraryChoice("ineid.identify.solve:BIAS_MODES"), cls=LibraryOption,
@@ -80,7 +82,7 @@ def _workspace(ctx, param, value):
 @overwrite_option
 @click.pass_context
 def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, rate, margin, velocity_scale,
-           acceleration_scale, floor, workspace, bias, seed, noise, out, coefficients, overwrite) -> None:
+           acceleration_scale, floor, self_collision, workspace, bias, seed, noise, out, coefficients, overwrite) -> None:
     """Design a periodic Fourier excitation trajectory of ROBOT that identifies its unknown links well.
 
     The trajectory starts and ends at rest, keeps every joint within its limits (less the
@@ -102,6 +104,7 @@ def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, r
         duration=duration, harmonics=harmonics, base_frequency=base_frequency, criterion=criterion, starts=starts,
         rate=rate, margin=margin, velocity_scale=velocity_scale, acceleration_scale=acceleration_scale,
         bias=bias == "estimate", seed=seed, floor=floor, workspace=workspace,
+        self_collision=self_collision,
     )  # fmt: skip
     for name, scale in (("--velocity-scale", velocity_scale), ("--acceleration-scale", acceleration_scale)):
         if scale > 1:
@@ -173,22 +176,33 @@ def print_limits(res, model) -> None:
         t.add_row(shown(name), f"[{b.q_lower[k]:.4g}, {b.q_upper[k]:.4g}]", f"{b.qd_max[k]:.4g}", sources[name][0],
                   f"{b.qdd_max[k]:.4g}", sources[name][1])
     con.print(t)
-    s = res.safety
-    if s is None:
-        con.print("floor: none; workspace: none (--floor, --workspace keep the links above a floor and in a box); "
-                  "self-collision: not checked")
-        return
+    s = res.safety or {"floor": None, "workspace": None, "self_collision": None}
     box, floor = s["workspace"], s["floor"]
     floor_text = "none" if floor is None else f"z >= {floor:g} m"
     box_text = "none" if box is None else f"x [{box[0]:g}, {box[1]:g}], y [{box[2]:g}, {box[3]:g}], z [{box[4]:g}, {box[5]:g}] m"
-    con.print(
-        f"floor: {floor_text}; workspace: {box_text} (base frame), kept by {', '.join(shown(p) for p in s['points'])} at every instant "
-        f"({s['grid_points_per_period']} grid points per period, at most {max(s['margin_between_samples']) * 1000:.3g} "
-        "mm kept between them); self-collision: not checked", markup=False)
+    line = f"floor: {floor_text}; workspace: {box_text} (base frame"
+    if s.get("points"):
+        line += (f"; kept by {', '.join(s['points'])} at every instant, {s['grid_points_per_period']} grid points per "
+                 f"period, at most {max(s['margin_between_samples']) * 1000:.3g} mm kept between them")
+    con.print(line + ")" + ("" if floor is not None or box is not None else
+                            "; --floor and --workspace keep the links above a floor and in a box"), markup=False)
+    col = s["self_collision"]
+    if col is None:
+        con.print("self-collision: not checked (--no-self-collision)", markup=False)
+    elif not col["pairs"]:
+        con.print("self-collision: not checked, no pair of non-adjacent bodies with collision geometry "
+                  f"({len(col['capsules'])} capsules)", markup=False)
+    else:
+        shapes = ", ".join(f"{c['body']} ({c['shape']}, r {c['radius']:.3g} m)" for c in col["capsules"])
+        con.print(f"self-collision: {len(col['pairs'])} pairs of bounding capsules kept apart at every instant: "
+                  f"{'; '.join(col['pairs'])}; capsules: {shapes}", markup=False)
+    for note in (col or {}).get("notes", []):
+        con.print(f"  {note}", markup=False)
     for where, label in (("samples", "the written samples"), ("dense", "a grid 10x denser")):
-        v = s[where]
-        con.print(f"smallest clearance on {label}: {v['min_clearance'] * 1000:.4g} mm ({shown(v['point'])}, "
-                  f"{v['bound']})", markup=False)
+        if where in s:
+            v = s[where]
+            con.print(f"smallest clearance on {label}: {v['min_clearance'] * 1000:.4g} mm ({v['constraint']})",
+                      markup=False)
 
 
 def register(main: click.Group) -> None:

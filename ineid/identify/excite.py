@@ -89,6 +89,7 @@ from ineid.identify.excite_criterion import (  # noqa: F401  (re-exported: they 
     regressor_and_derivatives,
     scaled_regressor,
 )
+from ineid.identify.excite_collision import CollisionPairs
 from ineid.identify.excite_safety import (
     SafetyConstraints,
     SafetyLimits,
@@ -210,6 +211,8 @@ class ExcitationSettings:
             base frame at every instant (:mod:`ineid.identify.excite_safety`); None: no floor.
         workspace: ``(xmin, xmax, ymin, ymax, zmin, zmax)`` m, base frame: the same points kept
             in that box at every instant; None: no box.
+        self_collision: keep the bounding capsules of non-adjacent bodies apart at every instant
+            (:mod:`ineid.identify.excite_collision`), where the URDF has collision geometry.
     """
 
     duration: float
@@ -230,6 +233,7 @@ class ExcitationSettings:
     channels: ChannelSet | None = None
     floor: float | None = None
     workspace: tuple[float, float, float, float, float, float] | None = None
+    self_collision: bool = True
 
     def to_dict(self) -> dict:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -336,9 +340,10 @@ def design_excitation(
         )
     problem = _Problem(model, base, sigma, criterion, bounds, f0, harmonics, design_points, constraint_points)
     safety = None
-    if limits.active:
+    pairs = CollisionPairs(model, bounds.qd_max) if s.self_collision else None
+    if limits.active or (pairs is not None and pairs.n):
         safety = SafetyConstraints(model, limits, bounds.qd_max, bounds.qdd_max, f0, harmonics, problem.rest,
-                                   problem.mid, problem.half, problem.v_scale)
+                                   problem.mid, problem.half, problem.v_scale, pairs)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 12]))
     x0s = [problem.random_start(rng) for _ in range(starts)]
     t_compile = time.perf_counter()
@@ -404,15 +409,15 @@ def design_excitation(
             "add --harmonics, lengthen --duration or widen the bounds",
             reason="rank_deficient",
         )
-    safety_record = None
+    safety_record = None if pairs is None else dict(limits.to_dict(), self_collision=pairs.describe())
     if safety is not None:
         # check the written samples themselves, and a grid ten times denser, against the bounds (no margins)
         safety_record = dict(safety.describe(), samples=verify(safety, q),
                              dense=verify(safety, traj.evaluate(np.linspace(0.0, 1.0 / f0, 10 * n_rate // periods + 1))[0]))
         if min(safety_record["samples"]["min_clearance"], safety_record["dense"]["min_clearance"]) < 0:
             raise ExcitationError(  # the guarantee of excite_safety failed: never write such a design
-                f"the design breaks {safety_record['dense']['bound']} at {safety_record['dense']['point']!r}; "
-                "please report this; meanwhile raise the bound's margin", reason="infeasible_workspace")
+                f"the design breaks {safety_record['dense']['constraint']}; please report this; meanwhile "
+                "give the bound more room", reason="infeasible_workspace")
     record = dict(s.to_dict(), base_frequency=f0, design_points=design_points, constraint_points=constraint_points,
                   unknown_links=list(model.unknown_links), robot=model.name)
     return ExcitationResult(

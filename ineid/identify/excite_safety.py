@@ -47,6 +47,8 @@ STEP_TOLERANCE = 0.005
 """m: the largest clearance kept between grid points (sets the grid of the floor and the box)."""
 KS_SLACK = 0.001
 """m: how much the smooth aggregate may undershoot the smallest grid clearance."""
+COLLISION_TOLERANCE = 0.01
+"""m: the largest gap kept between capsules between grid points (a first-order bound, so coarser)."""
 MAX_GRID = 8192
 """Grid points per period of the floor and workspace constraints, at most."""
 _AXES = "xyz"
@@ -132,7 +134,10 @@ def check_limits(model, limits: SafetyLimits) -> None:
 
 
 class SafetyConstraints:
-    """The floor and box constraints of one design problem (module doc): values, Jacobian, clearances.
+    """The floor, box and self-collision constraints of one design problem (module doc): values, Jacobian, clearances.
+
+    Rows: every (point, half-space) pair of the floor and box, then every capsule pair of
+    ``pairs`` (:mod:`ineid.identify.excite_collision`).
 
     Args:
         model: the robot.
@@ -140,26 +145,33 @@ class SafetyConstraints:
         qd_max, qdd_max: (n_dof,) the bounds the design keeps at every instant.
         f0, harmonics: the trajectory's base frequency and harmonics.
         rest: (2H, 2H - 2) the rest basis; ``mid, half, v_scale`` the map of :class:`_Problem`.
+        pairs: the capsule pairs kept apart, or None.
     """
 
     def __init__(self, model, limits: SafetyLimits, qd_max, qdd_max, f0: float, harmonics: int, rest,
-                 mid, half, v_scale) -> None:
+                 mid, half, v_scale, pairs=None) -> None:
         from ineid.data.trajectory import state_matrices  # noqa: PLC0415
         from ineid.robots.kinematics import reach, welded_frames  # noqa: PLC0415
 
         self.model, self.limits, self.chain = model, limits, model.chain
+        self.pairs = pairs if pairs is not None and pairs.n else None
+        self._asked = pairs  # None: --no-self-collision
         self.welded = welded_frames(model.urdf_text, self.chain, model.locked_joints)
         n = self.chain.n_dof
-        self.names = (*model.link_names, *self.welded.names)
-        self.point_link = np.r_[np.arange(n), self.welded.link].astype(int)
-        self.accel = acceleration_bounds(self.chain, reach(self.chain, self.welded), self.point_link, qd_max, qdd_max)
+        self.spaces = limits.half_spaces()
+        self.names = (*model.link_names, *self.welded.names) if self.spaces else ()
+        self.point_link = np.r_[np.arange(n), self.welded.link].astype(int)[: len(self.names)]
+        self.accel = acceleration_bounds(self.chain, reach(self.chain, self.welded)[: len(self.names)],
+                                         self.point_link, qd_max, qdd_max)
         period = 1.0 / f0
-        grid = math.ceil(period * math.sqrt(max(self.accel.max(), 0.0) / (8.0 * STEP_TOLERANCE)))
+        grid = math.ceil(period * math.sqrt(max(self.accel.max(initial=0.0), 0.0) / (8.0 * STEP_TOLERANCE)))
+        if self.pairs is not None:
+            grid = max(grid, math.ceil(period * self.pairs.speed.max() / (2.0 * COLLISION_TOLERANCE)))
         self.grid = int(min(max(grid, 32 * harmonics), MAX_GRID))
         dt = period / self.grid
         self.margin = self.accel * dt * dt / 8.0  # (P,) m
+        self.pair_margin = self.pairs.speed * dt / 2.0 if self.pairs is not None else np.zeros(0)
         self.rho = math.log(self.grid) / KS_SLACK
-        self.spaces = limits.half_spaces()
         self.n, self.nz = n, 2 * harmonics - 1
         self.mid, self.half, self.v_scale = mid, half, v_scale
         self.pq = state_matrices(np.arange(self.grid) * dt, f0, harmonics)[0] @ rest  # (N, 2H-2)
@@ -167,29 +179,41 @@ class SafetyConstraints:
 
     @property
     def n_constraints(self) -> int:
-        return len(self.names) * len(self.spaces)
+        return len(self.names) * len(self.spaces) + (self.pairs.n if self.pairs is not None else 0)
 
     def labels(self) -> list[str]:
-        """One per constraint row: ``"<point> <half-space>"``."""
-        return [f"{p!r} {s[3]}" for p in self.names for s in self.spaces]
+        """One per constraint row: ``"<point> <half-space>"``, then ``"<body> and <body> self-collision"``."""
+        out = [f"{p!r} {s[3]}" for p in self.names for s in self.spaces]
+        return out + ([f"{p} self-collision" for p in self.pairs.labels()] if self.pairs is not None else [])
 
     def grid_q(self, x: np.ndarray) -> np.ndarray:
         z = np.asarray(x, dtype=np.float64).reshape(self.n, self.nz)
         return self.mid + self.half * z[:, 0] + self.pq @ (z[:, 1:].T * self.v_scale)
 
     def clearances(self, q: np.ndarray) -> np.ndarray:
-        """(T, P, S): ``sign * (p[axis] - bound)`` of every point and half-space at ``q`` (T, n_dof), m."""
+        """(T, C) every row's clearance at ``q`` (T, n_dof), m, no margins: ``sign * (p[axis] - bound)``
+        of each point and half-space, then each capsule pair's gap."""
         from ineid.robots.kinematics import frame_points  # noqa: PLC0415
 
-        pts = frame_points(self.chain, np.atleast_2d(q), self.welded)
-        return np.stack([s * (pts[..., a] - b) for a, s, b, _ in self.spaces], axis=-1)
+        q = np.atleast_2d(q)
+        parts = []
+        if self.spaces:
+            pts = frame_points(self.chain, q, self.welded)
+            parts.append(np.stack([s * (pts[..., a] - b) for a, s, b, _ in self.spaces], axis=-1).reshape(len(q), -1))
+        if self.pairs is not None:
+            parts.append(self.pairs.clearances(q))
+        return np.concatenate(parts, axis=1)
+
+    def margins(self) -> np.ndarray:
+        """(C,) the clearance each row keeps on the grid (module doc), m."""
+        return np.r_[np.repeat(self.margin, len(self.spaces)), self.pair_margin]
 
     def _evaluate(self, x: np.ndarray):
         key = np.asarray(x, dtype=np.float64).tobytes()
         if self._last is not None and self._last[0] == key:
             return self._last[1]
         q = self.grid_q(x)
-        g = self.clearances(q) - self.margin[None, :, None]  # (N, P, S)
+        g = self.clearances(q) - self.margins()  # (N, C)
         gmin = g.min(axis=0)
         e = np.exp(-self.rho * (g - gmin))
         total = e.sum(axis=0)
@@ -199,31 +223,38 @@ class SafetyConstraints:
 
     def values(self, x: np.ndarray) -> np.ndarray:
         """(C,) the smooth lower bounds of the smallest grid clearance less margin (>= 0 is kept)."""
-        return self._evaluate(x)[2].ravel()
+        return self._evaluate(x)[2]
 
     def grid_slack(self, x: np.ndarray) -> np.ndarray:
         """(C,) the smallest grid clearance less margin of each constraint (>= 0: kept at every instant)."""
-        return self._evaluate(x)[1].min(axis=0).ravel()
+        return self._evaluate(x)[1].min(axis=0)
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
-        """(C, n_dof (2H - 1)) the exact derivative of :meth:`values`."""
+        """(C, n_dof (2H - 1)) the exact derivative of :meth:`values` (where the closest points are unique)."""
         from ineid.robots.kinematics import frame_points, point_jacobians  # noqa: PLC0415
 
         q, _, _, w = self._evaluate(x)
-        pts = frame_points(self.chain, q, self.welded)
-        jac = point_jacobians(self.chain, q, self.point_link, pts)  # (N, P, 3, n)
-        axes = np.array([a for a, _, _, _ in self.spaces])
-        signs = np.array([s for _, s, _, _ in self.spaces])
-        dq = w[..., None] * signs[None, None, :, None] * jac[:, :, axes, :]  # (N, P, S, n) d ks / d q(t_k)
-        du = self.half * dq.sum(axis=0)  # (P, S, n)
-        dalpha = np.einsum("kl,kpsj->psjl", self.pq, dq) * self.v_scale[:, None]  # (P, S, n, 2H-2)
-        out = np.concatenate([du[..., None], dalpha], axis=-1)
-        return out.reshape(self.n_constraints, self.n * self.nz)
+        parts = []
+        if self.spaces:
+            pts = frame_points(self.chain, q, self.welded)
+            jac = point_jacobians(self.chain, q, self.point_link, pts)  # (N, P, 3, n)
+            axes = np.array([a for a, _, _, _ in self.spaces])
+            signs = np.array([s for _, s, _, _ in self.spaces])
+            parts.append((signs[None, None, :, None] * jac[:, :, axes, :]).reshape(len(q), -1, self.n))
+        if self.pairs is not None:
+            parts.append(self.pairs.gradient(q))
+        dq = w[..., None] * np.concatenate(parts, axis=1)  # (N, C, n) d ks / d q(t_k)
+        du = self.half * dq.sum(axis=0)  # (C, n)
+        dalpha = np.einsum("kl,kcj->cjl", self.pq, dq) * self.v_scale[:, None]  # (C, n, 2H-2)
+        return np.concatenate([du[..., None], dalpha], axis=-1).reshape(self.n_constraints, self.n * self.nz)
 
     def describe(self) -> dict:
         """The settings and guarantees, JSON-able (recorded in the design)."""
-        return dict(self.limits.to_dict(), points=list(self.names), grid_points_per_period=self.grid,
-                    margin_between_samples=self.margin.tolist(), acceleration_bound=self.accel.tolist())
+        out = dict(self.limits.to_dict(), points=list(self.names), grid_points_per_period=self.grid,
+                   margin_between_samples=self.margin.tolist(), acceleration_bound=self.accel.tolist())
+        out["self_collision"] = None if self._asked is None else dict(
+            self._asked.describe(), margin_between_samples=self.pair_margin.tolist())
+        return out
 
 
 def acceleration_bounds(chain, reach_m: np.ndarray, point_link: np.ndarray, qd_max, qdd_max) -> np.ndarray:
@@ -326,11 +357,11 @@ def verify(safety: SafetyConstraints, q: np.ndarray) -> dict:
     """The smallest clearance over samples ``q`` (T, n_dof) (no margins): m, which point and bound.
 
     Returns:
-        ``{"min_clearance": m, "point": name, "bound": label}``; negative: a bound is violated.
+        ``{"min_clearance": m, "constraint": label}``; negative: a bound is violated.
     """
-    c = safety.clearances(q).min(axis=0)  # (P, S)
-    p, s = np.unravel_index(int(np.argmin(c)), c.shape)
-    return {"min_clearance": float(c[p, s]), "point": safety.names[p], "bound": safety.spaces[s][3]}
+    c = safety.clearances(q).min(axis=0)  # (C,)
+    k = int(np.argmin(c))
+    return {"min_clearance": float(c[k]), "constraint": safety.labels()[k]}
 
 
 def bound_sources(model) -> dict[str, tuple[str, str]]:

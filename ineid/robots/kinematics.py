@@ -99,11 +99,13 @@ def _floats(text: str | None, default) -> np.ndarray:
     return np.array([float(v) for v in text.split()], dtype=np.float64) if text else np.asarray(default, float)
 
 
-def welded_frames(urdf_text: str, chain: Chain, locked_joints: Mapping[str, float] | None = None) -> WeldedFrames:
-    """The frames of the links merged into each moving link (``chain.merged_links``), in that link's frame.
+def welded_poses(urdf_text: str, chain: Chain, locked_joints: Mapping[str, float] | None = None) -> dict:
+    """Every URDF link merged into a body of the chain: ``{name: (k, k_R_link, k_p_link)}``.
 
-    The moving link itself is not listed (its frame is the link frame). A locked joint
-    contributes its locked position, as in :func:`ineid.robots.urdf.load_chain`.
+    ``k`` is the moving link (chain order) it is welded to, or -1 for the root body (the
+    fixture: its pose is in the base frame); the moving links themselves map to
+    ``(k, I, 0)``. A locked joint contributes its locked position, as in
+    :func:`ineid.robots.urdf.load_chain`.
     """
     root = ET.fromstring(urdf_text)
     locked = dict(locked_joints or {})
@@ -126,24 +128,31 @@ def welded_frames(urdf_text: str, chain: Chain, locked_joints: Mapping[str, floa
                 p = p + r @ axis * float(locked[name])
         by_child[child.get("link")] = (parent.get("link"), r, p)
     moving = {j.link: i for i, j in enumerate(chain.joints)}
-    names, links, rots, offs = [], [], [], []
+    out = {}
     for link, merged in chain.merged_links.items():
-        if link not in moving:
-            continue  # welded to the root: the fixture, never moves
+        k = moving.get(link, -1)
         for name in merged:
-            if name == link:
-                continue
             r_acc, p_acc, cur = np.eye(3), np.zeros(3), name
             while cur != link:
                 parent, r, p = by_child[cur]
                 r_acc, p_acc = r @ r_acc, r @ p_acc + p
                 cur = parent
-            names.append(name)
-            links.append(moving[link])
-            rots.append(r_acc)
-            offs.append(p_acc)
-    return WeldedFrames(tuple(names), np.array(links, dtype=int), np.array(rots).reshape(-1, 3, 3),
-                        np.array(offs).reshape(-1, 3))
+            out[name] = (k, r_acc, p_acc)
+    return out
+
+
+def welded_frames(urdf_text: str, chain: Chain, locked_joints: Mapping[str, float] | None = None) -> WeldedFrames:
+    """The frames of the links merged into each moving link (``chain.merged_links``), in that link's frame.
+
+    The moving link itself is not listed (its frame is the link frame), nor what is welded
+    to the root (it never moves).
+    """
+    moving = {j.link for j in chain.joints}
+    items = [(name, v) for name, v in welded_poses(urdf_text, chain, locked_joints).items()
+             if v[0] >= 0 and name not in moving]
+    return WeldedFrames(tuple(n for n, _ in items), np.array([v[0] for _, v in items], dtype=int),
+                        np.array([v[1] for _, v in items]).reshape(-1, 3, 3),
+                        np.array([v[2] for _, v in items]).reshape(-1, 3))
 
 
 def frame_points(chain: Chain, q, welded: WeldedFrames | None = None, xp=np):
