@@ -216,3 +216,20 @@ def test_mesh_geometry_gives_bounding_capsules():
     moved = body_capsules(path.read_text().replace("meshes/ur5/collision/", "meshes/nowhere/"),
                           load_chain(path), path)
     assert any("not readable, skipped" in n for n in moved.notes)
+
+
+def test_constraint_jacobian_matches_finite_differences(collision_arm):
+    from ineid.identify.excite import _Problem, design_base, design_bounds, design_noise
+    from ineid.identify.excite_collision import CollisionPairs
+    from ineid.identify.excite_safety import SafetyConstraints, SafetyLimits
+
+    bounds = design_bounds(collision_arm)
+    prob = _Problem(collision_arm, design_base(collision_arm), design_noise(None), "d-opt", bounds, 0.2, 3, 160, 96)
+    safety = SafetyConstraints(collision_arm, SafetyLimits(floor=0.1, workspace=(-0.5, 0.5, -0.5, 0.6, -0.5, 1.0)),
+                               bounds.qd_max, bounds.qdd_max, 0.2, 3, prob.rest, prob.mid, prob.half, prob.v_scale,
+                               CollisionPairs(collision_arm, bounds.qd_max))
+    assert safety.n_constraints == 5 * 7 + 6
+    x = prob.random_start(np.random.default_rng(0))
+    eps = 1e-6
+    fd = np.stack([(safety.values(x + eps * e) - safety.values(x - eps * e)) / (2 * eps) for e in np.eye(len(x))], 1)
+    np.testing.assert_allclose(safety.jacobian(x), fd, atol=1e-7)

@@ -384,8 +384,10 @@ def design_excitation(
     if best_x is None and unsafe is not None:
         raise ExcitationError(
             f"IPOPT found no design that keeps every bound: {unsafe[1]} stays violated (by {-unsafe[0]:.3g} m "
-            "on the grid, margin between samples included); relax that bound, or lower --velocity-scale and "
-            "--acceleration-scale (smaller motions), or try more --starts",
+            "on the grid, margin between samples included); "
+            + ("pass --no-self-collision if those shapes are too coarse" if unsafe[1].endswith("self-collision")
+               else "relax that bound") + ", or lower --velocity-scale and --acceleration-scale (smaller motions), "
+            "or try more --starts",
             reason="infeasible_workspace",
         )
     if best_x is None:
