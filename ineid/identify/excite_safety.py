@@ -29,9 +29,11 @@ smooth constraint, the Kreisselmeier-Steinhauser lower bound of their minimum,
 ``KS = -(1/rho) log sum_k exp(-rho g_k) <= min_k g_k`` (within ``log(N) / rho`` =
 :data:`KS_SLACK` of it), with its exact gradient (the softmax weights times the point
 Jacobians, :func:`ineid.robots.kinematics.point_jacobians`, through the linear map from
-the design variables to ``q``). After IPOPT, the grid values themselves are checked; a
-design that misses them by IPOPT's tolerance has its amplitudes scaled towards its mean
-pose until they hold (or the start is rejected).
+the design variables to ``q``), on at most :data:`OPTIMIZER_POINTS` of the grid points (every
+``stride``-th, with the whole grid's margins) so that an iteration stays cheap. After IPOPT,
+the values on the whole grid are checked; a design that misses them (IPOPT's tolerance, or
+an instant between the points IPOPT saw) has its amplitudes scaled towards its mean pose
+until they hold (or the start is rejected).
 """
 
 from __future__ import annotations
@@ -50,6 +52,8 @@ KS_SLACK = 0.001
 COLLISION_TOLERANCE = 0.01
 """m: the largest gap kept between capsules between grid points (a first-order bound, so coarser)."""
 MAX_GRID = 8192
+OPTIMIZER_POINTS = 1024
+"""Grid points per period that IPOPT's constraints see, at most (the design is then checked on the whole grid)."""
 """Grid points per period of the floor and workspace constraints, at most."""
 _AXES = "xyz"
 
@@ -175,7 +179,10 @@ class SafetyConstraints:
         self.n, self.nz = n, 2 * harmonics - 1
         self.mid, self.half, self.v_scale = mid, half, v_scale
         self.pq = state_matrices(np.arange(self.grid) * dt, f0, harmonics)[0] @ rest  # (N, 2H-2)
-        self._last: tuple[bytes, tuple] | None = None
+        # IPOPT sees every stride-th grid point (with the dense grid's margins): the cost of an
+        # iteration stays bounded; the dense grid itself is what make_safe and the design check
+        self.stride = max(1, math.ceil(self.grid / OPTIMIZER_POINTS))
+        self._last: dict[bool, tuple[bytes, tuple]] = {}
 
     @property
     def n_constraints(self) -> int:
@@ -186,9 +193,10 @@ class SafetyConstraints:
         out = [f"{p!r} {s[3]}" for p in self.names for s in self.spaces]
         return out + ([f"{p} self-collision" for p in self.pairs.labels()] if self.pairs is not None else [])
 
-    def grid_q(self, x: np.ndarray) -> np.ndarray:
+    def grid_q(self, x: np.ndarray, dense: bool = True) -> np.ndarray:
         z = np.asarray(x, dtype=np.float64).reshape(self.n, self.nz)
-        return self.mid + self.half * z[:, 0] + self.pq @ (z[:, 1:].T * self.v_scale)
+        pq = self.pq if dense else self.pq[:: self.stride]
+        return self.mid + self.half * z[:, 0] + pq @ (z[:, 1:].T * self.v_scale)
 
     def clearances(self, q: np.ndarray) -> np.ndarray:
         """(T, C) every row's clearance at ``q`` (T, n_dof), m, no margins: ``sign * (p[axis] - bound)``
@@ -208,26 +216,27 @@ class SafetyConstraints:
         """(C,) the clearance each row keeps on the grid (module doc), m."""
         return np.r_[np.repeat(self.margin, len(self.spaces)), self.pair_margin]
 
-    def _evaluate(self, x: np.ndarray):
+    def _evaluate(self, x: np.ndarray, dense: bool = False):
         key = np.asarray(x, dtype=np.float64).tobytes()
-        if self._last is not None and self._last[0] == key:
-            return self._last[1]
-        q = self.grid_q(x)
+        if dense in self._last and self._last[dense][0] == key:
+            return self._last[dense][1]
+        q = self.grid_q(x, dense)
         g = self.clearances(q) - self.margins()  # (N, C)
         gmin = g.min(axis=0)
         e = np.exp(-self.rho * (g - gmin))
         total = e.sum(axis=0)
         ks = gmin - np.log(total) / self.rho
-        self._last = (key, (q, g, ks, e / total))
-        return self._last[1]
+        self._last[dense] = (key, (q, g, ks, e / total))
+        return self._last[dense][1]
 
     def values(self, x: np.ndarray) -> np.ndarray:
-        """(C,) the smooth lower bounds of the smallest grid clearance less margin (>= 0 is kept)."""
+        """(C,) the smooth lower bounds of the smallest clearance less margin on every ``stride``-th grid
+        point (what IPOPT keeps >= 0)."""
         return self._evaluate(x)[2]
 
     def grid_slack(self, x: np.ndarray) -> np.ndarray:
         """(C,) the smallest grid clearance less margin of each constraint (>= 0: kept at every instant)."""
-        return self._evaluate(x)[1].min(axis=0)
+        return self._evaluate(x, dense=True)[1].min(axis=0)
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
         """(C, n_dof (2H - 1)) the exact derivative of :meth:`values` (where the closest points are unique)."""
@@ -245,7 +254,7 @@ class SafetyConstraints:
             parts.append(self.pairs.gradient(q))
         dq = w[..., None] * np.concatenate(parts, axis=1)  # (N, C, n) d ks / d q(t_k)
         du = self.half * dq.sum(axis=0)  # (C, n)
-        dalpha = np.einsum("kl,kcj->cjl", self.pq, dq) * self.v_scale[:, None]  # (C, n, 2H-2)
+        dalpha = np.einsum("kl,kcj->cjl", self.pq[:: self.stride], dq) * self.v_scale[:, None]  # (C, n, 2H-2)
         return np.concatenate([du[..., None], dalpha], axis=-1).reshape(self.n_constraints, self.n * self.nz)
 
     def describe(self) -> dict:
@@ -277,7 +286,7 @@ def acceleration_bounds(chain, reach_m: np.ndarray, point_link: np.ndarray, qd_m
     return out
 
 
-def make_safe(safety: SafetyConstraints, x: np.ndarray, steps: int = 40) -> np.ndarray | None:
+def make_safe(safety: SafetyConstraints, x: np.ndarray, steps: int = 16) -> np.ndarray | None:
     """``x`` if its grid constraints hold, else the largest scaling of its amplitudes about its mean pose
     that keeps them (bisection; the joint bounds and rest stay kept), or None when the mean pose fails."""
     z = np.asarray(x, dtype=np.float64).reshape(safety.n, safety.nz)
@@ -370,7 +379,7 @@ def bound_sources(model) -> dict[str, tuple[str, str]]:
     import xml.etree.ElementTree as ET  # noqa: PLC0415
 
     out = {}
-    for j in ET.fromstring(model.urdf_text).iter("joint"):
+    for j in ET.fromstring(model.urdf_text).findall("joint"):  # not the <joint> of a <transmission>
         limit, acc = j.find("limit"), j.find("ineid")
         try:
             velocity = float(limit.get("velocity", "0")) if limit is not None else 0.0

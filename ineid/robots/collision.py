@@ -83,7 +83,7 @@ def body_capsules(urdf_text: str, chain: Chain, urdf_path: Path | None = None,
     """The bounding capsules of every body of ``chain`` (module doc), in their body's frame."""
     poses = welded_poses(urdf_text, chain, locked_joints)
     out = BodyCapsules()
-    for link in ET.fromstring(urdf_text).iter("link"):
+    for link in ET.fromstring(urdf_text).findall("link"):
         name = link.get("name")
         if name not in poses:
             continue

@@ -110,7 +110,7 @@ def welded_poses(urdf_text: str, chain: Chain, locked_joints: Mapping[str, float
     root = ET.fromstring(urdf_text)
     locked = dict(locked_joints or {})
     by_child = {}
-    for j in root.iter("joint"):
+    for j in root.findall("joint"):  # top level: not the <joint> of a <transmission>
         child, parent = j.find("child"), j.find("parent")
         if child is None or parent is None:
             continue
