@@ -42,7 +42,10 @@ extremum ``t*`` the nearest grid point lies within ``dt/2``, so
 ``max|p| <= max_k |p(t_k)| / (1 - kappa)`` with ``kappa = (2 pi H / N_c)^2 / 8``; velocity
 and acceleration grid bounds are therefore scaled by ``1 - kappa``, and the position
 bounds shrink by ``dt^2 qdd_max / 8`` (Taylor at the extremum of ``q``, where ``qd = 0``).
-All constraints are linear in the coefficients.
+All constraints are linear in the coefficients. A floor, a workspace box and self-collision
+(nonlinear: forward kinematics) are kept at every instant the same way, on a denser grid
+with a margin from a bound of the motion between its points
+(:mod:`ineid.identify.excite_safety`, :mod:`ineid.identify.excite_collision`).
 
 **Solver.** IPOPT through CasADi: the constraints as one sparse constant matrix, the
 objective and its exact gradient through a :class:`casadi.Callback` that evaluates the
@@ -142,9 +145,10 @@ class ExcitationResult:
         compile_seconds: of that, the first call of the compiled regressor and its derivatives
             (compilation, unless the same robot was designed for before in this process).
         settings: the arguments, JSON-able.
-        safety: the floor and box kept (None: none): their settings, the grid and margins, and
-            the smallest clearance found on the samples at ``rate`` and on a grid ten times denser
-            (:func:`ineid.identify.excite_safety.verify`).
+        safety: the floor, box and self-collision pairs kept (None: ``self_collision`` off and no
+            floor or box): their settings, the grid and margins, the capsules and what had none,
+            and the smallest clearance found on the samples at ``rate`` and on a grid ten times
+            denser (:func:`ineid.identify.excite_safety.verify`).
     """
 
     trajectory: FourierTrajectory
