@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import click
@@ -25,6 +26,20 @@ from ineid.cli.output import ProgressBar, console, shown, table
 _SETTINGS = "ineid.identify.excite:ExcitationSettings"
 
 
+def _workspace(ctx, param, value):
+    """``XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX`` -> six floats (the order and finiteness; the library checks the box)."""
+    if value is None:
+        return None
+    try:
+        box = tuple(float(v) for v in value.split(","))
+    except ValueError:
+        box = ()
+    if len(box) != 6 or not all(math.isfinite(v) for v in box):
+        raise click.BadParameter(f"{value!r}: give six numbers XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX (m, base frame)")
+    return box
+
+
+
 @click.command("excite")
 @robot_options()
 @click.option("--duration", type=FiniteFloatRange(min=0, min_open=True), required=True,
@@ -42,10 +57,18 @@ _SETTINGS = "ineid.identify.excite:ExcitationSettings"
               default_from=f"{_SETTINGS}.rate", help="Samples per second in the CSV, Hz.")
 @click.option("--margin", type=FiniteFloatRange(0, 0.5, max_open=True), cls=LibraryOption,
               default_from=f"{_SETTINGS}.margin", help="Fraction of each joint's range kept free at each end.")
-@click.option("--velocity-scale", type=FiniteFloatRange(0, 1, min_open=True), cls=LibraryOption,
-              default_from=f"{_SETTINGS}.velocity_scale", help="Fraction of the model's velocity bounds used.")
-@click.option("--acceleration-scale", type=FiniteFloatRange(0, 1, min_open=True), cls=LibraryOption,
-              default_from=f"{_SETTINGS}.acceleration_scale", help="Fraction of the model's acceleration bounds used.")
+@click.option("--velocity-scale", type=FiniteFloatRange(0, min_open=True), cls=LibraryOption,
+              default_from=f"{_SETTINGS}.velocity_scale",
+              help="Multiple of the model's velocity bounds used (above 1: beyond them, with a warning).")
+@click.option("--acceleration-scale", type=FiniteFloatRange(0, min_open=True), cls=LibraryOption,
+              default_from=f"{_SETTINGS}.acceleration_scale",
+              help="Multiple of the model's acceleration bounds used (above 1: beyond them, with a warning).")
+@click.option("--floor", type=FiniteFloatRange(), default=None,
+              help="Keep every link frame and the tool frame at z >= FLOOR (m, base frame) at every instant.")
+@click.option("--self-collision/--no-self-collision", default=True, show_default=True,
+              help="Keep bounding capsules of non-adjacent links (from the URDF's collision geometry) apart.")
+@click.option("--workspace", callback=_workspace, default=None, metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX",
+              help="Keep every link frame and the tool frame inside this box (m, base frame) at every instant.")
 @click.option("--bias", type=LibraryChoice("ineid.identify.solve:BIAS_MODES"), cls=LibraryOption,
               default_from="ineid.identify.solve:SolveSettings.bias",
               help="estimate: design for ineid solve --bias estimate (six sensor offsets identified too).")
@@ -59,13 +82,14 @@ _SETTINGS = "ineid.identify.excite:ExcitationSettings"
 @overwrite_option
 @click.pass_context
 def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, rate, margin, velocity_scale,
-           acceleration_scale, bias, seed, noise, out, coefficients, overwrite) -> None:
+           acceleration_scale, floor, self_collision, workspace, bias, seed, noise, out, coefficients, overwrite) -> None:
     """Design a periodic Fourier excitation trajectory of ROBOT that identifies its unknown links well.
 
     The trajectory starts and ends at rest, keeps every joint within its limits (less the
     margin), velocity and acceleration bounds at every instant, and maximizes the
     information of the base wrench about the base parameters (the wrench noise of --noise
-    weights the axes; default force=0.5,moment=0.05).
+    weights the axes; default force=0.5,moment=0.05). With --floor and --workspace every link
+    frame origin and the tool frame stay above the floor and inside the box at every instant.
     """
     from ineid.data.trajectory import write_trajectory_csv, write_trajectory_json  # noqa: PLC0415
     from ineid.identify.excite import ExcitationSettings, design_excitation  # noqa: PLC0415
@@ -79,8 +103,13 @@ def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, r
     settings = ExcitationSettings(
         duration=duration, harmonics=harmonics, base_frequency=base_frequency, criterion=criterion, starts=starts,
         rate=rate, margin=margin, velocity_scale=velocity_scale, acceleration_scale=acceleration_scale,
-        bias=bias == "estimate", seed=seed,
+        bias=bias == "estimate", seed=seed, floor=floor, workspace=workspace,
+        self_collision=self_collision,
     )  # fmt: skip
+    for name, scale in (("--velocity-scale", velocity_scale), ("--acceleration-scale", acceleration_scale)):
+        if scale > 1:
+            click.echo(f"ineid: warning: {name} {scale:g} goes beyond the model's bounds (the URDF's, or the "
+                       "defaults where it gives none): make sure the arm can follow", err=True)
     with ProgressBar("designing", "starts", quiet(ctx)) as bar:
         res = design_excitation(model, settings, noise=noise_model(noise, model.n_dof), progress=bar)
     t, q, qd, qdd = res.trajectory.sample(rate)
@@ -93,6 +122,7 @@ def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, r
     write_trajectory_json(coefficients, res.trajectory, {"design": res.to_dict()}, overwrite=overwrite)
     write_trajectory_csv(out, t, q, qd, qdd, comments, overwrite=overwrite)
     print_design(res)
+    print_limits(res, model)
     click.echo(f"wrote {out} ({len(t):,} samples) and {coefficients}")
 
 
@@ -129,6 +159,50 @@ def print_design(res) -> None:
         t.add_row(name, f"{res.base.cad[k]:.5g}", f"{opt.std[k]:.3g}", f"{rnd.std[k]:.3g}",
                   f"{rnd.std[k] / opt.std[k]:.3g}x")
     con.print(t)
+
+
+def print_limits(res, model) -> None:
+    """The bounds in force: each joint's velocity and acceleration bound and its source, the floor and box."""
+    from ineid.identify.excite_safety import bound_sources  # noqa: PLC0415
+
+    con = console()
+    sources = bound_sources(model)
+    scales = res.settings["velocity_scale"], res.settings["acceleration_scale"]
+    t = table(f"Bounds kept at every instant (velocity x {scales[0]:g}, acceleration x {scales[1]:g} of the model's; "
+              "default: no bound in the URDF, 3 rad/s and 10 rad/s^2)",
+              ("joint", "position", "|qd| max", "from", "|qdd| max", "from"), left=("joint", "from"))
+    b = res.bounds
+    for k, name in enumerate(model.joint_names):
+        t.add_row(shown(name), f"[{b.q_lower[k]:.4g}, {b.q_upper[k]:.4g}]", f"{b.qd_max[k]:.4g}", sources[name][0],
+                  f"{b.qdd_max[k]:.4g}", sources[name][1])
+    con.print(t)
+    s = res.safety or {"floor": None, "workspace": None, "self_collision": None}
+    box, floor = s["workspace"], s["floor"]
+    floor_text = "none" if floor is None else f"z >= {floor:g} m"
+    box_text = "none" if box is None else f"x [{box[0]:g}, {box[1]:g}], y [{box[2]:g}, {box[3]:g}], z [{box[4]:g}, {box[5]:g}] m"
+    line = f"floor: {floor_text}; workspace: {box_text} (base frame"
+    if s.get("points"):
+        line += (f"; kept by {', '.join(s['points'])} at every instant, {s['grid_points_per_period']} grid points per "
+                 f"period, at most {max(s['margin_between_samples']) * 1000:.3g} mm kept between them")
+    con.print(line + ")" + ("" if floor is not None or box is not None else
+                            "; --floor and --workspace keep the links above a floor and in a box"), markup=False)
+    col = s["self_collision"]
+    if col is None:
+        con.print("self-collision: not checked (--no-self-collision)", markup=False)
+    elif not col["pairs"]:
+        con.print("self-collision: not checked, no pair of non-adjacent bodies with collision geometry "
+                  f"({len(col['capsules'])} capsules)", markup=False)
+    else:
+        shapes = ", ".join(f"{c['body']} ({c['shape']}, r {c['radius']:.3g} m)" for c in col["capsules"])
+        con.print(f"self-collision: {len(col['pairs'])} pairs of bounding capsules kept apart at every instant: "
+                  f"{'; '.join(col['pairs'])}; capsules: {shapes}", markup=False)
+    for note in (col or {}).get("notes", []):
+        con.print(f"  {note}", markup=False)
+    for where, label in (("samples", "the written samples"), ("dense", "a grid 10x denser")):
+        if where in s:
+            v = s[where]
+            con.print(f"smallest clearance on {label}: {v['min_clearance'] * 1000:.4g} mm ({v['constraint']})",
+                      markup=False)
 
 
 def register(main: click.Group) -> None:

@@ -42,7 +42,10 @@ extremum ``t*`` the nearest grid point lies within ``dt/2``, so
 ``max|p| <= max_k |p(t_k)| / (1 - kappa)`` with ``kappa = (2 pi H / N_c)^2 / 8``; velocity
 and acceleration grid bounds are therefore scaled by ``1 - kappa``, and the position
 bounds shrink by ``dt^2 qdd_max / 8`` (Taylor at the extremum of ``q``, where ``qd = 0``).
-All constraints are linear in the coefficients.
+All constraints are linear in the coefficients. A floor, a workspace box and self-collision
+(nonlinear: forward kinematics) are kept at every instant the same way, on a denser grid
+with a margin from a bound of the motion between its points
+(:mod:`ineid.identify.excite_safety`, :mod:`ineid.identify.excite_collision`).
 
 **Solver.** IPOPT through CasADi: the constraints as one sparse constant matrix, the
 objective and its exact gradient through a :class:`casadi.Callback` that evaluates the
@@ -89,7 +92,15 @@ from ineid.identify.excite_criterion import (  # noqa: F401  (re-exported: they 
     regressor_and_derivatives,
     scaled_regressor,
 )
-from ineid.identify.excite_trajectory import Bounds, _Problem, _rest_basis, design_bounds  # noqa: F401  (re-exported)
+from ineid.identify.excite_collision import CollisionPairs
+from ineid.identify.excite_safety import (
+    SafetyConstraints,
+    SafetyLimits,
+    check_limits,
+    make_safe,
+    verify,
+)
+from ineid.identify.excite_trajectory import Bounds, _ipopt_solver, _Problem, _rest_basis, design_bounds  # noqa: F401  (re-exported)
 from ineid.progress import Progress
 
 MAX_STARTS = 10_000
@@ -97,82 +108,6 @@ MAX_STARTS = 10_000
 MAX_SAMPLES = 1_000_000
 """At most this many samples (``duration * rate``): the design is evaluated on every one (the
 regressor of each, about 1 KB), and the trajectory CSV has one row each."""
-
-
-def _ipopt_solver(problem: _Problem, max_iter: int, tol: float):
-    """A CasADi nlpsol (IPOPT) for ``problem``: linear constraints, callback objective."""
-    import casadi as ca  # noqa: PLC0415
-
-    nx = problem.n * problem.nz
-
-    class Gradient(ca.Callback):
-        def __init__(self, name, opts):
-            ca.Callback.__init__(self)
-            self.construct(name, opts)
-
-        def get_n_in(self):
-            return 2
-
-        def get_n_out(self):
-            return 1
-
-        def get_sparsity_in(self, i):
-            return ca.Sparsity.dense(nx, 1) if i == 0 else ca.Sparsity.dense(1, 1)
-
-        def get_sparsity_out(self, i):
-            return ca.Sparsity.dense(1, nx)
-
-        def eval(self, arg):
-            _, g = problem.gradient(np.asarray(arg[0]).ravel())
-            return [ca.DM(g).T]
-
-    class Objective(ca.Callback):
-        def __init__(self, name, opts):
-            ca.Callback.__init__(self)
-            self._jac = None
-            self.construct(name, opts)
-
-        def get_n_in(self):
-            return 1
-
-        def get_n_out(self):
-            return 1
-
-        def get_sparsity_in(self, i):
-            return ca.Sparsity.dense(nx, 1)
-
-        def get_sparsity_out(self, i):
-            return ca.Sparsity.dense(1, 1)
-
-        def eval(self, arg):
-            return [problem.value(np.asarray(arg[0]).ravel())]
-
-        def has_jacobian(self):
-            return True
-
-        def get_jacobian(self, name, inames, onames, opts):
-            self._jac = Gradient(name, opts)
-            return self._jac
-
-    objective = Objective("excitation_criterion", {"enable_fd": False})
-    rows, cols, vals, nrows, lo, hi = problem.constraint_matrix()
-    a = ca.DM.triplet(rows.tolist(), cols.tolist(), vals.tolist(), nrows, nx)
-    x = ca.MX.sym("x", nx)
-    nlp = {"x": x, "f": objective(x), "g": ca.mtimes(a, x)}
-    opts = {
-        "print_time": False,
-        "ipopt.print_level": 0,
-        "ipopt.sb": "yes",
-        "ipopt.max_iter": int(max_iter),
-        "ipopt.tol": float(tol),
-        "ipopt.hessian_approximation": "limited-memory",
-        "ipopt.jac_d_constant": "yes",
-        "ipopt.jac_c_constant": "yes",
-    }
-    solver = ca.nlpsol("excitation", "ipopt", nlp, opts)
-    lbx = np.concatenate([np.r_[-1.0, np.full(problem.nz - 1, -np.inf)] for _ in range(problem.n)])
-    ubx = -lbx
-    return solver, objective, {"lbx": lbx, "ubx": ubx, "lbg": lo, "ubg": hi}
 
 
 # -- the public API -------------------------------------------------------------------------
@@ -210,6 +145,10 @@ class ExcitationResult:
         compile_seconds: of that, the first call of the compiled regressor and its derivatives
             (compilation, unless the same robot was designed for before in this process).
         settings: the arguments, JSON-able.
+        safety: the floor, box and self-collision pairs kept (None: ``self_collision`` off and no
+            floor or box): their settings, the grid and margins, the capsules and what had none,
+            and the smallest clearance found on the samples at ``rate`` and on a grid ten times
+            denser (:func:`ineid.identify.excite_safety.verify`).
     """
 
     trajectory: FourierTrajectory
@@ -226,6 +165,7 @@ class ExcitationResult:
     seconds: float = 0.0
     compile_seconds: float = 0.0
     settings: dict = field(default_factory=dict)
+    safety: dict | None = None
 
     def to_dict(self) -> dict:
         """The design record a ``traj.json`` carries beside the coefficients."""
@@ -244,6 +184,7 @@ class ExcitationResult:
             "starts": [vars(s) for s in self.starts],
             "seconds": self.seconds,
             "settings": self.settings,
+            "workspace": self.safety,
         }
 
 
@@ -259,7 +200,8 @@ class ExcitationSettings:
         starts: random starts; the best design is kept.
         rate: Hz of the samples (the CSV rows, and the reported evaluations).
         margin: fraction of each joint's range kept free at each end, in [0, 0.5).
-        velocity_scale, acceleration_scale: fractions of the model's bounds, in (0, 1].
+        velocity_scale, acceleration_scale: fractions of the model's bounds, positive (above 1:
+            beyond the URDF's bounds, see :func:`design_bounds`).
         bias: design for identification with six constant sensor offsets estimated
             jointly (``ineid solve --bias estimate``).
         channels: the measurement channels designed for (:class:`ineid.channels.ChannelSet`,
@@ -269,6 +211,12 @@ class ExcitationSettings:
             multiple of :data:`DEFAULT_CHUNK`, the compiled block size).
         constraint_points: grid points per period of the bounds (None: ``32 H``).
         max_iter, tol: IPOPT's, per start.
+        floor: m, every link frame origin and welded frame (the tool) at ``z >= floor`` of the
+            base frame at every instant (:mod:`ineid.identify.excite_safety`); None: no floor.
+        workspace: ``(xmin, xmax, ymin, ymax, zmin, zmax)`` m, base frame: the same points kept
+            in that box at every instant; None: no box.
+        self_collision: keep the bounding capsules of non-adjacent bodies apart at every instant
+            (:mod:`ineid.identify.excite_collision`), where the URDF has collision geometry.
     """
 
     duration: float
@@ -287,6 +235,9 @@ class ExcitationSettings:
     max_iter: int = 150
     tol: float = 1e-6
     channels: ChannelSet | None = None
+    floor: float | None = None
+    workspace: tuple[float, float, float, float, float, float] | None = None
+    self_collision: bool = True
 
     def to_dict(self) -> dict:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -294,6 +245,8 @@ class ExcitationSettings:
             del d["channels"]  # the base wrench: the record of ineid 0.1
         else:
             d["channels"] = self.channels.to_list()
+        if self.workspace is not None:
+            d["workspace"] = list(self.workspace)
         return d
 
 
@@ -374,6 +327,9 @@ def design_excitation(
     if not 1 <= starts <= MAX_STARTS:
         raise ExcitationError(f"starts must be in 1..{MAX_STARTS:,}, got {starts}", reason="settings")
     bounds = design_bounds(model, margin, velocity_scale, acceleration_scale)
+    limits = SafetyLimits(s.floor, None if s.workspace is None else tuple(float(v) for v in s.workspace))
+    if limits.active:
+        check_limits(model, limits)
     sigma = design_noise(noise, settings.channels)
     design_points = design_points or DEFAULT_CHUNK * math.ceil(32 * harmonics / DEFAULT_CHUNK)
     constraint_points = constraint_points or 32 * harmonics
@@ -387,6 +343,11 @@ def design_excitation(
             reason="duration",
         )
     problem = _Problem(model, base, sigma, criterion, bounds, f0, harmonics, design_points, constraint_points)
+    safety = None
+    pairs = CollisionPairs(model, bounds.qd_max) if s.self_collision else None
+    if limits.active or (pairs is not None and pairs.n):
+        safety = SafetyConstraints(model, limits, bounds.qd_max, bounds.qdd_max, f0, harmonics, problem.rest,
+                                   problem.mid, problem.half, problem.v_scale, pairs)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 12]))
     x0s = [problem.random_start(rng) for _ in range(starts)]
     t_compile = time.perf_counter()
@@ -394,9 +355,10 @@ def design_excitation(
     compile_seconds = time.perf_counter() - t_compile
 
 
-    solver, _keep, bnds = _ipopt_solver(problem, max_iter, tol)
+    solver, _keep, bnds = _ipopt_solver(problem, max_iter, tol, safety)
     records: list[StartRecord] = []
     best_x, best_f = None, math.inf
+    unsafe: tuple[float, str] | None = None  # the smallest grid slack of a rejected start, and its constraint
     for k, x0 in enumerate(x0s):
         t0 = time.perf_counter()
         f_start = problem.value(x0)
@@ -406,13 +368,32 @@ def design_excitation(
             sol = solver(x0=x0, **bnds)
             stats = solver.stats()
             x = problem.project(np.asarray(sol["x"]).ravel())
-            f = problem.value(x)
-            records.append(StartRecord(f_start, f, str(stats.get("return_status")), int(stats.get("iter_count", 0)),
+            status = str(stats.get("return_status"))
+            if safety is not None:
+                safe = make_safe(safety, x)
+                if safe is None:
+                    slack = safety.grid_slack(x)
+                    worst = int(np.argmin(slack))
+                    if unsafe is None or slack[worst] > unsafe[0]:
+                        unsafe = (float(slack[worst]), safety.labels()[worst])
+                    status = f"unsafe ({status})"
+                x = safe
+            f = problem.value(x) if x is not None else math.inf
+            records.append(StartRecord(f_start, f, status, int(stats.get("iter_count", 0)),
                                        time.perf_counter() - t0))
-            if f < best_f:
+            if x is not None and f < best_f:
                 best_x, best_f = x, f
         if progress is not None:
             progress(k + 1, starts)
+    if best_x is None and unsafe is not None:
+        raise ExcitationError(
+            f"IPOPT found no design that keeps every bound: {unsafe[1]} stays violated (by {-unsafe[0]:.3g} m "
+            "on the grid, margin between samples included); "
+            + ("pass --no-self-collision if those shapes are too coarse" if unsafe[1].endswith("self-collision")
+               else "relax that bound") + ", or lower --velocity-scale and --acceleration-scale (smaller motions), "
+            "or try more --starts",
+            reason="infeasible_workspace",
+        )
     if best_x is None:
         raise ExcitationError(
             f"every random start leaves base parameters undetermined (the information matrix of the "
@@ -434,10 +415,20 @@ def design_excitation(
             "add --harmonics, lengthen --duration or widen the bounds",
             reason="rank_deficient",
         )
+    safety_record = None if pairs is None else dict(limits.to_dict(), self_collision=pairs.describe())
+    if safety is not None:
+        # check the written samples themselves, and a grid ten times denser, against the bounds (no margins)
+        safety_record = dict(safety.describe(), samples=verify(safety, q),
+                             dense=verify(safety, traj.evaluate(np.linspace(0.0, 1.0 / f0, 10 * n_rate // periods + 1))[0]))
+        if min(safety_record["samples"]["min_clearance"], safety_record["dense"]["min_clearance"]) < 0:
+            raise ExcitationError(  # the guarantee of excite_safety failed: never write such a design
+                f"the design breaks {safety_record['dense']['constraint']}; please report this; meanwhile "
+                "give the bound more room", reason="infeasible_workspace")
     record = dict(s.to_dict(), base_frequency=f0, design_points=design_points, constraint_points=constraint_points,
                   unknown_links=list(model.unknown_links), robot=model.name)
     return ExcitationResult(
         trajectory=traj, criterion=criterion, value=best_f, optimized=optimized, random=random,
         random_trajectory=random_traj, base=base, sigma=sigma, bounds=bounds, rate=float(rate), starts=records,
         seconds=time.perf_counter() - t_start, compile_seconds=compile_seconds, settings=record,
+        safety=safety_record,
     )

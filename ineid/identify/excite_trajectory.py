@@ -4,7 +4,9 @@ A finite-Fourier trajectory per joint at rest at both ends (:func:`_rest_basis`)
 bounds it must keep (:class:`Bounds`, :func:`design_bounds`), and the optimization problem
 over its coefficients (:class:`_Problem`: the linear maps to the states on the design and
 constraint grids, the criterion and its exact gradient, the tightened linear constraints,
-projection and random feasible starts). The maths is in :mod:`ineid.identify.excite`.
+projection and random feasible starts), and the IPOPT solver of it (:func:`_ipopt_solver`, with
+the floor and box of :mod:`ineid.identify.excite_safety` when asked). The maths is in
+:mod:`ineid.identify.excite`.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import numpy as np
 
 from ineid.data.trajectory import FourierTrajectory, state_matrices
 from ineid.errors import ExcitationError
+from ineid.identify.excite_safety import casadi_constraint
 from ineid.identify.excite_criterion import (
     DesignBase,
     centred,
@@ -238,10 +241,11 @@ class _Problem:
 
 def design_bounds(model, margin: float = 0.05, velocity_scale: float = 1.0, acceleration_scale: float = 1.0) -> Bounds:
     """The model's bounds for a design: position limits less ``margin`` of each joint's range at
-    each end; ``velocity_scale``, ``acceleration_scale`` fractions of ``qd_max``, ``qdd_max``.
+    each end; ``velocity_scale``, ``acceleration_scale`` times ``qd_max``, ``qdd_max`` (a scale above 1
+    goes beyond the URDF's bounds, or the defaults where it gives none: the caller warns).
 
     Raises:
-        ExcitationError: a margin that leaves no range, or a scale outside (0, 1].
+        ExcitationError: a margin that leaves no range, or a scale that is not positive and finite.
     """
     if not 0.0 <= margin < 0.5:
         raise ExcitationError(
@@ -249,9 +253,94 @@ def design_bounds(model, margin: float = 0.05, velocity_scale: float = 1.0, acce
             reason="infeasible_bounds",
         )
     for name, v in (("velocity_scale", velocity_scale), ("acceleration_scale", acceleration_scale)):
-        if not 0.0 < v <= 1.0:
-            raise ExcitationError(f"{name} must be in (0, 1], got {v:g}", reason="infeasible_bounds")
+        if not (0.0 < v and math.isfinite(v)):
+            raise ExcitationError(f"{name} must be positive, got {v:g}", reason="infeasible_bounds")
     lo, hi = np.asarray(model.q_lower, float), np.asarray(model.q_upper, float)
     span = hi - lo
     return Bounds(lo + margin * span, hi - margin * span, np.asarray(model.qd_max, float) * velocity_scale,
                   np.asarray(model.qdd_max, float) * acceleration_scale)
+
+
+def _ipopt_solver(problem: _Problem, max_iter: int, tol: float, safety=None):
+    """A CasADi nlpsol (IPOPT) for ``problem``: linear constraints, callback objective, and the
+    floor and box constraints of ``safety`` (:class:`SafetyConstraints`) when given."""
+    import casadi as ca  # noqa: PLC0415
+
+    nx = problem.n * problem.nz
+
+    class Gradient(ca.Callback):
+        def __init__(self, name, opts):
+            ca.Callback.__init__(self)
+            self.construct(name, opts)
+
+        def get_n_in(self):
+            return 2
+
+        def get_n_out(self):
+            return 1
+
+        def get_sparsity_in(self, i):
+            return ca.Sparsity.dense(nx, 1) if i == 0 else ca.Sparsity.dense(1, 1)
+
+        def get_sparsity_out(self, i):
+            return ca.Sparsity.dense(1, nx)
+
+        def eval(self, arg):
+            _, g = problem.gradient(np.asarray(arg[0]).ravel())
+            return [ca.DM(g).T]
+
+    class Objective(ca.Callback):
+        def __init__(self, name, opts):
+            ca.Callback.__init__(self)
+            self._jac = None
+            self.construct(name, opts)
+
+        def get_n_in(self):
+            return 1
+
+        def get_n_out(self):
+            return 1
+
+        def get_sparsity_in(self, i):
+            return ca.Sparsity.dense(nx, 1)
+
+        def get_sparsity_out(self, i):
+            return ca.Sparsity.dense(1, 1)
+
+        def eval(self, arg):
+            return [problem.value(np.asarray(arg[0]).ravel())]
+
+        def has_jacobian(self):
+            return True
+
+        def get_jacobian(self, name, inames, onames, opts):
+            self._jac = Gradient(name, opts)
+            return self._jac
+
+    objective = Objective("excitation_criterion", {"enable_fd": False})
+    rows, cols, vals, nrows, lo, hi = problem.constraint_matrix()
+    a = ca.DM.triplet(rows.tolist(), cols.tolist(), vals.tolist(), nrows, nx)
+    x = ca.MX.sym("x", nx)
+    g = ca.mtimes(a, x)
+    extra = None
+    if safety is not None:
+        extra = casadi_constraint(safety)
+        g = ca.vertcat(g, extra(x))
+        # a little inside the bound, so that IPOPT's constraint tolerance lands on the safe side
+        lo = np.concatenate([lo, np.full(safety.n_constraints, 1e-6)])
+        hi = np.concatenate([hi, np.full(safety.n_constraints, np.inf)])
+    nlp = {"x": x, "f": objective(x), "g": g}
+    opts = {
+        "print_time": False,
+        "ipopt.print_level": 0,
+        "ipopt.sb": "yes",
+        "ipopt.max_iter": int(max_iter),
+        "ipopt.tol": float(tol),
+        "ipopt.hessian_approximation": "limited-memory",
+        "ipopt.jac_d_constant": "no" if safety is not None else "yes",
+        "ipopt.jac_c_constant": "yes",
+    }
+    solver = ca.nlpsol("excitation", "ipopt", nlp, opts)
+    lbx = np.concatenate([np.r_[-1.0, np.full(problem.nz - 1, -np.inf)] for _ in range(problem.n)])
+    ubx = -lbx
+    return solver, (objective, extra), {"lbx": lbx, "ubx": ubx, "lbg": lo, "ubg": hi}

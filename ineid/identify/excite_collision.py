@@ -1,0 +1,116 @@
+"""Self-collision of an excitation design: bounding capsules of non-adjacent bodies kept apart at every instant.
+
+Bodies are the root (the fixture, index -1) and the moving links, each with the bounding
+capsules of its URDF collision geometry (:func:`ineid.robots.collision.body_capsules`).
+A pair of capsules is checked when their bodies are not adjacent (chain indices two or
+more apart), unless they already overlap at the middle of the joint ranges: such shapes
+are too coarse to tell a collision from a joint's neighbourhood (said in the summary).
+
+**Between samples.** The clearance ``d(t) - r1 - r2`` (``d`` the distance of the two
+segments) changes no faster than the speeds of the segments' points, ``V1 + V2`` with
+``V = sum_j w_j l_j`` (``w_j`` the velocity bound of joint ``j`` before the body, ``l_j``
+the reach from joint ``j`` to the body's origin plus the segment's farthest end, 1 for a
+prismatic joint), so a clearance of ``(V1 + V2) dt / 2`` at every grid point keeps it
+non-negative at every instant (a first-order bound: the distance of two segments is not
+smooth where the closest points jump).
+"""
+
+from __future__ import annotations
+
+from itertools import product
+
+import numpy as np
+
+
+class CollisionPairs:
+    """The checked capsule pairs of a model, their clearances and derivatives (module doc).
+
+    Attributes:
+        capsules: every capsule; ``pairs`` (C, 2) indices into it.
+        notes: one line per body without geometry, mesh skipped, or pair left out.
+        speed: (C,) ``V1 + V2`` per pair, m/s.
+    """
+
+    def __init__(self, model, qd_max) -> None:
+        from ineid.robots.collision import body_capsules  # noqa: PLC0415
+        from ineid.robots.kinematics import reach  # noqa: PLC0415
+
+        self.chain = model.chain
+        found = body_capsules(model.urdf_text, self.chain, model.urdf_path, model.locked_joints)
+        self.capsules, self.notes = found.capsules, list(found.notes)
+        caps = self.capsules
+        n = self.chain.n_dof
+        mid = 0.5 * (np.array([j.q_lower for j in self.chain.joints]) + np.array([j.q_upper for j in self.chain.joints]))
+        pairs = [(i, k) for i, k in product(range(len(caps)), repeat=2) if i < k and abs(caps[i].link - caps[k].link) >= 2]
+        self.pairs = np.zeros((0, 2), dtype=int)
+        if pairs:
+            clear = self._clearance(mid[None, :], np.array(pairs))[0][0]
+            for (i, k), c in zip(pairs, clear):
+                if c <= 0:
+                    self.notes.append(f"{caps[i].name!r} and {caps[k].name!r} overlap at the middle of the joint "
+                                      "ranges (bounding shapes too coarse): not checked")
+            self.pairs = np.array([p for p, c in zip(pairs, clear) if c > 0], dtype=int).reshape(-1, 2)
+        w = np.asarray(qd_max, dtype=np.float64)
+        origin_reach = reach(self.chain)  # (n, n)
+        revolute = np.array([j.type == "revolute" for j in self.chain.joints])
+        speed = np.zeros(len(caps))
+        for c, cap in enumerate(caps):
+            if cap.link < 0:
+                continue
+            ends = max(np.linalg.norm(cap.a), np.linalg.norm(cap.b))
+            moved = np.arange(n) <= cap.link
+            ell = np.where(revolute, origin_reach[cap.link] + ends, 1.0) * moved
+            speed[c] = float(w @ ell)
+        self.speed = speed[self.pairs].sum(axis=1) if len(self.pairs) else np.zeros(0)
+
+    @property
+    def n(self) -> int:
+        return len(self.pairs)
+
+    def labels(self) -> list[str]:
+        return [f"{self.capsules[i].name!r} and {self.capsules[k].name!r}" for i, k in self.pairs]
+
+    def _segments(self, q: np.ndarray, idx: np.ndarray):
+        """Segment ends (T, len(idx), 3) twice, base frame, of capsules ``idx`` at ``q`` (T, n_dof)."""
+        from ineid.robots.kinematics import link_poses  # noqa: PLC0415
+
+        r, p = link_poses(self.chain, q)
+        ends = []
+        for which in ("a", "b"):
+            local = np.array([getattr(self.capsules[i], which) for i in idx]).reshape(-1, 3)
+            link = np.array([self.capsules[i].link for i in idx], dtype=int)
+            moving = link >= 0
+            out = np.broadcast_to(local, (len(q), len(idx), 3)).copy()
+            out[:, moving] = p[:, link[moving]] + (r[:, link[moving]] @ local[moving][:, :, None])[..., 0]
+            ends.append(out)
+        return ends
+
+    def _clearance(self, q: np.ndarray, pairs: np.ndarray, closest: bool = False):
+        from ineid.robots.collision import segment_distance  # noqa: PLC0415
+
+        a1, b1 = self._segments(q, pairs[:, 0])
+        a2, b2 = self._segments(q, pairs[:, 1])
+        d, c1, c2 = segment_distance(a1, b1, a2, b2)
+        radii = np.array([self.capsules[i].radius + self.capsules[k].radius for i, k in pairs])
+        return (d - radii, c1, c2) if closest else (d - radii,)
+
+    def clearances(self, q: np.ndarray) -> np.ndarray:
+        """(T, C) the gap between the two capsules of each pair at ``q`` (T, n_dof), m (negative: they overlap)."""
+        return self._clearance(np.atleast_2d(q), self.pairs)[0]
+
+    def gradient(self, q: np.ndarray) -> np.ndarray:
+        """(T, C, n_dof) ``d clearance / d q``: the unit vector between the closest points along their Jacobians."""
+        from ineid.robots.kinematics import point_jacobians  # noqa: PLC0415
+
+        _, c1, c2 = self._clearance(q, self.pairs, closest=True)
+        diff = c1 - c2
+        norm = np.linalg.norm(diff, axis=-1, keepdims=True)
+        unit = np.where(norm > 0, diff / np.where(norm > 0, norm, 1.0), 0.0)
+        links = np.array([[self.capsules[i].link, self.capsules[k].link] for i, k in self.pairs]).T  # (2, C)
+        j1 = point_jacobians(self.chain, q, links[0], c1)  # (T, C, 3, n); zero for the root body
+        j2 = point_jacobians(self.chain, q, links[1], c2)
+        return np.einsum("tci,tcij->tcj", unit, j1 - j2)
+
+    def describe(self) -> dict:
+        return {"pairs": self.labels(), "capsules": [{"body": c.name, "shape": c.shape, "radius": c.radius}
+                                                     for c in self.capsules], "notes": self.notes}
