@@ -59,8 +59,8 @@ def foreign_file(path: str | Path, expected: str = "an ineid dataset (HDF5)", th
     """Why ``path`` is not an HDF5 file ineid can read, when it is a recording or text; else None.
 
     A recording that ``ineid data import`` reads (a CSV, a ROS 1 ``.bag``, a ``.mcap``, a ROS 2
-    bag folder) gives the import command to run; any other text file is named as text. A file
-    that starts like HDF5, or binary data of another kind, gives None (the caller's "truncated
+    bag folder) gives the import command to run; any other text file is named as text, unless
+    its name ends in ``.h5``. A file that starts like HDF5, or binary data of another kind, gives None (the caller's "truncated
     or corrupt" stands). Reads at most the first 4 KiB; never raises for an unreadable file.
 
     Args:
@@ -98,6 +98,8 @@ def foreign_file(path: str | Path, expected: str = "an ineid dataset (HDF5)", th
     first = text.splitlines()[0] if text.strip() else ""
     if path.suffix.lower() == ".csv" or first.count(",") >= 1:
         return f"{path} is a CSV recording, not {expected}; {import_it}"
+    if path.suffix.lower() in (".h5", ".hdf5", ".hdf"):
+        return None  # named as HDF5: a damaged file is the likelier story
     return f"{path} is a text file, not {expected}; a recording is imported with `ineid data import` (CSV, bags){then}"
 
 
