@@ -221,8 +221,7 @@ def robot_options(positional: str = "required", with_gravity: bool = True) -> Ca
     """ROBOT, --unknown-links, --lock (and --gravity), handed to the command as ``robot: RobotChoice``.
 
     ``positional``: ``"required"`` (ROBOT argument), ``"optional"`` (ROBOT argument that
-    defaults to sweaty-arm; 0.1's ``--robot`` still accepted), or ``"option"`` (``--robot``,
-    required).
+    defaults to sweaty-arm; 0.1's ``--robot`` still accepted), or ``"option"`` (required ``--robot``).
     """
 
     def deco(f):
@@ -246,8 +245,7 @@ def robot_options(positional: str = "required", with_gravity: bool = True) -> Ca
             g = gravity_option(g)
         g = lock_option(unknown_links_option(g))
         if positional == "option":
-            # Required: a recording belongs to one robot, and a silent default (sweaty-arm) imported
-            # another arm's recording as the built-in's without a word.
+            # Required: a silent default (sweaty-arm) imported another arm's recording as the built-in's.
             return click.option("--robot", required=True, metavar="ROBOT",
                                 help="The recorded robot: a built-in name (sweaty-arm) or a URDF path.")(g)  # fmt: skip
         if positional == "optional":
