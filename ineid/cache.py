@@ -50,6 +50,9 @@ _MARKER_TEXT = (
 DISABLE_ENV = "INEID_XLA_CACHE"
 """Set to ``0`` to keep ineid from turning on JAX's persistent compilation cache."""
 
+MIN_SAVED_S = 0.005
+"""A cache hit's compile time saved is logged only above this (it prints as 0.00 s below)."""
+
 _log = logging.getLogger("ineid.cache")
 _listening = False
 
@@ -328,7 +331,10 @@ def _listen() -> None:
 
     def on_duration(event: str, duration: float, **_: object) -> None:
         if event == "/jax/compilation_cache/compile_time_saved_sec":
-            _log.info("XLA compilation cache hit: loaded a compiled kernel (%.2f s of compilation saved)", duration)
+            # JAX reports the stored compile time less the load time: near zero or negative for a small
+            # kernel ("-0.00 s saved" says nothing), so the saving is named only when there is one.
+            saved = f" ({duration:.2f} s of compilation saved)" if duration > MIN_SAVED_S else ""
+            _log.info("XLA compilation cache hit: loaded a compiled kernel%s", saved)
 
     def on_event(event: str, **_: object) -> None:
         if event == "/jax/compilation_cache/cache_misses":

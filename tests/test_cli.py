@@ -147,7 +147,7 @@ def test_data_errors_are_one_line(run, tmp_path):
     assert not (tmp_path / "x.h5").exists()
     csv = tmp_path / "short.csv"
     csv.write_text("time,q1,qd1,qdd1,fx,fy,fz,mx,my,mz\n0,0,0,0,0,0,0,0,0,0\n")
-    line = one_line_error(run("data", "import", csv, "--out", tmp_path / "r.h5"))
+    line = one_line_error(run("data", "import", csv, "--robot", "sweaty-arm", "--out", tmp_path / "r.h5"))
     assert "columns are for 1 joint" in line and not (tmp_path / "r.h5").exists()
     line = one_line_error(run("data", "generate", "--n-frames", 2, "--out", tmp_path / "nofolder" / "x.h5"), code=2)
     assert "does not exist; create it first" in line
@@ -222,7 +222,7 @@ def test_solve_recording_prints_estimates(run, tmp_path, small_data):
 
     csv = write_recording_csv(tmp_path / "rec.csv", load_dataset(small_data, configs=[4]))
     rec = tmp_path / "rec.h5"
-    assert run("data", "import", csv, "--out", rec).exit_code == 0
+    assert run("data", "import", csv, "--robot", "sweaty-arm", "--out", rec).exit_code == 0
     r = run("solve", rec, "--method", "consistent", "--out", tmp_path / "rr.h5")
     assert r.exit_code == 0, r.output
     for text in ("1/1 configurations identified", "Estimates of configuration 0", "prior (CAD)", "Base parameters"):
@@ -265,11 +265,9 @@ def test_train_evaluate_sweep(run, tmp_path):
         assert (out / name).is_file(), name
     assert "not empty; pass --overwrite" in one_line_error(run("train", data, "--epochs", 1, "--out", out))
     before = (out / "evaluation.json").read_bytes()
-    line = one_line_error(run("evaluate", out, data, "--select", "0:5", "--no-linear"))
-    assert line == f"Error: {out / 'evaluation.json'} exists; pass --overwrite to replace it"
-    assert (out / "evaluation.json").read_bytes() == before
-    r = run("evaluate", out, data, "--select", "0:5", "--no-linear", "--overwrite")
+    r = run("evaluate", out, data, "--select", "0:5", "--no-linear")  # the run's own file: re-evaluated in place
     assert r.exit_code == 0 and "evaluated on 5 configurations" in r.output
+    assert "(it replaces the run's previous evaluation)" in r.output
     assert (out / "evaluation.json").read_bytes() != before
     assert "not a finished training run" in one_line_error(run("evaluate", tmp_path, data))
     r = run("train", data, "--arch", "mlp", "--out", tmp_path / "x")
@@ -315,10 +313,14 @@ def test_help_does_not_import_jax():
     assert out.strip() == "[]"
 
 
-def test_verbose_logs_files_read(run, small_data):
-    r = run("-v", "data", "info", small_data)
-    assert r.exit_code == 0 and f"ineid: read {small_data}" in r.output
-    r = run("data", "info", small_data)
+def test_verbose_logs_files_read(run, tmp_path, small_data):
+    """-v logs each dataset read once (solve reads the header, then the data: one line, issue 20)."""
+    args = ("solve", small_data, "--method", "linear", "--weights", "estimate", "--select", "0:6")
+    r = run("-v", *args, "--out", tmp_path / "v.h5")
+    assert r.exit_code == 0, r.output
+    lines = [line for line in r.output.splitlines() if line.startswith("ineid: read")]
+    assert lines == [f"ineid: read {small_data}: synthetic dataset of sweaty-arm, 12 x 30 frames (6 x 30 selected)"]
+    r = run(*args, "--out", tmp_path / "q.h5")
     assert "ineid: read" not in r.output
 
 

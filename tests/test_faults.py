@@ -336,9 +336,9 @@ def recording(tmp_path) -> Path:
 
 def test_import_rate_and_delay_are_bounded(tmp_path, recording):
     out = tmp_path / "r.h5"
-    line = one_line(run("data", "import", recording, "--rate", "1e9", "--out", out))
+    line = one_line(run("data", "import", recording, "--robot", "sweaty-arm", "--rate", "1e9", "--out", out))
     assert "--rate 1e+09 Hz is more than 100 x the faster stream's rate (100 Hz)" in line and "at most 10000 Hz" in line
-    line = one_line(run("data", "import", recording, "--delay", "1e300", "--out", out))
+    line = one_line(run("data", "import", recording, "--robot", "sweaty-arm", "--delay", "1e300", "--out", out))
     assert "longer than the whole recording" in line
     assert not out.exists()
 

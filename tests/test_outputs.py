@@ -80,7 +80,7 @@ def test_other_commands_refuse_an_input_as_output(run, tmp_path, case):
 
     urdf.write_text(BUILTIN_ROBOTS["sweaty-arm"].urdf_path.read_text())
     args, out, what = {
-        "import": (("data", "import", src, "--out", src), src, "the input recording"),
+        "import": (("data", "import", src, "--robot", "sweaty-arm", "--out", src), src, "the input recording"),
         "trajectory": (("data", "generate", "--frame-mode", "trajectory", "--trajectory", src, "--out", src), src,
                        "the trajectory file"),
         "export": (("export-urdf", src, "--config", 0, "--out", src), src, "the input results file"),

@@ -295,5 +295,6 @@ def test_bad_wrench_scale_is_refused(tmp_path):
     with pytest.raises(DatasetError, match="angle_unit"):
         ImportSettings(angle_unit="grad")
     for bad in ("0", "-2", "inf", "nan"):
-        r = invoke("data", "import", tmp_path / "x.csv", "--wrench-scale", bad, "--out", tmp_path / "x.h5")
+        r = invoke("data", "import", tmp_path / "x.csv", "--robot", "sweaty-arm", "--wrench-scale", bad,
+                   "--out", tmp_path / "x.h5")
         assert r.exit_code == 2 and "--wrench-scale" in r.output, r.output

@@ -301,7 +301,7 @@ def test_offsets_are_what_the_base_frame_solver_cannot_absorb(lab, recordings):
 
 def test_cli_import_solve_plot_and_identifiability(lab, run, tmp_path):
     rec = tmp_path / "rec.h5"
-    r = run("-q", "data", "import", lab.file("mcap"), "--sensor-pose", POSE_TEXT, "--out", rec)
+    r = run("-q", "data", "import", lab.file("mcap"), "--robot", "sweaty-arm", "--sensor-pose", POSE_TEXT, "--out", rec)
     assert r.exit_code == 0, r.output
     assert "frames at 1000 Hz" in r.output and "low-pass at 100 Hz" in r.output and "frame 'ft_sensor'" in r.output
     assert "dropped 0.030 s at the start" in r.output
@@ -347,11 +347,11 @@ def test_cli_bad_recordings_are_one_line_and_leave_no_file(lab, run, tmp_path):
     ]
     for args, message in cases:
         out = tmp_path / "out.h5"
-        r = run("-q", "data", "import", *args, "--out", out)
+        r = run("-q", "data", "import", *args, "--robot", "sweaty-arm", "--out", out)
         assert r.exit_code == 1 and "Traceback" not in r.output, r.output
         text = [line for line in r.output.splitlines() if line.strip()]
         assert len(text) == 1 and text[0].startswith("Error: ") and message in text[0], (message, r.output)
         assert not out.exists() and not list(tmp_path.glob(".out.h5*"))
-    r = run("-q", "data", "import", twice, "--wrench-topic", "/ft_sensor/raw", "--sensor-pose", POSE_TEXT,
-            "--out", tmp_path / "ok.h5")
+    r = run("-q", "data", "import", twice, "--robot", "sweaty-arm", "--wrench-topic", "/ft_sensor/raw",
+            "--sensor-pose", POSE_TEXT, "--out", tmp_path / "ok.h5")
     assert r.exit_code == 0, r.output

@@ -147,12 +147,15 @@ def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, arch, ac
 @select_alias
 @click.option("--no-linear", is_flag=True, help="Skip the classical comparisons (linear LS, Gaussian prior).")
 @click.option("--out", type=click.Path(path_type=Path), default=None,
-              help="Where to write the evaluation (JSON; default RUN_DIR/evaluation.json).")
-@overwrite_option
+              help="Where to write the evaluation (JSON). Default: the run's own RUN_DIR/evaluation.json, "
+                   "replaced once the new evaluation is complete.")
+@click.option("--overwrite", is_flag=True, help="Replace --out if it exists.")
 def evaluate_cmd(run_dir, data_path, selection, no_linear, out, overwrite) -> None:
     """Evaluate a trained run on DATA.h5: errors, R^2, floor, wrench residual, linear LS.
 
     Without --select: the run's test split if DATA.h5 is its dataset, else all configurations.
+    Without --out the evaluation replaces the run's evaluation.json (written by `ineid train`),
+    a file derived from the run; an interrupted evaluation leaves the old one in place.
     """
     import json  # noqa: PLC0415
 
@@ -162,15 +165,19 @@ def evaluate_cmd(run_dir, data_path, selection, no_linear, out, overwrite) -> No
     from ineid.learn import evaluate, load_run  # noqa: PLC0415
     from ineid.learn.runs import EVALUATION  # noqa: PLC0415
 
-    out = prepare_output(out or Path(run_dir) / EVALUATION, overwrite,
+    # The run's own evaluation.json is derived from the run: re-evaluating replaces it (atomically, so
+    # a failed or interrupted evaluation keeps the old one). A file named with --out is the user's.
+    own = out is None
+    out = prepare_output(Path(run_dir) / EVALUATION if own else out, overwrite or own,
                          inputs=[("the input dataset", data_path), *run_inputs(run_dir)])  # fmt: skip
+    replaced = " (it replaces the run's previous evaluation)" if own and out.is_file() else ""
     run = load_run(run_dir)
     ds = load_dataset(data_path, clean=False)
     configs = None if selection is None else parse_selection(selection, ds.n_configs)
     ev = evaluate(run, ds, configs, linear=not no_linear)
     atomic_write(out, json.dumps(ev.to_dict(), indent=1))
     print_evaluation(ev)
-    click.echo(f"wrote {out}")
+    click.echo(f"wrote {out}{replaced}")
 
 
 @click.command("sweep")

@@ -5,7 +5,7 @@ Flag names carry one meaning across commands:
 =====================  ====================================================================
 ``ROBOT``              positional where the robot is the command's subject: a built-in name
                        (sweaty-arm) or a URDF path; ``data import`` (whose subject is the
-                       recording) takes ``--robot``
+                       recording) takes ``--robot`` (required)
 ``--unknown-links``    comma-separated links to identify
 ``--lock JOINT=POS``   treat a URDF joint as fixed (repeatable)
 ``--gravity``          GX GY GZ, m/s^2, base frame
@@ -222,7 +222,7 @@ def robot_options(positional: str = "required", with_gravity: bool = True) -> Ca
     """ROBOT, --unknown-links, --lock (and --gravity), handed to the command as ``robot: RobotChoice``.
 
     ``positional``: ``"required"`` (ROBOT argument), ``"optional"`` (ROBOT argument that
-    defaults to sweaty-arm; 0.1's ``--robot`` still accepted), or ``"option"`` (``--robot``).
+    defaults to sweaty-arm; 0.1's ``--robot`` still accepted), or ``"option"`` (required ``--robot``).
     """
 
     def deco(f):
@@ -246,8 +246,9 @@ def robot_options(positional: str = "required", with_gravity: bool = True) -> Ca
             g = gravity_option(g)
         g = lock_option(unknown_links_option(g))
         if positional == "option":
-            return click.option("--robot", default="sweaty-arm", show_default=True, metavar="ROBOT",
-                                help="Built-in name or URDF path.")(g)  # fmt: skip
+            # Required: a silent default (sweaty-arm) imported another arm's recording as the built-in's.
+            return click.option("--robot", required=True, metavar="ROBOT",
+                                help="The recorded robot: a built-in name (sweaty-arm) or a URDF path.")(g)  # fmt: skip
         if positional == "optional":
             g = click.option("--robot", "deprecated_robot", default=None, hidden=True)(g)
         return click.argument("robot", metavar="[ROBOT]" if positional == "optional" else "ROBOT",

@@ -37,16 +37,70 @@ def _open(path: Path):
     if not path.exists():
         raise DatasetError(f"{path} does not exist")
     if path.is_dir():
-        raise DatasetError(f"{path} is a folder, not a dataset file")
+        raise DatasetError(foreign_file(path) or f"{path} is a folder, not a dataset file")
     try:
         return h5py.File(path, "r")
     except OSError as e:
         if fault_errno(e) is not None:
             raise  # permission denied, an I/O error: the CLI names the file and the fix
         raise DatasetError(
-            f"{path} is not a readable HDF5 file ({_first_line(e)}); it may be truncated or corrupt: "
+            foreign_file(path)
+            or f"{path} is not a readable HDF5 file ({_first_line(e)}); it may be truncated or corrupt: "
             "regenerate it or copy it again"
         ) from None
+
+
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_ROSBAG_MAGIC = b"#ROSBAG V2.0"
+
+
+def foreign_file(path: str | Path, expected: str = "an ineid dataset (HDF5)", then: str = "") -> str | None:
+    """Why ``path`` is not an HDF5 file ineid can read, when it is a recording or text; else None.
+
+    A recording that ``ineid data import`` reads (a CSV, a ROS 1 ``.bag``, a ``.mcap``, a ROS 2
+    bag folder) gives the import command to run; any other text file is named as text, unless
+    its name ends in ``.h5``. A file that starts like HDF5, or binary data of another kind, gives None (the caller's "truncated
+    or corrupt" stands). Reads at most the first 4 KiB; never raises for an unreadable file.
+
+    Args:
+        path: the file (or folder) that failed to open as HDF5.
+        expected: what the command wanted, for the message.
+        then: appended to the import advice (``", then solve it"`` where a results file was wanted).
+    """
+    path = Path(path)
+    out = path.with_suffix(".h5").name if path.suffix.lower() not in ("", ".h5") else f"{path.stem}-imported.h5"
+    import_it = f"import it first: ineid data import {path} --robot ROBOT --out {out}{then}"
+    if path.is_dir():
+        if (path / "metadata.yaml").is_file() or any(path.glob("*.db3")) or any(path.glob("*.mcap")):
+            return f"{path} is a ROS 2 bag folder, not {expected}; {import_it}"
+        return None
+    try:
+        with path.open("rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return None
+    if head.startswith(_HDF5_SIGNATURE) or not head:
+        return None
+    if head.startswith(_ROSBAG_MAGIC):
+        return f"{path} is a ROS 1 bag, not {expected}; {import_it}"
+    if head.startswith(_MCAP_MAGIC):
+        return f"{path} is an MCAP recording, not {expected}; {import_it}"
+    try:
+        text = head.decode("utf-8")
+    except UnicodeDecodeError as e:
+        if e.start < len(head) - 4:  # not a multi-byte character cut by the 4 KiB
+            return None
+        text = head[: e.start].decode("utf-8")
+    text = text.removeprefix("\ufeff")  # a spreadsheet's byte-order mark
+    if "\x00" in text or any(not (c.isprintable() or c in "\t\r\n") for c in text):
+        return None
+    first = text.splitlines()[0] if text.strip() else ""
+    if path.suffix.lower() == ".csv" or first.count(",") >= 1:
+        return f"{path} is a CSV recording, not {expected}; {import_it}"
+    if path.suffix.lower() in (".h5", ".hdf5", ".hdf"):
+        return None  # named as HDF5: a damaged file is the likelier story
+    return f"{path} is a text file, not {expected}; a recording is imported with `ineid data import` (CSV, bags){then}"
 
 
 def _first_line(e: BaseException) -> str:
@@ -178,7 +232,11 @@ def _checked(build, where: str):
 
 
 def read_meta(path: str | Path) -> tuple[DatasetMeta, dict[str, tuple[int, ...]]]:
-    """The attributes of a dataset file and the shapes of its arrays, without the data."""
+    """The attributes of a dataset file and the shapes of its arrays, without the data.
+
+    Logged at DEBUG only: the INFO line ``read PATH: ...`` is :func:`load_dataset`'s, once per
+    read of the data (a command that checks the header first does not log the file twice).
+    """
     path = Path(path)
     with _open(path) as f:
         meta = _read_meta(f, str(path))
@@ -189,7 +247,8 @@ def read_meta(path: str | Path) -> tuple[DatasetMeta, dict[str, tuple[int, ...]]
                 raise DatasetError(f"{path}: dataset {name!r} is missing; the file is damaged")
         if meta.source == "synthetic" and "theta_unknown" not in shapes:
             raise DatasetError(f"{path}: a synthetic dataset without theta_unknown; the file is damaged")
-    log.info("read %s: %s dataset of %s, %d x %d frames", path, meta.source, meta.robot, *shapes["q"][:2])
+    log.debug("read the header of %s: %s dataset of %s, %d x %d frames", path, meta.source, meta.robot,
+              *shapes["q"][:2])  # fmt: skip
     return meta, shapes
 
 
@@ -254,6 +313,8 @@ def load_dataset(path: str | Path, configs=None, frames=None, clean: bool = True
                 check_finite(name, arr, where, None if name == "theta_known" else cidx)
             out[name] = np.asarray(arr, dtype=np.int64 if name == "link_set_index" else np.float64)
     clean_arrays = {k: out.pop(f"{k}_clean") for k in meta.measured_keys() if f"{k}_clean" in out}
+    log.info("read %s: %s dataset of %s, %d x %d frames%s", path, meta.source, meta.robot, n_configs, n_frames,
+             "" if (len(cidx), len(fidx)) == (n_configs, n_frames) else f" ({len(cidx)} x {len(fidx)} selected)")
     return Dataset(
         meta=meta,
         q=out["q"],

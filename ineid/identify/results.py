@@ -133,7 +133,11 @@ def load_results(path: str | Path) -> SolveResults:
     except OSError as e:
         if fault_errno(e) is not None:
             raise  # permission denied and the like: the CLI words it
-        raise DatasetError(f"{path} is not a readable HDF5 file ({str(e).splitlines()[0]}); truncated or corrupt") from None
+        from ineid.data.read import foreign_file  # noqa: PLC0415
+
+        raise DatasetError(foreign_file(path, "an ineid results file", ", then solve it (ineid solve)")
+                           or f"{path} is not a readable HDF5 file ({str(e).splitlines()[0]}); truncated or corrupt"
+                           ) from None  # fmt: skip
     with f:
         fmt = _attr_text(f.attrs.get("format", ""))
         if fmt != FORMAT:
