@@ -1,4 +1,5 @@
-"""``ineid identifiability``, ``solve``, ``export-urdf``, ``study noise`` and ``results info``."""
+"""``ineid identifiability``, ``solve``, ``export-urdf``, ``study noise`` (``study formulations``: its own module)
+and ``results info``."""
 
 from __future__ import annotations
 
@@ -456,5 +457,8 @@ def study_noise(ctx, robot, levels, fit_frames, n_configs, methods, seed, worker
 
 
 def register(main: click.Group) -> None:
+    from ineid.cli.study_formulations import study_formulations  # noqa: PLC0415
+
+    study.add_command(study_formulations)
     for command in (identifiability, solve, export_urdf_cmd, results, study):
         main.add_command(command)
