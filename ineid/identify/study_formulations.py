@@ -138,8 +138,9 @@ def simulate_study(model, size: StudySize, seed: int = 0, progress=None) -> Stud
     """
     import_mujoco("ineid study formulations")
     if model.payloads:
-        raise RobotModelError(f"ineid study formulations simulates moving links, and {', '.join(p.link for p in model.payloads)} "
-                              "is a payload: choose --unknown-links among the moving links")
+        names = ", ".join(p.link for p in model.payloads)
+        raise RobotModelError(f"ineid study formulations simulates moving links, and {names} is a payload: "
+                              "choose --unknown-links among the moving links")
     rng = np.random.default_rng(seed)
     friction = typical_friction(model, _reference(model, size.duration, np.random.default_rng(seed)), size.duration)
     root = np.array([1.0, 0, 0, 0, 0.01, 0, 0.01, 0, 0, 0.01])  # any body: its weight is tared away
@@ -306,30 +307,35 @@ def plot(rows: list[FormulationRow], results: dict, data: StudyData, model, path
         width = 0.8 / len(pairs)
         for i, (label, attr) in enumerate(pairs):
             ax.bar(x + (i - (len(pairs) - 1) / 2) * width, [getattr(r, attr) for r in rows], width, label=label)
-        ax.set_xticks(x, names, rotation=20)
+        _literal(ax.set_xticks(x, names, rotation=20))
         ax.set_yscale("log")
         ax.set_title(title)
         ax.legend(fontsize=8)
         ax.grid(True, axis="y", alpha=0.3)
     friction = data.friction.per_joint(model.n_dof)
     ax = axes[2]
-    for i, (name, res) in enumerate(results.items()):
+    with_extra = {name: res for name, res in results.items() if res.base.n_extra}
+    for i, (name, res) in enumerate(with_extra.items()):
         n_link = res.base.n_link_params
         extra = res.param_names[n_link:]
-        if not extra:
-            continue
         truth = np.array([friction[TERMS[n.rsplit(".", 1)[1]]][model.joint_names.index(n.rsplit(".", 1)[0])]
                           for n in extra])
         ratio = res.theta_hat[res.success][:, n_link:] / truth
-        pos = np.arange(len(extra)) + 0.15 * (i - len(results) / 2)
-        ax.plot(np.broadcast_to(pos, ratio.shape).ravel(), ratio.ravel(), "o", ms=3, color=f"C{i}", label=name)
-        ax.set_xticks(np.arange(len(extra)), extra, rotation=60, fontsize=7)
+        pos = np.arange(len(extra)) + 0.2 * (i - (len(with_extra) - 1) / 2)
+        ax.plot(np.broadcast_to(pos, ratio.shape).ravel(), ratio.ravel(), "o", ms=3,
+                color=f"C{names.index(name)}", label=name)
+        _literal(ax.set_xticks(np.arange(len(extra)), extra, rotation=60, fontsize=7))
     ax.axhline(1.0, color="k", lw=0.8)
     ax.set_title("identified / simulated friction and armature")
-    ax.legend(fontsize=8)
+    if with_extra:
+        ax.legend(fontsize=8)
     ax.grid(True, alpha=0.3)
-    fig.suptitle(f"{model.name}: {data.real.n_configs} MuJoCo configurations with joint friction", usetex=False)
-    for t in fig.findobj(matplotlib.text.Text):
-        t.set_parse_math(False)  # joint and link names are not mathtext
+    _literal([fig.suptitle(f"{model.name}: {data.real.n_configs} MuJoCo configurations with joint friction")])
     save_figure(fig, path)
     plt.close(fig)
+
+
+def _literal(texts) -> None:
+    """Joint, link and robot names are shown as written, never as mathtext."""
+    for t in texts:
+        t.set_parse_math(False)
