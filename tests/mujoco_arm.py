@@ -123,6 +123,8 @@ class Simulation:
     wrench_sensor: np.ndarray
     theta: np.ndarray
     root_theta: np.ndarray
+    tau: np.ndarray | None = None
+    """(F, n_dof) the actuators' torques (MuJoCo's ``qfrc_actuator``: the computed-torque law's output)."""
 
 
 def simulate(model, theta: np.ndarray, sensor: SensorPose, duration: float, rate: float = 1000.0,
@@ -155,6 +157,7 @@ def simulate(model, theta: np.ndarray, sensor: SensorPose, duration: float, rate
     n = int(round(duration * rate)) + 1
     out = {k: np.empty((n, m.nv)) for k in ("q", "qd", "qdd")}
     wrench = np.empty((n, 6))
+    tau = np.empty((n, m.nv))
     time = np.empty(n)
     mujoco.set_mjcb_control(control)
     try:
@@ -163,11 +166,13 @@ def simulate(model, theta: np.ndarray, sensor: SensorPose, duration: float, rate
             time[k] = d.time
             out["q"][k], out["qd"][k], out["qdd"][k] = d.qpos, d.qvel, d.qacc
             wrench[k] = -d.sensordata[:6]
+            tau[k] = d.qfrc_actuator
             for _ in range(steps_per_sample):
                 mujoco.mj_step(m, d)
     finally:
         mujoco.set_mjcb_control(None)
-    return Simulation(time, out["q"], out["qd"], out["qdd"], wrench, np.asarray(theta, dtype=np.float64), root_theta)
+    return Simulation(time, out["q"], out["qd"], out["qdd"], wrench, np.asarray(theta, dtype=np.float64), root_theta,
+                      tau)
 
 
 def _root_theta(model) -> np.ndarray:
