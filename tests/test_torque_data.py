@@ -60,7 +60,8 @@ def test_csv_torques_are_filtered_like_the_wrench_and_read_back(lab, tmp_path):
     assert np.array_equal(plain.time, ds.time) and np.array_equal(plain.q, ds.q) and np.array_equal(plain.wrench,
                                                                                                      ds.wrench)
     back = load_dataset(ds.save(tmp_path / "rec.h5"))
-    assert back.meta.channels == ds.meta.channels and np.array_equal(back.channel_values["tau"], ds.channel_values["tau"])
+    assert back.meta.channels == ds.meta.channels
+    assert np.array_equal(back.channel_values["tau"], ds.channel_values["tau"])
     assert back.fingerprint() == ds.fingerprint() != plain.fingerprint()
 
 
@@ -97,6 +98,34 @@ def test_bag_efforts_are_the_joint_torques_matched_by_name(lab, tmp_path):
     # empty efforts (the tests' other bags): the wrench alone, as before
     plain = import_recording(lab.file("ros1"), model, ImportSettings(sensor_pose=POSE_TEXT))[0]
     assert plain.meta.channels.keys == ("wrench",) and "effort" not in plain.meta.origin
+
+
+def test_a_wrench_at_a_link_is_a_link_wrench_channel(lab, tmp_path, run):
+    """A wrist sensor: ``--sensor-pose LINK:x,y,z,r,p,y`` or a URDF frame welded to a moving link."""
+    from ineid.channels import SensorPose
+    from ineid.data.recording_channels import resolve_wrench_channel
+
+    model = lab.model
+    channel, where = resolve_wrench_channel("hand", None, model)  # welded to the forearm, 0.26 m down its z
+    assert channel.kind == "link_wrench" and channel.key == "wrench_forearm" and channel.link == "forearm"
+    assert np.allclose(channel.sensor.xyz, (0, 0, -0.26)) and channel.sensor.frame == "hand" and "forearm" in where
+    channel, _ = resolve_wrench_channel("hand:0.01,0,0.02,0,0,1.5", "ft_wrist", model)
+    assert channel.link == "forearm" and channel.sensor.frame_id == "ft_wrist"
+    assert np.allclose(channel.sensor.xyz, (0.01, 0, -0.24)) and np.allclose(channel.sensor.rpy, (0, 0, 1.5))
+    base, where = resolve_wrench_channel("base_link:0.03,-0.02,-0.05,3.1,0.2,0.7", None, model)  # the root link
+    assert base.kind == "wrench" and where == "the base frame"
+    assert base.sensor == SensorPose((0.03, -0.02, -0.05), (3.1, 0.2, 0.7))
+    assert resolve_wrench_channel(None, "upper_arm", model)[0].link == "upper_arm"  # a bag's frame_id on a link
+    ds, summary = import_recording(lab.file("csv"), model, ImportSettings(sensor_pose="forearm:0,0,-0.1,0,0,0"))
+    assert ds.meta.channels.keys == ("wrench_forearm",) and ds.wrench is None
+    assert np.array_equal(ds.channel_values["wrench_forearm"], import_recording(lab.file("csv"), model)[0].wrench)
+    assert "sensor frame in link 'forearm''s frame: xyz=(0, 0, -0.1) m" in "\n".join(summary.lines())
+    back = load_dataset(ds.save(tmp_path / "wrist.h5"))
+    assert back.meta.channels == ds.meta.channels
+    r = run("data", "info", tmp_path / "wrist.h5")
+    assert r.exit_code == 0 and "sensor frame in link 'forearm''s frame" in r.output, r.output
+    with pytest.raises(DatasetError, match=r"'gripper' is not a link of sweaty-arm; its links: base_link, "):
+        resolve_wrench_channel("gripper:0,0,0,0,0,0", None, model)
 
 
 # -- the dataset format ------------------------------------------------------------------------------
@@ -177,15 +206,17 @@ def test_bad_torque_recordings_are_one_line_and_leave_no_file(lab, run, tmp_path
     currents = tmp_path / "currents.csv"
     currents.write_text(_torque_csv(lab, tmp_path / "c.csv", rows=rows).read_text().replace("tau", "i"))
     cases = [
+        ((lab.file("csv"), "--sensor-pose", "wrist:0,0,0.1,0,0,0"), "'wrist' is not a link of sweaty-arm"),
         (three, "the joint torque columns are for 3 joints (up to tau3), but sweaty-arm has 4"),
         (nan, "line 102, column 'tau2' is nan; values must be finite"),
         (other, "column 'tau_wrist' names no joint of sweaty-arm"),
         (short, "joint state message 0 on /joint_states has 3 efforts for 4 names"),
         (currents, "motor currents need the motor-current channel"),
     ]
-    for path, message in cases:
+    for args, message in cases:
         out = tmp_path / "out.h5"
-        r = run("-q", "data", "import", path, "--robot", "sweaty-arm", "--out", out)
+        r = run("-q", "data", "import", *(args if isinstance(args, tuple) else (args,)), "--robot", "sweaty-arm",
+                "--out", out)
         assert r.exit_code == 1 and "Traceback" not in r.output, r.output
         text = [line for line in r.output.splitlines() if line.strip()]
         assert len(text) == 1 and text[0].startswith("Error: ") and message in text[0], (message, r.output)

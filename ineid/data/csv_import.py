@@ -86,11 +86,13 @@ def _channel_columns(header: list[str], prefix: str, what: str, model, path: Pat
     joints = [j.lower() for j in model.joint_names]
     spelled = f"{prefix}1..{prefix}{n} or {prefix}_<joint> ({', '.join(f'{prefix}_{j}' for j in joints)})"
     if numbered and named:
-        raise DatasetError(f"{path}: the {what} columns mix {prefix}<k> and {prefix}_<joint>; use one spelling: {spelled}")
+        raise DatasetError(f"{path}: the {what} columns mix {prefix}<k> and {prefix}_<joint>; use one spelling: "
+                           f"{spelled}")
     if named:
         unknown = [h for h in named if h[len(prefix) + 1:] not in joints]
         if unknown:
-            raise DatasetError(f"{path}: column {unknown[0]!r} names no joint of {model.name}; its {what} are {spelled}")
+            raise DatasetError(f"{path}: column {unknown[0]!r} names no joint of {model.name}; its {what} columns are "
+                               f"{spelled}")
         wanted = [f"{prefix}_{j}" for j in joints]
     else:
         if min(numbered) < 1:

@@ -171,7 +171,8 @@ def check_extra_truth(values, where: str) -> dict[str, float] | None:
     if values is None:
         return None
     if not isinstance(values, Mapping):
-        raise DatasetError(f"{where}: expected a record {{name: value}} of the simulated extra parameters, got {values!r:.80}")
+        raise DatasetError(f"{where}: expected a record {{name: value}} of the simulated extra parameters, "
+                           f"got {values!r:.80}")
     out = {}
     for name, value in values.items():
         ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)

@@ -308,7 +308,8 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
         derived=not measured, cutoff=cutoff, cutoff_choice=choice if settings.cutoff is None else None,
         dropped_start=float(grid[0] - min(tq[0], tw[0])), dropped_end=float(max(tq[-1], tw[-1]) - grid[-1]),
         dropped_joint_samples=int(np.sum((tq < grid[0] - 1e-9 * hq) | (tq > grid[-1] + 1e-9 * hq))),
-        dropped_wrench_samples=int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw))) if has_wrench else 0,
+        dropped_wrench_samples=(int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw)))
+                                if has_wrench else 0),
         resampled=tuple(resampled), sensor=None if wrench_channel is None else wrench_channel.sensor,
         delay=settings.delay, units=units_note(streams.origin),
         joint_channels=tuple(RIDER_NAMES[k] for k in riders), sensor_where=where,
