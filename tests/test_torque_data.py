@@ -4,6 +4,7 @@ noise, and bad input as one line."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import h5py
@@ -39,6 +40,118 @@ def _at_grid(lab, ds) -> np.ndarray:
     idx = np.searchsorted(lab.sim.time, ds.time[0] - 1e-9)
     assert np.allclose(lab.sim.time[idx], ds.time[0], atol=1e-9)
     return idx
+
+
+# -- data generate: Phi theta + E x, against Pinocchio ------------------------------------------------
+
+
+def _truth(model) -> dict[str, float]:
+    """Different actuation on every joint: viscous, Coulomb, offset, armature."""
+    return {f"{j}.{t}": v for k, j in enumerate(model.joint_names)
+            for t, v in (("fv", 0.05 * (k + 1)), ("fc", 0.2 + 0.1 * k), ("offset", 0.2 * k - 0.3), ("Ia", 0.01 * (k + 1)))}
+
+
+def _pinocchio_torques(model, theta, q, qd, qdd) -> np.ndarray:
+    """``pin.rnea`` with each configuration's parameters: (C, F, n_dof)."""
+    import pinocchio as pin
+
+    from ineid.reference import pinocchio_model, pinocchio_q
+
+    pm = pinocchio_model(model.urdf_path, gravity=model.gravity)
+    data = pm.createData()
+    out = np.empty(q.shape)
+    for c in range(q.shape[0]):
+        for i in range(1, pm.njoints):
+            pm.inertias[i] = pin.Inertia.FromDynamicParameters(theta[c, 10 * (i - 1) : 10 * i])
+        for f in range(q.shape[1]):
+            out[c, f] = pin.rnea(pm, data, pinocchio_q(pm, q[c, f]), qd[c, f], qdd[c, f])
+    return out
+
+
+@pytest.mark.parametrize("path", ["casadi", "jax"])
+def test_generated_torques_are_the_channel_and_pinocchios_rnea_plus_friction(model, tmp_path, monkeypatch, path):
+    pytest.importorskip("pinocchio")
+    import ineid.robots.model as robot_model
+    from ineid.channels import BaseWrench, ChannelSet
+    from ineid.channels.torque import JointTorque
+    from ineid.data import Combination, DatasetSpec, generate_dataset, write_dataset
+    from ineid.data.generate import actuated
+
+    if path == "jax":  # a small dataset goes through CasADi; the big ones' compiled JAX path, forced
+        monkeypatch.setattr(robot_model, "SMALL_JOB_FRAMES", 0)
+    truth = _truth(model)
+    channels = ChannelSet.of(BaseWrench(), JointTorque())
+    spec = DatasetSpec(Combination("random", n_configs=3), n_frames=40, seed=2, channels=channels, extra_truth=truth)
+    ds = load_dataset(write_dataset(model, spec, tmp_path / "t.h5"))
+    assert ds.meta.version == 4 and ds.meta.extra_truth == truth and ds.meta.channels == channels
+    theta, q, qd, qdd = ds.theta(), ds.q, ds.qd, ds.qdd
+    tau = ds.channel_values["tau"]
+    full = actuated(JointTorque())
+    x = np.array([truth[name] for name in full.extra_names(model)])
+    expected = JointTorque().predict(model, q, qd, qdd, theta[:, None, :]) + full.extra_rows(model, q, qd, qdd) @ x
+    scale = np.abs(expected).max()
+    assert np.abs(tau - expected).max() < 1e-13 * scale
+    per_joint = {t: np.array([truth[f"{j}.{t}"] for j in model.joint_names]) for t in ("fv", "fc", "offset", "Ia")}
+    friction = per_joint["fv"] * qd + per_joint["fc"] * np.sign(qd) + per_joint["offset"] + per_joint["Ia"] * qdd
+    assert np.abs(tau - (_pinocchio_torques(model, theta, q, qd, qdd) + friction)).max() < 1e-10 * scale
+    # the wrench and the frames are those of a wrench-only file
+    plain = generate_dataset(model, DatasetSpec(Combination("random", n_configs=3), n_frames=40, seed=2))
+    assert np.array_equal(plain.q, ds.q) and np.abs(plain.wrench - ds.wrench).max() < 1e-12 * np.abs(ds.wrench).max()
+
+
+def test_asymmetric_friction_and_torque_noise(model):
+    from ineid.channels import ChannelSet
+    from ineid.channels.torque import JointTorque
+    from ineid.data import Combination, DatasetSpec, generate_dataset
+
+    channels = ChannelSet.of(JointTorque())
+    base = DatasetSpec(Combination("random", n_configs=2), n_frames=30, seed=4, channels=channels)
+    clean = generate_dataset(model, base)
+    elbow = model.joint_names.index("elbow")
+    asym = generate_dataset(model, dataclasses.replace(base, extra_truth={"elbow.fv+": 0.3, "elbow.fc-": 0.5}))
+    qd = clean.qd[..., elbow]
+    added = asym.channel_values["tau"] - clean.channel_values["tau"]
+    assert np.allclose(added[..., elbow], 0.3 * np.maximum(qd, 0) - 0.5 * (qd < 0), atol=1e-12)
+    assert np.all(added[..., [k for k in range(model.n_dof) if k != elbow]] == 0)
+    noise = NoiseModel.create(model.n_dof, q=0.001, channels={"tau": 0.02})
+    noisy = generate_dataset(model, dataclasses.replace(base, noise=noise))
+    assert np.array_equal(noisy.clean["tau"], clean.channel_values["tau"])
+    err = noisy.channel_values["tau"] - noisy.clean["tau"]
+    assert abs(err.std() / 0.02 - 1) < 0.15 and noisy.meta.noise["tau"] == [0.02]
+    q_only = generate_dataset(model, dataclasses.replace(base, noise=NoiseModel.create(model.n_dof, q=0.001)))
+    assert np.array_equal(q_only.q, noisy.q)  # the torque noise is drawn after the others
+    with pytest.raises(DatasetError, match=r"no simulated extra parameter 'elbow\.fv'; the channels take"):
+        generate_dataset(model, dataclasses.replace(base, extra_truth={"elbow.fv+": 0.3, "elbow.fv": 0.1}))
+    with pytest.raises(DatasetError, match="actuation values .* are for joint torques"):
+        generate_dataset(model, DatasetSpec(Combination("random", n_configs=2), n_frames=3, extra_truth={"elbow.fv": 1}))
+
+
+def test_cli_generate_torques_and_info(run, tmp_path):
+    out = tmp_path / "both.h5"
+    r = run("-q", "data", "generate", "--n-configs", "2", "--n-frames", "10", "--channels", "wrench,torque",
+            "--friction-truth", "fv=0.05,fc=0.2,elbow.Ia=0.01", "--noise", "force=0.5,tau=0.02", "--out", out)
+    assert r.exit_code == 0, r.output
+    ds = load_dataset(out)
+    assert ds.meta.channels.keys == ("wrench", "tau") and ds.meta.noise["tau"] == [0.02]
+    assert ds.meta.extra_truth["shoulder_pitch.fv"] == 0.05 and ds.meta.extra_truth["elbow.Ia"] == 0.01
+    assert "shoulder_pitch.Ia" not in ds.meta.extra_truth
+    r = run("data", "info", out)
+    assert r.exit_code == 0, r.output
+    assert "simulated actuation (extra_truth)" in r.output and "N*m" in r.output
+    assert all(j in r.output for j in ("shoulder_pitch", "elbow")), r.output
+    bad = [
+        (("--friction-truth", "fv=0.1"), "--friction-truth is what joint torques add"),
+        (("--noise", "tau=0.1"), "tau noise is the joint torques'"),
+        (("--channels", "torque", "--noise", "force=0.1"), "force and moment noise is the base wrench's"),
+        (("--channels", "torque", "--friction-truth", "wrist.fv=1"), "the robot has no moving joint 'wrist'"),
+        (("--channels", "torque", "--friction-truth", "fq=1"), "expected TERM=VALUE or JOINT.TERM=VALUE"),
+        (("--channels", "wrench,strain"), "expected a comma-separated list of wrench, torque"),
+    ]
+    for args, message in bad:
+        bad_out = tmp_path / "bad.h5"
+        r = run("-q", "data", "generate", "--n-configs", "2", "--n-frames", "5", *args, "--out", bad_out)
+        assert r.exit_code == 2 and message in r.output and "Traceback" not in r.output, (message, r.output)
+        assert not bad_out.exists()
 
 
 # -- recordings: CSV and bags ------------------------------------------------------------------------
@@ -146,8 +259,6 @@ def test_version_4_is_refused_by_an_older_reader_with_one_line(lab, tmp_path, mo
 
 def test_extra_truth_is_stored_and_checked(lab, tmp_path):
     ds, _ = import_recording(lab.file("csv"), lab.model, ImportSettings(sensor_pose=POSE_TEXT))
-    import dataclasses
-
     truth = {"elbow.fv": 0.05, "elbow.fc": 0.2}
     meta = dataclasses.replace(ds.meta, extra_truth=truth)
     path = dataclasses.replace(ds, meta=meta).save(tmp_path / "truth.h5")

@@ -1,0 +1,172 @@
+"""Options of simulated measurements (``data generate``, ``excite``): ``--noise``, ``--channels``,
+``--friction-truth``.
+
+What a synthetic dataset measures (``--channels wrench,torque``), with which actuation
+(``--friction-truth fv=0.05,fc=0.2``: the values that joint torques add to ``Phi theta``) and
+which noise (``--noise force=0.5,tau=0.02``); the library's names are
+:class:`ineid.data.NoiseModel` and :class:`ineid.data.DatasetSpec` (``channels``,
+``extra_truth``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import click
+
+NOISE_MAX = 1e6
+"""The largest ``--noise`` value (std in N, N*m, rad, rad/s, rad/s^2, or the glitch scale): far above any
+sensor's, and low enough that noisy values, their squares and sums stay finite in float64."""
+NOISE_KEYS = ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "q", "qd", "qdd", "tau", "glitch", "glitch_scale")
+CHANNEL_NOISE_KEYS = ("tau",)
+"""``--noise`` keys that are measurement channels' own (their dataset keys): ``tau`` the joint torques."""
+
+
+def _parse_noise(ctx, param, value: str | None) -> dict[str, float] | None:
+    """``force=0.5,moment=0.02,qd=0.01[,tau=0.02,glitch=0.02,glitch_scale=20]`` -> ``{key: value}`` (checked; see
+    :func:`noise_model`)."""
+    if not value:
+        return None
+    std = {}
+    for item in value.split(","):
+        key, sep, val = item.strip().partition("=")
+        key = key.strip().lower()
+        try:
+            if not sep or key not in NOISE_KEYS:
+                raise ValueError
+            std[key] = float(val)
+            if not 0 <= std[key] <= NOISE_MAX:  # NaN fails too
+                raise ValueError
+        except ValueError:
+            raise click.BadParameter(
+                f"expected KEY=STD with KEY in {', '.join(NOISE_KEYS)} and 0 <= STD <= {NOISE_MAX:g}, got "
+                f"{item.strip()!r}",
+                param_hint="--noise",
+            ) from None
+    return std
+
+
+noise_option = click.option(
+    "--noise", default=None, metavar="KEY=STD,...", callback=_parse_noise,
+    help="Gaussian noise std: force, moment (or fx..mz) in N, N*m; q, qd, qdd in rad, rad/s, rad/s^2; tau (joint "
+         "torques, with --channels ...,torque) in N*m; glitch=RATE: that share of frames gets glitch_scale "
+         "(default 20) times the force noise. Each at most 1e6.",
+)  # fmt: skip
+
+
+def noise_model(std: dict[str, float] | None, n_dof: int):
+    """The :class:`ineid.data.NoiseModel` of a parsed ``--noise`` (None for clean data).
+
+    Raises:
+        click.BadParameter: glitches without force noise, a glitch rate outside [0, 1) or a scale below 1.
+    """
+    if not std:
+        return None
+    from ineid.data import NoiseModel  # noqa: PLC0415
+
+    force = [std.get(a, std.get("force", 0.0)) for a in ("fx", "fy", "fz")]
+    moment = [std.get(a, std.get("moment", 0.0)) for a in ("mx", "my", "mz")]
+    glitch = {"glitch_rate": std.get("glitch", 0.0)}
+    if "glitch_scale" in std:
+        glitch["glitch_scale"] = std["glitch_scale"]
+    channels = {k: std[k] for k in CHANNEL_NOISE_KEYS if k in std}
+    try:
+        return NoiseModel.create(n_dof, force=force, moment=moment, q=std.get("q", 0.0), qd=std.get("qd", 0.0),
+                                 qdd=std.get("qdd", 0.0), channels=channels, **glitch)  # fmt: skip
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--noise") from None
+
+
+# -- what a synthetic dataset measures -----------------------------------------------------------
+
+CHANNEL_NAMES = ("wrench", "torque")
+"""``--channels`` names: ``wrench`` the base wrench (key ``wrench``), ``torque`` the joint torques (key ``tau``)."""
+
+
+def _parse_channels(ctx, param, value: str | None) -> tuple[str, ...] | None:
+    if value is None:
+        return None
+    names = tuple(dict.fromkeys(n.strip().lower() for n in value.split(",") if n.strip()))
+    bad = [n for n in names if n not in CHANNEL_NAMES]
+    if bad or not names:
+        raise click.BadParameter(f"expected a comma-separated list of {', '.join(CHANNEL_NAMES)}, got {value!r}",
+                                 param_hint="--channels")
+    return names
+
+
+channels_option = click.option(
+    "--channels", default=None, metavar="LIST", callback=_parse_channels,
+    help="What the synthetic arm measures: wrench (the base wrench, the default), torque (joint torques, "
+         "the actuator's: Phi theta plus --friction-truth), or both: wrench,torque.",
+)  # fmt: skip
+
+
+def simulated_channels(names: tuple[str, ...] | None):
+    """The :class:`ineid.channels.ChannelSet` of a parsed ``--channels`` (None: the default base wrench)."""
+    if names is None:
+        return None
+    from ineid.channels import BaseWrench, ChannelSet  # noqa: PLC0415
+
+    made = []
+    for name in names:
+        if name == "wrench":
+            made.append(BaseWrench())
+        else:
+            from ineid.channels.torque import JointTorque  # noqa: PLC0415
+
+            made.append(JointTorque())
+    return ChannelSet(tuple(made))
+
+
+FRICTION_TERMS = {"fv": "fv", "fc": "fc", "offset": "offset", "ia": "Ia", "fv+": "fv+", "fv-": "fv-", "fc+": "fc+",
+                  "fc-": "fc-"}
+"""``--friction-truth`` terms (case-insensitive) and their extra-parameter names (``<joint>.<term>``)."""
+
+
+def _parse_friction_truth(ctx, param, value: str | None) -> dict[tuple[str | None, str], float] | None:
+    """``fv=0.05,fc=0.2,elbow.Ia=0.01`` -> ``{(joint or None, term): value}`` (joints checked by
+    :func:`friction_truth`)."""
+    if not value:
+        return None
+    out: dict[tuple[str | None, str], float] = {}
+    for item in value.split(","):
+        key, sep, val = item.strip().partition("=")
+        joint, dot, term = key.strip().rpartition(".")
+        term = FRICTION_TERMS.get(term.strip().lower())
+        try:
+            number = float(val)
+            if not sep or term is None or (dot and not joint) or not math.isfinite(number) or abs(number) > NOISE_MAX:
+                raise ValueError
+        except ValueError:
+            raise click.BadParameter(
+                f"expected TERM=VALUE or JOINT.TERM=VALUE with TERM in {', '.join(FRICTION_TERMS.values())} and a "
+                f"finite VALUE of at most {NOISE_MAX:g} in size, got {item.strip()!r}", param_hint="--friction-truth"
+            ) from None
+        out[(joint or None, term)] = number
+    return out
+
+
+friction_truth_option = click.option(
+    "--friction-truth", default=None, metavar="TERM=VALUE,...", callback=_parse_friction_truth,
+    help="The simulated actuation that joint torques add: fv (viscous, N*m*s/rad), fc (Coulomb, N*m), offset "
+         "(N*m), Ia (armature, kg*m^2); fv+, fv-, fc+, fc- per direction. TERM=VALUE sets every joint, "
+         "JOINT.TERM=VALUE one joint (it wins). Needs --channels ...,torque.",
+)  # fmt: skip
+
+
+def friction_truth(parsed: dict[tuple[str | None, str], float] | None, joint_names) -> dict[str, float] | None:
+    """``{"<joint>.<term>": value}`` (``DatasetSpec.extra_truth``) of a parsed ``--friction-truth``.
+
+    Raises:
+        click.BadParameter: a joint the robot does not have.
+    """
+    if not parsed:
+        return None
+    joints = list(joint_names)
+    bad = [j for j, _ in parsed if j is not None and j not in joints]
+    if bad:
+        raise click.BadParameter(f"the robot has no moving joint {bad[0]!r}; its joints: {', '.join(joints)}",
+                                 param_hint="--friction-truth")
+    out = {f"{j}.{term}": v for (joint, term), v in parsed.items() if joint is None for j in joints}
+    out.update({f"{joint}.{term}": v for (joint, term), v in parsed.items() if joint is not None})
+    return {f"{j}.{t}": out[f"{j}.{t}"] for j in joints for t in FRICTION_TERMS.values() if f"{j}.{t}" in out}
