@@ -189,6 +189,11 @@ def test_torques_without_a_wrench(lab, tmp_path):
     back = load_dataset(ds.save(tmp_path / "tau.h5"))
     assert back.meta.channels.keys == ("tau",) and back.wrench is None
     assert np.array_equal(back.measured(), ds.channel_values["tau"])
+    # write_recording_csv writes the torques (and no wrench); with qd, qdd the rows are the frames again
+    from ineid.data import write_recording_csv
+
+    again, _ = import_recording(write_recording_csv(tmp_path / "again.csv", ds), lab.model, ImportSettings())
+    assert again.meta.channels.keys == ("tau",) and np.array_equal(again.channel_values["tau"], ds.channel_values["tau"])
 
 
 def test_bag_efforts_are_the_joint_torques_matched_by_name(lab, tmp_path):

@@ -33,7 +33,7 @@ def joint_channels(streams, model, n_samples: int) -> dict[str, np.ndarray]:
         if a.ndim != 2 or a.shape != (n_samples, model.n_dof):
             raise DatasetError(
                 f"{streams.source}: {what} of shape {a.shape} for {n_samples} joint samples; {model.name} has "
-                f"{model.n_dof} joints ({', '.join(model.joint_names)}): give one {what[6:-1]} per joint"
+                f"{model.n_dof} joints ({', '.join(model.joint_names)}): give one column per joint"
             )
         out[key] = a
     if "current" in out:
