@@ -227,12 +227,12 @@ def test_a_wrench_at_a_link_is_a_link_wrench_channel(lab, tmp_path, run):
     channel, where = resolve_wrench_channel("hand", None, model)  # welded to the forearm, 0.26 m down its z
     assert channel.kind == "link_wrench" and channel.key == "wrench_forearm" and channel.link == "forearm"
     assert np.allclose(channel.sensor.xyz, (0, 0, -0.26)) and channel.sensor.frame == "hand" and "forearm" in where
-    channel, _ = resolve_wrench_channel("hand:0.01,0,0.02,0,0,1.5", "ft_wrist", model)
+    channel, _ = resolve_wrench_channel("forearm:0.01,0,-0.24,0,0,1.5", "ft_wrist", model)
     assert channel.link == "forearm" and channel.sensor.frame_id == "ft_wrist"
-    assert np.allclose(channel.sensor.xyz, (0.01, 0, -0.24)) and np.allclose(channel.sensor.rpy, (0, 0, 1.5))
-    base, where = resolve_wrench_channel("base_link:0.03,-0.02,-0.05,3.1,0.2,0.7", None, model)  # the root link
-    assert base.kind == "wrench" and where == "the base frame"
-    assert base.sensor == SensorPose((0.03, -0.02, -0.05), (3.1, 0.2, 0.7))
+    assert channel.sensor.xyz == (0.01, 0, -0.24) and channel.sensor.rpy == (0, 0, 1.5)
+    base, where = resolve_wrench_channel(POSE_TEXT, "ft_sensor_base", model)  # six numbers: under the base
+    assert base.kind == "wrench" and where == "the base frame" and base.sensor.frame_id == "ft_sensor_base"
+    assert base.sensor == SensorPose((0.03, -0.02, -0.05), (3.1, 0.2, 0.7), frame_id="ft_sensor_base")
     assert resolve_wrench_channel(None, "upper_arm", model)[0].link == "upper_arm"  # a bag's frame_id on a link
     ds, summary = import_recording(lab.file("csv"), model, ImportSettings(sensor_pose="forearm:0,0,-0.1,0,0,0"))
     assert ds.meta.channels.keys == ("wrench_forearm",) and ds.wrench is None
@@ -242,8 +242,29 @@ def test_a_wrench_at_a_link_is_a_link_wrench_channel(lab, tmp_path, run):
     assert back.meta.channels == ds.meta.channels
     r = run("data", "info", tmp_path / "wrist.h5")
     assert r.exit_code == 0 and "sensor frame in link 'forearm''s frame" in r.output, r.output
-    with pytest.raises(DatasetError, match=r"'gripper' is not a link of sweaty-arm; its links: base_link, "):
+    with pytest.raises(DatasetError, match=r"'gripper' is not a moving link of sweaty-arm \(choose from "):
         resolve_wrench_channel("gripper:0,0,0,0,0,0", None, model)
+
+
+def test_motor_currents_with_their_drives(lab, tmp_path):
+    """Currents ``i1..in`` with ``--torque-constant``/``--gear-ratio``: a motor-current channel under ``current``."""
+    k, g = np.array([0.1, 0.12, 0.08, 0.05]), np.array([100.0, 120.0, -80.0, 50.0])
+    rows = slice(0, 2000)
+    tau_csv = _torque_csv(lab, tmp_path / "tau.csv", wrench=False, rows=rows)
+    lines = tau_csv.read_text().splitlines()
+    table = np.loadtxt(tau_csv, delimiter=",", skiprows=1)
+    table[:, 5:9] /= k * g  # the drives' currents
+    path = tmp_path / "i.csv"
+    np.savetxt(path, table, delimiter=",", header=lines[0].replace("tau", "i"), comments="", fmt="%.17g")
+    ds, _ = import_recording(path, lab.model, ImportSettings(torque_constant=tuple(k), gear_ratio=tuple(g)))
+    assert ds.meta.channels.keys == ("current",) and ds.meta.channels["current"].kind == "motor_current"
+    assert ds.meta.channels["current"].gear_ratio == tuple(g)
+    torques, _ = import_recording(tau_csv, lab.model, ImportSettings())
+    assert np.allclose(ds.channel_values["current"] * k * g, torques.channel_values["tau"], rtol=1e-12, atol=1e-12)
+    back = load_dataset(ds.save(tmp_path / "i.h5"))
+    assert back.meta.channels == ds.meta.channels
+    with pytest.raises(DatasetError, match="3 gear ratios for 4 joints"):
+        import_recording(path, lab.model, ImportSettings(torque_constant=(0.1,), gear_ratio=(1.0, 2.0, 3.0)))
 
 
 # -- the dataset format ------------------------------------------------------------------------------
@@ -322,12 +343,12 @@ def test_bad_torque_recordings_are_one_line_and_leave_no_file(lab, run, tmp_path
     currents = tmp_path / "currents.csv"
     currents.write_text(_torque_csv(lab, tmp_path / "c.csv", rows=rows).read_text().replace("tau", "i"))
     cases = [
-        ((lab.file("csv"), "--sensor-pose", "wrist:0,0,0.1,0,0,0"), "'wrist' is not a link of sweaty-arm"),
+        ((lab.file("csv"), "--sensor-pose", "wrist:0,0,0.1,0,0,0"), "'wrist' is not a moving link of sweaty-arm"),
         (three, "the joint torque columns are for 3 joints (up to tau3), but sweaty-arm has 4"),
         (nan, "line 102, column 'tau2' is nan; values must be finite"),
         (other, "column 'tau_wrist' names no joint of sweaty-arm"),
         (short, "joint state message 0 on /joint_states has 3 efforts for 4 names"),
-        (currents, "motor currents need the motor-current channel"),
+        (currents, "motor currents are read through the drives: give their torque constants and gear ratios"),
     ]
     for args, message in cases:
         out = tmp_path / "out.h5"

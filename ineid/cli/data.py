@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from ineid.cli.options import (
     folder_inputs,
     noise_model,
     noise_option,
+    numbers,
     overwrite_option,
     prepare_output,
     quiet,
@@ -193,11 +195,16 @@ def _delay(ctx, param, value: str) -> float | None:
               help="Multiply every force and moment by FACTOR (0.001 for a wrench in mN and N*mm).")
 @click.option("--angle-unit", type=click.Choice(["rad", "deg"]), default="rad", show_default=True,
               help="Unit of the revolute joints' angles (and of measured qd, qdd); deg converts them to rad.")
+@click.option("--torque-constant", default=None, metavar="K[,K...]", callback=numbers(float, "--torque-constant"),
+              help="Motor currents (i1..in): the motors' torque constants, N*m/A (one, or one per joint).")
+@click.option("--gear-ratio", default=None, metavar="G[,G...]",
+              callback=numbers(float, "--gear-ratio", -math.inf),
+              help="Motor currents: the gear ratios, motor turns per joint turn (one, or one per joint).")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
 @click.pass_context
 def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic, wrench_topic, flip_wrench,
-                wrench_scale, angle_unit, out, overwrite) -> None:
+                wrench_scale, angle_unit, torque_constant, gear_ratio, out, overwrite) -> None:
     """Import a recording: a CSV (time, q1..qn, [qd1..qn, qdd1..qn,] [tau1..taun,] fx fy fz mx my mz; the wrench
     optional with torques), a ROS 1 .bag, or a ROS 2 bag folder or .mcap (sensor_msgs/JointState with its
     effort as joint torques, geometry_msgs/WrenchStamped)."""
@@ -210,7 +217,8 @@ def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic,
     model = robot.load()
     settings = ImportSettings(sensor_pose=sensor_pose, cutoff=cutoff, rate=rate, delay=delay or 0.0,
                               estimate_delay=delay is None, flip_wrench=flip_wrench, angle_unit=angle_unit,
-                              wrench_scale=wrench_scale)  # fmt: skip
+                              wrench_scale=wrench_scale, torque_constant=torque_constant,
+                              gear_ratio=gear_ratio)  # fmt: skip
     with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
         ds, summary = import_recording(path, model, settings, joint_topic, wrench_topic, progress=bar)
     ds.save(out, overwrite=overwrite)

@@ -70,6 +70,10 @@ class ImportSettings:
         estimate_delay: estimate ``delay`` from the model instead
             (:func:`ineid.identify.delay.estimate_delay`, within ``+-max_delay`` s).
         max_delay: s, the search range of ``estimate_delay``.
+        torque_constant, gear_ratio: the drives of a recording with motor currents: ``k_j``
+            (N*m/A at the motor) and ``G_j`` (motor turns per joint turn), one number for every
+            joint or one per joint; the currents are stored as a ``motor_current`` channel
+            (``i = tau / (k G)``).
     """
 
     sensor_pose: str | None = None
@@ -81,6 +85,8 @@ class ImportSettings:
     max_delay: float = 0.05
     angle_unit: str = "rad"
     wrench_scale: float = 1.0
+    torque_constant: tuple[float, ...] | None = None
+    gear_ratio: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.angle_unit not in ANGLE_UNITS:
@@ -212,7 +218,7 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     joint_arrays = {"q": q}
     if measured:
         joint_arrays.update(qd=np.asarray(streams.qd, dtype=np.float64), qdd=np.asarray(streams.qdd, dtype=np.float64))
-    riders = joint_channels(streams, model, len(tq))  # {key: (Nq, n_a)}: measured on the joints' clock
+    riders = joint_channels(streams, model, len(tq), settings)  # {key: (Nq, n_a)}: measured on the joints' clock
     if not has_wrench and not riders:
         raise DatasetError(f"{src}: the recording has neither a wrench nor joint torques; give the F/T sensor's "
                            "columns fx..mz (or its WrenchStamped topic) or the joint torques tau1..tauN (or "
@@ -317,7 +323,7 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     values = _columns(joints[:, 3 * n:], riders)
     origin = {**streams.origin, "import": summary.to_dict()}
     if riders or not isinstance(wrench_channel, BaseWrench):  # channels of version 4
-        channels = ChannelSet(tuple(c for c in (wrench_channel, *rider_channels(riders)) if c is not None))
+        channels = ChannelSet(tuple(c for c in (wrench_channel, *rider_channels(riders, model, settings)) if c is not None))
         meta = DatasetMeta.for_model(model, source="recording", origin=origin, channels=channels)
         key = None if wrench_channel is None else wrench_channel.key
         channel_values = {k: v[None] for k, v in values.items()}

@@ -17,12 +17,12 @@ RIDER_NAMES = {"tau": "joint torques", "current": "motor currents"}
 """The channels a recording carries on the joints' clock, by dataset key (:class:`Streams` fields)."""
 
 
-def joint_channels(streams, model, n_samples: int) -> dict[str, np.ndarray]:
+def joint_channels(streams, model, n_samples: int, settings=None) -> dict[str, np.ndarray]:
     """``{key: (Nq, n_dof)}`` of the recorded joint torques (``tau``) and motor currents (``current``).
 
     Raises:
         DatasetError: an array that is not one column per joint and one row per joint sample;
-            motor currents, which need a motor-current channel this ineid does not have yet.
+            motor currents without the drives' torque constants and gear ratios (``settings``).
     """
     out = {}
     for key, what in RIDER_NAMES.items():
@@ -36,117 +36,73 @@ def joint_channels(streams, model, n_samples: int) -> dict[str, np.ndarray]:
                 f"{model.n_dof} joints ({', '.join(model.joint_names)}): give one column per joint"
             )
         out[key] = a
-    if "current" in out:
+    if "current" in out and (settings is None or settings.torque_constant is None or settings.gear_ratio is None):
         raise DatasetError(
-            f"{streams.source}: motor currents need the motor-current channel (gear ratio, torque constant), which "
-            "this ineid does not have yet; give the joint torques instead (tau = k * gear * i, columns tau1..tauN)"
+            f"{streams.source}: motor currents are read through the drives: give their torque constants and gear "
+            "ratios (--torque-constant K, --gear-ratio G: one number, or one per joint), or the joint torques "
+            "instead (tau1..tauN)"
         )
     return out
 
 
-def rider_channels(riders) -> list[Channel]:
-    """The channels of :func:`joint_channels`' keys, as measured (no actuation model: that is identification's)."""
+def _per_joint(values, model, what: str) -> tuple[float, ...]:
+    values = tuple(float(v) for v in values)
+    if len(values) == 1:
+        values *= model.n_dof
+    if len(values) != model.n_dof:
+        raise DatasetError(f"{len(values)} {what} for {model.n_dof} joints ({', '.join(model.joint_names)}); give one "
+                           "number, or one per joint")
+    return values
+
+
+def rider_channels(riders, model=None, settings=None) -> list[Channel]:
+    """The channels of :func:`joint_channels`' keys, as measured (no actuation model: that is identification's):
+    the joint torques ``tau``, the motor currents ``current`` with ``settings``' drives."""
     from ineid.channels.torque import JointTorque  # noqa: PLC0415
 
-    return [JointTorque() for key in riders if key == "tau"]
+    out: list[Channel] = []
+    for key in riders:
+        if key == "tau":
+            out.append(JointTorque())
+        elif key == "current":
+            from ineid.channels.torque import MotorCurrent  # noqa: PLC0415
+
+            out.append(MotorCurrent(torque_constant=_per_joint(settings.torque_constant, model, "torque constants"),
+                                    gear_ratio=_per_joint(settings.gear_ratio, model, "gear ratios")))
+    return out
 
 
 def resolve_wrench_channel(pose_text: str | None, frame_id: str | None, model) -> tuple[Channel, str]:
     """The channel of a recording's wrench, and where its sensor pose is given (for the summary).
 
     The sensor sits under the base (a :class:`ineid.channels.BaseWrench` at :func:`resolve_sensor`'s
-    pose) unless ``pose_text`` (or, without it, the messages' ``frame_id``) names a frame on a
-    moving link: ``LINK:x,y,z,roll,pitch,yaw`` (the pose in URDF link ``LINK``'s frame; a link
-    welded to the base gives the base wrench), or a URDF link welded to a moving link. Then
-    the channel is a wrench at that link (kind ``link_wrench``, key ``wrench_<link>``), the
-    sensor's pose in the moving link's frame.
+    pose) unless ``pose_text`` (or, without it, the messages' ``frame_id``) names a sensor on a
+    moving link, as :func:`ineid.channels.link_wrench.sensor_channel` reads it (``LINK``,
+    ``LINK:x,y,z,roll,pitch,yaw``, or a URDF frame welded to a moving link): then the channel
+    is the wrench at that link (kind ``link_wrench``, key ``wrench_<link>``), its pose in the
+    link's frame. The messages' ``frame_id`` is recorded with the pose.
 
     Raises:
         DatasetError: a link that is not in the model, a pose that does not parse (and
             :func:`resolve_sensor`'s errors).
     """
-    text = None if pose_text is None else pose_text.strip()
-    if text and ":" in text:
-        link, _, numbers = text.partition(":")
-        link = link.strip()
-        if not numbers.strip() or not link:
-            raise DatasetError(f"sensor pose {pose_text!r}: expected LINK:x,y,z,roll,pitch,yaw (m, rad, URDF rpy)")
-        local = parse_sensor_pose(numbers)
-        body = _moving_body(link, model)
-        if body is None:
-            if not _welded_to_root(link, model):
-                raise DatasetError(
-                    f"sensor pose {pose_text!r}: {link!r} is not a link of {model.name}; its links: "
-                    f"{', '.join(_link_names(model))}"
-                )
-            base = parse_sensor_pose(link, model.urdf_text, model.locked_joints or None, f"the URDF of {model.name}")
-            pose = _compose(base, local, frame=None)
-            return BaseWrench(sensor=_with_frame_id(pose, frame_id)), "the base frame"
-        pose = _compose(_in_body(link, model), local, frame=None)
-        return _link_wrench(body, _with_frame_id(pose, frame_id)), f"link {body!r}'s frame"
-    name = text if text and _is_name(text) else (frame_id if text is None else None)
-    body = None if name is None else _moving_body(name, model)
-    if body is not None:
-        return _link_wrench(body, _with_frame_id(_in_body(name, model), frame_id)), f"link {body!r}'s frame"
-    return BaseWrench(sensor=resolve_sensor(pose_text, frame_id, model)), "the base frame"
-
-
-def _is_name(text: str) -> bool:
-    try:
-        float(text.replace(" ", ",").split(",")[0])
-    except ValueError:
-        return True
-    return False
-
-
-def _link_names(model) -> list[str]:
-    return [model.chain.root_link, *(n for n in model.chain.body_links if n != model.chain.root_link)]
-
-
-def _moving_body(link: str, model) -> str | None:
-    """The moving link that URDF link ``link`` is (or is welded to), or None (the root's, or no such link)."""
-    info = model.chain.body_links.get(link)
-    return None if info is None else info.body
-
-
-def _welded_to_root(link: str, model) -> bool:
-    return link == model.chain.root_link or link in model.chain.merged_links.get(model.chain.root_link, ())
-
-
-def _in_body(link: str, model) -> SensorPose:
-    """The pose of URDF link ``link`` in its moving body's frame (the identity for the body itself)."""
-    info = model.chain.body_links[link]
-    return SensorPose.from_matrix(np.asarray(info.body_R_link), np.asarray(info.body_p_link), frame=link)
-
-
-def _compose(outer: SensorPose, inner: SensorPose, frame: str | None) -> SensorPose:
-    """``outer @ inner``: the pose ``inner`` (given in ``outer``'s frame) in the frame ``outer`` is given in."""
-    if outer.is_identity:  # the numbers as given, not a round trip through a rotation matrix
-        from dataclasses import replace  # noqa: PLC0415
-
-        return replace(inner, frame=frame if frame is not None else inner.frame)
-    r = outer.base_R_sensor @ inner.base_R_sensor
-    p = outer.base_R_sensor @ np.asarray(inner.base_p_sensor) + np.asarray(outer.base_p_sensor)
-    return SensorPose.from_matrix(r, p, frame=frame if frame is not None else inner.frame)
-
-
-def _with_frame_id(pose: SensorPose, frame_id: str | None) -> SensorPose:
     from dataclasses import replace  # noqa: PLC0415
 
-    return replace(pose, frame_id=frame_id)
+    from ineid.channels.link_wrench import LinkWrench, sensor_channel  # noqa: PLC0415
 
-
-def link_wrench_key(link: str) -> str:
-    """``wrench_<link>``: a valid channel key (lower case, ``_`` for other characters, at most 32)."""
-    import re  # noqa: PLC0415
-
-    return ("wrench_" + re.sub(r"[^a-z0-9_]", "_", link.lower()))[:32]
-
-
-def _link_wrench(body: str, pose: SensorPose) -> Channel:
-    from ineid.channels.link_wrench import LinkWrench  # noqa: PLC0415
-
-    return LinkWrench(key=link_wrench_key(body), link=body, sensor=pose)
+    text = None if pose_text is None else pose_text.strip()
+    if text:
+        name = text.partition(":")[0].strip()
+        on_link = ":" in text or name in model.chain.body_links
+    else:
+        on_link = bool(frame_id) and frame_id in model.chain.body_links  # a bag's frame on a moving link
+    if on_link:
+        channel = sensor_channel(text or frame_id, model)
+        if isinstance(channel, LinkWrench):
+            if frame_id is not None:
+                channel = replace(channel, sensor=replace(channel.sensor or SensorPose(), frame_id=frame_id))
+            return channel, f"link {channel.link!r}'s frame"
+    return BaseWrench(sensor=resolve_sensor(pose_text, frame_id, model)), "the base frame"
 
 
 def resolve_sensor(pose_text: str | None, frame_id: str | None, model) -> SensorPose:
