@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import time
 from pathlib import Path
 
@@ -18,7 +17,6 @@ from ineid.cli.options import (
     folder_inputs,
     noise_model,
     noise_option,
-    numbers,
     overwrite_option,
     prepare_output,
     quiet,
@@ -26,7 +24,14 @@ from ineid.cli.options import (
     robot_options,
 )
 from ineid.cli.output import ProgressBar, console, plain, print_findings, shown, table
-from ineid.cli.simulation import channels_option, friction_truth_option, simulated_channels
+from ineid.cli.simulation import (
+    channels_option,
+    drives,
+    friction_truth_option,
+    gear_ratio_option,
+    simulated_channels,
+    torque_constant_option,
+)
 from ineid.cli.simulation import friction_truth as simulation_truth
 
 _SAMPLING = "ineid.data.sampling"
@@ -76,13 +81,15 @@ def data() -> None:
               help="Largest turn of the principal axes from CAD, degrees (180: uniform).")
 @channels_option
 @friction_truth_option
+@torque_constant_option
+@gear_ratio_option
 @noise_option
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
 @click.pass_context
 def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_mode, trajectory, harmonics,
-                  base_frequency, mass_band, com_box, inertia_band, rotation, channels, friction_truth, noise, out,
-                  overwrite) -> None:
+                  base_frequency, mass_band, com_box, inertia_band, rotation, channels, friction_truth, torque_constant,
+                  gear_ratio, noise, out, overwrite) -> None:
     """Sample a synthetic ground-truth dataset of ROBOT (default sweaty-arm; the paper's: --factorial 100)."""
     from ineid.data import Combination, DatasetSpec, FrameSampling, ParameterSampling, write_dataset  # noqa: PLC0415
 
@@ -97,16 +104,19 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
         raise click.BadParameter("the rows of a trajectory CSV are the frames; drop --n-frames (or give its .json)",
                                  param_hint="--n-frames")
     torque = channels is not None and "torque" in channels
-    if friction_truth and not torque:
+    if friction_truth and not (torque or (channels is not None and "current" in channels)):
         raise click.UsageError("--friction-truth is what joint torques add: simulate them with --channels "
                                "wrench,torque (or torque)")
     if noise and "tau" in noise and not torque:
         raise click.UsageError("tau noise is the joint torques': simulate them with --channels wrench,torque (or torque)")
+    if noise and "current" in noise and not (channels is not None and "current" in channels):
+        raise click.UsageError("current noise is the motor currents': simulate them with --channels ...,current")
     if noise and not (channels is None or "wrench" in channels) and any(
             k in noise for k in ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "glitch")):
         raise click.UsageError("force and moment noise is the base wrench's: add it with --channels wrench,torque")
     prepare_output(out, overwrite, inputs=[*robot_inputs(robot), ("the trajectory file", trajectory)])
     model = robot.load()
+    drive_values = drives(channels, torque_constant, gear_ratio, model.n_dof)
     sampled = None
     if trajectory is not None:
         from ineid.data.trajectory import check_trajectory_fits, load_trajectory  # noqa: PLC0415
@@ -135,7 +145,7 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
             parameters=ParameterSampling(mass_band, com_box, inertia_band, rotation),
             frames=FrameSampling(frame_mode, harmonics, base_frequency, trajectory=sampled),
             noise=noise_model(noise, model.n_dof),
-            channels=simulated_channels(channels),
+            channels=simulated_channels(channels, drive_values),
             extra_truth=simulation_truth(friction_truth, model.joint_names),
         )
     except ValueError as e:  # a setting the options' own checks let through
@@ -195,11 +205,8 @@ def _delay(ctx, param, value: str) -> float | None:
               help="Multiply every force and moment by FACTOR (0.001 for a wrench in mN and N*mm).")
 @click.option("--angle-unit", type=click.Choice(["rad", "deg"]), default="rad", show_default=True,
               help="Unit of the revolute joints' angles (and of measured qd, qdd); deg converts them to rad.")
-@click.option("--torque-constant", default=None, metavar="K[,K...]", callback=numbers(float, "--torque-constant"),
-              help="Motor currents (i1..in): the motors' torque constants, N*m/A (one, or one per joint).")
-@click.option("--gear-ratio", default=None, metavar="G[,G...]",
-              callback=numbers(float, "--gear-ratio", -math.inf),
-              help="Motor currents: the gear ratios, motor turns per joint turn (one, or one per joint).")
+@torque_constant_option
+@gear_ratio_option
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
 @click.pass_context

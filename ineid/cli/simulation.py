@@ -17,9 +17,11 @@ import click
 NOISE_MAX = 1e6
 """The largest ``--noise`` value (std in N, N*m, rad, rad/s, rad/s^2, or the glitch scale): far above any
 sensor's, and low enough that noisy values, their squares and sums stay finite in float64."""
-NOISE_KEYS = ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "q", "qd", "qdd", "tau", "glitch", "glitch_scale")
-CHANNEL_NOISE_KEYS = ("tau",)
-"""``--noise`` keys that are measurement channels' own (their dataset keys): ``tau`` the joint torques."""
+NOISE_KEYS = ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "q", "qd", "qdd", "tau", "current", "glitch",
+              "glitch_scale")
+CHANNEL_NOISE_KEYS = ("tau", "current")
+"""``--noise`` keys that are measurement channels' own (their dataset keys): ``tau`` the joint torques,
+``current`` the motor currents."""
 
 
 def _parse_noise(ctx, param, value: str | None) -> dict[str, float] | None:
@@ -49,7 +51,7 @@ def _parse_noise(ctx, param, value: str | None) -> dict[str, float] | None:
 noise_option = click.option(
     "--noise", default=None, metavar="KEY=STD,...", callback=_parse_noise,
     help="Gaussian noise std: force, moment (or fx..mz) in N, N*m; q, qd, qdd in rad, rad/s, rad/s^2; tau (joint "
-         "torques, with --channels ...,torque) in N*m; glitch=RATE: that share of frames gets glitch_scale "
+         "torques, with --channels ...,torque) in N*m; current (with --channels ...,current) in A; glitch=RATE: that share of frames gets glitch_scale "
          "(default 20) times the force noise. Each at most 1e6.",
 )  # fmt: skip
 
@@ -77,10 +79,38 @@ def noise_model(std: dict[str, float] | None, n_dof: int):
         raise click.BadParameter(str(e), param_hint="--noise") from None
 
 
+# -- motor currents: the drives (data generate, data import) ---------------------------------------
+
+torque_constant_option = click.option(
+    "--torque-constant", default=None, metavar="K[,K...]", callback=lambda ctx, p, v: _numbers(v, "--torque-constant"),
+    help="Motor currents (--channels ...,current; i1..in in a recording): the motors' torque constants, N*m/A "
+         "(one, or one per joint).",
+)  # fmt: skip
+gear_ratio_option = click.option(
+    "--gear-ratio", default=None, metavar="G[,G...]", callback=lambda ctx, p, v: _numbers(v, "--gear-ratio"),
+    help="Motor currents: the gear ratios, motor turns per joint turn, signed (one, or one per joint).",
+)  # fmt: skip
+
+
+def _numbers(value: str | None, hint: str) -> tuple[float, ...] | None:
+    """Comma-separated finite non-zero numbers."""
+    if value is None:
+        return None
+    try:
+        out = tuple(float(v) for v in value.split(",") if v.strip())
+        if not out or not all(math.isfinite(v) and v != 0 for v in out):
+            raise ValueError
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated finite, non-zero numbers, got {value!r}",
+                                 param_hint=hint) from None
+    return out
+
+
 # -- what a synthetic dataset measures -----------------------------------------------------------
 
-CHANNEL_NAMES = ("wrench", "torque")
-"""``--channels`` names: ``wrench`` the base wrench (key ``wrench``), ``torque`` the joint torques (key ``tau``)."""
+CHANNEL_NAMES = ("wrench", "torque", "current")
+"""``--channels`` names: ``wrench`` the base wrench (key ``wrench``), ``torque`` the joint torques (key ``tau``),
+``current`` the motor currents (key ``current``; with the drives' torque constants and gear ratios)."""
 
 
 def _parse_channels(ctx, param, value: str | None) -> tuple[str, ...] | None:
@@ -97,25 +127,52 @@ def _parse_channels(ctx, param, value: str | None) -> tuple[str, ...] | None:
 channels_option = click.option(
     "--channels", default=None, metavar="LIST", callback=_parse_channels,
     help="What the synthetic arm measures: wrench (the base wrench, the default), torque (joint torques, "
-         "the actuator's: Phi theta plus --friction-truth), or both: wrench,torque.",
+         "the actuator's: Phi theta plus --friction-truth), current (motor currents, tau / (k G): with "
+         "--torque-constant, --gear-ratio), or several: wrench,torque.",
 )  # fmt: skip
 
 
-def simulated_channels(names: tuple[str, ...] | None):
-    """The :class:`ineid.channels.ChannelSet` of a parsed ``--channels`` (None: the default base wrench)."""
+def simulated_channels(names: tuple[str, ...] | None, drives: tuple | None = None):
+    """The :class:`ineid.channels.ChannelSet` of a parsed ``--channels`` (None: the default base wrench);
+    ``drives``: ``(torque constants, gear ratios)`` per joint, for ``current``."""
     if names is None:
         return None
     from ineid.channels import BaseWrench, ChannelSet  # noqa: PLC0415
+    from ineid.channels.torque import JointTorque, MotorCurrent  # noqa: PLC0415
 
     made = []
     for name in names:
         if name == "wrench":
             made.append(BaseWrench())
-        else:
-            from ineid.channels.torque import JointTorque  # noqa: PLC0415
-
+        elif name == "torque":
             made.append(JointTorque())
+        else:
+            made.append(MotorCurrent(torque_constant=drives[0], gear_ratio=drives[1]))
     return ChannelSet(tuple(made))
+
+
+def drives(names: tuple[str, ...] | None, torque_constant, gear_ratio, n_dof: int):
+    """``(k, G)`` one per joint for ``--channels ...,current`` (None without currents).
+
+    Raises:
+        click.UsageError: currents without both, either without currents, or another count than one or ``n_dof``.
+    """
+    current = names is not None and "current" in names
+    if not current:
+        if torque_constant or gear_ratio:
+            raise click.UsageError("--torque-constant and --gear-ratio are the motor currents' drives: simulate "
+                                   "currents with --channels ...,current")
+        return None
+    if not torque_constant or not gear_ratio:
+        raise click.UsageError("motor currents are read through the drives: give --torque-constant and --gear-ratio")
+    out = []
+    for values, flag in ((torque_constant, "--torque-constant"), (gear_ratio, "--gear-ratio")):
+        values = tuple(values) * (n_dof if len(values) == 1 else 1)
+        if len(values) != n_dof:
+            raise click.BadParameter(f"{len(values)} numbers for {n_dof} joints; give one, or one per joint",
+                                     param_hint=flag)
+        out.append(values)
+    return tuple(out)
 
 
 FRICTION_TERMS = {"fv": "fv", "fc": "fc", "offset": "offset", "ia": "Ia", "fv+": "fv+", "fv-": "fv-", "fc+": "fc+",
