@@ -55,16 +55,14 @@ def _pinocchio_torques(model, theta, q, qd, qdd) -> np.ndarray:
     """``pin.rnea`` with each configuration's parameters: (C, F, n_dof)."""
     import pinocchio as pin
 
-    from ineid.reference import pinocchio_model, pinocchio_q
+    from ineid.reference import pinocchio_joint_torques, pinocchio_model
 
     pm = pinocchio_model(model.urdf_path, gravity=model.gravity)
-    data = pm.createData()
     out = np.empty(q.shape)
     for c in range(q.shape[0]):
         for i in range(1, pm.njoints):
             pm.inertias[i] = pin.Inertia.FromDynamicParameters(theta[c, 10 * (i - 1) : 10 * i])
-        for f in range(q.shape[1]):
-            out[c, f] = pin.rnea(pm, data, pinocchio_q(pm, q[c, f]), qd[c, f], qdd[c, f])
+        out[c] = pinocchio_joint_torques(pm, q[c], qd[c], qdd[c])
     return out
 
 
