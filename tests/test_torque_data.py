@@ -152,6 +152,36 @@ def test_cli_generate_torques_and_info(run, tmp_path):
         assert not bad_out.exists()
 
 
+def test_cli_generate_a_wrist_sensor(run, tmp_path, model):
+    """``--sensor-pose LINK:...`` (or a frame on a link): the wrench at that link, with the force and moment noise."""
+    from ineid.channels import BaseWrench, LinkWrench, SensorPose, sensor_channel
+
+    out = tmp_path / "wrist.h5"
+    r = run("-q", "data", "generate", "--n-configs", "2", "--n-frames", "8", "--channels", "wrench,torque",
+            "--sensor-pose", "upper_arm:0.01,0,0.05,0,0,0.3", "--noise", "force=0.5,moment=0.05,tau=0.01", "--out", out)
+    assert r.exit_code == 0, r.output
+    ds = load_dataset(out)
+    wrist = ds.meta.channels["wrench_upper_arm"]  # what the forearm exerts on the upper arm, at the sensor
+    assert isinstance(wrist, LinkWrench) and wrist.link == "upper_arm" and wrist.sensor.xyz == (0.01, 0, 0.05)
+    assert ds.meta.channels.keys == ("wrench_upper_arm", "tau") and ds.wrench is None
+    assert ds.meta.noise["wrench_upper_arm"] == [0.5, 0.5, 0.5, 0.05, 0.05, 0.05]
+    clean = wrist.predict(model, ds.q, ds.qd, ds.qdd, ds.theta()[:, None, :])
+    assert np.abs(ds.clean["wrench_upper_arm"] - clean).max() < 1e-12 * np.abs(clean).max()
+    assert 0.2 < np.std(ds.channel_values["wrench_upper_arm"][..., 0] - clean[..., 0]) < 0.8
+    hand = sensor_channel("hand", model)  # a frame welded to the forearm: the wrench at the forearm
+    assert hand.key == "wrench_forearm" and np.allclose(hand.sensor.xyz, (0, 0, -0.26))
+    out = tmp_path / "base.h5"
+    r = run("-q", "data", "generate", "--n-configs", "2", "--n-frames", "8", "--sensor-pose", POSE_TEXT, "--out", out)
+    assert r.exit_code == 0, r.output
+    ds = load_dataset(out)
+    base = ds.meta.channels["wrench"]
+    assert isinstance(base, BaseWrench) and base.sensor == SensorPose((0.03, -0.02, -0.05), (3.1, 0.2, 0.7))
+    w = base.sensor.transform() @ model.base_wrench(ds.q, ds.qd, ds.qdd, ds.theta()[:, None, :])[..., None]
+    assert np.abs(ds.wrench - w[..., 0]).max() < 1e-12 * np.abs(w).max()
+    r = run("-q", "data", "generate", "--channels", "torque", "--sensor-pose", "hand", "--out", tmp_path / "bad.h5")
+    assert r.exit_code == 2 and "--sensor-pose places the F/T sensor of the wrench channel" in r.output
+
+
 # -- recordings: CSV and bags ------------------------------------------------------------------------
 
 

@@ -80,6 +80,11 @@ def data() -> None:
               default_from=f"{_SAMPLING}:ParameterSampling.orientation_deg",
               help="Largest turn of the principal axes from CAD, degrees (180: uniform).")
 @channels_option
+@click.option("--sensor-pose", default=None, metavar="X,Y,Z,R,P,Y|FRAME|LINK[:X,Y,Z,R,P,Y]",
+              help="Where the F/T sensor of the wrench channel sits: under the base at a pose in the base frame "
+                   "(m, rad, URDF rpy) or a URDF frame welded to the base (its reading is in its frame), or on a "
+                   "moving link (LINK:pose in the link's frame, or a URDF frame welded to one): the wrench at that "
+                   "link, stored under wrench_<link>. Default: the base wrench in the base frame.")
 @friction_truth_option
 @torque_constant_option
 @gear_ratio_option
@@ -88,8 +93,8 @@ def data() -> None:
 @overwrite_option
 @click.pass_context
 def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_mode, trajectory, harmonics,
-                  base_frequency, mass_band, com_box, inertia_band, rotation, channels, friction_truth, torque_constant,
-                  gear_ratio, noise, out, overwrite) -> None:
+                  base_frequency, mass_band, com_box, inertia_band, rotation, channels, sensor_pose, friction_truth,
+                  torque_constant, gear_ratio, noise, out, overwrite) -> None:
     """Sample a synthetic ground-truth dataset of ROBOT (default sweaty-arm; the paper's: --factorial 100)."""
     from ineid.data import Combination, DatasetSpec, FrameSampling, ParameterSampling, write_dataset  # noqa: PLC0415
 
@@ -114,9 +119,16 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
     if noise and not (channels is None or "wrench" in channels) and any(
             k in noise for k in ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "glitch")):
         raise click.UsageError("force and moment noise is the base wrench's: add it with --channels wrench,torque")
+    if sensor_pose is not None and not (channels is None or "wrench" in channels):
+        raise click.UsageError("--sensor-pose places the F/T sensor of the wrench channel: add wrench to --channels")
     prepare_output(out, overwrite, inputs=[*robot_inputs(robot), ("the trajectory file", trajectory)])
     model = robot.load()
     drive_values = drives(channels, torque_constant, gear_ratio, model.n_dof)
+    sensor = None
+    if sensor_pose is not None:
+        from ineid.channels import sensor_channel  # noqa: PLC0415
+
+        sensor = sensor_channel(sensor_pose, model)
     sampled = None
     if trajectory is not None:
         from ineid.data.trajectory import check_trajectory_fits, load_trajectory  # noqa: PLC0415
@@ -144,8 +156,8 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
             seed=seed,
             parameters=ParameterSampling(mass_band, com_box, inertia_band, rotation),
             frames=FrameSampling(frame_mode, harmonics, base_frequency, trajectory=sampled),
-            noise=noise_model(noise, model.n_dof),
-            channels=simulated_channels(channels, drive_values),
+            noise=noise_model(noise, model.n_dof, "wrench" if sensor is None else sensor.key),
+            channels=simulated_channels(channels, drive_values, sensor),
             extra_truth=simulation_truth(friction_truth, model.joint_names),
         )
     except ValueError as e:  # a setting the options' own checks let through
@@ -156,7 +168,7 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
     seconds = time.perf_counter() - t0
     click.echo(
         f"wrote {out}: {total:,} configurations x {n_frames} frames of {plain(model.name)} "
-        f"({plain(', '.join(model.unknown_links))} unknown{'; ' + plain(spec.channels.describe()) if channels else ''}) "
+        f"({plain(', '.join(model.unknown_links))} unknown{'; ' + plain(spec.channels.describe()) if spec.channels else ''}) "
         f"in {seconds:.1f} s "
         f"({total * n_frames / seconds:,.0f} frames/s)"
     )

@@ -56,11 +56,15 @@ noise_option = click.option(
 )  # fmt: skip
 
 
-def noise_model(std: dict[str, float] | None, n_dof: int):
+def noise_model(std: dict[str, float] | None, n_dof: int, wrench_key: str = "wrench"):
     """The :class:`ineid.data.NoiseModel` of a parsed ``--noise`` (None for clean data).
 
+    ``wrench_key``: the channel of the F/T sensor whose force and moment noise this is (``"wrench"``,
+    the base wrench; ``"wrench_<link>"``, a sensor on a link: its noise goes under that key).
+
     Raises:
-        click.BadParameter: glitches without force noise, a glitch rate outside [0, 1) or a scale below 1.
+        click.BadParameter: glitches without force noise, a glitch rate outside [0, 1) or a scale below 1,
+            glitches of a sensor on a link.
     """
     if not std:
         return None
@@ -72,6 +76,13 @@ def noise_model(std: dict[str, float] | None, n_dof: int):
     if "glitch_scale" in std:
         glitch["glitch_scale"] = std["glitch_scale"]
     channels = {k: std[k] for k in CHANNEL_NOISE_KEYS if k in std}
+    if wrench_key != "wrench":  # a sensor on a link: its own key, no glitch model
+        if glitch["glitch_rate"]:
+            raise click.BadParameter("glitches are modelled for the base wrench only; drop glitch= with a sensor "
+                                     "on a link", param_hint="--noise")
+        if any(force + moment):
+            channels[wrench_key] = force + moment
+        force, moment = 0.0, 0.0
     try:
         return NoiseModel.create(n_dof, force=force, moment=moment, q=std.get("q", 0.0), qd=std.get("qd", 0.0),
                                  qdd=std.get("qdd", 0.0), channels=channels, **glitch)  # fmt: skip
@@ -132,18 +143,20 @@ channels_option = click.option(
 )  # fmt: skip
 
 
-def simulated_channels(names: tuple[str, ...] | None, drives: tuple | None = None):
+def simulated_channels(names: tuple[str, ...] | None, drives: tuple | None = None, sensor=None):
     """The :class:`ineid.channels.ChannelSet` of a parsed ``--channels`` (None: the default base wrench);
-    ``drives``: ``(torque constants, gear ratios)`` per joint, for ``current``."""
-    if names is None:
+    ``drives``: ``(torque constants, gear ratios)`` per joint, for ``current``; ``sensor``: the F/T
+    sensor's channel for ``wrench`` (:func:`ineid.channels.sensor_channel` of ``--sensor-pose``;
+    default the base wrench in the base frame)."""
+    if names is None and sensor is None:
         return None
     from ineid.channels import BaseWrench, ChannelSet  # noqa: PLC0415
     from ineid.channels.torque import JointTorque, MotorCurrent  # noqa: PLC0415
 
     made = []
-    for name in names:
+    for name in names or ("wrench",):
         if name == "wrench":
-            made.append(BaseWrench())
+            made.append(sensor or BaseWrench())
         elif name == "torque":
             made.append(JointTorque())
         else:
