@@ -46,7 +46,8 @@ def _case(name):
             pinocchio_model(path, gravity=GRAVITY, locked_joints=locked))
 
 
-@pytest.fixture(scope="module", params=["sweaty-arm", "mixed-chain", "ur5", "panda",
+@pytest.fixture(scope="module", params=["sweaty-arm", "mixed-chain", "ur5",  # 7-joint arms compile for minutes:
+                                        pytest.param("panda", marks=pytest.mark.slow),  # make test-slow
                                         pytest.param("kinova", marks=pytest.mark.slow)])
 def case(request):
     model, pin_model = _case(request.param)
