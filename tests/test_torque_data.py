@@ -397,8 +397,12 @@ def test_bad_torque_recordings_are_one_line_and_leave_no_file(lab, run, tmp_path
                       lab.reading[rows], effort=[sim.tau[k, :3] for k in range(n)])
     currents = tmp_path / "currents.csv"
     currents.write_text(_torque_csv(lab, tmp_path / "c.csv", rows=rows).read_text().replace("tau", "i"))
+    only = _torque_csv(lab, tmp_path / "only.csv", wrench=False, rows=rows)
     cases = [
         ((lab.file("csv"), "--sensor-pose", "wrist:0,0,0.1,0,0,0"), "'wrist' is not a moving link of sweaty-arm"),
+        ((only, "--flip-wrench", "--sensor-pose", "hand"), "--sensor-pose, --flip-wrench set up the F/T sensor, and "
+                                                           "the recording has no wrench"),
+        ((only, "--gear-ratio", "100"), "--torque-constant and --gear-ratio are the motor currents' drives"),
         (three, "the joint torque columns are for 3 joints (up to tau3), but sweaty-arm has 4"),
         (nan, "line 102, column 'tau2' is nan; values must be finite"),
         (other, "column 'tau_wrist' names no joint of sweaty-arm"),

@@ -191,6 +191,13 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     """
     from dataclasses import replace  # noqa: PLC0415
 
+    if streams.wrench is None:  # the wrench's settings on a recording without one: a mistake, said once
+        given = [flag for flag, on in (("--sensor-pose", settings.sensor_pose is not None),
+                                       ("--flip-wrench", settings.flip_wrench),
+                                       ("--wrench-scale", settings.wrench_scale != 1.0)) if on]
+        if given:
+            raise DatasetError(f"{streams.source}: {', '.join(given)} set{'s' if len(given) == 1 else ''} up the "
+                               "F/T sensor, and the recording has no wrench; drop it")
     if settings.angle_unit != "rad" or settings.wrench_scale != 1.0:
         streams = in_si_units(streams, model, settings.angle_unit, settings.wrench_scale)
         settings = replace(settings, angle_unit="rad", wrench_scale=1.0)

@@ -36,6 +36,10 @@ def joint_channels(streams, model, n_samples: int, settings=None) -> dict[str, n
                 f"{model.n_dof} joints ({', '.join(model.joint_names)}): give one column per joint"
             )
         out[key] = a
+    drives = settings is not None and (settings.torque_constant is not None or settings.gear_ratio is not None)
+    if drives and "current" not in out:
+        raise DatasetError(f"{streams.source}: --torque-constant and --gear-ratio are the motor currents' drives, "
+                           "and the recording has no currents (i1..in); drop them")
     if "current" in out and (settings is None or settings.torque_constant is None or settings.gear_ratio is None):
         raise DatasetError(
             f"{streams.source}: motor currents are read through the drives: give their torque constants and gear "
