@@ -1,24 +1,28 @@
 """A lab's recording -> a one-configuration dataset: two clocks, angles only, the sensor frame.
 
 What a lab records (:class:`Streams`): joint angles with their time stamps (velocities and
-accelerations only when a sensor measures them, like the paper's gyroscopes), and the F/T
-sensor's wrench with its own time stamps, in the sensor's frame. :func:`recording_dataset`
-turns that into frames ``(q, qd, qdd, wrench)`` on one uniform time base:
+accelerations only when a sensor measures them, like the paper's gyroscopes), with joint
+torques (or motor currents) on the same clock when the drives report them, and the F/T
+sensor's wrench with its own time stamps, in the sensor's frame (a recording may have
+torques and no wrench). :func:`recording_dataset` turns that into frames ``(q, qd, qdd,``
+each channel's values ``)`` on one uniform time base:
 
 1. checks: finite values, increasing time stamps, each stream with enough samples;
 2. the wrench clock is shifted by ``delay`` (a wrench stamped ``t`` was measured at
    ``t - delay``), given or estimated from the model (:mod:`ineid.identify.delay`);
-3. when ``qd``/``qdd`` are missing, joint angles *and* wrench go through the same zero-phase
-   low-pass (:mod:`ineid.data.signals`), at a cut-off chosen from the angles' spectrum or
-   given, and the angles are differentiated; samples within the filter's edge are dropped.
-   Measured ``qd``/``qdd`` are used as they are (no filter unless a cut-off is given, which
-   then applies to every channel);
+3. when ``qd``/``qdd`` are missing, joint angles, joint torques *and* wrench go through the
+   same zero-phase low-pass (:mod:`ineid.data.signals`), at a cut-off chosen from the angles'
+   spectrum or given, and the angles are differentiated; samples within the filter's edge
+   are dropped. Measured ``qd``/``qdd`` are used as they are (no filter unless a cut-off is
+   given, which then applies to every channel);
 4. both streams are put on one time base: the slower stream's rate, or ``rate``, over the
    time both cover (cubic-spline interpolation; rows already on the grid are taken as they
    are, so one CSV with one time column and measured derivatives passes through unchanged).
 
-The wrench stays in the sensor frame: the dataset records the sensor pose (format version
-2) and identification transforms the regressor (:mod:`ineid.channels.pose`).
+The wrench stays in the sensor frame: the dataset records the sensor pose (the channel's
+record) and identification transforms the regressor (:mod:`ineid.channels.pose`); a sensor
+on a link is a wrench at that link (:mod:`ineid.data.recording_channels`). Joint torques are
+the ``joint_torque`` channel under ``tau`` (format version 4).
 """
 
 from __future__ import annotations
