@@ -26,6 +26,7 @@ from ineid.channels import (
     register,
     wrench_transform,
 )
+from ineid.data.meta import VERSION
 from ineid.errors import DatasetError
 from tests.conftest import random_states, rel_err
 
@@ -327,7 +328,7 @@ def test_a_dataset_of_two_channels_solves_like_one(model, two_channels):
     from ineid.identify.systems import stack_casadi
 
     ds = two_channels
-    assert ds.meta.version == 3 and ds.meta.channels.keys == ("wrench", "wrench_sensor")
+    assert ds.meta.version == VERSION and ds.meta.channels.keys == ("wrench", "wrench_sensor")
     assert np.allclose(ds.channel_values["wrench_sensor"], ds.wrench @ POSE.transform().T, rtol=1e-12, atol=1e-12)
     both = solve_dataset(ds, SolveSettings(), model=model)
     # the one-channel estimate of the same frames by the independent route (CasADi's stacks, QR: no compilation)

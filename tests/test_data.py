@@ -29,6 +29,7 @@ from ineid.data import (
     write_dataset,
     write_recording_csv,
 )
+from ineid.data.meta import VERSION
 from ineid.data.sampling import random_rotations
 from ineid.params import inertial_from_theta, pseudo_inertia
 from ineid.reference import pinocchio_base_wrench, pinocchio_model
@@ -239,7 +240,7 @@ def test_round_trip_and_selection(small, tmp_path):
     path = small.save(tmp_path / "s.h5")
     back = load_dataset(path)
     assert back.meta.robot == "sweaty-arm" and back.meta.seed == SEED and back.meta.source == "synthetic"
-    assert back.meta.unknown_links == ("upper_arm", "forearm") and back.meta.version == 3
+    assert back.meta.unknown_links == ("upper_arm", "forearm") and back.meta.version == VERSION
     with h5py.File(path) as f:
         assert f.attrs["format"] == "ineid-dataset" and "<robot" in f.attrs["urdf"]
         assert list(f.attrs["param_order"]) == list(ineid.PARAM_NAMES)

@@ -13,6 +13,7 @@ import ineid
 from ineid import DatasetError, RobotModelError
 from ineid.data import load_dataset
 from ineid.data.recording import ImportSettings, Streams, import_recording, recording_dataset
+from ineid.data.meta import VERSION
 from ineid.data.signals import LowPass, choose_cutoff
 from ineid.identify import SolveSettings, bias_cost, generic_frames, load_results, save_results, solve_dataset
 from ineid.sensor import SensorPose, matrix_rpy, parse_sensor_pose, rpy_matrix, wrench_in_sensor, wrench_transform
@@ -100,7 +101,7 @@ def test_version_3_stores_the_channels_and_versions_2_and_1_still_read(lab, tmp_
     ds, _ = import_recording(lab.file("csv"), lab.model, ImportSettings(sensor_pose=POSE_TEXT))
     path = ds.save(tmp_path / "v3.h5")
     back = load_dataset(path)
-    assert back.meta.version == 3 and back.meta.sensor_pose() == SensorPose((0.03, -0.02, -0.05), (3.1, 0.2, 0.7))
+    assert back.meta.version == VERSION and back.meta.sensor_pose() == SensorPose((0.03, -0.02, -0.05), (3.1, 0.2, 0.7))
     assert np.allclose(back.meta.sensor_transform(), lab.pose.transform())
     assert back.meta.channels == ds.meta.channels and back.fingerprint() == ds.fingerprint()
     with h5py.File(path, "r+") as f:  # what ineid 0.1 wrote after issue 11: version 2, the sensor attribute

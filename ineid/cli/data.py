@@ -24,6 +24,15 @@ from ineid.cli.options import (
     robot_options,
 )
 from ineid.cli.output import ProgressBar, console, plain, print_findings, shown, table
+from ineid.cli.simulation import (
+    channels_option,
+    drives,
+    friction_truth_option,
+    gear_ratio_option,
+    simulated_channels,
+    torque_constant_option,
+)
+from ineid.cli.simulation import friction_truth as simulation_truth
 
 _SAMPLING = "ineid.data.sampling"
 
@@ -70,12 +79,22 @@ def data() -> None:
 @click.option("--rotation", type=FiniteFloatRange(min=0), cls=LibraryOption,
               default_from=f"{_SAMPLING}:ParameterSampling.orientation_deg",
               help="Largest turn of the principal axes from CAD, degrees (180: uniform).")
+@channels_option
+@click.option("--sensor-pose", default=None, metavar="X,Y,Z,R,P,Y|FRAME|LINK[:X,Y,Z,R,P,Y]",
+              help="Where the F/T sensor of the wrench channel sits: under the base at a pose in the base frame "
+                   "(m, rad, URDF rpy) or a URDF frame welded to the base (its reading is in its frame), or on a "
+                   "moving link (LINK:pose in the link's frame, or a URDF frame welded to one): the wrench at that "
+                   "link, stored under wrench_<link>. Default: the base wrench in the base frame.")
+@friction_truth_option
+@torque_constant_option
+@gear_ratio_option
 @noise_option
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
 @click.pass_context
 def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_mode, trajectory, harmonics,
-                  base_frequency, mass_band, com_box, inertia_band, rotation, noise, out, overwrite) -> None:
+                  base_frequency, mass_band, com_box, inertia_band, rotation, channels, sensor_pose, friction_truth,
+                  torque_constant, gear_ratio, noise, out, overwrite) -> None:
     """Sample a synthetic ground-truth dataset of ROBOT (default sweaty-arm; the paper's: --factorial 100)."""
     from ineid.data import Combination, DatasetSpec, FrameSampling, ParameterSampling, write_dataset  # noqa: PLC0415
 
@@ -89,8 +108,27 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
     if trajectory is not None and frames_given and trajectory.suffix.lower() != ".json":
         raise click.BadParameter("the rows of a trajectory CSV are the frames; drop --n-frames (or give its .json)",
                                  param_hint="--n-frames")
+    torque = channels is not None and "torque" in channels
+    if friction_truth and not (torque or (channels is not None and "current" in channels)):
+        raise click.UsageError("--friction-truth is what joint torques add: simulate them with --channels "
+                               "wrench,torque (or torque)")
+    if noise and "tau" in noise and not torque:
+        raise click.UsageError("tau noise is the joint torques': simulate them with --channels wrench,torque (or torque)")
+    if noise and "current" in noise and not (channels is not None and "current" in channels):
+        raise click.UsageError("current noise is the motor currents': simulate them with --channels ...,current")
+    if noise and not (channels is None or "wrench" in channels) and any(
+            k in noise for k in ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "glitch")):
+        raise click.UsageError("force and moment noise is the base wrench's: add it with --channels wrench,torque")
+    if sensor_pose is not None and not (channels is None or "wrench" in channels):
+        raise click.UsageError("--sensor-pose places the F/T sensor of the wrench channel: add wrench to --channels")
     prepare_output(out, overwrite, inputs=[*robot_inputs(robot), ("the trajectory file", trajectory)])
     model = robot.load()
+    drive_values = drives(channels, torque_constant, gear_ratio, model.n_dof)
+    sensor = None
+    if sensor_pose is not None:
+        from ineid.channels import sensor_channel  # noqa: PLC0415
+
+        sensor = sensor_channel(sensor_pose, model)
     sampled = None
     if trajectory is not None:
         from ineid.data.trajectory import check_trajectory_fits, load_trajectory  # noqa: PLC0415
@@ -118,7 +156,9 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
             seed=seed,
             parameters=ParameterSampling(mass_band, com_box, inertia_band, rotation),
             frames=FrameSampling(frame_mode, harmonics, base_frequency, trajectory=sampled),
-            noise=noise_model(noise, model.n_dof),
+            noise=noise_model(noise, model.n_dof, "wrench" if sensor is None else sensor.key),
+            channels=simulated_channels(channels, drive_values, sensor),
+            extra_truth=simulation_truth(friction_truth, model.joint_names),
         )
     except ValueError as e:  # a setting the options' own checks let through
         raise click.UsageError(str(e)) from None
@@ -128,7 +168,8 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
     seconds = time.perf_counter() - t0
     click.echo(
         f"wrote {out}: {total:,} configurations x {n_frames} frames of {plain(model.name)} "
-        f"({plain(', '.join(model.unknown_links))} unknown) in {seconds:.1f} s "
+        f"({plain(', '.join(model.unknown_links))} unknown{'; ' + plain(spec.channels.describe()) if spec.channels else ''}) "
+        f"in {seconds:.1f} s "
         f"({total * n_frames / seconds:,.0f} frames/s)"
     )
 
@@ -155,9 +196,10 @@ def _delay(ctx, param, value: str) -> float | None:
 @data.command("import")
 @click.argument("path", metavar="PATH", type=click.Path(path_type=Path))
 @robot_options(positional="option")
-@click.option("--sensor-pose", default=None, metavar="X,Y,Z,R,P,Y|FRAME",
-              help="The sensor frame in the base frame (m, rad, URDF rpy) or a URDF link welded to the base "
-                   "(default: the bag's wrench frame_id if the URDF has that link, else the base frame).")
+@click.option("--sensor-pose", default=None, metavar="X,Y,Z,R,P,Y|FRAME|LINK:X,Y,Z,R,P,Y",
+              help="The sensor frame in the base frame (m, rad, URDF rpy), a URDF link (welded to the base, or to "
+                   "a moving link: a wrist sensor), or LINK:x,y,z,r,p,y in URDF link LINK's frame (default: the "
+                   "bag's wrench frame_id if the URDF has that link, else the base frame).")
 @click.option("--cutoff", type=FiniteFloatRange(min=0, min_open=True), default=None, metavar="HZ",
               help="Low-pass cut-off of angles and wrench (default: chosen from the joint angles when qd, qdd "
                    "are derived; no filter when they are measured).")
@@ -175,13 +217,16 @@ def _delay(ctx, param, value: str) -> float | None:
               help="Multiply every force and moment by FACTOR (0.001 for a wrench in mN and N*mm).")
 @click.option("--angle-unit", type=click.Choice(["rad", "deg"]), default="rad", show_default=True,
               help="Unit of the revolute joints' angles (and of measured qd, qdd); deg converts them to rad.")
+@torque_constant_option
+@gear_ratio_option
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
 @click.pass_context
 def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic, wrench_topic, flip_wrench,
-                wrench_scale, angle_unit, out, overwrite) -> None:
-    """Import a recording: a CSV (time, q1..qn, [qd1..qn, qdd1..qn,] fx fy fz mx my mz), a ROS 1 .bag, or a
-    ROS 2 bag folder or .mcap (sensor_msgs/JointState, geometry_msgs/WrenchStamped)."""
+                wrench_scale, angle_unit, torque_constant, gear_ratio, out, overwrite) -> None:
+    """Import a recording: a CSV (time, q1..qn, [qd1..qn, qdd1..qn,] [tau1..taun,] fx fy fz mx my mz; the wrench
+    optional with torques), a ROS 1 .bag, or a ROS 2 bag folder or .mcap (sensor_msgs/JointState with its
+    effort as joint torques, geometry_msgs/WrenchStamped)."""
     from ineid.data.recording import ImportSettings, import_recording  # noqa: PLC0415
 
     if delay is None:  # --delay auto: the estimate fits the model; importing it registers it with the import
@@ -191,7 +236,8 @@ def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic,
     model = robot.load()
     settings = ImportSettings(sensor_pose=sensor_pose, cutoff=cutoff, rate=rate, delay=delay or 0.0,
                               estimate_delay=delay is None, flip_wrench=flip_wrench, angle_unit=angle_unit,
-                              wrench_scale=wrench_scale)  # fmt: skip
+                              wrench_scale=wrench_scale, torque_constant=torque_constant,
+                              gear_ratio=gear_ratio)  # fmt: skip
     with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
         ds, summary = import_recording(path, model, settings, joint_topic, wrench_topic, progress=bar)
     ds.save(out, overwrite=overwrite)
@@ -237,10 +283,13 @@ def data_info(path: Path) -> None:
     if several:
         con.print(f"measurement channels: {shown(meta.channels.describe())}")
     for c in meta.channels:
-        pose = c.sensor if isinstance(c, BaseWrench) else None
+        pose = getattr(c, "sensor", None)  # an F/T sensor's pose: under the base, or on a link (its frame)
         if pose is not None:
-            con.print(f"sensor frame{f' of {c.key}' if several else ''} in the base frame: {shown(pose.describe())}"
+            where = f"link {c.link!r}'s frame" if getattr(c, "link", None) else "the base frame"
+            con.print(f"sensor frame{f' of {c.key}' if several else ''} in {shown(where)}: {shown(pose.describe())}"
                       + (f"; wrench messages in frame {shown(repr(pose.frame_id))}" if pose.frame_id else ""))
+    if meta.extra_truth:
+        con.print(f"simulated actuation (extra_truth): {shown(json.dumps(meta.extra_truth))}")
     arrays = table("Arrays", ("name", "shape"), left=("name", "shape"))
     for name in sorted(shapes):
         arrays.add_row(name, " x ".join(str(s) for s in shapes[name]) or "scalar")

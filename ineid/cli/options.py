@@ -431,63 +431,8 @@ select_option = click.option(
 )  # fmt: skip
 select_alias = deprecated_alias("--configs", "selection", "--select")
 
-NOISE_MAX = 1e6
-"""The largest ``--noise`` value (std in N, N*m, rad, rad/s, rad/s^2, or the glitch scale): far above any
-sensor's, and low enough that noisy values, their squares and sums stay finite in float64."""
-NOISE_KEYS = ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "q", "qd", "qdd", "glitch", "glitch_scale")
-
-
-def _parse_noise(ctx, param, value: str | None) -> dict[str, float] | None:
-    """``force=0.5,moment=0.02,qd=0.01[,glitch=0.02,glitch_scale=20]`` -> ``{key: value}`` (checked; see
-    :func:`noise_model`)."""
-    if not value:
-        return None
-    std = {}
-    for item in value.split(","):
-        key, sep, val = item.strip().partition("=")
-        key = key.strip().lower()
-        try:
-            if not sep or key not in NOISE_KEYS:
-                raise ValueError
-            std[key] = float(val)
-            if not 0 <= std[key] <= NOISE_MAX:  # NaN fails too
-                raise ValueError
-        except ValueError:
-            raise click.BadParameter(
-                f"expected KEY=STD with KEY in {', '.join(NOISE_KEYS)} and 0 <= STD <= {NOISE_MAX:g}, got "
-                f"{item.strip()!r}",
-                param_hint="--noise",
-            ) from None
-    return std
-
-
-noise_option = click.option(
-    "--noise", default=None, metavar="KEY=STD,...", callback=_parse_noise,
-    help="Gaussian noise std: force, moment (or fx..mz) in N, N*m; q, qd, qdd in rad, rad/s, rad/s^2; "
-         "glitch=RATE: that share of frames gets glitch_scale (default 20) times the force noise. Each at most 1e6.",
-)  # fmt: skip
-
-
-def noise_model(std: dict[str, float] | None, n_dof: int):
-    """The :class:`ineid.data.NoiseModel` of a parsed ``--noise`` (None for clean data).
-
-    Raises:
-        click.BadParameter: glitches without force noise, a glitch rate outside [0, 1) or a scale below 1.
-    """
-    if not std:
-        return None
-    from ineid.data import NoiseModel  # noqa: PLC0415
-
-    force = [std.get(a, std.get("force", 0.0)) for a in ("fx", "fy", "fz")]
-    moment = [std.get(a, std.get("moment", 0.0)) for a in ("mx", "my", "mz")]
-    glitch = {"glitch_rate": std.get("glitch", 0.0)}
-    if "glitch_scale" in std:
-        glitch["glitch_scale"] = std["glitch_scale"]
-    try:
-        return NoiseModel.create(n_dof, force=force, moment=moment, q=std.get("q", 0.0), qd=std.get("qd", 0.0),
-                                 qdd=std.get("qdd", 0.0), **glitch)  # fmt: skip
-    except ValueError as e:
-        raise click.BadParameter(str(e), param_hint="--noise") from None
+# ``--noise`` (with ``--channels``, ``--friction-truth``) lives in :mod:`ineid.cli.simulation`; re-exported here.
+from ineid.cli.simulation import NOISE_KEYS, NOISE_MAX, noise_model, noise_option  # noqa: E402, F401
 
 
 def verbosity(ctx: click.Context) -> int:

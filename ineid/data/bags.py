@@ -7,11 +7,14 @@ from the bag itself.
 * Joint states: the topic ``joint_topic`` (default ``/joint_states``). Joints are matched
   to the model's by name, in any order (each message may order them differently); extra
   joints (a gripper, a head) are ignored; a model joint missing from a message is an error
-  naming it. Only positions are read: velocities and accelerations are derived
-  consistently from them (:mod:`ineid.data.recording`).
+  naming it. Positions are read (velocities and accelerations are derived consistently
+  from them, :mod:`ineid.data.recording`), and ``effort`` as the joint torques when the
+  messages carry it (every message, one per name; empty in all: no torques), matched by
+  name like the positions.
 * Wrench: the one ``WrenchStamped`` topic of the bag, or ``wrench_topic`` when there are
   several. Its ``header.frame_id`` is recorded (and names the sensor frame when the URDF
-  has that link).
+  has that link). A bag without one is read when its joint states carry efforts (a lab
+  with joint torque sensors only).
 * Time: each message's ``header.stamp`` (the measurement time); a zero stamp falls back
   to the time the bag logged the message. Times are seconds from the earliest message of
   the two topics; the absolute start is recorded in the dataset's origin.
@@ -140,8 +143,9 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
     Raises:
         DatasetError: the bag cannot be read; a topic is missing or of another type (the
             message lists what the bag has); several wrench topics and none chosen; a
-            model joint missing from the joint states (named); positions not matching
-            names; the wrench ``frame_id`` changing within the recording.
+            model joint missing from the joint states (named); positions or efforts not
+            matching names (efforts in some messages only); the wrench ``frame_id``
+            changing within the recording; neither a wrench topic nor efforts.
     """
     path = Path(path)
     if not path.exists():
@@ -161,22 +165,21 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
             raise DatasetError(f"{path}: topic {joint_topic!r} holds {jconns[0].msgtype}, not {JOINT_STATE}")
         wrenches = sorted(t for t, cs in by_topic.items() if cs[0].msgtype == WRENCH_STAMPED)
         if wrench_topic is None:
-            if not wrenches:
-                raise DatasetError(f"{path}: the bag has no {WRENCH_STAMPED} topic (topics: {available})")
             if len(wrenches) > 1:
                 raise DatasetError(f"{path}: the bag has {len(wrenches)} wrench topics ({', '.join(wrenches)}); "
                                    "choose one with --wrench-topic")
-            wrench_topic = wrenches[0]
-        wconns = by_topic.get(wrench_topic)
-        if not wconns:
+            wrench_topic = wrenches[0] if wrenches else None  # none: the joint states' efforts must be there
+        wconns = by_topic.get(wrench_topic) if wrench_topic is not None else []
+        if wrench_topic is not None and not wconns:
             hint = f"; its wrench topics: {', '.join(wrenches)}" if wrenches else ""
             raise DatasetError(f"{path}: the bag has no topic {wrench_topic!r}{hint} (topics: {available})")
-        if wconns[0].msgtype != WRENCH_STAMPED:
+        if wconns and wconns[0].msgtype != WRENCH_STAMPED:
             raise DatasetError(f"{path}: topic {wrench_topic!r} holds {wconns[0].msgtype}, not {WRENCH_STAMPED}")
         total = sum(c.msgcount for c in jconns + wconns)
         joint_ids = {c.id for c in jconns}
         tq: list[int] = []
         q: list[np.ndarray] = []
+        effort: list[np.ndarray] = []
         tw: list[int] = []
         w: list[tuple] = []
         frame_ids: set[str] = set()
@@ -201,8 +204,18 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
                 if len(pos) != len(names):
                     raise DatasetError(f"{path}: joint state message {len(tq)} on {joint_topic} has {len(names)} names "
                                        f"but {len(pos)} positions")
+                eff = np.asarray(msg.effort, dtype=np.float64)
+                if len(eff) not in (0, len(names)) or (tq and bool(len(eff)) != bool(effort)):
+                    raise DatasetError(
+                        f"{path}: joint state message {len(tq)} on {joint_topic} has {len(eff)} efforts for "
+                        f"{len(names)} names" + ("" if len(eff) not in (0, len(names)) else
+                                                 f" where message 0 had {len(names) if effort else 0}")
+                        + "; the joint torques (effort) must come with every joint state, one per name, or never"
+                    )
                 tq.append(_stamp_ns(msg, log_ns))
                 q.append(pos[idx])
+                if len(eff):
+                    effort.append(eff[idx])
             else:
                 f, m = msg.wrench.force, msg.wrench.torque
                 tw.append(_stamp_ns(msg, log_ns))
@@ -213,22 +226,29 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
                 progress(done, total)
         if progress is not None:
             progress(done, total)
-    if not tq or not w:
+    if not tq or (wrench_topic is not None and not w):
         raise DatasetError(f"{path}: no messages on {joint_topic if not tq else wrench_topic}")
+    if wrench_topic is None and not effort:
+        raise DatasetError(f"{path}: the bag has no {WRENCH_STAMPED} topic and its joint states carry no effort "
+                           f"(joint torques): nothing to identify from (topics: {available})")
     if len(frame_ids) > 1:
         raise DatasetError(f"{path}: the wrench messages on {wrench_topic} name several frames "
                            f"({', '.join(map(repr, sorted(frame_ids)))}); a recording needs one sensor frame")
-    t0 = min(tq[0], tw[0], min(tq), min(tw))
-    frame_id = frame_ids.pop() or None
+    t0 = min(tq + tw)
+    frame_id = (frame_ids.pop() or None) if frame_ids else None
+    origin = {"format": bag_kind(path), "file": path.name, "joint_topic": joint_topic, "wrench_topic": wrench_topic,
+              "joint_messages": len(tq), "wrench_messages": len(w), "start_ns": int(t0), "frame_id": frame_id}
+    if effort:
+        origin["effort"] = True
     return Streams(
         joint_time=(np.asarray(tq, dtype=np.int64) - t0) * 1e-9,
         q=np.asarray(q, dtype=np.float64).reshape(len(tq), len(joint_names)),
         qd=None,
         qdd=None,
-        wrench_time=(np.asarray(tw, dtype=np.int64) - t0) * 1e-9,
-        wrench=np.asarray(w, dtype=np.float64),
+        wrench_time=(np.asarray(tw, dtype=np.int64) - t0) * 1e-9 if w else None,
+        wrench=np.asarray(w, dtype=np.float64) if w else None,
         source=str(path),
         frame_id=frame_id,
-        origin={"format": bag_kind(path), "file": path.name, "joint_topic": joint_topic, "wrench_topic": wrench_topic,
-                "joint_messages": len(tq), "wrench_messages": len(w), "start_ns": int(t0), "frame_id": frame_id},
+        origin=origin,
+        tau=np.asarray(effort, dtype=np.float64).reshape(len(tq), len(joint_names)) if effort else None,
     )  # fmt: skip

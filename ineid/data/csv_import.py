@@ -7,8 +7,14 @@ are ignored; units SI):
     q1 .. qn             joint positions, rad (m for prismatic joints), URDF chain order
     qd1 .. qn            joint velocities, rad/s        } optional, together: without them
     qdd1 .. qn           joint accelerations, rad/s^2   } they are derived from q1 .. qn
+    tau1 .. taun         joint torques, N*m (N), optional; or tau_<joint> by joint name
+    i1 .. in             motor currents, A, optional; or i_<joint> (not identified yet: refused)
     fx fy fz             force, N         } what the sensor reads: the load of the robot on
-    mx my mz             moment, N*m      } it, sensor frame, moment about the sensor origin
+    mx my mz             moment, N*m      } it, sensor frame, moment about the sensor origin;
+                                            optional when joint torques are given
+
+Joint torques (and currents) are on the joints' clock: their cells belong to the joint
+sample of their row.
 
 Two streams may share the file: a row whose joint cells are all empty holds a wrench
 sample only, a row whose wrench cells are all empty a joint sample only (a merged log of
@@ -64,15 +70,57 @@ def csv_columns(n_dof: int, derivatives: bool = True) -> list[str]:
     return ["time", *joints, *WRENCH_COLUMNS]
 
 
+def _channel_columns(header: list[str], prefix: str, what: str, model, path: Path) -> list[str]:
+    """The header's columns of a per-joint channel (``tau``: ``tau1..tauN`` or ``tau_<joint>``), in chain order;
+    [] when it has none.
+
+    Raises:
+        DatasetError: columns for another number of joints, a joint the robot does not have,
+            some joints missing, or both spellings.
+    """
+    n = model.n_dof
+    numbered = sorted(int(h[len(prefix):]) for h in header if h.startswith(prefix) and h[len(prefix):].isdigit())
+    named = [h for h in header if h.startswith(f"{prefix}_")]
+    if not numbered and not named:
+        return []
+    joints = [j.lower() for j in model.joint_names]
+    spelled = f"{prefix}1..{prefix}{n} or {prefix}_<joint> ({', '.join(f'{prefix}_{j}' for j in joints)})"
+    if numbered and named:
+        raise DatasetError(f"{path}: the {what} columns mix {prefix}<k> and {prefix}_<joint>; use one spelling: "
+                           f"{spelled}")
+    if named:
+        unknown = [h for h in named if h[len(prefix) + 1:] not in joints]
+        if unknown:
+            raise DatasetError(f"{path}: column {unknown[0]!r} names no joint of {model.name}; its {what} columns are "
+                               f"{spelled}")
+        wanted = [f"{prefix}_{j}" for j in joints]
+    else:
+        if min(numbered) < 1:
+            raise DatasetError(f"{path}: {what} columns count from 1 ({prefix}1), found {prefix}0")
+        if max(numbered) != n or len(numbered) != n:
+            found = max(numbered)
+            raise DatasetError(
+                f"{path}: the {what} columns are for {len(numbered)} joint{'s' if len(numbered) != 1 else ''} (up to "
+                f"{prefix}{found}), but {model.name} has {n} ({', '.join(model.joint_names)}); give {spelled}"
+            )
+        wanted = [f"{prefix}{i}" for i in range(1, n + 1)]
+    missing = [c for c in wanted if c not in header]
+    if missing:
+        raise DatasetError(f"{path}: missing {what} column{'s' if len(missing) > 1 else ''} {', '.join(missing)}; "
+                           f"give one per joint: {spelled}")
+    return wanted
+
+
 def read_csv_streams(path: str | Path, model, progress=None):
     """Read a recording CSV into :class:`ineid.data.streams.Streams` (no processing yet).
 
     Raises:
         DatasetError: the file missing, unreadable or empty; a repeated column; joint
-            columns for another number of joints; missing columns (all named); ``qd``
-            without ``qdd`` or the reverse; no data rows; a ragged row; a cell that is
-            not a number; a row with only some of a stream's cells; NaN or infinite
-            values; time not increasing within a stream. Cell errors name the line.
+            columns for another number of joints; torque columns for another number of
+            joints or naming another joint; missing columns (all named); ``qd`` without
+            ``qdd`` or the reverse; neither a wrench nor torques; no data rows; a ragged row;
+            a cell that is not a number; a row with only some of a stream's cells; NaN or
+            infinite values; time not increasing within a stream. Cell errors name the line.
     """
     path = Path(path)
     n = model.n_dof
@@ -95,12 +143,16 @@ def read_csv_streams(path: str | Path, model, progress=None):
             if min(joint_index) >= 1
             else f"{path}: joint columns count from 1 (q1, qd1, qdd1), found index 0"
         )
-    required = csv_columns(n, derivatives=False)
+    tau_cols = _channel_columns(header, "tau", "joint torque", model, path)
+    current_cols = _channel_columns(header, "i", "motor current", model, path)
+    has_wrench_cols = any(c in header for c in WRENCH_COLUMNS) or not (tau_cols or current_cols)
+    required = ["time", *(f"q{i}" for i in range(1, n + 1)), *(WRENCH_COLUMNS if has_wrench_cols else ())]
     missing = [c for c in required if c not in header]
     if missing:
         raise DatasetError(
             f"{path}: missing column{'s' if len(missing) > 1 else ''} {', '.join(missing)}; "
-            f"a recording of {model.name} needs {','.join(required)} (and optionally qd1..qd{n}, qdd1..qdd{n})"
+            f"a recording of {model.name} needs {','.join(required)} (and optionally qd1..qd{n}, qdd1..qdd{n}; "
+            f"the wrench columns may be left out when joint torques tau1..tau{n} are given)"
         )
     deriv = [f"{p}{i}" for p in ("qd", "qdd") for i in range(1, n + 1)]
     present = [c for c in deriv if c in header]
@@ -110,22 +162,24 @@ def read_csv_streams(path: str | Path, model, progress=None):
             f"{path}: missing column{'s' if len(absent) > 1 else ''} {', '.join(absent)}; give all of "
             f"qd1..qd{n} and qdd1..qdd{n}, or none (then they are derived from the joint angles)"
         )
-    names = csv_columns(n, derivatives=bool(present))
+    joint_names = csv_columns(n, derivatives=bool(present))[1:-6] + tau_cols + current_cols
+    names = ["time", *joint_names, *(WRENCH_COLUMNS if has_wrench_cols else ())]
     col = [header.index(c) for c in names]
     body = rows[1:]
     if not body:
         raise DatasetError(f"{path}: the header has no data rows below it")
-    n_joint = len(names) - 7  # q (and qd, qdd) columns
+    n_joint = len(joint_names)  # q (and qd, qdd, tau, i) columns: the joints' stream
     data = np.full((len(body), len(names)), np.nan)
     has_joint = np.ones(len(body), dtype=bool)
-    has_wrench = np.ones(len(body), dtype=bool)
+    has_wrench = np.full(len(body), has_wrench_cols)
+    streams = [(1, 1 + n_joint, has_joint)] + ([(1 + n_joint, len(names), has_wrench)] if has_wrench_cols else [])
     for i, row in enumerate(body):
         line = line_of[i + 1]
         if len(row) != len(header):
             raise DatasetError(f"{path}: line {line} has {len(row)} cells, the header has {len(header)}")
         cells = [row[c].strip() for c in col]
         empty = [not c for c in cells]
-        for lo, hi, flag in ((1, 1 + n_joint, has_joint), (1 + n_joint, len(names), has_wrench)):
+        for lo, hi, flag in streams:
             if all(empty[lo:hi]):
                 flag[i] = False
             elif any(empty[lo:hi]):
@@ -151,7 +205,7 @@ def read_csv_streams(path: str | Path, model, progress=None):
                     )
         if progress is not None and (i + 1) % 10000 == 0:
             progress(i + 1, len(body))
-    for name, mask in (("joint", has_joint), ("wrench", has_wrench)):
+    for name, mask in (("joint", has_joint), ("wrench", has_wrench))[: 1 + has_wrench_cols]:
         rows_k = np.flatnonzero(mask)
         t = data[rows_k, 0]
         if len(rows_k) < 2:
@@ -166,10 +220,15 @@ def read_csv_streams(path: str | Path, model, progress=None):
     q = jr[:, 1 : 1 + n]
     qd = jr[:, 1 + n : 1 + 2 * n] if present else None
     qdd = jr[:, 1 + 2 * n : 1 + 3 * n] if present else None
+    k0 = 1 + (3 * n if present else n)
+    tau = jr[:, k0 : k0 + n] if tau_cols else None
+    k0 += n if tau_cols else 0
+    current = jr[:, k0 : k0 + n] if current_cols else None
     if progress is not None:
         progress(len(body), len(body))
     return Streams(
-        joint_time=jr[:, 0], q=q, qd=qd, qdd=qdd, wrench_time=wr[:, 0], wrench=wr[:, 1 + n_joint :],
+        joint_time=jr[:, 0], q=q, qd=qd, qdd=qdd, wrench_time=wr[:, 0] if has_wrench_cols else None,
+        wrench=wr[:, 1 + n_joint :] if has_wrench_cols else None, tau=tau, current=current,
         source=str(path), origin={"format": "csv", "file": path.name, "rows": int(len(body))},
     )  # fmt: skip
 
@@ -187,18 +246,27 @@ def write_recording_csv(path: str | Path, dataset: Dataset, config: int = 0, fli
     """Write one configuration of a dataset as a recording CSV (the inverse of the import).
 
     ``derivatives=False`` leaves out ``qd``/``qdd``, as an encoder-only recording has them.
-    The CSV holds the base wrench (the channel ``wrench``, in its sensor's frame).
+    The CSV holds the base wrench (the channel ``wrench``, in its sensor's frame) and the joint
+    torques ``tau1..taun`` (the channel ``tau``) that the dataset has.
     """
-    if dataset.wrench is None:
-        raise DatasetError(f"a recording CSV holds the wrench, and this dataset measures "
-                           f"{dataset.meta.channels.describe()} without one: write another dataset")
+    tau = dataset.channel_values.get("tau")
+    if dataset.wrench is None and tau is None:
+        raise DatasetError(f"a recording CSV holds the wrench or joint torques, and this dataset measures "
+                           f"{dataset.meta.channels.describe()}: write another dataset")
     n = dataset.n_dof
     t = dataset.time[config] if dataset.time is not None else np.arange(dataset.n_frames) * 0.01
     sign = -1.0 if flip_wrench else 1.0
     joints = [dataset.q[config], dataset.qd[config], dataset.qdd[config]] if derivatives else [dataset.q[config]]
-    table = np.concatenate([t[:, None], *joints, sign * dataset.wrench[config]], axis=1)
+    columns = csv_columns(n, derivatives)[:-6]
+    if tau is not None:
+        joints.append(tau[config])
+        columns += [f"tau{i}" for i in range(1, n + 1)]
+    if dataset.wrench is not None:
+        joints.append(sign * dataset.wrench[config])
+        columns += list(WRENCH_COLUMNS)
+    table = np.concatenate([t[:, None], *joints], axis=1)
     path = Path(path)
     with atomic_output(path) as tmp, tmp.open("w", newline="") as fh:
-        fh.write(",".join(csv_columns(n, derivatives)) + "\n")
+        fh.write(",".join(columns) + "\n")
         np.savetxt(fh, table, delimiter=",", fmt="%.17g")
     return path

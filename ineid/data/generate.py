@@ -9,7 +9,8 @@ memory, so the size of a dataset is bounded by the disk, not the RAM.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import dataclasses
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -51,9 +52,18 @@ class DatasetSpec:
         parameters: bands of the parameter sampling.
         frames: frame sampling mode and settings.
         noise: measurement noise, or ``None`` for clean data. Its wrench noise goes to the
-            channel keyed ``wrench``; other channels are noise-free.
+            channel keyed ``wrench``, its ``channels`` noise to the channel of each key; other
+            channels are noise-free.
         channels: the measurement channels to simulate (an :class:`ineid.channels.ChannelSet`);
-            ``None``: the base wrench in the base frame, under ``wrench``.
+            ``None``: the base wrench in the base frame, under ``wrench``. They are stored as
+            given: their actuation settings (a joint-torque channel's ``friction``, ...) say
+            how to identify, not what is simulated.
+        extra_truth: the simulated actuation ``{name: value}``: joint friction, armature and
+            torque offsets by the joint-torque channel's extra-parameter names
+            (``"<joint>.fv"``, ``"<joint>.fc"``, ``"<joint>.offset"``, ``"<joint>.Ia"``, or
+            the asymmetric ``"<joint>.fv+"``, ...; :func:`actuation_names`). Each channel that
+            takes them reads ``Phi theta + E x`` (``E`` its extra rows with every term on,
+            ``x`` these values, 0 where not named). Stored as the dataset's ``extra_truth``.
     """
 
     combination: Combination = field(default_factory=Combination)
@@ -63,6 +73,7 @@ class DatasetSpec:
     frames: FrameSampling = field(default_factory=FrameSampling)
     noise: NoiseModel | None = None
     channels: ChannelSet | None = None
+    extra_truth: Mapping[str, float] | None = None
 
     def __post_init__(self) -> None:
         if self.n_frames < 1:
@@ -116,11 +127,12 @@ class GenerationPlan:
             sampling=spec.sampling_dict(),
             noise=None if self.noise is None else self.noise.to_dict(),
             channels=spec.channels,
+            extra_truth=dict(spec.extra_truth) if spec.extra_truth else None,
         )
         self.channels = self.meta.channels
-        if self.noise is not None and "wrench" not in self.channels.keys and np.any(self.noise.wrench > 0):
-            raise DatasetError(f"wrench noise is for the channel keyed wrench, and the channels are "
-                               f"{', '.join(self.channels.keys)}; give no force or moment noise, or add that channel")
+        if self.noise is not None:
+            self._check_noise()
+        self.actuation = actuation_plan(model, self.channels, self.meta.extra_truth)
         names = ["q", "qd", "qdd", *self.channels.keys, "theta_unknown", "link_set_index"]
         if spec.frames.mode in ("fourier", "trajectory"):
             names.append("time")
@@ -135,6 +147,22 @@ class GenerationPlan:
             rows = min(RNG_BLOCK_CONFIGS, self.n_configs)
         self.rows = rows
         self._values_fn = None
+
+    def _check_noise(self) -> None:
+        """Noise only for channels there are, with one number or one per axis."""
+        keys = self.channels.keys
+        if "wrench" not in keys and np.any(self.noise.wrench > 0):
+            raise DatasetError(f"wrench noise is for the channel keyed wrench, and the channels are "
+                               f"{', '.join(keys)}; give no force or moment noise, or add that channel")
+        for key, std in self.noise.channels.items():
+            channel = self.channels.get(key)
+            if channel is None and np.any(std > 0):
+                raise DatasetError(f"noise for {key!r}, and the channels are {', '.join(keys)}; give no {key} noise, "
+                                   f"or simulate that channel")
+            if channel is not None and std.size not in (1, channel.n_axes(self.model)):
+                n_axes = channel.n_axes(self.model)
+                raise DatasetError(f"{key} noise has {std.size} standard deviations for the {n_axes} axes of "
+                                   f"{channel.describe()}; give one number or one per axis")
 
     def _check_memory(self) -> None:
         """Refuse sizes whose parameters (all configurations) or one chunk of frames cannot be held.
@@ -213,6 +241,8 @@ class GenerationPlan:
             values = self._values(q, qd, qdd, self.theta_unknown[start:stop])
             one = len(self.channels) == 1
             out.update({self.channels.keys[0]: values} if one else self.channels.split(values, self.meta))
+            for key, channel, x in self.actuation:  # E x: friction, armature, offsets with their true values
+                out[key] = out[key] + channel.extra_rows(m, q, qd, qdd) @ x
             if self.noise is not None:
                 # the noise streams draw six wrench numbers a frame whatever the channels (files stay identical)
                 wrench = out.get("wrench", np.zeros(q.shape[:-1] + (6,)))
@@ -220,14 +250,63 @@ class GenerationPlan:
                 for b0 in range(start, stop, RNG_BLOCK_CONFIGS):
                     sl = slice(b0 - start, min(b0 + RNG_BLOCK_CONFIGS, stop) - start)
                     rng = block_rng(spec.seed, STREAM_NOISE, b0 // RNG_BLOCK_CONFIGS)
-                    noisy.append(self.noise.apply({**{k: out[k][sl] for k in ("q", "qd", "qdd")}, "wrench": wrench[sl]},
-                                                  rng))
+                    keys = ("q", "qd", "qdd", *(k for k in self.noise.channels if k in out))
+                    noisy.append(self.noise.apply({**{k: out[k][sl] for k in keys}, "wrench": wrench[sl]}, rng))
                 for k in self.noise.noisy_keys():
                     out[f"{k}_clean"] = out[k]
                     out[k] = np.concatenate([n[k] for n in noisy])
             out["theta_unknown"] = self.theta_unknown[start:stop]
             out["link_set_index"] = self.link_set_index[start:stop]
             yield start, out
+
+
+ACTUATION_FIELDS = ("friction", "armature", "torque_offset", "asymmetric")
+"""The fields of a channel with actuation terms (the joint-torque channel): what :func:`actuation_plan` turns on."""
+
+
+def actuated(channel, asymmetric: bool = False):
+    """``channel`` with every actuation term as an extra column (viscous and Coulomb friction, torque
+    offset, armature; per direction with ``asymmetric``), or None for a channel without them."""
+    if not {f.name for f in dataclasses.fields(channel)} >= set(ACTUATION_FIELDS):
+        return None
+    return dataclasses.replace(channel, friction=("viscous", "coulomb"), armature=True, torque_offset=True,
+                               asymmetric=asymmetric)
+
+
+def actuation_names(model, channels: ChannelSet, asymmetric: bool = False) -> tuple[str, ...]:
+    """The names ``extra_truth`` may give for ``channels`` (``"<joint>.fv"``, ...), in the channels' order."""
+    full = [actuated(c, asymmetric) for c in channels]
+    return tuple(n for c in full if c is not None for n in c.extra_names(model))
+
+
+def actuation_plan(model, channels: ChannelSet,
+                   truth: Mapping[str, float] | None) -> list[tuple[str, object, np.ndarray]]:
+    """``[(key, channel with every actuation term, x)]``: what adds ``E x`` to each channel's values.
+
+    Raises:
+        DatasetError: a name no channel takes (listing those it may take), or actuation truth
+            with no channel that has actuation.
+    """
+    if not truth:
+        return []
+    asymmetric = any(name.endswith(("+", "-")) for name in truth)
+    names = actuation_names(model, channels, asymmetric)
+    if not names:
+        raise DatasetError(f"actuation values ({', '.join(truth)}) are for joint torques, and the channels are "
+                           f"{', '.join(channels.keys)}; simulate joint torques (--channels wrench,torque)")
+    unknown = [n for n in truth if n not in names]
+    if unknown:
+        raise DatasetError(f"no simulated extra parameter {unknown[0]!r}; the channels take {', '.join(names[:8])}"
+                           + (", ..." if len(names) > 8 else "")
+                           + (" (one model per direction: fv+, fv-, fc+, fc- instead of fv, fc)" if asymmetric else ""))
+    plan = []
+    for c in channels:
+        full = actuated(c, asymmetric)
+        if full is not None:
+            x = np.array([truth.get(n, 0.0) for n in full.extra_names(model)], dtype=np.float64)
+            if np.any(x != 0):
+                plan.append((c.key, full, x))
+    return plan
 
 
 def generate_dataset(model: RobotModel, spec: DatasetSpec = DatasetSpec(), progress: Progress | None = None) -> Dataset:

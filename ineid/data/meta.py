@@ -21,10 +21,13 @@ if TYPE_CHECKING:
     from ineid.robots import RobotModel
 
 FORMAT = "ineid-dataset"
-VERSION = 3
+VERSION = 4
 """Format version this ineid writes and the newest it reads.
 
-Version 3 stores the measurement channels: the ``channels`` attribute holds one record per
+Version 4 adds the simulated truth of the channels' extra parameters (``extra_truth``: joint
+friction, armature, torque offsets by name) and the channel kinds of issue 21 (joint torques,
+motor currents, a wrench at a link), with each channel's noise under its key in ``noise``; it
+reads as version 3 otherwise. Version 3 stores the measurement channels: the ``channels`` attribute holds one record per
 channel (:meth:`ineid.channels.ChannelSet.to_list`), and each channel's values are the
 dataset named by its key (the base wrench: ``wrench``). Version 2 added the ``sensor``
 attribute (the F/T sensor's pose in the base frame). A version-1 or version-2 file reads as
@@ -72,6 +75,10 @@ class DatasetMeta:
             wrench; to change the channels use :meth:`with_channels`.
         ineid_version: the ineid that wrote the file.
         version: the format version.
+        extra_truth: synthetic data: the simulated values of the channels' extra kept
+            parameters ``{name: value}`` (``"<joint>.fv"``, ..., the names of
+            :meth:`ineid.channels.Channel.extra_names`; SI units), so solvers can report
+            their errors; None when nothing beyond the links was simulated (and for recordings).
     """
 
     robot: str
@@ -91,8 +98,11 @@ class DatasetMeta:
     ineid_version: str = ""
     version: int = VERSION
     channels: ChannelSet | None = None
+    extra_truth: dict[str, float] | None = None
 
     def __post_init__(self, sensor) -> None:
+        if self.extra_truth is not None:
+            self.extra_truth = check_extra_truth(self.extra_truth, "dataset extra_truth")
         channels = self.channels
         if channels is not None and not isinstance(channels, ChannelSet):
             channels = ChannelSet.from_list(channels, "dataset channels")
@@ -155,6 +165,22 @@ class DatasetMeta:
             ineid_version=__version__,
             **kwargs,
         )
+
+def check_extra_truth(values, where: str) -> dict[str, float] | None:
+    """``{name: value}`` of finite numbers (an empty one is None), else :class:`DatasetError` naming ``where``."""
+    if values is None:
+        return None
+    if not isinstance(values, Mapping):
+        raise DatasetError(f"{where}: expected a record {{name: value}} of the simulated extra parameters, "
+                           f"got {values!r:.80}")
+    out = {}
+    for name, value in values.items():
+        ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
+        if not isinstance(name, str) or not name or not ok or not np.isfinite(value):
+            raise DatasetError(f"{where}: {name!r} = {value!r} is not a named finite number; the file is damaged")
+        out[name] = float(value)
+    return out or None
+
 
 def _sensor_record(meta: DatasetMeta) -> dict | None:
     """``meta.sensor``: the pose record given at construction, else the base wrench channel's (None: base frame)."""

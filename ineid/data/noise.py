@@ -14,6 +14,12 @@ of frame ``j`` on force axis ``a`` is then ``sigma_a * g_j * z_ja`` with ``g_j``
 ``glitch_scale`` on a glitched frame and 1 otherwise, ``z`` standard normal. Which frames
 glitch is drawn after the Gaussian noise from the same stream, so data without glitches
 are bit-identical to those made before glitches existed.
+
+**Other channels** (joint torques ``tau``, motor currents, a wrench at a link): ``channels``
+holds each one's standard deviations under its key (one number, or one per axis), recorded
+under the same key in the dataset's ``noise``. Their draws come after all of the above,
+channel by channel in the order of their keys, so the wrench's and the kinematics' noise
+(and every file made before these channels existed) are unchanged by them.
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ import numpy as np
 
 WRENCH_AXES = ("fx", "fy", "fz", "mx", "my", "mz")
 STATE_KEYS = ("q", "qd", "qdd")
+_OWN_KEYS = frozenset({*STATE_KEYS, "wrench", "glitch_rate", "glitch_scale"})
 
 
 def _std(value, size: int, name: str) -> np.ndarray:
@@ -48,6 +55,9 @@ class NoiseModel:
         glitch_rate: share of frames, in [0, 1), whose force noise is ``glitch_scale``
             times larger (see the module doc); 0: no glitches.
         glitch_scale: the factor on a glitched frame's force noise, >= 1 (default 20).
+        channels: ``{key: std}`` for the measurement channels other than the base wrench
+            ``wrench`` (``{"tau": 0.02}``: N*m on every joint), one number or one per axis,
+            in the channel's units.
     """
 
     wrench: np.ndarray = field(default_factory=lambda: np.zeros(6))
@@ -56,8 +66,18 @@ class NoiseModel:
     qdd: np.ndarray | float = 0.0
     glitch_rate: float = 0.0
     glitch_scale: float = 20.0
+    channels: Mapping[str, np.ndarray | float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        stds = {}
+        for key, value in dict(self.channels).items():
+            if key in _OWN_KEYS:
+                raise ValueError(f"channel noise key {key!r} is the noise model's own; give it as {key}=...")
+            arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
+            if arr.ndim != 1 or not np.all(np.isfinite(arr)) or np.any(arr < 0):
+                raise ValueError(f"{key} noise must be one finite number >= 0 or one per axis, got {arr.tolist()}")
+            stds[key] = arr
+        object.__setattr__(self, "channels", stds)
         if not 0.0 <= float(self.glitch_rate) < 1.0:
             raise ValueError(f"glitch_rate must be in [0, 1), got {self.glitch_rate}")
         if not 1.0 <= float(self.glitch_scale) < float("inf"):
@@ -77,11 +97,13 @@ class NoiseModel:
         qdd: float | Sequence[float] = 0.0,
         glitch_rate: float = 0.0,
         glitch_scale: float = 20.0,
+        channels: Mapping[str, float | Sequence[float]] | None = None,
     ) -> NoiseModel:
-        """A noise model from per-group standard deviations (a number, or one per axis/joint)."""
+        """A noise model from per-group standard deviations (a number, or one per axis/joint); ``channels``
+        ``{key: std}`` for other measurement channels (``{"tau": 0.02}``)."""
         wrench = np.concatenate([_std(force, 3, "force"), _std(moment, 3, "moment")])
         return cls(wrench=wrench, q=_std(q, n_dof, "q"), qd=_std(qd, n_dof, "qd"), qdd=_std(qdd, n_dof, "qdd"),
-                   glitch_rate=float(glitch_rate), glitch_scale=float(glitch_scale))
+                   glitch_rate=float(glitch_rate), glitch_scale=float(glitch_scale), channels=dict(channels or {}))
 
     @classmethod
     def from_dict(cls, d: Mapping, n_dof: int) -> NoiseModel:
@@ -93,6 +115,7 @@ class NoiseModel:
             qdd=_std(d.get("qdd", 0.0), n_dof, "qdd"),
             glitch_rate=float(d.get("glitch_rate", 0.0)),
             glitch_scale=float(d.get("glitch_scale", 20.0)),
+            channels={k: v for k, v in d.items() if k not in _OWN_KEYS},
         )
 
     def to_dict(self) -> dict:
@@ -101,18 +124,25 @@ class NoiseModel:
         d = {k: np.atleast_1d(np.asarray(getattr(self, k), dtype=float)).tolist() for k in ("wrench", "q", "qd", "qdd")}
         if self.glitch_rate > 0:
             d.update(glitch_rate=float(self.glitch_rate), glitch_scale=float(self.glitch_scale))
+        d.update({k: v.tolist() for k, v in self.channels.items()})
         return d
 
     def noisy_keys(self) -> tuple[str, ...]:
-        """Which arrays this model perturbs, among ``q, qd, qdd, wrench``."""
-        return tuple(k for k in (*STATE_KEYS, "wrench") if np.any(np.asarray(getattr(self, k)) > 0))
+        """Which arrays this model perturbs, among ``q, qd, qdd, wrench`` and the keys of :attr:`channels`."""
+        own = tuple(k for k in (*STATE_KEYS, "wrench") if np.any(np.asarray(getattr(self, k)) > 0))
+        return own + tuple(k for k in sorted(self.channels) if np.any(self.channels[k] > 0))
 
     def apply(self, arrays: Mapping[str, np.ndarray], rng: np.random.Generator) -> dict[str, np.ndarray]:
-        """Noisy copies of ``arrays["q" | "qd" | "qdd" | "wrench"]`` (..., dim).
+        """Noisy copies of ``arrays["q" | "qd" | "qdd" | "wrench"]`` (..., dim) and of ``arrays[key]`` for every
+        key of :attr:`channels` with noise.
 
         One draw of all channels per frame, in a fixed order, so a configuration's noise
         depends only on its random stream; with glitches, then one uniform draw per frame
-        picks the glitched frames.
+        picks the glitched frames; then one draw per frame for each other channel, in the
+        order of their keys.
+
+        Raises:
+            ValueError: a channel's standard deviations that are neither one number nor one per axis.
         """
         keys = (*STATE_KEYS, "wrench")
         widths = [arrays[k].shape[-1] for k in keys]
@@ -129,4 +159,13 @@ class NoiseModel:
             zw = z[..., start - 6 : start - 3]  # the force axes' draws
             out["wrench"] = out["wrench"].copy()
             out["wrench"][..., :3] += extra * np.asarray(self.wrench)[:3] * zw
+        for key in sorted(self.channels):
+            std = self.channels[key]
+            if not np.any(std > 0):
+                continue
+            values = arrays[key]
+            if std.shape not in ((1,), values.shape[-1:]):
+                raise ValueError(f"{key} noise has {std.size} standard deviations for {values.shape[-1]} axes; "
+                                 "give one number or one per axis")
+            out[key] = values + std * rng.standard_normal(values.shape)
         return out

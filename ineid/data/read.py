@@ -16,6 +16,7 @@ import numpy as np
 
 from ineid._faults import fault_errno, require_memory
 from ineid.channels import ChannelSet, SensorPose
+from ineid.data.meta import check_extra_truth
 from ineid.data.schema import (
     FORMAT,
     VERSION,
@@ -198,6 +199,7 @@ def _read_meta(f, where: str) -> DatasetMeta:
             origin=_json_attr(attrs, "origin", where),
             ineid_version=_as_str(attrs.get("ineid_version", "")),
             version=version,
+            extra_truth=_extra_truth(attrs, version, where),
             **_channels(attrs, version, where),
         )
     except KeyError as e:
@@ -222,6 +224,13 @@ def _channels(attrs, version: int, where: str) -> dict:
             _checked(lambda: SensorPose.from_dict(sensor, "sensor"), where)
         return {"sensor": sensor}
     return {"channels": _checked(lambda: ChannelSet.from_list(_json_attr(attrs, "channels", where), "channels"), where)}
+
+
+def _extra_truth(attrs, version: int, where: str) -> dict[str, float] | None:
+    """Version 4: the simulated extra parameters ``{name: value}`` (JSON, ``null`` or absent: none)."""
+    if version < 4 or "extra_truth" not in attrs:
+        return None
+    return _checked(lambda: check_extra_truth(_json_attr(attrs, "extra_truth", where), "extra_truth"), where)
 
 
 def _checked(build, where: str):

@@ -1,24 +1,28 @@
 """A lab's recording -> a one-configuration dataset: two clocks, angles only, the sensor frame.
 
 What a lab records (:class:`Streams`): joint angles with their time stamps (velocities and
-accelerations only when a sensor measures them, like the paper's gyroscopes), and the F/T
-sensor's wrench with its own time stamps, in the sensor's frame. :func:`recording_dataset`
-turns that into frames ``(q, qd, qdd, wrench)`` on one uniform time base:
+accelerations only when a sensor measures them, like the paper's gyroscopes), with joint
+torques (or motor currents) on the same clock when the drives report them, and the F/T
+sensor's wrench with its own time stamps, in the sensor's frame (a recording may have
+torques and no wrench). :func:`recording_dataset` turns that into frames ``(q, qd, qdd,``
+each channel's values ``)`` on one uniform time base:
 
 1. checks: finite values, increasing time stamps, each stream with enough samples;
 2. the wrench clock is shifted by ``delay`` (a wrench stamped ``t`` was measured at
    ``t - delay``), given or estimated from the model (:mod:`ineid.identify.delay`);
-3. when ``qd``/``qdd`` are missing, joint angles *and* wrench go through the same zero-phase
-   low-pass (:mod:`ineid.data.signals`), at a cut-off chosen from the angles' spectrum or
-   given, and the angles are differentiated; samples within the filter's edge are dropped.
-   Measured ``qd``/``qdd`` are used as they are (no filter unless a cut-off is given, which
-   then applies to every channel);
+3. when ``qd``/``qdd`` are missing, joint angles, joint torques *and* wrench go through the
+   same zero-phase low-pass (:mod:`ineid.data.signals`), at a cut-off chosen from the angles'
+   spectrum or given, and the angles are differentiated; samples within the filter's edge
+   are dropped. Measured ``qd``/``qdd`` are used as they are (no filter unless a cut-off is
+   given, which then applies to every channel);
 4. both streams are put on one time base: the slower stream's rate, or ``rate``, over the
    time both cover (cubic-spline interpolation; rows already on the grid are taken as they
    are, so one CSV with one time column and measured derivatives passes through unchanged).
 
-The wrench stays in the sensor frame: the dataset records the sensor pose (format version
-2) and identification transforms the regressor (:mod:`ineid.channels.pose`).
+The wrench stays in the sensor frame: the dataset records the sensor pose (the channel's
+record) and identification transforms the regressor (:mod:`ineid.channels.pose`); a sensor
+on a link is a wrench at that link (:mod:`ineid.data.recording_channels`). Joint torques are
+the ``joint_torque`` channel under ``tau`` (format version 4).
 """
 
 from __future__ import annotations
@@ -30,8 +34,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid.channels.pose import SensorPose, parse_sensor_pose
+from ineid.channels import BaseWrench, ChannelSet
 from ineid.data import signals
+from ineid.data.import_summary import DelayEstimate, ImportSummary  # noqa: F401  (re-exported)
+from ineid.data.recording_channels import (  # noqa: F401  (resolve_sensor re-exported)
+    RIDER_NAMES,
+    joint_channels,
+    resolve_sensor,
+    resolve_wrench_channel,
+    rider_channels,
+)
 from ineid.data.schema import Dataset, DatasetMeta
 from ineid.data.streams import Streams, in_si_units, units_note
 from ineid.errors import DatasetError
@@ -62,6 +74,10 @@ class ImportSettings:
         estimate_delay: estimate ``delay`` from the model instead
             (:func:`ineid.identify.delay.estimate_delay`, within ``+-max_delay`` s).
         max_delay: s, the search range of ``estimate_delay``.
+        torque_constant, gear_ratio: the drives of a recording with motor currents: ``k_j``
+            (N*m/A at the motor) and ``G_j`` (motor turns per joint turn), one number for every
+            joint or one per joint; the currents are stored as a ``motor_current`` channel
+            (``i = tau / (k G)``).
     """
 
     sensor_pose: str | None = None
@@ -73,6 +89,8 @@ class ImportSettings:
     max_delay: float = 0.05
     angle_unit: str = "rad"
     wrench_scale: float = 1.0
+    torque_constant: tuple[float, ...] | None = None
+    gear_ratio: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.angle_unit not in ANGLE_UNITS:
@@ -86,15 +104,6 @@ class ImportSettings:
                 raise DatasetError(f"{name} must be a positive number of Hz, got {v}")
         if not math.isfinite(self.delay):
             raise DatasetError(f"delay must be a finite number of seconds, got {self.delay}")
-
-
-@dataclass(frozen=True)
-class DelayEstimate:
-    """The estimated delay (s) and the linear fit's relative residual ``sqrt(r / ||D y_c||^2)`` at it and at 0."""
-
-    delay: float
-    residual: float
-    residual_at_zero: float
 
 
 DelayEstimator = Callable[[Streams, object, ImportSettings, float], DelayEstimate]
@@ -112,108 +121,6 @@ def register_delay_estimator(estimator: DelayEstimator) -> None:
     """
     global _delay_estimator  # noqa: PLW0603
     _delay_estimator = estimator
-
-
-@dataclass
-class ImportSummary:
-    """What the import did, for the user (printed by ``ineid data import``) and the file."""
-
-    n_frames: int
-    rate: float
-    span: float
-    joint_rate: float
-    wrench_rate: float
-    derived: bool
-    cutoff: float | None
-    cutoff_choice: signals.CutoffChoice | None
-    dropped_start: float
-    dropped_end: float
-    dropped_joint_samples: int
-    dropped_wrench_samples: int
-    resampled: tuple[str, ...]
-    sensor: SensorPose
-    delay: float
-    delay_estimate: DelayEstimate | None = None
-    units: str | None = None
-
-    def lines(self) -> list[str]:
-        out = [f"{self.n_frames:,} frames at {self.rate:g} Hz over {self.span:.3f} s "
-               f"(joints at {self.joint_rate:g} Hz, wrench at {self.wrench_rate:g} Hz"
-               + (f"; {' and '.join(self.resampled)} resampled" if self.resampled else "") + ")"]
-        if self.derived:
-            c = self.cutoff_choice
-            how = "given" if c is None else {
-                "noise": f"chosen from the joint angles: noise {_fmt_list(c.noise_rms)} rad RMS keeps "
-                         f"{100 * c.acceleration_noise:.2g} % of the accelerations' RMS",
-                "rate": f"the upper bound, 0.1 x the rate: the joint angles' noise ({_fmt_list(c.noise_rms)} rad "
-                        "RMS) allows more",
-                "floor": "the lower bound: the joint angles are noisy for their motion "
-                         f"({100 * c.acceleration_noise:.2g} % noise in the accelerations even so)",
-            }[c.limited]
-            out.append(f"qd, qdd from the joint angles: zero-phase Butterworth low-pass at {self.cutoff:.3g} Hz "
-                       f"({how}), central differences; the wrench filtered the same")
-        elif self.cutoff is not None:
-            out.append(f"measured qd, qdd; every channel low-passed at {self.cutoff:.3g} Hz (given)")
-        else:
-            out.append("measured qd, qdd used as they are (no filter)")
-        if self.units:
-            out.append(self.units)
-        out.append(f"dropped {self.dropped_start:.3f} s at the start and {self.dropped_end:.3f} s at the end "
-                   f"({self.dropped_joint_samples:,} joint and {self.dropped_wrench_samples:,} wrench samples: "
-                   "filter edges and time covered by one stream only)")
-        out.append(f"sensor frame in the base frame: {self.sensor.describe()}"
-                   + (f"; messages name frame {self.sensor.frame_id!r}" if self.sensor.frame_id else "")
-                   + (f"; wrench delayed by {self.delay:g} s" if self.delay and self.delay_estimate is None else ""))
-        if self.delay_estimate is not None:
-            e = self.delay_estimate
-            out.append(f"wrench delay estimated: {1e3 * e.delay:.4g} ms (relative residual of the linear fit with "
-                       f"offsets {e.residual:.3g}, against {e.residual_at_zero:.3g} without a delay)")
-        return out
-
-    def to_dict(self) -> dict:
-        return {
-            "frames": self.n_frames, "rate": self.rate, "joint_rate": self.joint_rate,
-            "wrench_rate": self.wrench_rate, "derived": self.derived, "cutoff": self.cutoff,
-            "cutoff_rule": None if self.cutoff_choice is None else self.cutoff_choice.limited,
-            "dropped_start": self.dropped_start, "dropped_end": self.dropped_end, "delay": self.delay,
-            "delay_estimated": self.delay_estimate is not None,
-        }  # fmt: skip
-
-
-def _fmt_list(values) -> str:
-    v = np.asarray(values)
-    return f"{v.min():.2g}" if np.allclose(v, v.min(), rtol=0.5) else f"{v.min():.2g}..{v.max():.2g}"
-
-
-def resolve_sensor(pose_text: str | None, frame_id: str | None, model) -> SensorPose:
-    """The sensor pose from ``--sensor-pose``, else from the messages' ``frame_id``, else the base frame.
-
-    Raises:
-        DatasetError, RobotModelError: a pose that does not parse, a frame the URDF does
-            not have or that moves with the arm.
-    """
-    from dataclasses import replace  # noqa: PLC0415
-
-    from ineid.robots.urdf import fixed_frame_pose  # noqa: PLC0415
-
-    source = f"the URDF of {model.name}"
-    if pose_text is not None:
-        pose = parse_sensor_pose(pose_text, model.urdf_text, model.locked_joints or None, source)
-    elif frame_id:
-        if frame_id == model.chain.root_link:
-            pose = SensorPose(frame=frame_id)
-        else:
-            try:
-                r, p = fixed_frame_pose(model.urdf_text, frame_id, source, model.locked_joints or None)
-            except Exception as e:  # noqa: BLE001 - re-raised below with the fix
-                raise DatasetError(
-                    f"the wrench messages are in frame {frame_id!r}: {e}; give the sensor's pose in the base frame "
-                    "with --sensor-pose x,y,z,roll,pitch,yaw (0,0,0,0,0,0 if it is the base frame)"
-                ) from None
-            pose = SensorPose.from_matrix(r, p, frame=frame_id)
-    else:
-        pose = SensorPose()
-    return replace(pose, frame_id=frame_id)
 
 
 def _check_stream(name: str, t: np.ndarray, arrays: dict[str, np.ndarray], source: str) -> float:
@@ -268,7 +175,7 @@ def _check_rate(rate: float | None, joint_rate: float, wrench_rate: float, overl
 
 
 def recording_dataset(streams: Streams, model, settings: ImportSettings = ImportSettings()) -> tuple[Dataset, ImportSummary]:
-    """Frames on one time base from a recording's two streams (see the module docstring).
+    """Frames on one time base from a recording's streams (see the module docstring).
 
     Args:
         streams: what was read from the file.
@@ -277,25 +184,37 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
 
     Returns:
         ``(dataset, summary)``: one configuration, ``time`` the frames' time stamps on the
-        joints' clock, ``wrench`` in the sensor frame, ``meta.sensor`` the pose.
+        joints' clock, ``wrench`` in the sensor frame (None without a wrench), ``meta.sensor``
+        the pose, joint torques under ``tau`` (``channel_values``) when recorded.
 
     Raises:
         DatasetError: NaN or infinite samples, time that does not increase, too few
             samples, streams that do not overlap, a cut-off or rate that does not fit the
-            sampling, a sensor pose that does not parse.
+            sampling, a sensor pose that does not parse, torques for another number of
+            joints, a recording with neither a wrench nor joint torques.
     """
-    if settings.angle_unit != "rad" or settings.wrench_scale != 1.0:
-        from dataclasses import replace  # noqa: PLC0415
+    from dataclasses import replace  # noqa: PLC0415
 
+    if streams.wrench is None:  # the wrench's settings on a recording without one: a mistake, said once
+        given = [flag for flag, on in (("--sensor-pose", settings.sensor_pose is not None),
+                                       ("--flip-wrench", settings.flip_wrench),
+                                       ("--wrench-scale", settings.wrench_scale != 1.0)) if on]
+        if given:
+            raise DatasetError(f"{streams.source}: {', '.join(given)} set{'s' if len(given) == 1 else ''} up the "
+                               "F/T sensor, and the recording has no wrench; drop it")
+    if settings.angle_unit != "rad" or settings.wrench_scale != 1.0:
         streams = in_si_units(streams, model, settings.angle_unit, settings.wrench_scale)
         settings = replace(settings, angle_unit="rad", wrench_scale=1.0)
+    has_wrench = streams.wrench is not None
     if settings.estimate_delay:
-        from dataclasses import replace  # noqa: PLC0415
-
+        if not has_wrench:
+            raise DatasetError(f"{streams.source}: the recording has no wrench, so there is no wrench delay to "
+                               "estimate; drop --delay auto")
         if _delay_estimator is None:
             raise DatasetError("estimating the wrench delay fits the model, which ineid.identify does: import "
                                "ineid.identify first, or give the delay (ImportSettings(delay=...), --delay S)")
-        estimate = _delay_estimator(streams, model, settings, settings.max_delay)
+        # the wrench's own fit: the joints' other channels (torques) are on the joints' clock, not delayed
+        estimate = _delay_estimator(replace(streams, tau=None, current=None), model, settings, settings.max_delay)
         ds, summary = recording_dataset(streams, model, replace(settings, delay=estimate.delay, estimate_delay=False))
         summary.delay_estimate = estimate
         ds.meta.origin["import"] = summary.to_dict()
@@ -310,19 +229,32 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     joint_arrays = {"q": q}
     if measured:
         joint_arrays.update(qd=np.asarray(streams.qd, dtype=np.float64), qdd=np.asarray(streams.qdd, dtype=np.float64))
-    tw = np.asarray(streams.wrench_time, dtype=np.float64) - settings.delay
-    w = np.asarray(streams.wrench, dtype=np.float64) * (-1.0 if settings.flip_wrench else 1.0)
-    if w.ndim != 2 or w.shape != (len(tw), 6):
-        raise DatasetError(f"{src}: wrench of shape {w.shape} for {len(tw)} time stamps; expected 6 columns")
-    _check_delay(settings.delay, tq, np.asarray(streams.wrench_time, dtype=np.float64), src)
-    hq = _check_stream("joint", tq, joint_arrays, src)
-    hw = _check_stream("wrench", tw, {"wrench": w}, src)
-    sensor = resolve_sensor(settings.sensor_pose, streams.frame_id, model)
+    riders = joint_channels(streams, model, len(tq), settings)  # {key: (Nq, n_a)}: measured on the joints' clock
+    if not has_wrench and not riders:
+        raise DatasetError(f"{src}: the recording has neither a wrench nor joint torques; give the F/T sensor's "
+                           "columns fx..mz (or its WrenchStamped topic) or the joint torques tau1..tauN (or "
+                           "JointState.effort)")
+    if has_wrench:
+        tw = np.asarray(streams.wrench_time, dtype=np.float64) - settings.delay
+        w = np.asarray(streams.wrench, dtype=np.float64) * (-1.0 if settings.flip_wrench else 1.0)
+        if w.ndim != 2 or w.shape != (len(tw), 6):
+            raise DatasetError(f"{src}: wrench of shape {w.shape} for {len(tw)} time stamps; expected 6 columns")
+        _check_delay(settings.delay, tq, np.asarray(streams.wrench_time, dtype=np.float64), src)
+    elif settings.delay:
+        raise DatasetError(f"{src}: --delay is how late the wrench is, and the recording has no wrench; drop it")
+    hq = _check_stream("joint", tq, {**joint_arrays, **riders}, src)
+    if has_wrench:
+        hw = _check_stream("wrench", tw, {"wrench": w}, src)
+        wrench_channel, where = resolve_wrench_channel(settings.sensor_pose, streams.frame_id, model)
+    else:
+        tw, w, hw, wrench_channel, where = tq, None, hq, None, "the base frame"
     rate = settings.rate or min(1.0 / hq, 1.0 / hw)
-    _check_rate(settings.rate, 1.0 / hq, 1.0 / hw, min(tq[-1], tw[-1]) - max(tq[0], tw[0]), n)
-    same_clock = len(tq) == len(tw) and np.array_equal(tq, tw)
+    _check_rate(settings.rate, 1.0 / hq, 1.0 / hw, min(tq[-1], tw[-1]) - max(tq[0], tw[0]), n + sum(
+        a.shape[1] for a in riders.values()))
+    same_clock = not has_wrench or (len(tq) == len(tw) and np.array_equal(tq, tw))
 
-    # 1. filter (and differentiate) each stream on a uniform grid at its own rate
+    # 1. filter (and differentiate) each stream on a uniform grid at its own rate: the joints' other
+    #    channels (torques) with the angles, through the same filter as the wrench
     choice = None
     cutoff = settings.cutoff
     if not measured and cutoff is None:
@@ -333,20 +265,26 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
             f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold (Nyquist {rate / 2:g} Hz); "
             f"use --cutoff below {0.45 * rate:g} Hz or a higher --rate"
         )
+    joint_parts = {**joint_arrays, **riders}
     if cutoff is not None:
-        tq_u, jq = signals.to_uniform(tq, np.concatenate([joint_arrays[k] for k in joint_arrays], axis=1), hq)
-        lp_q = signals.LowPass(cutoff, 1.0 / hq)
-        jq = lp_q.apply(jq)
+        tq_u, jq = signals.to_uniform(tq, np.concatenate(list(joint_parts.values()), axis=1), hq)
+        jq = signals.LowPass(cutoff, 1.0 / hq).apply(jq)
+        parts = _columns(jq, joint_parts)
         if measured:
-            q_s, qd_s, qdd_s = jq[:, :n], jq[:, n:2 * n], jq[:, 2 * n:]
+            q_s, qd_s, qdd_s = parts["q"], parts["qd"], parts["qdd"]
         else:
-            q_s = jq
+            q_s = parts["q"]
             qd_s, qdd_s = signals.derivatives(q_s, hq)
-        tw_u, w_s = signals.to_uniform(tw, w, hw)
-        w_s = signals.LowPass(cutoff, 1.0 / hw).apply(w_s)
+        riders_s = {k: parts[k] for k in riders}
+        if has_wrench:
+            tw_u, w_s = signals.to_uniform(tw, w, hw)
+            w_s = signals.LowPass(cutoff, 1.0 / hw).apply(w_s)
+        else:
+            tw_u, w_s = tq_u, None
         edge = signals.edge_seconds(cutoff)
     else:
         tq_u, q_s, qd_s, qdd_s = tq, q, joint_arrays["qd"], joint_arrays["qdd"]
+        riders_s = riders
         tw_u, w_s = tw, w
         edge = 0.0
 
@@ -354,6 +292,9 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     start = max(tq_u[0], tw_u[0]) + edge
     stop = min(tq_u[-1], tw_u[-1]) - edge
     if not stop > start:
+        if not has_wrench:
+            raise DatasetError(f"{src}: the joint stream ({tq[0]:.6g}..{tq[-1]:.6g} s) is shorter than the filter's "
+                               f"edges ({edge:.3g} s at each end); record longer")
         raise DatasetError(
             f"{src}: the joint stream ({tq[0]:.6g}..{tq[-1]:.6g} s) and the wrench stream ({tw[0]:.6g}..{tw[-1]:.6g} s"
             + (f", delay {settings.delay:g} s applied" if settings.delay else "")
@@ -374,32 +315,55 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     if len(grid) < 2:
         raise DatasetError(f"{src}: {len(grid)} frame{'s' if len(grid) != 1 else ''} left on the common time base; "
                            "record longer or raise --rate")
-    joints = np.concatenate([q_s, qd_s, qdd_s], axis=1)
+    joints = np.concatenate([q_s, qd_s, qdd_s, *riders_s.values()], axis=1)
     joints, moved_q = _on_grid(tq_u, joints, grid)
-    wrench, moved_w = _on_grid(tw_u, w_s, grid)
+    wrench, moved_w = _on_grid(tw_u, w_s, grid) if has_wrench else (None, False)
     resampled = [name for name, moved in (("joints", moved_q), ("wrench", moved_w)) if moved]
     summary = ImportSummary(
         n_frames=len(grid), rate=float(rate),
-        span=float(grid[-1] - grid[0]), joint_rate=1.0 / hq, wrench_rate=1.0 / hw, derived=not measured,
-        cutoff=cutoff, cutoff_choice=choice if settings.cutoff is None else None,
+        span=float(grid[-1] - grid[0]), joint_rate=1.0 / hq, wrench_rate=1.0 / hw if has_wrench else None,
+        derived=not measured, cutoff=cutoff, cutoff_choice=choice if settings.cutoff is None else None,
         dropped_start=float(grid[0] - min(tq[0], tw[0])), dropped_end=float(max(tq[-1], tw[-1]) - grid[-1]),
         dropped_joint_samples=int(np.sum((tq < grid[0] - 1e-9 * hq) | (tq > grid[-1] + 1e-9 * hq))),
-        dropped_wrench_samples=int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw))),
-        resampled=tuple(resampled), sensor=sensor, delay=settings.delay, units=units_note(streams.origin),
+        dropped_wrench_samples=(int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw)))
+                                if has_wrench else 0),
+        resampled=tuple(resampled), sensor=None if wrench_channel is None else wrench_channel.sensor,
+        delay=settings.delay, units=units_note(streams.origin),
+        joint_channels=tuple(RIDER_NAMES[k] for k in riders), sensor_where=where,
     )  # fmt: skip
-    meta = DatasetMeta.for_model(
-        model, source="recording", origin={**streams.origin, "import": summary.to_dict()}, sensor=sensor.to_dict()
-    )
+    values = _columns(joints[:, 3 * n:], riders)
+    origin = {**streams.origin, "import": summary.to_dict()}
+    if riders or not isinstance(wrench_channel, BaseWrench):  # channels of version 4
+        channels = ChannelSet(tuple(c for c in (wrench_channel, *rider_channels(riders, model, settings)) if c is not None))
+        meta = DatasetMeta.for_model(model, source="recording", origin=origin, channels=channels)
+        key = None if wrench_channel is None else wrench_channel.key
+        channel_values = {k: v[None] for k, v in values.items()}
+        if key is not None and key != "wrench":
+            channel_values[key] = wrench[None]
+            wrench = None
+    else:  # the base wrench alone, as before issue 21
+        meta = DatasetMeta.for_model(model, source="recording", origin=origin, sensor=wrench_channel.sensor.to_dict())
+        channel_values = {}
     ds = Dataset(
         meta=meta,
         q=joints[None, :, :n],
         qd=joints[None, :, n:2 * n],
-        qdd=joints[None, :, 2 * n:],
-        wrench=wrench[None],
+        qdd=joints[None, :, 2 * n:3 * n],
+        wrench=None if wrench is None else wrench[None],
+        channel_values=channel_values,
         theta_known=np.asarray(model.theta_cad[model.known_index], dtype=np.float64),
         time=grid[None],
     )
     return ds, summary
+
+
+def _columns(x: np.ndarray, like: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``x`` (N, sum of widths) cut into ``{key: (N, width of like[key])}``, in ``like``'s order."""
+    out, start = {}, 0
+    for key, a in like.items():
+        out[key] = x[:, start:start + a.shape[1]]
+        start += a.shape[1]
+    return out
 
 
 def _on_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, bool]:

@@ -199,6 +199,8 @@ class Dataset:
             key += json.dumps(m.sensor, sort_keys=True)
         if not legacy:
             key += json.dumps(m.channels.to_list(), sort_keys=True)
+        if m.extra_truth:  # version 4: the simulated actuation (absent before, so fingerprints stay)
+            key += json.dumps(m.extra_truth, sort_keys=True)
         return hashlib.sha256(key.encode()).hexdigest()[:16]
 
     def model(self, codegen_dir: str | Path | None = None) -> RobotModel:

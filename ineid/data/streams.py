@@ -1,4 +1,5 @@
-"""What a lab records, as read from a file: joint angles and the sensor wrench, each on its own clock.
+"""What a lab records, as read from a file: joint angles (with joint torques, motor currents) and the
+sensor wrench, each on its own clock.
 
 The file readers (:mod:`ineid.data.csv_import`, :mod:`ineid.data.bags`) produce
 :class:`Streams`, :func:`in_si_units` converts a lab's units, and
@@ -21,23 +22,29 @@ class Streams:
         joint_time: (Nq,) s, increasing.
         q: (Nq, n_dof) joint angles (rad; m for prismatic joints), chain order.
         qd, qdd: (Nq, n_dof) measured velocities and accelerations, or None (derived).
-        wrench_time: (Nw,) s, increasing, on the wrench's clock.
+        wrench_time: (Nw,) s, increasing, on the wrench's clock; None without an F/T sensor.
         wrench: (Nw, 6) what the sensor reads: the load of the robot on it, in its frame,
-            moment about its origin (N, N*m).
+            moment about its origin (N, N*m); None without an F/T sensor (then ``tau`` is
+            needed).
         source: the file, for messages.
         frame_id: the frame the wrench messages name (ROS bags), or None.
         origin: provenance recorded in the dataset (format, topics, message counts...).
+        tau: (Nq, n_dof) joint torques (N*m; N for prismatic joints: what the actuators
+            apply, Pinocchio's ``rnea`` convention), on the joints' clock, chain order; or None.
+        current: (Nq, n_dof) motor currents (A), on the joints' clock, chain order; or None.
     """
 
     joint_time: np.ndarray
     q: np.ndarray
     qd: np.ndarray | None
     qdd: np.ndarray | None
-    wrench_time: np.ndarray
-    wrench: np.ndarray
+    wrench_time: np.ndarray | None
+    wrench: np.ndarray | None
     source: str
     frame_id: str | None = None
     origin: dict = field(default_factory=dict)
+    tau: np.ndarray | None = None
+    current: np.ndarray | None = None
 
 
 def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: float = 1.0) -> Streams:
@@ -64,7 +71,8 @@ def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: 
         # a wrongly shaped array is left as it is: recording_dataset names the problem
         joints[k] = a * factor if a is not None and a.ndim == 2 and a.shape[1] == model.n_dof else a
     origin = {**streams.origin, "angle_unit": angle_unit, "wrench_scale": float(wrench_scale)}
-    return replace(streams, **joints, wrench=np.asarray(streams.wrench, dtype=np.float64) * wrench_scale, origin=origin)
+    wrench = None if streams.wrench is None else np.asarray(streams.wrench, dtype=np.float64) * wrench_scale
+    return replace(streams, **joints, wrench=wrench, origin=origin)
 
 
 def units_note(origin: dict) -> str | None:

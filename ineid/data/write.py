@@ -56,6 +56,7 @@ def _meta_attrs(meta: DatasetMeta) -> dict:
         "origin": json.dumps(meta.origin, sort_keys=True),
         "channels": json.dumps(meta.channels.to_list(), sort_keys=True),
         "ineid_version": meta.ineid_version,
+        "extra_truth": json.dumps(meta.extra_truth, sort_keys=True),
     }
     if meta.seed is not None:
         attrs["seed"] = np.int64(meta.seed)
