@@ -166,39 +166,32 @@ def simulate_study(model, size: StudySize, seed: int = 0, progress=None) -> Stud
     noise_w = rng.normal(size=wrench.shape) * np.asarray(WRENCH_NOISE)
     noise_t = rng.normal(size=tau.shape) * TORQUE_NOISE
     record = {"wrench": list(WRENCH_NOISE), "tau": [TORQUE_NOISE] * model.n_dof}
-    meta = DatasetMeta.for_model(
-        model, source="synthetic", seed=int(seed), noise=record, channels=ChannelSet.of(BaseWrench(), JointTorque()),
-        sampling={"study": "formulations", **asdict(size)}, origin={"simulator": "mujoco", **_friction_record(friction)})
 
-    def dataset(t: np.ndarray) -> Dataset:
+    def dataset(t: np.ndarray, drives: dict[str, np.ndarray]) -> Dataset:
+        # extra_truth: what the friction model's columns should find (Stribeck is nobody's column)
+        truth = {f"{j}.{term}": float(drives[field][i]) for i, j in enumerate(model.joint_names)
+                 for term, field in TERMS.items()}
+        meta = DatasetMeta.for_model(
+            model, source="synthetic", seed=int(seed), noise=record, extra_truth=truth,
+            channels=ChannelSet.of(BaseWrench(), JointTorque()), sampling={"study": "formulations", **asdict(size)},
+            origin={"simulator": "mujoco", **{k: v.tolist() for k, v in drives.items()}})
         return Dataset(meta=meta, q=states["q"], qd=states["qd"], qdd=states["qdd"], wrench=wrench + noise_w,
                        theta_known=model.theta_cad[model.known_index], theta_unknown=np.stack(thetas),
                        clean={"wrench": wrench, "tau": t}, time=states["time"], channel_values={"tau": t + noise_t})
 
-    return StudyData(dataset(tau), dataset(ideal_tau), friction)
+    ideal = {k: np.zeros_like(v) if k != "stribeck_velocity" else v for k, v in f.items()}
+    return StudyData(dataset(tau, f), dataset(ideal_tau, ideal), friction)
 
 
-def _friction_record(friction: JointFriction) -> dict:
-    return {k: np.atleast_1d(v).tolist() for k, v in asdict(friction).items()}
-
-
-def _truth(names, theta_unknown: np.ndarray, joints, friction: dict | None) -> np.ndarray:
-    """``[theta_u, x]`` (C, n_params): the extras' truth from ``friction`` (per joint arrays; None: ideal, 0)."""
-    extra = []
-    for name in names[theta_unknown.shape[1]:]:
-        joint, term = name.rsplit(".", 1)
-        extra.append(0.0 if friction is None else friction[TERMS[term]][joints.index(joint)])
-    return np.concatenate([theta_unknown, np.broadcast_to(extra, (len(theta_unknown), len(extra)))], axis=1)
-
-
-def _base_error(res, ds: Dataset, model, friction: dict | None) -> float:
+def _base_error(res) -> float:
+    """Median relative error of the base parameters that involve a link parameter (``B theta_true``: the
+    dataset's ``extra_truth`` for the friction terms)."""
     ok = res.success
     if not ok.any():
         return np.nan
     b = res.base.B
     links = np.any(np.abs(b[:, : res.base.n_link_params]) > 1e-12 * np.abs(b).max(), axis=1)
-    truth = _truth(res.param_names, ds.theta_unknown, model.joint_names, friction) @ b.T
-    return float(np.nanmedian(relative_error(res.base_hat[ok][:, links], truth[ok][:, links])))
+    return float(np.nanmedian(relative_error(res.base_hat[ok][:, links], res.base_true[ok][:, links])))
 
 
 def _axis_rel(pred: np.ndarray, ref: np.ndarray) -> float:
@@ -272,8 +265,8 @@ def formulations_study(model, size: StudySize = SIZES["quick"], seed: int = 0, f
         fr = _friction_errors(res, model, friction)
         rows.append(FormulationRow(
             robot=model.name, formulation=name, n_params=res.base.n_params, rank=res.base.rank,
-            base_error=_base_error(res, data.real, model, friction),
-            base_error_ideal=_base_error(ideal, data.ideal, model, None),
+            base_error=_base_error(res),
+            base_error_ideal=_base_error(ideal),
             wrench_error=wrench_err, torque_error=torque_err, link_torque_error=link_err,
             fv_error=fr["fv"], fc_error=fr["fc"], ia_error=fr["Ia"],
             failed_share=float(1.0 - res.success.mean()), seconds=seconds))  # fmt: skip
