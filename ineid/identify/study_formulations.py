@@ -300,7 +300,8 @@ def plot(rows: list[FormulationRow], results: dict, data: StudyData, model, path
         width = 0.8 / len(pairs)
         for i, (label, attr) in enumerate(pairs):
             ax.bar(x + (i - (len(pairs) - 1) / 2) * width, [getattr(r, attr) for r in rows], width, label=label)
-        _literal(ax.set_xticks(x, names, rotation=20))
+        ax.set_xticks(x)
+        _literal(ax.set_xticklabels(names, rotation=20))
         ax.set_yscale("log")
         ax.set_title(title)
         ax.legend(fontsize=8)
@@ -317,7 +318,8 @@ def plot(rows: list[FormulationRow], results: dict, data: StudyData, model, path
         pos = np.arange(len(extra)) + 0.2 * (i - (len(with_extra) - 1) / 2)
         ax.plot(np.broadcast_to(pos, ratio.shape).ravel(), ratio.ravel(), "o", ms=3,
                 color=f"C{names.index(name)}", label=name)
-        _literal(ax.set_xticks(np.arange(len(extra)), extra, rotation=60, fontsize=7))
+        ax.set_xticks(np.arange(len(extra)))
+        _literal(ax.set_xticklabels(extra, rotation=60, fontsize=7))
     ax.axhline(1.0, color="k", lw=0.8)
     ax.set_title("identified / simulated friction and armature")
     if with_extra:
