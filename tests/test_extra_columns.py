@@ -1,0 +1,363 @@
+"""Identification with the channels' extra kept columns ``E x`` (issue 21): friction, armature, torque offsets.
+
+A test-only joint-torque channel (:class:`FakeTorque`, the ``JointTorque`` contract's fields and
+extra columns, with cheap rows so nothing slow compiles) is simulated with known extra
+parameters ``x``; every route must recover ``theta``'s base parameters and ``x`` exactly on
+clean data, the fused normal equations must equal the QR stacks, and an extra column
+collinear with a link direction (the armature ``qdd_j`` against link ``j``'s mass in these
+rows) must become a combined base parameter.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from ineid.channels import BaseWrench, Channel, ChannelSet, register
+from ineid.data import Combination, DatasetSpec, generate_dataset
+from ineid.errors import IdentificationError
+from ineid.identify import SolveSettings, base_parameters, load_results, save_results, solve_dataset
+from ineid.identify.steps import predicted_wrench
+from tests.conftest import SEED, rel_err
+
+# -- a test-only joint-torque channel --------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=None)
+def _entries(n_dof: int):
+    """Row ``j``: ``qdd_j`` at link ``j``'s mass, ``qd_j^2 cos q_j`` at its ``mx``, ``sin q_j`` at its ``my``."""
+
+    def entries(q, qd, qdd, gravity):
+        import jax.numpy as jnp
+
+        n_cols = 10 * n_dof
+        out: list = [0] * (n_dof * n_cols)
+        for j in range(n_dof):
+            out[j * n_cols + 10 * j] = qdd[..., j]
+            out[j * n_cols + 10 * j + 1] = qd[..., j] ** 2 * jnp.cos(q[..., j])
+            out[j * n_cols + 10 * j + 2] = jnp.sin(q[..., j])
+        return tuple(out)
+
+    return entries
+
+
+def _terms(channel) -> tuple[str, ...]:
+    """The extra terms per joint, in the contract's order (fv, fc, offset, Ia; split per direction if asymmetric)."""
+    out: list[str] = []
+    for f, short in (("viscous", "fv"), ("coulomb", "fc")):
+        if f in channel.friction:
+            out += [f"{short}+", f"{short}-"] if channel.asymmetric else [short]
+    return tuple(out + ["offset"] * channel.torque_offset + ["Ia"] * channel.armature)
+
+
+def _term(term: str, q, qd, qdd, zone: float, xp):
+    s = xp.tanh(qd / zone) if zone > 0 else xp.sign(qd)
+    return {"fv": qd, "fv+": xp.maximum(qd, 0), "fv-": xp.minimum(qd, 0), "fc": s,
+            "fc+": xp.maximum(s, 0) if zone > 0 else (qd > 0) * 1.0,
+            "fc-": xp.minimum(s, 0) if zone > 0 else (qd < 0) * -1.0,
+            "offset": qd * 0 + 1.0, "Ia": qdd}[term]
+
+
+@functools.lru_cache(maxsize=None)
+def _extra_fn(terms: tuple[str, ...], zone: float, n_dof: int):
+    def extra(q, qd, qdd):
+        import jax.numpy as jnp
+
+        batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1])
+        out = jnp.zeros(batch + (n_dof, n_dof * len(terms)), dtype=q.dtype)
+        for j in range(n_dof):
+            for k, t in enumerate(terms):
+                out = out.at[..., j, j * len(terms) + k].set(_term(t, q[..., j], qd[..., j], qdd[..., j], zone, jnp))
+        return out
+
+    return extra
+
+
+@register
+@dataclass(frozen=True, kw_only=True)
+class FakeTorque(Channel):
+    """Test-only: ``n_dof`` axes like joint torques, cheap rows (:func:`_entries`), the contract's actuation fields."""
+
+    key: str = "tau"
+    friction: tuple[str, ...] = ()
+    coulomb_zone: float = 0.0
+    asymmetric: bool = False
+    armature: bool = False
+    torque_offset: bool = False
+
+    kind = "test-fake-torque"
+    RECORD_FIELDS = ("friction", "coulomb_zone", "asymmetric", "armature", "torque_offset")
+
+    @classmethod
+    def _parse_record(cls, d, where):
+        out = super()._parse_record(d, where)
+        if "friction" in out:
+            out["friction"] = tuple(out["friction"])
+        return out
+
+    def axes(self, model):
+        return tuple(model.joint_names)
+
+    def units(self, model):
+        return ("N*m",) * model.n_dof
+
+    def describe(self):
+        return "a test-only joint torque"
+
+    def entries_function(self, model):
+        return _entries(model.n_dof)
+
+    def casadi_function(self, model):
+        import casadi as ca
+
+        q, qd, qdd = (ca.SX.sym(s, model.n_dof) for s in ("q", "qd", "qdd"))
+        y = ca.SX.zeros(model.n_dof, 10 * model.n_dof)
+        for j in range(model.n_dof):
+            y[j, 10 * j], y[j, 10 * j + 1], y[j, 10 * j + 2] = qdd[j], qd[j] ** 2 * ca.cos(q[j]), ca.sin(q[j])
+        return ca.Function("fake_torque", [q, qd, qdd], [y])
+
+    def extra_names(self, model):
+        return tuple(f"{j}.{t}" for j in model.joint_names for t in _terms(self))
+
+    def extra_rows_function(self, model):
+        return _extra_fn(_terms(self), float(self.coulomb_zone), model.n_dof) if _terms(self) else None
+
+    def casadi_extra_function(self, model):
+        terms = _terms(self)
+        if not terms:
+            return None
+        import casadi as ca
+
+        class _Ca:
+            tanh, sign = staticmethod(ca.tanh), staticmethod(ca.sign)
+
+            @staticmethod
+            def maximum(a, b):
+                return ca.fmax(a, b)
+
+            @staticmethod
+            def minimum(a, b):
+                return ca.fmin(a, b)
+
+        q, qd, qdd = (ca.SX.sym(s, model.n_dof) for s in ("q", "qd", "qdd"))
+        e = ca.SX.zeros(model.n_dof, model.n_dof * len(terms))
+        for j in range(model.n_dof):
+            for k, t in enumerate(terms):
+                e[j, j * len(terms) + k] = _term(t, q[j], qd[j], qdd[j], float(self.coulomb_zone), _Ca)
+        return ca.Function("fake_extra", [q, qd, qdd], [e])
+
+
+def with_extras(ds, model, channel: FakeTorque, x: np.ndarray):
+    """``ds`` with ``E x`` of ``channel`` added to its joint torques (the stored channel stays as measured)."""
+    e = channel.extra_rows(model, ds.q, ds.qd, ds.qdd)
+    values = dict(ds.channel_values)
+    values[channel.key] = values[channel.key] + e @ x
+    return dataclasses.replace(ds, channel_values=values)
+
+
+def truth_x(model, channel, seed=1) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.uniform(0.2, 1.5, len(channel.extra_names(model)))
+
+
+ACTUATION = dict(friction=("viscous", "coulomb"), torque_offset=True)
+
+
+@pytest.fixture(scope="module")
+def torque_only(model):
+    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=6), n_frames=40, seed=SEED,
+                                             channels=ChannelSet.of(FakeTorque())))
+    channel = FakeTorque(**ACTUATION)
+    x = truth_x(model, channel)
+    return with_extras(ds, model, channel, x), x
+
+
+@pytest.fixture(scope="module")
+def both(model):
+    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=5), n_frames=40, seed=SEED,
+                                             channels=ChannelSet.of(BaseWrench(), FakeTorque())))
+    channel = FakeTorque(**ACTUATION)
+    x = truth_x(model, channel, 2)
+    return with_extras(ds, model, channel, x), x
+
+
+# -- base parameters over [theta_u, x] ----------------------------------------------------------
+
+
+def test_base_parameters_over_links_and_extras(model):
+    plain = base_parameters(model, channels=ChannelSet.of(FakeTorque()))
+    channel = FakeTorque(friction=("viscous", "coulomb"), torque_offset=True)
+    base = base_parameters(model, channels=ChannelSet.of(channel))
+    names = channel.extra_names(model)
+    assert base.n_extra == len(names) == 3 * model.n_dof
+    assert base.param_names == (*plain.param_names, *names) and base.n_link_params == plain.n_params
+    assert base.rank == plain.rank + len(names)  # friction and offsets are independent of these rows
+    assert np.all(base.identifiable[base.n_link_params:])
+    assert np.all(base.scales > 0) and np.all(np.isfinite(base.scales))
+    # the scale of an extra: the typical reading of its axis over its column's RMS (N*m / (rad/s) for fv)
+    assert base.scales[base.param_names.index("elbow.fv")] != base.scales[base.param_names.index("elbow.offset")]
+
+
+def test_collinear_extra_is_a_combined_base_parameter(model):
+    """The armature column qdd_j equals link j's mass column in these rows: only their sum is seen."""
+    base = base_parameters(model, channels=ChannelSet.of(FakeTorque(armature=True)))
+    links = model.unknown_links
+    joint = model.joint_names[model.link_names.index(links[-1])]
+    assert f"{links[-1]}.m + {joint}.Ia" in base.names
+    assert not base.identifiable[base.param_names.index(f"{joint}.Ia")]
+    assert not base.identifiable[base.param_names.index(f"{links[-1]}.m")]
+    # joints of known links: their armature is seen alone
+    known_joint = model.joint_names[0]
+    assert base.identifiable[base.param_names.index(f"{known_joint}.Ia")]
+
+
+# -- the linear fits ---------------------------------------------------------------------------
+
+
+def test_linear_exact_and_fused_equals_qr(model, torque_only):
+    ds, x = torque_only
+    settings = SolveSettings(weights="none", **_flags(ACTUATION))
+    fused = solve_dataset(ds, settings, model=model)
+    qr = solve_dataset(ds, dataclasses.replace(settings, backend="casadi"), model=model)
+    base = fused.base
+    assert fused.success.all() and fused.n_extra == len(x)
+    assert fused.param_names[-len(x):] == FakeTorque(**ACTUATION).extra_names(model)
+    assert rel_err(fused.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-10
+    truth = np.concatenate([ds.theta_unknown, np.broadcast_to(x, (ds.n_configs, len(x)))], axis=1)
+    assert rel_err(fused.base_hat, truth @ base.B.T) < 1e-10
+    assert rel_err(qr.theta_hat, fused.theta_hat) < 1e-10
+    assert np.all(np.isfinite(fused.theta_std[:, -len(x):]))
+    assert fused.theta_links.shape == ds.theta_unknown.shape
+    # the residuals and the prediction carry E x: clean data fit to round-off
+    assert np.nanmax(fused.fit_rms) < 1e-9 * np.abs(ds.channel_values["tau"]).max()
+    pred = predicted_wrench(model, ds, fused.theta_hat, channels=ChannelSet.of(FakeTorque(**ACTUATION)))
+    assert rel_err(pred, ds.channel_values["tau"]) < 1e-10
+
+
+def test_weighted_and_offsets(model, torque_only):
+    ds, x = torque_only
+    res = solve_dataset(ds, SolveSettings(weights="estimate", bias="estimate", friction=("viscous", "coulomb")),
+                        model=model)
+    assert res.success.all()
+    n = len(FakeTorque(friction=("viscous", "coulomb")).extra_names(model))
+    keep = [i for i, name in enumerate(FakeTorque(**ACTUATION).extra_names(model)) if not name.endswith("offset")]
+    assert rel_err(res.theta_hat[:, -n:], np.broadcast_to(x[keep], (ds.n_configs, n))) < 1e-8
+    assert rel_err(res.bias_hat, np.broadcast_to(x[2::3], res.bias_hat.shape)) < 1e-8  # the offsets, as b
+
+
+def test_large_job_residual_kernel(model):
+    """More than SMALL_JOB_FRAMES frames: the compiled residual kernel adds E x too."""
+    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=45), n_frames=240, seed=3,
+                                             channels=ChannelSet.of(FakeTorque())))
+    channel = FakeTorque(friction=("viscous",))
+    x = truth_x(model, channel, 4)
+    ds = with_extras(ds, model, channel, x)
+    res = solve_dataset(ds, SolveSettings(weights="none", friction=("viscous",)), model=model)
+    assert rel_err(res.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-10
+    assert np.nanmax(res.fit_rms) < 1e-9 * np.abs(ds.channel_values["tau"]).max()
+
+
+# -- nonlinear and consistent ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("method", ["nonlinear", "consistent"])
+def test_ipopt_methods_recover_extras(model, torque_only, method):
+    ds, x = torque_only
+    sub = ds.select(slice(0, 3))
+    res = solve_dataset(sub, SolveSettings(method=method, **_flags(ACTUATION)), model=model)
+    assert res.success.all(), res.status
+    # consistent: the noise-free floor (1e-3 of the data) and the entropic barrier leave ~1e-4 (as for the links)
+    tol = 1e-6 if method == "nonlinear" else 1e-3
+    x_all = np.broadcast_to(x, (sub.n_configs, len(x)))
+    assert rel_err(res.theta_hat[:, -len(x):], x_all) < tol
+    truth = np.concatenate([sub.theta_unknown, x_all], axis=1)
+    assert rel_err(res.base_hat, truth @ res.base.B.T) < tol
+    assert np.median(np.abs(res.theta_hat[:, -len(x):] / x_all - 1)) < tol / 10
+
+
+def test_consistent_bounds_dissipative_extras(model, torque_only):
+    """Negative true friction: consistent keeps fv, fc >= 0, the offsets stay free."""
+    ds, _ = torque_only
+    channel = FakeTorque(**ACTUATION)
+    x = -truth_x(model, channel)
+    base_ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=2), n_frames=40, seed=SEED,
+                                                  channels=ChannelSet.of(FakeTorque())))
+    neg = with_extras(base_ds, model, channel, x)
+    res = solve_dataset(neg, SolveSettings(method="consistent", **_flags(ACTUATION)), model=model)
+    extras = res.theta_hat[:, -len(x):]
+    names = channel.extra_names(model)
+    friction = [i for i, n in enumerate(names) if not n.endswith("offset")]
+    assert np.all(extras[:, friction] >= -1e-9)
+
+
+# -- wrench and torques together, the two steps, the choice of channels -------------------------------
+
+
+def test_wrench_and_torque_together(model, both):
+    ds, x = both
+    joint = solve_dataset(ds, SolveSettings(weights="none", **_flags(ACTUATION)), model=model)
+    truth = np.concatenate([ds.theta_unknown, np.broadcast_to(x, (ds.n_configs, len(x)))], axis=1)
+    assert joint.success.all()
+    assert rel_err(joint.base_hat, truth @ joint.base.B.T) < 1e-10
+    assert joint.axes == (*(f"wrench.{a}" for a in ("fx", "fy", "fz", "mx", "my", "mz")),
+                          *(f"tau.{j}" for j in model.joint_names))
+    # the two steps: the links from the wrench alone (the same as --use wrench) ...
+    two = solve_dataset(ds, SolveSettings(weights="none", two_step=True, **_flags(ACTUATION)), model=model)
+    assert two.success.all() and two.param_names == joint.param_names
+    wrench = solve_dataset(ds, SolveSettings(weights="none", use=("wrench",)), model=model)
+    assert wrench.n_extra == 0 and wrench.axes == ("fx", "fy", "fz", "mx", "my", "mz")
+    np.testing.assert_allclose(two.theta_hat[:, : -len(x)], wrench.theta_hat, rtol=0, atol=1e-12)
+    # ... then x from the torques' residual at those links: the least squares of that residual
+    channel = FakeTorque(**ACTUATION)
+    theta = model.full_theta(wrench.theta_hat, ds.theta_known)
+    n_fit = two.n_frames_fit
+    rows = ChannelSet.of(channel).rows(model, ds.q, ds.qd, ds.qdd)[:, :n_fit]
+    e = channel.extra_rows(model, ds.q, ds.qd, ds.qdd)[:, :n_fit]
+    resid = ds.channel_values["tau"][:, :n_fit] - np.einsum("cfap,cp->cfa", rows, theta)
+    for c in range(ds.n_configs):
+        ls = np.linalg.lstsq(e[c].reshape(-1, len(x)), resid[c].ravel(), rcond=None)[0]
+        assert rel_err(two.theta_hat[c, -len(x):], ls) < 1e-9
+    # exact where the wrench determines all the torques see: the joints of the known links
+    names = channel.extra_names(model)
+    known = [i for i, n in enumerate(names) if n.split(".")[0] in model.joint_names[:2]]
+    assert rel_err(two.theta_hat[:, -len(x):][:, known], np.broadcast_to(x[known], (ds.n_configs, len(known)))) < 1e-9
+
+
+def test_results_round_trip(model, torque_only, tmp_path):
+    ds, x = torque_only
+    res = solve_dataset(ds, SolveSettings(**_flags(ACTUATION)), model=model)
+    back = load_results(save_results(res, tmp_path / "r.h5"))
+    assert back.param_names == res.param_names and back.n_extra == res.n_extra == len(x)
+    assert back.settings == res.settings
+    np.testing.assert_array_equal(back.theta_hat, res.theta_hat)
+    np.testing.assert_array_equal(back.base.B, res.base.B)
+
+
+def test_bad_choices_are_one_line(model, torque_only, both):
+    ds, _ = torque_only
+    wrench_only = generate_dataset(model, DatasetSpec(Combination("random", n_configs=1), n_frames=20, seed=SEED))
+    cases = [
+        (wrench_only, SolveSettings(use=("torque",)), "no joint torques"),
+        (wrench_only, SolveSettings(friction=("viscous",)), "have none"),
+        (wrench_only, SolveSettings(use=("gyro",)), "no channel named 'gyro'"),
+        (ds, SolveSettings(two_step=True, friction=("viscous",)), "lack a wrench"),
+        (both[0], SolveSettings(use=("wrench",), armature=True), "have none"),
+        (both[0], SolveSettings(two_step=True), "give at least one"),
+        (ds, SolveSettings(backend="casadi-c", friction=("viscous",)), "does not fit extra parameters"),
+    ]
+    for data, settings, text in cases:
+        with pytest.raises(IdentificationError, match=text.replace("'", ".")) as e:
+            solve_dataset(data, settings, model=model)
+        assert "\n" not in str(e.value)
+    for bad in (dict(friction=("stribeck",)), dict(coulomb_zone=0.1), dict(asymmetric_friction=True)):
+        with pytest.raises(ValueError):
+            SolveSettings(**bad)
+
+
+def _flags(actuation: dict) -> dict:
+    """SolveSettings' names of a channel's actuation fields."""
+    return {("asymmetric_friction" if k == "asymmetric" else k): v for k, v in actuation.items()}
