@@ -361,3 +361,62 @@ def test_bad_choices_are_one_line(model, torque_only, both):
 def _flags(actuation: dict) -> dict:
     """SolveSettings' names of a channel's actuation fields."""
     return {("asymmetric_friction" if k == "asymmetric" else k): v for k, v in actuation.items()}
+
+
+# -- the command line ------------------------------------------------------------------------------
+
+
+def _one_line(result, code):
+    assert result.exit_code == code, result.output
+    assert "Traceback" not in result.output
+    return [line for line in result.output.splitlines() if line.strip()][-1]
+
+
+def test_cli_solve_with_friction(run, model, both, tmp_path):
+    ds, x = both
+    data = ds.select(slice(0, 2)).save(tmp_path / "both.h5")
+    out = tmp_path / "r.h5"
+    r = run("solve", data, "--use", "wrench,tau", "--friction", "viscous,coulomb", "--torque-offset",
+            "--weights", "none", "--out", out)
+    assert r.exit_code == 0, r.output
+    res = load_results(out)
+    assert res.param_names[-len(x):] == FakeTorque(**ACTUATION).extra_names(model)
+    assert res.settings.friction == ("viscous", "coulomb") and res.settings.use == ("wrench", "tau")
+    info = run("results", "info", out)
+    assert info.exit_code == 0 and "extra parameters (after the links'): shoulder_pitch.fv" in info.output
+    r = run("solve", data, "--use", "wrench,tau", "--friction", "viscous", "--two-step", "--method", "consistent",
+            "--out", tmp_path / "two.h5")
+    assert r.exit_code == 0, r.output
+    two = load_results(tmp_path / "two.h5")
+    assert two.settings.two_step and two.success.all() and np.all(two.theta_hat[:, -two.n_extra:] >= 0)
+    r = run("export-urdf", tmp_path / "two.h5", "--config", 0, "--out", tmp_path / "r.urdf")  # the links only
+    assert r.exit_code == 0, r.output
+
+
+def test_cli_bad_channel_choices_are_one_line(run, model, torque_only, tmp_path):
+    wrench_only = generate_dataset(model, DatasetSpec(Combination("random", n_configs=1), n_frames=20, seed=SEED))
+    wrench = wrench_only.save(tmp_path / "w.h5")
+    tau = torque_only[0].select(slice(0, 1)).save(tmp_path / "t.h5")
+    out = tmp_path / "r.h5"
+    for args, text in (
+        ((wrench, "--use", "torque"), "no joint torques"),
+        ((wrench, "--friction", "viscous"), "have none"),
+        ((wrench, "--armature"), "have none"),
+        ((wrench, "--use", "gyro"), "no channel named 'gyro'"),
+        ((tau, "--two-step", "--friction", "viscous"), "lack a wrench"),
+    ):
+        assert text in _one_line(run("solve", *args, "--out", out), 1)
+        assert not out.exists()
+    assert "coulomb" in _one_line(run("solve", wrench, "--coulomb-zone", "0.1", "--out", out), 2)
+    assert "--friction" in _one_line(run("solve", wrench, "--friction", "stribeck", "--out", out), 2)
+    assert not out.exists()
+
+
+def test_cli_identifiability_follows_the_channels(run, torque_only, tmp_path):
+    tau = torque_only[0].select(slice(0, 1)).save(tmp_path / "t.h5")
+    r = run("identifiability", "sweaty-arm", "--data", tau, "--armature")
+    assert r.exit_code == 0, r.output
+    assert "forearm.m + elbow.Ia" in r.output and "extra parameters: shoulder_pitch.Ia" in r.output
+    assert "have none" in _one_line(run("identifiability", "sweaty-arm", "--friction", "viscous"), 1)
+    r = run("identifiability", "sweaty-arm", "--use", "wrench")
+    assert r.exit_code == 0 and "channels: base wrench" in r.output

@@ -149,7 +149,7 @@ def print_results(res, out) -> None:
             con.print(tab)
         from ineid.params import all_links_physical  # noqa: PLC0415
 
-        valid = all_links_physical(np.nan_to_num(res.theta_hat[res.success]))
+        valid = all_links_physical(np.nan_to_num(res.theta_links[res.success]))
         con.print(f"physically valid estimates: {100 * valid.mean():.1f}%")
     elif n_ok:
         i = int(np.flatnonzero(res.success)[0])

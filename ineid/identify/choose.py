@@ -135,3 +135,28 @@ def solve_channels(ds, settings, model) -> ChannelSet:
             raise IdentificationError("backend 'casadi-c' fits in the base frame only; this dataset's wrench is in a "
                                       "sensor frame: use backend 'jax' or 'casadi'", status="unsupported")
     return channels
+
+
+def channels_named(names: Sequence[str] | None) -> ChannelSet:
+    """The channels ``names`` stand for without a dataset (``ineid identifiability --use`` on random frames):
+    ``wrench`` the base wrench, ``torque`` (``tau``, ``joint_torque``) the joint torques; None: the base wrench.
+
+    Raises:
+        IdentificationError: a name that is neither, or joint torques this ineid has no channel for.
+    """
+    from ineid.channels import channel_from_dict, channel_kinds  # noqa: PLC0415
+
+    out = []
+    for name in names or ("wrench",):
+        if name in ("wrench", "base_wrench"):
+            out.append(BaseWrench())
+        elif name in ("torque", "tau", "joint_torque") and "joint_torque" in channel_kinds():
+            out.append(channel_from_dict({"kind": "joint_torque", "key": "tau"}))
+        elif name in ("torque", "tau", "joint_torque"):
+            raise IdentificationError("this ineid has no joint-torque channel yet; use --use wrench",
+                                      status="unknown_channel")
+        else:
+            raise IdentificationError(f"--use {name}: without --data the channels are wrench and torque; "
+                                      "choose among them (or analyse a dataset's channels with --data)",
+                                      status="unknown_channel")
+    return ChannelSet(tuple(dict.fromkeys(out)))
