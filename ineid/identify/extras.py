@@ -8,9 +8,9 @@ identification treats them as more columns of the same regressor:
     W = [T Phi_u | E]          (A F, 10 n_u + n_e),     unknowns [theta_u; x]
 
 Everything downstream (base parameters, the fits, the covariance, the null-space rule,
-IPOPT) runs over ``[theta_u, x]``: an extra column collinear with a link direction (the
-armature of a joint whose link spins about its own axis adds to that link's ``Izz``) shows
-up as a combined base parameter, like any other dependency. The links' parameters come
+IPOPT) runs over ``[theta_u, x]``: an extra column collinear with a link direction shows up
+as a combined base parameter, like any other dependency (``<link>.Izz + <joint>.Ia`` for the
+first joint's armature when its link spins about its own ``z`` axis). The links' parameters come
 first, in chain order, then the extras in the channels' order
 (:meth:`ineid.channels.ChannelSet.extra_names`). An extra's prior is 0.
 
