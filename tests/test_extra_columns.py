@@ -437,3 +437,51 @@ def test_cli_identifiability_follows_the_channels(run, torque_only, tmp_path):
     assert "have none" in _one_line(run("identifiability", "sweaty-arm", "--friction", "viscous"), 1)
     r = run("identifiability", "sweaty-arm", "--use", "wrench")
     assert r.exit_code == 0 and "channels: base wrench" in r.output
+
+
+# -- the joint-torque channel (ineid.channels.torque) against Pinocchio ----------------------------------
+
+
+def _friction_truth(model, seed=5) -> dict[str, float]:
+    rng = np.random.default_rng(seed)
+    return {f"{j}.{t}": float(rng.uniform(0.05, 0.5)) for j in model.joint_names for t in ("fv", "fc")}
+
+
+@pytest.fixture(scope="module")
+def pin_both(model):
+    """Base wrench and joint torques of the same frames: the torques from Pinocchio's ``rnea`` with each
+    configuration's true parameters, plus viscous and Coulomb friction (the contract's columns, in NumPy)."""
+    torque = pytest.importorskip("ineid.channels.torque", reason="the JointTorque channel is not on this branch yet")
+    pin = pytest.importorskip("pinocchio")
+    from ineid.reference import pinocchio_model, pinocchio_q
+
+    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=4), n_frames=40, seed=SEED,
+                                             channels=ChannelSet.of(BaseWrench(), torque.JointTorque())))
+    pm = pinocchio_model(model.urdf_path, gravity=model.gravity)
+    data = pm.createData()
+    tau = np.empty_like(ds.channel_values["tau"])
+    for c in range(ds.n_configs):
+        theta = model.full_theta(ds.theta_unknown[c], ds.theta_known)
+        for i in range(1, pm.njoints):
+            pm.inertias[i] = pin.Inertia.FromDynamicParameters(theta[10 * (i - 1): 10 * i])
+        for k in range(ds.n_frames):
+            tau[c, k] = pin.rnea(pm, data, pinocchio_q(pm, ds.q[c, k]), ds.qd[c, k], ds.qdd[c, k])
+    assert rel_err(ds.channel_values["tau"], tau) < 1e-10  # the channel's rows are Pinocchio's torques
+    truth = _friction_truth(model)
+    for j, name in enumerate(model.joint_names):
+        tau[..., j] += truth[f"{name}.fv"] * ds.qd[..., j] + truth[f"{name}.fc"] * np.sign(ds.qd[..., j])
+    return dataclasses.replace(ds, channel_values={**ds.channel_values, "tau": tau}), truth
+
+
+@pytest.mark.parametrize("use", [("wrench",), ("torque",), ("wrench", "torque")])
+def test_joint_torques_every_combination_exact(model, pin_both, use):
+    ds, truth = pin_both
+    friction = ("viscous", "coulomb") if "torque" in use else ()
+    res = solve_dataset(ds, SolveSettings(weights="none", use=use, friction=friction), model=model)
+    assert res.success.all(), res.status
+    x = np.array([truth[n] for n in res.param_names[res.base.n_link_params:]])
+    full = np.concatenate([ds.theta_unknown, np.broadcast_to(x, (ds.n_configs, len(x)))], axis=1)
+    assert rel_err(res.base_hat, full @ res.base.B.T) < 1e-9
+    if friction:  # the friction coefficients themselves
+        assert rel_err(res.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-9
+    assert np.nanmax(res.fit_rms) < 1e-8 * np.abs(ds.measured(ds.meta.channels)).max()
