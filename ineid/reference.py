@@ -82,3 +82,42 @@ def pinocchio_base_regressor(model, q, qd, qdd, data=None) -> np.ndarray:
             block = pin.jointBodyRegressor(model, data, i)
             out[k, :, 10 * (i - 1) : 10 * i] = -data.oMi[i].toDualActionMatrix() @ block
     return out
+
+
+def pinocchio_joint_torques(model, q, qd, qdd, data=None) -> np.ndarray:
+    """Pinocchio's ``rnea`` for each frame; (n_frames, n_dof) x3 -> (n_frames, n_dof)."""
+    import pinocchio as pin  # noqa: PLC0415
+
+    data = data or model.createData()
+    q, qd, qdd = (np.atleast_2d(np.asarray(x, dtype=np.float64)) for x in (q, qd, qdd))
+    return np.stack([pin.rnea(model, data, pinocchio_q(model, q[k]), qd[k], qdd[k]).copy() for k in range(len(q))])
+
+
+def pinocchio_joint_torque_regressor(model, q, qd, qdd, data=None) -> np.ndarray:
+    """Pinocchio's ``computeJointTorqueRegressor`` for each frame; -> (n_frames, n_dof, 10 * n_bodies)."""
+    import pinocchio as pin  # noqa: PLC0415
+
+    data = data or model.createData()
+    q, qd, qdd = (np.atleast_2d(np.asarray(x, dtype=np.float64)) for x in (q, qd, qdd))
+    return np.stack([pin.computeJointTorqueRegressor(model, data, pinocchio_q(model, q[k]), qd[k], qdd[k]).copy()
+                     for k in range(len(q))])
+
+
+def pinocchio_link_wrench(model, q, qd, qdd, link_joint: int, data=None) -> np.ndarray:
+    """The wrench the bodies beyond body ``link_joint`` (Pinocchio's joint index of the link, 1-based) exert
+    on it, in its frame, moment about its origin, for each frame; -> (n_frames, 6).
+
+    After RNEA, ``data.f[c]`` is the force body ``link_joint`` applies to the subtree of each child
+    joint ``c`` (in ``c``'s frame); ``liMi[c]`` carries it into the link's frame; the link receives the opposite.
+    """
+    import pinocchio as pin  # noqa: PLC0415
+
+    data = data or model.createData()
+    children = [c for c in range(1, model.njoints) if model.parents[c] == link_joint]
+    q, qd, qdd = (np.atleast_2d(np.asarray(x, dtype=np.float64)) for x in (q, qd, qdd))
+    out = np.zeros((len(q), 6))
+    for k in range(len(q)):
+        pin.rnea(model, data, pinocchio_q(model, q[k]), qd[k], qdd[k])
+        for c in children:
+            out[k] -= data.liMi[c].act(data.f[c]).vector
+    return out

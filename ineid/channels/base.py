@@ -426,7 +426,7 @@ def _batch_shape(model, arrays) -> tuple[int, ...]:
 def _evaluate(model, kernel: Callable, per_frame: tuple, consts: tuple, shape: tuple[int, ...]) -> np.ndarray:
     """``kernel(*per_frame_rows, *consts)`` over chunks of frames (the robot model's chunked evaluator),
     reshaped to the broadcast batch shape + ``shape``."""
-    from ineid.robots.model import _run_chunked  # noqa: PLC0415  (one chunked evaluator for every kernel)
+    from ineid.robots.chunked import run_chunked  # noqa: PLC0415  (one chunked evaluator for every kernel)
 
     batch = _batch_shape(model, per_frame)
     n = int(np.prod(batch, dtype=np.int64))
@@ -439,5 +439,5 @@ def _evaluate(model, kernel: Callable, per_frame: tuple, consts: tuple, shape: t
         out[start:stop] = np.asarray(rows).reshape(-1, width)[: stop - start]
 
     consts = tuple(np.asarray(c, dtype=np.float64) for c in consts)
-    _run_chunked(kernel, flat, consts, write)
+    run_chunked(kernel, flat, consts, write)
     return out.reshape(batch + tuple(shape))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping, Sequence
 from functools import cached_property
 from pathlib import Path
@@ -10,9 +9,19 @@ from types import ModuleType
 
 import numpy as np
 
-from ineid.cache import enable_compilation_cache
 from ineid.errors import CodegenError, RobotModelError
 from ineid.params import full_theta, param_names
+from ineid.robots.chunked import (  # noqa: F401  (CHUNK_FRAMES, SMALL_FRAMES, SMALL_JOB_FRAMES: importable here too)
+    CHUNK_FRAMES,
+    SMALL_FRAMES,
+    SMALL_JOB_FRAMES,
+    entries_kernel,
+    host_array,
+    nonzero_flat,
+    run_chunked,
+    theta_kernel,
+)
+from ineid.robots.cuts import CutRegressors
 from ineid.robots.payload import extended_links, extended_theta_cad, payload_modules, resolve_payloads
 from ineid.robots.urdf import Chain
 
@@ -20,7 +29,7 @@ DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 """m/s^2 in the base frame: z up."""
 
 
-class RobotModel:
+class RobotModel(CutRegressors):
     """A serial arm on a force/torque sensor, with the regressor of its base wrench.
 
     ``[F; M] = Psi(q, qd, qdd) @ theta``: ``[F; M]`` the wrench the moving links exert on
@@ -215,7 +224,7 @@ class RobotModel:
         """``q, qd, qdd`` (and ``theta`` when per frame) flattened to (N, .) float64 NumPy, and the batch shape."""
         arrays = []
         for label, x in (("q", q), ("qd", qd), ("qdd", qdd)):
-            x = _host(label, x)
+            x = host_array(label, x)
             if x.ndim == 0 or x.shape[-1] != self.n_dof:
                 raise ValueError(f"{label} must have shape (..., {self.n_dof}), got {tuple(x.shape)}")
             arrays.append(x)
@@ -234,7 +243,7 @@ class RobotModel:
     def _entry_order(self) -> tuple[np.ndarray, int]:
         """Flat indices of the nonzero entries of ``Psi``, unknown links' columns first, and how many of those."""
         n_cols = 10 * self.n_links
-        nonzero = _nonzero_flat(self.regressor_nonzero, n_cols)
+        nonzero = nonzero_flat(self.regressor_nonzero, n_cols)
         unknown = np.isin(nonzero % n_cols, self.unknown_index)
         return np.concatenate([nonzero[unknown], nonzero[~unknown]]), int(unknown.sum())
 
@@ -263,7 +272,7 @@ class RobotModel:
         def write(start, stop, rows):
             out[start:stop, order] = rows[:, : stop - start].T
 
-        _run_chunked(_entries_kernel(self._jax, order), flat, (self._gravity_device,), write)
+        run_chunked(entries_kernel(_jax_functions(self._jax).entries, order), flat, (self._gravity_device,), write)
         return out.reshape(batch + (6, n_cols))
 
     def regressor_split(self, q, qd, qdd) -> tuple[np.ndarray, np.ndarray]:
@@ -288,7 +297,7 @@ class RobotModel:
             out_u[start:stop, dest_u] = rows[:n_u, : stop - start].T
             out_k[start:stop, dest_k] = rows[n_u:, : stop - start].T
 
-        _run_chunked(_entries_kernel(self._jax, order), flat, (self._gravity_device,), write)
+        run_chunked(entries_kernel(_jax_functions(self._jax).entries, order), flat, (self._gravity_device,), write)
         return (out_u.reshape(batch + (6, len(self.unknown_index))),
                 out_k.reshape(batch + (6, len(self.known_index))))  # fmt: skip
 
@@ -301,7 +310,7 @@ class RobotModel:
         instead of forming ``Psi`` (several times faster), compiled once per robot and
         chunked like :meth:`regressor`. Inside ``jax.jit`` use :attr:`jax_base_wrench`.
         """
-        theta = _host("theta", self.theta_cad if theta is None else theta)
+        theta = host_array("theta", self.theta_cad if theta is None else theta)
         n_par = 10 * self.n_links
         if theta.ndim == 0 or theta.shape[-1] != n_par:
             raise ValueError(f"theta must have shape (..., {n_par}), got {tuple(theta.shape)}")
@@ -313,7 +322,7 @@ class RobotModel:
         def write(start, stop, rows):
             out[start:stop] = rows[: stop - start]
 
-        _run_chunked(_wrench_kernel(self._jax), flat, consts, write)
+        run_chunked(theta_kernel(_jax_functions(self._jax).wrench), flat, consts, write)
         return out.reshape(batch + (6,))
 
     @cached_property
@@ -370,38 +379,6 @@ class RobotModel:
         return ca.Function("base_wrench", [q, qd, qdd, theta], [w], ["q", "qd", "qdd", "theta"], ["w"])
 
 
-# -- chunked evaluation ----------------------------------------------------------------
-CHUNK_FRAMES = 2048
-"""Frames per compiled call of the public evaluators. XLA:CPU keeps a chunk's temporaries
-in cache up to a few thousand frames; throughput falls beyond (benchmarks/regressor.py)."""
-SMALL_JOB_FRAMES = 10_000
-"""Jobs of at most this many frames that a compiled kernel would serve once (a small dataset's
-generation, its solver's refits and residuals) evaluate through CasADi instead: its virtual
-machine needs no compilation and takes about 10 us a frame for a 7-joint arm, where XLA
-compiles each kernel for seconds (3 s of CPU for a 7-joint arm, ``benchmarks/compile.py``)
-before its first call."""
-SMALL_FRAMES = 64
-"""Calls of at most this many frames, and remainders this short, use a second, small
-compiled shape instead of a padded full chunk."""
-
-
-def _host(label: str, x) -> np.ndarray:
-    """``x`` as a float64 NumPy array (a JAX array is copied from its device if needed)."""
-    try:
-        return np.asarray(x, dtype=np.float64)
-    except TypeError as e:  # a tracer: called inside jax.jit / grad / vmap
-        raise TypeError(
-            f"{label} is a traced JAX value: RobotModel.regressor / regressor_split / base_wrench evaluate "
-            "eagerly into NumPy; inside jax.jit, grad or vmap use model.jax_regressor or model.jax_base_wrench "
-            "with model.gravity"
-        ) from e
-
-
-def _nonzero_flat(nonzero: tuple[tuple[int, ...], ...], n_cols: int) -> np.ndarray:
-    """Flat (row-major) indices of the structurally nonzero entries of ``Psi``."""
-    return np.array([r * n_cols + c for r, cols in enumerate(nonzero) for c in cols], dtype=np.int64)
-
-
 def _jax_functions(module):
     from ineid.robots.program import jax_functions  # noqa: PLC0415
 
@@ -412,71 +389,3 @@ def _casadi_functions(module):
     from ineid.robots.program import casadi_functions  # noqa: PLC0415
 
     return casadi_functions(module)
-
-
-@functools.lru_cache(maxsize=None)
-def _entries_kernel_cached(module, entries: tuple[int, ...]):
-    import jax  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
-
-    def kernel(q, qd, qdd, gravity):
-        values = _jax_functions(module).entries(q, qd, qdd, gravity)
-        batch = q.shape[:-1]
-        return jnp.stack([jnp.broadcast_to(values[i], batch).astype(q.dtype) for i in entries], axis=0)
-
-    return jax.jit(kernel)
-
-
-def _entries_kernel(module, entries: np.ndarray):
-    """Jitted ``(q, qd, qdd, gravity) -> (len(entries), N)``: chosen entries of the flat ``Psi``,
-    frames last (XLA:CPU's fastest layout: each entry one contiguous row). One compilation per
-    generated module and choice of entries, shared by every model of the robot."""
-    return _entries_kernel_cached(module, tuple(int(i) for i in entries))
-
-
-@functools.lru_cache(maxsize=None)
-def _wrench_kernel(module):
-    """Jitted ``(q, qd, qdd, theta, gravity) -> (N, 6)``, the composed base wrench;
-    theta (N, 10n) per frame or (10n,) for all."""
-    import jax  # noqa: PLC0415
-
-    wrench = _jax_functions(module).wrench
-
-    def kernel(q, qd, qdd, theta, gravity):
-        return wrench(q, qd, qdd, gravity, theta)
-
-    return jax.jit(kernel)
-
-
-def _chunks(n: int):
-    """``(start, stop, compiled size)`` covering frames ``[0, n)``."""
-    if n <= SMALL_FRAMES:
-        if n:
-            yield 0, n, SMALL_FRAMES
-        return
-    for start in range(0, n, CHUNK_FRAMES):
-        stop = min(start + CHUNK_FRAMES, n)
-        yield start, stop, CHUNK_FRAMES if stop - start > SMALL_FRAMES else SMALL_FRAMES
-
-
-def _run_chunked(kernel, batched: list[np.ndarray], consts: tuple, write) -> None:
-    """``write(start, stop, kernel(*chunk_of(batched), *consts))`` over frame chunks.
-
-    Each chunk is padded with zeros to its compiled size; the next chunk is dispatched
-    before the previous result is written, so XLA computes while NumPy copies.
-    """
-    enable_compilation_cache()
-    pending = None
-    for start, stop, size in _chunks(len(batched[0])):
-        args = []
-        for a in batched:
-            part = a[start:stop]
-            if stop - start < size:
-                part = np.concatenate([part, np.zeros((size - (stop - start),) + a.shape[1:])])
-            args.append(part)
-        result = kernel(*args, *consts)
-        if pending is not None:
-            write(pending[0], pending[1], np.asarray(pending[2]))
-        pending = (start, stop, result)
-    if pending is not None:
-        write(pending[0], pending[1], np.asarray(pending[2]))

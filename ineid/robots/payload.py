@@ -176,6 +176,8 @@ def _wrapped(jax_module, casadi_module, spec: tuple, links: tuple[str, ...], m_r
 
         return view
 
+    body_of = tuple(int(np.flatnonzero(np.abs(m[:, 10 * c : 10 * c + 10]).sum(axis=1))[0]) // 10
+                    for c in range(n_ext // 10))  # each block's moving body
     # per extended column, the original columns it combines (the structural nonzeros of Psi M)
     sources = [set(np.flatnonzero(m[:, c]).tolist()) for c in range(n_ext)]
     nonzero = tuple(tuple(c for c in range(n_ext) if sources[c] & set(cols)) for cols in jax_module.NONZERO)
@@ -184,7 +186,7 @@ def _wrapped(jax_module, casadi_module, spec: tuple, links: tuple[str, ...], m_r
         return _ModuleView(
             __name__=f"{module.__name__} ({suffix})", KINEMATIC_FINGERPRINT=module.KINEMATIC_FINGERPRINT,
             N_DOF=module.N_DOF, LINK_NAMES=links, OP_COUNT=getattr(module, "OP_COUNT", 0), NONZERO=nonzero,
-            program=extended(module.program),
+            JOINT_TYPES=module.JOINT_TYPES, BODY_OF=body_of, program=extended(module.program),
         )
 
     return view_of(jax_module, "payload links"), view_of(casadi_module, "payload links")

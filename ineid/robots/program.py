@@ -16,9 +16,22 @@ and CasADi ``SX`` (the Python numbers are folded here: ``0 * x`` is never formed
   own frame from its 10 parameters, then rotated and summed: inverse dynamics, O(n));
 - :func:`link_poses`: every link frame's placement.
 
-The joint-torque regressor and the cut wrench at a link (issue 21) compose from the same
-outputs: ``Y_tau[j, 10 i + k] = z_j . M_ik + (p_j x z_j) . F_ik`` for ``i >= j`` (prismatic:
-``z_j . F_ik``), with ``[F; M]_ik = Yn_i[:, k]``.
+The backward pass of the recursion composes from the same outputs: the wrench a joint
+transmits to everything beyond it is the sum of the net wrenches of the links beyond
+(``sum_{i >= j} Yn_i theta_i``, base frame, about the base origin), so
+
+- :func:`joint_torque_entries`: the joint-torque regressor ``tau = Y_tau theta``,
+  ``Y_tau[j, 10 i + k] = z_j . M_ik + (p_j x z_j) . F_ik`` for links ``i`` beyond joint ``j``
+  (prismatic: ``z_j . F_ik``), ``[F; M]_ik = Yn_i[:, k]``; :func:`joint_torques` the same
+  torques without forming ``Y_tau`` (inverse dynamics, O(n));
+- :func:`link_wrench_entries`: the wrench the links beyond link ``L`` exert on it, in ``L``'s
+  frame, moment about ``L``'s origin: ``-X_L sum_{i > L} Yn_i`` with ``X_L`` the wrench transform
+  of ``L``'s placement (:func:`link_wrench` without forming the regressor). With ``L`` the root
+  (no link) it is the base wrench.
+
+A parameter block ``i`` belongs to the moving body ``body_of[i]`` (a payload welded to a body
+is a block of its own after it, :mod:`ineid.robots.payload`); a block is beyond joint ``j`` when
+its body is ``>= j``, beyond link ``L`` when its body is ``> L`` or it is a payload welded to ``L``.
 
 :func:`jax_functions` and :func:`casadi_functions` wrap these for one generated module,
 once per module (the same function objects on every call, so they can key compile caches).
@@ -94,6 +107,26 @@ def _zero(x) -> bool:
     return _number(x) and x == 0
 
 
+def _block_wrench(out: dict, i: int, theta_i: Sequence) -> tuple[tuple, tuple]:
+    """``(F, M)`` of block ``i``'s net wrench ``Yn_i theta_i`` (base frame, moment about the base origin),
+    formed in the link's own frame from its 10 parameters, then rotated (never forming ``Yn_i``)."""
+    m, hx, hy, hz, ixx, ixy, iyy, ixz, iyz, izz = theta_i
+    w, wd, a, R, p = (out[k][i] for k in ("w", "wd", "a", "R", "p"))
+    h = (hx, hy, hz)
+    inertia = ((ixx, ixy, ixz), (ixy, iyy, iyz), (ixz, iyz, izz))
+    f = tuple(add(mul(m, a[r]), x, y) for r, x, y in zip(range(3), cross(wd, h), cross(w, cross(w, h)), strict=True))
+    n = tuple(add(x, y, z) for x, y, z in zip(matvec(inertia, wd), cross(w, matvec(inertia, w)), cross(h, a),
+                                              strict=True))
+    force = matvec(R, f)
+    return force, tuple(add(x, y) for x, y in zip(matvec(R, n), cross(p, force), strict=True))
+
+
+def _sum_wrenches(wrenches) -> tuple[tuple, tuple]:
+    wrenches = list(wrenches)
+    return (tuple(add(*(f[r] for f, _ in wrenches)) for r in range(3)),
+            tuple(add(*(m[r] for _, m in wrenches)) for r in range(3)))
+
+
 def base_wrench(out: dict, theta: Sequence) -> tuple:
     """``Psi theta``: the 6 entries ``[F; M]`` of the wrench on the fixture for the parameters ``theta``
     (``10 n`` scalars, links in chain order), never forming ``Psi``.
@@ -102,26 +135,98 @@ def base_wrench(out: dict, theta: Sequence) -> tuple:
     ``f = m a + wd x h + w x (w x h)``, ``n = I wd + w x (I w) + h x a``; then
     ``F = -sum_i R_i f_i``, ``M = -sum_i (R_i n_i + p_i x R_i f_i)``.
     """
-    forces, moments = [], []
-    for i in range(len(out["R"])):
-        m, hx, hy, hz, ixx, ixy, iyy, ixz, iyz, izz = theta[10 * i : 10 * i + 10]
-        w, wd, a, R, p = (out[k][i] for k in ("w", "wd", "a", "R", "p"))
-        h = (hx, hy, hz)
-        inertia = ((ixx, ixy, ixz), (ixy, iyy, iyz), (ixz, iyz, izz))
-        f = tuple(add(mul(m, a[r]), x, y) for r, x, y in zip(range(3), cross(wd, h), cross(w, cross(w, h)),
-                                                               strict=True))
-        n = tuple(add(x, y, z) for x, y, z in zip(matvec(inertia, wd), cross(w, matvec(inertia, w)), cross(h, a),
-                                                  strict=True))
-        force = matvec(R, f)
-        forces.append(force)
-        moments.append(tuple(add(x, y) for x, y in zip(matvec(R, n), cross(p, force), strict=True)))
-    return tuple(neg(add(*(v[r] for v in forces))) for r in range(3)) + tuple(
-        neg(add(*(v[r] for v in moments))) for r in range(3))
+    force, moment = _sum_wrenches(_block_wrench(out, i, theta[10 * i : 10 * i + 10]) for i in range(len(out["R"])))
+    return tuple(neg(x) for x in force) + tuple(neg(x) for x in moment)
+
+
+def _project(kind: str, axis: Sequence, moment: Sequence, force: Sequence, torque: Sequence):
+    """A joint's generalized force from a wrench ``[F; M]`` (base frame, about the base origin) it
+    transmits: revolute ``z . M + (p x z) . F`` (the moment about the joint's axis), prismatic ``z . F``."""
+    if kind == "prismatic":
+        return dot(axis, force)
+    return add(dot(axis, torque), dot(moment, force))
+
+
+def joint_torque_entries(out: dict, joint_types: Sequence[str], body_of: Sequence[int]) -> tuple:
+    """The ``n_dof x 10 n`` entries of the joint-torque regressor ``Y_tau``, row-major: ``tau = Y_tau theta``.
+
+    ``tau_j`` is what joint ``j``'s actuator applies (Pinocchio's ``rnea``): the projection on its
+    axis of the wrench it transmits to the blocks beyond it, ``sum_{body_of[i] >= j} Yn_i theta_i``
+    (gravity folded into the accelerations, so the weight is in it). Entries of blocks before
+    the joint are the number 0.
+    """
+    yn = out["Yn"]
+    entries = []
+    for j, kind in enumerate(joint_types):
+        z, m = out["axis"][j], out["moment"][j]
+        for i, block in enumerate(yn):
+            for k in range(10):
+                if body_of[i] < j:
+                    entries.append(0)
+                    continue
+                entries.append(_project(kind, z, m, [block[r][k] for r in range(3)],
+                                        [block[r][k] for r in range(3, 6)]))
+    return tuple(entries)
+
+
+def joint_torques(out: dict, theta: Sequence, joint_types: Sequence[str], body_of: Sequence[int]) -> tuple:
+    """``Y_tau theta`` without forming ``Y_tau``: each block's wrench once, summed from the tip
+    (the backward pass of inverse dynamics), projected on each joint's axis."""
+    wrenches = [_block_wrench(out, i, theta[10 * i : 10 * i + 10]) for i in range(len(out["R"]))]
+    taus = []
+    for j, kind in enumerate(joint_types):
+        force, torque = _sum_wrenches(w for w, body in zip(wrenches, body_of, strict=True) if body >= j)
+        taus.append(_project(kind, out["axis"][j], out["moment"][j], force, torque))
+    return tuple(taus)
+
+
+def beyond_link(body_of: Sequence[int], link_block: int) -> tuple[int, ...]:
+    """The blocks beyond an F/T sensor on block ``link_block``'s body: the bodies after it and the
+    payloads welded to it (the blocks after it with the same body)."""
+    body = body_of[link_block]
+    return tuple(i for i, b in enumerate(body_of) if b > body or (b == body and i > link_block))
+
+
+def _to_link(out: dict, link_block: int, force: Sequence, torque: Sequence) -> tuple:
+    """``-[R^T F; R^T (M - p x F)]``: a wrench the blocks beyond receive, as the one they exert on the
+    link, in the link's frame (``R, p`` its placement), moment about its origin."""
+    R, p = out["R"][link_block], out["p"][link_block]
+    rt = tuple(tuple(R[r][c] for r in range(3)) for c in range(3))
+    about = tuple(add(x, neg(y)) for x, y in zip(torque, cross(p, force), strict=True))
+    return tuple(neg(x) for x in matvec(rt, force)) + tuple(neg(x) for x in matvec(rt, about))
+
+
+def link_wrench_entries(out: dict, link_block: int, body_of: Sequence[int]) -> tuple:
+    """The ``6 x 10 n`` entries, row-major, of the regressor of the wrench that the blocks beyond
+    link ``link_block`` (:func:`beyond_link`) exert on it, in its frame, moment about its origin.
+    The columns of the other blocks are the number 0."""
+    beyond = set(beyond_link(body_of, link_block))
+    cols = []
+    for i, block in enumerate(out["Yn"]):
+        for k in range(10):
+            if i in beyond:
+                cols.append(_to_link(out, link_block, [block[r][k] for r in range(3)],
+                                     [block[r][k] for r in range(3, 6)]))
+            else:
+                cols.append((0,) * 6)
+    return tuple(col[r] for r in range(6) for col in cols)
+
+
+def link_wrench(out: dict, theta: Sequence, link_block: int, body_of: Sequence[int]) -> tuple:
+    """The wrench of :func:`link_wrench_entries` for ``theta`` without forming the regressor."""
+    force, torque = _sum_wrenches(_block_wrench(out, i, theta[10 * i : 10 * i + 10])
+                                  for i in beyond_link(body_of, link_block))
+    return _to_link(out, link_block, force, torque)
 
 
 def link_poses(out: dict) -> tuple[tuple, tuple]:
     """``(R, p)``: per link ``base_R_i`` (3 x 3 nested, row-major) and ``base_p_i`` (3), base frame."""
     return out["R"], out["p"]
+
+
+def body_of(module: ModuleType) -> tuple[int, ...]:
+    """Per parameter block of a generated module (or its payload view), the index of its moving body."""
+    return tuple(getattr(module, "BODY_OF", range(len(module.LINK_NAMES))))
 
 
 # -- JAX ---------------------------------------------------------------------------------------------
@@ -135,6 +240,9 @@ class JaxFunctions(NamedTuple):
         regressor: ``(q, qd, qdd, gravity) -> (..., 6, 10 n)``.
         wrench: ``(q, qd, qdd, gravity, theta) -> (..., 6)``, ``theta`` (..., 10 n).
         link_poses: ``q -> (base_R (..., n, 3, 3), base_p (..., n, 3))``.
+        torque_entries: ``(q, qd, qdd, gravity) -> (Y_tau_00, ...)``, ``n_dof x 10 n`` entries, row-major.
+        torque_regressor: ``(q, qd, qdd, gravity) -> (..., n_dof, 10 n)``.
+        torques: ``(q, qd, qdd, gravity, theta) -> (..., n_dof)``, ``Y_tau theta`` without forming ``Y_tau``.
     """
 
     program: object
@@ -142,12 +250,42 @@ class JaxFunctions(NamedTuple):
     regressor: object
     wrench: object
     link_poses: object
+    torque_entries: object
+    torque_regressor: object
+    torques: object
 
 
 def _stack(values, batch, dtype, axis=-1):
     import jax.numpy as jnp  # noqa: PLC0415
 
     return jnp.stack([jnp.broadcast_to(jnp.asarray(v, dtype=dtype), batch) for v in values], axis=axis)
+
+
+def _jax_rows(entries, n_rows: int, n_cols: int):
+    """``(q, qd, qdd, gravity) -> (..., n_rows, n_cols)`` from an entries function."""
+
+    def rows(q, qd, qdd, gravity):
+        import jax.numpy as jnp  # noqa: PLC0415
+
+        q, qd, qdd, gravity = (jnp.asarray(x) for x in (q, qd, qdd, gravity))
+        batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1])
+        return _stack(entries(q, qd, qdd, gravity), batch, q.dtype).reshape(batch + (n_rows, n_cols))
+
+    return rows
+
+
+def _jax_contracted(program, compose, n_cols: int):
+    """``(q, qd, qdd, gravity, theta) -> (..., k)``: ``compose(out, theta_entries)`` stacked."""
+
+    def contracted(q, qd, qdd, gravity, theta):
+        import jax.numpy as jnp  # noqa: PLC0415
+
+        q, qd, qdd, gravity, theta = (jnp.asarray(x) for x in (q, qd, qdd, gravity, theta))
+        batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1], theta.shape[:-1])
+        out = program(q, qd, qdd, gravity)
+        return _stack(compose(out, [theta[..., c] for c in range(n_cols)]), batch, q.dtype)
+
+    return contracted
 
 
 @functools.lru_cache(maxsize=None)
@@ -157,20 +295,13 @@ def jax_functions(module: ModuleType) -> JaxFunctions:
 
     program = module.program
     n = len(module.LINK_NAMES)  # parameter blocks (payload views add links after their body)
+    types, owners = tuple(module.JOINT_TYPES), body_of(module)
 
     def entries(q, qd, qdd, gravity):
         return base_entries(program(q, qd, qdd, gravity))
 
-    def regressor(q, qd, qdd, gravity):
-        q, qd, qdd, gravity = (jnp.asarray(x) for x in (q, qd, qdd, gravity))
-        batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1])
-        return _stack(entries(q, qd, qdd, gravity), batch, q.dtype).reshape(batch + (6, 10 * n))
-
-    def wrench(q, qd, qdd, gravity, theta):
-        q, qd, qdd, gravity, theta = (jnp.asarray(x) for x in (q, qd, qdd, gravity, theta))
-        batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1], theta.shape[:-1])
-        out = program(q, qd, qdd, gravity)
-        return _stack(base_wrench(out, [theta[..., c] for c in range(10 * n)]), batch, q.dtype)
+    def torque_entries(q, qd, qdd, gravity):
+        return joint_torque_entries(program(q, qd, qdd, gravity), types, owners)
 
     def poses(q):
         q = jnp.asarray(q)
@@ -181,7 +312,40 @@ def jax_functions(module: ModuleType) -> JaxFunctions:
         return r.reshape(batch + (n, 3, 3)), _stack([x for link in pos for x in link], batch, q.dtype).reshape(
             batch + (n, 3))
 
-    return JaxFunctions(program, entries, regressor, wrench, poses)
+    return JaxFunctions(
+        program, entries, _jax_rows(entries, 6, 10 * n), _jax_contracted(program, base_wrench, 10 * n), poses,
+        torque_entries, _jax_rows(torque_entries, len(types), 10 * n),
+        _jax_contracted(program, lambda out, th: joint_torques(out, th, types, owners), 10 * n),
+    )
+
+
+class LinkWrenchFunctions(NamedTuple):
+    """The cut wrench at one link (:func:`link_wrench_entries`) as JAX or CasADi functions.
+
+    Attributes:
+        entries: JAX ``(q, qd, qdd, gravity) -> 6 x 10 n`` entries, row-major (None for CasADi).
+        regressor: ``(q, qd, qdd, gravity) -> (..., 6, 10 n)`` (CasADi: ``Y`` 6 x 10 n).
+        wrench: ``(q, qd, qdd, gravity, theta) -> (..., 6)`` (CasADi: ``w`` 6 x 1).
+    """
+
+    entries: object
+    regressor: object
+    wrench: object
+
+
+@functools.lru_cache(maxsize=None)
+def jax_link_wrench_functions(module: ModuleType, link_block: int) -> LinkWrenchFunctions:
+    """The cut wrench at parameter block ``link_block``'s link, for one generated JAX module (cached)."""
+    program, owners = module.program, body_of(module)
+    n = len(module.LINK_NAMES)
+
+    def entries(q, qd, qdd, gravity):
+        return link_wrench_entries(program(q, qd, qdd, gravity), link_block, owners)
+
+    return LinkWrenchFunctions(
+        entries, _jax_rows(entries, 6, 10 * n),
+        _jax_contracted(program, lambda out, th: link_wrench(out, th, link_block, owners), 10 * n),
+    )
 
 
 # -- CasADi ------------------------------------------------------------------------------------------
@@ -197,22 +361,80 @@ class CasadiFunctions(NamedTuple):
     wrench: object
 
 
+class CasadiTorqueFunctions(NamedTuple):
+    """A generated module's joint-torque compositions as ``casadi.Function`` objects (one frame each).
+
+    Attributes:
+        regressor: ``joint_torque_regressor(q, qd, qdd, gravity) -> Y`` (n_dof x 10 n).
+        torques: ``joint_torques(q, qd, qdd, gravity, theta) -> tau`` (n_dof x 1).
+    """
+
+    regressor: object
+    torques: object
+
+
+def _casadi_matrix(ca, entries, n_rows: int, n_cols: int):
+    y = ca.SX.zeros(n_rows, n_cols)
+    for k, e in enumerate(entries):
+        if not _zero(e):
+            y[k // n_cols, k % n_cols] = e
+    return y
+
+
+def _casadi_vector(ca, values):
+    return ca.vertcat(*(ca.SX(e) if _number(e) else e for e in values))
+
+
+def _casadi_symbols(module: ModuleType):
+    import casadi as ca  # noqa: PLC0415
+
+    n = len(module.LINK_NAMES)
+    q, qd, qdd = (ca.SX.sym(s, module.N_DOF) for s in ("q", "qd", "qdd"))
+    gravity = ca.SX.sym("gravity", 3)
+    theta = ca.SX.sym("theta", 10 * n)
+    return [q, qd, qdd, gravity], ["q", "qd", "qdd", "gravity"], theta, [theta[c] for c in range(10 * n)]
+
+
 @functools.lru_cache(maxsize=None)
 def casadi_functions(module: ModuleType) -> CasadiFunctions:
     """The compositions of one generated CasADi module, built once per module (an ``SX`` graph of the program)."""
     import casadi as ca  # noqa: PLC0415
 
     n = len(module.LINK_NAMES)  # parameter blocks (payload views add links after their body)
-    q, qd, qdd = (ca.SX.sym(s, module.N_DOF) for s in ("q", "qd", "qdd"))
-    gravity = ca.SX.sym("gravity", 3)
-    theta = ca.SX.sym("theta", 10 * n)
-    out = module.program(q, qd, qdd, gravity)
-    y = ca.SX.zeros(6, 10 * n)
-    for k, e in enumerate(base_entries(out)):
-        if not _zero(e):
-            y[k // (10 * n), k % (10 * n)] = e
-    args, names = [q, qd, qdd, gravity], ["q", "qd", "qdd", "gravity"]
-    regressor = ca.Function("base_wrench_regressor", args, [y], names, ["Y"])
-    w = ca.vertcat(*(ca.SX(e) if _number(e) else e for e in base_wrench(out, [theta[c] for c in range(10 * n)])))
-    wrench = ca.Function("base_wrench", [*args, theta], [w], [*names, "theta"], ["w"])
+    args, names, theta, th = _casadi_symbols(module)
+    out = module.program(*args)
+    regressor = ca.Function("base_wrench_regressor", args, [_casadi_matrix(ca, base_entries(out), 6, 10 * n)],
+                            names, ["Y"])
+    wrench = ca.Function("base_wrench", [*args, theta], [_casadi_vector(ca, base_wrench(out, th))],
+                         [*names, "theta"], ["w"])
     return CasadiFunctions(regressor, wrench)
+
+
+@functools.lru_cache(maxsize=None)
+def casadi_torque_functions(module: ModuleType) -> CasadiTorqueFunctions:
+    """The joint-torque compositions of one generated CasADi module (built on first use, then cached)."""
+    import casadi as ca  # noqa: PLC0415
+
+    n = len(module.LINK_NAMES)
+    types, owners = tuple(module.JOINT_TYPES), body_of(module)
+    args, names, theta, th = _casadi_symbols(module)
+    out = module.program(*args)
+    y_tau = _casadi_matrix(ca, joint_torque_entries(out, types, owners), len(types), 10 * n)
+    torque_regressor = ca.Function("joint_torque_regressor", args, [y_tau], names, ["Y"])
+    torques = ca.Function("joint_torques", [*args, theta], [_casadi_vector(ca, joint_torques(out, th, types, owners))],
+                          [*names, "theta"], ["tau"])
+    return CasadiTorqueFunctions(torque_regressor, torques)
+
+
+@functools.lru_cache(maxsize=None)
+def casadi_link_wrench_functions(module: ModuleType, link_block: int) -> LinkWrenchFunctions:
+    """The cut wrench at parameter block ``link_block``'s link as ``casadi.Function`` objects (cached)."""
+    import casadi as ca  # noqa: PLC0415
+
+    n, owners = len(module.LINK_NAMES), body_of(module)
+    args, names, theta, th = _casadi_symbols(module)
+    out = module.program(*args)
+    y = _casadi_matrix(ca, link_wrench_entries(out, link_block, owners), 6, 10 * n)
+    w = _casadi_vector(ca, link_wrench(out, th, link_block, owners))
+    return LinkWrenchFunctions(None, ca.Function("link_wrench_regressor", args, [y], names, ["Y"]),
+                               ca.Function("link_wrench", [*args, theta], [w], [*names, "theta"], ["w"]))

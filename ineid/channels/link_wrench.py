@@ -1,0 +1,176 @@
+"""An F/T sensor on any link: the wrench that everything beyond it exerts on it, in its own frame.
+
+A wrist sensor between link ``L`` and what follows (the next links, a tool or payload welded
+to ``L`` and named as a payload) reads, in the sensor frame, moment about the sensor origin,
+
+    w_s = X_s Y_L(q, qd, qdd) theta
+
+where ``Y_L theta`` is the wrench the blocks beyond ``L`` exert on it in ``L``'s frame, moment
+about ``L``'s origin (:meth:`ineid.RobotModel.link_wrench_regressor`: the backward pass of
+Newton-Euler, the base wrench's twin at a cut inside the chain), and ``X_s`` the 6x6 wrench
+transform of the sensor's pose in ``L`` (:func:`ineid.channels.pose.wrench_transform`), constant
+because the sensor is fixed to ``L``: the channel's ``T``. Six offsets, as for the base wrench.
+
+What is beyond: the moving links after ``L`` and the payload blocks welded to ``L``
+(``--unknown-links``). A known link welded to ``L`` is part of ``L``'s body in the model, so a
+sensor given as a URDF frame with a massive known link welded beyond it is refused in one line
+(name that link as a payload to identify it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from ineid.channels.base import Channel, check_key, register
+from ineid.channels.pose import SensorPose, parse_sensor_pose
+from ineid.channels.wrench import WRENCH_AXES, WRENCH_UNITS, BaseWrench
+from ineid.errors import DatasetError
+
+
+@register
+@dataclass(frozen=True, kw_only=True)
+class LinkWrench(Channel):
+    """The wrench at an F/T sensor on moving link ``link`` (see the module docstring).
+
+    Attributes:
+        key: where its values are stored (default ``"wrench_link"``), (C, F, 6), N and N*m.
+        link: the moving link the sensor is mounted on.
+        sensor: the sensor's pose in the link's frame; None (or identity): the link frame.
+        offsets: six constant offsets (an untared sensor) are identified with the parameters.
+    """
+
+    key: str = "wrench_link"
+    link: str = ""
+    sensor: SensorPose | None = None
+
+    kind = "link_wrench"
+    RECORD_FIELDS = ("link", "sensor")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not isinstance(self.link, str) or not self.link:
+            raise DatasetError(f"link-wrench channel {self.key!r}: name the link the sensor is mounted on")
+        if self.sensor is not None and not isinstance(self.sensor, SensorPose):
+            raise TypeError(f"sensor must be a SensorPose or None, got {type(self.sensor).__name__}")
+
+    def axes(self, model=None) -> tuple[str, ...]:
+        return WRENCH_AXES
+
+    def units(self, model=None) -> tuple[str, ...]:
+        return WRENCH_UNITS
+
+    def n_axes(self, model=None) -> int:
+        return 6
+
+    def describe(self) -> str:
+        frame = "link frame" if self.transform() is None else f"sensor frame {self.sensor.describe()}"
+        return (f"wrench at link {self.link!r} '{self.key}' ({frame})"
+                + (", six offsets identified" if self.offsets else ""))
+
+    # -- the model ------------------------------------------------------------------------
+    def transform(self) -> np.ndarray | None:
+        """``X`` (6, 6) of the sensor pose in the link, or None for the link frame."""
+        return None if self.sensor is None or self.sensor.is_identity else self.sensor.transform()
+
+    def entries_function(self, model):
+        return model.jax_link_wrench_functions(self.link).entries
+
+    def nonzero(self, model) -> tuple[tuple[int, ...], ...]:
+        return model.link_wrench_nonzero(self.link)
+
+    def casadi_function(self, model):
+        return model.casadi_link_wrench_regressor(self.link)
+
+    def phi_function(self, model):
+        return model.jax_link_wrench_functions(self.link).regressor
+
+    def phi_theta_function(self, model):
+        return model.jax_link_wrench_functions(self.link).wrench
+
+    def rows(self, model, q, qd, qdd) -> np.ndarray:
+        rows = model.link_wrench_regressor(q, qd, qdd, self.link)
+        t = self.transform()
+        return rows if t is None else t @ rows
+
+    def predict(self, model, q, qd, qdd, theta) -> np.ndarray:
+        w = model.link_wrench(q, qd, qdd, self.link, theta)
+        t = self.transform()
+        return w if t is None else w @ t.T
+
+    # -- record ---------------------------------------------------------------------------
+    def _record(self) -> dict:
+        return {"link": self.link, "sensor": None if self.sensor is None else self.sensor.to_dict()}
+
+    @classmethod
+    def _parse_record(cls, d: Mapping, where: str) -> dict:
+        link, sensor = d.get("link"), d.get("sensor")
+        if not isinstance(link, str) or not link:
+            raise DatasetError(f"{where}: the link-wrench channel must name its link, got {link!r}")
+        if sensor is not None and not isinstance(sensor, Mapping):
+            raise DatasetError(f"{where}: the link-wrench channel's sensor must be a pose record or null, got {sensor!r}")
+        return {"link": link, "sensor": None if sensor is None else SensorPose.from_dict(sensor, f"{where}: sensor")}
+
+
+LINK_KEY_PREFIX = "wrench_"
+
+
+def link_key(link: str) -> str:
+    """A dataset key for the wrench at ``link``: ``wrench_<link>`` lower-cased, other characters as ``_``."""
+    import re  # noqa: PLC0415
+    import zlib  # noqa: PLC0415
+
+    key = LINK_KEY_PREFIX + re.sub(r"[^a-z0-9_]", "_", link.lower())
+    return key if len(key) <= 32 else key[:23] + f"_{zlib.crc32(link.encode()) % 10**8:08d}"
+
+
+def sensor_channel(text: str | None, model, key: str | None = None, offsets: bool = False) -> Channel:
+    """The wrench channel a ``--sensor-pose`` names, for ``model``.
+
+    ``text``: ``x,y,z,roll,pitch,yaw`` (m, rad, URDF rpy) or a URDF frame welded to the root:
+    the base wrench (:class:`BaseWrench`); ``LINK`` or ``LINK:x,y,z,roll,pitch,yaw`` with a moving
+    link, or a URDF frame welded to a moving link: the wrench at that link (:class:`LinkWrench`).
+
+    Raises:
+        DatasetError: the text does not parse, names no link or frame of the model, or a frame
+            has a massive known link welded beyond it (one line naming the fix).
+    """
+    moving = [j.link for j in model.chain.joints]
+    text = (text or "").strip()
+    name, _, pose = text.partition(":")
+    name = name.strip()
+    if pose.strip() or name in moving or name in model.chain.body_links:
+        if name in moving:
+            sensor = parse_sensor_pose(pose) if pose.strip() else None
+            return LinkWrench(key=check_key(key or link_key(name)), link=name, offsets=offsets,
+                              sensor=None if sensor is None or sensor.is_identity else sensor)
+        link = model.chain.body_links.get(name)
+        if pose.strip() or link is None:
+            raise DatasetError(f"sensor pose {text!r}: {name!r} is not a moving link of {model.name} (choose from "
+                               f"{', '.join(moving)}, or give a URDF frame welded to one, or six numbers for a "
+                               "sensor under the base)")
+        _refuse_known_beyond(model, name)
+        sensor = SensorPose.from_matrix(link.body_R_link, link.body_p_link, frame=name)
+        return LinkWrench(key=check_key(key or link_key(link.body)), link=link.body, offsets=offsets,
+                          sensor=None if sensor.is_identity else sensor)
+    base = parse_sensor_pose(text or None, model.urdf_text, model.locked_joints, source=f"{model.name}'s URDF")
+    return BaseWrench(key=key or "wrench", offsets=offsets, sensor=None if base.is_identity else base)
+
+
+def _refuse_known_beyond(model, frame: str) -> None:
+    """One line when a known link with mass is welded beyond ``frame`` (the model folds it into the body)."""
+    beyond, grew = {frame}, True
+    links = model.chain.body_links
+    while grew:
+        grew = False
+        for b in links.values():
+            if b.parent in beyond and b.name not in beyond:
+                beyond.add(b.name)
+                grew = True
+    massive = [n for n in sorted(beyond - {frame}) if n not in model.unknown_links and links[n].theta[0] > 0]
+    if massive:
+        raise DatasetError(f"sensor frame {frame!r}: link {massive[0]!r} (mass {links[massive[0]].theta[0]:g} kg) is "
+                           f"welded beyond it but is part of {links[frame].body!r}'s CAD in the model; name it in "
+                           "--unknown-links to identify it as a payload beyond the sensor")
