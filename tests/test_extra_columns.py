@@ -489,3 +489,16 @@ def test_joint_torques_every_combination_exact(model, pin_both, use):
     if friction:  # the friction coefficients themselves
         assert rel_err(res.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-9
     assert np.nanmax(res.fit_rms) < 1e-8 * np.abs(ds.measured(ds.meta.channels)).max()
+
+
+def test_cli_identifiability_with_joint_torques(run):
+    pytest.importorskip("ineid.channels.torque", reason="the JointTorque channel is not on this branch yet")
+    r = run("identifiability", "sweaty-arm", "--use", "torque", "--armature", "--friction", "viscous")
+    assert r.exit_code == 0, r.output
+    for text in ("(20 standard parameters, 8 extra)", "structural rank 24", "shoulder_pitch.fv, shoulder_pitch.Ia",
+                 "invisible in the measurements"):
+        assert text in r.output.replace("\n", " "), text
+    r = run("identifiability", "sweaty-arm", "--use", "wrench,torque")
+    assert r.exit_code == 0 and "structural rank 17" in r.output  # the torques add no direction (docs)
+    r = run("identifiability", "sweaty-arm", "--use", "torque")
+    assert r.exit_code == 0 and "structural rank 16" in r.output

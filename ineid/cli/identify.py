@@ -80,7 +80,7 @@ def identifiability(robot, n_frames, seed, data_path, config, bias, **channel_fl
     con = console()
     n = base.n_params
     con.print(f"[bold]{shown(model.name)}[/bold]: unknown links {shown(', '.join(model.unknown_links))} "
-              f"({n} standard parameters)")
+              f"({base.n_link_params} standard parameters{f', {base.n_extra} extra' if base.n_extra else ''})")
     con.print(f"frames: {shown(source)}")
     if channels is not None:
         con.print(f"channels: {shown(channels.describe())}"
@@ -102,7 +102,8 @@ def identifiability(robot, n_frames, seed, data_path, config, bias, **channel_fl
         t.add_row(str(k + 1), name)
     con.print(t)
     if base.null_basis.shape[1]:
-        t = table("Null directions: parameter changes invisible in the base wrench", ("#", "direction (add t times)"),
+        seen_by = "the base wrench" if channels is None or channels.keys == ("wrench",) else "the measurements"
+        t = table(f"Null directions: parameter changes invisible in {seen_by}", ("#", "direction (add t times)"),
                   left=("direction (add t times)",))
         for k, text in enumerate(base.null_directions()):
             t.add_row(str(k + 1), text)
