@@ -68,6 +68,14 @@ def _concat_fits(fits: list[BaseFit]) -> BaseFit:
     return BaseFit(dof=fits[0].dof, **cat)
 
 
+def _links_and_extra(model, theta_unknown, channels: ChannelSet) -> tuple[np.ndarray, np.ndarray]:
+    """``(theta_u, x)`` of estimates (NaN as zeros): ``[theta_u, x]`` split, or links alone (``x`` empty) when
+    they hold no extra parameters (a solver that does not fit them, such as a trained network)."""
+    theta = np.nan_to_num(theta_unknown)
+    n_extra = channels.n_extra(model)
+    return split(theta, n_extra if theta.shape[-1] == len(model.unknown_index) + n_extra else 0)
+
+
 def estimate_residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.ndarray,
                            channels: ChannelSet | None = None, offsets: Offsets | None = None):
     """:func:`ineid.identify.fused.residual_sums` of the unknown links' estimates (NaN rows as zeros) on
@@ -75,7 +83,7 @@ def estimate_residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.
     ``b = ybar - Wbar theta`` that go with them. With extra kept columns ``theta_unknown`` is
     ``[theta_u, x]`` (C, 10 n_u + n_extra) and the prediction ``T Phi theta + E x``."""
     channels = ds.meta.channels if channels is None else channels
-    links, extra = split(np.nan_to_num(theta_unknown), channels.n_extra(model))
+    links, extra = _links_and_extra(model, theta_unknown, channels)
     theta = model.full_theta(links, ds.theta_known)
     bias = None if offsets is None else np.nan_to_num(offsets.bias(theta_unknown))
     frames = slice(0, n_fit + n_val)
@@ -310,7 +318,7 @@ def predicted_wrench(model, ds, theta_u, frames=slice(None), bias=None,
         channels: the channels predicted (default: the dataset's; the base wrench in its sensor's frame).
     """
     channels = ds.meta.channels if channels is None else channels
-    links, extra = split(np.nan_to_num(theta_u), channels.n_extra(model))
+    links, extra = _links_and_extra(model, theta_u, channels)
     theta = model.full_theta(links, ds.theta_known)
     w = predict_wrench(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], theta, channels,
                        extra if extra.shape[-1] else None)
