@@ -502,3 +502,23 @@ def test_cli_identifiability_with_joint_torques(run):
     assert r.exit_code == 0 and "structural rank 17" in r.output  # the torques add no direction (docs)
     r = run("identifiability", "sweaty-arm", "--use", "torque")
     assert r.exit_code == 0 and "structural rank 16" in r.output
+
+
+def test_truth_of_extra_parameters(model, torque_only):
+    """A synthetic dataset's extra_truth fills the extras' truth; base parameters involving an unknown truth are NaN."""
+    from types import SimpleNamespace
+
+    from ineid.identify.solve import truth_with_extras
+
+    ds, x = torque_only
+    res = solve_dataset(ds, SolveSettings(weights="none", armature=True, friction=("viscous",)), model=model)
+    names = res.param_names[res.base.n_link_params:]
+    given = {n: 1.0 for n in names if not n.startswith("elbow.")}  # the elbow's truth unknown
+    fake = SimpleNamespace(theta_unknown=ds.theta_unknown, meta=SimpleNamespace(extra_truth=given))
+    res.theta_true = truth_with_extras(fake, res.base)
+    extras = res.theta_true[:, res.base.n_link_params:]
+    assert np.all(np.isnan(extras[:, [n.startswith("elbow.") for n in names]]))
+    assert np.all(extras[:, [not n.startswith("elbow.") for n in names]] == 1.0)
+    unknown = [("elbow." in b) for b in res.base.names]  # forearm.m + elbow.Ia among them
+    assert any("forearm.m + elbow.Ia" == b for b in res.base.names)
+    assert np.all(np.isnan(res.base_true[:, unknown])) and np.all(np.isfinite(res.base_true[:, ~np.array(unknown)]))
