@@ -50,6 +50,7 @@ bench: setup-dev
 	$(PY) benchmarks/regressor.py
 	$(PY) benchmarks/compile.py
 	$(PY) benchmarks/public_api.py
+	$(PY) benchmarks/joint_torques.py
 	$(PY) benchmarks/data.py
 	$(PY) benchmarks/identify.py
 	$(PY) benchmarks/learn.py
