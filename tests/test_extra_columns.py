@@ -251,6 +251,15 @@ def test_weighted_and_offsets(model, torque_only):
     keep = [i for i, name in enumerate(FakeTorque(**ACTUATION).extra_names(model)) if not name.endswith("offset")]
     assert rel_err(res.theta_hat[:, -n:], np.broadcast_to(x[keep], (ds.n_configs, n))) < 1e-8
     assert rel_err(res.bias_hat, np.broadcast_to(x[2::3], res.bias_hat.shape)) < 1e-8  # the offsets, as b
+    # the centred stacks (QR) agree with the centred blocks, extra columns among them
+    qr = solve_dataset(ds, SolveSettings(weights="estimate", bias="estimate", friction=("viscous", "coulomb"),
+                                         backend="casadi"), model=model)
+    assert rel_err(qr.theta_hat, res.theta_hat) < 1e-9 and rel_err(qr.bias_hat, res.bias_hat) < 1e-9
+    # the known links' CAD uncertainty gives std on clean data (the round-off's otherwise), estimates unchanged
+    wide = solve_dataset(ds, SolveSettings(weights="estimate", bias="estimate", friction=("viscous", "coulomb"),
+                                           known_uncertainty=(("*", 0.05),)), model=model)
+    np.testing.assert_array_equal(wide.theta_hat, res.theta_hat)
+    assert np.nanmax(res.base_std) < 1e-10 < np.nanmax(wide.base_std)
 
 
 def test_large_job_residual_kernel(model):
@@ -522,3 +531,26 @@ def test_truth_of_extra_parameters(model, torque_only):
     unknown = [("elbow." in b) for b in res.base.names]  # forearm.m + elbow.Ia among them
     assert any("forearm.m + elbow.Ia" == b for b in res.base.names)
     assert np.all(np.isnan(res.base_true[:, unknown])) and np.all(np.isfinite(res.base_true[:, ~np.array(unknown)]))
+
+
+def test_asymmetric_and_smooth_friction_with_joint_torques(model):
+    """The joint-torque channel's asymmetric viscous and smooth Coulomb columns (the contract's), recovered."""
+    torque = pytest.importorskip("ineid.channels.torque", reason="the JointTorque channel is not on this branch yet")
+    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=3), n_frames=60, seed=SEED,
+                                             channels=ChannelSet.of(torque.JointTorque())))
+    zone = 0.2
+    rng = np.random.default_rng(9)
+    truth = {f"{j}.{t}": float(rng.uniform(0.1, 1.0)) for j in model.joint_names for t in ("fv+", "fv-", "fc+", "fc-")}
+    tau = ds.channel_values["tau"].copy()
+    for j, name in enumerate(model.joint_names):
+        qd = ds.qd[..., j]
+        s = np.tanh(qd / zone)
+        tau[..., j] += (truth[f"{name}.fv+"] * np.maximum(qd, 0) + truth[f"{name}.fv-"] * np.minimum(qd, 0)
+                        + truth[f"{name}.fc+"] * np.maximum(s, 0) + truth[f"{name}.fc-"] * np.minimum(s, 0))
+    ds = dataclasses.replace(ds, channel_values={"tau": tau})
+    res = solve_dataset(ds, SolveSettings(weights="none", friction=("viscous", "coulomb"), coulomb_zone=zone,
+                                          asymmetric_friction=True, backend="casadi"), model=model)
+    names = res.param_names[res.base.n_link_params:]
+    assert set(names) == set(truth)
+    x = np.array([truth[n] for n in names])
+    assert rel_err(res.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-9
