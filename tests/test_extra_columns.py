@@ -554,3 +554,19 @@ def test_asymmetric_and_smooth_friction_with_joint_torques(model):
     assert set(names) == set(truth)
     x = np.array([truth[n] for n in names])
     assert rel_err(res.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-9
+
+
+def test_motor_currents_with_friction(model):
+    """Currents read through the drives (T = diag(1 / (k G))): friction in torque units, recovered."""
+    torque = pytest.importorskip("ineid.channels.torque", reason="the MotorCurrent channel is not on this branch yet")
+    drives = dict(torque_constant=(0.1, 0.12, 0.08, 0.05), gear_ratio=(100.0, -80.0, 50.0, 30.0))
+    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=2), n_frames=50, seed=SEED,
+                                             channels=ChannelSet.of(torque.MotorCurrent(**drives))))
+    channel = torque.MotorCurrent(**drives, friction=("viscous", "coulomb"))
+    x = truth_x(model, channel, 6)
+    current = ds.channel_values["current"] + channel.extra_rows(model, ds.q, ds.qd, ds.qdd) @ x
+    ds = dataclasses.replace(ds, channel_values={"current": current})
+    res = solve_dataset(ds, SolveSettings(weights="none", use=("current",), friction=("viscous", "coulomb"),
+                                          backend="casadi"), model=model)
+    assert res.param_names[-len(x):] == channel.extra_names(model)
+    assert rel_err(res.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-9
