@@ -32,6 +32,11 @@ columns) and ``t_a = sum_k y[k, a]``, and :meth:`InformationBlocks.centred` turn
 into those of the frames centred per axis (``G_a - s_a s_a^T / F``, ...), which is the joint
 fit of the parameters and the offsets (:class:`ineid.identify.systems.Offsets`).
 
+Channels with extra kept columns ``E x`` (joint friction, ..., :mod:`ineid.identify.extras`):
+the kernel appends each channel's ``E`` (block-diagonal, in its own axes, ``T`` not applied) to
+the rows, ``W_b`` is the base columns of ``[T Phi_u | E]`` over ``[theta_u, x]``, and the
+residual kernel predicts ``T Phi theta + E x``.
+
 One compiled shape serves every chunk: configurations are padded to a fixed count and long
 recordings are split into frame chunks (masked). Compiled once per robot, link split, base
 structure, channels' structure (:meth:`ineid.channels.ChannelSet.structure`) and frame count

@@ -9,7 +9,7 @@ unknown and known links' columns, so
     y = [y_1 - R_k(s_1) theta_k; ...]                 (AF,)
 
 with rows in frame-major order (frame 1's axes, ``fx..mz`` for the base wrench, then frame
-2's, ...) and the channels' extra kept columns ``E`` last (none today: zero columns). Rows
+2's, ...) and the channels' extra kept columns ``E`` last (:mod:`ineid.identify.extras`; zero columns without). Rows
 come from :meth:`ineid.channels.ChannelSet.rows_split` (the base wrench: the generated JAX
 code through :meth:`ineid.RobotModel.regressor_split`, compiled once, chunked); the CasADi
 path (:func:`stack_casadi`) evaluates the generated CasADi functions instead, as an
