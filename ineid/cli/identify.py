@@ -299,7 +299,7 @@ def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection
         v = validation(res, ds)
         name = plain(res.meta["robot"])  # one line in the title, and not a page long
         plot_validation(v, plot_path, title=f"{name if len(name) <= 60 else name[:57] + '...'}, {method}: ")
-        console().print("residual RMS per axis (fx fy fz N, mx my mz N*m): " + " ".join(f"{r:.3g}" for r in v.rms)
+        console().print(f"residual RMS per axis ({shown(' '.join(v.axes))}): " + " ".join(f"{r:.3g}" for r in v.rms)
                         + f"; wrote {shown(plot_path)}")
     elif plot_path is not None:
         console().print(f"no configuration identified: {shown(plot_path)} not written")
