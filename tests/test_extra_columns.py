@@ -313,7 +313,10 @@ def test_consistent_bounds_dissipative_extras(model, torque_only):
 # -- wrench and torques together, the two steps, the choice of channels -------------------------------
 
 
-def test_wrench_and_torque_together(model, both):
+def test_wrench_and_torque_together(model, both, monkeypatch):
+    from ineid.identify import two_step
+
+    monkeypatch.setattr(two_step, "CHUNK_ROWS", 1)  # step 2 one configuration at a time
     ds, x = both
     joint = solve_dataset(ds, SolveSettings(weights="none", backend="casadi", **_flags(ACTUATION)), model=model)
     truth = np.concatenate([ds.theta_unknown, np.broadcast_to(x, (ds.n_configs, len(x)))], axis=1)

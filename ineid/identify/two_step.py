@@ -47,8 +47,11 @@ from ineid.identify.identifiability import (
 )
 from ineid.identify.linear import fit_base, linear_estimate
 from ineid.identify.nlp import NlpSolver, nlp_estimate
-from ineid.identify.steps import _bias_estimate, _offset_dof
-from ineid.identify.systems import predict_wrench, remove_offsets
+from ineid.identify.steps import _bias_estimate, _concat_fits, _offset_dof
+from ineid.identify.systems import Offsets, predict_wrench, remove_offsets
+
+CHUNK_ROWS = 20_000_000
+"""Numbers of ``E`` (rows x columns) stacked at a time in step 2 (160 MB)."""
 
 
 def _split_channels(channels: ChannelSet) -> tuple[ChannelSet, ChannelSet]:
@@ -135,29 +138,35 @@ def second_step(first, ds, settings, model) -> dict:
     n_axes, n_e = torque.n_axes(model), torque.n_extra(model)
     base_x = extra_base_parameters(model, torque, with_bias)
     theta = model.full_theta(np.nan_to_num(first.theta_hat), ds.theta_known)
-    q, qd, qdd = (a[:, :n_fit] for a in (ds.q, ds.qd, ds.qdd))
-    resid = ds.measured(torque)[:, :n_fit] - predict_wrench(model, q, qd, qdd, theta, torque)
-    c = ds.n_configs
-    w = torque.extra_rows(model, q, qd, qdd).reshape(c, n_fit * n_axes, n_e)
-    y = resid.reshape(c, n_fit * n_axes)
     mask = torque.offset_mask(model)
-    offsets, lost = None, None
-    if with_bias:
-        w, y, offsets = remove_offsets(w, y, n_axes, mask)
-        lost = mask.astype(np.float64)
+    lost = mask.astype(np.float64) if with_bias else None
     axis_sigma = None
     if settings.weights == "noise":
         axis_sigma = _axis_slice(settings, channels, torque, model) or torque.noise_std(ds.meta.noise, model)
         if axis_sigma is None:
             raise IdentificationError("weights='noise' needs the joint torques' noise per axis: give axis_sigma or "
                                       "use weights='estimate'", status="no_noise_levels")
-    fit = fit_base(w, y, base_x, settings.weights, axis_sigma, n_axes, lost)
+    c = ds.n_configs
+    fits, parts, rms = [], [], np.empty(c)
+    per = max(1, CHUNK_ROWS // max(n_fit * n_axes * max(n_e, 1), 1))
+    for start in range(0, c, per):  # the stacks of E of a chunk of configurations at a time
+        sl = slice(start, min(start + per, c))
+        q, qd, qdd = (a[sl, :n_fit] for a in (ds.q, ds.qd, ds.qdd))
+        resid = ds.measured(torque)[sl, :n_fit] - predict_wrench(model, q, qd, qdd, theta[sl], torque)
+        w = torque.extra_rows(model, q, qd, qdd).reshape(len(q), n_fit * n_axes, n_e)
+        y = resid.reshape(len(q), n_fit * n_axes)
+        if with_bias:
+            w, y, off = remove_offsets(w, y, n_axes, mask)
+            parts.append(off)
+        fits.append(fit_base(w, y, base_x, settings.weights, axis_sigma, n_axes, lost))
+        rms[sl] = np.sqrt(np.mean((y * np.tile(fits[-1].axis_weights, (1, n_fit))) ** 2, axis=1))
+    fit = _concat_fits(fits)
+    offsets = Offsets.concat(parts) if with_bias else None
     if with_bias:
         _offset_dof(fit, int(mask.sum()))
     prior_x = np.zeros(n_e)
     est = linear_estimate(fit, base_x, prior_x)
     if settings.method == "consistent":  # friction and armature >= 0
-        rms = np.sqrt(np.mean((y * np.tile(fit.axis_weights, (1, n_fit))) ** 2, axis=1))
         solver = NlpSolver.build("consistent", base_x, prior_x, settings.pull, settings.entropic)
         est = nlp_estimate(fit, solver, rms, np.where(np.isfinite(est.theta), est.theta, 0.0))
     x = np.nan_to_num(est.theta)
