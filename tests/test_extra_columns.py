@@ -573,3 +573,18 @@ def test_motor_currents_with_friction(model):
                                           backend="casadi"), model=model)
     assert res.param_names[-len(x):] == channel.extra_names(model)
     assert rel_err(res.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-9
+
+
+def test_two_steps_with_offsets(model, both):
+    ds, x = both  # x holds torque offsets (every third): the channel's offsets take them, and the shift
+    shift = np.linspace(0.5, 1.0, model.n_dof)
+    shifted = dataclasses.replace(ds, channel_values={"tau": ds.channel_values["tau"] + shift})
+    res = solve_dataset(shifted, SolveSettings(weights="none", two_step=True, bias="estimate", backend="casadi",
+                                               friction=("viscous", "coulomb")), model=model)
+    assert res.success.all() and res.bias_hat.shape == (ds.n_configs, 6 + model.n_dof)
+    assert np.all(np.isfinite(res.bias_std))
+    direct = solve_dataset(shifted, SolveSettings(weights="none", bias="estimate", backend="casadi",
+                                                  friction=("viscous", "coulomb")), model=model)
+    # the torque axes' offsets: what the joint fit finds where the wrench determines what the torques see
+    assert rel_err(res.bias_hat[:, 6:8], direct.bias_hat[:, 6:8]) < 1e-8
+    assert rel_err(direct.bias_hat[:, 6:], np.broadcast_to(shift + x[2::3], (ds.n_configs, model.n_dof))) < 1e-8
