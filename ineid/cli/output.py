@@ -140,7 +140,10 @@ def print_results(res, out) -> None:
             columns += ("identifiable",) if ident is not None else ()
             tab = table(f"Relative error, {title}, over {n_ok} configurations", columns,
                                left=("parameter", "identifiable"))
-            for row in error_summary(est, truth, names, res.success, ident):
+            no_truth = np.all(np.isnan(truth[res.success]), axis=0)  # extra parameters the file does not simulate
+            for k, row in enumerate(error_summary(est, truth, names, res.success, ident)):
+                if no_truth[k]:
+                    continue
                 cells = [row.name, f"{row.median:.3g}", f"{row.p95:.3g}", f"{100 * row.within_1:.1f}%",
                          f"{100 * row.within_5:.1f}%"]
                 if ident is not None:
@@ -149,7 +152,7 @@ def print_results(res, out) -> None:
             con.print(tab)
         from ineid.params import all_links_physical  # noqa: PLC0415
 
-        valid = all_links_physical(np.nan_to_num(res.theta_hat[res.success]))
+        valid = all_links_physical(np.nan_to_num(res.theta_links[res.success]))
         con.print(f"physically valid estimates: {100 * valid.mean():.1f}%")
     elif n_ok:
         i = int(np.flatnonzero(res.success)[0])
