@@ -86,3 +86,20 @@ def given_flags(ctx: click.Context, flags: dict) -> list[str]:
     """The actuation options given on the command line (``--friction``, ...), as typed."""
     return [f"--{k.replace('_', '-')}" for k in flags if k != "use"
             and ctx.get_parameter_source(k) is click.core.ParameterSource.COMMANDLINE]
+
+
+def chosen_channels(channels, flags: dict):
+    """The channels ``identifiability`` analyses and ``excite`` designs for: ``channels`` (a dataset's, or None:
+    those named by --use) with the actuation options; None (the base wrench, as always) when no option is given."""
+    from ineid.identify import SolveSettings  # noqa: PLC0415
+    from ineid.identify.choose import channels_named, select_channels, with_actuation  # noqa: PLC0415
+
+    try:
+        settings = SolveSettings(**settings_flags(flags))
+    except ValueError as e:
+        raise click.UsageError(str(e)) from None
+    if channels is None:
+        if settings.use is None and settings == SolveSettings():
+            return None
+        channels = channels_named(settings.use)
+    return with_actuation(select_channels(channels, settings.use), settings)

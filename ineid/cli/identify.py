@@ -27,7 +27,7 @@ from ineid.cli.options import (
     select_alias,
     select_option,
 )
-from ineid.cli.channel_options import channel_options, settings_flags
+from ineid.cli.channel_options import channel_options, chosen_channels, settings_flags
 from ineid.cli.output import ProgressBar, console, plain, print_findings, print_results, shown, table
 
 _SOLVE = "ineid.identify.solve"
@@ -74,7 +74,7 @@ def identifiability(robot, n_frames, seed, data_path, config, bias, **channel_fl
         q, qd, qdd = generic_frames(model, n_frames, seed)
         source = f"{n_frames} random frames within the bounds (seed {seed})"
     _require_frames_memory(model, len(q))
-    channels = _chosen_channels(channels, channel_flags)
+    channels = chosen_channels(channels, channel_flags)
     base = base_parameters(model, bias=with_bias, channels=channels)
     a = analyze_frames(model, q, qd, qdd, base, bias=with_bias, channels=channels)
     con = console()
@@ -120,23 +120,6 @@ def identifiability(robot, n_frames, seed, data_path, config, bias, **channel_fl
         )
     if with_bias:
         _print_bias_cost(con, model, q, qd, qdd, channels)
-
-
-def _chosen_channels(channels, flags):
-    """The channels ``identifiability`` analyses: those of --data (or named by --use) with the actuation options;
-    None (the base wrench, as always) when no option is given."""
-    from ineid.identify import SolveSettings  # noqa: PLC0415
-    from ineid.identify.choose import channels_named, select_channels, with_actuation  # noqa: PLC0415
-
-    try:
-        settings = SolveSettings(**settings_flags(flags))
-    except ValueError as e:
-        raise click.UsageError(str(e)) from None
-    if channels is None:
-        if settings.use is None and settings == SolveSettings():
-            return None
-        channels = channels_named(settings.use)
-    return with_actuation(select_channels(channels, settings.use), settings)
 
 
 def _require_frames_memory(model, n_frames: int) -> None:
