@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from ineid.cli.channel_options import channel_options, chosen_channels, settings_flags
 from ineid.cli.options import (
     NOISE_MAX,
     SEED,
@@ -27,7 +28,6 @@ from ineid.cli.options import (
     select_alias,
     select_option,
 )
-from ineid.cli.channel_options import channel_options, chosen_channels, settings_flags
 from ineid.cli.output import ProgressBar, console, plain, print_findings, print_results, shown, table
 
 _SOLVE = "ineid.identify.solve"
