@@ -129,8 +129,10 @@ def print_results(res, out) -> None:
         rel = res.validation_rel[res.success]
         with np.errstate(invalid="ignore"):  # inf (a zero wrench) between two values: nan (solve warns)
             median, p95 = np.median(rel), np.percentile(rel, 95)
-        con.print(f"held-out wrench error ||w - Psi theta_hat|| / ||w||: median {median:.3g}, "
-                  f"95th percentile {p95:.3g}")
+        keys = [c.get("key") for c in res.meta.get("channels") or () if isinstance(c, dict)]
+        what = ("wrench error ||w - Psi theta_hat|| / ||w||" if keys in ([], ["wrench"])
+                else f"error of {shown(', '.join(map(str, keys)))} ||y - y_hat|| / ||y||")
+        con.print(f"held-out {what}: median {median:.3g}, 95th percentile {p95:.3g}")
     if res.theta_true is not None and n_ok:
         for title, est, truth, names, ident in (
             ("standard parameters", res.theta_hat, res.theta_true, res.param_names, res.base.identifiable),
