@@ -105,15 +105,6 @@ def test_joint_torque_channel_fits_mujoco_drives_exactly(model):
     assert np.allclose(x[len(u):][seen], np.asarray(truth)[seen], rtol=1e-6)
 
 
-def _solver_chooses_channels() -> bool:
-    import dataclasses
-
-    from ineid.identify import SolveSettings
-
-    return "use" in {f.name for f in dataclasses.fields(SolveSettings)}
-
-
-@pytest.mark.skipif(not _solver_chooses_channels(), reason="SolveSettings.use (issue 21, identification) not here")
 def test_study_quick_through_the_cli(run, tmp_path):
     """The quick size (2 configurations of 6 s) with three formulations: each compiles its own kernels, and
     ``both`` and ``two-step`` run the same code with other settings (the docs' table has them all)."""
