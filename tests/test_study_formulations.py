@@ -140,6 +140,15 @@ def test_study_without_mujoco_says_how_to_install(run, tmp_path, monkeypatch):
     assert not plot.exists()
 
 
+def test_study_refuses_a_payload_in_one_line(run, tmp_path):
+    plot = tmp_path / "f.png"
+    r = run("study", "formulations", "--quick", "--unknown-links", "hand", "--plot", plot)
+    assert r.exit_code == 1
+    assert r.output.strip() == ("Error: ineid study formulations simulates moving links, and hand is a payload: "
+                                "choose --unknown-links among the moving links")
+    assert not plot.exists()
+
+
 def test_the_main_job_never_imports_mujoco():
     code = ("import sys, ineid, ineid.data, ineid.identify, ineid.cli, ineid.identify.study_formulations; "
             "assert 'mujoco' not in sys.modules, 'mujoco imported'")
