@@ -55,6 +55,7 @@ bench: setup-dev
 	$(PY) benchmarks/identify.py
 	$(PY) benchmarks/learn.py
 	$(PY) benchmarks/recordings.py
+	$(PY) benchmarks/formulations.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

@@ -246,13 +246,22 @@ def _friction_errors(res, model, friction: dict) -> dict[str, float]:
 
 def formulations_study(model, size: StudySize = SIZES["quick"], seed: int = 0, formulations=tuple(FORMULATIONS),
                        progress=None) -> tuple[list[FormulationRow], StudyData, dict]:
-    """Simulate (:func:`simulate_study`) and identify by each formulation; one :class:`FormulationRow` each.
+    """Simulate (:func:`simulate_study`) and identify by each formulation (:func:`identify_formulations`).
 
     Returns:
-        The rows, the simulated data, and per formulation the :class:`ineid.identify.SolveResults` with friction.
+        One :class:`FormulationRow` per formulation, the simulated data, and per formulation the
+        :class:`ineid.identify.SolveResults` with friction.
     """
     total = size.n_configs + len(formulations)
     data = simulate_study(model, size, seed, None if progress is None else lambda done, _: progress(done, total))
+    step = None if progress is None else lambda done, _: progress(size.n_configs + done, total)
+    rows, results = identify_formulations(model, data, formulations, step)
+    return rows, data, results
+
+
+def identify_formulations(model, data: StudyData, formulations=tuple(FORMULATIONS),
+                          progress=None) -> tuple[list[FormulationRow], dict]:
+    """Identify ``data`` (with friction, then with ideal drives) by each formulation of :data:`FORMULATIONS`."""
     friction = data.friction.per_joint(model.n_dof)
     rows, results = [], {}
     for k, name in enumerate(formulations):
@@ -272,8 +281,8 @@ def formulations_study(model, size: StudySize = SIZES["quick"], seed: int = 0, f
             failed_share=float(1.0 - res.success.mean()), seconds=seconds))  # fmt: skip
         results[name] = res
         if progress is not None:
-            progress(size.n_configs + k + 1, total)
-    return rows, data, results
+            progress(k + 1, len(formulations))
+    return rows, results
 
 
 def write_rows(rows: list[FormulationRow], path) -> None:
