@@ -38,7 +38,7 @@ def imu_mjcf(model, mounts, theta, root_theta, timestep: float = 1e-3) -> str:
     for m in mounts:
         site = (f'<site name="imu_{m.name}" pos="{" ".join(repr(float(v)) for v in m.link_p_sensor)}" '
                 f'quat="{" ".join(repr(float(v)) for v in _quat(m.link_R_sensor))}"/>')
-        xml, n = re.subn(rf'(<body name="{re.escape(m.link)}"[^>]*>)', lambda mt: mt.group(1) + site, xml, count=1)
+        xml, n = re.subn(rf'(<body name="{re.escape(m.link)}"[^>]*>)', lambda mt, site=site: mt.group(1) + site, xml, count=1)
         assert n == 1, m.link
         sensors += f'<gyro site="imu_{m.name}"/><accelerometer site="imu_{m.name}"/>'
     return xml.replace("</sensor>", sensors + "</sensor>")
@@ -82,7 +82,7 @@ def simulate_imus(model, mounts, theta, root_theta, duration: float, rate: float
         mujoco.mj_fullM(mm, dd, mass)
         dd.ctrl[:] = mass @ (qdd_ref + wn**2 * (q_ref - dd.qpos) + 2 * wn * (qd_ref - dd.qvel)) + dd.qfrc_bias
 
-    n = int(round(duration * rate)) + 1
+    n = round(duration * rate) + 1
     q, qd, qdd, wrench, time = (np.empty((n, m.nv)), np.empty((n, m.nv)), np.empty((n, m.nv)), np.empty((n, 6)),
                                 np.empty(n))
     readings = {mt.name: {k: np.empty((n, 3)) for k in ("gyro", "accel", "alpha")} for mt in mounts}

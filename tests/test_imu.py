@@ -128,7 +128,7 @@ def test_noise_free_imus_give_the_true_states_and_exact_identification(arm, reco
     from ineid.data.recording import ImportSettings, Streams, recording_dataset
     from ineid.identify import SolveSettings, solve_dataset
 
-    q, qd_enc, qdd_enc = _encoders(recording, 10, 5.0)
+    _, qd_enc, qdd_enc = _encoders(recording, 10, 5.0)
     assert _rel(qd_enc, recording["qd"][EDGE:-EDGE]) > 0.01  # the prior is poor
     exact = EstimationSettings(noise=ImuNoise(1e-9, 1e-9, 1e-9), gyro_bias=False)
     truth = {k: recording[k][EDGE:-EDGE] for k in ("q", "qd", "qdd", "t", "wrench")}
@@ -158,7 +158,9 @@ def test_fusion_beats_coarse_encoders_and_never_loses_to_fine_ones(arm, recordin
     group's sensor): clearly better than 10-bit encoders on fast motion, no worse than 16-bit ones, and the
     gyro biases within their standard deviation where the encoders are fine."""
     rng = np.random.default_rng(11)
-    readings = _cut(_noisy(recording, rng, ImuNoise()))
+    noisy = _noisy(recording, rng, ImuNoise())
+    readings = _cut(noisy)
+    low_passed = _cut({k: {kind: LowPass(10.0, RATE).apply(v) for kind, v in r.items()} for k, r in noisy.items()})
     qd_true, qdd_true = recording["qd"][EDGE:-EDGE], recording["qdd"][EDGE:-EDGE]
     for bits, cutoff, gain in ((10, 10.0, 0.5), (16, 20.0, 1.1)):
         q, qd_enc, qdd_enc = _encoders(recording, bits, cutoff)
@@ -169,6 +171,10 @@ def test_fusion_beats_coarse_encoders_and_never_loses_to_fine_ones(arm, recordin
         gyros = [replace(m, kinds=("gyro",)) for m in recording["mounts"]]
         qd_g, qdd_g, _ = estimate_joint_states(arm, q, qd_enc, qdd_enc, gyros, readings)
         assert _rel(qd_g, qd_true) < gain * _rel(qd_enc, qd_true) and np.array_equal(qdd_g, qdd_enc)
+        if bits == 10:  # ... unless the low-passed gyros' derivative is qdd's prior
+            _, qdd_g, _ = estimate_joint_states(arm, q, qd_enc, qdd_enc, gyros, low_passed,
+                                                EstimationSettings(qdd_prior="gyros"), time=recording["t"][EDGE:-EDGE])
+            assert _rel(qdd_g, qdd_true) < 0.5 * _rel(qdd_enc, qdd_true)
         for name, rms in summary.residual_rms.items():  # residuals at the noise
             assert all(0.4 < v / getattr(ImuNoise(), k) < 1.5 for k, v in rms.items()), (name, rms)  # fewer where it fixes the fit
     for name in summary.gyro_bias:  # the 16-bit run

@@ -131,12 +131,22 @@ def parse_imu(text: str, model, name: str | None = None, kinds: Sequence[str] = 
     return ImuMount(link, sensor, name or (sensor.frame if from_frame else link), tuple(kinds))
 
 
-def _block(model, mount: ImuMount) -> int:
+def moving_index(model, mount: ImuMount) -> int:
+    """The index of ``mount``'s link among the moving links (joint order): its row in :func:`link_motion`.
+
+    Raises:
+        DatasetError: the link does not move (one line naming the moving links).
+    """
     moving = [j.link for j in model.chain.joints]
     if mount.link not in moving:
         raise DatasetError(f"IMU {mount.name!r}: {mount.link!r} is not a moving link of {model.name} (choose from "
                            f"{', '.join(moving)}, or a URDF frame welded to one)")
-    return model.link_names.index(mount.link)
+    return moving.index(mount.link)
+
+
+def _moving_blocks(model) -> tuple[int, ...]:
+    """The parameter blocks of the moving links (payload blocks left out), joint order."""
+    return tuple(model.link_names.index(j.link) for j in model.chain.joints)
 
 
 def _check_names(mounts: Sequence[ImuMount]) -> None:
@@ -201,12 +211,12 @@ def _flat(model, q, qd=None, qdd=None):
     return [x.reshape(-1, model.n_dof) for x in arrays], batch
 
 
-def link_motion(model, blocks: Sequence[int], q, qd, qdd, gravity=None) -> np.ndarray:
-    """``(N, len(blocks), 3, 3)``: per frame and parameter block ``[w, wd, a]`` in the link's frame
+def link_motion(model, q, qd, qdd, gravity=None) -> np.ndarray:
+    """``(N, n_dof, 3, 3)``: per frame and moving link (joint order) ``[w, wd, a]`` in the link's frame
     (rad/s, rad/s^2, m/s^2; ``a`` minus ``gravity``, default the model's), from the generated program,
-    compiled once per robot and set of blocks and run over chunks of frames."""
+    compiled once per robot and run over chunks of frames (:func:`ineid.robots.chunked.run_chunked`)."""
     flat, _ = _flat(model, q, qd, qdd)
-    blocks = tuple(int(b) for b in blocks)
+    blocks = _moving_blocks(model)
     out = np.empty((len(flat[0]), len(blocks), 3, 3))
 
     def write(start, stop, rows):
@@ -217,11 +227,11 @@ def link_motion(model, blocks: Sequence[int], q, qd, qdd, gravity=None) -> np.nd
     return out
 
 
-def link_jacobians(model, blocks: Sequence[int], q) -> np.ndarray:
-    """``(N, len(blocks), 2, 3, n_dof)``: per frame and block ``[J_w, J_o]`` (link frame): ``w = J_w qd``,
-    ``wd = J_w qdd + c_wd``, ``a = J_o qdd + c_a`` (see the module docstring)."""
+def link_jacobians(model, q) -> np.ndarray:
+    """``(N, n_dof, 2, 3, n_dof)``: per frame and moving link ``[J_w, J_o]`` (link frame): ``w = J_w qd``,
+    ``wd = J_w qdd + c_wd``, ``a = J_o qdd + c_a`` (see the module docstring); compiled once per robot."""
     flat, _ = _flat(model, q)
-    blocks = tuple(int(b) for b in blocks)
+    blocks = _moving_blocks(model)
     out = np.empty((len(flat[0]), len(blocks), 2, 3, model.n_dof))
 
     def write(start, stop, rows):
@@ -268,12 +278,12 @@ def imu_readings(model, mounts: Sequence[ImuMount], q, qd, qdd) -> dict[str, dic
     """
     mounts = list(mounts)
     _check_names(mounts)
-    blocks = sorted({_block(model, m) for m in mounts})
+    index = [moving_index(model, m) for m in mounts]
     flat, batch = _flat(model, q, qd, qdd)
-    motion = link_motion(model, blocks, *flat) if blocks else None
+    motion = link_motion(model, *flat) if mounts else None
     result = {}
-    for m in mounts:
-        w, wd, a = (motion[:, blocks.index(_block(model, m)), k] for k in range(3))
+    for m, i in zip(mounts, index, strict=True):
+        w, wd, a = (motion[:, i, k] for k in range(3))
         result[m.name] = {k: v.reshape(batch + (3,)) for k, v in readings_from_motion(m, w, wd, a).items()}
     return result
 
@@ -320,8 +330,8 @@ def imu_jacobians(model, mount: ImuMount, q, qd) -> ImuJacobians:
     Args:
         q, qd: (N, n_dof) joint positions and velocities.
     """
-    block = _block(model, mount)
+    i = moving_index(model, mount)
     flat, _ = _flat(model, q, qd)
-    jac = link_jacobians(model, [block], flat[0])[:, 0]
-    motion0 = link_motion(model, [block], flat[0], flat[1], np.zeros_like(flat[1]))[:, 0]
+    jac = link_jacobians(model, flat[0])[:, i]
+    motion0 = link_motion(model, flat[0], flat[1], np.zeros_like(flat[1]))[:, i]
     return jacobians_from(mount, jac, motion0)

@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ineid.data.imu import UNITS, ImuMount, _block, _check_names, jacobians_from, link_jacobians, link_motion
+from ineid.data.imu import UNITS, ImuMount, _check_names, jacobians_from, link_jacobians, link_motion, moving_index
 from ineid.errors import DatasetError
 
 WEAK = 1e-9
@@ -229,7 +229,7 @@ def _check_inputs(model, q, qd_enc, qdd_enc, mounts, readings):
         arrays.append(x)
     _check_names(mounts)
     for m in mounts:
-        _block(model, m)
+        moving_index(model, m)
         got = readings.get(m.name)
         for kind in m.kinds:
             y = None if got is None else got.get(kind)
@@ -276,14 +276,13 @@ def estimate_joint_states(model, q, qd_enc, qdd_enc, mounts: Sequence[ImuMount],
     q, qd_enc, qdd_enc = _check_inputs(model, q, qd_enc, qdd_enc, mounts, readings)
     f, n = q.shape
     noise = settings.noise
-    blocks = sorted({_block(model, m) for m in mounts})
-    jac = link_jacobians(model, blocks, q) if blocks else None
+    jac = link_jacobians(model, q) if mounts else None
     gyro_maps = acc_maps = None
 
     def mount_maps(qd):
-        motion0 = link_motion(model, blocks, q, qd, np.zeros_like(qd))
-        return {m.name: jacobians_from(m, jac[:, blocks.index(_block(model, m))],
-                                       motion0[:, blocks.index(_block(model, m))]) for m in mounts}
+        motion0 = link_motion(model, q, qd, np.zeros_like(qd))
+        return {m.name: jacobians_from(m, jac[:, moving_index(model, m)], motion0[:, moving_index(model, m)])
+                for m in mounts}
 
     # -- qd: gyros, encoders' derivative, biases ---------------------------------------------------
     gyros = [m for m in mounts if "gyro" in m.kinds]
@@ -338,8 +337,10 @@ def _check_fit(mounts, readings, settings, summary, qd_enc, qdd_prior, gyro_maps
         for k, rms in summary.residual_rms[m.name].items():
             ratio = rms / getattr(settings.noise, k)
             if ratio > settings.max_residual_ratio and (worst is None or ratio > worst[0]):
-                worst = (ratio, m.name, k, f"residual RMS {rms:.3g} {UNITS[k]}, {ratio:.3g} times its noise "
-                                          f"{getattr(settings.noise, k):g} {UNITS[k]}; or raise the noise setting if it is noisier")
+                sig = getattr(settings.noise, k)
+                detail = (f"residual RMS {rms:.3g} {UNITS[k]}, {ratio:.3g} times its noise {sig:g} {UNITS[k]}; "
+                          "or raise the noise setting if it is noisier")
+                worst = (ratio, m.name, k, detail)
     for m in mounts:
         for k in m.kinds:
             y = np.asarray(readings[m.name][k], dtype=np.float64)
@@ -357,7 +358,8 @@ def _check_fit(mounts, readings, settings, summary, qd_enc, qdd_prior, gyro_maps
             if rms_d > limit:
                 ratio = settings.max_residual_ratio * rms_d / limit
                 if worst is None or ratio > worst[0]:
-                    worst = (ratio, m.name, k, f"they differ from what the encoders predict by {rms_d:.3g} "
-                                               f"{UNITS[k]} RMS, {100 * rms_d / max(rms_p, 1e-300):.0f} % of it")
+                    detail = (f"they differ from what the encoders predict by {rms_d:.3g} {UNITS[k]} RMS, "
+                              f"{100 * rms_d / max(rms_p, 1e-300):.0f} % of it")
+                    worst = (ratio, m.name, k, detail)
     if worst is not None:
         raise _misfit_error(worst[1], worst[2], worst[3])
