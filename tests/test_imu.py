@@ -143,7 +143,7 @@ def test_noise_free_imus_give_the_true_states_and_exact_identification(arm, reco
     b = res.base
     beta = recording["theta"][arm.unknown_index] @ b.B.T
     err = np.abs(res.base_hat[0] - beta) / np.maximum(np.abs(beta), b.scales[b.base_index])
-    assert err.max() < 1e-7
+    assert err.max() < 1e-10  # measured 2.4e-14
 
 
 def _noisy(recording, rng, noise: ImuNoise):
