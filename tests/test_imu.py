@@ -199,6 +199,9 @@ def test_bad_imus_are_one_line_each(arm, recording):
         parse_imu("forearm:0.1,0.2,x", arm)
     _one_line(e, "six")
     with pytest.raises(DatasetError) as e:
+        parse_imu("hand:0,0,0.1,0,0,0", arm)  # a URDF frame has its pose already
+    _one_line(e, "hand", "forearm:x,y,z")
+    with pytest.raises(DatasetError) as e:
         parse_imu("base_link", arm)  # the root does not move
     _one_line(e, "base_link", "moving link")
     with pytest.raises(DatasetError) as e:
