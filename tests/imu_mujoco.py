@@ -38,7 +38,8 @@ def imu_mjcf(model, mounts, theta, root_theta, timestep: float = 1e-3) -> str:
     for m in mounts:
         site = (f'<site name="imu_{m.name}" pos="{" ".join(repr(float(v)) for v in m.link_p_sensor)}" '
                 f'quat="{" ".join(repr(float(v)) for v in _quat(m.link_R_sensor))}"/>')
-        xml, n = re.subn(rf'(<body name="{re.escape(m.link)}"[^>]*>)', lambda mt, site=site: mt.group(1) + site, xml, count=1)
+        body = rf'(<body name="{re.escape(m.link)}"[^>]*>)'
+        xml, n = re.subn(body, lambda mt, site=site: mt.group(1) + site, xml, count=1)
         assert n == 1, m.link
         sensors += f'<gyro site="imu_{m.name}"/><accelerometer site="imu_{m.name}"/>'
     return xml.replace("</sensor>", sensors + "</sensor>")

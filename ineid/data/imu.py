@@ -71,7 +71,8 @@ class ImuMount:
         if not self.name:
             object.__setattr__(self, "name", self.link)
         if not _NAME.match(self.name):
-            raise DatasetError(f"IMU name {self.name!r}: use letters, digits and _ (it prefixes the columns imu_<name>_wx ...)")
+            raise DatasetError(f"IMU name {self.name!r}: use letters, digits and _ (it prefixes the columns "
+                               "imu_<name>_wx ...)")
         kinds = (self.kinds,) if isinstance(self.kinds, str) else tuple(self.kinds)
         bad = [k for k in kinds if k not in KINDS]
         if bad or not kinds or len(set(kinds)) != len(kinds):
@@ -125,8 +126,8 @@ def parse_imu(text: str, model, name: str | None = None, kinds: Sequence[str] = 
         raise DatasetError(f"IMU {text!r}: the pose does not parse; give LINK:x,y,z,roll,pitch,yaw, six numbers "
                            "(m, rad, URDF rpy) in the link's frame") from None
     if resolved is None:
-        raise DatasetError(f"IMU {text!r}: not a moving link of {model.name}; give LINK or "
-                           f"LINK:x,y,z,roll,pitch,yaw (m, rad) with LINK one of {moving}, or a URDF frame welded to one")
+        raise DatasetError(f"IMU {text!r}: not a moving link of {model.name}; give LINK or LINK:x,y,z,roll,pitch,yaw "
+                           f"(m, rad) with LINK one of {moving}, or a URDF frame welded to one")
     link, sensor, from_frame = resolved
     return ImuMount(link, sensor, name or (sensor.frame if from_frame else link), tuple(kinds))
 

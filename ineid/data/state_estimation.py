@@ -31,8 +31,16 @@ Without such sensors ``qdd`` is the prior.
 
 **Prior weights from the data** (``encoder_qd_std=None``): a first pass with a prior 1e-9 times as
 heavy as the sensors gives the sensors' own estimate ``x1`` and its covariance ``C1``; per joint
-``s^2 = median_k (prior - x1)^2 / 0.455 - mean_k C1_jj`` (robust: a few bad frames do not inflate it), floored at ``1e-3`` of the sensors' own std (the
-encoders are then far better than the IMUs and win). The same for ``qdd``.
+``s^2 = median_k (prior - x1)^2 / 0.455 - mean_k C1_jj`` (robust: a few bad frames do not inflate
+it), floored at ``1e-3`` of the sensors' own std (the encoders are then far better than the IMUs
+and win). The same for ``qdd``.
+
+**What the data cannot tell.** Each frame is estimated on its own (the biases aside): no smoothing
+over time, so low-pass the IMU streams as the angles are and give the noise the filter leaves. A
+gyro bias along the axis of a joint that no IMU further out sees (the last joint's axis, for an IMU
+on the last link) is a constant error in that joint's rate: only the encoders fix it (the mean of
+their derivative). The maps are evaluated at the encoders' angles, so their errors (quantization,
+filtering) reach the biases too; the reported std assumes exact angles and white prior errors.
 
 **Checks.** Per IMU and kind the residual RMS (reading less its fitted value) is reported; one
 whose RMS exceeds ``max_residual_ratio`` times its noise, or whose readings differ from what the
