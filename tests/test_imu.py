@@ -38,6 +38,10 @@ def arm():
 
 @pytest.fixture(scope="module")
 def recording(arm):
+    return simulated_recording(arm)
+
+
+def simulated_recording(arm) -> dict:
     """MuJoCo: 6 s at 200 Hz of fast motion (0.6 Hz base, harmonics to 2.4 Hz), IMUs on every moving link,
     the unknown links' parameters drawn around the CAD values."""
     from ineid.data.sampling import sample_link_parameters
