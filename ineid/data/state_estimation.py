@@ -45,8 +45,9 @@ filtering) reach the biases too; the reported std assumes exact angles and white
 **Checks.** Per IMU and kind the residual RMS (reading less its fitted value) is reported; one
 whose RMS exceeds ``max_residual_ratio`` times its noise (and :data:`RESIDUAL_FLOOR` of its readings'
 RMS), or whose readings differ from what the encoders predict by more than ``max_encoder_misfit`` of
-the predicted RMS (gyro after its bias, and above the noise limit too), is a :class:`DatasetError` naming the IMU and the fix: it does not sit
-where the mount says (a wrong link, pose or axis order), or the noise setting is too low.
+the predicted RMS (gyro after its bias, and above the noise limit too), is a :class:`DatasetError`
+naming the IMU and the fix: it does not sit where the mount says (a wrong link, pose or axis
+order), or the noise setting is too low.
 """
 
 from __future__ import annotations
