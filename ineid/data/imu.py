@@ -242,10 +242,6 @@ def link_jacobians(model, q) -> np.ndarray:
     return out
 
 
-def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return np.cross(u, v)
-
-
 def readings_from_motion(mount: ImuMount, w: np.ndarray, wd: np.ndarray, a: np.ndarray) -> dict[str, np.ndarray]:
     """The mount's readings (sensor frame) from its link's ``w``, ``wd``, ``a`` (N, 3), link frame."""
     rt = mount.link_R_sensor.T
@@ -257,7 +253,7 @@ def readings_from_motion(mount: ImuMount, w: np.ndarray, wd: np.ndarray, a: np.n
         elif kind == "alpha":
             v = wd
         else:
-            v = a + _cross(wd, r) + _cross(w, _cross(w, r))
+            v = a + np.cross(wd, r) + np.cross(w, np.cross(w, r))
         out[kind] = v @ rt.T
     return out
 
@@ -316,7 +312,7 @@ def jacobians_from(mount: ImuMount, jac: np.ndarray, motion0: np.ndarray) -> Imu
     skew_r = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
     j_w, j_o = jac[:, 0], jac[:, 1]
     w, c_wd, c_a = motion0[:, 0], motion0[:, 1], motion0[:, 2]
-    acc0 = c_a + _cross(c_wd, r) + _cross(w, _cross(w, r))
+    acc0 = c_a + np.cross(c_wd, r) + np.cross(w, np.cross(w, r))
     return ImuJacobians(rt @ j_w, rt @ (j_o - skew_r @ j_w), c_wd @ rt.T, acc0 @ rt.T)
 
 
