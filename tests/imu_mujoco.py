@@ -30,6 +30,23 @@ def _arm_mjcf(model, theta, root_theta, timestep: float) -> str:
         return arm_mjcf(model.chain, theta, root_theta, SensorPose(), timestep, 0.0, 0.0)
 
 
+def _sim_parts():
+    """``(Reference, root_theta(model))`` from ``ineid.data.mujoco_sim`` (issue 21) or the tests' old home."""
+    try:
+        from ineid.data.mujoco_sim import Reference, root_link_theta  # noqa: PLC0415
+
+        return Reference, root_link_theta
+    except ImportError:
+        from tests.mujoco_arm import Reference, _root_theta  # noqa: PLC0415
+
+        return Reference, _root_theta
+
+
+def root_theta(model) -> np.ndarray:
+    """The root body's own parameters (10,), from the URDF: its weight is part of what the F/T sensor reads."""
+    return _sim_parts()[1](model)
+
+
 def imu_mjcf(model, mounts, theta, root_theta, timestep: float = 1e-3) -> str:
     """The arm with a site per IMU (its pose in its link) and MuJoCo's ``gyro`` and ``accelerometer``
     at each, after the F/T sensor's ``force`` and ``torque`` (sensordata 0:6)."""
@@ -67,10 +84,9 @@ def simulate_imus(model, mounts, theta, root_theta, duration: float, rate: float
     base origin, the load on the fixture: the root's weight included) and every IMU's readings."""
     import mujoco  # noqa: PLC0415
 
-    from tests.mujoco_arm import Reference  # noqa: PLC0415
-
+    reference_class, _ = _sim_parts()
     rng = np.random.default_rng(seed)
-    ref = Reference.random(model, rng, base_frequency=0.2 * speed, harmonics=4)
+    ref = reference_class.random(model, rng, base_frequency=0.2 * speed, harmonics=4)
     xml = imu_mjcf(model, mounts, theta, root_theta, 1.0 / (rate * steps_per_sample))
     m = mujoco.MjModel.from_xml_string(xml)
     d = mujoco.MjData(m)

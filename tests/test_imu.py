@@ -45,8 +45,7 @@ def simulated_recording(arm) -> dict:
     """MuJoCo: 6 s at 200 Hz of fast motion (0.6 Hz base, harmonics to 2.4 Hz), IMUs on every moving link,
     the unknown links' parameters drawn around the CAD values."""
     from ineid.data.sampling import sample_link_parameters
-    from tests.imu_mujoco import simulate_imus
-    from tests.mujoco_arm import _root_theta
+    from tests.imu_mujoco import root_theta, simulate_imus
 
     rng = np.random.default_rng(7)
     theta = arm.theta_cad.copy()
@@ -54,7 +53,7 @@ def simulated_recording(arm) -> dict:
         i = arm.link_names.index(link)
         theta[10 * i: 10 * i + 10] = sample_link_parameters(arm.theta_cad[10 * i: 10 * i + 10], 1, rng)[0]
     mounts = _mounts(arm, rng)
-    root = _root_theta(arm)
+    root = root_theta(arm)
     t, q, qd, qdd, wrench, readings = simulate_imus(arm, mounts, theta, root, 6.0, RATE, seed=3, speed=3.0)
     g = arm.gravity
     tared = wrench - np.concatenate([root[0] * g, np.cross(root[1:4], g)])  # the root's weight off
@@ -84,12 +83,11 @@ def _rel(x, truth):
 def test_imu_readings_match_mujoco_gyro_accelerometer_and_body_acceleration(arm):
     """At random states (MuJoCo's forward dynamics under random torques), every IMU on every moving link:
     MuJoCo's gyro, accelerometer (specific force) and the site's angular acceleration are ineid's."""
-    from tests.imu_mujoco import imu_mjcf, mujoco_imu
-    from tests.mujoco_arm import _root_theta
+    from tests.imu_mujoco import imu_mjcf, mujoco_imu, root_theta
 
     rng = np.random.default_rng(5)
     mounts = _mounts(arm, rng)
-    m = mujoco.MjModel.from_xml_string(imu_mjcf(arm, mounts, arm.theta_cad, _root_theta(arm)))
+    m = mujoco.MjModel.from_xml_string(imu_mjcf(arm, mounts, arm.theta_cad, root_theta(arm)))
     d = mujoco.MjData(m)
     states, ref = [], []
     for _ in range(16):
