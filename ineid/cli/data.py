@@ -23,6 +23,7 @@ from ineid.cli.options import (
     robot_inputs,
     robot_options,
 )
+from ineid.cli.imu_options import estimation_settings, imu_import, imu_option, parse_imu_noise
 from ineid.cli.output import ProgressBar, console, plain, print_findings, shown, table
 from ineid.cli.simulation import (
     channels_option,
@@ -219,14 +220,17 @@ def _delay(ctx, param, value: str) -> float | None:
               help="Unit of the revolute joints' angles (and of measured qd, qdd); deg converts them to rad.")
 @torque_constant_option
 @gear_ratio_option
+@imu_import
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
 @click.pass_context
 def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic, wrench_topic, flip_wrench,
-                wrench_scale, angle_unit, torque_constant, gear_ratio, out, overwrite) -> None:
+                wrench_scale, angle_unit, torque_constant, gear_ratio, imus, imu_topics, imu_delay, imu_noise, out,
+                overwrite) -> None:
     """Import a recording: a CSV (time, q1..qn, [qd1..qn, qdd1..qn,] [tau1..taun,] fx fy fz mx my mz; the wrench
     optional with torques), a ROS 1 .bag, or a ROS 2 bag folder or .mcap (sensor_msgs/JointState with its
-    effort as joint torques, geometry_msgs/WrenchStamped)."""
+    effort as joint torques, geometry_msgs/WrenchStamped). Link IMUs (imu_<NAME>_wx.. columns, sensor_msgs/Imu
+    topics): qd, qdd fused from the encoders and the IMUs (docs/recordings.md)."""
     from ineid.data.recording import ImportSettings, import_recording  # noqa: PLC0415
 
     if delay is None:  # --delay auto: the estimate fits the model; importing it registers it with the import
@@ -237,9 +241,11 @@ def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic,
     settings = ImportSettings(sensor_pose=sensor_pose, cutoff=cutoff, rate=rate, delay=delay or 0.0,
                               estimate_delay=delay is None, flip_wrench=flip_wrench, angle_unit=angle_unit,
                               wrench_scale=wrench_scale, torque_constant=torque_constant,
-                              gear_ratio=gear_ratio)  # fmt: skip
+                              gear_ratio=gear_ratio, imus=tuple(imus), imu_delay=imu_delay,
+                              estimation=estimation_settings(imu_noise))  # fmt: skip
     with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
-        ds, summary = import_recording(path, model, settings, joint_topic, wrench_topic, progress=bar)
+        ds, summary = import_recording(path, model, settings, joint_topic, wrench_topic, progress=bar,
+                                       imu_topics=tuple(imu_topics))
     ds.save(out, overwrite=overwrite)
     click.echo(f"wrote {out}: one recording of {plain(model.name)}")
     for line in summary.lines():

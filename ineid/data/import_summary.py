@@ -44,6 +44,8 @@ class ImportSummary:
     """What rides on the joints' clock besides the angles (``"joint torques"``), filtered like the wrench."""
     sensor_where: str = "the base frame"
     """Where :attr:`sensor` is given: the base frame, or a link's frame for an F/T sensor on a link."""
+    imu: tuple[str, ...] = ()
+    """The link IMUs' lines: mounts, rates, the fused estimate's gyro biases and residuals."""
 
     def lines(self) -> list[str]:
         wrench = self.wrench_rate is not None
@@ -87,7 +89,7 @@ class ImportSummary:
             e = self.delay_estimate
             out.append(f"wrench delay estimated: {1e3 * e.delay:.4g} ms (relative residual of the linear fit with "
                        f"offsets {e.residual:.3g}, against {e.residual_at_zero:.3g} without a delay)")
-        return out
+        return out + list(self.imu)
 
     def to_dict(self) -> dict:
         return {
