@@ -126,34 +126,52 @@ def link_key(link: str) -> str:
     return key if len(key) <= 32 else key[:23] + f"_{zlib.crc32(link.encode()) % 10**8:08d}"
 
 
+def link_frame(text: str, model, what: str = "sensor pose",
+               otherwise: str = ", or six numbers for a sensor under the base") -> tuple[str, SensorPose, bool] | None:
+    """``(moving link, pose in its frame, from a URDF frame)`` that ``text`` names, or None when it names no link.
+
+    ``text``: ``LINK`` or ``LINK:x,y,z,roll,pitch,yaw`` with a moving link of ``model`` (the pose in its
+    frame; ``LINK`` alone: its origin), or a URDF link welded to a moving link (its pose in that
+    link's frame, from the URDF; the third item True). Anything else without a ``:`` is None (the
+    caller's other forms, such as six numbers for a sensor under the base).
+
+    Raises:
+        DatasetError: a ``:`` after a name that is no moving link, or a URDF frame given a pose
+            (one line: ``what``, the text, the moving links to choose from, and ``otherwise``).
+    """
+    moving = [j.link for j in model.chain.joints]
+    name, _, pose = text.strip().partition(":")
+    name = name.strip()
+    if not (pose.strip() or name in moving or name in model.chain.body_links):
+        return None
+    if name in moving:
+        return name, parse_sensor_pose(pose) if pose.strip() else SensorPose(), False
+    link = model.chain.body_links.get(name)
+    if pose.strip() or link is None:
+        raise DatasetError(f"{what} {text.strip()!r}: {name!r} is not a moving link of {model.name} (choose from "
+                           f"{', '.join(moving)}, or give a URDF frame welded to one{otherwise})")
+    return link.body, SensorPose.from_matrix(link.body_R_link, link.body_p_link, frame=name), True
+
+
 def sensor_channel(text: str | None, model, key: str | None = None, offsets: bool = False) -> Channel:
     """The wrench channel a ``--sensor-pose`` names, for ``model``.
 
     ``text``: ``x,y,z,roll,pitch,yaw`` (m, rad, URDF rpy) or a URDF frame welded to the root:
     the base wrench (:class:`BaseWrench`); ``LINK`` or ``LINK:x,y,z,roll,pitch,yaw`` with a moving
-    link, or a URDF frame welded to a moving link: the wrench at that link (:class:`LinkWrench`).
+    link, or a URDF frame welded to a moving link: the wrench at that link (:class:`LinkWrench`,
+    resolved by :func:`link_frame`).
 
     Raises:
         DatasetError: the text does not parse, names no link or frame of the model, or a frame
             has a massive known link welded beyond it (one line naming the fix).
     """
-    moving = [j.link for j in model.chain.joints]
     text = (text or "").strip()
-    name, _, pose = text.partition(":")
-    name = name.strip()
-    if pose.strip() or name in moving or name in model.chain.body_links:
-        if name in moving:
-            sensor = parse_sensor_pose(pose) if pose.strip() else None
-            return LinkWrench(key=check_key(key or link_key(name)), link=name, offsets=offsets,
-                              sensor=None if sensor is None or sensor.is_identity else sensor)
-        link = model.chain.body_links.get(name)
-        if pose.strip() or link is None:
-            raise DatasetError(f"sensor pose {text!r}: {name!r} is not a moving link of {model.name} (choose from "
-                               f"{', '.join(moving)}, or give a URDF frame welded to one, or six numbers for a "
-                               "sensor under the base)")
-        _refuse_known_beyond(model, name)
-        sensor = SensorPose.from_matrix(link.body_R_link, link.body_p_link, frame=name)
-        return LinkWrench(key=check_key(key or link_key(link.body)), link=link.body, offsets=offsets,
+    on_link = link_frame(text, model)
+    if on_link is not None:
+        link, sensor, from_frame = on_link
+        if from_frame:
+            _refuse_known_beyond(model, sensor.frame)
+        return LinkWrench(key=check_key(key or link_key(link)), link=link, offsets=offsets,
                           sensor=None if sensor.is_identity else sensor)
     base = parse_sensor_pose(text or None, model.urdf_text, model.locked_joints, source=f"{model.name}'s URDF")
     return BaseWrench(key=key or "wrench", offsets=offsets, sensor=None if base.is_identity else base)
