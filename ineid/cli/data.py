@@ -23,7 +23,7 @@ from ineid.cli.options import (
     robot_inputs,
     robot_options,
 )
-from ineid.cli.imu_options import estimation_settings, imu_import, imu_option, parse_imu_noise
+from ineid.cli.imu_options import check_imu_generate, estimation_settings, imu_generate, imu_import, imu_rehearsal
 from ineid.cli.output import ProgressBar, console, plain, print_findings, shown, table
 from ineid.cli.simulation import (
     channels_option,
@@ -90,12 +90,13 @@ def data() -> None:
 @torque_constant_option
 @gear_ratio_option
 @noise_option
+@imu_generate
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
 @click.pass_context
 def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_mode, trajectory, harmonics,
                   base_frequency, mass_band, com_box, inertia_band, rotation, channels, sensor_pose, friction_truth,
-                  torque_constant, gear_ratio, noise, out, overwrite) -> None:
+                  torque_constant, gear_ratio, noise, imus, gyro_bias, encoder_bits, out, overwrite) -> None:
     """Sample a synthetic ground-truth dataset of ROBOT (default sweaty-arm; the paper's: --factorial 100)."""
     from ineid.data import Combination, DatasetSpec, FrameSampling, ParameterSampling, write_dataset  # noqa: PLC0415
 
@@ -122,6 +123,7 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
         raise click.UsageError("force and moment noise is the base wrench's: add it with --channels wrench,torque")
     if sensor_pose is not None and not (channels is None or "wrench" in channels):
         raise click.UsageError("--sensor-pose places the F/T sensor of the wrench channel: add wrench to --channels")
+    check_imu_generate(imus, gyro_bias, encoder_bits, noise, frame_mode)
     prepare_output(out, overwrite, inputs=[*robot_inputs(robot), ("the trajectory file", trajectory)])
     model = robot.load()
     drive_values = drives(channels, torque_constant, gear_ratio, model.n_dof)
@@ -160,6 +162,7 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
             noise=noise_model(noise, model.n_dof, "wrench" if sensor is None else sensor.key),
             channels=simulated_channels(channels, drive_values, sensor),
             extra_truth=simulation_truth(friction_truth, model.joint_names),
+            imu=imu_rehearsal(imus, gyro_bias, encoder_bits, noise, model),
         )
     except ValueError as e:  # a setting the options' own checks let through
         raise click.UsageError(str(e)) from None

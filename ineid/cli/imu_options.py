@@ -6,9 +6,7 @@ import math
 
 import click
 
-IMU_NOISE_KEYS = ("gyro", "accel", "alpha")
-"""``--noise``/``--imu-noise`` keys of the IMUs: white-noise std of the gyroscopes (rad/s), accelerometers (m/s^2)
-and angular-acceleration sensors (rad/s^2) at the frames' rate."""
+from ineid.cli.simulation import IMU_NOISE_KEYS
 
 imu_option = click.option(
     "--imu", "imus", multiple=True, metavar="[NAME=]LINK[:X,Y,Z,R,P,Y]|FRAME",
@@ -72,3 +70,53 @@ def estimation_settings(imu_noise: dict[str, float] | None):
     from ineid.data.state_estimation import EstimationSettings, ImuNoise  # noqa: PLC0415
 
     return EstimationSettings(noise=ImuNoise(**imu_noise))
+
+
+imu_generate_options = [
+    imu_option,
+    click.option("--gyro-bias", type=click.FloatRange(min=0, max=1e6), default=0.0, show_default=True, metavar="STD",
+                 help="With --imu: the std of each gyro axis's constant bias (rad/s), drawn per configuration."),
+    click.option("--encoder-bits", type=click.IntRange(1, 64), default=None, metavar="N",
+                 help="With --imu: encoders of N bits (steps of 2 pi / 2^N rad); default exact angles."),
+]
+
+
+def imu_generate(f):
+    """Decorate ``ineid data generate`` with the rehearsal's options."""
+    for option in reversed(imu_generate_options):
+        f = option(f)
+    return f
+
+
+def check_imu_generate(imus, gyro_bias: float, encoder_bits: int | None, noise: dict | None, frame_mode: str) -> None:
+    """The rehearsal's options without ``--imu``, or ``--imu`` with independent frames: one line (exit 2)."""
+    imu_noise = sorted(k for k in (noise or {}) if k in IMU_NOISE_KEYS)
+    if not imus:
+        given = [flag for flag, on in (("--gyro-bias", gyro_bias > 0), ("--encoder-bits", encoder_bits is not None),
+                                       (f"--noise {','.join(imu_noise)}", bool(imu_noise))) if on]
+        if given:
+            raise click.UsageError(f"{given[0]} is for the link IMUs of a rehearsal: add --imu LINK[:pose]")
+        return
+    if frame_mode not in ("fourier", "trajectory"):
+        raise click.UsageError(f"--imu fuses time series: use --frame-mode fourier or trajectory, not {frame_mode} "
+                               "(independent frames)")
+    if any((noise or {}).get(k, 0.0) > 0 for k in ("q", "qd", "qdd")):
+        raise click.UsageError("with --imu the states are estimated from the encoders and the IMUs: drop the q, qd, "
+                               "qdd noise (--encoder-bits N quantizes the angles)")
+
+
+def imu_rehearsal(imus, gyro_bias: float, encoder_bits: int | None, noise: dict | None, model):
+    """The :class:`ineid.data.imu_rehearsal.ImuRehearsal` of the options (None without ``--imu``)."""
+    if not imus:
+        return None
+    from ineid.data.imu_rehearsal import ImuRehearsal  # noqa: PLC0415
+    from ineid.data.recording_imu import parse_imu_text  # noqa: PLC0415
+
+    mounts = [parse_imu_text(text, model) for text in imus]
+    names = [m.name for m in mounts]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise click.BadParameter(f"IMU {dup[0]!r} is given twice; give each once (NAME=LINK:pose names a second IMU "
+                                 "on one link)", param_hint="--imu")
+    return ImuRehearsal(tuple(mounts), {k: v for k, v in (noise or {}).items() if k in IMU_NOISE_KEYS}, gyro_bias,
+                        encoder_bits)

@@ -79,7 +79,7 @@ def parse_imu_text(text: str, model):
     if not name or any(c in name for c in ",: "):
         raise DatasetError(f"--imu {text!r}: the name before '=' must be a word (the <NAME> of imu_<NAME>_wx, or "
                            "the bag's frame_id); write NAME=LINK[:x,y,z,roll,pitch,yaw]")
-    return replace(parse_imu(rest.strip(), model), name=name)
+    return parse_imu(rest.strip(), model, name=name)
 
 
 def resolve_mounts(imus: Sequence[ImuStream], texts: Sequence[str], model, src: str) -> list:
