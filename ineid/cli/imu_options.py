@@ -77,7 +77,8 @@ imu_generate_options = [
     click.option("--gyro-bias", type=click.FloatRange(min=0, max=1e6), default=0.0, show_default=True, metavar="STD",
                  help="With --imu: the std of each gyro axis's constant bias (rad/s), drawn per configuration."),
     click.option("--encoder-bits", type=click.IntRange(1, 64), default=None, metavar="N",
-                 help="With --imu: encoders of N bits (steps of 2 pi / 2^N rad); default exact angles."),
+                 help="Rehearse the import (fourier, trajectory frame modes): encoders of N bits (steps of 2 pi / 2^N "
+                      "rad), filtered and differentiated as the import does, fused with any --imu."),
 ]
 
 
@@ -92,14 +93,16 @@ def check_imu_generate(imus, gyro_bias: float, encoder_bits: int | None, noise: 
     """The rehearsal's options without ``--imu``, or ``--imu`` with independent frames: one line (exit 2)."""
     imu_noise = sorted(k for k in (noise or {}) if k in IMU_NOISE_KEYS)
     if not imus:
-        given = [flag for flag, on in (("--gyro-bias", gyro_bias > 0), ("--encoder-bits", encoder_bits is not None),
+        given = [flag for flag, on in (("--gyro-bias", gyro_bias > 0),
                                        (f"--noise {','.join(imu_noise)}", bool(imu_noise))) if on]
         if given:
             raise click.UsageError(f"{given[0]} is for the link IMUs of a rehearsal: add --imu LINK[:pose]")
-        return
+        if encoder_bits is None:
+            return
     if frame_mode not in ("fourier", "trajectory"):
-        raise click.UsageError(f"--imu fuses time series: use --frame-mode fourier or trajectory, not {frame_mode} "
-                               "(independent frames)")
+        flag = "--imu" if imus else "--encoder-bits"
+        raise click.UsageError(f"{flag} rehearses an import, which filters and differentiates time series: use "
+                               f"--frame-mode fourier or trajectory, not {frame_mode} (independent frames)")
     if any((noise or {}).get(k, 0.0) > 0 for k in ("q", "qd", "qdd")):
         raise click.UsageError("with --imu the states are estimated from the encoders and the IMUs: drop the q, qd, "
                                "qdd noise (--encoder-bits N quantizes the angles)")
@@ -107,7 +110,7 @@ def check_imu_generate(imus, gyro_bias: float, encoder_bits: int | None, noise: 
 
 def imu_rehearsal(imus, gyro_bias: float, encoder_bits: int | None, noise: dict | None, model):
     """The :class:`ineid.data.imu_rehearsal.ImuRehearsal` of the options (None without ``--imu``)."""
-    if not imus:
+    if not imus and encoder_bits is None:
         return None
     from ineid.data.imu_rehearsal import ImuRehearsal  # noqa: PLC0415
     from ineid.data.recording_imu import parse_imu_text  # noqa: PLC0415

@@ -84,7 +84,7 @@ class DatasetSpec:
         if self.n_frames < 1:
             raise ValueError(f"n_frames must be >= 1, got {self.n_frames}")
         if self.imu is not None and self.frames.mode not in ("fourier", "trajectory"):
-            raise ValueError(f"IMUs are fused over time series: use --frame-mode fourier or trajectory, not "
+            raise ValueError(f"a rehearsal (IMUs, encoder bits) filters and fuses time series: use --frame-mode fourier or trajectory, not "
                              f"{self.frames.mode} (independent frames)")
         if self.imu is not None and self.noise is not None and any(
                 np.any(np.asarray(getattr(self.noise, k)) > 0) for k in ("q", "qd", "qdd")):

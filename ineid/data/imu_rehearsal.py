@@ -45,7 +45,7 @@ class ImuRehearsal:
     """The sensors of a rehearsal (see the module docstring).
 
     Attributes:
-        mounts: the :class:`ineid.data.imu.ImuMount` of each IMU (at least one).
+        mounts: the :class:`ineid.data.imu.ImuMount` of each IMU (none: the encoders alone).
         noise: ``{"gyro": rad/s, "accel": m/s^2, "alpha": rad/s^2}`` white-noise std at the frames' rate
             (missing: 0).
         gyro_bias: rad/s, the std of each gyro axis's constant bias, drawn per configuration.
@@ -60,8 +60,6 @@ class ImuRehearsal:
     cutoff: float | None = None
 
     def __post_init__(self) -> None:
-        if not self.mounts:
-            raise ValueError("a rehearsal with IMUs needs at least one mount")
         bad = [k for k in self.noise if k not in ("gyro", "accel", "alpha")]
         if bad or any(not (0 <= float(v) < math.inf) for v in self.noise.values()):
             raise ValueError(f"IMU noise is gyro=, accel=, alpha= std >= 0, got {dict(self.noise)}")
@@ -124,8 +122,8 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
         rng: the configuration's random stream (IMU noise, gyro biases).
 
     Returns:
-        The filtered encoder angles, the fused ``qd``, ``qdd``, the filtered values, and the
-        :class:`ineid.data.state_estimation.EstimationSummary`.
+        The filtered encoder angles, the fused ``qd``, ``qdd`` (the encoders' derivatives without IMUs),
+        the filtered values, and the :class:`ineid.data.state_estimation.EstimationSummary` (None without IMUs).
     """
     from ineid.data.imu import imu_readings  # noqa: PLC0415
     from ineid.data.state_estimation import EstimationSettings, estimate_joint_states  # noqa: PLC0415
@@ -154,7 +152,9 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
             if kind == "gyro":
                 x = x + rehearsal.gyro_bias * rng.standard_normal(3)
             readings[mount.name][kind] = periodic_filter(x, low)
-    settings = EstimationSettings(noise=filtered_noise(rehearsal.noise, cutoff, rate))  # as the import: biases estimated
-    qd_f, qdd_f, summary = estimate_joint_states(model, q_f, qd_e, qdd_e, rehearsal.mounts, readings, settings)
+    summary = None
+    if rehearsal.mounts:  # as the import does: the default settings (biases estimated), the noise as filtered
+        settings = EstimationSettings(noise=filtered_noise(rehearsal.noise, cutoff, rate))
+        qd_e, qdd_e, summary = estimate_joint_states(model, q_f, qd_e, qdd_e, rehearsal.mounts, readings, settings)
     filtered = {k: periodic_filter(np.asarray(v, dtype=np.float64), low) for k, v in values.items()}
-    return q_f, qd_f, qdd_f, filtered, summary
+    return q_f, qd_e, qdd_e, filtered, summary
