@@ -241,6 +241,10 @@ def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic,
 
     prepare_output(out, overwrite, inputs=[*folder_inputs(path, "the input recording"), *robot_inputs(robot)])
     model = robot.load()
+    from ineid.data.recording_imu import parse_imu_text  # noqa: PLC0415
+
+    for text in imus:  # a mount that does not parse is said before the file is read
+        parse_imu_text(text, model)
     settings = ImportSettings(sensor_pose=sensor_pose, cutoff=cutoff, rate=rate, delay=delay or 0.0,
                               estimate_delay=delay is None, flip_wrench=flip_wrench, angle_unit=angle_unit,
                               wrench_scale=wrench_scale, torque_constant=torque_constant,

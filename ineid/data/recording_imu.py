@@ -73,13 +73,17 @@ def parse_imu_text(text: str, model):
     from ineid.data.imu import parse_imu  # noqa: PLC0415
 
     name, eq, rest = text.partition("=")
-    if not eq:
-        return parse_imu(text.strip(), model)
-    name = name.strip()
-    if not name or any(c in name for c in ",: "):
-        raise DatasetError(f"--imu {text!r}: the name before '=' must be a word (the <NAME> of imu_<NAME>_wx, or "
-                           "the bag's frame_id); write NAME=LINK[:x,y,z,roll,pitch,yaw]")
-    return parse_imu(rest.strip(), model, name=name)
+    if eq:
+        name = name.strip()
+        if not name or any(c in name for c in ",: "):
+            raise DatasetError(f"--imu {text!r}: the name before '=' must be a word (the <NAME> of imu_<NAME>_wx, or "
+                               "the bag's frame_id); write NAME=LINK[:x,y,z,roll,pitch,yaw]")
+    try:
+        return parse_imu(rest.strip(), model, name=name) if eq else parse_imu(text.strip(), model)
+    except DatasetError as e:
+        if str(e).startswith("IMU "):
+            raise
+        raise DatasetError(f"--imu {text!r}: {e}") from None
 
 
 def resolve_mounts(imus: Sequence[ImuStream], texts: Sequence[str], model, src: str) -> list:
