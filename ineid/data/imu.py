@@ -117,7 +117,13 @@ def parse_imu(text: str, model, name: str | None = None, kinds: Sequence[str] = 
     """
     text = (text or "").strip()
     moving = ", ".join(j.link for j in model.chain.joints)
-    resolved = link_frame(text, model, what="IMU", otherwise="")
+    try:
+        resolved = link_frame(text, model, what="IMU", otherwise="")
+    except DatasetError as e:
+        if "does not parse" not in str(e) and "six finite numbers" not in str(e):
+            raise
+        raise DatasetError(f"IMU {text!r}: the pose does not parse; give LINK:x,y,z,roll,pitch,yaw, six numbers "
+                           "(m, rad, URDF rpy) in the link's frame") from None
     if resolved is None:
         raise DatasetError(f"IMU {text!r}: not a moving link of {model.name}; give LINK or "
                            f"LINK:x,y,z,roll,pitch,yaw (m, rad) with LINK one of {moving}, or a URDF frame welded to one")

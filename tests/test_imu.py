@@ -1,0 +1,220 @@
+"""Link IMUs (issue 22): the readings against MuJoCo's own sensors, and joint states estimated from
+the gyros, accelerometers, angular-acceleration sensors and encoders together."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import ineid
+from ineid import DatasetError
+from ineid.channels.pose import SensorPose
+from ineid.data.imu import ImuMount, imu_jacobians, imu_readings, parse_imu
+from ineid.data.signals import LowPass, derivatives
+from ineid.data.state_estimation import EstimationSettings, ImuNoise, estimate_joint_states
+
+mujoco = pytest.importorskip("mujoco")
+
+RATE = 200.0
+"""Hz: a low-cost arm's logging rate."""
+EDGE = 60
+"""Frames dropped at each end, as the import drops the filter's edges."""
+BIAS = np.array([0.02, -0.01, 0.03])
+"""rad/s, every gyro's bias in the noisy recording."""
+
+
+def _mounts(model, rng) -> list[ImuMount]:
+    """One IMU on every moving link, a few cm off its origin, turned arbitrarily."""
+    return [ImuMount(link, SensorPose(tuple(rng.normal(0, 0.04, 3)), tuple(rng.uniform(-3, 3, 3))))
+            for link in model.link_names]
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return ineid.load_robot("sweaty-arm")
+
+
+@pytest.fixture(scope="module")
+def recording(arm):
+    """MuJoCo: 6 s at 200 Hz of fast motion (0.6 Hz base, harmonics to 2.4 Hz), IMUs on every moving link,
+    the unknown links' parameters drawn around the CAD values."""
+    from ineid.data.sampling import sample_link_parameters
+    from tests.imu_mujoco import simulate_imus
+    from tests.mujoco_arm import _root_theta
+
+    rng = np.random.default_rng(7)
+    theta = arm.theta_cad.copy()
+    for link in arm.unknown_links:
+        i = arm.link_names.index(link)
+        theta[10 * i: 10 * i + 10] = sample_link_parameters(arm.theta_cad[10 * i: 10 * i + 10], 1, rng)[0]
+    mounts = _mounts(arm, rng)
+    root = _root_theta(arm)
+    t, q, qd, qdd, wrench, readings = simulate_imus(arm, mounts, theta, root, 6.0, RATE, seed=3, speed=3.0)
+    g = arm.gravity
+    tared = wrench - np.concatenate([root[0] * g, np.cross(root[1:4], g)])  # the root's weight off
+    return {"t": t, "q": q, "qd": qd, "qdd": qdd, "wrench": tared, "readings": readings, "mounts": mounts,
+            "theta": theta}
+
+
+def _encoders(rec, bits: int, cutoff: float):
+    """Angles quantized to ``bits`` per turn, low-passed at ``cutoff`` Hz and differentiated, edges dropped."""
+    step = 2 * np.pi / 2**bits
+    q = LowPass(cutoff, RATE).apply(np.round(rec["q"] / step) * step)
+    qd, qdd = derivatives(q, 1 / RATE)
+    return q[EDGE:-EDGE], qd[EDGE:-EDGE], qdd[EDGE:-EDGE]
+
+
+def _cut(readings):
+    return {k: {kind: v[EDGE:-EDGE] for kind, v in kinds.items()} for k, kinds in readings.items()}
+
+
+def _rel(x, truth):
+    return float(np.sqrt(np.mean((x - truth) ** 2)) / np.sqrt(np.mean(truth**2)))
+
+
+# -- the forward model against MuJoCo --------------------------------------------------------------
+
+
+def test_imu_readings_match_mujoco_gyro_accelerometer_and_body_acceleration(arm):
+    """At random states (MuJoCo's forward dynamics under random torques), every IMU on every moving link:
+    MuJoCo's gyro, accelerometer (specific force) and the site's angular acceleration are ineid's."""
+    from tests.imu_mujoco import imu_mjcf, mujoco_imu
+    from tests.mujoco_arm import _root_theta
+
+    rng = np.random.default_rng(5)
+    mounts = _mounts(arm, rng)
+    m = mujoco.MjModel.from_xml_string(imu_mjcf(arm, mounts, arm.theta_cad, _root_theta(arm)))
+    d = mujoco.MjData(m)
+    states, ref = [], []
+    for _ in range(16):
+        d.qpos[:], d.qvel[:], d.ctrl[:] = rng.uniform(-1, 1, 4), rng.normal(0, 3, 4), rng.normal(0, 3, 4)
+        mujoco.mj_forward(m, d)
+        states.append((d.qpos.copy(), d.qvel.copy(), d.qacc.copy()))
+        ref.append(mujoco_imu(m, d, mounts))
+    q, qd, qdd = (np.array(x) for x in zip(*states, strict=True))
+    ours = imu_readings(arm, mounts, q, qd, qdd)
+    for mount in mounts:
+        for kind in ("gyro", "accel", "alpha"):
+            theirs = np.array([r[mount.name][kind] for r in ref])
+            assert np.abs(ours[mount.name][kind] - theirs).max() < 1e-9 * np.abs(theirs).max(), (mount.name, kind)
+        maps = imu_jacobians(arm, mount, q, qd)  # the linear maps the estimator inverts
+        r = ours[mount.name]
+        assert np.allclose(np.einsum("fij,fj->fi", maps.gyro_qd, qd), r["gyro"], rtol=0, atol=1e-12)
+        assert np.allclose(np.einsum("fij,fj->fi", maps.gyro_qd, qdd) + maps.alpha_0, r["alpha"], rtol=0, atol=1e-10)
+        assert np.allclose(np.einsum("fij,fj->fi", maps.accel_qdd, qdd) + maps.accel_0, r["accel"], rtol=0, atol=1e-10)
+    # at rest an accelerometer reads +g, turned into its frame
+    rest = imu_readings(arm, mounts[:1], np.zeros(4), np.zeros(4), np.zeros(4))[mounts[0].name]
+    assert np.allclose(np.linalg.norm(rest["accel"]), 9.81) and np.allclose(rest["gyro"], 0)
+
+
+def test_parse_imu_forms(arm):
+    assert parse_imu("forearm", arm) == ImuMount("forearm")
+    mount = parse_imu("upper_arm:0.01,0,-0.1,0,0,1.5", arm, kinds=("gyro",))
+    assert mount.link == "upper_arm" and mount.sensor.xyz == (0.01, 0.0, -0.1) and mount.kinds == ("gyro",)
+    hand = parse_imu("hand", arm)  # a URDF frame welded to the forearm: its pose from the URDF
+    assert hand.link == "forearm" and hand.name == "hand" and np.allclose(hand.sensor.xyz, (0, 0, -0.26))
+    assert ImuMount.from_dict(mount.to_dict()) == replace(mount, sensor=replace(mount.sensor, frame=None))
+    assert mount.columns("alpha") == ("imu_upper_arm_alx", "imu_upper_arm_aly", "imu_upper_arm_alz")
+
+
+# -- the estimator ---------------------------------------------------------------------------------
+
+
+def test_noise_free_imus_give_the_true_states_and_exact_identification(arm, recording):
+    """Noise-free MuJoCo readings, a poor prior (10-bit encoders low-passed at 5 Hz): qd, qdd are MuJoCo's to
+    round-off, and the linear identification from them and MuJoCo's wrench is exact."""
+    from ineid.data.recording import ImportSettings, Streams, recording_dataset
+    from ineid.identify import SolveSettings, solve_dataset
+
+    q, qd_enc, qdd_enc = _encoders(recording, 10, 5.0)
+    assert _rel(qd_enc, recording["qd"][EDGE:-EDGE]) > 0.01  # the prior is poor
+    exact = EstimationSettings(noise=ImuNoise(1e-9, 1e-9, 1e-9), gyro_bias=False)
+    truth = {k: recording[k][EDGE:-EDGE] for k in ("q", "qd", "qdd", "t", "wrench")}
+    qd, qdd, summary = estimate_joint_states(arm, truth["q"], qd_enc, qdd_enc, recording["mounts"],
+                                             _cut(recording["readings"]), exact)
+    assert np.abs(qd - truth["qd"]).max() < 1e-10 * np.abs(truth["qd"]).max()
+    assert np.abs(qdd - truth["qdd"]).max() < 1e-10 * np.abs(truth["qdd"]).max()
+    assert all(v < 1e-6 for r in summary.residual_rms.values() for v in r.values())  # in units of 1e-9 noise
+    ds, _ = recording_dataset(Streams(truth["t"], truth["q"], qd, qdd, truth["t"], truth["wrench"], "imu test"),
+                              arm, ImportSettings())
+    res = solve_dataset(ds, SolveSettings())
+    b = res.base
+    beta = recording["theta"][arm.unknown_index] @ b.B.T
+    err = np.abs(res.base_hat[0] - beta) / np.maximum(np.abs(beta), b.scales[b.base_index])
+    assert err.max() < 1e-7
+
+
+def _noisy(recording, rng, noise: ImuNoise):
+    n = len(recording["t"])
+    return {name: {"gyro": r["gyro"] + BIAS + rng.normal(0, noise.gyro, (n, 3)),
+                   "accel": r["accel"] + rng.normal(0, noise.accel, (n, 3)),
+                   "alpha": r["alpha"] + rng.normal(0, noise.alpha, (n, 3))} for name, r in recording["readings"].items()}
+
+
+def test_fusion_beats_coarse_encoders_and_never_loses_to_fine_ones(arm, recording):
+    """Gyro 0.005 rad/s with a 0.02-0.03 rad/s bias, accelerometer 0.05 m/s^2, alpha 0.17 rad/s^2 (the paper's
+    group's sensor): clearly better than 10-bit encoders on fast motion, no worse than 16-bit ones, and the
+    gyro biases within their standard deviation where the encoders are fine."""
+    rng = np.random.default_rng(11)
+    readings = _cut(_noisy(recording, rng, ImuNoise()))
+    qd_true, qdd_true = recording["qd"][EDGE:-EDGE], recording["qdd"][EDGE:-EDGE]
+    for bits, cutoff, gain in ((10, 10.0, 0.5), (16, 20.0, 1.1)):
+        q, qd_enc, qdd_enc = _encoders(recording, bits, cutoff)
+        qd, qdd, summary = estimate_joint_states(arm, q, qd_enc, qdd_enc, recording["mounts"], readings)
+        assert _rel(qd, qd_true) < gain * _rel(qd_enc, qd_true), bits
+        assert _rel(qdd, qdd_true) < gain * _rel(qdd_enc, qdd_true), bits
+        # gyros alone (no accelerations measured): qd improves, qdd is the encoders'
+        gyros = [replace(m, kinds=("gyro",)) for m in recording["mounts"]]
+        qd_g, qdd_g, _ = estimate_joint_states(arm, q, qd_enc, qdd_enc, gyros, readings)
+        assert _rel(qd_g, qd_true) < gain * _rel(qd_enc, qd_true) and np.array_equal(qdd_g, qdd_enc)
+        for name, rms in summary.residual_rms.items():  # residuals at the noise
+            assert all(0.4 < v / getattr(ImuNoise(), k) < 1.5 for k, v in rms.items()), (name, rms)  # fewer where it fixes the fit
+    for name in summary.gyro_bias:  # the 16-bit run
+        z = (summary.gyro_bias[name] - BIAS) / summary.gyro_bias_std[name]
+        assert np.all(np.abs(z) < 4), (name, z)
+    assert "gyro bias" in "\n".join(summary.lines()) and summary.to_dict()["n_frames"] == len(qd)
+
+
+# -- bad input: one line each ----------------------------------------------------------------------
+
+
+def _one_line(excinfo, *words):
+    text = str(excinfo.value)
+    assert "\n" not in text and all(w in text for w in words), text
+
+
+def test_bad_imus_are_one_line_each(arm, recording):
+    with pytest.raises(DatasetError) as e:
+        parse_imu("wrist", arm)
+    _one_line(e, "wrist", "forearm")
+    with pytest.raises(DatasetError) as e:
+        parse_imu("forearm:0.1,0.2,x", arm)
+    _one_line(e, "six")
+    with pytest.raises(DatasetError) as e:
+        parse_imu("base_link", arm)  # the root does not move
+    _one_line(e, "base_link", "moving link")
+    with pytest.raises(DatasetError) as e:
+        imu_readings(arm, [ImuMount("wrist")], np.zeros(4), np.zeros(4), np.zeros(4))
+    _one_line(e, "wrist", "moving link")
+    with pytest.raises(DatasetError) as e:
+        ImuMount("forearm", kinds=("gyro", "magnetometer"))
+    _one_line(e, "kinds")
+
+    q, qd_enc, qdd_enc = _encoders(recording, 14, 20.0)
+    readings = _cut(_noisy(recording, np.random.default_rng(3), ImuNoise()))
+    mounts = recording["mounts"]
+    with pytest.raises(DatasetError) as e:  # a kind without readings
+        estimate_joint_states(arm, q, qd_enc, qdd_enc, mounts, {**readings, "forearm": {"gyro": readings["forearm"]["gyro"]}})
+    _one_line(e, "forearm", "accel", "imu_forearm_ax")
+    # a wrong mount: the forearm's IMU said to be turned 90 degrees about its z axis
+    turned = replace(mounts[3], sensor=replace(mounts[3].sensor, rpy=(*mounts[3].sensor.rpy[:2], mounts[3].sensor.rpy[2] + 1.57)))
+    with pytest.raises(DatasetError) as e:
+        estimate_joint_states(arm, q, qd_enc, qdd_enc, [*mounts[:3], turned], readings)
+    _one_line(e, "'forearm'", "pose")
+    # a lone gyro on the wrong link contradicts the encoders (nothing else to check it against)
+    lone = [replace(mounts[2], kinds=("gyro",), link="forearm", name="upper_arm")]
+    with pytest.raises(DatasetError) as e:
+        estimate_joint_states(arm, q, qd_enc, qdd_enc, lone, readings)
+    _one_line(e, "'upper_arm'", "gyro", "pose")
