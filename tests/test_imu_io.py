@@ -152,8 +152,8 @@ def test_csv_round_trip_three_clocks(model, rec, run, tmp_path):
     r = run("data", "import", path, "--robot", "sweaty-arm", "--cutoff", "20", "--imu", f"forearm:{FOREARM_POSE}",
             "--out", out)
     assert r.exit_code == 0, r.output
-    assert "IMU 'forearm' on forearm" in r.output and "IMU 'upper_arm' on upper_arm" in r.output
-    assert "fused" in r.output
+    assert "IMU 'forearm' on 'forearm'" in r.output and "IMU 'upper_arm' on 'upper_arm'" in r.output
+    assert "fused" in r.output and "gyro bias" in r.output
     ds = load_dataset(out)
     imu = ds.meta.origin["imu"]
     assert {m["name"]: m["kinds"] for m in imu["mounts"]} == {"forearm": ["gyro", "accel", "alpha"],

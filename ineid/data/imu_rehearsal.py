@@ -155,7 +155,8 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
     summary = None
     if rehearsal.mounts:  # as the import does: the default settings (biases estimated), the noise as filtered
         # the mounts are exact by construction: no residual check (that is for a lab's mistakes)
-        settings = EstimationSettings(noise=filtered_noise(rehearsal.noise, cutoff, rate), max_residual_ratio=math.inf)
+        settings = EstimationSettings(noise=filtered_noise(rehearsal.noise, cutoff, rate), max_residual_ratio=1e12,
+                                      max_encoder_misfit=1e12)
         qd_e, qdd_e, summary = estimate_joint_states(model, q_f, qd_e, qdd_e, rehearsal.mounts, readings, settings)
     filtered = {k: periodic_filter(np.asarray(v, dtype=np.float64), low) for k, v in values.items()}
     return q_f, qd_e, qdd_e, filtered, summary

@@ -217,12 +217,8 @@ def prepare_imus(imus: Sequence[ImuStream], texts: Sequence[str], model, cutoff:
 
 
 def imu_summary_lines(prepared: PreparedImus, summary) -> list[str]:
-    """The import summary's IMU lines: each mount, its streams' rates, then the estimate's own lines."""
-    out = []
-    for m in prepared.mounts:
-        rates = ", ".join(f"{k.split('.', 1)[1]} at {r:g} Hz" for k, r in prepared.rates.items()
-                          if k.split(".", 1)[0] == m.name)
-        out.append(f"IMU {m.name!r} on {m.link}: {m.sensor.describe()} ({rates})")
-    out.append("qd, qdd fused from the encoders and the IMUs" + (
-        f" (IMU stamps {prepared.delay:g} s late)" if prepared.delay else ""))
+    """The import summary's IMU lines: each IMU's streams and rates, then the estimate's own lines."""
+    rates = "; ".join(f"IMU {k.split('.', 1)[0]!r} {k.split('.', 1)[1]} at {r:g} Hz" for k, r in prepared.rates.items())
+    out = [f"{rates}: resampled onto the frames" + (f", stamps {prepared.delay:g} s late" if prepared.delay else "")
+           + "; qd, qdd fused from the encoders and the IMUs"]
     return out + list(summary.lines())
