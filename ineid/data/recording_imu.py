@@ -135,10 +135,21 @@ class PreparedImus:
     start: float  # the frames must lie within [start, stop]: every IMU covers it
     stop: float
     delay: float
+    cutoff: float | None = None
 
     def fuse(self, model, grid: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, settings):
-        """``(qd, qdd, summary, record)``: the joint states fused with the IMUs at the frames ``grid``."""
+        """``(qd, qdd, summary, record)``: the joint states fused with the IMUs at the frames ``grid``.
+
+        ``settings.noise`` is the sensors' white noise at their own rates; the low-pass leaves
+        ``sqrt(NOISE_BANDWIDTH cutoff / (rate / 2))`` of it (:func:`ineid.data.imu_rehearsal.filtered_noise`, the
+        slowest IMU's rate), which is what the estimate weighs and checks the residuals against.
+        """
+        from ineid.data.imu_rehearsal import filtered_noise  # noqa: PLC0415
         from ineid.data.state_estimation import estimate_joint_states  # noqa: PLC0415
+
+        if self.cutoff is not None:
+            noise = {k: getattr(settings.noise, k) for k in ("gyro", "accel", "alpha")}
+            settings = replace(settings, noise=filtered_noise(noise, self.cutoff, min(self.rates.values())))
 
         readings: dict[str, dict[str, np.ndarray]] = {}
         for name, t, parts in self.streams:
@@ -213,7 +224,7 @@ def prepare_imus(imus: Sequence[ImuStream], texts: Sequence[str], model, cutoff:
         start, stop = max(start, t[0] + edge), min(stop, t[-1] - edge)
         out.append((s.name, t, parts))
         rates[f"{s.name}.{'+'.join(parts)}"] = float(1.0 / h)
-    return PreparedImus(mounts, out, rates, float(start), float(stop), float(delay))
+    return PreparedImus(mounts, out, rates, float(start), float(stop), float(delay), cutoff)
 
 
 def imu_summary_lines(prepared: PreparedImus, summary) -> list[str]:
