@@ -95,7 +95,7 @@ def write_imu_bag(path: Path, kind: str, model, rec, frame_ids=None) -> Path:
 
     events = []  # (ns, topic, msgtype, message factory)
     for k, s in enumerate(rec["tq"]):
-        ns = start + int(round(s * 1e9))
+        ns = start + round(s * 1e9)
         events.append((ns, "/joint_states", "sensor_msgs/msg/JointState", lambda ns=ns, k=k: t[
             "sensor_msgs/msg/JointState"](header=header(ns, "", k), name=list(model.joint_names),
                                           position=np.ascontiguousarray(rec["q"][k]), velocity=np.zeros(0),
@@ -108,7 +108,7 @@ def write_imu_bag(path: Path, kind: str, model, rec, frame_ids=None) -> Path:
     for name, (ti, r) in rec["imus"].items():
         frame = (frame_ids or {}).get(name, name)
         for k, s in enumerate(ti):
-            ns = start + int(round(s * 1e9))
+            ns = start + round(s * 1e9)
             gyro = r.get("gyro", np.zeros((len(ti), 3)))[k]
             acc = r.get("accel", np.zeros((len(ti), 3)))[k]
             events.append((ns, f"/imu/{name}", "sensor_msgs/msg/Imu", lambda ns=ns, k=k, g=gyro, a=acc, fr=frame, r=r: t[
@@ -170,9 +170,10 @@ def test_bag_round_trip_imu_topics(model, rec, run, tmp_path, kind):
     bag = write_imu_bag(tmp_path / ("rec.bag" if kind == "ros1" else "rec"), kind, model, rec,
                         frame_ids={"forearm": "forearm_imu"})
     out = tmp_path / "rec.h5"
-    r = run("data", "import", bag, "--robot", "sweaty-arm", "--cutoff", "20", "--imu-topic", "/imu/forearm",
+    r = run("data", "import", bag, "--robot", "sweaty-arm", "--imu-topic", "/imu/forearm",
             "--imu-topic", "/imu/upper_arm", "--imu", f"forearm_imu=forearm:{FOREARM_POSE}", "--out", out)
     assert r.exit_code == 0, r.output
+    assert "low-pass at 20 Hz (the upper bound, 0.1 x the rate, as gyros measure qd" in r.output
     ds = load_dataset(out)
     mounts = {m["name"]: m for m in ds.meta.origin["imu"]["mounts"]}
     assert mounts["forearm_imu"]["link"] == "forearm" and mounts["forearm_imu"]["kinds"] == ["gyro", "accel", "alpha"]

@@ -23,7 +23,7 @@ from ineid.cli.options import (
     robot_inputs,
     robot_options,
 )
-from ineid.cli.imu_options import check_imu_generate, estimation_settings, imu_generate, imu_import, imu_rehearsal
+from ineid.cli.imu_options import check_imu_generate, imu_generate, imu_import, imu_rehearsal
 from ineid.cli.output import ProgressBar, console, plain, print_findings, shown, table
 from ineid.cli.simulation import (
     channels_option,
@@ -249,7 +249,7 @@ def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic,
                               estimate_delay=delay is None, flip_wrench=flip_wrench, angle_unit=angle_unit,
                               wrench_scale=wrench_scale, torque_constant=torque_constant,
                               gear_ratio=gear_ratio, imus=tuple(imus), imu_delay=imu_delay,
-                              estimation=estimation_settings(imu_noise))  # fmt: skip
+                              imu_noise=imu_noise)  # fmt: skip
     with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
         ds, summary = import_recording(path, model, settings, joint_topic, wrench_topic, progress=bar,
                                        imu_topics=tuple(imu_topics))

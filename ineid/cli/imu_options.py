@@ -63,15 +63,6 @@ def parse_imu_noise(value: str | None, hint: str) -> dict[str, float] | None:
     return out
 
 
-def estimation_settings(imu_noise: dict[str, float] | None):
-    """The :class:`ineid.data.state_estimation.EstimationSettings` of a parsed ``--imu-noise`` (None: defaults)."""
-    if not imu_noise:
-        return None
-    from ineid.data.state_estimation import EstimationSettings, ImuNoise  # noqa: PLC0415
-
-    return EstimationSettings(noise=ImuNoise(**imu_noise))
-
-
 imu_generate_options = [
     imu_option,
     click.option("--gyro-bias", type=click.FloatRange(min=0, max=1e6), default=0.0, show_default=True, metavar="STD",

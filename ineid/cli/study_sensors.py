@@ -6,7 +6,16 @@ from pathlib import Path
 
 import click
 
-from ineid.cli.options import SEED, names_in, numbers, overwrite_option, prepare_output, quiet, robot_inputs, robot_options
+from ineid.cli.options import (
+    SEED,
+    names_in,
+    numbers,
+    overwrite_option,
+    prepare_output,
+    quiet,
+    robot_inputs,
+    robot_options,
+)
 from ineid.cli.output import ProgressBar, console, table
 
 

@@ -11,7 +11,8 @@
    ``gyro_bias``;
 3. the angles, the IMU readings and every channel's (noisy) values go through the import's
    zero-phase Butterworth (:class:`ineid.data.signals.LowPass`) at the cut-off it would choose
-   from these angles (:func:`ineid.data.signals.choose_cutoff`) or the one given, and the angles
+   from these angles (:func:`ineid.data.signals.choose_cutoff`; with gyros its upper bound,
+   :func:`ineid.data.recording_imu.imu_cutoff`) or the one given, and the angles
    are differentiated by central differences; the motion being periodic, the signals are filtered
    as periodic (no edges to drop);
 4. :func:`ineid.data.state_estimation.estimate_joint_states` fuses them, with the IMUs' noise as
@@ -35,9 +36,6 @@ from ineid.errors import DatasetError
 STREAM_IMU = 5
 """The random stream of the IMUs' noise and biases (:func:`ineid.data.sampling.block_rng`), one block per
 configuration."""
-NOISE_BANDWIDTH = 3 * math.pi / (8 * math.sqrt(2))
-"""``int_0^inf |H(f)|^2 df / fc`` of :class:`ineid.data.signals.LowPass` (``|H| = 1 / (1 + (f/fc)^4)``): white
-noise of std ``s`` at rate ``r`` leaves it with std ``s sqrt(NOISE_BANDWIDTH fc / (r / 2))``."""
 
 
 @dataclass(frozen=True)
@@ -97,18 +95,6 @@ def periodic_derivatives(q: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarra
     return (nxt - prv) / (2 * h), (nxt - 2 * q + prv) / h**2
 
 
-def filtered_noise(noise: Mapping[str, float], cutoff: float | None, rate: float):
-    """The :class:`ineid.data.state_estimation.ImuNoise` of white noise ``noise`` at ``rate`` Hz after the
-    low-pass at ``cutoff`` (None: unfiltered); a kind without noise gets a floor of 1 % of the default's (its
-    readings are trusted, not infinitely)."""
-    from ineid.data.state_estimation import ImuNoise  # noqa: PLC0415
-
-    factor = 1.0 if cutoff is None else math.sqrt(min(1.0, NOISE_BANDWIDTH * cutoff / (rate / 2)))
-    default = ImuNoise()
-    return ImuNoise(**{k: max(float(noise.get(k, 0.0)) * factor, 1e-2 * getattr(default, k))
-                       for k in ("gyro", "accel", "alpha")})
-
-
 def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
              values: Mapping[str, np.ndarray], rng: np.random.Generator):
     """One configuration: ``(q, qd, qdd, values, summary)`` as the import would estimate them.
@@ -126,6 +112,7 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
         the filtered values, and the :class:`ineid.data.state_estimation.EstimationSummary` (None without IMUs).
     """
     from ineid.data.imu import imu_readings  # noqa: PLC0415
+    from ineid.data.recording_imu import filtered_noise, imu_cutoff, qdd_prior  # noqa: PLC0415
     from ineid.data.state_estimation import EstimationSettings, estimate_joint_states  # noqa: PLC0415
 
     time = np.asarray(time, dtype=np.float64)
@@ -135,8 +122,9 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
     rate = 1.0 / h
     q_enc = quantize(q, rehearsal.encoder_bits, model.joint_types)
     cutoff = rehearsal.cutoff
-    if cutoff is None:
-        cutoff = min(signals.choose_cutoff(q_enc, rate).cutoff, 0.4 * rate)
+    if cutoff is None:  # the import's rules: the angles', or with gyros the upper bound
+        gyros = any("gyro" in m.kinds for m in rehearsal.mounts)
+        cutoff = imu_cutoff(rate) if gyros else min(signals.choose_cutoff(q_enc, rate).cutoff, 0.4 * rate)
     if cutoff >= 0.45 * rate:
         raise DatasetError(f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold; lower it or give "
                            "more frames per period")
@@ -156,7 +144,8 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
     if rehearsal.mounts:  # as the import does: the default settings (biases estimated), the noise as filtered
         # the mounts are exact by construction: no residual check (that is for a lab's mistakes)
         settings = EstimationSettings(noise=filtered_noise(rehearsal.noise, cutoff, rate), max_residual_ratio=1e12,
-                                      max_encoder_misfit=1e12)
-        qd_e, qdd_e, summary = estimate_joint_states(model, q_f, qd_e, qdd_e, rehearsal.mounts, readings, settings)
+                                      max_encoder_misfit=1e12, qdd_prior=qdd_prior(rehearsal.mounts))
+        qd_e, qdd_e, summary = estimate_joint_states(model, q_f, qd_e, qdd_e, rehearsal.mounts, readings, settings,
+                                                     time=time)
     filtered = {k: periodic_filter(np.asarray(v, dtype=np.float64), low) for k, v in values.items()}
     return q_f, qd_e, qdd_e, filtered, summary

@@ -81,8 +81,11 @@ class ImportSettings:
         imus: ``--imu`` texts, the mounts of the recording's link IMUs (:mod:`ineid.data.recording_imu`);
             an IMU not given is placed by the link or URDF frame its name names.
         imu_delay: s, how late the IMU time stamps are against the joints'.
-        estimation: the :class:`ineid.data.state_estimation.EstimationSettings` of the fusion (None: the
-            defaults).
+        imu_noise: ``{"gyro": rad/s, "accel": m/s^2, "alpha": rad/s^2}``, the IMUs' white-noise std at
+            their own rates (missing: :class:`ineid.data.state_estimation.ImuNoise`'s defaults).
+        estimation: the :class:`ineid.data.state_estimation.EstimationSettings` of the fusion, used as
+            given except for its noise, scaled by the filter (None: ``imu_noise``, and ``qdd`` from the
+            derivative of the fused ``qd`` when a gyro measures, :func:`ineid.data.recording_imu.qdd_prior`).
     """
 
     sensor_pose: str | None = None
@@ -98,6 +101,7 @@ class ImportSettings:
     gear_ratio: tuple[float, ...] | None = None
     imus: tuple[str, ...] = ()
     imu_delay: float = 0.0
+    imu_noise: dict | None = None
     estimation: object | None = None
 
     def __post_init__(self) -> None:
@@ -264,11 +268,15 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
 
     # 1. filter (and differentiate) each stream on a uniform grid at its own rate: the joints' other
     #    channels (torques) with the angles, through the same filter as the wrench
-    choice = None
+    choice, cutoff_note = None, None
     cutoff = settings.cutoff
     if not measured and cutoff is None:
         choice = signals.choose_cutoff(signals.to_uniform(tq, q, hq)[1], 1.0 / hq)
         cutoff = min(choice.cutoff, 0.4 * rate)
+        if any("gyro" in s.readings for s in streams.imus):  # the gyros measure qd: the rule's upper bound
+            from ineid.data.recording_imu import IMU_CUTOFF_NOTE, imu_cutoff  # noqa: PLC0415
+
+            cutoff, cutoff_note = min(imu_cutoff(min(1.0 / hq, rate)), 0.4 * rate), IMU_CUTOFF_NOTE
     if cutoff is not None and cutoff >= 0.45 * rate:
         raise DatasetError(
             f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold (Nyquist {rate / 2:g} Hz); "
@@ -336,10 +344,9 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     imu_lines, imu_record = (), None
     if prepared is not None:  # q the encoders', qd and qdd fused with the IMUs
         from ineid.data.recording_imu import imu_summary_lines  # noqa: PLC0415
-        from ineid.data.state_estimation import EstimationSettings  # noqa: PLC0415
 
         qd_f, qdd_f, estimate, imu_record = prepared.fuse(model, grid, joints[:, :n], joints[:, n:2 * n],
-                                                          joints[:, 2 * n:3 * n], settings.estimation or EstimationSettings())
+                                                          joints[:, 2 * n:3 * n], settings.estimation, settings.imu_noise)
         joints[:, n:2 * n], joints[:, 2 * n:3 * n] = qd_f, qdd_f
         imu_lines = tuple(imu_summary_lines(prepared, estimate))
     resampled = [name for name, moved in (("joints", moved_q), ("wrench", moved_w)) if moved]
@@ -351,7 +358,7 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
         dropped_joint_samples=int(np.sum((tq < grid[0] - 1e-9 * hq) | (tq > grid[-1] + 1e-9 * hq))),
         dropped_wrench_samples=(int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw)))
                                 if has_wrench else 0),
-        resampled=tuple(resampled), sensor=None if wrench_channel is None else wrench_channel.sensor,
+        cutoff_note=cutoff_note, resampled=tuple(resampled), sensor=None if wrench_channel is None else wrench_channel.sensor,
         delay=settings.delay, units=units_note(streams.origin),
         joint_channels=tuple(RIDER_NAMES[k] for k in riders), sensor_where=where, imu=imu_lines,
     )  # fmt: skip

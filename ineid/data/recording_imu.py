@@ -18,7 +18,8 @@ columns or the bag's ``frame_id`` use when it is neither the link's nor a URDF f
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -30,6 +31,9 @@ from ineid.errors import DatasetError
 IMU_AXES = {"gyro": ("wx", "wy", "wz"), "accel": ("ax", "ay", "az"), "alpha": ("alx", "aly", "alz")}
 """The CSV column suffixes of each kind of reading: ``imu_<NAME>_wx`` ... (sensor frame)."""
 IMU_UNITS = {"gyro": "rad/s", "accel": "m/s^2", "alpha": "rad/s^2"}
+NOISE_BANDWIDTH = 3 * math.pi / (8 * math.sqrt(2))
+"""``int_0^inf |H(f)|^2 df / fc`` of :class:`ineid.data.signals.LowPass` (``|H| = 1 / (1 + (f/fc)^4)``): white
+noise of std ``s`` at rate ``r`` leaves it with std ``s sqrt(NOISE_BANDWIDTH fc / (r / 2))``."""
 
 
 def imu_column_kinds(header: Sequence[str], path) -> dict[str, dict[str, list[str]]]:
@@ -137,16 +141,18 @@ class PreparedImus:
     delay: float
     cutoff: float | None = None
 
-    def fuse(self, model, grid: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, settings):
+    def fuse(self, model, grid: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, settings=None,
+             imu_noise: dict | None = None):
         """``(qd, qdd, summary, record)``: the joint states fused with the IMUs at the frames ``grid``.
 
         ``settings.noise`` is the sensors' white noise at their own rates; the low-pass leaves
-        ``sqrt(NOISE_BANDWIDTH cutoff / (rate / 2))`` of it (:func:`ineid.data.imu_rehearsal.filtered_noise`, the
+        ``sqrt(NOISE_BANDWIDTH cutoff / (rate / 2))`` of it (:func:`filtered_noise`, the
         slowest IMU's rate), which is what the estimate weighs and checks the residuals against.
         """
-        from ineid.data.imu_rehearsal import filtered_noise  # noqa: PLC0415
-        from ineid.data.state_estimation import estimate_joint_states  # noqa: PLC0415
+        from ineid.data.state_estimation import EstimationSettings, ImuNoise, estimate_joint_states  # noqa: PLC0415
 
+        if settings is None:
+            settings = EstimationSettings(noise=ImuNoise(**(imu_noise or {})), qdd_prior=qdd_prior(self.mounts))
         if self.cutoff is not None:
             noise = {k: getattr(settings.noise, k) for k in ("gyro", "accel", "alpha")}
             settings = replace(settings, noise=filtered_noise(noise, self.cutoff, min(self.rates.values())))
@@ -155,10 +161,43 @@ class PreparedImus:
         for name, t, parts in self.streams:
             x = signals.interpolate(t, np.concatenate(list(parts.values()), axis=1), grid)
             readings.setdefault(name, {}).update({k: x[:, 3 * i:3 * i + 3] for i, k in enumerate(parts)})
-        qd_f, qdd_f, summary = estimate_joint_states(model, q, qd, qdd, self.mounts, readings, settings)
+        qd_f, qdd_f, summary = estimate_joint_states(model, q, qd, qdd, self.mounts, readings, settings, time=grid)
         record = {"mounts": [_mount_dict(m) for m in self.mounts], "rates": self.rates, "delay": self.delay,
                   "estimation": summary.to_dict()}
         return qd_f, qdd_f, summary, record
+
+
+def qdd_prior(mounts) -> str:
+    """The prior on ``qdd``: the derivative of the fused ``qd`` (``"gyros"``) when a gyro measures, else the
+    encoders' second derivative (``"encoders"``)."""
+    return "gyros" if any("gyro" in m.kinds for m in mounts) else "encoders"
+
+
+IMU_CUTOFF_NOTE = "the upper bound, 0.1 x the rate, as gyros measure qd: nothing is differentiated twice"
+
+
+def imu_cutoff(rate: float) -> float:
+    """The cut-off with gyros: the upper bound of the angles' rule, 0.1 x the rate. The gyros measure ``qd`` (the
+    fused ``qd`` is differentiated once, or not at all with angular-acceleration sensors), so the angles' rule for
+    twice-differentiated encoders does not apply.
+
+    Measured (``docs/recordings.md``, the sensor study): with 10-bit encoders at 100 Hz and a 2 Hz motion the
+    angles' rule filters the motion itself away; the IMUs at the upper bound cut the base-parameter error by
+    an order of magnitude, and on slow motion with 12-bit encoders cost nothing measurable.
+    """
+    return 0.1 * rate
+
+
+def filtered_noise(noise: Mapping[str, float], cutoff: float | None, rate: float):
+    """The :class:`ineid.data.state_estimation.ImuNoise` of white noise ``noise`` at ``rate`` Hz after the
+    low-pass at ``cutoff`` (None: unfiltered); a kind without noise gets a floor of 1 % of the default's (its
+    readings are trusted, not infinitely)."""
+    from ineid.data.state_estimation import ImuNoise  # noqa: PLC0415
+
+    factor = 1.0 if cutoff is None else math.sqrt(min(1.0, NOISE_BANDWIDTH * cutoff / (rate / 2)))
+    default = ImuNoise()
+    return ImuNoise(**{k: max(float(noise.get(k, 0.0)) * factor, 1e-2 * getattr(default, k))
+                       for k in ("gyro", "accel", "alpha")})
 
 
 def _mount_dict(mount) -> dict:
