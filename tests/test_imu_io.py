@@ -173,7 +173,7 @@ def test_bag_round_trip_imu_topics(model, rec, run, tmp_path, kind):
     r = run("data", "import", bag, "--robot", "sweaty-arm", "--imu-topic", "/imu/forearm",
             "--imu-topic", "/imu/upper_arm", "--imu", f"forearm_imu=forearm:{FOREARM_POSE}", "--out", out)
     assert r.exit_code == 0, r.output
-    assert "low-pass at 20 Hz (the upper bound, 0.1 x the rate, as gyros measure qd" in r.output
+    assert "low-pass at 20 Hz (the upper bound, 0.1 x the rate: angular-acceleration sensors measure qdd" in r.output
     ds = load_dataset(out)
     mounts = {m["name"]: m for m in ds.meta.origin["imu"]["mounts"]}
     assert mounts["forearm_imu"]["link"] == "forearm" and mounts["forearm_imu"]["kinds"] == ["gyro", "accel", "alpha"]

@@ -11,7 +11,7 @@
    ``gyro_bias``;
 3. the angles, the IMU readings and every channel's (noisy) values go through the import's
    zero-phase Butterworth (:class:`ineid.data.signals.LowPass`) at the cut-off it would choose
-   from these angles (:func:`ineid.data.signals.choose_cutoff`; with gyros its upper bound,
+   from these angles (:func:`ineid.data.signals.choose_cutoff`; with gyros
    :func:`ineid.data.recording_imu.imu_cutoff`) or the one given, and the angles
    are differentiated by central differences; the motion being periodic, the signals are filtered
    as periodic (no edges to drop);
@@ -113,7 +113,7 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
     """
     from ineid.data.imu import imu_readings  # noqa: PLC0415
     from ineid.data.recording_imu import filtered_noise, imu_cutoff, qdd_prior  # noqa: PLC0415
-    from ineid.data.state_estimation import EstimationSettings, estimate_joint_states  # noqa: PLC0415
+    from ineid.data.state_estimation import EstimationSettings, ImuNoise, estimate_joint_states  # noqa: PLC0415
 
     time = np.asarray(time, dtype=np.float64)
     if len(time) < 8:
@@ -123,8 +123,10 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
     q_enc = quantize(q, rehearsal.encoder_bits, model.joint_types)
     cutoff = rehearsal.cutoff
     if cutoff is None:  # the import's rules: the angles', or with gyros the upper bound
-        gyros = any("gyro" in m.kinds for m in rehearsal.mounts)
-        cutoff = imu_cutoff(rate) if gyros else min(signals.choose_cutoff(q_enc, rate).cutoff, 0.4 * rate)
+        cutoff = min(signals.choose_cutoff(q_enc, rate).cutoff, 0.4 * rate)
+        if any("gyro" in m.kinds for m in rehearsal.mounts):
+            cutoff = imu_cutoff(q_enc, rate, cutoff, [m.kinds for m in rehearsal.mounts],
+                                rehearsal.noise.get("gyro", 0.0) or 1e-2 * ImuNoise().gyro)[0]
     if cutoff >= 0.45 * rate:
         raise DatasetError(f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold; lower it or give "
                            "more frames per period")

@@ -273,10 +273,13 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     if not measured and cutoff is None:
         choice = signals.choose_cutoff(signals.to_uniform(tq, q, hq)[1], 1.0 / hq)
         cutoff = min(choice.cutoff, 0.4 * rate)
-        if any("gyro" in s.readings for s in streams.imus):  # the gyros measure qd: the rule's upper bound
-            from ineid.data.recording_imu import IMU_CUTOFF_NOTE, imu_cutoff  # noqa: PLC0415
+        if any("gyro" in s.readings for s in streams.imus):  # the gyros measure qd: recording_imu's rule
+            from ineid.data.recording_imu import imu_cutoff  # noqa: PLC0415
 
-            cutoff, cutoff_note = min(imu_cutoff(min(1.0 / hq, rate)), 0.4 * rate), IMU_CUTOFF_NOTE
+            gyro = (settings.imu_noise or {}).get("gyro", 0.005)
+            cutoff, cutoff_note = imu_cutoff(signals.to_uniform(tq, q, hq)[1], 1.0 / hq, cutoff,
+                                             [tuple(s.readings) for s in streams.imus], gyro)
+            cutoff = min(cutoff, 0.4 * rate)
     if cutoff is not None and cutoff >= 0.45 * rate:
         raise DatasetError(
             f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold (Nyquist {rate / 2:g} Hz); "

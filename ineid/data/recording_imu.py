@@ -173,19 +173,43 @@ def qdd_prior(mounts) -> str:
     return "gyros" if any("gyro" in m.kinds for m in mounts) else "encoders"
 
 
-IMU_CUTOFF_NOTE = "the upper bound, 0.1 x the rate, as gyros measure qd: nothing is differentiated twice"
+DERIVATIVE_BANDWIDTH = math.pi / (8 * math.sqrt(2))
+"""``int_0^inf x^2 |H(x fc)|^2 dx`` of :class:`ineid.data.signals.LowPass`: white noise of std ``s`` at rate ``r``,
+filtered at ``fc`` and differentiated once, has std ``2 pi s sqrt(DERIVATIVE_BANDWIDTH fc^3 / (r / 2))``."""
 
 
-def imu_cutoff(rate: float) -> float:
-    """The cut-off with gyros: the upper bound of the angles' rule, 0.1 x the rate. The gyros measure ``qd`` (the
-    fused ``qd`` is differentiated once, or not at all with angular-acceleration sensors), so the angles' rule for
-    twice-differentiated encoders does not apply.
+def imu_cutoff(q: np.ndarray, rate: float, angles_cutoff: float, mounts_kinds, gyro_noise: float) -> tuple[float, str]:
+    """The cut-off when gyros measure ``qd`` (no ``--cutoff``): ``(Hz, why)``, never below the angles' rule's.
 
-    Measured (``docs/recordings.md``, the sensor study): with 10-bit encoders at 100 Hz and a 2 Hz motion the
-    angles' rule filters the motion itself away; the IMUs at the upper bound cut the base-parameter error by
-    an order of magnitude, and on slow motion with 12-bit encoders cost nothing measurable.
+    The angles' rule (:func:`ineid.data.signals.choose_cutoff`) bounds the noise of twice-differentiated encoders;
+    with gyros ``qd`` is measured and ``qdd`` is the fused ``qd`` differentiated once, or measured too:
+
+    * with angular-acceleration sensors, the rule's upper bound, 0.1 x the rate (nothing is differentiated);
+    * with gyros alone, the highest cut-off at which the differentiated gyro noise (``gyro_noise`` rad/s white,
+      :data:`DERIVATIVE_BANDWIDTH`) stays within 1 % of the accelerations' RMS (the angles' rule's target; the
+      RMS of ``q``'s second derivative at the angles' cut-off), between 1 Hz and 0.1 x the rate.
+
+    Measured (``docs/recordings.md``, the sensor study): with 10-bit encoders the angles' rule filters a fast
+    motion itself away; at 500 Hz the upper bound leaves a slow motion's differentiated gyros too noisy.
+
+    Args:
+        q: (N, n_dof) the encoders' angles on a uniform grid at ``rate`` Hz.
+        angles_cutoff: Hz, the angles' rule's choice.
+        mounts_kinds: each IMU's kinds.
+        gyro_noise: rad/s, the gyros' white-noise std at ``rate``.
     """
-    return 0.1 * rate
+    upper = 0.1 * rate
+    if any("alpha" in kinds for kinds in mounts_kinds):
+        return max(upper, angles_cutoff), "the upper bound, 0.1 x the rate: angular-acceleration sensors measure qdd"
+    from ineid.data import signals  # noqa: PLC0415
+
+    h = 1.0 / rate
+    _, qdd = signals.derivatives(signals.LowPass(angles_cutoff, rate).apply(q), h)
+    rms = float(np.sqrt(np.mean(qdd[len(qdd) // 10: -len(qdd) // 10 or None] ** 2)))
+    fc = ((0.01 * rms / (2 * math.pi * gyro_noise)) ** 2 * (rate / 2) / DERIVATIVE_BANDWIDTH) ** (1 / 3)
+    fc = float(min(max(fc, 1.0, angles_cutoff), max(upper, angles_cutoff)))
+    return fc, (f"from the gyros' noise ({gyro_noise:g} rad/s): their fused qd differentiated once keeps 1 % of the "
+                "accelerations' RMS")
 
 
 def filtered_noise(noise: Mapping[str, float], cutoff: float | None, rate: float):
