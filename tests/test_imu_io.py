@@ -248,3 +248,16 @@ def test_bad_imu_inputs_are_one_line_and_write_nothing(model, rec, run, tmp_path
     assert r.exit_code == 2 and "fourier" in r.output and not out.exists()
     r = run(*gen, "--frame-mode", "fourier", "--noise", "gyro=0.01", "--out", out)
     assert r.exit_code == 2 and "--imu" in r.output and not out.exists()
+
+
+def test_imu_delay_shifts_the_imu_clock(model, rec):
+    """IMU stamps 4 ms late: --imu-delay 0.004 puts them back (the library call, no file)."""
+    from ineid.data.recording import ImportSettings, recording_dataset
+    from ineid.data.streams import ImuStream, Streams
+
+    imus = tuple(ImuStream(name, t + 0.004, r) for name, (t, r) in rec["imus"].items())
+    streams = Streams(rec["tq"], rec["q"], None, None, rec["tq"], rec["wrench"], "arrays", imus=imus)
+    settings = ImportSettings(cutoff=20.0, imus=(f"forearm:{FOREARM_POSE}",), imu_delay=0.004)
+    ds, summary = recording_dataset(streams, model, settings)
+    assert ds.meta.origin["imu"]["delay"] == 0.004 and any("0.004 s late" in line for line in summary.lines())
+    check_fused(ds)
