@@ -179,7 +179,7 @@ def plot(rows: list[SensorStudyRow], path: str | Path) -> Path:
         ax.set_yscale("log")
         ax.set_title(title)
         ax.set_xticks(np.arange(len(cases)) + 0.4 - width / 2)
-        ax.set_xticklabels([f"{r:g} Hz, {b:g} Hz motion" for r, b in cases], fontsize=8)
+        ax.set_xticklabels([f"{r:g} Hz frames\n{b:g} Hz motion" for r, b in cases], fontsize=8)
         ax.grid(True, axis="y", alpha=0.3)
     for text in axes[1].legend(fontsize=7).get_texts():
         text.set_parse_math(False)
