@@ -30,6 +30,23 @@ def _arm_mjcf(model, theta, root_theta, timestep: float) -> str:
         return arm_mjcf(model.chain, theta, root_theta, SensorPose(), timestep, 0.0, 0.0)
 
 
+def _sim_parts():
+    """``(Reference, root_theta(model))`` from ``ineid.data.mujoco_sim`` (issue 21) or the tests' old home."""
+    try:
+        from ineid.data.mujoco_sim import Reference, root_link_theta  # noqa: PLC0415
+
+        return Reference, root_link_theta
+    except ImportError:
+        from tests.mujoco_arm import Reference, _root_theta  # noqa: PLC0415
+
+        return Reference, _root_theta
+
+
+def root_theta(model) -> np.ndarray:
+    """The root body's own parameters (10,), from the URDF: its weight is part of what the F/T sensor reads."""
+    return _sim_parts()[1](model)
+
+
 def imu_mjcf(model, mounts, theta, root_theta, timestep: float = 1e-3) -> str:
     """The arm with a site per IMU (its pose in its link) and MuJoCo's ``gyro`` and ``accelerometer``
     at each, after the F/T sensor's ``force`` and ``torque`` (sensordata 0:6)."""
@@ -38,7 +55,8 @@ def imu_mjcf(model, mounts, theta, root_theta, timestep: float = 1e-3) -> str:
     for m in mounts:
         site = (f'<site name="imu_{m.name}" pos="{" ".join(repr(float(v)) for v in m.link_p_sensor)}" '
                 f'quat="{" ".join(repr(float(v)) for v in _quat(m.link_R_sensor))}"/>')
-        xml, n = re.subn(rf'(<body name="{re.escape(m.link)}"[^>]*>)', lambda mt: mt.group(1) + site, xml, count=1)
+        body = rf'(<body name="{re.escape(m.link)}"[^>]*>)'
+        xml, n = re.subn(body, lambda mt, site=site: mt.group(1) + site, xml, count=1)
         assert n == 1, m.link
         sensors += f'<gyro site="imu_{m.name}"/><accelerometer site="imu_{m.name}"/>'
     return xml.replace("</sensor>", sensors + "</sensor>")
@@ -66,10 +84,9 @@ def simulate_imus(model, mounts, theta, root_theta, duration: float, rate: float
     base origin, the load on the fixture: the root's weight included) and every IMU's readings."""
     import mujoco  # noqa: PLC0415
 
-    from tests.mujoco_arm import Reference  # noqa: PLC0415
-
+    reference_class, _ = _sim_parts()
     rng = np.random.default_rng(seed)
-    ref = Reference.random(model, rng, base_frequency=0.2 * speed, harmonics=4)
+    ref = reference_class.random(model, rng, base_frequency=0.2 * speed, harmonics=4)
     xml = imu_mjcf(model, mounts, theta, root_theta, 1.0 / (rate * steps_per_sample))
     m = mujoco.MjModel.from_xml_string(xml)
     d = mujoco.MjData(m)
@@ -82,7 +99,7 @@ def simulate_imus(model, mounts, theta, root_theta, duration: float, rate: float
         mujoco.mj_fullM(mm, dd, mass)
         dd.ctrl[:] = mass @ (qdd_ref + wn**2 * (q_ref - dd.qpos) + 2 * wn * (qd_ref - dd.qvel)) + dd.qfrc_bias
 
-    n = int(round(duration * rate)) + 1
+    n = round(duration * rate) + 1
     q, qd, qdd, wrench, time = (np.empty((n, m.nv)), np.empty((n, m.nv)), np.empty((n, m.nv)), np.empty((n, 6)),
                                 np.empty(n))
     readings = {mt.name: {k: np.empty((n, 3)) for k in ("gyro", "accel", "alpha")} for mt in mounts}

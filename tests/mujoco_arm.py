@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.params import inertial_from_theta
-from ineid.channels.pose import SensorPose
+from ineid.sensor import SensorPose
 
 
 def _quat(r: np.ndarray) -> np.ndarray:

@@ -147,7 +147,10 @@ def link_frame(text: str, model, what: str = "sensor pose",
     if name in moving:
         return name, parse_sensor_pose(pose) if pose.strip() else SensorPose(), False
     link = model.chain.body_links.get(name)
-    if pose.strip() or link is None:
+    if link is not None and pose.strip():  # a URDF frame welded to a moving link, given a pose
+        raise DatasetError(f"{what} {text.strip()!r}: {name!r} is a URDF frame on {link.body!r} and takes no pose; "
+                           f"give {name} alone, or {link.body}:x,y,z,roll,pitch,yaw (the pose in {link.body}'s frame)")
+    if link is None:
         raise DatasetError(f"{what} {text.strip()!r}: {name!r} is not a moving link of {model.name} (choose from "
                            f"{', '.join(moving)}, or give a URDF frame welded to one{otherwise})")
     return link.body, SensorPose.from_matrix(link.body_R_link, link.body_p_link, frame=name), True

@@ -71,7 +71,8 @@ class ImuMount:
         if not self.name:
             object.__setattr__(self, "name", self.link)
         if not _NAME.match(self.name):
-            raise DatasetError(f"IMU name {self.name!r}: use letters, digits and _ (it prefixes the columns imu_<name>_wx ...)")
+            raise DatasetError(f"IMU name {self.name!r}: use letters, digits and _ (it prefixes the columns "
+                               "imu_<name>_wx ...)")
         kinds = (self.kinds,) if isinstance(self.kinds, str) else tuple(self.kinds)
         bad = [k for k in kinds if k not in KINDS]
         if bad or not kinds or len(set(kinds)) != len(kinds):
@@ -125,18 +126,28 @@ def parse_imu(text: str, model, name: str | None = None, kinds: Sequence[str] = 
         raise DatasetError(f"IMU {text!r}: the pose does not parse; give LINK:x,y,z,roll,pitch,yaw, six numbers "
                            "(m, rad, URDF rpy) in the link's frame") from None
     if resolved is None:
-        raise DatasetError(f"IMU {text!r}: not a moving link of {model.name}; give LINK or "
-                           f"LINK:x,y,z,roll,pitch,yaw (m, rad) with LINK one of {moving}, or a URDF frame welded to one")
+        raise DatasetError(f"IMU {text!r}: not a moving link of {model.name}; give LINK or LINK:x,y,z,roll,pitch,yaw "
+                           f"(m, rad) with LINK one of {moving}, or a URDF frame welded to one")
     link, sensor, from_frame = resolved
     return ImuMount(link, sensor, name or (sensor.frame if from_frame else link), tuple(kinds))
 
 
-def _block(model, mount: ImuMount) -> int:
+def moving_index(model, mount: ImuMount) -> int:
+    """The index of ``mount``'s link among the moving links (joint order): its row in :func:`link_motion`.
+
+    Raises:
+        DatasetError: the link does not move (one line naming the moving links).
+    """
     moving = [j.link for j in model.chain.joints]
     if mount.link not in moving:
         raise DatasetError(f"IMU {mount.name!r}: {mount.link!r} is not a moving link of {model.name} (choose from "
                            f"{', '.join(moving)}, or a URDF frame welded to one)")
-    return model.link_names.index(mount.link)
+    return moving.index(mount.link)
+
+
+def _moving_blocks(model) -> tuple[int, ...]:
+    """The parameter blocks of the moving links (payload blocks left out), joint order."""
+    return tuple(model.link_names.index(j.link) for j in model.chain.joints)
 
 
 def _check_names(mounts: Sequence[ImuMount]) -> None:
@@ -201,12 +212,12 @@ def _flat(model, q, qd=None, qdd=None):
     return [x.reshape(-1, model.n_dof) for x in arrays], batch
 
 
-def link_motion(model, blocks: Sequence[int], q, qd, qdd, gravity=None) -> np.ndarray:
-    """``(N, len(blocks), 3, 3)``: per frame and parameter block ``[w, wd, a]`` in the link's frame
+def link_motion(model, q, qd, qdd, gravity=None) -> np.ndarray:
+    """``(N, n_dof, 3, 3)``: per frame and moving link (joint order) ``[w, wd, a]`` in the link's frame
     (rad/s, rad/s^2, m/s^2; ``a`` minus ``gravity``, default the model's), from the generated program,
-    compiled once per robot and set of blocks and run over chunks of frames."""
+    compiled once per robot and run over chunks of frames (:func:`ineid.robots.chunked.run_chunked`)."""
     flat, _ = _flat(model, q, qd, qdd)
-    blocks = tuple(int(b) for b in blocks)
+    blocks = _moving_blocks(model)
     out = np.empty((len(flat[0]), len(blocks), 3, 3))
 
     def write(start, stop, rows):
@@ -217,11 +228,11 @@ def link_motion(model, blocks: Sequence[int], q, qd, qdd, gravity=None) -> np.nd
     return out
 
 
-def link_jacobians(model, blocks: Sequence[int], q) -> np.ndarray:
-    """``(N, len(blocks), 2, 3, n_dof)``: per frame and block ``[J_w, J_o]`` (link frame): ``w = J_w qd``,
-    ``wd = J_w qdd + c_wd``, ``a = J_o qdd + c_a`` (see the module docstring)."""
+def link_jacobians(model, q) -> np.ndarray:
+    """``(N, n_dof, 2, 3, n_dof)``: per frame and moving link ``[J_w, J_o]`` (link frame): ``w = J_w qd``,
+    ``wd = J_w qdd + c_wd``, ``a = J_o qdd + c_a`` (see the module docstring); compiled once per robot."""
     flat, _ = _flat(model, q)
-    blocks = tuple(int(b) for b in blocks)
+    blocks = _moving_blocks(model)
     out = np.empty((len(flat[0]), len(blocks), 2, 3, model.n_dof))
 
     def write(start, stop, rows):
@@ -229,10 +240,6 @@ def link_jacobians(model, blocks: Sequence[int], q) -> np.ndarray:
 
     run_chunked(_jacobian_kernel(model.jax_program, blocks, model.n_dof), flat, (), write)
     return out
-
-
-def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return np.cross(u, v)
 
 
 def readings_from_motion(mount: ImuMount, w: np.ndarray, wd: np.ndarray, a: np.ndarray) -> dict[str, np.ndarray]:
@@ -246,7 +253,7 @@ def readings_from_motion(mount: ImuMount, w: np.ndarray, wd: np.ndarray, a: np.n
         elif kind == "alpha":
             v = wd
         else:
-            v = a + _cross(wd, r) + _cross(w, _cross(w, r))
+            v = a + np.cross(wd, r) + np.cross(w, np.cross(w, r))
         out[kind] = v @ rt.T
     return out
 
@@ -268,12 +275,12 @@ def imu_readings(model, mounts: Sequence[ImuMount], q, qd, qdd) -> dict[str, dic
     """
     mounts = list(mounts)
     _check_names(mounts)
-    blocks = sorted({_block(model, m) for m in mounts})
+    index = [moving_index(model, m) for m in mounts]
     flat, batch = _flat(model, q, qd, qdd)
-    motion = link_motion(model, blocks, *flat) if blocks else None
+    motion = link_motion(model, *flat) if mounts else None
     result = {}
-    for m in mounts:
-        w, wd, a = (motion[:, blocks.index(_block(model, m)), k] for k in range(3))
+    for m, i in zip(mounts, index, strict=True):
+        w, wd, a = (motion[:, i, k] for k in range(3))
         result[m.name] = {k: v.reshape(batch + (3,)) for k, v in readings_from_motion(m, w, wd, a).items()}
     return result
 
@@ -305,7 +312,7 @@ def jacobians_from(mount: ImuMount, jac: np.ndarray, motion0: np.ndarray) -> Imu
     skew_r = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
     j_w, j_o = jac[:, 0], jac[:, 1]
     w, c_wd, c_a = motion0[:, 0], motion0[:, 1], motion0[:, 2]
-    acc0 = c_a + _cross(c_wd, r) + _cross(w, _cross(w, r))
+    acc0 = c_a + np.cross(c_wd, r) + np.cross(w, np.cross(w, r))
     return ImuJacobians(rt @ j_w, rt @ (j_o - skew_r @ j_w), c_wd @ rt.T, acc0 @ rt.T)
 
 
@@ -320,8 +327,8 @@ def imu_jacobians(model, mount: ImuMount, q, qd) -> ImuJacobians:
     Args:
         q, qd: (N, n_dof) joint positions and velocities.
     """
-    block = _block(model, mount)
+    i = moving_index(model, mount)
     flat, _ = _flat(model, q, qd)
-    jac = link_jacobians(model, [block], flat[0])[:, 0]
-    motion0 = link_motion(model, [block], flat[0], flat[1], np.zeros_like(flat[1]))[:, 0]
+    jac = link_jacobians(model, flat[0])[:, i]
+    motion0 = link_motion(model, flat[0], flat[1], np.zeros_like(flat[1]))[:, i]
     return jacobians_from(mount, jac, motion0)
