@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from ineid.cli.channel_options import channel_options, chosen_channels
 from ineid.cli.options import (
     SEED,
     FiniteFloatRange,
@@ -75,6 +76,7 @@ def _workspace(ctx, param, value):
 @click.option("--seed", type=SEED, cls=LibraryOption, default_from=f"{_SETTINGS}.seed",
               help="Seed of the random starts.")
 @noise_option
+@channel_options()
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="The trajectory CSV (time, q1..qn, qd1..qn, qdd1..qn).")
 @click.option("--coefficients", type=click.Path(path_type=Path), default=None,
@@ -82,13 +84,16 @@ def _workspace(ctx, param, value):
 @overwrite_option
 @click.pass_context
 def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, rate, margin, velocity_scale,
-           acceleration_scale, floor, self_collision, workspace, bias, seed, noise, out, coefficients, overwrite) -> None:
+           acceleration_scale, floor, self_collision, workspace, bias, seed, noise, out, coefficients, overwrite,
+           **channel_flags) -> None:
     """Design a periodic Fourier excitation trajectory of ROBOT that identifies its unknown links well.
 
     The trajectory starts and ends at rest, keeps every joint within its limits (less the
     margin), velocity and acceleration bounds at every instant, and maximizes the
     information of the base wrench about the base parameters (the wrench noise of --noise
-    weights the axes; default force=0.5,moment=0.05). With --floor and --workspace every link
+    weights the axes; default force=0.5,moment=0.05). With --use torque (or wrench,torque) it
+    designs for the joint torques (noise --noise tau=STD, default 0.05 N*m), with their actuation
+    model (--friction, --armature, --torque-offset) among the unknowns. With --floor and --workspace every link
     frame origin and the tool frame stay above the floor and inside the box at every instant.
     """
     from ineid.data.trajectory import write_trajectory_csv, write_trajectory_json  # noqa: PLC0415
@@ -100,11 +105,12 @@ def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, r
     prepare_output(out, overwrite, inputs=robot_inputs(robot))
     prepare_output(coefficients, overwrite, option="--coefficients", inputs=robot_inputs(robot))
     model = robot.load()
+    channels = chosen_channels(None, channel_flags)
     settings = ExcitationSettings(
         duration=duration, harmonics=harmonics, base_frequency=base_frequency, criterion=criterion, starts=starts,
         rate=rate, margin=margin, velocity_scale=velocity_scale, acceleration_scale=acceleration_scale,
         bias=bias == "estimate", seed=seed, floor=floor, workspace=workspace,
-        self_collision=self_collision,
+        self_collision=self_collision, channels=channels,
     )  # fmt: skip
     for name, scale in (("--velocity-scale", velocity_scale), ("--acceleration-scale", acceleration_scale)):
         if scale > 1:
@@ -121,12 +127,12 @@ def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, r
     ]
     write_trajectory_json(coefficients, res.trajectory, {"design": res.to_dict()}, overwrite=overwrite)
     write_trajectory_csv(out, t, q, qd, qdd, comments, overwrite=overwrite)
-    print_design(res)
+    print_design(res, model)
     print_limits(res, model)
     click.echo(f"wrote {out} ({len(t):,} samples) and {coefficients}")
 
 
-def print_design(res) -> None:
+def print_design(res, model) -> None:
     """The summary: criterion, scaled condition number and expected std, designed beside random Fourier."""
     import numpy as np  # noqa: PLC0415
 
@@ -140,11 +146,23 @@ def print_design(res) -> None:
         f"{len(res.starts)} starts in {res.seconds:.1f} s "
         f"(of which compilation {res.compile_seconds:.1f} s)"
     )
-    con.print(
-        f"noise model: white Gaussian wrench noise, std {sigma[0]:g} {sigma[1]:g} {sigma[2]:g} N, "
-        f"{sigma[3]:g} {sigma[4]:g} {sigma[5]:g} N*m per sample, {opt.n_samples} samples at {res.rate:g} Hz; "
-        "joint states exact"
-    )
+    channels = res.base.channels
+    if len(channels) == 1 and channels.keys == ("wrench",):
+        noise = (f"white Gaussian wrench noise, std {sigma[0]:g} {sigma[1]:g} {sigma[2]:g} N, "
+                 f"{sigma[3]:g} {sigma[4]:g} {sigma[5]:g} N*m")
+    else:
+        parts, start = [], 0
+        for c in channels:
+            n_a, units = c.n_axes(model), c.units(model)
+            values = sigma[start : start + n_a]
+            start += n_a
+            same = np.all(values == values[0]) and len(set(units)) == 1
+            stds = f"{values[0]:g} {units[0]}" if same else " ".join(f"{v:g} {u}" for v, u in zip(values, units))
+            parts.append(f"{shown(c.describe())}: std {stds}")
+        noise = "white Gaussian noise; " + "; ".join(parts)
+        if channels.n_extra(model):
+            noise += f"; extra parameters {shown(', '.join(channels.extra_names(model)))} designed for too"
+    con.print(f"noise model: {noise} per sample, {opt.n_samples} samples at {res.rate:g} Hz; joint states exact")
     t = table("Design vs a random Fourier trajectory (same period, harmonics and bounds)",
               ("", "designed", "random Fourier", "ratio"), left=("",))  # fmt: skip
     t.add_row("-log det M (d-opt)", f"{opt.d_opt:.4g}", f"{rnd.d_opt:.4g}", f"{rnd.d_opt - opt.d_opt:+.3g} (diff)")

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from ineid.cli.channel_options import channel_options, chosen_channels, settings_flags
 from ineid.cli.options import (
     NOISE_MAX,
     SEED,
@@ -44,15 +45,20 @@ _SOLVE = "ineid.identify.solve"
 @click.option("--bias", type=LibraryChoice(f"{_SOLVE}:BIAS_MODES"), cls=LibraryOption,
               default_from=f"{_SOLVE}:SolveSettings.bias",
               help="estimate: six constant sensor offsets are identified too; shows what they cost.")
-def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
-    """Which parameters of ROBOT's unknown links the base wrench determines."""
+@channel_options()
+def identifiability(robot, n_frames, seed, data_path, config, bias, **channel_flags) -> None:
+    """Which parameters of ROBOT's unknown links the base wrench (or the channels of --use) determines.
+
+    With joint torques and --friction, --armature or --torque-offset, the analysis is over the links'
+    parameters and the joints' extra parameters together.
+    """
     import numpy as np  # noqa: PLC0415
 
     from ineid.identify import analyze_frames, base_parameters, generic_frames  # noqa: PLC0415
 
     model = robot.load()
     with_bias = bias == "estimate"
-    channels = None  # the base wrench, or what --data measures
+    channels = None  # the base wrench, or what --data measures (chosen by --use and the actuation options)
     if data_path is not None:
         from ineid.data import load_dataset  # noqa: PLC0415
 
@@ -68,13 +74,17 @@ def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
         q, qd, qdd = generic_frames(model, n_frames, seed)
         source = f"{n_frames} random frames within the bounds (seed {seed})"
     _require_frames_memory(model, len(q))
+    channels = chosen_channels(channels, channel_flags)
     base = base_parameters(model, bias=with_bias, channels=channels)
     a = analyze_frames(model, q, qd, qdd, base, bias=with_bias, channels=channels)
     con = console()
     n = base.n_params
     con.print(f"[bold]{shown(model.name)}[/bold]: unknown links {shown(', '.join(model.unknown_links))} "
-              f"({n} standard parameters)")
+              f"({base.n_link_params} standard parameters{f', {base.n_extra} extra' if base.n_extra else ''})")
     con.print(f"frames: {shown(source)}")
+    if channels is not None:
+        con.print(f"channels: {shown(channels.describe())}"
+                  + (f"; extra parameters: {shown(', '.join(channels.extra_names(model)))}" if base.n_extra else ""))
     con.print(
         f"rank {a.rank} of {n}; structural rank {base.rank} (no frames can do better): "
         f"[bold]{base.rank} identifiable combinations[/bold], {n - base.rank} null direction(s)"
@@ -92,7 +102,8 @@ def identifiability(robot, n_frames, seed, data_path, config, bias) -> None:
         t.add_row(str(k + 1), name)
     con.print(t)
     if base.null_basis.shape[1]:
-        t = table("Null directions: parameter changes invisible in the base wrench", ("#", "direction (add t times)"),
+        seen_by = "the base wrench" if channels is None or channels.keys == ("wrench",) else "the measurements"
+        t = table(f"Null directions: parameter changes invisible in {seen_by}", ("#", "direction (add t times)"),
                   left=("direction (add t times)",))
         for k, text in enumerate(base.null_directions()):
             t.add_row(str(k + 1), text)
@@ -181,6 +192,7 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
               help="The known links' CAD uncertainty, added to the reported std: each known parameter off by "
                    "FRACTION of max(|CAD value|, the link's scale) (0.05: 5 %); LINK=FRACTION for one link "
                    "(repeatable; overrides a plain FRACTION). Default: the CAD taken as exact.")
+@channel_options(two_step=True)
 @click.option("--plot", "plot_path", type=click.Path(path_type=Path), default=None, metavar="FILE",
               help="Write measured vs predicted wrench of the held-out frames (first solved configuration), "
                    "per axis with the residual RMS (.png, .pdf, .svg).")
@@ -188,7 +200,7 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
 @overwrite_option
 @click.pass_context
 def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection, weights, sigma, start, backend,
-          workers, bias, known_uncertainty, plot_path, out, overwrite) -> None:
+          workers, bias, known_uncertainty, plot_path, out, overwrite, **channel_flags) -> None:
     """Identify the unknown links of every selected configuration of DATA.h5.
 
     Several DATA files (recordings of one robot): configuration i of each is fitted jointly from
@@ -197,6 +209,9 @@ def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection
 
     --method network: a trained run (--run RUN) estimates all configurations in batches; with
     --fit-frames, a multiple of the run's frames per sample.
+
+    --use wrench,torque chooses the channels (default: every one the file has); --friction, --armature,
+    --torque-offset model the joint torques' actuation, identified with the links (--two-step: after them).
     """
     from ineid.data import load_dataset, read_meta  # noqa: PLC0415
     from ineid.identify import SolveSettings, save_results, solve_dataset  # noqa: PLC0415
@@ -229,6 +244,7 @@ def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection
             method=method, frames=fit_frames, weights=weights, axis_sigma=tuple(sigma) if sigma else None, start=start,
             backend=backend, workers=workers or os.cpu_count() or 1, bias=bias,
             run=None if run_dir is None else str(run_dir), known_uncertainty=known_uncertainty,
+            **settings_flags(channel_flags),
         )  # fmt: skip
     except ValueError as e:
         raise click.UsageError(str(e)) from None
@@ -266,7 +282,7 @@ def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection
         v = validation(res, ds)
         name = plain(res.meta["robot"])  # one line in the title, and not a page long
         plot_validation(v, plot_path, title=f"{name if len(name) <= 60 else name[:57] + '...'}, {method}: ")
-        console().print("residual RMS per axis (fx fy fz N, mx my mz N*m): " + " ".join(f"{r:.3g}" for r in v.rms)
+        console().print(f"residual RMS per axis ({shown(' '.join(v.axes))}): " + " ".join(f"{r:.3g}" for r in v.rms)
                         + f"; wrote {shown(plot_path)}")
     elif plot_path is not None:
         console().print(f"no configuration identified: {shown(plot_path)} not written")
@@ -374,6 +390,8 @@ def results_info(path: Path) -> None:
         con.print(f"validation: {shown(v.get('path') or 'in memory')}, fingerprint {shown(v.get('fingerprint'))}, "
                   f"{v.get('n_frames')} frames; offsets {shown(v.get('offsets'))}; RMS per axis ({' '.join(res.axes)}) "
                   f"{rms or '-'}; relative error {'-' if v.get('rel') is None else format(v['rel'], '.3g')} (median)")
+    if res.n_extra:
+        con.print(f"extra parameters (after the links'): {shown(', '.join(res.param_names[-res.n_extra:]))}")
     if res.payload:
         _print_payload(con, res)
     warnings = m.get("warnings")

@@ -129,8 +129,10 @@ def print_results(res, out) -> None:
         rel = res.validation_rel[res.success]
         with np.errstate(invalid="ignore"):  # inf (a zero wrench) between two values: nan (solve warns)
             median, p95 = np.median(rel), np.percentile(rel, 95)
-        con.print(f"held-out wrench error ||w - Psi theta_hat|| / ||w||: median {median:.3g}, "
-                  f"95th percentile {p95:.3g}")
+        keys = [c.get("key") for c in res.meta.get("channels") or () if isinstance(c, dict)]
+        what = ("wrench error ||w - Psi theta_hat|| / ||w||" if keys in ([], ["wrench"])
+                else f"error of {shown(', '.join(map(str, keys)))} ||y - y_hat|| / ||y||")
+        con.print(f"held-out {what}: median {median:.3g}, 95th percentile {p95:.3g}")
     if res.theta_true is not None and n_ok:
         for title, est, truth, names, ident in (
             ("standard parameters", res.theta_hat, res.theta_true, res.param_names, res.base.identifiable),
@@ -140,7 +142,10 @@ def print_results(res, out) -> None:
             columns += ("identifiable",) if ident is not None else ()
             tab = table(f"Relative error, {title}, over {n_ok} configurations", columns,
                                left=("parameter", "identifiable"))
-            for row in error_summary(est, truth, names, res.success, ident):
+            no_truth = np.all(np.isnan(truth[res.success]), axis=0)  # extra parameters the file does not simulate
+            for k, row in enumerate(error_summary(est, truth, names, res.success, ident)):
+                if no_truth[k]:
+                    continue
                 cells = [row.name, f"{row.median:.3g}", f"{row.p95:.3g}", f"{100 * row.within_1:.1f}%",
                          f"{100 * row.within_5:.1f}%"]
                 if ident is not None:
@@ -149,7 +154,7 @@ def print_results(res, out) -> None:
             con.print(tab)
         from ineid.params import all_links_physical  # noqa: PLC0415
 
-        valid = all_links_physical(np.nan_to_num(res.theta_hat[res.success]))
+        valid = all_links_physical(np.nan_to_num(res.theta_links[res.success]))
         con.print(f"physically valid estimates: {100 * valid.mean():.1f}%")
     elif n_ok:
         i = int(np.flatnonzero(res.success)[0])

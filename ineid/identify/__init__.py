@@ -23,7 +23,8 @@ from ineid.identify.identifiability import (
 from ineid.identify.linear import BaseFit, Estimate, fit_base, linear_estimate, standard_from_base
 from ineid.identify.nlp import NlpSolver, nlp_estimate
 from ineid.identify.results import error_summary, load_results, relative_error, save_results
-from ineid.identify.solve import METHODS, SolveResults, SolveSettings, identify_frames, solve_dataset
+from ineid.identify.frames import identify_frames
+from ineid.identify.solve import METHODS, SolveResults, SolveSettings, solve_dataset
 from ineid.identify.systems import parameter_scales, stack, stack_casadi
 
 __all__ = [

@@ -330,7 +330,7 @@ def design_excitation(
     limits = SafetyLimits(s.floor, None if s.workspace is None else tuple(float(v) for v in s.workspace))
     if limits.active:
         check_limits(model, limits)
-    sigma = design_noise(noise, settings.channels)
+    sigma = design_noise(noise, settings.channels, model)
     design_points = design_points or DEFAULT_CHUNK * math.ceil(32 * harmonics / DEFAULT_CHUNK)
     constraint_points = constraint_points or 32 * harmonics
     base = design_base(model, bias, settings.channels)

@@ -24,8 +24,9 @@ from ineid.identify.identifiability import BaseParameters, base_parameters, nume
 CRITERIA = ("d-opt", "cond")
 DEFAULT_CHUNK = 160
 """Samples per call of the compiled regressor and its derivatives (the design grid of 5 harmonics)."""
-DESIGN_NOISE = {"force": 0.5, "moment": 0.05}
-"""Default wrench noise of the design (N, N*m), the reference level of ``ineid study noise``."""
+DESIGN_NOISE = {"force": 0.5, "moment": 0.05, "tau": 0.05}
+"""Default noise of the design: the wrench's (N, N*m), the reference level of ``ineid study noise``, and joint
+torques' (N*m, BIRDy's TX40 default)."""
 
 
 @dataclass(frozen=True)
@@ -66,11 +67,15 @@ def design_base(model, bias: bool = False, channels: ChannelSet | None = None) -
     base = base_parameters(model, bias=bias, channels=None if channels == BASE_WRENCH else channels)
     n_axes = channels.n_axes(model)
     idx = base.base_index
+    n_u = base.n_link_params
+    # the rows are [I_A | T Phi | E]: a link parameter's column in T Phi, an extra's after the 10 n_links
+    columns = np.where(idx < n_u, model.unknown_index[np.minimum(idx, n_u - 1)], 10 * model.n_links + idx - n_u)
+    prior = np.concatenate([model.theta_cad[model.unknown_index], np.zeros(base.n_extra)])  # extras: prior 0
     return DesignBase(
         names=base.names,
-        columns=n_axes + model.unknown_index[idx],
+        columns=n_axes + columns,
         scales=base.scales[idx],
-        cad=base.B @ model.theta_cad[model.unknown_index],
+        cad=base.B @ prior,
         base=base,
         bias=bool(bias),
         channels=channels,
@@ -83,28 +88,41 @@ def centred(phi: np.ndarray) -> np.ndarray:
     return phi - phi.mean(axis=0, keepdims=True)
 
 
-def design_noise(noise: NoiseModel | None = None, channels: ChannelSet | None = None) -> np.ndarray:
-    """(A,) noise std per axis of the design, the channels' axes stacked (default: the base wrench's six):
-    ``noise.wrench`` for every base-wrench channel (its sensor's axes), default :data:`DESIGN_NOISE`.
+def design_noise(noise: NoiseModel | None = None, channels: ChannelSet | None = None, model=None) -> np.ndarray:
+    """(A,) noise std per axis of the design, the channels' axes stacked (default: the base wrench's six).
+
+    A wrench channel (under the base or on a link: six axes ``fx..mz``) takes ``noise.wrench``
+    (its sensor's axes), default :data:`DESIGN_NOISE` force and moment; any other channel (joint
+    torques, motor currents) the noise recorded under its key (``noise.channels``, ``--noise
+    tau=0.05``), default :data:`DESIGN_NOISE` ``tau`` (N*m, mapped through a motor-current
+    channel's ``T`` into amperes).
 
     Raises:
-        ExcitationError: a zero wrench noise, or a channel the noise model says nothing about.
+        ExcitationError: a zero noise on an axis, or a noise of the wrong length for its channel.
     """
     if noise is None:
-        sigma = np.array([DESIGN_NOISE["force"]] * 3 + [DESIGN_NOISE["moment"]] * 3)
+        wrench = np.array([DESIGN_NOISE["force"]] * 3 + [DESIGN_NOISE["moment"]] * 3)
     else:
-        sigma = np.asarray(noise.wrench, dtype=np.float64)
-        if sigma.shape != (6,) or not np.all(sigma > 0):
-            raise ExcitationError(
-                f"the design needs a positive wrench noise on every axis, got {sigma.tolist()}; give force= and "
-                "moment= levels", reason="noise",
-            )
+        wrench = np.asarray(noise.wrench, dtype=np.float64)
     channels = BASE_WRENCH if channels is None else channels
-    other = [c.key for c in channels if not isinstance(c, BaseWrench)]
-    if other:
-        raise ExcitationError(f"the design's noise model knows the wrench only, not channel {other[0]!r}; "
-                              "design for the wrench channels", reason="noise")
-    return sigma if len(channels) == 1 else np.tile(sigma, len(channels))
+    parts = []
+    for c in channels:
+        if isinstance(c, BaseWrench) or c.axes(model) == BaseWrench().axes():
+            sigma, what = wrench, "the wrench noise (force= and moment=)"
+        else:
+            given = None if noise is None else dict(noise.channels).get(c.key)
+            n_a = c.n_axes(model)
+            if given is None:
+                t = c.transform()
+                sigma = np.full(n_a, DESIGN_NOISE["tau"]) if t is None else DESIGN_NOISE["tau"] * np.abs(np.diag(t))
+            else:
+                sigma = np.broadcast_to(np.asarray(given, dtype=np.float64), (n_a,))
+            what = f"the noise of channel {c.key!r} ({c.key}=STD)"
+        if sigma.shape != (c.n_axes(model),) or not np.all(sigma > 0):
+            raise ExcitationError(f"the design needs a positive noise on every axis of channel {c.key!r}, got "
+                                  f"{np.asarray(sigma).tolist()}; give {what}", reason="noise")
+        parts.append(sigma)
+    return np.concatenate(parts)
 
 
 def scaled_regressor(y_full: np.ndarray, base: DesignBase, sigma: np.ndarray) -> np.ndarray:
@@ -232,15 +250,31 @@ def _regressor_jet(jax_regressor):
     return jax.jit(jet)
 
 
+@functools.cache
+def _design_rows(rows, extra):
+    """``[T Phi | E]``: the channels' rows and their extra kept columns (friction, armature), jit-safe."""
+    if extra is None:
+        return rows
+
+    def both(q, qd, qdd, gravity):
+        import jax.numpy as jnp  # noqa: PLC0415
+
+        return jnp.concatenate([rows(q, qd, qdd, gravity), extra(q, qd, qdd)], axis=-1)
+
+    return both
+
+
 def regressor_and_derivatives(model, q, qd, qdd, chunk: int = DEFAULT_CHUNK, derivatives: bool = True,
                                channels: ChannelSet | None = None):
-    """The channels' rows ``Psi = T Phi(q_k, qd_k, qdd_k)`` (F, A, 10 n_links) and, with ``derivatives``,
-    ``dPsi`` (3 n_dof, F, A, 10 n_links); ``channels`` default the base wrench (``A = 6``).
+    """The channels' rows ``Psi = [T Phi | E](q_k, qd_k, qdd_k)`` (F, A, 10 n_links + n_extra) and, with
+    ``derivatives``, ``dPsi`` (3 n_dof, F, A, 10 n_links + n_extra); ``channels`` default the base wrench
+    (``A = 6``, no extra columns). ``E`` (friction, armature, offsets) in the channels' own axes.
 
     Evaluated in padded chunks of ``chunk`` samples, so one compilation serves every size.
     """
     q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (q, qd, qdd))
-    fn = _regressor_jet((BASE_WRENCH if channels is None else channels).jax_rows_function(model))
+    channels = BASE_WRENCH if channels is None else channels
+    fn = _regressor_jet(_design_rows(channels.jax_rows_function(model), channels.jax_extra_rows_function(model)))
     gravity = np.asarray(model.gravity, dtype=np.float64)
     f = len(q)
     psis, jets = [], []

@@ -127,7 +127,7 @@ def export_urdf(results, config: int, out: str | Path, overwrite: bool = False) 
             f"configuration {config} was not identified ({results.status[i]}); nothing to export",
             status=str(results.status[i]),
         )
-    theta = results.theta_hat[i].reshape(-1, 10)
+    theta = results.theta_links[i].reshape(-1, 10)  # the links only: extra parameters (friction...) are no URDF
     by_link = dict(zip(results.meta["unknown_links"], theta, strict=True))
     text = urdf_with_inertials(results.meta["urdf"], by_link, results.meta.get("locked_joints"))
     return atomic_write(out, text)

@@ -32,6 +32,11 @@ columns) and ``t_a = sum_k y[k, a]``, and :meth:`InformationBlocks.centred` turn
 into those of the frames centred per axis (``G_a - s_a s_a^T / F``, ...), which is the joint
 fit of the parameters and the offsets (:class:`ineid.identify.systems.Offsets`).
 
+Channels with extra kept columns ``E x`` (joint friction, ..., :mod:`ineid.identify.extras`):
+the kernel appends each channel's ``E`` (block-diagonal, in its own axes, ``T`` not applied) to
+the rows, ``W_b`` is the base columns of ``[T Phi_u | E]`` over ``[theta_u, x]``, and the
+residual kernel predicts ``T Phi theta + E x``.
+
 One compiled shape serves every chunk: configurations are padded to a fixed count and long
 recordings are split into frame chunks (masked). Compiled once per robot, link split, base
 structure, channels' structure (:meth:`ineid.channels.ChannelSet.structure`) and frame count
@@ -46,12 +51,13 @@ import os
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 
 import numpy as np
 
 from ineid.cache import enable_compilation_cache
 from ineid.channels import BASE_WRENCH, ChannelSet
+from ineid.identify.blocks import InformationBlocks  # defined here before: still importable from here
+from ineid.identify.extras import unknown_rows
 from ineid.robots.model import SMALL_JOB_FRAMES
 
 TARGET_FRAMES = 2048
@@ -60,96 +66,6 @@ RESIDUAL_TARGET_FRAMES = 8192
 """Frames per call of the residual kernel (``base_wrench`` only: cheaper per frame)."""
 MAX_FRAME_CHUNK = 2048
 """Longer configurations (recordings) are reduced over chunks of this many frames."""
-
-
-@dataclass
-class InformationBlocks:
-    """Per-axis normal-equation blocks of a batch of configurations (see module doc).
-
-    ``A`` is the number of stacked axes of the channels (six for the base wrench).
-
-    Attributes:
-        G: (C, A, r, r) ``sum_k W_b[k, a]^T W_b[k, a]`` per axis ``a``.
-        h: (C, A, r) ``sum_k W_b[k, a]^T y[k, a]``.
-        e: (C, A) ``sum_k y[k, a]^2``.
-        n_frames: frames per configuration ``F`` (rows ``AF``).
-        s: (C, A, 10 n_u) ``sum_k (Psi_u[k, a] - w_ref_a)`` (every unknown column), or None.
-        t: (C, A) ``sum_k (y[k, a] - y_ref_a)``, or None.
-        w_ref, y_ref: (C, A, 10 n_u), (C, A) the rows subtracted from every frame before
-            ``G, h, e, s, t`` were summed (the first frame's), or None (nothing subtracted).
-        axis_w: None for per-axis blocks; else (C, A) row weights ``d_a`` the blocks were
-            summed with in the kernel: ``G`` (C, r, r) ``= sum_a d_a^2 G_a``, ``h`` (C, r)
-            ``= sum_a d_a^2 h_a`` (``e`` stays per axis). ``A`` times less memory, for fits
-            whose weights are known before the frames are read (none, noise).
-    """
-
-    G: np.ndarray
-    h: np.ndarray
-    e: np.ndarray
-    n_frames: int
-    s: np.ndarray | None = None
-    t: np.ndarray | None = None
-    w_ref: np.ndarray | None = None
-    y_ref: np.ndarray | None = None
-    axis_w: np.ndarray | None = None
-
-    def _per_axis(self, what: str) -> None:
-        if self.axis_w is not None:
-            raise ValueError(f"{what} needs per-axis blocks; these were summed with fixed weights (axis_weights=...)")
-
-    def centred(self, base, mask: np.ndarray | None = None):
-        """``(blocks, offsets)``: the blocks of the frames centred per axis, and their means.
-
-        With ``sb_a = s_a[base columns]``: ``G_a - sb_a sb_a^T / F``, ``h_a - sb_a t_a / F``,
-        ``e_a - t_a^2 / F`` (``sum_k (x_k - xbar)(z_k - zbar) = sum_k x_k z_k - F xbar zbar``);
-        ``offsets`` holds ``Wbar = s / F + w_ref`` and ``ybar = t / F + y_ref``
-        (:class:`ineid.identify.systems.Offsets`). The shift by ``w_ref, y_ref`` leaves the
-        centred blocks as they are and keeps them from cancelling. ``mask`` (A,) bool: only
-        those axes have offsets and are centred (:meth:`ineid.channels.ChannelSet.offset_mask`);
-        None: every axis.
-        """
-        from ineid.identify.systems import Offsets  # noqa: PLC0415
-
-        self._per_axis("centring")
-        if self.s is None or self.t is None:
-            raise ValueError("these blocks carry no frame sums; compute them with sums=True")
-        f = self.n_frames
-        mask = None if mask is None or np.all(mask) else np.asarray(mask, dtype=bool)
-        s, t = (self.s, self.t) if mask is None else (self.s * mask[:, None], self.t * mask)
-        sb = s[..., base.base_index]
-        g = self.G - np.einsum("car,cas->cars", sb, sb) / f
-        h = self.h - sb * (t / f)[..., None]
-        e = self.e - t**2 / f
-        w_ref = 0.0 if self.w_ref is None else self.w_ref
-        y_ref = 0.0 if self.y_ref is None else self.y_ref
-        return InformationBlocks(g, h, e, f), Offsets(self.s / f + w_ref, self.t / f + y_ref, f, mask)
-
-    def weighted(self, axis_w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(W_b^T D^2 W_b, W_b^T D^2 y, y^T D^2 y)`` for row weights ``axis_w`` (C, A)."""
-        if self.axis_w is not None:
-            if not np.array_equal(np.broadcast_to(axis_w, self.axis_w.shape), self.axis_w):
-                raise ValueError("these blocks were summed with other row weights; compute them again")
-            return self.G, self.h, np.sum(self.axis_w**2 * self.e, axis=1)
-        d2 = (np.asarray(axis_w, dtype=np.float64) ** 2)[:, None, :]  # (C, 1, A)
-        c, n_axes, r, _ = self.G.shape
-        a = np.matmul(d2, self.G.reshape(c, n_axes, r * r)).reshape(c, r, r)
-        b = np.matmul(d2, self.h)[:, 0]
-        return a, b, np.matmul(d2, self.e[:, :, None])[:, 0, 0]
-
-    def axis_rss(self, beta: np.ndarray) -> np.ndarray:
-        """(C, A) unweighted residual sum of squares per axis, ``e_a - 2 beta.h_a + beta^T G_a beta``."""
-        self._per_axis("the residual per axis")
-        gb = np.matmul(self.G, beta[:, None, :, None])[..., 0]  # (C, A, r)
-        quad = np.matmul(gb, beta[:, :, None])[..., 0]
-        lin = np.matmul(self.h, beta[:, :, None])[..., 0]
-        return np.maximum(self.e - 2.0 * lin + quad, 0.0)
-
-    def select(self, rows) -> InformationBlocks:
-        def pick(a):
-            return None if a is None else a[rows]
-
-        return InformationBlocks(self.G[rows], self.h[rows], self.e[rows], self.n_frames, pick(self.s), pick(self.t),
-                                 pick(self.w_ref), pick(self.y_ref), pick(self.axis_w))
 
 
 def _split(n_configs: int, n_frames: int, target: int | None = None) -> tuple[int, int]:
@@ -241,7 +157,8 @@ def _map_chunks(kernel: Callable, frame_arrays: list[np.ndarray], config_arrays:
 
 @functools.lru_cache(maxsize=None)
 def _blocks_kernel(structure: tuple, n_cols: int, base_columns: tuple[int, ...], known_columns: tuple[int, ...],
-                   sum_columns: tuple[int, ...] = (), summed: bool = False):
+                   sum_columns: tuple[int, ...] = (), summed: bool = False, base_extra: tuple[int, ...] = (),
+                   sum_extra: tuple[int, ...] = ()):
     """Jitted ``(q, qd, qdd, values, mask, [w_ref, y_ref,] gravity, theta_known, xs) -> (G, h, e[, s, t])``.
 
     ``structure``: :meth:`ineid.channels.ChannelSet.structure` of the channels, whose rows
@@ -255,12 +172,33 @@ def _blocks_kernel(structure: tuple, n_cols: int, base_columns: tuple[int, ...],
     (Cc, A): the first frame's), and the frame sums ``s`` of those columns and ``t`` of ``y``
     come too. Centring is invariant to the shift, and the shift takes the large constant part
     (offsets, the weight of the links) out of the sums before they cancel.
+    ``base_extra``, ``sum_extra``: the channels' extra kept columns (indices into their
+    ``n_extra``) among the base columns and the summed ones: the rows are ``[T Phi_u | E]``,
+    ``E`` from each channel's :meth:`ineid.channels.Channel.extra_rows_function`, block-diagonal,
+    in the channels' own axes (``T`` not applied), after the links' columns (``w_ref`` then has
+    ``10 n_u + n_extra`` columns).
     """
     import jax  # noqa: PLC0415
     import jax.numpy as jnp  # noqa: PLC0415
 
-    base_pos = tuple(sum_columns.index(c) for c in base_columns) if sum_columns else ()
+    base_pos = (tuple(sum_columns.index(c) for c in base_columns)
+                + tuple(len(sum_columns) + sum_extra.index(j) for j in base_extra)) if sum_columns else ()
     columns = sum_columns or base_columns
+    extra_columns = sum_extra if sum_columns else base_extra
+    n_extra = sum(channel.n_extra for channel in structure)
+
+    def extra_rows(q, qd, qdd, mask):
+        """(A, Cc, len(extra_columns), Fc): the block-diagonal ``E`` of the channels at ``extra_columns``."""
+        batch = q.shape[:-1]
+        n_axes = sum(channel.n_axes for channel in structure)
+        e = jnp.zeros(batch + (n_axes, n_extra), dtype=q.dtype)
+        a0 = e0 = 0
+        for channel in structure:
+            if channel.n_extra:
+                e = e.at[..., a0:a0 + channel.n_axes, e0:e0 + channel.n_extra].set(channel.extra_rows(q, qd, qdd))
+            a0, e0 = a0 + channel.n_axes, e0 + channel.n_extra
+        e = e[..., jnp.asarray(extra_columns, dtype=jnp.int32)]  # (Cc, Fc, A, k)
+        return jnp.transpose(e, (2, 0, 3, 1)) * mask[None, :, None, :]
 
     def channel_rows(entries, n_axes, batch, mask, theta_known, dtype):
         def entry(a, col):
@@ -286,6 +224,8 @@ def _blocks_kernel(structure: tuple, n_cols: int, base_columns: tuple[int, ...],
             w_parts.append(w)
             known_parts.append(known)
         w_b = w_parts[0] if len(w_parts) == 1 else jnp.concatenate(w_parts)  # (A, Cc, r, Fc)
+        if extra_columns:  # [T Phi_u | E]: the extra kept columns after the links'
+            w_b = jnp.concatenate([w_b, extra_rows(q, qd, qdd, mask)], axis=2)
         known = known_parts[0] if len(known_parts) == 1 else jnp.concatenate(known_parts)
         y = jnp.stack([(wrench[..., a] - known[a]) * mask for a in range(w_b.shape[0])])  # (A, Cc, Fc)
         if sum_columns:
@@ -319,14 +259,15 @@ def _transforms(channels: ChannelSet, model) -> tuple[np.ndarray, ...]:
                  for c, t in zip(channels, channels.transforms(), strict=True))
 
 
-def check_no_extra_columns(channels: ChannelSet, model) -> None:
-    """Refuse channels with extra kept columns: the solvers do not identify them yet (issue 21)."""
+def check_no_extra_columns(channels: ChannelSet, model, what: str = "backend 'casadi-c'") -> None:
+    """Refuse channels with extra kept columns where ``what`` does not identify them (the ``casadi-c`` blocks)."""
     from ineid.errors import IdentificationError  # noqa: PLC0415
 
     extra = channels.extra_names(model)
     if extra:
-        raise IdentificationError(f"the channels carry extra parameters ({', '.join(extra[:3])}, ...) that this "
-                                  "ineid cannot identify yet; leave them out", status="unsupported")
+        raise IdentificationError(f"{what} does not fit extra parameters ({', '.join(extra[:3])}"
+                                  f"{', ...' if len(extra) > 3 else ''}); use backend 'jax' or 'casadi', or leave "
+                                  "the friction, armature and torque-offset models out", status="unsupported")
 
 
 def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
@@ -349,8 +290,10 @@ def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
             the base wrench in the base frame.
     """
     channels = BASE_WRENCH if channels is None else channels
-    check_no_extra_columns(channels, model)
     n_axes = channels.n_axes(model)
+    n_extra = channels.n_extra(model)
+    if base.n_extra != n_extra:
+        raise ValueError(f"the base parameters have {base.n_extra} extra columns, the channels {n_extra}")
     arrays = [np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench)]
     n_configs, n_frames = arrays[0].shape[:2]
     if arrays[3].shape[-1] != n_axes:
@@ -363,12 +306,19 @@ def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
         return InformationBlocks(np.zeros((0, n_axes, r, r)), np.zeros((0, n_axes, r)), np.zeros((0, n_axes)),
                                  n_frames, np.zeros((0, n_axes, p)) if sums else None,
                                  np.zeros((0, n_axes)) if sums else None)
-    columns = tuple(int(c) for c in np.asarray(model.unknown_index)[base.base_index])
+    n_link = base.n_link_params
+    link_base = base.base_index[base.base_index < n_link]
+    columns = tuple(int(c) for c in np.asarray(model.unknown_index)[link_base])
     sum_columns = tuple(int(c) for c in model.unknown_index) if sums else ()
+    extra_kernel_args = ()
+    if n_extra:  # the extra kept columns: the base ones, and all of them for the sums
+        base_extra = tuple(int(j) - n_link for j in base.base_index[base.base_index >= n_link])
+        extra_kernel_args = (base_extra, tuple(range(n_extra)) if sums else ())
     if sums and axis_weights is not None:
         raise ValueError("centred blocks (sums=True) are per axis; leave axis_weights out")
     kernel = _blocks_kernel(channels.structure(model), 10 * model.n_links, columns,
-                            tuple(int(c) for c in model.known_index), sum_columns, axis_weights is not None)
+                            tuple(int(c) for c in model.known_index), sum_columns, axis_weights is not None,
+                            *extra_kernel_args)
     theta_known = np.asarray(theta_known, dtype=np.float64)
     consts = (model.gravity, theta_known, _transforms(channels, model))
     if axis_weights is not None:
@@ -376,7 +326,7 @@ def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
         return InformationBlocks(*_map_chunks(kernel, arrays, [d], consts, progress), n_frames, axis_w=d)
     if not sums:
         return InformationBlocks(*_map_chunks(kernel, arrays, [], consts, progress), n_frames)
-    rows_u, rows_k = channels.rows_split(model, *(a[:, :1] for a in arrays[:3]))  # the first frames: (C, 1, A, .)
+    rows_u, rows_k = unknown_rows(model, *(a[:, :1] for a in arrays[:3]), channels)  # the first frames: (C, 1, A, .)
     w_ref = np.asarray(rows_u)[:, 0]
     y_ref = arrays[3][:, 0] - np.asarray(rows_k)[:, 0] @ theta_known
     out = _map_chunks(kernel, arrays, [w_ref, y_ref], consts, progress)
@@ -385,16 +335,30 @@ def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
 
 @functools.lru_cache(maxsize=None)
 def _residual_kernel(structure: tuple):
-    """Jitted ``(q, qd, qdd, values, fit, mask, theta, bias, gravity, xs) -> (ssr_fit, ssr_held, ss_held)``."""
+    """Jitted ``(q, qd, qdd, values, fit, mask, theta, bias, gravity, xs) -> (ssr_fit, ssr_held, ss_held)``.
+
+    With extra kept columns (``n_e`` over the channels) ``theta`` is ``[theta, x]`` (Cc, 10 n + n_e)
+    and the prediction ``T Phi theta + E x`` (each channel's ``E_i x_i`` on its own axes).
+    """
     import jax  # noqa: PLC0415
     import jax.numpy as jnp  # noqa: PLC0415
 
+    n_extra = sum(channel.n_extra for channel in structure)
+
     def kernel(q, qd, qdd, wrench, fit, mask, theta, bias, gravity, xs):
         # fit: (Cc, Fc, 1) 1 on fitted frames, 0 on held-out ones; theta: (Cc, 10 n); bias: (Cc, A)
+        if n_extra:
+            theta, extra = theta[:, : theta.shape[1] - n_extra], theta[:, theta.shape[1] - n_extra:]
         parts = []
+        e0 = 0
         for channel, x in zip(structure, xs, strict=True):
             predicted = channel.phi_theta(q, qd, qdd, gravity, theta[:, None, :])
-            parts.append(predicted @ x.T if channel.transformed else predicted)
+            predicted = predicted @ x.T if channel.transformed else predicted
+            if channel.n_extra:
+                e = channel.extra_rows(q, qd, qdd)  # (Cc, Fc, n_a, n_e_i)
+                predicted = predicted + jnp.einsum("cfae,ce->cfa", e, extra[:, e0:e0 + channel.n_extra])
+                e0 += channel.n_extra
+            parts.append(predicted)
         predicted = parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=-1)
         predicted = predicted + bias[:, None, :]
         r2 = (wrench - predicted) ** 2 * mask[..., None]
@@ -405,8 +369,9 @@ def _residual_kernel(structure: tuple):
 
 
 def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int, bias: np.ndarray | None = None,
-                  channels: ChannelSet | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sums of squares of ``values - (T Phi theta + b)`` per configuration: fitted and held-out frames.
+                  channels: ChannelSet | None = None,
+                  extra: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sums of squares of ``values - (T Phi theta + E x + b)`` per configuration: fitted and held-out frames.
 
     Args:
         model: the :class:`ineid.RobotModel`.
@@ -415,6 +380,8 @@ def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int, bias: np.ndarray
         n_fit: the first ``n_fit`` frames are the fitted ones, the rest held out.
         bias: (C, A) offsets ``b`` (None: zero).
         channels: the :class:`ineid.channels.ChannelSet` (None: the base wrench in the base frame).
+        extra: (C, n_e) the channels' extra parameters ``x`` (:meth:`ineid.channels.ChannelSet.extra_names`);
+            None: zero (none without extra columns).
 
     Returns:
         ``(ssr_fit (C, A), ssr_held (C, A), ss_held (C,))``: per axis, the sum over the
@@ -433,6 +400,10 @@ def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int, bias: np.ndarray
     fit = (np.arange(n_frames) < n_fit).astype(np.float64)
     fit = np.broadcast_to(fit[None, :, None], (n_configs, n_frames, 1))
     theta = np.asarray(theta, dtype=np.float64)
+    n_extra = channels.n_extra(model)
+    if n_extra:  # [theta, x]: the kernels split it
+        extra = np.zeros((n_configs, n_extra)) if extra is None else np.asarray(extra, dtype=np.float64)
+        theta = np.concatenate([theta, extra.reshape(n_configs, n_extra)], axis=1)
     bias = np.zeros((n_configs, n_axes)) if bias is None else np.asarray(bias, dtype=np.float64)
     if n_configs * n_frames <= SMALL_JOB_FRAMES:
         return _residual_sums_casadi(model, channels, arrays, theta, bias, n_fit)
@@ -450,6 +421,10 @@ def _residual_sums_casadi(model, channels: ChannelSet, arrays, theta, bias, n_fi
     n = n_configs * n_frames
     flat = [a.reshape(n, -1).T for a in (q, qd, qdd)]
     rows = np.array(channels.casadi_rows(model).map(n)(*flat)).reshape(n_axes, n, -1).transpose(1, 0, 2)
+    n_extra = channels.n_extra(model)
+    if n_extra:  # [T Phi | E] against [theta, x]
+        e = np.array(channels.casadi_extra_rows(model).map(n)(*flat)).reshape(n_axes, n, -1).transpose(1, 0, 2)
+        rows = np.concatenate([rows, e], axis=-1)
     predicted = np.einsum("cfap,cp->cfa", rows.reshape(n_configs, n_frames, n_axes, -1), theta) + bias[:, None, :]
     r2 = (wrench - predicted) ** 2
     return r2[:, :n_fit].sum(axis=1), r2[:, n_fit:].sum(axis=1), (wrench[:, n_fit:] ** 2).sum(axis=(1, 2))

@@ -39,6 +39,7 @@ import numpy as np
 
 from ineid.channels import BASE_WRENCH, ChannelSet
 from ineid.errors import IdentificationError
+from ineid.identify.extras import extra_scales
 from ineid.identify.systems import parameter_scales, stack_casadi
 from ineid.params import param_names
 
@@ -100,6 +101,9 @@ class BaseParameters:
         identifiable: (10 n_u,) bool, standard parameters the data determine alone.
         names: (r,) readable names of the base parameters.
         scales: (10 n_u,) parameter scales used for ranks and priors.
+        n_extra: the channels' extra kept columns ``x`` among the parameters (the last ``n_extra``:
+            ``param_names`` is ``[theta_u names, x names]``, and every vector above runs over
+            ``[theta_u, x]``); 0 without them.
     """
 
     param_names: tuple[str, ...]
@@ -111,10 +115,16 @@ class BaseParameters:
     identifiable: np.ndarray
     names: tuple[str, ...]
     scales: np.ndarray
+    n_extra: int = 0
 
     @property
     def rank(self) -> int:
         return len(self.base_index)
+
+    @property
+    def n_link_params(self) -> int:
+        """``10 n_u``: the unknown links' parameters, the first columns."""
+        return len(self.param_names) - self.n_extra
 
     @property
     def n_params(self) -> int:
@@ -145,8 +155,9 @@ def _base_name(name: str, deps: list[tuple[float, str]]) -> str:
     return text
 
 
-def base_parameters_from_regressor(w: np.ndarray, names, scales: np.ndarray) -> BaseParameters:
-    """The base parameters of a stacked regressor ``w`` (rows x 10 n_u) of generic frames."""
+def base_parameters_from_regressor(w: np.ndarray, names, scales: np.ndarray, n_extra: int = 0) -> BaseParameters:
+    """The base parameters of a stacked regressor ``w`` (rows x (10 n_u + n_extra)) of generic frames; its last
+    ``n_extra`` columns are the channels' extra kept columns (:attr:`BaseParameters.n_extra`)."""
     w = np.asarray(w, dtype=np.float64)
     ws = w * scales
     _, sv, vt = np.linalg.svd(ws, full_matrices=False)
@@ -195,6 +206,7 @@ def base_parameters_from_regressor(w: np.ndarray, names, scales: np.ndarray) -> 
         identifiable=identifiable,
         names=base_names,
         scales=np.asarray(scales, dtype=np.float64),
+        n_extra=int(n_extra),
     )
 
 
@@ -211,30 +223,53 @@ def _regressor_unknown(model, q, qd, qdd, channels: ChannelSet | None = None) ->
 
     In the model's frame: each channel's ``T`` is invertible, so ranks, base parameters and
     null spaces are those of ``Phi`` (and the analysis of a base wrench in a sensor frame is
-    that of the base frame, as it always was)."""
-    if channels is None or len(channels) == 1:  # one channel: the stacks of its Phi (the reference's own route)
-        channels = BASE_WRENCH if channels is None else channels
-        if channels.transform(model) is None:
-            theta_known = model.theta_cad[model.known_index]
-            w, _ = stack_casadi(model, q, qd, qdd, np.zeros((len(q), channels.n_axes(model))), theta_known, channels)
-            return w
+    that of the base frame, as it always was). With extra kept columns ``E`` (in the channels'
+    own axes) the rows are ``[T Phi_u | E]`` (AF, 10 n_u + n_extra): ``T`` does not act on ``E``,
+    so it cannot be taken out."""
+    channels = BASE_WRENCH if channels is None else channels
+    n_extra = channels.n_extra(model)
+    if len(channels) == 1 and channels.transform(model) is None:  # one channel: the reference's own route
+        theta_known = model.theta_cad[model.known_index]
+        w, _ = stack_casadi(model, q, qd, qdd, np.zeros((len(q), channels.n_axes(model))), theta_known, channels)
+        return w
     n_axes = channels.n_axes(model)
     f = len(q)
-    phi = np.array(channels.casadi_rows(model, transformed=False).map(f)(
-        np.asarray(q, dtype=np.float64).T, np.asarray(qd, dtype=np.float64).T, np.asarray(qdd, dtype=np.float64).T))
-    return phi.reshape(n_axes, f, -1).transpose(1, 0, 2)[..., model.unknown_index].reshape(n_axes * f, -1)
+    args = [np.asarray(a, dtype=np.float64).T for a in (q, qd, qdd)]
+    phi = np.array(channels.casadi_rows(model, transformed=n_extra > 0).map(f)(*args))
+    w = phi.reshape(n_axes, f, -1).transpose(1, 0, 2)[..., model.unknown_index]
+    if n_extra:
+        e = np.array(channels.casadi_extra_rows(model).map(f)(*args)).reshape(n_axes, f, -1).transpose(1, 0, 2)
+        w = np.concatenate([w, e], axis=-1)
+    return w.reshape(n_axes * f, -1)
 
 
 def _phi_key(model, channels: ChannelSet | None) -> tuple:
     """What the structural analysis depends on: each channel's ``Phi`` (not its ``T``, key or offsets), named by
-    its entries function (the same object on every call: :meth:`ineid.channels.Channel.entries_function`)."""
-    return tuple(c.entries_function(model) for c in (BASE_WRENCH if channels is None else channels))
+    its entries function (the same object on every call: :meth:`ineid.channels.Channel.entries_function`);
+    with extra kept columns, every channel's record too (its extra columns, its ``T``)."""
+    channels = BASE_WRENCH if channels is None else channels
+    phi = tuple(c.entries_function(model) for c in channels)
+    if channels.n_extra(model):
+        return phi + (channels.with_offsets(False).key_tuple(), channels.extra_names(model))
+    return phi
 
 
 def _offset_mask(channels: ChannelSet | None, model, bias: bool) -> np.ndarray | None:
     """The axes centred for offsets: every axis with ``bias`` (the channels'
     :meth:`~ineid.channels.ChannelSet.offset_mask` once they are set up with offsets), none without."""
     return (BASE_WRENCH if channels is None else channels).with_offsets(True).offset_mask(model) if bias else None
+
+
+def unknown_scales(model, w: np.ndarray, channels: ChannelSet | None = None) -> np.ndarray:
+    """The scales of ``[theta_u, x]``: the links' :func:`ineid.identify.systems.parameter_scales`, then the
+    extra parameters' :func:`ineid.identify.extras.extra_scales` from the stacked rows ``w`` of generic frames."""
+    channels = BASE_WRENCH if channels is None else channels
+    scales = parameter_scales(model.theta_cad[model.unknown_index])
+    n_extra = channels.n_extra(model)
+    if not n_extra:
+        return scales
+    n_u = len(scales)
+    return np.concatenate([scales, extra_scales(w[:, :n_u], scales, w[:, n_u:], channels.n_axes(model))])
 
 
 def base_parameters(model, bias: bool = False, channels: ChannelSet | None = None) -> BaseParameters:
@@ -247,18 +282,22 @@ def base_parameters(model, bias: bool = False, channels: ChannelSet | None = Non
     regressor centred per axis (:func:`centred_regressor`). ``channels``: the measurement
     channels whose rows are analysed (:class:`ineid.channels.ChannelSet`); None: the base
     wrench. Their ``T`` (a sensor frame) is invertible and changes no base parameter: the
-    analysis is of ``Phi``.
+    analysis is of ``Phi``. Channels with extra kept columns ``x``
+    (:meth:`ineid.channels.ChannelSet.extra_names`): the analysis is over ``[theta_u, x]``
+    (:mod:`ineid.identify.extras`: names, scales), ``BaseParameters.n_extra`` of them last.
     """
     phi = _phi_key(model, channels)
     key = (tuple(model.unknown_links), bool(bias)) + (() if phi == _phi_key(model, None) else (phi,))
     cache = _CACHE.setdefault(model, {})
     if key not in cache:
         q, qd, qdd = generic_frames(model)
-        scales = parameter_scales(model.theta_cad[model.unknown_index])
         w = _regressor_unknown(model, q, qd, qdd, channels)
-        n_axes = (BASE_WRENCH if channels is None else channels).n_axes(model)
+        scales = unknown_scales(model, w, channels)
+        chans = BASE_WRENCH if channels is None else channels
+        n_axes = chans.n_axes(model)
         w = centred_regressor(w, n_axes, _offset_mask(channels, model, bias)) if bias else w
-        cache[key] = base_parameters_from_regressor(w, param_names(model.unknown_links), scales)
+        names = (*param_names(model.unknown_links), *chans.extra_names(model))
+        cache[key] = base_parameters_from_regressor(w, names, scales, chans.n_extra(model))
     return cache[key]
 
 

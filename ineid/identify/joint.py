@@ -22,6 +22,7 @@ import time
 import numpy as np
 
 from ineid.errors import IdentificationError
+from ineid.identify.extras import prior_with_extras
 from ineid.identify.fused import InformationBlocks, information_blocks
 from ineid.identify.identifiability import base_parameters
 from ineid.identify.known import with_known_uncertainty
@@ -32,6 +33,7 @@ from ineid.identify.solve import (
     physical_start,
     results_meta,
     solve_channels,
+    truth_with_extras,
 )
 from ineid.identify.steps import _bias_estimate, _offset_dof, _run_nlp, estimate_residual_sums, predicted_wrench
 from ineid.identify.systems import check_frames, remove_offsets, stack
@@ -106,6 +108,9 @@ def solve_recordings(datasets, settings, model=None, validate=None, progress=Non
     if settings.method not in ("linear", "nonlinear", "consistent") or settings.backend != "jax":
         raise IdentificationError("several recordings or --validate are fitted by the linear, nonlinear and "
                                   "consistent methods with backend 'jax'", status="unsupported")
+    if settings.two_step:
+        raise IdentificationError("--two-step fits one dataset; leave it out with several recordings or --validate",
+                                  status="unsupported")
     if settings.frames is not None:
         raise IdentificationError("with several recordings or --validate every frame of the inputs is fitted: "
                                   "leave out --fit-frames (--validate holds out a whole recording)",
@@ -118,7 +123,7 @@ def solve_recordings(datasets, settings, model=None, validate=None, progress=Non
     n_axes = channels.n_axes(model)
     mask = channels.offset_mask(model)
     base = base_parameters(model, bias=with_bias, channels=channels)
-    prior = np.asarray(model.theta_cad[model.unknown_index], dtype=np.float64)
+    prior = prior_with_extras(model, channels)  # [theta_cad_u, 0 for each extra parameter]
     n_offsets = int(mask.sum()) if with_bias else 0
     n_total = sum(d.n_frames for d in datasets)
     check_frames(n_total, base.rank + n_offsets * len(datasets), n_axes)
@@ -165,7 +170,7 @@ def solve_recordings(datasets, settings, model=None, validate=None, progress=Non
     else:
         _, _, yy = total.weighted(fit.axis_weights)
         rms = np.sqrt(yy / (n_axes * total.n_frames))
-        start = prior if settings.start == "prior" else physical_start(theta_lin, prior, base.scales)
+        start = prior if settings.start == "prior" else physical_start(theta_lin, prior, base.scales, base.n_extra)
         est, _ = _run_nlp(fit, base, settings, prior, rms, start, progress)
     ssr = residuals(est.theta)
     failed = ~np.all(np.isfinite(est.theta), axis=1)
@@ -206,7 +211,7 @@ def solve_recordings(datasets, settings, model=None, validate=None, progress=Non
         seconds=np.full(c, meta["total_seconds"] / max(c, 1)),
         fit_rms=fit_rms, validation_rms=val_rms, validation_rel=val_rel,
         n_frames_fit=n_total, n_frames_validation=n_val, theta_prior=prior,
-        theta_true=None if ds0.theta_unknown is None else np.asarray(ds0.theta_unknown),
+        theta_true=truth_with_extras(ds0, base),
         meta=meta, bias_hat=bias_hat, bias_std=bias_std,
     )  # fmt: skip
 

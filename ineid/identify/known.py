@@ -39,6 +39,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from ineid.errors import IdentificationError
+from ineid.identify.extras import unknown_rows
 from ineid.identify.systems import parameter_scales
 
 ALL_KNOWN = "*"
@@ -108,7 +109,7 @@ def known_covariance(model, base, q, qd, qdd, channels, axis_weights: np.ndarray
         sl = slice(i, i + per)
         parts_u, parts_k = [], []
         for sq, sqd, sqdd in segments:  # each recording centred on its own (its own offsets)
-            rows_u, rows_k = channels.rows_split(model, sq[sl], sqd[sl], sqdd[sl])  # (c, F, A, p)
+            rows_u, rows_k = unknown_rows(model, sq[sl], sqd[sl], sqdd[sl], channels)  # (c, F, A, p [+ n_extra])
             w_b = rows_u[..., base.base_index] * scales  # scaled columns: the QR stays well conditioned
             rows_k = rows_k * std_k
             if centre:

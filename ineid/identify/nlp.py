@@ -33,6 +33,12 @@ them and where IPOPT converges slowly.
   [0, 0, 0, 1]]`` (Rucker & Wensing 2022), in units scaled by the link's mass and length,
   so every estimate has a positive definite pseudo-inertia: a rigid body, even with noise.
 
+With the channels' extra kept columns (:mod:`ineid.identify.extras`) the unknowns are
+``[x_links, x_e]`` and ``theta(x) = [theta_links(x_links), s_e x_e]`` (``s_e`` the extras'
+scales): the extra parameters are free linear unknowns in both methods, except that
+``consistent`` bounds the dissipative ones (friction, armature) below by 0
+(:func:`ineid.identify.extras.nonnegative`).
+
 Exact first and second derivatives come from CasADi; IPOPT's status is reported per
 configuration, and a failed solve never passes as an estimate.
 
@@ -49,6 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.errors import CodegenError, IdentificationError
+from ineid.identify.extras import nonnegative
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.linear import BaseFit, Estimate, standard_std
 from ineid.params import N_PARAMS_PER_LINK, inertial_from_theta, pseudo_inertia
@@ -237,10 +244,12 @@ class NlpSolver:
         prior = np.asarray(theta_prior, dtype=np.float64)
         if prior.shape != (base.n_params,) or not np.all(np.isfinite(prior)):
             raise ValueError(f"theta_prior must be {base.n_params} finite numbers, got shape {prior.shape}")
-        n, r = base.n_params, base.rank
-        mass_s, length = _link_lengths(base.scales)
+        n, r, n_lp = base.n_params, base.rank, base.n_link_params
+        mass_s, length = _link_lengths(base.scales[:n_lp])
         x = ca.SX.sym("x", n)
-        theta = (_theta_nonlinear if method == "nonlinear" else _theta_log_cholesky)(x, mass_s, length)
+        theta = (_theta_nonlinear if method == "nonlinear" else _theta_log_cholesky)(x[:n_lp], mass_s, length)
+        if base.n_extra:  # the extra parameters: free, in units of their scales
+            theta = ca.vertcat(theta, x[n_lp:] * ca.DM(base.scales[n_lp:]))
         rp = ca.SX.sym("R", r, r)
         zp = ca.SX.sym("z", r)
         inv_s2 = ca.SX.sym("inv_sigma2")
@@ -255,8 +264,8 @@ class NlpSolver:
                 f += pull * ca.sumsqr(null_part)
         if method == "consistent" and entropic > 0:
             try:
-                jp_inv = [np.linalg.inv(j) for j in scaled_pseudo_inertia(prior, base.scales)]
-                log_cholesky_start(prior, base.scales)
+                jp_inv = [np.linalg.inv(j) for j in scaled_pseudo_inertia(prior[:n_lp], base.scales[:n_lp])]
+                log_cholesky_start(prior[:n_lp], base.scales[:n_lp])
             except (np.linalg.LinAlgError, IdentificationError):
                 raise IdentificationError(
                     "the prior of the consistent solver is not a rigid body; give physically valid prior parameters",
@@ -288,12 +297,17 @@ class NlpSolver:
         return cls(method, base, prior, pull, entropic, solver, theta_fn)
 
     def start(self, theta: np.ndarray) -> np.ndarray:
-        return (nonlinear_start if self.method == "nonlinear" else log_cholesky_start)(theta, self.base.scales)
+        n_lp, scales = self.base.n_link_params, self.base.scales
+        x = (nonlinear_start if self.method == "nonlinear" else log_cholesky_start)(theta[:n_lp], scales[:n_lp])
+        return np.concatenate([x, np.asarray(theta[n_lp:], dtype=np.float64) / scales[n_lp:]]) if self.base.n_extra else x
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lb, ub = np.full(self.n_params, -np.inf), np.full(self.n_params, np.inf)
+        n_lp = self.base.n_link_params
         if self.method == "nonlinear":
-            lb[0::10] = 1e-6  # positive mass, in units of the link's mass scale
+            lb[0:n_lp:10] = 1e-6  # positive mass, in units of the link's mass scale
+        elif self.base.n_extra:  # dissipative friction and armature are >= 0
+            lb[n_lp:][nonnegative(self.base.param_names[n_lp:])] = 0.0
         return lb, ub
 
     def solve_one(
@@ -307,7 +321,10 @@ class NlpSolver:
         sol = self.solver(x0=x0, p=p, lbx=lb, ubx=ub, lbg=0, ubg=0)
         stats = self.solver.stats()
         status = str(stats.get("return_status", "unknown"))
-        theta = np.array(self.theta_fn(sol["x"])).ravel()
+        x = sol["x"]
+        if self.base.n_extra:  # IPOPT relaxes bounds by ~1e-8: friction and armature exactly >= 0
+            x = np.clip(np.array(x).ravel(), lb, ub)
+        theta = np.array(self.theta_fn(x)).ravel()
         ok = status in ACCEPTED and bool(np.all(np.isfinite(theta)))
         return theta, ok, status, int(stats.get("iter_count", -1))
 

@@ -55,7 +55,7 @@ def estimated_total_mass(res, model) -> np.ndarray:
     plus the known links' CAD masses.
     """
     known = float(np.sum(np.asarray(model.theta_cad, dtype=np.float64)[model.known_index][0::10]))
-    theta = np.asarray(res.theta_hat, dtype=np.float64)
+    theta = np.asarray(res.theta_links, dtype=np.float64)  # without the extra parameters (friction, ...)
     total = theta[:, 0::10].sum(axis=1) + known
     return np.where(np.asarray(res.success, dtype=bool), total, np.nan)
 

@@ -246,6 +246,9 @@ class _Reader:
             raise self.damaged("base_index points outside the parameters")
         null = self.array("null_basis", (p, p - nb))
         dep = np.array([j for j in range(p) if j not in set(base_index.tolist())], dtype=np.int64)
+        n_links = len(self.texts("unknown_links"))
+        if not 0 <= p - 10 * n_links:
+            raise self.damaged(f"{p} parameters for {n_links} unknown links")
         base = BaseParameters(
             param_names=names,
             base_index=base_index,
@@ -256,6 +259,7 @@ class _Reader:
             identifiable=~np.any(np.abs(null) > 0, axis=1),
             names=base_names,
             scales=self.array("param_scales", (p,)),
+            n_extra=p - 10 * n_links,  # the channels' extra parameters after the links' (older files: none)
         )
         prior_shape = (n, p) if "theta_prior" in self.f and self.f["theta_prior"].ndim == 2 else (p,)
         gravity = np.asarray(self.attr("gravity"))

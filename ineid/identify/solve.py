@@ -25,9 +25,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ineid.cache import enable_compilation_cache
-from ineid.channels import BaseWrench, ChannelSet
+from ineid.channels import ChannelSet
 from ineid.errors import IdentificationError
-from ineid.identify.fused import check_no_extra_columns, information_blocks
+from ineid.identify.choose import actuation_requested, check_actuation, solve_channels
+from ineid.identify.extras import prior_with_extras
+from ineid.identify.fused import information_blocks
 from ineid.identify.identifiability import BaseParameters, base_parameters
 from ineid.identify.linear import WEIGHT_MODES, linear_estimate, linear_theta, with_exact_rss
 from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL
@@ -102,6 +104,18 @@ class SolveSettings:
             (:mod:`ineid.identify.known`: std ``fraction * max(|theta_cad|, scale)`` per
             parameter) added to the reported covariance; link ``"*"`` for every known link.
             Empty: the CAD values are taken as exact.
+        use: the dataset's channels fitted, by key or kind (``("wrench",)``, ``("torque",)``,
+            ``("wrench", "torque")``; :mod:`ineid.identify.choose`); None: every channel it has.
+        friction: the joint torques' friction model, any of ``"viscous"``, ``"coulomb"``;
+            ``coulomb_zone`` (rad/s) smooths ``sign(qd)`` into ``tanh(qd / zone)``;
+            ``asymmetric_friction``: one coefficient per direction. ``armature``: rotor inertia
+            ``Ia qdd``; ``torque_offset``: a constant torque per joint. Each adds extra kept
+            columns to the joint-torque channels (``<joint>.fv``, ...), identified with the links'
+            parameters and recorded after them (:mod:`ineid.identify.extras`); refused without a
+            joint-torque channel among those fitted.
+        two_step: FloBaRoID's two steps (:mod:`ineid.identify.two_step`): the links from the
+            wrench alone, then the joint torques' extra parameters from their residual with the
+            links fixed; needs both channels.
     """
 
     method: str = "linear"
@@ -116,6 +130,13 @@ class SolveSettings:
     bias: str = "none"
     run: str | None = None
     known_uncertainty: tuple[tuple[str, float], ...] = ()
+    use: tuple[str, ...] | None = None
+    friction: tuple[str, ...] = ()
+    coulomb_zone: float = 0.0
+    asymmetric_friction: bool = False
+    armature: bool = False
+    torque_offset: bool = False
+    two_step: bool = False
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -145,11 +166,20 @@ class SolveSettings:
                 raise ValueError(f"known_uncertainty of {link!r} must be a fraction >= 0, got {f}")
         if pairs and self.method == "network":
             raise ValueError("method='network' does not propagate the known links' uncertainty")
+        if self.use is not None:  # lists from a results file: hashable tuples
+            object.__setattr__(self, "use", tuple(str(u) for u in self.use))
+        object.__setattr__(self, "friction", tuple(str(f) for f in self.friction))
+        check_actuation(self)
+        if self.method == "network" and (actuation_requested(self) or self.two_step):
+            raise ValueError("method='network' predicts the links from the channels it was trained on; "
+                             "leave the friction, armature, torque-offset and two-step options out")
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["axis_sigma"] = None if self.axis_sigma is None else list(self.axis_sigma)
         d["known_uncertainty"] = [list(p) for p in self.known_uncertainty]
+        d["use"] = None if self.use is None else list(self.use)
+        d["friction"] = list(self.friction)
         return d
 
 
@@ -199,7 +229,23 @@ class SolveResults:
 
     @property
     def base_true(self) -> np.ndarray | None:
-        return None if self.theta_true is None else self.theta_true @ self.base.B.T
+        """``B theta_true``; NaN in the base parameters that involve an extra parameter whose truth is unknown."""
+        if self.theta_true is None:
+            return None
+        unknown = np.isnan(self.theta_true)
+        out = np.nan_to_num(self.theta_true) @ self.base.B.T
+        out[(unknown.astype(np.float64) @ (self.base.B != 0).T.astype(np.float64)) > 0] = np.nan
+        return out
+
+    @property
+    def n_extra(self) -> int:
+        """The channels' extra parameters among :attr:`param_names` (the last ones; :mod:`ineid.identify.extras`)."""
+        return self.base.n_extra
+
+    @property
+    def theta_links(self) -> np.ndarray:
+        """(C, 10 n_u) the unknown links' estimates: :attr:`theta_hat` without the extra parameters."""
+        return self.theta_hat[:, : self.theta_hat.shape[1] - self.n_extra]
 
     @property
     def n(self) -> int:
@@ -245,26 +291,6 @@ def _axis_sigma(ds, settings: SolveSettings, channels: ChannelSet | None = None,
             status="no_noise_levels",
         )
     return recorded
-
-
-def solve_channels(ds, settings: SolveSettings, model) -> ChannelSet:
-    """The channels ``solve_dataset`` fits: the dataset's, each with offsets when ``settings.bias == "estimate"``.
-
-    Raises:
-        IdentificationError: channels this ineid cannot fit with ``settings`` (extra kept
-            columns; ``casadi-c`` with anything but one base wrench in the base frame).
-    """
-    channels = ds.meta.channels.with_offsets(settings.bias == "estimate")
-    check_no_extra_columns(channels, model)
-    if settings.backend == "casadi-c":
-        (first, *rest) = channels
-        if rest or not isinstance(first, BaseWrench):
-            raise IdentificationError(f"backend 'casadi-c' fits one base wrench; this dataset measures "
-                                      f"{channels.describe()}: use backend 'jax' or 'casadi'", status="unsupported")
-        if first.transform() is not None:
-            raise IdentificationError("backend 'casadi-c' fits in the base frame only; this dataset's wrench is in a "
-                                      "sensor frame: use backend 'jax' or 'casadi'", status="unsupported")
-    return channels
 
 
 SolveMethod = Callable[..., "SolveResults"]
@@ -313,11 +339,17 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
     if settings.method not in BUILTIN_METHODS:  # a trained run as the solver (registered by ineid.learn)
         return registered_method(settings.method)(ds, settings, model, progress)
     model = model or ds.model()
+    if settings.two_step:  # the links from the wrench, then the torques' extras (ineid.identify.two_step)
+        from ineid.identify.two_step import second_step, wrench_settings  # noqa: PLC0415
+
+        t_start = time.perf_counter()
+        first = solve_dataset(ds, wrench_settings(ds, settings, model), model, progress)
+        return dataset_results(ds, settings, t_start=t_start, **second_step(first, ds, settings, model))
     with_bias = settings.bias == "estimate"
     channels = solve_channels(ds, settings, model)
     n_axes = channels.n_axes(model)
     base = base_parameters(model, bias=with_bias, channels=channels)
-    prior = np.asarray(model.theta_cad[model.unknown_index], dtype=np.float64)
+    prior = prior_with_extras(model, channels)  # [theta_cad_u, 0 for each extra parameter]
     n_offsets = int(channels.offset_mask(model).sum())
     n_fit, n_val = _frame_split(ds.n_frames, settings.frames, base.rank + n_offsets, n_axes)
     axis_sigma = _axis_sigma(ds, settings, channels, model)
@@ -357,7 +389,7 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
     if settings.method == "linear":
         est = linear_estimate(fit, base, prior)
     else:
-        start = prior if settings.start == "prior" else physical_start(theta_lin, prior, base.scales)
+        start = prior if settings.start == "prior" else physical_start(theta_lin, prior, base.scales, base.n_extra)
         est, nlp_seconds = _run_nlp(fit, base, settings, prior, rms, start, progress)
         seconds = seconds + nlp_seconds
         sums = estimate_residual_sums(model, ds, n_fit, n_val, est.theta, channels, offsets)
@@ -377,7 +409,7 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         seconds=seconds,
         bias_hat=bias_hat,
         bias_std=bias_std,
-        payload=payload_section(model, base, est.theta, est.fit.cov_beta, est.success),
+        payload=payload_section(model, base, est.theta[:, :base.n_link_params], est.fit.cov_beta, est.success),
     )  # fmt: skip
 
 
@@ -406,10 +438,24 @@ def dataset_results(ds, settings: SolveSettings, base: BaseParameters, theta_pri
         n_frames_fit=n_fit,
         n_frames_validation=n_val,
         theta_prior=theta_prior,
-        theta_true=None if ds.theta_unknown is None else np.asarray(ds.theta_unknown),
+        theta_true=truth_with_extras(ds, base),
         meta=results_meta(ds, time.perf_counter() - t_start, channels, model),
         **estimates,
     )
+
+
+def truth_with_extras(ds, base: BaseParameters) -> np.ndarray | None:
+    """The true ``[theta_u, x]`` of synthetic data (C, 10 n_u + n_extra): the links' from the dataset, the extra
+    parameters' from its ``extra_truth`` record (NaN where it has none); None without the links' truth."""
+    if ds.theta_unknown is None:
+        return None
+    theta = np.asarray(ds.theta_unknown, dtype=np.float64)
+    if not base.n_extra:
+        return theta
+    truth = getattr(ds.meta, "extra_truth", None) or {}
+    names = base.param_names[base.n_link_params:]
+    extra = np.array([float(truth.get(n, np.nan)) for n in names])
+    return np.concatenate([theta, np.broadcast_to(extra, (len(theta), len(names)))], axis=1)
 
 
 def results_meta(ds, total_seconds: float, channels: ChannelSet | None = None, model=None) -> dict:
@@ -432,66 +478,3 @@ def results_meta(ds, total_seconds: float, channels: ChannelSet | None = None, m
         "units": list(channels.units(names)),
         "total_seconds": total_seconds,
     }
-
-
-def identify_frames(
-    model,
-    q,
-    qd,
-    qdd,
-    wrench,
-    method: str = "linear",
-    weights: str = "estimate",
-    axis_sigma=None,
-    start: str = "prior",
-    bias: str = "none",
-    sensor_pose=None,
-) -> SolveResults:
-    """Identify the unknown links from one set of frames (a recording); all frames are fitted.
-
-    Args:
-        model: the :class:`ineid.RobotModel` (unknown links, gravity, CAD prior).
-        q, qd, qdd: (F, n_dof); wrench: (F, 6), the sensor reading in ineid's convention.
-        method, weights, axis_sigma, start, bias: as in :class:`SolveSettings`.
-        sensor_pose: the :class:`ineid.channels.SensorPose` the wrench is read in (None: the base frame).
-
-    Returns:
-        One-row :class:`SolveResults` (``theta_hat[0]``, ``theta_std[0]``, ``base_hat[0]``, ...).
-
-    Raises:
-        IdentificationError: too few frames, frames that do not determine the base
-            parameters (with what is missing), or an IPOPT failure (``.status`` holds
-            IPOPT's return status).
-    """
-    from ineid.data.schema import Dataset, DatasetMeta  # noqa: PLC0415
-    from ineid.identify.identifiability import analyze_frames  # noqa: PLC0415
-
-    arrays = [np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench)]
-    for label, a, width in zip(("q", "qd", "qdd", "wrench"), arrays, (model.n_dof,) * 3 + (6,), strict=True):
-        if a.ndim != 2 or a.shape[1] != width or len(a) != len(arrays[0]):
-            raise ValueError(f"{label} must have shape (n_frames, {width}), got {a.shape}")
-        if not np.all(np.isfinite(a)):
-            raise IdentificationError(f"{label} holds NaN or infinite values; drop or repair those frames",
-                                      status="non_finite")
-    base = base_parameters(model, bias=bias == "estimate")
-    check_frames(len(arrays[0]), base.rank + 6 * (bias == "estimate"))
-    analysis = analyze_frames(model, *arrays[:3], base, bias=bias == "estimate")
-    if not analysis.ok:
-        raise IdentificationError(analysis.problem(), status="rank_deficient")
-    meta = DatasetMeta.for_model(model, source="recording",
-                                 sensor=None if sensor_pose is None else sensor_pose.to_dict())
-    ds = Dataset(meta, *(a[None] for a in arrays), theta_known=model.theta_cad[model.known_index])
-    res = solve_dataset(
-        ds,
-        SolveSettings(method=method, frames=len(arrays[0]), weights=weights,
-                      axis_sigma=None if axis_sigma is None else tuple(axis_sigma), start=start, bias=bias),
-        model=model,
-    )  # fmt: skip
-    if not res.success[0]:
-        raise IdentificationError(
-            f"the {method} solver failed ({res.status[0]}); try start='linear', more frames, or the linear method",
-            status=str(res.status[0]),
-        )
-    return res
-
-

@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from ineid.channels import ChannelSet
+from ineid.identify.extras import split
 from ineid.identify.fused import information_blocks, residual_sums
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.linear import BaseFit, Estimate, axis_weights, fit_base, fit_base_blocks, fit_base_casadi
@@ -67,17 +68,28 @@ def _concat_fits(fits: list[BaseFit]) -> BaseFit:
     return BaseFit(dof=fits[0].dof, **cat)
 
 
+def _links_and_extra(model, theta_unknown, channels: ChannelSet) -> tuple[np.ndarray, np.ndarray]:
+    """``(theta_u, x)`` of estimates (NaN as zeros): ``[theta_u, x]`` split, or links alone (``x`` empty) when
+    they hold no extra parameters (a solver that does not fit them, such as a trained network)."""
+    theta = np.nan_to_num(theta_unknown)
+    n_extra = channels.n_extra(model)
+    return split(theta, n_extra if theta.shape[-1] == len(model.unknown_index) + n_extra else 0)
+
+
 def estimate_residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.ndarray,
                            channels: ChannelSet | None = None, offsets: Offsets | None = None):
     """:func:`ineid.identify.fused.residual_sums` of the unknown links' estimates (NaN rows as zeros) on
     ``channels`` (default: the dataset's), in each channel's own axes, with the offsets
-    ``b = ybar - Wbar theta`` that go with them."""
+    ``b = ybar - Wbar theta`` that go with them. With extra kept columns ``theta_unknown`` is
+    ``[theta_u, x]`` (C, 10 n_u + n_extra) and the prediction ``T Phi theta + E x``."""
     channels = ds.meta.channels if channels is None else channels
-    theta = model.full_theta(np.nan_to_num(theta_unknown), ds.theta_known)
+    links, extra = _links_and_extra(model, theta_unknown, channels)
+    theta = model.full_theta(links, ds.theta_known)
     bias = None if offsets is None else np.nan_to_num(offsets.bias(theta_unknown))
     frames = slice(0, n_fit + n_val)
     return residual_sums(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames],
-                         ds.measured(channels)[:, frames], theta, n_fit, bias, channels)
+                         ds.measured(channels)[:, frames], theta, n_fit, bias, channels,
+                         extra if extra.shape[-1] else None)
 
 
 def residual_summary(sums, n_fit: int, n_val: int, theta_unknown: np.ndarray):
@@ -183,16 +195,22 @@ def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress, channe
     return fits, rms, seconds, offsets
 
 
-def physical_start(theta_lin: np.ndarray, prior: np.ndarray, scales: np.ndarray) -> np.ndarray:
+def physical_start(theta_lin: np.ndarray, prior: np.ndarray, scales: np.ndarray, n_extra: int = 0) -> np.ndarray:
     """Linear estimates as IPOPT starts, moved towards the prior until they are rigid bodies.
 
     Per configuration, ``prior + t (theta_lin - prior)`` with the largest ``t`` in
     ``1, 1/2, ..., 1/64`` whose links all have a positive definite pseudo-inertia, in each
     link's mass and length units (smallest eigenvalue at least 1e-4 of the largest);
-    the prior where none does (it must be physical).
+    the prior where none does (it must be physical). The last ``n_extra`` entries (the
+    channels' extra parameters) start at the linear estimate (the solver clips them to their bounds).
     """
     from ineid.identify.nlp import scaled_pseudo_inertia  # noqa: PLC0415
 
+    if n_extra:
+        n = np.shape(theta_lin)[-1] - n_extra
+        links = physical_start(np.asarray(theta_lin)[..., :n], np.asarray(prior)[..., :n], np.asarray(scales)[:n])
+        extra = np.where(np.isfinite(theta_lin[..., n:]), theta_lin[..., n:], np.asarray(prior)[..., n:])
+        return np.concatenate([links, extra], axis=-1)
     lin = np.where(np.isfinite(theta_lin), theta_lin, prior)
     c = len(lin)
     start = np.broadcast_to(prior, lin.shape).copy()
@@ -291,14 +309,17 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
 
 def predicted_wrench(model, ds, theta_u, frames=slice(None), bias=None,
                      channels: ChannelSet | None = None) -> np.ndarray:
-    """What the estimates predict the sensors read: ``T Phi theta + b`` (C, F, A) on ``frames`` of ``ds``.
+    """What the estimates predict the sensors read: ``T Phi theta + E x + b`` (C, F, A) on ``frames`` of ``ds``.
 
     Args:
-        theta_u: (C, 10 n_u) the unknown links' estimates (the known links' come from ``ds``).
+        theta_u: (C, 10 n_u) the unknown links' estimates (the known links' come from ``ds``); with
+            extra kept columns ``[theta_u, x]`` (C, 10 n_u + n_extra).
         bias: (C, A) estimated offsets, or None.
         channels: the channels predicted (default: the dataset's; the base wrench in its sensor's frame).
     """
     channels = ds.meta.channels if channels is None else channels
-    theta = model.full_theta(np.nan_to_num(theta_u), ds.theta_known)
-    w = predict_wrench(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], theta, channels)
+    links, extra = _links_and_extra(model, theta_u, channels)
+    theta = model.full_theta(links, ds.theta_known)
+    w = predict_wrench(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], theta, channels,
+                       extra if extra.shape[-1] else None)
     return w if bias is None else w + np.nan_to_num(bias)[:, None, :]

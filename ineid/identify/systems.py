@@ -9,7 +9,7 @@ unknown and known links' columns, so
     y = [y_1 - R_k(s_1) theta_k; ...]                 (AF,)
 
 with rows in frame-major order (frame 1's axes, ``fx..mz`` for the base wrench, then frame
-2's, ...) and the channels' extra kept columns ``E`` last (none today: zero columns). Rows
+2's, ...) and the channels' extra kept columns ``E`` last (:mod:`ineid.identify.extras`; zero columns without). Rows
 come from :meth:`ineid.channels.ChannelSet.rows_split` (the base wrench: the generated JAX
 code through :meth:`ineid.RobotModel.regressor_split`, compiled once, chunked); the CasADi
 path (:func:`stack_casadi`) evaluates the generated CasADi functions instead, as an
@@ -94,12 +94,18 @@ def stack(model, q, qd, qdd, wrench, theta_known, channels: ChannelSet | None = 
     return w, y
 
 
-def predict_wrench(model, q, qd, qdd, theta, channels: ChannelSet | None = None) -> np.ndarray:
-    """``T Phi(q, qd, qdd) @ theta`` per configuration, the channels stacked: (C, F, n_dof) x3, theta
-    (C, 10 n_links) -> (C, F, A) (each channel's :meth:`ineid.channels.Channel.predict`; None: the base wrench)."""
+def predict_wrench(model, q, qd, qdd, theta, channels: ChannelSet | None = None,
+                   extra: np.ndarray | None = None) -> np.ndarray:
+    """``T Phi(q, qd, qdd) @ theta + E(q, qd, qdd) @ x`` per configuration, the channels stacked: (C, F, n_dof) x3,
+    theta (C, 10 n_links), extra ``x`` (C, n_extra) or None (zero) -> (C, F, A) (each channel's
+    :meth:`ineid.channels.Channel.predict`, plus its extra kept columns; None: the base wrench)."""
     channels = BASE_WRENCH if channels is None else channels
     theta = np.asarray(theta, dtype=np.float64)
-    return channels.predict(model, q, qd, qdd, theta[:, None, :])
+    out = channels.predict(model, q, qd, qdd, theta[:, None, :])
+    if extra is not None and channels.n_extra(model):
+        e = channels.extra_rows(model, q, qd, qdd)  # (C, F, A, n_e)
+        out = out + np.einsum("cfae,ce->cfa", e, np.asarray(extra, dtype=np.float64))
+    return out
 
 
 def stack_casadi(model, q, qd, qdd, wrench, theta_known,

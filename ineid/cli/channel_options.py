@@ -1,0 +1,105 @@
+"""The options that choose the measurement channels and the joint torques' actuation models.
+
+Shared by ``ineid solve`` and ``ineid identifiability`` (defined once, here):
+
+=========================  ================================================================
+``--use NAMES``            the channels fitted, comma-separated: ``wrench``, ``torque`` (or a
+                           channel's key, ``tau``); default every channel the file has
+``--friction MODEL``       ``none``, ``viscous``, ``coulomb`` or ``viscous,coulomb``
+``--coulomb-zone RAD/S``   smooth Coulomb friction: ``tanh(qd / zone)`` instead of ``sign(qd)``
+``--asymmetric-friction``  one friction coefficient per direction of motion
+``--armature``             rotor inertia ``Ia qdd`` per joint
+``--torque-offset``        a constant torque per joint, identified with its std
+``--two-step``             (``solve``) the links from the wrench, then the friction from the
+                           joint torques' residual (FloBaRoID)
+=========================  ================================================================
+
+They map onto :class:`ineid.identify.solve.SolveSettings` (``use``, ``friction``, ...), which
+sets them on the dataset's joint-torque channels (:mod:`ineid.identify.choose`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import click
+
+FRICTION_CHOICES = ("none", "viscous", "coulomb", "viscous,coulomb")
+
+
+def _names(ctx, param, value: str | None) -> tuple[str, ...] | None:
+    if value is None:
+        return None
+    names = tuple(v.strip() for v in value.split(",") if v.strip())
+    if not names:
+        raise click.BadParameter("name at least one channel (wrench, torque)", param_hint="'--use'")
+    return names
+
+
+def _friction(ctx, param, value: str) -> tuple[str, ...]:
+    terms = tuple(v.strip() for v in value.split(",") if v.strip())
+    if terms in ((), ("none",)):
+        return ()
+    if set(terms) - {"viscous", "coulomb"} or len(set(terms)) != len(terms):
+        raise click.BadParameter(f"{value!r} is not one of {', '.join(FRICTION_CHOICES)}", param_hint="'--friction'")
+    return tuple(t for t in ("viscous", "coulomb") if t in terms)
+
+
+def channel_options(two_step: bool = False) -> Callable:
+    """Decorator: ``--use`` and the actuation options (``--two-step`` too when ``two_step``)."""
+
+    def decorate(f: Callable) -> Callable:
+        if two_step:
+            f = click.option("--two-step", "two_step", is_flag=True,
+                             help="FloBaRoID's two steps: the links from the wrench alone, then the friction "
+                                  "(and armature, offsets) from the joint torques' residual; needs both.")(f)
+        for option in reversed((
+            click.option("--use", "use", default=None, metavar="NAMES", callback=_names,
+                         help="Channels to fit, comma-separated: wrench, torque (or a channel's key). "
+                              "Default: every channel the file has."),
+            click.option("--friction", "friction", default="none", show_default=True, metavar="MODEL",
+                         callback=_friction,
+                         help="Joint friction of the joint torques: none, viscous, coulomb or viscous,coulomb "
+                              "(<joint>.fv, <joint>.fc identified with the links)."),
+            click.option("--coulomb-zone", "coulomb_zone", type=click.FloatRange(min=0), default=0.0,
+                         metavar="RAD_PER_S",
+                         help="Smooth Coulomb friction: tanh(qd / zone) instead of sign(qd) (0: sign)."),
+            click.option("--asymmetric-friction", "asymmetric_friction", is_flag=True,
+                         help="One friction coefficient per direction of motion (<joint>.fv+, <joint>.fv-, ...)."),
+            click.option("--armature", is_flag=True, help="Rotor inertia Ia * qdd per joint (<joint>.Ia)."),
+            click.option("--torque-offset", "torque_offset", is_flag=True,
+                         help="A constant torque per joint (<joint>.offset), identified with its std."),
+        )):
+            f = option(f)
+        return f
+
+    return decorate
+
+
+def settings_flags(flags: dict) -> dict:
+    """The :class:`ineid.identify.solve.SolveSettings` arguments of the options' values (by the option names)."""
+    keys = ("use", "friction", "coulomb_zone", "asymmetric_friction", "armature", "torque_offset", "two_step")
+    return {k: flags[k] for k in keys if k in flags}
+
+
+def given_flags(ctx: click.Context, flags: dict) -> list[str]:
+    """The actuation options given on the command line (``--friction``, ...), as typed."""
+    return [f"--{k.replace('_', '-')}" for k in flags if k != "use"
+            and ctx.get_parameter_source(k) is click.core.ParameterSource.COMMANDLINE]
+
+
+def chosen_channels(channels, flags: dict):
+    """The channels ``identifiability`` analyses and ``excite`` designs for: ``channels`` (a dataset's, or None:
+    those named by --use) with the actuation options; None (the base wrench, as always) when no option is given."""
+    from ineid.identify import SolveSettings  # noqa: PLC0415
+    from ineid.identify.choose import channels_named, select_channels, with_actuation  # noqa: PLC0415
+
+    try:
+        settings = SolveSettings(**settings_flags(flags))
+    except ValueError as e:
+        raise click.UsageError(str(e)) from None
+    if channels is None:
+        if settings.use is None and settings == SolveSettings():
+            return None
+        channels = channels_named(settings.use)
+    return with_actuation(select_channels(channels, settings.use), settings)

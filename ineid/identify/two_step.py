@@ -1,0 +1,194 @@
+"""FloBaRoID's two steps: the links from the wrench alone, then the joint torques' extra parameters.
+
+``ineid solve --two-step`` (``SolveSettings(two_step=True)``) with a wrench and a joint-torque
+channel, and an actuation model (friction, armature, torque offsets):
+
+1. the links' parameters ``theta_u`` from the wrench channels alone, by the chosen method
+   (:func:`ineid.identify.solve.solve_dataset` with the torques left out): the base wrench
+   sees no joint friction, so no friction model can bias them;
+2. the joint torques' extra parameters ``x`` from their residual with ``theta`` fixed,
+
+       tau_k - T Phi(s_k) theta_hat = E(s_k) x + b + e_k,
+
+   by weighted least squares over the base parameters of ``E`` alone (``linear`` and
+   ``nonlinear``: the extras are linear, so the two agree), or by IPOPT with the dissipative
+   ones bounded below by 0 (``consistent``, :mod:`ineid.identify.extras`); offsets ``b`` by
+   centring when ``bias="estimate"``.
+
+The results hold ``[theta_u, x]`` as a one-step solve does, with block-diagonal base
+parameters (those of step 1, then those of ``E``). The standard deviations of ``x`` are
+conditional on ``theta_hat`` (its uncertainty is not propagated into step 2); the residual
+RMS runs over every channel's axes at the combined estimate.
+
+References:
+    Bethge, Malzahn, Tsagarakis, Caldwell (2017), FloBaRoID -- a software package for the
+    identification of robotic floating-base dynamics.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from ineid.channels import ChannelSet
+from ineid.errors import IdentificationError
+from ineid.identify.choose import actuation_requested, is_actuated, select_channels, solve_channels
+from ineid.identify.fused import residual_sums
+from ineid.identify.identifiability import (
+    BaseParameters,
+    _offset_mask,
+    _regressor_unknown,
+    base_parameters_from_regressor,
+    centred_regressor,
+    generic_frames,
+    unknown_scales,
+)
+from ineid.identify.linear import fit_base, linear_estimate
+from ineid.identify.nlp import NlpSolver, nlp_estimate
+from ineid.identify.steps import _bias_estimate, _concat_fits, _offset_dof
+from ineid.identify.systems import Offsets, predict_wrench, remove_offsets
+
+CHUNK_ROWS = 20_000_000
+"""Numbers of ``E`` (rows x columns) stacked at a time in step 2 (160 MB)."""
+
+
+def _split_channels(channels: ChannelSet) -> tuple[ChannelSet, ChannelSet]:
+    """``(wrench channels, joint-torque channels)``, or :class:`IdentificationError` when either is missing."""
+    wrench = tuple(c for c in channels if not is_actuated(c))
+    torque = tuple(c for c in channels if is_actuated(c))
+    if not wrench or not torque:
+        raise IdentificationError(
+            f"--two-step fits the links from the wrench, then the joint torques' friction; the channels fitted "
+            f"({', '.join(channels.keys)}) lack {'a wrench' if not wrench else 'joint torques'}: use both "
+            "(--use wrench,torque on a dataset with both) or leave --two-step out", status="two_step_channels")
+    return ChannelSet(wrench), ChannelSet(torque)
+
+
+def _axis_slice(settings, channels: ChannelSet, part: ChannelSet, model) -> tuple[float, ...] | None:
+    """``settings.axis_sigma`` (over ``channels``' stacked axes) at ``part``'s axes."""
+    if settings.axis_sigma is None:
+        return None
+    sigma = np.asarray(settings.axis_sigma, dtype=np.float64)
+    if sigma.shape != (channels.n_axes(model),):
+        raise IdentificationError(f"axis_sigma holds {sigma.size} numbers; the channels measure "
+                                  f"{channels.n_axes(model)} axes: give one per axis", status="bad_noise_levels")
+    parts = channels.split(sigma, model)
+    return tuple(float(v) for c in part for v in parts[c.key])
+
+
+def wrench_settings(ds, settings, model):
+    """Step 1's settings: ``settings`` on the wrench channels alone, without actuation models.
+
+    Raises:
+        IdentificationError: no wrench or no joint-torque channel among those chosen, or no actuation model.
+    """
+    channels = select_channels(ds.meta.channels, settings.use)
+    wrench, _ = _split_channels(channels)
+    if not actuation_requested(settings):
+        raise IdentificationError("--two-step fits the joint torques' friction, armature or offsets after the links: "
+                                  "give at least one (--friction viscous,coulomb, --armature, --torque-offset)",
+                                  status="two_step_nothing")
+    return dataclasses.replace(settings, use=wrench.keys, two_step=False, friction=(), coulomb_zone=0.0,
+                               asymmetric_friction=False, armature=False, torque_offset=False,
+                               axis_sigma=_axis_slice(settings, channels, wrench, model))
+
+
+def stacked_bases(a: BaseParameters, b: BaseParameters) -> BaseParameters:
+    """The base parameters of ``[theta_a, theta_b]`` fitted separately: block-diagonal (``b``'s after ``a``'s)."""
+    n_a = a.n_params
+
+    def block(x, y):
+        out = np.zeros((x.shape[0] + y.shape[0], x.shape[1] + y.shape[1]))
+        out[: x.shape[0], : x.shape[1]], out[x.shape[0]:, x.shape[1]:] = x, y
+        return out
+
+    return BaseParameters(
+        param_names=(*a.param_names, *b.param_names),
+        base_index=np.concatenate([a.base_index, n_a + b.base_index]),
+        dependent_index=np.concatenate([a.dependent_index, n_a + b.dependent_index]),
+        K=block(a.K, b.K), B=block(a.B, b.B), null_basis=block(a.null_basis, b.null_basis),
+        identifiable=np.concatenate([a.identifiable, b.identifiable]),
+        names=(*a.names, *b.names), scales=np.concatenate([a.scales, b.scales]), n_extra=a.n_extra + b.n_extra,
+    )
+
+
+def extra_base_parameters(model, torque: ChannelSet, bias: bool) -> BaseParameters:
+    """The base parameters of the extra kept columns ``E`` of ``torque`` alone (the links known), over generic
+    frames, with the scales of :mod:`ineid.identify.extras`; centred per axis with ``bias``."""
+    q, qd, qdd = generic_frames(model)
+    w = _regressor_unknown(model, q, qd, qdd, torque)
+    scales = unknown_scales(model, w, torque)
+    n_e = torque.n_extra(model)
+    e = w[:, w.shape[1] - n_e:]
+    if bias:
+        e = centred_regressor(e, torque.n_axes(model), _offset_mask(torque, model, True))
+    return base_parameters_from_regressor(e, torque.extra_names(model), scales[len(scales) - n_e:], n_extra=n_e)
+
+
+def second_step(first, ds, settings, model) -> dict:
+    """Step 2 on the results ``first`` of step 1: the keyword arguments of
+    :func:`ineid.identify.solve.dataset_results` for the combined estimate (module doc)."""
+    t0 = time.perf_counter()
+    channels = solve_channels(ds, settings, model)
+    wrench, torque = _split_channels(channels)
+    with_bias = settings.bias == "estimate"
+    n_fit, n_val = first.n_frames_fit, first.n_frames_validation
+    n_axes, n_e = torque.n_axes(model), torque.n_extra(model)
+    base_x = extra_base_parameters(model, torque, with_bias)
+    theta = model.full_theta(np.nan_to_num(first.theta_hat), ds.theta_known)
+    mask = torque.offset_mask(model)
+    lost = mask.astype(np.float64) if with_bias else None
+    axis_sigma = None
+    if settings.weights == "noise":
+        axis_sigma = _axis_slice(settings, channels, torque, model) or torque.noise_std(ds.meta.noise, model)
+        if axis_sigma is None:
+            raise IdentificationError("weights='noise' needs the joint torques' noise per axis: give axis_sigma or "
+                                      "use weights='estimate'", status="no_noise_levels")
+    c = ds.n_configs
+    fits, parts, rms = [], [], np.empty(c)
+    per = max(1, CHUNK_ROWS // max(n_fit * n_axes * max(n_e, 1), 1))
+    for start in range(0, c, per):  # the stacks of E of a chunk of configurations at a time
+        sl = slice(start, min(start + per, c))
+        q, qd, qdd = (a[sl, :n_fit] for a in (ds.q, ds.qd, ds.qdd))
+        resid = ds.measured(torque)[sl, :n_fit] - predict_wrench(model, q, qd, qdd, theta[sl], torque)
+        w = torque.extra_rows(model, q, qd, qdd).reshape(len(q), n_fit * n_axes, n_e)
+        y = resid.reshape(len(q), n_fit * n_axes)
+        if with_bias:
+            w, y, off = remove_offsets(w, y, n_axes, mask)
+            parts.append(off)
+        fits.append(fit_base(w, y, base_x, settings.weights, axis_sigma, n_axes, lost))
+        rms[sl] = np.sqrt(np.mean((y * np.tile(fits[-1].axis_weights, (1, n_fit))) ** 2, axis=1))
+    fit = _concat_fits(fits)
+    offsets = Offsets.concat(parts) if with_bias else None
+    if with_bias:
+        _offset_dof(fit, int(mask.sum()))
+    prior_x = np.zeros(n_e)
+    est = linear_estimate(fit, base_x, prior_x)
+    if settings.method == "consistent":  # friction and armature >= 0
+        solver = NlpSolver.build("consistent", base_x, prior_x, settings.pull, settings.entropic)
+        est = nlp_estimate(fit, solver, rms, np.where(np.isfinite(est.theta), est.theta, 0.0))
+    x = np.nan_to_num(est.theta)
+    bias_hat = bias_std = None
+    if with_bias:
+        b_t, s_t = _bias_estimate(offsets, est, base_x)
+        parts = {**wrench.split(first.bias_hat, model), **torque.split(b_t, model)}
+        stds = {**wrench.split(first.bias_std, model), **torque.split(s_t, model)}
+        bias_hat = np.concatenate([parts[k] for k in channels.keys], axis=1)
+        bias_std = np.concatenate([stds[k] for k in channels.keys], axis=1)
+    frames = slice(0, n_fit + n_val)
+    sums = residual_sums(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], ds.measured(channels)[:, frames],
+                         theta, n_fit, None if bias_hat is None else np.nan_to_num(bias_hat), channels, x)
+    ok = first.success & est.success
+    status = np.where(first.success, np.asarray(est.status, dtype=object), first.status).astype(object)
+    return dict(
+        base=stacked_bases(first.base, base_x), theta_prior=np.concatenate([first.theta_prior, prior_x]), sums=sums,
+        n_fit=n_fit, n_val=n_val, channels=channels, model=model,
+        theta_hat=np.concatenate([first.theta_hat, est.theta], axis=1),
+        theta_std=np.concatenate([first.theta_std, est.theta_std], axis=1),
+        base_hat=np.concatenate([first.base_hat, est.beta], axis=1),
+        base_std=np.concatenate([first.base_std, est.beta_std], axis=1),
+        success=ok, status=status, seconds=first.seconds + (time.perf_counter() - t0) / max(c, 1),
+        bias_hat=bias_hat, bias_std=bias_std, payload=first.payload,
+    )
