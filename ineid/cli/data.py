@@ -23,6 +23,7 @@ from ineid.cli.options import (
     robot_inputs,
     robot_options,
 )
+from ineid.cli.imu_options import check_imu_generate, imu_generate, imu_import, imu_rehearsal
 from ineid.cli.output import ProgressBar, console, plain, print_findings, shown, table
 from ineid.cli.simulation import (
     channels_option,
@@ -89,12 +90,13 @@ def data() -> None:
 @torque_constant_option
 @gear_ratio_option
 @noise_option
+@imu_generate
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
 @click.pass_context
 def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_mode, trajectory, harmonics,
                   base_frequency, mass_band, com_box, inertia_band, rotation, channels, sensor_pose, friction_truth,
-                  torque_constant, gear_ratio, noise, out, overwrite) -> None:
+                  torque_constant, gear_ratio, noise, imus, gyro_bias, encoder_bits, out, overwrite) -> None:
     """Sample a synthetic ground-truth dataset of ROBOT (default sweaty-arm; the paper's: --factorial 100)."""
     from ineid.data import Combination, DatasetSpec, FrameSampling, ParameterSampling, write_dataset  # noqa: PLC0415
 
@@ -121,6 +123,7 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
         raise click.UsageError("force and moment noise is the base wrench's: add it with --channels wrench,torque")
     if sensor_pose is not None and not (channels is None or "wrench" in channels):
         raise click.UsageError("--sensor-pose places the F/T sensor of the wrench channel: add wrench to --channels")
+    check_imu_generate(imus, gyro_bias, encoder_bits, noise, frame_mode)
     prepare_output(out, overwrite, inputs=[*robot_inputs(robot), ("the trajectory file", trajectory)])
     model = robot.load()
     drive_values = drives(channels, torque_constant, gear_ratio, model.n_dof)
@@ -159,6 +162,7 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
             noise=noise_model(noise, model.n_dof, "wrench" if sensor is None else sensor.key),
             channels=simulated_channels(channels, drive_values, sensor),
             extra_truth=simulation_truth(friction_truth, model.joint_names),
+            imu=imu_rehearsal(imus, gyro_bias, encoder_bits, noise, model),
         )
     except ValueError as e:  # a setting the options' own checks let through
         raise click.UsageError(str(e)) from None
@@ -219,14 +223,17 @@ def _delay(ctx, param, value: str) -> float | None:
               help="Unit of the revolute joints' angles (and of measured qd, qdd); deg converts them to rad.")
 @torque_constant_option
 @gear_ratio_option
+@imu_import
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
 @click.pass_context
 def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic, wrench_topic, flip_wrench,
-                wrench_scale, angle_unit, torque_constant, gear_ratio, out, overwrite) -> None:
+                wrench_scale, angle_unit, torque_constant, gear_ratio, imus, imu_topics, imu_delay, imu_noise, out,
+                overwrite) -> None:
     """Import a recording: a CSV (time, q1..qn, [qd1..qn, qdd1..qn,] [tau1..taun,] fx fy fz mx my mz; the wrench
     optional with torques), a ROS 1 .bag, or a ROS 2 bag folder or .mcap (sensor_msgs/JointState with its
-    effort as joint torques, geometry_msgs/WrenchStamped)."""
+    effort as joint torques, geometry_msgs/WrenchStamped). Link IMUs (imu_<NAME>_wx.. columns, sensor_msgs/Imu
+    topics): qd, qdd fused from the encoders and the IMUs (docs/recordings.md)."""
     from ineid.data.recording import ImportSettings, import_recording  # noqa: PLC0415
 
     if delay is None:  # --delay auto: the estimate fits the model; importing it registers it with the import
@@ -234,12 +241,18 @@ def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic,
 
     prepare_output(out, overwrite, inputs=[*folder_inputs(path, "the input recording"), *robot_inputs(robot)])
     model = robot.load()
+    from ineid.data.recording_imu import parse_imu_text  # noqa: PLC0415
+
+    for text in imus:  # a mount that does not parse is said before the file is read
+        parse_imu_text(text, model)
     settings = ImportSettings(sensor_pose=sensor_pose, cutoff=cutoff, rate=rate, delay=delay or 0.0,
                               estimate_delay=delay is None, flip_wrench=flip_wrench, angle_unit=angle_unit,
                               wrench_scale=wrench_scale, torque_constant=torque_constant,
-                              gear_ratio=gear_ratio)  # fmt: skip
+                              gear_ratio=gear_ratio, imus=tuple(imus), imu_delay=imu_delay,
+                              imu_noise=imu_noise)  # fmt: skip
     with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
-        ds, summary = import_recording(path, model, settings, joint_topic, wrench_topic, progress=bar)
+        ds, summary = import_recording(path, model, settings, joint_topic, wrench_topic, progress=bar,
+                                       imu_topics=tuple(imu_topics))
     ds.save(out, overwrite=overwrite)
     click.echo(f"wrote {out}: one recording of {plain(model.name)}")
     for line in summary.lines():

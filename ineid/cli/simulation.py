@@ -18,7 +18,9 @@ NOISE_MAX = 1e6
 """The largest ``--noise`` value (std in N, N*m, rad, rad/s, rad/s^2, or the glitch scale): far above any
 sensor's, and low enough that noisy values, their squares and sums stay finite in float64."""
 NOISE_KEYS = ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "q", "qd", "qdd", "tau", "current", "glitch",
-              "glitch_scale")
+              "glitch_scale", "gyro", "accel", "alpha")
+IMU_NOISE_KEYS = ("gyro", "accel", "alpha")
+"""``--noise`` keys of the link IMUs (``data generate --imu``): rad/s, m/s^2, rad/s^2 at the frames' rate."""
 CHANNEL_NOISE_KEYS = ("tau", "current")
 """``--noise`` keys that are measurement channels' own (their dataset keys): ``tau`` the joint torques,
 ``current`` the motor currents."""
@@ -52,7 +54,7 @@ noise_option = click.option(
     "--noise", default=None, metavar="KEY=STD,...", callback=_parse_noise,
     help="Gaussian noise std: force, moment (or fx..mz) in N, N*m; q, qd, qdd in rad, rad/s, rad/s^2; tau (joint "
          "torques, with --channels ...,torque) in N*m; current (with --channels ...,current) in A; glitch=RATE: that share of frames gets glitch_scale "
-         "(default 20) times the force noise. Each at most 1e6.",
+         "(default 20) times the force noise; gyro, accel, alpha (with --imu) in rad/s, m/s^2, rad/s^2. Each at most 1e6.",
 )  # fmt: skip
 
 

@@ -15,6 +15,14 @@ from the bag itself.
   several. Its ``header.frame_id`` is recorded (and names the sensor frame when the URDF
   has that link). A bag without one is read when its joint states carry efforts (a lab
   with joint torque sensors only).
+* Link IMUs: each ``sensor_msgs/Imu`` topic of ``imu_topics``, on its own clock: its
+  ``angular_velocity`` (a gyroscope, rad/s) and ``linear_acceleration`` (an accelerometer's
+  specific force, m/s^2), both in the message's frame, each left out when its covariance's first
+  element is -1 (ROS's "not measured"); the IMU's name is the messages' ``header.frame_id`` (a
+  link, a URDF frame on a link, or the name of an ``--imu NAME=LINK:pose``). Angular acceleration
+  (the paper's sensor; ROS has no message for it) is a ``geometry_msgs/Vector3Stamped`` on
+  ``<imu topic>/angular_acceleration`` (rad/s^2, sensor frame), read as a stream of its own clock
+  when the bag has that topic.
 * Time: each message's ``header.stamp`` (the measurement time); a zero stamp falls back
   to the time the bag logged the message. Times are seconds from the earliest message of
   the two topics; the absolute start is recorded in the dataset's origin.
@@ -33,6 +41,10 @@ from ineid.errors import DatasetError
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 WRENCH_STAMPED = "geometry_msgs/msg/WrenchStamped"
+IMU = "sensor_msgs/msg/Imu"
+VECTOR3_STAMPED = "geometry_msgs/msg/Vector3Stamped"
+ANGULAR_ACCELERATION = "/angular_acceleration"
+"""The suffix of an IMU topic's angular-acceleration topic (``geometry_msgs/Vector3Stamped``, rad/s^2)."""
 
 
 def bag_kind(path: Path) -> str:
@@ -130,7 +142,8 @@ def _stamp_ns(msg, log_ns: int) -> int:
 
 
 def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: str = "/joint_states",
-                     wrench_topic: str | None = None, progress: Callable[[int, int], None] | None = None):
+                     wrench_topic: str | None = None, progress: Callable[[int, int], None] | None = None,
+                     imu_topics: Sequence[str] = ()):
     """Read joint angles and the sensor wrench from a ROS bag into :class:`ineid.data.streams.Streams`.
 
     Args:
@@ -139,6 +152,8 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
         joint_topic: the ``sensor_msgs/JointState`` topic.
         wrench_topic: the ``geometry_msgs/WrenchStamped`` topic; None: the only one in the bag.
         progress: ``progress(done, total)`` over messages read.
+        imu_topics: ``sensor_msgs/Imu`` topics of link IMUs (with ``<topic>/angular_acceleration``
+            when the bag has it).
 
     Raises:
         DatasetError: the bag cannot be read; a topic is missing or of another type (the
@@ -175,7 +190,8 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
             raise DatasetError(f"{path}: the bag has no topic {wrench_topic!r}{hint} (topics: {available})")
         if wconns and wconns[0].msgtype != WRENCH_STAMPED:
             raise DatasetError(f"{path}: topic {wrench_topic!r} holds {wconns[0].msgtype}, not {WRENCH_STAMPED}")
-        total = sum(c.msgcount for c in jconns + wconns)
+        iconns, imu_of = _imu_connections(path, by_topic, imu_topics, available)
+        total = sum(c.msgcount for c in jconns + wconns + iconns)
         joint_ids = {c.id for c in jconns}
         tq: list[int] = []
         q: list[np.ndarray] = []
@@ -185,9 +201,15 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
         frame_ids: set[str] = set()
         order_cache: dict[tuple, np.ndarray] = {}
         done = 0
-        for conn, log_ns, raw in messages(jconns + wconns):
+        imu_data: dict[str, tuple[list, list, set]] = {c.topic: ([], [], set()) for c in iconns}
+        for conn, log_ns, raw in messages(jconns + wconns + iconns):
             msg = deserialize(raw, conn.msgtype)
-            if conn.id in joint_ids:
+            if conn.topic in imu_data:
+                stamps, values, frames = imu_data[conn.topic]
+                stamps.append(_stamp_ns(msg, log_ns))
+                frames.add(str(msg.header.frame_id))
+                values.append(_imu_values(msg))
+            elif conn.id in joint_ids:
                 names = tuple(msg.name)
                 idx = order_cache.get(names)
                 if idx is None:
@@ -234,12 +256,15 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
     if len(frame_ids) > 1:
         raise DatasetError(f"{path}: the wrench messages on {wrench_topic} name several frames "
                            f"({', '.join(map(repr, sorted(frame_ids)))}); a recording needs one sensor frame")
-    t0 = min(tq + tw)
+    t0 = min(tq + tw + [v[0][0] for v in imu_data.values() if v[0]])
     frame_id = (frame_ids.pop() or None) if frame_ids else None
     origin = {"format": bag_kind(path), "file": path.name, "joint_topic": joint_topic, "wrench_topic": wrench_topic,
               "joint_messages": len(tq), "wrench_messages": len(w), "start_ns": int(t0), "frame_id": frame_id}
     if effort:
         origin["effort"] = True
+    imus = _imu_streams(path, imu_data, imu_of, t0)
+    if imus:
+        origin["imu_topics"] = {s.where: len(s.time) for s in imus}
     return Streams(
         joint_time=(np.asarray(tq, dtype=np.int64) - t0) * 1e-9,
         q=np.asarray(q, dtype=np.float64).reshape(len(tq), len(joint_names)),
@@ -251,4 +276,82 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
         frame_id=frame_id,
         origin=origin,
         tau=np.asarray(effort, dtype=np.float64).reshape(len(tq), len(joint_names)) if effort else None,
+        imus=imus,
     )  # fmt: skip
+
+
+def _imu_connections(path: Path, by_topic: dict, imu_topics: Sequence[str], available: str) -> tuple[list, dict]:
+    """The connections of the IMU topics (and their angular-acceleration topics), and each one's IMU topic."""
+    conns, imu_of = [], {}
+    imus = sorted(t for t, cs in by_topic.items() if cs[0].msgtype == IMU)
+    for topic in imu_topics:
+        cs = by_topic.get(topic)
+        if not cs:
+            hint = f"; its Imu topics: {', '.join(imus)}" if imus else ""
+            raise DatasetError(f"{path}: the bag has no topic {topic!r}{hint} (topics: {available})")
+        if cs[0].msgtype != IMU:
+            raise DatasetError(f"{path}: topic {topic!r} holds {cs[0].msgtype}, not {IMU}")
+        conns += cs
+        imu_of[topic] = topic
+        alpha = by_topic.get(topic + ANGULAR_ACCELERATION)
+        if alpha:
+            if alpha[0].msgtype != VECTOR3_STAMPED:
+                raise DatasetError(f"{path}: topic {topic + ANGULAR_ACCELERATION!r} holds {alpha[0].msgtype}; an IMU's "
+                                   f"angular acceleration is a {VECTOR3_STAMPED} (rad/s^2, sensor frame)")
+            conns += alpha
+            imu_of[topic + ANGULAR_ACCELERATION] = topic
+    return conns, imu_of
+
+
+def _imu_values(msg) -> tuple:
+    """``(gyro or None, accel or None)`` of a ``sensor_msgs/Imu``, or ``(alpha,)`` of a ``Vector3Stamped``."""
+    if hasattr(msg, "vector"):
+        v = msg.vector
+        return ((v.x, v.y, v.z),)
+    w, a = msg.angular_velocity, msg.linear_acceleration
+    gyro = None if float(msg.angular_velocity_covariance[0]) == -1 else (w.x, w.y, w.z)
+    accel = None if float(msg.linear_acceleration_covariance[0]) == -1 else (a.x, a.y, a.z)
+    return gyro, accel
+
+
+def _imu_streams(path: Path, imu_data: dict, imu_of: dict, t0: int) -> tuple:
+    """One :class:`ImuStream` per IMU topic and per angular-acceleration topic, named by the ``frame_id``."""
+    from ineid.data.streams import ImuStream  # noqa: PLC0415
+
+    names: dict[str, str] = {}
+    out = []
+    for topic in sorted(imu_data, key=lambda t: (imu_of[t], t)):
+        stamps, values, frames = imu_data[topic]
+        if not stamps:
+            raise DatasetError(f"{path}: no messages on {topic}")
+        if len(frames) > 1:
+            raise DatasetError(f"{path}: the IMU messages on {topic} name several frames "
+                               f"({', '.join(map(repr, sorted(frames)))}); one topic is one IMU")
+        frame = frames.pop()
+        owner = imu_of[topic]
+        if owner != topic:
+            frame = frame or names.get(owner, "")
+            if owner in names and frame != names[owner]:
+                raise DatasetError(f"{path}: {topic} names frame {frame!r} and {owner} frame {names[owner]!r}; an "
+                                   "IMU's angular acceleration is in its own frame")
+        if not frame:
+            raise DatasetError(f"{path}: the messages on {topic} have an empty frame_id; it names the IMU's link (or a "
+                               "URDF frame on it, or an --imu NAME=LINK:pose)")
+        names[owner] = frame
+        t = (np.asarray(stamps, dtype=np.int64) - t0) * 1e-9
+        readings = {}
+        if owner != topic:
+            readings["alpha"] = np.asarray([v[0] for v in values], dtype=np.float64).reshape(-1, 3)
+        else:
+            for i, kind in enumerate(("gyro", "accel")):
+                present = [v[i] is not None for v in values]
+                if any(present) and not all(present):
+                    raise DatasetError(f"{path}: the {kind} of {topic} is measured in some messages only (its "
+                                       "covariance[0] is -1 in the others); one topic is one IMU, measured alike")
+                if all(present):
+                    readings[kind] = np.asarray([v[i] for v in values], dtype=np.float64).reshape(-1, 3)
+            if not readings:
+                raise DatasetError(f"{path}: the messages on {topic} mark both the angular velocity and the linear "
+                                   "acceleration as not measured (covariance[0] = -1)")
+        out.append(ImuStream(frame, t, readings, topic))
+    return tuple(out)

@@ -12,13 +12,16 @@ are ignored; units SI):
     fx fy fz             force, N         } what the sensor reads: the load of the robot on
     mx my mz             moment, N*m      } it, sensor frame, moment about the sensor origin;
                                             optional when joint torques are given
+    imu_<NAME>_wx,_wy,_wz      a link IMU's gyroscope, rad/s            } sensor frame; any of the
+    imu_<NAME>_ax,_ay,_az      its accelerometer (specific force), m/s^2 } three kinds per IMU, all
+    imu_<NAME>_alx,_aly,_alz   its angular acceleration, rad/s^2         } three axes of a kind
 
 Joint torques (and currents) are on the joints' clock: their cells belong to the joint
 sample of their row.
 
-Two streams may share the file: a row whose joint cells are all empty holds a wrench
+Several streams may share the file: a row whose joint cells are all empty holds a wrench
 sample only, a row whose wrench cells are all empty a joint sample only (a merged log of
-two clocks). The processing (filter, derivatives, one time base, the sensor pose) is
+two clocks); each IMU (all its columns) is a stream of its own the same way. The processing (filter, derivatives, one time base, the sensor pose) is
 :mod:`ineid.data.recording`'s. A sensor that reports the wrench the fixture exerts on the
 robot (the opposite sign) is imported with ``flip_wrench=True``. The truth is unknown, so
 the file has no ``theta_unknown``; ``theta_known`` holds the model's CAD values of the
@@ -34,7 +37,7 @@ import numpy as np
 
 from ineid._atomic import atomic_output
 from ineid.data.schema import Dataset
-from ineid.data.streams import Streams
+from ineid.data.streams import ImuStream, Streams
 from ineid.errors import DatasetError
 
 WRENCH_COLUMNS = ("fx", "fy", "fz", "mx", "my", "mz")
@@ -154,6 +157,9 @@ def read_csv_streams(path: str | Path, model, progress=None):
             f"a recording of {model.name} needs {','.join(required)} (and optionally qd1..qd{n}, qdd1..qdd{n}; "
             f"the wrench columns may be left out when joint torques tau1..tau{n} are given)"
         )
+    from ineid.data.recording_imu import imu_column_kinds  # noqa: PLC0415
+
+    imu_kinds = imu_column_kinds(header, path)
     deriv = [f"{p}{i}" for p in ("qd", "qdd") for i in range(1, n + 1)]
     present = [c for c in deriv if c in header]
     if present and len(present) != len(deriv):
@@ -164,6 +170,8 @@ def read_csv_streams(path: str | Path, model, progress=None):
         )
     joint_names = csv_columns(n, derivatives=bool(present))[1:-6] + tau_cols + current_cols
     names = ["time", *joint_names, *(WRENCH_COLUMNS if has_wrench_cols else ())]
+    imu_cols = {name: [c for cols in kinds.values() for c in cols] for name, kinds in imu_kinds.items()}
+    names += [c for cols in imu_cols.values() for c in cols]
     col = [header.index(c) for c in names]
     body = rows[1:]
     if not body:
@@ -172,7 +180,13 @@ def read_csv_streams(path: str | Path, model, progress=None):
     data = np.full((len(body), len(names)), np.nan)
     has_joint = np.ones(len(body), dtype=bool)
     has_wrench = np.full(len(body), has_wrench_cols)
-    streams = [(1, 1 + n_joint, has_joint)] + ([(1 + n_joint, len(names), has_wrench)] if has_wrench_cols else [])
+    k0 = 1 + n_joint + (6 if has_wrench_cols else 0)
+    streams = [(1, 1 + n_joint, has_joint)] + ([(1 + n_joint, k0, has_wrench)] if has_wrench_cols else [])
+    has_imu = {}
+    for name, cols in imu_cols.items():
+        has_imu[name] = np.ones(len(body), dtype=bool)
+        streams.append((k0, k0 + len(cols), has_imu[name]))
+        k0 += len(cols)
     for i, row in enumerate(body):
         line = line_of[i + 1]
         if len(row) != len(header):
@@ -186,12 +200,12 @@ def read_csv_streams(path: str | Path, model, progress=None):
                 k = lo + empty[lo:hi].index(True)
                 raise DatasetError(
                     f"{path}: line {line}, column {names[k]!r} is empty while others of its stream are not; "
-                    "a row holds all joint cells, all wrench cells, or both"
+                    "a row holds all the cells of each of its streams (the joints, the wrench, an IMU) or none"
                 )
         if empty[0]:
             raise DatasetError(f"{path}: line {line}, column 'time' is empty")
-        if not (has_joint[i] or has_wrench[i]):
-            raise DatasetError(f"{path}: line {line} holds a time but no joint or wrench values")
+        if not (has_joint[i] or has_wrench[i] or any(f[i] for f in has_imu.values())):
+            raise DatasetError(f"{path}: line {line} holds a time but no joint, wrench or IMU values")
         for k, cell in enumerate(cells):
             if cell:
                 try:
@@ -205,7 +219,8 @@ def read_csv_streams(path: str | Path, model, progress=None):
                     )
         if progress is not None and (i + 1) % 10000 == 0:
             progress(i + 1, len(body))
-    for name, mask in (("joint", has_joint), ("wrench", has_wrench))[: 1 + has_wrench_cols]:
+    checked = [("joint", has_joint), ("wrench", has_wrench)][: 1 + has_wrench_cols]
+    for name, mask in [*checked, *((f"IMU {k!r}", f) for k, f in has_imu.items())]:
         rows_k = np.flatnonzero(mask)
         t = data[rows_k, 0]
         if len(rows_k) < 2:
@@ -226,9 +241,15 @@ def read_csv_streams(path: str | Path, model, progress=None):
     current = jr[:, k0 : k0 + n] if current_cols else None
     if progress is not None:
         progress(len(body), len(body))
+    imus = []
+    for name, kinds in imu_kinds.items():
+        rows_k = data[has_imu[name]]
+        imus.append(ImuStream(name, rows_k[:, 0], {k: rows_k[:, [names.index(c) for c in cols]]
+                                                   for k, cols in kinds.items()}, f"columns imu_{name}_*"))
     return Streams(
         joint_time=jr[:, 0], q=q, qd=qd, qdd=qdd, wrench_time=wr[:, 0] if has_wrench_cols else None,
-        wrench=wr[:, 1 + n_joint :] if has_wrench_cols else None, tau=tau, current=current,
+        wrench=wr[:, 1 + n_joint : 7 + n_joint] if has_wrench_cols else None, tau=tau, current=current,
+        imus=tuple(imus),
         source=str(path), origin={"format": "csv", "file": path.name, "rows": int(len(body))},
     )  # fmt: skip
 

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ineid.channels import ChannelSet
+from ineid.data.imu_rehearsal import ImuRehearsal
 from ineid.data.noise import NoiseModel
 from ineid.data.sampling import (
     RNG_BLOCK_CONFIGS,
@@ -64,6 +65,9 @@ class DatasetSpec:
             the asymmetric ``"<joint>.fv+"``, ...; :func:`actuation_names`). Each channel that
             takes them reads ``Phi theta + E x`` (``E`` its extra rows with every term on,
             ``x`` these values, 0 where not named). Stored as the dataset's ``extra_truth``.
+        imu: link IMUs and encoders to rehearse (:class:`ineid.data.imu_rehearsal.ImuRehearsal`, the
+            fourier and trajectory frame modes): the states and values are then what the import would
+            estimate from them, the truth in the ``*_clean`` arrays.
     """
 
     combination: Combination = field(default_factory=Combination)
@@ -74,10 +78,18 @@ class DatasetSpec:
     noise: NoiseModel | None = None
     channels: ChannelSet | None = None
     extra_truth: Mapping[str, float] | None = None
+    imu: ImuRehearsal | None = None
 
     def __post_init__(self) -> None:
         if self.n_frames < 1:
             raise ValueError(f"n_frames must be >= 1, got {self.n_frames}")
+        if self.imu is not None and self.frames.mode not in ("fourier", "trajectory"):
+            raise ValueError(f"a rehearsal (IMUs, encoder bits) filters and fuses time series: use --frame-mode fourier or trajectory, not "
+                             f"{self.frames.mode} (independent frames)")
+        if self.imu is not None and self.noise is not None and any(
+                np.any(np.asarray(getattr(self.noise, k)) > 0) for k in ("q", "qd", "qdd")):
+            raise ValueError("with IMUs the states are estimated from the encoders (--encoder-bits) and the IMUs: "
+                             "drop the q, qd, qdd noise")
         if not 0 <= int(self.seed) < 2**63:
             raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
 
@@ -87,6 +99,7 @@ class DatasetSpec:
             "n_frames": self.n_frames,
             "parameters": self.parameters.to_dict(),
             "frames": self.frames.to_dict(),
+            **({"imu": self.imu.to_dict()} if self.imu is not None else {}),
         }
 
 
@@ -138,6 +151,8 @@ class GenerationPlan:
             names.append("time")
         if self.noise is not None:
             names += [f"{k}_clean" for k in self.noise.noisy_keys()]
+        if spec.imu is not None:  # the estimates differ from the truth: every measured array keeps its truth
+            names += [f"{k}_clean" for k in ("q", "qd", "qdd", *self.channels.keys) if f"{k}_clean" not in names]
         self.array_names = names
         # Chunks are whole random-number blocks, about 1 MiB of the widest array.
         rows = chunk_rows(spec.n_frames, row_width(self.meta), self.n_configs)
@@ -255,9 +270,29 @@ class GenerationPlan:
                 for k in self.noise.noisy_keys():
                     out[f"{k}_clean"] = out[k]
                     out[k] = np.concatenate([n[k] for n in noisy])
+            if spec.imu is not None:
+                self._rehearse(start, out)
             out["theta_unknown"] = self.theta_unknown[start:stop]
             out["link_set_index"] = self.link_set_index[start:stop]
             yield start, out
+
+
+    def _rehearse(self, start: int, out: dict[str, np.ndarray]) -> None:
+        """Replace the chunk's states and values by what the import would estimate (:mod:`ineid.data.imu_rehearsal`)."""
+        from ineid.data.imu_rehearsal import STREAM_IMU, rehearse  # noqa: PLC0415
+
+        keys = self.channels.keys
+        for k in ("q", "qd", "qdd", *keys):
+            out.setdefault(f"{k}_clean", out[k])
+            out[k] = np.array(out[k])
+        for c in range(len(out["q"])):
+            rng = block_rng(self.spec.seed, STREAM_IMU, start + c)
+            truth = [out[f"{k}_clean"][c] for k in ("q", "qd", "qdd")]
+            q, qd, qdd, values, _ = rehearse(self.model, self.spec.imu, out["time"][c], *truth,
+                                             {k: out[k][c] for k in keys}, rng)
+            out["q"][c], out["qd"][c], out["qdd"][c] = q, qd, qdd
+            for k in keys:
+                out[k][c] = values[k]
 
 
 ACTUATION_FIELDS = ("friction", "armature", "torque_offset", "asymmetric")

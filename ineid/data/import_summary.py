@@ -44,6 +44,10 @@ class ImportSummary:
     """What rides on the joints' clock besides the angles (``"joint torques"``), filtered like the wrench."""
     sensor_where: str = "the base frame"
     """Where :attr:`sensor` is given: the base frame, or a link's frame for an F/T sensor on a link."""
+    imu: tuple[str, ...] = ()
+    cutoff_note: str | None = None
+    """Why the cut-off is what it is when a rule other than the angles' chose it (the IMUs')."""
+    """The link IMUs' lines: mounts, rates, the fused estimate's gyro biases and residuals."""
 
     def lines(self) -> list[str]:
         wrench = self.wrench_rate is not None
@@ -56,7 +60,7 @@ class ImportSummary:
         filtered = " and ".join([*self.joint_channels, *(["the wrench"] if wrench else [])])
         if self.derived:
             c = self.cutoff_choice
-            how = "given" if c is None else {
+            how = self.cutoff_note or "given" if c is None or self.cutoff_note else {
                 "noise": f"chosen from the joint angles: noise {_fmt_list(c.noise_rms)} rad RMS keeps "
                          f"{100 * c.acceleration_noise:.2g} % of the accelerations' RMS",
                 "rate": f"the upper bound, 0.1 x the rate: the joint angles' noise ({_fmt_list(c.noise_rms)} rad "
@@ -87,7 +91,7 @@ class ImportSummary:
             e = self.delay_estimate
             out.append(f"wrench delay estimated: {1e3 * e.delay:.4g} ms (relative residual of the linear fit with "
                        f"offsets {e.residual:.3g}, against {e.residual_at_zero:.3g} without a delay)")
-        return out
+        return out + list(self.imu)
 
     def to_dict(self) -> dict:
         return {

@@ -78,6 +78,14 @@ class ImportSettings:
             (N*m/A at the motor) and ``G_j`` (motor turns per joint turn), one number for every
             joint or one per joint; the currents are stored as a ``motor_current`` channel
             (``i = tau / (k G)``).
+        imus: ``--imu`` texts, the mounts of the recording's link IMUs (:mod:`ineid.data.recording_imu`);
+            an IMU not given is placed by the link or URDF frame its name names.
+        imu_delay: s, how late the IMU time stamps are against the joints'.
+        imu_noise: ``{"gyro": rad/s, "accel": m/s^2, "alpha": rad/s^2}``, the IMUs' white-noise std at
+            their own rates (missing: :class:`ineid.data.state_estimation.ImuNoise`'s defaults).
+        estimation: the :class:`ineid.data.state_estimation.EstimationSettings` of the fusion, used as
+            given except for its noise, scaled by the filter (None: ``imu_noise``, and ``qdd`` from the
+            derivative of the fused ``qd`` when a gyro measures, :func:`ineid.data.recording_imu.qdd_prior`).
     """
 
     sensor_pose: str | None = None
@@ -91,6 +99,10 @@ class ImportSettings:
     wrench_scale: float = 1.0
     torque_constant: tuple[float, ...] | None = None
     gear_ratio: tuple[float, ...] | None = None
+    imus: tuple[str, ...] = ()
+    imu_delay: float = 0.0
+    imu_noise: dict | None = None
+    estimation: object | None = None
 
     def __post_init__(self) -> None:
         if self.angle_unit not in ANGLE_UNITS:
@@ -214,7 +226,8 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
             raise DatasetError("estimating the wrench delay fits the model, which ineid.identify does: import "
                                "ineid.identify first, or give the delay (ImportSettings(delay=...), --delay S)")
         # the wrench's own fit: the joints' other channels (torques) are on the joints' clock, not delayed
-        estimate = _delay_estimator(replace(streams, tau=None, current=None), model, settings, settings.max_delay)
+        estimate = _delay_estimator(replace(streams, tau=None, current=None, imus=()), model,
+                                    replace(settings, imus=(), imu_delay=0.0), settings.max_delay)
         ds, summary = recording_dataset(streams, model, replace(settings, delay=estimate.delay, estimate_delay=False))
         summary.delay_estimate = estimate
         ds.meta.origin["import"] = summary.to_dict()
@@ -255,16 +268,24 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
 
     # 1. filter (and differentiate) each stream on a uniform grid at its own rate: the joints' other
     #    channels (torques) with the angles, through the same filter as the wrench
-    choice = None
+    choice, cutoff_note = None, None
     cutoff = settings.cutoff
     if not measured and cutoff is None:
         choice = signals.choose_cutoff(signals.to_uniform(tq, q, hq)[1], 1.0 / hq)
         cutoff = min(choice.cutoff, 0.4 * rate)
+        if any("gyro" in s.readings for s in streams.imus):  # the gyros measure qd: recording_imu's rule
+            from ineid.data.recording_imu import imu_cutoff  # noqa: PLC0415
+
+            gyro = (settings.imu_noise or {}).get("gyro", 0.005)
+            cutoff, cutoff_note = imu_cutoff(signals.to_uniform(tq, q, hq)[1], 1.0 / hq, cutoff,
+                                             [tuple(s.readings) for s in streams.imus], gyro)
+            cutoff = min(cutoff, 0.4 * rate)
     if cutoff is not None and cutoff >= 0.45 * rate:
         raise DatasetError(
             f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold (Nyquist {rate / 2:g} Hz); "
             f"use --cutoff below {0.45 * rate:g} Hz or a higher --rate"
         )
+    prepared = _prepare_imus(streams, model, settings, cutoff, tq)
     joint_parts = {**joint_arrays, **riders}
     if cutoff is not None:
         tq_u, jq = signals.to_uniform(tq, np.concatenate(list(joint_parts.values()), axis=1), hq)
@@ -291,6 +312,11 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     # 2. one time base over what both streams cover, edges dropped
     start = max(tq_u[0], tw_u[0]) + edge
     stop = min(tq_u[-1], tw_u[-1]) - edge
+    if prepared is not None and prepared.stop - prepared.start < stop - start:  # every IMU covers the frames
+        start, stop = max(start, prepared.start), min(stop, prepared.stop)
+        if not stop > start:
+            raise DatasetError(f"{src}: the IMUs, the joints and the wrench cover no common time beyond the filter's "
+                               "edges; record longer, or check the time stamps, --delay and --imu-delay")
     if not stop > start:
         if not has_wrench:
             raise DatasetError(f"{src}: the joint stream ({tq[0]:.6g}..{tq[-1]:.6g} s) is shorter than the filter's "
@@ -318,6 +344,14 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     joints = np.concatenate([q_s, qd_s, qdd_s, *riders_s.values()], axis=1)
     joints, moved_q = _on_grid(tq_u, joints, grid)
     wrench, moved_w = _on_grid(tw_u, w_s, grid) if has_wrench else (None, False)
+    imu_lines, imu_record = (), None
+    if prepared is not None:  # q the encoders', qd and qdd fused with the IMUs
+        from ineid.data.recording_imu import imu_summary_lines  # noqa: PLC0415
+
+        qd_f, qdd_f, estimate, imu_record = prepared.fuse(model, grid, joints[:, :n], joints[:, n:2 * n],
+                                                          joints[:, 2 * n:3 * n], settings.estimation, settings.imu_noise)
+        joints[:, n:2 * n], joints[:, 2 * n:3 * n] = qd_f, qdd_f
+        imu_lines = tuple(imu_summary_lines(prepared, estimate))
     resampled = [name for name, moved in (("joints", moved_q), ("wrench", moved_w)) if moved]
     summary = ImportSummary(
         n_frames=len(grid), rate=float(rate),
@@ -327,12 +361,12 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
         dropped_joint_samples=int(np.sum((tq < grid[0] - 1e-9 * hq) | (tq > grid[-1] + 1e-9 * hq))),
         dropped_wrench_samples=(int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw)))
                                 if has_wrench else 0),
-        resampled=tuple(resampled), sensor=None if wrench_channel is None else wrench_channel.sensor,
+        cutoff_note=cutoff_note, resampled=tuple(resampled), sensor=None if wrench_channel is None else wrench_channel.sensor,
         delay=settings.delay, units=units_note(streams.origin),
-        joint_channels=tuple(RIDER_NAMES[k] for k in riders), sensor_where=where,
+        joint_channels=tuple(RIDER_NAMES[k] for k in riders), sensor_where=where, imu=imu_lines,
     )  # fmt: skip
     values = _columns(joints[:, 3 * n:], riders)
-    origin = {**streams.origin, "import": summary.to_dict()}
+    origin = {**streams.origin, "import": summary.to_dict(), **({"imu": imu_record} if imu_record else {})}
     if riders or not isinstance(wrench_channel, BaseWrench):  # channels of version 4
         channels = ChannelSet(tuple(c for c in (wrench_channel, *rider_channels(riders, model, settings)) if c is not None))
         meta = DatasetMeta.for_model(model, source="recording", origin=origin, channels=channels)
@@ -357,6 +391,21 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     return ds, summary
 
 
+def _prepare_imus(streams: Streams, model, settings: ImportSettings, cutoff: float | None, tq: np.ndarray):
+    """The recording's IMU streams matched, delayed and filtered (:func:`ineid.data.recording_imu.prepare_imus`),
+    or None without IMUs; ``--imu`` or ``--imu-delay`` without IMU readings is one line."""
+    if not streams.imus:
+        if settings.imus or settings.imu_delay:
+            flag = "--imu" if settings.imus else "--imu-delay"
+            raise DatasetError(f"{streams.source}: {flag} is for the recording's link IMUs, and it has no IMU readings "
+                               "(CSV columns imu_<NAME>_wx..., or bag topics named by --imu-topic); drop it")
+        return None
+    from ineid.data.recording_imu import prepare_imus  # noqa: PLC0415
+
+    return prepare_imus(streams.imus, settings.imus, model, cutoff, settings.imu_delay, (float(tq[0]), float(tq[-1])),
+                        streams.source)
+
+
 def _columns(x: np.ndarray, like: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """``x`` (N, sum of widths) cut into ``{key: (N, width of like[key])}``, in ``like``'s order."""
     out, start = {}, 0
@@ -377,7 +426,8 @@ def _on_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray
 
 
 def import_recording(path: str | Path, model, settings: ImportSettings = ImportSettings(), joint_topic: str = "/joint_states",
-                     wrench_topic: str | None = None, progress: Progress | None = None) -> tuple[Dataset, ImportSummary]:
+                     wrench_topic: str | None = None, progress: Progress | None = None,
+                     imu_topics: tuple[str, ...] = ()) -> tuple[Dataset, ImportSummary]:
     """Read a recording file (CSV, ROS 1 ``.bag``, ROS 2 bag folder or ``.mcap``) into a dataset.
 
     Args:
@@ -387,6 +437,7 @@ def import_recording(path: str | Path, model, settings: ImportSettings = ImportS
         joint_topic, wrench_topic: bag topics (``sensor_msgs/JointState``,
             ``geometry_msgs/WrenchStamped``; the wrench topic may be left out when the bag
             has one such topic).
+        imu_topics: bag topics of link IMUs (``sensor_msgs/Imu``, :mod:`ineid.data.bags`).
         progress: ``progress(done, total)`` over rows or messages read.
 
     Raises:
@@ -399,8 +450,11 @@ def import_recording(path: str | Path, model, settings: ImportSettings = ImportS
     if path.is_dir() or path.suffix.lower() in (".bag", ".mcap", ".db3"):
         from ineid.data.bags import read_bag_streams  # noqa: PLC0415
 
-        streams = read_bag_streams(path, model.joint_names, joint_topic, wrench_topic, progress)
+        streams = read_bag_streams(path, model.joint_names, joint_topic, wrench_topic, progress, imu_topics)
     else:
+        if imu_topics:
+            raise DatasetError(f"{path}: --imu-topic names a bag's IMU topics; a CSV gives its IMUs as columns "
+                               "imu_<NAME>_wx...: drop it")
         from ineid.data.csv_import import read_csv_streams  # noqa: PLC0415
 
         streams = read_csv_streams(path, model, progress)

@@ -32,6 +32,8 @@ class Streams:
         tau: (Nq, n_dof) joint torques (N*m; N for prismatic joints: what the actuators
             apply, Pinocchio's ``rnea`` convention), on the joints' clock, chain order; or None.
         current: (Nq, n_dof) motor currents (A), on the joints' clock, chain order; or None.
+        imus: the link IMUs' streams (:class:`ImuStream`), each on its own clock; an IMU whose angular
+            acceleration comes on a topic of its own has two streams of one name.
     """
 
     joint_time: np.ndarray
@@ -45,6 +47,26 @@ class Streams:
     origin: dict = field(default_factory=dict)
     tau: np.ndarray | None = None
     current: np.ndarray | None = None
+    imus: tuple[ImuStream, ...] = ()
+
+
+@dataclass
+class ImuStream:
+    """One link IMU's readings as read from a file, on its own clock (:mod:`ineid.data.recording_imu`).
+
+    Attributes:
+        name: the IMU's name: the ``<NAME>`` of its CSV columns ``imu_<NAME>_wx``..., or the ``frame_id``
+            of its bag messages; matched to an ``--imu`` mount of that name, else to a link or URDF frame.
+        time: (N,) s, increasing, on the IMU's clock.
+        readings: ``{kind: (N, 3)}`` in the sensor frame: ``"gyro"`` rad/s, ``"accel"`` m/s^2 (specific
+            force), ``"alpha"`` rad/s^2 (angular acceleration).
+        where: the columns or topic, for messages.
+    """
+
+    name: str
+    time: np.ndarray
+    readings: dict[str, np.ndarray]
+    where: str = ""
 
 
 def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: float = 1.0) -> Streams:
