@@ -72,7 +72,10 @@ def main() -> None:
             if not err <= 1e-10:
                 raise AssertionError(f"{name}: joint {label} differ from Pinocchio by {err:.3g}")
         link = model.link_names[1]
-        model.link_wrench_regressor(q[:50], qd[:50], qdd[:50], link)
+        w = min(n, 4096)  # warm: compile (or load) the full-chunk kernels, not only the small shape
+        model.joint_torque_regressor(q[:w], qd[:w], qdd[:w])
+        model.joint_torques(q[:w], qd[:w], qdd[:w])
+        model.link_wrench_regressor(q[:w], qd[:w], qdd[:w], link)
         data = pm.createData()
         pq = np.stack([pinocchio_q(pm, x) for x in q[:m]])
 
