@@ -208,7 +208,7 @@ class EstimationSummary:
                     for a, v, e in zip("xyz", b, s, strict=True)))
                 for d in self.gyro_bias_unidentified.get(m.name, ()):
                     out.append("    gyro bias along ({}) not identified: the gyros cannot tell it from a constant "
-                               "error in a joint's rate; it is the encoders' mean rate error, no std"
+                               "error in a joint's rate; there it rests on the encoders alone, no std"
                                .format(", ".join(f"{v:.3f}" for v in d)))
         if self.q_error_std is not None:
             out.append("  encoders' angle error std (rad, in the biases' std): "
@@ -378,9 +378,10 @@ def estimate_joint_states(model, q, qd_enc, qdd_enc, mounts: Sequence[ImuMount],
         for i, m in enumerate(gyros):
             sl = slice(3 * i, 3 * i + 3)
             bias[m.name], bias_std[m.name], bias_cov[m.name] = beta[sl] * noise.gyro, std[sl], cov[sl, sl]
-            dirs = [d[sl] / np.linalg.norm(d[sl]) for d in null if np.linalg.norm(d[sl]) > 1e-6]
-            if dirs:
-                free[m.name] = np.array(dirs)
+            if len(null):  # this IMU's share of the unidentified directions, orthonormal
+                _, sv, vt = np.linalg.svd(null[:, sl])
+                if sv[0] > 1e-6:
+                    free[m.name] = vt[: int(np.sum(sv > 1e-6 * sv[0]))]
             residual[m.name]["gyro"] = float(np.sqrt(np.mean(res[:, sl] ** 2)))
 
     # -- qdd: angular-acceleration sensors and accelerometers, given q and the fused qd -----------
