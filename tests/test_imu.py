@@ -238,6 +238,14 @@ def test_gyro_bias_std_is_honest_for_fine_and_coarse_encoders(arm, recording):
     assert "not identified" in text and "angle error" in text
     record = summary.to_dict()
     assert record["gyro_bias_std"][last.name] == [None, None, None] and len(record["gyro_bias_unidentified"][last.name]) == 1
+    # the angle error given (raw 10-bit quantization, an upper bound once low-passed) instead of from the residuals
+    step = 2 * np.pi / 2**10 / np.sqrt(12)
+    _, _, given = estimate_joint_states(arm, q, qd_enc, qdd_enc, gyros, _cut(noisy), EstimationSettings(encoder_q_std=step))
+    assert np.allclose(given.q_error_std, step) and all(
+        np.all(given.gyro_bias_std[m.name] >= summary.gyro_bias_std[m.name]) for m in gyros[:-1])
+    with pytest.raises(DatasetError) as e:
+        estimate_joint_states(arm, q, qd_enc, qdd_enc, gyros, _cut(noisy), EstimationSettings(encoder_q_std=-1.0))
+    _one_line(e, "encoder_q_std")
 
 
 # -- bad input: one line each ----------------------------------------------------------------------
