@@ -21,8 +21,9 @@ leaves the small bias system (3 per gyro)
 
 solved once, then every ``qd_k`` by back-substitution: O(n_frames) work and memory, never the
 whole recording's matrix. The biases' covariance is not ``s_g^2 S^-1`` (white noise alone) but a
-sandwich over the frames' residuals with a Newey-West middle, since the encoders' errors are
-correlated over many frames (:mod:`ineid.data.gyro_bias`). Without ``gyro_bias`` the biases are zero
+sandwich over the frames' residuals with a Newey-West middle plus the encoders' angle errors
+propagated through the maps, since the encoders' errors are correlated over many frames
+(:mod:`ineid.data.gyro_bias`). Without ``gyro_bias`` the biases are zero
 and each frame is its own least squares.
 
 **Accelerations.** Given ``q`` and the fused ``qd``, the angular-acceleration sensors and the
@@ -43,7 +44,7 @@ gyro bias along the axis of a joint that no IMU further out sees (the last joint
 on the last link) is a constant error in that joint's rate: only the encoders fix it (the mean of
 their derivative); the summary names such directions and gives no std for the axes along them. The
 maps are evaluated at the encoders' angles, so their errors (quantization, filtering) reach the
-biases too; the reported std includes them (the sandwich's residuals carry them).
+biases too; the reported std includes them (``encoder_q_std``, or estimated).
 
 **Checks.** Per IMU and kind the residual RMS (reading less its fitted value) is reported; one
 whose RMS exceeds ``max_residual_ratio`` times its noise (and :data:`RESIDUAL_FLOOR` of its readings'
@@ -151,11 +152,11 @@ class EstimationSummary:
         imus: the mounts, in order.
         gyro_bias, gyro_bias_std: per IMU with a gyro, (3,) rad/s, sensor frame (zeros without ``gyro_bias``);
             the std is NaN on an axis leaning on an unidentified direction (:mod:`ineid.data.gyro_bias`).
-        gyro_bias_cov: per IMU with a gyro, (3, 3) (rad/s)^2: the biases' covariance (sandwich, Newey-West);
-            meaningful across the axes orthogonal to the unidentified directions.
+        gyro_bias_cov: per IMU with a gyro, (3, 3) (rad/s)^2: the biases' covariance (a Newey-West sandwich plus
+            the encoders' angle errors); meaningful for combinations orthogonal to the unidentified directions.
         gyro_bias_unidentified: per IMU whose bias the gyros cannot tell from a constant rate error, (k, 3)
-            unit directions in its sensor frame (the last joint's axis for an IMU on the last link): there the
-            bias is the encoders' mean rate error, with no std.
+            orthonormal directions in its sensor frame (the last joint's axis for an IMU on the last link): there
+            the bias rests on the encoders' mean rate alone, with no std.
         residual_rms: per IMU, per kind: RMS of reading minus fitted value (its unit).
         noise: the noise used.
         qd_prior_std, qdd_prior_std: (n_dof,) the priors' std used (None: that prior alone gave the estimate).
