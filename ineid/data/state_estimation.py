@@ -20,8 +20,11 @@ leaves the small bias system (3 per gyro)
     S beta = sum_k (y_k - G_k A_k^-1 c_k),      S = sum_k (I - G_k A_k^-1 G_k^T),
 
 solved once, then every ``qd_k`` by back-substitution: O(n_frames) work and memory, never the
-whole recording's matrix. ``cov(b) = s_g^2 S^-1`` (the biases' std in the summary). Without
-``gyro_bias`` the biases are zero and each frame is its own least squares.
+whole recording's matrix. The biases' covariance is not ``s_g^2 S^-1`` (white noise alone) but a
+sandwich over the frames' residuals with a Newey-West middle plus the encoders' angle errors
+propagated through the maps, since the encoders' errors are correlated over many frames
+(:mod:`ineid.data.gyro_bias`). Without ``gyro_bias`` the biases are zero
+and each frame is its own least squares.
 
 **Accelerations.** Given ``q`` and the fused ``qd``, the angular-acceleration sensors and the
 accelerometers are linear in ``qdd`` alone (no bias), whitened by their noise, with a prior on
@@ -39,8 +42,9 @@ and win). The same for ``qdd``.
 over time, so low-pass the IMU streams as the angles are and give the noise the filter leaves. A
 gyro bias along the axis of a joint that no IMU further out sees (the last joint's axis, for an IMU
 on the last link) is a constant error in that joint's rate: only the encoders fix it (the mean of
-their derivative). The maps are evaluated at the encoders' angles, so their errors (quantization,
-filtering) reach the biases too; the reported std assumes exact angles and white prior errors.
+their derivative); the summary names such directions and gives no std for the axes along them. The
+maps are evaluated at the encoders' angles, so their errors (quantization, filtering) reach the
+biases too; the reported std includes them (``encoder_q_std``, or estimated).
 
 **Checks.** Per IMU and kind the residual RMS (reading less its fitted value) is reported; one
 whose RMS exceeds ``max_residual_ratio`` times its noise (and :data:`RESIDUAL_FLOOR` of its readings'
@@ -57,6 +61,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ineid.data.gyro_bias import (
+    angle_covariance,
+    angle_error_variance,
+    angle_sensitivity,
+    bias_covariance,
+    leaning_axes,
+    unidentified_directions,
+)
 from ineid.data.imu import UNITS, ImuMount, _check_names, jacobians_from, link_jacobians, link_motion, moving_index
 from ineid.errors import DatasetError
 
@@ -102,6 +114,10 @@ class EstimationSettings:
         encoder_qd_std: std of the encoders' derivative as the prior on ``qd`` (rad/s; one number or one
             per joint); None: from the data (module docstring).
         encoder_qdd_std: the same for the prior on ``qdd`` (rad/s^2).
+        encoder_q_std: std of the encoders' angle errors (rad; one number or one per joint; for raw
+            quantization ``2 pi / 2^bits / sqrt(12)``), for the gyro biases' std only; None: from the gyro
+            residuals' excess over the noise (:mod:`ineid.data.gyro_bias`; it sees only errors that rise above
+            the gyro noise).
         gyro_bias: estimate one constant bias per gyro axis over the recording.
         max_residual_ratio: residual RMS / noise above this: the mount does not fit (DatasetError).
         max_encoder_misfit: readings differing from the encoders' prediction by more than this fraction
@@ -113,6 +129,7 @@ class EstimationSettings:
     noise: ImuNoise = field(default_factory=ImuNoise)
     encoder_qd_std: float | Sequence[float] | None = None
     encoder_qdd_std: float | Sequence[float] | None = None
+    encoder_q_std: float | Sequence[float] | None = None
     gyro_bias: bool = True
     max_residual_ratio: float = 5.0
     max_encoder_misfit: float = 0.2
@@ -133,12 +150,19 @@ class EstimationSummary:
 
     Attributes:
         imus: the mounts, in order.
-        gyro_bias, gyro_bias_std: per IMU with a gyro, (3,) rad/s, sensor frame (zeros without ``gyro_bias``).
+        gyro_bias, gyro_bias_std: per IMU with a gyro, (3,) rad/s, sensor frame (zeros without ``gyro_bias``);
+            the std is NaN on an axis leaning on an unidentified direction (:mod:`ineid.data.gyro_bias`).
+        gyro_bias_cov: per IMU with a gyro, (3, 3) (rad/s)^2: the biases' covariance (a Newey-West sandwich plus
+            the encoders' angle errors); meaningful for combinations orthogonal to the unidentified directions.
+        gyro_bias_unidentified: per IMU whose bias the gyros cannot tell from a constant rate error, (k, 3)
+            orthonormal directions in its sensor frame (the last joint's axis for an IMU on the last link): there
+            the bias rests on the encoders' mean rate alone, with no std.
         residual_rms: per IMU, per kind: RMS of reading minus fitted value (its unit).
         noise: the noise used.
         qd_prior_std, qdd_prior_std: (n_dof,) the priors' std used (None: that prior alone gave the estimate).
         qdd_prior: which prior ``qdd`` had (``encoders`` or ``gyros``).
         n_frames: frames estimated.
+        q_error_std: (n_dof,) the encoders' angle-error std the biases' std assumes (rad; None without biases).
     """
 
     imus: tuple[ImuMount, ...]
@@ -150,11 +174,14 @@ class EstimationSummary:
     qdd_prior_std: np.ndarray | None
     qdd_prior: str
     n_frames: int
+    gyro_bias_cov: dict[str, np.ndarray] = field(default_factory=dict)
+    gyro_bias_unidentified: dict[str, np.ndarray] = field(default_factory=dict)
+    q_error_std: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """A JSON-able record (the dataset's origin)."""
         def arr(x):
-            return None if x is None else [float(v) for v in np.ravel(x)]
+            return None if x is None else [float(v) if np.isfinite(v) else None for v in np.ravel(x)]
 
         return {
             "imus": [m.to_dict() for m in self.imus],
@@ -163,7 +190,9 @@ class EstimationSummary:
             "residual_rms": {k: {kk: float(vv) for kk, vv in v.items()} for k, v in self.residual_rms.items()},
             "noise": {"gyro": self.noise.gyro, "accel": self.noise.accel, "alpha": self.noise.alpha},
             "qd_prior_std": arr(self.qd_prior_std), "qdd_prior_std": arr(self.qdd_prior_std),
-            "qdd_prior": self.qdd_prior, "n_frames": self.n_frames,
+            "qdd_prior": self.qdd_prior, "n_frames": self.n_frames, "q_error_std": arr(self.q_error_std),
+            "gyro_bias_cov": {k: np.asarray(v).tolist() for k, v in self.gyro_bias_cov.items()},
+            "gyro_bias_unidentified": {k: np.asarray(v).tolist() for k, v in self.gyro_bias_unidentified.items()},
         }
 
     def lines(self) -> list[str]:
@@ -175,8 +204,16 @@ class EstimationSummary:
             out.append(f"  {m.describe()}: residual RMS {res}")
             if m.name in self.gyro_bias:
                 b, s = self.gyro_bias[m.name], self.gyro_bias_std[m.name]
-                out.append("    gyro bias (rad/s) " + ", ".join(f"{a} {v:.3g} +- {e:.2g}"
-                                                                 for a, v, e in zip("xyz", b, s, strict=True)))
+                out.append("    gyro bias (rad/s) " + ", ".join(
+                    f"{a} {v:.3g} +- {e:.2g}" if np.isfinite(e) else f"{a} {v:.3g} (not identified)"
+                    for a, v, e in zip("xyz", b, s, strict=True)))
+                for d in self.gyro_bias_unidentified.get(m.name, ()):
+                    out.append("    gyro bias along ({}) not identified: the gyros cannot tell it from a constant "
+                               "error in a joint's rate; there it rests on the encoders alone, no std"
+                               .format(", ".join(f"{v:.3f}" for v in d)))
+        if self.q_error_std is not None:
+            out.append("  encoders' angle error std (rad, in the biases' std): "
+                       + " ".join(f"{v:.2g}" for v in self.q_error_std))
         for label, s in (("qd", self.qd_prior_std), ("qdd", self.qdd_prior_std)):
             if s is not None:
                 out.append(f"  prior on {label} ({'encoders' if label == 'qd' else self.qdd_prior}) std: "
@@ -192,7 +229,8 @@ def _fuse(h: np.ndarray, z: np.ndarray, prior: np.ndarray, p: np.ndarray, bias: 
         h: (F, m, n) whitened maps. z: (F, m) whitened readings. prior: (F, n). p: (n,) prior weights.
 
     Returns:
-        ``x`` (F, n), ``beta`` (m,), ``cov(beta)`` (m, m) (zeros without ``bias``), ``diag(A_k^-1)`` (F, n).
+        ``x`` (F, n), ``beta`` (m,), ``S^-1`` (m, m) (``cov(beta)`` for white errors; zeros without ``bias``),
+        ``diag(A_k^-1)`` (F, n).
     """
     f, m, n = h.shape
     ht = np.swapaxes(h, 1, 2)
@@ -215,6 +253,20 @@ def _fuse(h: np.ndarray, z: np.ndarray, prior: np.ndarray, p: np.ndarray, bias: 
     x = solve(c[..., None])[..., 0]
     inv = solve(np.broadcast_to(np.eye(n), (f, n, n)).copy())
     return x, beta, cov, np.diagonal(inv, axis1=1, axis2=2)
+
+
+def _bias_cov(h, s_inv, white, qd, p, q, gyro_h, q_std):
+    """The whitened biases' covariance: the sandwich over the residuals plus the angle errors' long-range
+    part (:mod:`ineid.data.gyro_bias`), and the angle errors' std used (``q_std``, or from the residuals)."""
+    ht = np.swapaxes(h, 1, 2)
+    a_inv_ht = np.linalg.solve(ht @ h + np.diag(p), ht)
+    m_k = np.eye(h.shape[1]) - h @ a_inv_ht
+    mk = m_k @ angle_sensitivity(gyro_h, q, qd)
+    if q_std is None:
+        s2 = np.full(len(p), angle_error_variance(white, m_k, mk, np.swapaxes(a_inv_ht, 1, 2) * p, 1.0 / p))
+    else:
+        s2 = _prior_std(q_std, None, None, None, False, len(p), "q") ** 2
+    return bias_covariance(s_inv, white) + angle_covariance(s_inv, mk, s2), np.sqrt(s2)
 
 
 def _prior_std(given, h, z, prior, bias: bool, n: int, label: str) -> np.ndarray:
@@ -292,6 +344,9 @@ def estimate_joint_states(model, q, qd_enc, qdd_enc, mounts: Sequence[ImuMount],
     jac = link_jacobians(model, q) if mounts else None
     gyro_maps = acc_maps = None
 
+    def mount_rotation(m):
+        return m.link_R_sensor.T
+
     def mount_maps(qd):
         motion0 = link_motion(model, q, qd, np.zeros_like(qd))
         return {m.name: jacobians_from(m, jac[:, moving_index(model, m)], motion0[:, moving_index(model, m)])
@@ -299,19 +354,36 @@ def estimate_joint_states(model, q, qd_enc, qdd_enc, mounts: Sequence[ImuMount],
 
     # -- qd: gyros, encoders' derivative, biases ---------------------------------------------------
     gyros = [m for m in mounts if "gyro" in m.kinds]
-    bias, bias_std, residual = {}, {}, {m.name: {} for m in mounts}
-    qd, qd_std = qd_enc.copy(), None
+    bias, bias_std, bias_cov, free, residual = {}, {}, {}, {}, {m.name: {} for m in mounts}
+    qd, qd_std, q_err = qd_enc.copy(), None, None
     if gyros:
         gyro_maps = mount_maps(np.zeros_like(q))
         h = np.concatenate([gyro_maps[m.name].gyro_qd for m in gyros], axis=1) / noise.gyro
+
+        def gyro_h(qq):  # the whitened gyro maps at other angles
+            jq = link_jacobians(model, qq)
+            return np.concatenate([(mount_rotation(m) @ jq[:, moving_index(model, m), 0]) for m in gyros],
+                                  axis=1) / noise.gyro
         z = np.concatenate([np.asarray(readings[m.name]["gyro"], dtype=np.float64) for m in gyros], axis=1) / noise.gyro
         qd_std = _prior_std(settings.encoder_qd_std, h, z, qd_enc, settings.gyro_bias, n, "qd")
-        qd, beta, cov, _ = _fuse(h, z, qd_enc, 1.0 / qd_std**2, settings.gyro_bias)
-        res = (z - np.einsum("fmn,fn->fm", h, qd) - beta) * noise.gyro
-        std = np.sqrt(np.maximum(np.diag(cov), 0.0)) * noise.gyro
+        qd, beta, s_inv, _ = _fuse(h, z, qd_enc, 1.0 / qd_std**2, settings.gyro_bias)
+        white = z - np.einsum("fmn,fn->fm", h, qd) - beta
+        res = white * noise.gyro
+        cov, null = np.zeros_like(s_inv), np.zeros((0, len(beta)))
+        if settings.gyro_bias:
+            cov, q_err = _bias_cov(h, s_inv, white, qd, 1.0 / qd_std**2, q, gyro_h, settings.encoder_q_std)
+            cov = cov * noise.gyro**2
+            null = unidentified_directions(h)
+        std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        std[leaning_axes(null)] = np.nan
         for i, m in enumerate(gyros):
-            bias[m.name], bias_std[m.name] = beta[3 * i: 3 * i + 3] * noise.gyro, std[3 * i: 3 * i + 3]
-            residual[m.name]["gyro"] = float(np.sqrt(np.mean(res[:, 3 * i: 3 * i + 3] ** 2)))
+            sl = slice(3 * i, 3 * i + 3)
+            bias[m.name], bias_std[m.name], bias_cov[m.name] = beta[sl] * noise.gyro, std[sl], cov[sl, sl]
+            if len(null):  # this IMU's share of the unidentified directions, orthonormal
+                _, sv, vt = np.linalg.svd(null[:, sl])
+                if sv[0] > 1e-6:
+                    free[m.name] = vt[: int(np.sum(sv > 1e-6 * sv[0]))]
+            residual[m.name]["gyro"] = float(np.sqrt(np.mean(res[:, sl] ** 2)))
 
     # -- qdd: angular-acceleration sensors and accelerometers, given q and the fused qd -----------
     if settings.qdd_prior == "gyros":
@@ -338,7 +410,7 @@ def estimate_joint_states(model, q, qd_enc, qdd_enc, mounts: Sequence[ImuMount],
             residual[m.name][k] = float(np.sqrt(np.mean(res[:, 3 * i: 3 * i + 3] ** 2)) * getattr(noise, k))
 
     summary = EstimationSummary(tuple(mounts), bias, bias_std, residual, noise, qd_std, qdd_std,
-                                settings.qdd_prior, f)
+                                settings.qdd_prior, f, bias_cov, free, q_err)
     _check_fit(mounts, readings, settings, summary, qd_enc, prior, gyro_maps, acc_maps)
     return qd, qdd, summary
 
