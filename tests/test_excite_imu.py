@@ -102,3 +102,5 @@ def test_bad_sensor_input_is_one_line_and_writes_nothing(run, tmp_path):
     _refused(run(*DESIGN, "--noise", "gyro=0.01", "--out", out), out, 2, "gyro", "--imu")
     _refused(run(*DESIGN, "--encoder-bits", 12, "--noise", "qd=0.01", "--out", out), out, 2, "drop the q, qd, qdd")
     _refused(run(*DESIGN, "--imu", "forearm", "--imu", "forearm", "--out", out), out, 2, "given twice")
+    _refused(run("-q", "excite", "sweaty-arm", "--duration", 1, "--rate", 7, "--harmonics", 2, "--encoder-bits", 12,
+                 "--out", out), out, 1, "too few to rehearse", "--rate")

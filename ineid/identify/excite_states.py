@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.data.imu_rehearsal import ImuRehearsal, rehearse
+from ineid.errors import ExcitationError
 from ineid.identify.excite_criterion import DEFAULT_CHUNK, regressor_and_derivatives
 
 STREAM = 22
@@ -38,6 +39,8 @@ STREAM = 22
 design and its random comparison."""
 BLOCK = 8 * DEFAULT_CHUNK
 """Samples per call of the regressor's derivatives (their array is ``3 n_dof x BLOCK x A x 10 n_links``)."""
+MIN_SAMPLES = 8
+"""The fewest samples the rehearsal filters and differentiates (:func:`ineid.data.imu_rehearsal.rehearse`'s)."""
 UNITS = {"gyro": "rad/s", "accel": "m/s^2", "alpha": "rad/s^2"}
 
 
@@ -63,6 +66,10 @@ def rehearsed_rms(model, sensors: ImuRehearsal, trajectory, rate: float, seed: i
     """(3, n_dof) RMS of the states the import would estimate from ``sensors`` along ``trajectory`` at ``rate``."""
     t, q, qd, qdd = trajectory.sample(rate)
     t, q, qd, qdd = t[:-1], q[:-1], qd[:-1], qdd[:-1]  # whole periods, the end left out: periodic
+    if len(t) < MIN_SAMPLES:
+        raise ExcitationError(f"{len(t)} samples are too few to rehearse the import's filter and differences for "
+                              f"--encoder-bits and --imu; raise --rate or lengthen --duration (at least {MIN_SAMPLES})",
+                              reason="settings")
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), STREAM]))
     est = rehearse(model, sensors, t, q, qd, qdd, {}, rng)[:3]
     return np.stack([np.sqrt(np.mean((e - x) ** 2, axis=0)) for e, x in zip(est, (q, qd, qdd))])
