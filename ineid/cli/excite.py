@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from ineid.cli.channel_options import channel_options, chosen_channels
+from ineid.cli.imu_options import excite_sensors, imu_excite
 from ineid.cli.options import (
     SEED,
     FiniteFloatRange,
@@ -23,6 +24,7 @@ from ineid.cli.options import (
     robot_options,
 )
 from ineid.cli.output import ProgressBar, console, shown, table
+from ineid.cli.simulation import IMU_NOISE_KEYS
 
 _SETTINGS = "ineid.identify.excite:ExcitationSettings"
 
@@ -76,6 +78,7 @@ def _workspace(ctx, param, value):
 @click.option("--seed", type=SEED, cls=LibraryOption, default_from=f"{_SETTINGS}.seed",
               help="Seed of the random starts.")
 @noise_option
+@imu_excite
 @channel_options()
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="The trajectory CSV (time, q1..qn, qd1..qn, qdd1..qn).")
@@ -84,8 +87,8 @@ def _workspace(ctx, param, value):
 @overwrite_option
 @click.pass_context
 def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, rate, margin, velocity_scale,
-           acceleration_scale, floor, self_collision, workspace, bias, seed, noise, out, coefficients, overwrite,
-           **channel_flags) -> None:
+           acceleration_scale, floor, self_collision, workspace, bias, seed, noise, imus, encoder_bits, out, coefficients,
+           overwrite, **channel_flags) -> None:
     """Design a periodic Fourier excitation trajectory of ROBOT that identifies its unknown links well.
 
     The trajectory starts and ends at rest, keeps every joint within its limits (less the
@@ -95,6 +98,8 @@ def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, r
     designs for the joint torques (noise --noise tau=STD, default 0.05 N*m), with their actuation
     model (--friction, --armature, --torque-offset) among the unknowns. With --floor and --workspace every link
     frame origin and the tool frame stay above the floor and inside the box at every instant.
+    With --encoder-bits and --imu the design accounts for the joint-state errors the lab's encoders and
+    link IMUs will cause (to first order: they inflate the noise).
     """
     from ineid.data.trajectory import write_trajectory_csv, write_trajectory_json  # noqa: PLC0415
     from ineid.identify.excite import ExcitationSettings, design_excitation  # noqa: PLC0415
@@ -106,18 +111,20 @@ def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, r
     prepare_output(coefficients, overwrite, option="--coefficients", inputs=robot_inputs(robot))
     model = robot.load()
     channels = chosen_channels(None, channel_flags)
+    sensors = excite_sensors(imus, encoder_bits, noise, model)
     settings = ExcitationSettings(
         duration=duration, harmonics=harmonics, base_frequency=base_frequency, criterion=criterion, starts=starts,
         rate=rate, margin=margin, velocity_scale=velocity_scale, acceleration_scale=acceleration_scale,
         bias=bias == "estimate", seed=seed, floor=floor, workspace=workspace,
-        self_collision=self_collision, channels=channels,
+        self_collision=self_collision, channels=channels, sensors=sensors,
     )  # fmt: skip
     for name, scale in (("--velocity-scale", velocity_scale), ("--acceleration-scale", acceleration_scale)):
         if scale > 1:
             click.echo(f"ineid: warning: {name} {scale:g} goes beyond the model's bounds (the URDF's, or the "
                        "defaults where it gives none): make sure the arm can follow", err=True)
     with ProgressBar("designing", "starts", quiet(ctx)) as bar:
-        res = design_excitation(model, settings, noise=noise_model(noise, model.n_dof), progress=bar)
+        wrench = {k: v for k, v in (noise or {}).items() if k not in IMU_NOISE_KEYS}  # the IMUs': in sensors
+        res = design_excitation(model, settings, noise=noise_model(wrench or None, model.n_dof), progress=bar)
     t, q, qd, qdd = res.trajectory.sample(rate)
     comments = [
         (f"ineid excitation trajectory of {model.name}: {res.trajectory.harmonics} harmonics of "
@@ -162,7 +169,9 @@ def print_design(res, model) -> None:
         noise = "white Gaussian noise; " + "; ".join(parts)
         if channels.n_extra(model):
             noise += f"; extra parameters {shown(', '.join(channels.extra_names(model)))} designed for too"
-    con.print(f"noise model: {noise} per sample, {opt.n_samples} samples at {res.rate:g} Hz; joint states exact")
+    states = ("joint states exact" if res.states is None else
+              f"joint states from {shown(res.states['described'])}: their errors add to the noise (below)")
+    con.print(f"noise model: {noise} per sample, {opt.n_samples} samples at {res.rate:g} Hz; {states}")
     t = table("Design vs a random Fourier trajectory (same period, harmonics and bounds)",
               ("", "designed", "random Fourier", "ratio"), left=("",))  # fmt: skip
     t.add_row("-log det M (d-opt)", f"{opt.d_opt:.4g}", f"{rnd.d_opt:.4g}", f"{rnd.d_opt - opt.d_opt:+.3g} (diff)")
@@ -177,6 +186,23 @@ def print_design(res, model) -> None:
         t.add_row(name, f"{res.base.cad[k]:.5g}", f"{opt.std[k]:.3g}", f"{rnd.std[k]:.3g}",
                   f"{rnd.std[k] / opt.std[k]:.3g}x")
     con.print(t)
+    if res.states is not None:
+        print_states(res.states, model)
+
+
+def print_states(states: dict, model) -> None:
+    """The joint-state errors the sensors give (rehearsed) and the noise they make, designed beside random."""
+    con = console()
+    opt, rnd = states["optimized"], states["random_fourier"]
+    t = table("Joint-state errors the sensors give (RMS over the samples, rehearsed; rad, rad/s, rad/s^2)",
+              ("joint", "q", "qd designed", "qdd designed", "qd random", "qdd random"), left=("joint",))
+    for k, name in enumerate(model.joint_names):
+        t.add_row(shown(name), f"{opt['rms_q'][k]:.3g}", f"{opt['rms_qd'][k]:.3g}", f"{opt['rms_qdd'][k]:.3g}",
+                  f"{rnd['rms_qd'][k]:.3g}", f"{rnd['rms_qdd'][k]:.3g}")
+    con.print(t)
+    for label, values in (("designed", opt["noise_std"]), ("random Fourier", rnd["noise_std"]),
+                          ("the optimizer's weights (first start)", states["weights_noise_std"])):
+        con.print(f"noise std with the state errors, {label}: {' '.join(f'{v:.3g}' for v in values)}", markup=False)
 
 
 def print_limits(res, model) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import click
 
@@ -114,3 +115,48 @@ def imu_rehearsal(imus, gyro_bias: float, encoder_bits: int | None, noise: dict 
                                  "on one link)", param_hint="--imu")
     return ImuRehearsal(tuple(mounts), {k: v for k, v in (noise or {}).items() if k in IMU_NOISE_KEYS}, gyro_bias,
                         encoder_bits)
+
+
+imu_excite_options = [
+    click.option("--imu", "imus", multiple=True, metavar="[NAME=]LINK[:X,Y,Z,R,P,Y]|FRAME",
+                 help="Design for a link IMU (repeatable; gyro, accelerometer and angular acceleration) fused with the "
+                      "encoders as ineid data import does: on moving link LINK at a pose in its frame (m, rad, URDF "
+                      "rpy; default its origin), or at a URDF frame welded to a moving link. Noise: --noise gyro=, "
+                      "accel=, alpha= (default 0.005 rad/s, 0.05 m/s^2, 0.17 rad/s^2)."),
+    click.option("--encoder-bits", type=click.IntRange(1, 64), default=None, metavar="N",
+                 help="Design for encoders of N bits (steps of 2 pi / 2^N rad), filtered and differentiated as the "
+                      "import does: their joint-state errors inflate the noise to first order.  [default: exact]"),
+]  # fmt: skip
+
+
+def imu_excite(f):
+    """Decorate ``ineid excite`` with the sensors it designs for."""
+    for option in reversed(imu_excite_options):
+        f = option(f)
+    return f
+
+
+def excite_sensors(imus, encoder_bits: int | None, noise: dict | None, model):
+    """The :class:`ineid.data.imu_rehearsal.ImuRehearsal` ``ineid excite`` designs for (None: joint states exact).
+
+    The IMUs' noise not given in ``--noise`` is the import's default (:class:`ineid.data.state_estimation.ImuNoise`):
+    a design for noise-free IMUs would promise too much.
+
+    Raises:
+        click.UsageError: IMU noise without ``--imu``; q, qd, qdd noise beside the sensors.
+        DatasetError: an IMU that does not parse or names no moving link (one line).
+    """
+    noise = noise or {}
+    if not imus and any(k in noise for k in IMU_NOISE_KEYS):
+        key = next(k for k in IMU_NOISE_KEYS if k in noise)
+        raise click.UsageError(f"--noise {key}= is the noise of link IMUs: add --imu LINK[:pose], or drop it")
+    if not imus and encoder_bits is None:
+        return None
+    if any(k in noise for k in ("q", "qd", "qdd")):
+        raise click.UsageError("with --encoder-bits or --imu the joint-state errors come from the sensors: drop the q, "
+                               "qd, qdd noise")
+    from ineid.data.state_estimation import ImuNoise  # noqa: PLC0415
+
+    default = ImuNoise()
+    sensors = imu_rehearsal(imus, 0.0, encoder_bits, noise, model)
+    return replace(sensors, noise={k: noise.get(k, getattr(default, k)) for k in IMU_NOISE_KEYS} if imus else {})

@@ -24,8 +24,9 @@ D-optimality is invariant to any fixed column scaling (it shifts ``f`` by a cons
 its optimum does not depend on ``S`` at all; the condition number does, and is reported
 for the scaled ``Phi`` ("scaled condition number"). The expected covariance of the
 weighted least-squares estimate with wrench noise ``sigma`` is
-``cov(beta) = S (sum_k Phi_k^T Phi_k)^-1 S`` (the Cramer-Rao bound; noise on ``q, qd,
-qdd`` is not modelled in the design).
+``cov(beta) = S (sum_k Phi_k^T Phi_k)^-1 S`` (the Cramer-Rao bound; joint states exact,
+unless ``sensors`` name the lab's encoders and IMUs: their state errors inflate ``sigma`` to
+first order, :mod:`ineid.identify.excite_states`).
 
 **Trajectory.** Per joint a finite Fourier series (:mod:`ineid.data.trajectory`) with ``H``
 harmonics of ``f0``, at rest at ``t = 0`` and at every whole period: the coefficients
@@ -74,6 +75,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ineid.channels import ChannelSet
+from ineid.data.imu_rehearsal import ImuRehearsal
 from ineid.data.noise import NoiseModel
 from ineid.data.trajectory import FourierTrajectory, whole_count
 from ineid.errors import ExcitationError
@@ -100,6 +102,7 @@ from ineid.identify.excite_safety import (
     make_safe,
     verify,
 )
+from ineid.identify.excite_states import state_errors, states_record
 from ineid.identify.excite_trajectory import Bounds, _ipopt_solver, _Problem, _rest_basis, design_bounds  # noqa: F401  (re-exported)
 from ineid.progress import Progress
 
@@ -149,6 +152,8 @@ class ExcitationResult:
             floor or box): their settings, the grid and margins, the capsules and what had none,
             and the smallest clearance found on the samples at ``rate`` and on a grid ten times
             denser (:func:`ineid.identify.excite_safety.verify`).
+        states: with ``settings.sensors``: the sensors, the state errors each trajectory's rehearsal gives and
+            the inflated noise (:func:`ineid.identify.excite_states.states_record`); None: joint states exact.
     """
 
     trajectory: FourierTrajectory
@@ -166,10 +171,11 @@ class ExcitationResult:
     compile_seconds: float = 0.0
     settings: dict = field(default_factory=dict)
     safety: dict | None = None
+    states: dict | None = None
 
     def to_dict(self) -> dict:
         """The design record a ``traj.json`` carries beside the coefficients."""
-        return {
+        d = {
             "criterion": self.criterion,
             "value": self.value,
             "rate": self.rate,
@@ -186,6 +192,9 @@ class ExcitationResult:
             "settings": self.settings,
             "workspace": self.safety,
         }
+        if self.states is not None:
+            d["joint_state_errors"] = self.states
+        return d
 
 
 @dataclass(frozen=True)
@@ -217,6 +226,9 @@ class ExcitationSettings:
             in that box at every instant; None: no box.
         self_collision: keep the bounding capsules of non-adjacent bodies apart at every instant
             (:mod:`ineid.identify.excite_collision`), where the URDF has collision geometry.
+        sensors: the lab's encoders and link IMUs (:class:`ineid.data.imu_rehearsal.ImuRehearsal`): the
+            design accounts for the joint-state errors they cause (:mod:`ineid.identify.excite_states`);
+            None: joint states exact.
     """
 
     duration: float
@@ -238,6 +250,7 @@ class ExcitationSettings:
     floor: float | None = None
     workspace: tuple[float, float, float, float, float, float] | None = None
     self_collision: bool = True
+    sensors: ImuRehearsal | None = None
 
     def to_dict(self) -> dict:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -247,6 +260,10 @@ class ExcitationSettings:
             d["channels"] = self.channels.to_list()
         if self.workspace is not None:
             d["workspace"] = list(self.workspace)
+        if self.sensors is None:
+            del d["sensors"]  # joint states exact: the record as before
+        else:
+            d["sensors"] = self.sensors.to_dict()
         return d
 
 
@@ -353,7 +370,10 @@ def design_excitation(
     t_compile = time.perf_counter()
     problem.gradient(x0s[0])  # the first call of the compiled regressor and its derivatives
     compile_seconds = time.perf_counter() - t_compile
-
+    if s.sensors is not None:  # the state errors' noise, once, on the first start: IPOPT's objective stays as is
+        weights = state_errors(model, s.sensors, problem.trajectory(x0s[0], duration, model.joint_names), rate, sigma,
+                               base.channels, seed)
+        problem.reweigh(weights.sigma)
 
     solver, _keep, bnds = _ipopt_solver(problem, max_iter, tol, safety)
     records: list[StartRecord] = []
@@ -405,10 +425,17 @@ def design_excitation(
     start_values = np.array([r.start_value for r in records])
     median_start = int(np.argsort(start_values)[(len(start_values) - 1) // 2])
     random_traj = problem.trajectory(x0s[median_start], duration, names)
+    sig_opt = sig_rnd = sigma
+    states = None
+    if s.sensors is not None:  # each trajectory's own state errors
+        st_opt, st_rnd = (state_errors(model, s.sensors, tr, rate, sigma, base.channels, seed)
+                          for tr in (traj, random_traj))
+        sig_opt, sig_rnd = st_opt.sigma, st_rnd.sigma
+        states = states_record(s.sensors, weights, st_opt, st_rnd)
     _, q, qd, qdd = traj.sample(rate)
-    optimized = evaluate_design(model, q, qd, qdd, base, sigma)
+    optimized = evaluate_design(model, q, qd, qdd, base, sig_opt)
     _, rq, rqd, rqdd = random_traj.sample(rate)
-    random = evaluate_design(model, rq, rqd, rqdd, base, sigma)
+    random = evaluate_design(model, rq, rqd, rqdd, base, sig_rnd)
     if optimized.rank < base.rank:
         raise ExcitationError(
             f"the design determines only {optimized.rank} of the {base.rank} base parameters at {rate:g} Hz; "
@@ -430,5 +457,5 @@ def design_excitation(
         trajectory=traj, criterion=criterion, value=best_f, optimized=optimized, random=random,
         random_trajectory=random_traj, base=base, sigma=sigma, bounds=bounds, rate=float(rate), starts=records,
         seconds=time.perf_counter() - t_start, compile_seconds=compile_seconds, settings=record,
-        safety=safety_record,
+        safety=safety_record, states=states,
     )

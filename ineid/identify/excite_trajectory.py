@@ -153,6 +153,10 @@ class _Problem:
         self._last = (key, (phi, dphi, sel))
         return self._last[1]
 
+    def reweigh(self, sigma: np.ndarray) -> None:
+        """Weigh the axes by ``sigma`` from now on (the noise inflated by the state errors)."""
+        self.sigma, self._last = np.asarray(sigma, dtype=np.float64), None
+
     def value(self, x: np.ndarray) -> float:
         return criterion_and_gradient(self._evaluate(x)[0], self.criterion, gradient=False)[0]
 
