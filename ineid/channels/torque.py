@@ -19,7 +19,9 @@ and negative parts of ``tanh``), all four positive for a passive drive.
 
 :class:`MotorCurrent` is the same model read through the drive: ``i_j = tau_j / (k_j G_j)``
 with the torque constant ``k_j`` (N*m/A, motor side) and gear ratio ``G_j`` given, so its
-``T = diag(1 / (k G))`` and the actuation coefficients keep their joint-side units.
+``T = diag(1 / (k G))`` and the actuation coefficients keep their joint-side units. With
+``identify_k`` the torque constants are identified as well (``<joint>.k``, N*m/A, around the given
+ones), in the second of two steps (:mod:`ineid.identify.two_step`).
 
 References:
     Atkeson, An, Hollerbach (1986): linearity in the parameters.
@@ -40,9 +42,9 @@ from ineid.errors import DatasetError
 
 FRICTION_TERMS = ("viscous", "coulomb")
 """The friction models a joint-torque channel knows, in the order of their columns."""
-EXTRA_UNITS = {"fv": "N*m*s/rad", "fc": "N*m", "offset": "N*m", "Ia": "kg*m^2"}
+EXTRA_UNITS = {"fv": "N*m*s/rad", "fc": "N*m", "offset": "N*m", "Ia": "kg*m^2", "k": "N*m/A"}
 """The units of each actuation coefficient of a revolute joint (:func:`extra_unit`)."""
-_PRISMATIC_UNITS = {"fv": "N*s/m", "fc": "N", "offset": "N", "Ia": "kg"}
+_PRISMATIC_UNITS = {"fv": "N*s/m", "fc": "N", "offset": "N", "Ia": "kg", "k": "N/A"}
 
 
 def extra_unit(name: str, joint_type: str = "revolute") -> str:

@@ -128,7 +128,8 @@ def stacked_bases(a: BaseParameters, b: BaseParameters) -> BaseParameters:
 
 def _k_channels(torque: ChannelSet, model) -> list:
     """``(axis block, k0)`` of each motor-current channel of ``torque`` whose torque constants are identified."""
-    return [(b, np.asarray(b.channel.torque_constant)) for b in torque.blocks(model) if getattr(b.channel, "identify_k", False)]
+    return [(b, np.asarray(b.channel.torque_constant)) for b in torque.blocks(model)
+            if getattr(b.channel, "identify_k", False)]
 
 
 def k_columns(values: np.ndarray, blocks: list, n_axes: int) -> np.ndarray:
