@@ -19,7 +19,9 @@ and negative parts of ``tanh``), all four positive for a passive drive.
 
 :class:`MotorCurrent` is the same model read through the drive: ``i_j = tau_j / (k_j G_j)``
 with the torque constant ``k_j`` (N*m/A, motor side) and gear ratio ``G_j`` given, so its
-``T = diag(1 / (k G))`` and the actuation coefficients keep their joint-side units.
+``T = diag(1 / (k G))`` and the actuation coefficients keep their joint-side units. With
+``identify_k`` the torque constants are identified as well (``<joint>.k``, N*m/A, around the given
+ones), in the second of two steps (:mod:`ineid.identify.two_step`).
 
 References:
     Atkeson, An, Hollerbach (1986): linearity in the parameters.
@@ -40,9 +42,9 @@ from ineid.errors import DatasetError
 
 FRICTION_TERMS = ("viscous", "coulomb")
 """The friction models a joint-torque channel knows, in the order of their columns."""
-EXTRA_UNITS = {"fv": "N*m*s/rad", "fc": "N*m", "offset": "N*m", "Ia": "kg*m^2"}
+EXTRA_UNITS = {"fv": "N*m*s/rad", "fc": "N*m", "offset": "N*m", "Ia": "kg*m^2", "k": "N*m/A"}
 """The units of each actuation coefficient of a revolute joint (:func:`extra_unit`)."""
-_PRISMATIC_UNITS = {"fv": "N*s/m", "fc": "N", "offset": "N", "Ia": "kg"}
+_PRISMATIC_UNITS = {"fv": "N*s/m", "fc": "N", "offset": "N", "Ia": "kg", "k": "N/A"}
 
 
 def extra_unit(name: str, joint_type: str = "revolute") -> str:
@@ -243,14 +245,17 @@ class MotorCurrent(JointTorque):
         key: where its values are stored (default ``"current"``), (C, F, n_dof), A.
         torque_constant: ``k_j`` per joint, N*m/A at the motor (datasheet values).
         gear_ratio: ``G_j`` per joint (motor turns per joint turn; the sign gives the direction).
+        identify_k: the torque constants are identified (``<joint>.k``, from ``torque_constant`` as the nominal
+            ``k0``: ``k_j = k0_j (1 + d_j)``), in the second of two steps (:mod:`ineid.identify.two_step`).
     """
 
     key: str = "current"
     torque_constant: tuple[float, ...] = ()
     gear_ratio: tuple[float, ...] = ()
+    identify_k: bool = False
 
     kind = "motor_current"
-    RECORD_FIELDS = (*JointTorque.RECORD_FIELDS, "torque_constant", "gear_ratio")
+    RECORD_FIELDS = (*JointTorque.RECORD_FIELDS, "torque_constant", "gear_ratio", "identify_k")
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -268,13 +273,22 @@ class MotorCurrent(JointTorque):
         if len(self.torque_constant) != len(self.gear_ratio):
             raise DatasetError(f"motor-current channel {self.key!r}: {len(self.torque_constant)} torque constants "
                                f"but {len(self.gear_ratio)} gear ratios; give one of each per joint")
+        if not isinstance(self.identify_k, bool):
+            raise DatasetError(f"motor-current channel {self.key!r}: identify_k must be true or false, "
+                               f"got {self.identify_k!r}")
 
     def units(self, model) -> tuple[str, ...]:
         self._check_joints(model)
         return ("A",) * model.n_dof
 
     def describe(self) -> str:
-        return super().describe().replace(f"joint torques '{self.key}'", f"motor currents '{self.key}' (tau = k G i)", 1)
+        k = ", torque constants identified" if self.identify_k else ""
+        return super().describe().replace(f"joint torques '{self.key}'",
+                                          f"motor currents '{self.key}' (tau = k G i{k})", 1)
+
+    def k_names(self, model) -> tuple[str, ...]:
+        """The names of the identified torque constants, ``<joint>.k`` (none without ``identify_k``)."""
+        return tuple(f"{joint}.k" for joint in model.joint_names) if self.identify_k else ()
 
     def _check_joints(self, model) -> None:
         if len(self.gear_ratio) != model.n_dof:
@@ -293,7 +307,8 @@ class MotorCurrent(JointTorque):
         return super().rows(model, q, qd, qdd)
 
     def _record(self) -> dict:
-        return {**super()._record(), "torque_constant": list(self.torque_constant), "gear_ratio": list(self.gear_ratio)}
+        return {**super()._record(), "torque_constant": list(self.torque_constant), "gear_ratio": list(self.gear_ratio),
+                **({"identify_k": True} if self.identify_k else {})}  # written only when set (older records unchanged)
 
 
 def _joint_types(model) -> tuple[str, ...]:

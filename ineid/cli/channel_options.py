@@ -12,6 +12,8 @@ Shared by ``ineid solve`` and ``ineid identifiability`` (defined once, here):
 ``--torque-offset``        a constant torque per joint, identified with its std
 ``--two-step``             (``solve``) the links from the wrench, then the friction from the
                            joint torques' residual (FloBaRoID)
+``--torque-constant-unknown``  (``solve``, with ``--two-step``) the motor currents' torque
+                           constants identified in step 2 (``<joint>.k``)
 =========================  ================================================================
 
 They map onto :class:`ineid.identify.solve.SolveSettings` (``use``, ``friction``, ...), which
@@ -53,6 +55,9 @@ def channel_options(two_step: bool = False) -> Callable:
             f = click.option("--two-step", "two_step", is_flag=True,
                              help="FloBaRoID's two steps: the links from the wrench alone, then the friction "
                                   "(and armature, offsets) from the joint torques' residual; needs both.")(f)
+            f = click.option("--torque-constant-unknown", "torque_constant_unknown", is_flag=True,
+                             help="Identify the motor currents' torque constants (<joint>.k, around the channel's "
+                                  "nominal ones) in step 2 of --two-step.")(f)
         for option in reversed((
             click.option("--use", "use", default=None, metavar="NAMES", callback=_names,
                          help="Channels to fit, comma-separated: wrench, torque (or a channel's key). "
@@ -78,7 +83,8 @@ def channel_options(two_step: bool = False) -> Callable:
 
 def settings_flags(flags: dict) -> dict:
     """The :class:`ineid.identify.solve.SolveSettings` arguments of the options' values (by the option names)."""
-    keys = ("use", "friction", "coulomb_zone", "asymmetric_friction", "armature", "torque_offset", "two_step")
+    keys = ("use", "friction", "coulomb_zone", "asymmetric_friction", "armature", "torque_offset", "two_step",
+            "torque_constant_unknown")
     return {k: flags[k] for k in keys if k in flags}
 
 

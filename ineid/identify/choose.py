@@ -74,7 +74,7 @@ def select_channels(channels: ChannelSet, use: Sequence[str] | None) -> ChannelS
 def actuation_requested(settings) -> bool:
     """Whether ``settings`` (a :class:`ineid.identify.solve.SolveSettings`) asks for any actuation model."""
     return bool(settings.friction or settings.armature or settings.torque_offset or settings.asymmetric_friction
-                or settings.coulomb_zone)
+                or settings.coulomb_zone or settings.torque_constant_unknown)
 
 
 def check_actuation(settings) -> None:
@@ -87,6 +87,9 @@ def check_actuation(settings) -> None:
         raise ValueError(f"coulomb_zone must be >= 0 rad/s, got {settings.coulomb_zone}")
     if settings.coulomb_zone and "coulomb" not in settings.friction:
         raise ValueError("coulomb_zone smooths Coulomb friction: add friction 'coulomb' (--friction coulomb)")
+    if settings.torque_constant_unknown and not settings.two_step:
+        raise ValueError("torque constants are identified in the second of two steps (the links from the wrench "
+                         "first): add --two-step")
     if settings.asymmetric_friction and not settings.friction:
         raise ValueError("asymmetric_friction splits the friction coefficients per direction: "
                          "add a friction model (--friction viscous,coulomb)")
@@ -106,13 +109,25 @@ def with_actuation(channels: ChannelSet, settings) -> ChannelSet:
                 f"({', '.join(channels.keys)}) have none; fit a dataset with joint torques (--use torque) "
                 "or leave them out", status="no_torque_channel")
         return channels
+    currents = [c for c in actuated if _has_torque_constant(c)]
+    if settings.torque_constant_unknown and not currents:
+        raise IdentificationError(
+            f"--torque-constant-unknown identifies motor currents' torque constants, and the channels fitted "
+            f"({', '.join(channels.keys)}) have no motor currents: fit a dataset with currents (--use current) "
+            "or leave it out", status="no_current_channel")
     out = channels
     for c in actuated:
+        k = {"identify_k": bool(settings.torque_constant_unknown)} if _has_torque_constant(c) else {}
         out = out.replace(dataclasses.replace(
             c, friction=tuple(f for f in FRICTION_MODELS if f in settings.friction),
             coulomb_zone=float(settings.coulomb_zone), asymmetric=bool(settings.asymmetric_friction),
-            armature=bool(settings.armature), torque_offset=bool(settings.torque_offset)))
+            armature=bool(settings.armature), torque_offset=bool(settings.torque_offset), **k))
     return out
+
+
+def _has_torque_constant(channel) -> bool:
+    """Whether ``channel`` reads torques through torque constants that can be identified (a motor current)."""
+    return "identify_k" in {f.name for f in dataclasses.fields(channel)}
 
 
 def solve_channels(ds, settings, model) -> ChannelSet:

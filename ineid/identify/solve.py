@@ -116,6 +116,8 @@ class SolveSettings:
         two_step: FloBaRoID's two steps (:mod:`ineid.identify.two_step`): the links from the
             wrench alone, then the joint torques' extra parameters from their residual with the
             links fixed; needs both channels.
+        torque_constant_unknown: the motor-current channels' torque constants are identified too
+            (``<joint>.k``, relative to their nominal values), in step 2 of ``two_step`` (needs it).
     """
 
     method: str = "linear"
@@ -137,6 +139,7 @@ class SolveSettings:
     armature: bool = False
     torque_offset: bool = False
     two_step: bool = False
+    torque_constant_unknown: bool = False
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:

@@ -72,8 +72,26 @@ def _links_and_extra(model, theta_unknown, channels: ChannelSet) -> tuple[np.nda
     """``(theta_u, x)`` of estimates (NaN as zeros): ``[theta_u, x]`` split, or links alone (``x`` empty) when
     they hold no extra parameters (a solver that does not fit them, such as a trained network)."""
     theta = np.nan_to_num(theta_unknown)
-    n_extra = channels.n_extra(model)
-    return split(theta, n_extra if theta.shape[-1] == len(model.unknown_index) + n_extra else 0)
+    n_extra, n_u = channels.n_extra(model), len(model.unknown_index)
+    if theta.shape[-1] > n_u + n_extra:  # identified torque constants after x (ineid.identify.two_step)
+        return theta[..., :n_u], theta[..., n_u:n_u + n_extra]
+    return split(theta, n_extra if theta.shape[-1] == n_u + n_extra else 0)
+
+
+def _torque_constant_gain(model, theta_unknown, channels: ChannelSet) -> np.ndarray | None:
+    """(C, A) ``k0 / k`` on the axes of motor currents whose torque constants ``[theta_u, x, k]`` holds (the
+    prediction ``T (Y theta + E x)`` read through the identified constants), 1 elsewhere; None without them."""
+    theta = np.asarray(theta_unknown, dtype=np.float64)
+    start = len(model.unknown_index) + channels.n_extra(model)
+    if theta.shape[-1] <= start:
+        return None
+    gain = np.ones((theta.shape[0], channels.n_axes(model)))
+    for b in channels.blocks(model):
+        if getattr(b.channel, "identify_k", False):
+            k0 = np.asarray(b.channel.torque_constant)
+            gain[:, b.start:b.stop] = k0 / theta[:, start:start + len(k0)]
+            start += len(k0)
+    return gain
 
 
 def estimate_residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.ndarray,
@@ -322,4 +340,7 @@ def predicted_wrench(model, ds, theta_u, frames=slice(None), bias=None,
     theta = model.full_theta(links, ds.theta_known)
     w = predict_wrench(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], theta, channels,
                        extra if extra.shape[-1] else None)
+    gain = _torque_constant_gain(model, theta_u, channels)
+    if gain is not None:
+        w = w * gain[:, None, :]
     return w if bias is None else w + np.nan_to_num(bias)[:, None, :]

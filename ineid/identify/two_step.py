@@ -15,6 +15,17 @@ channel, and an actuation model (friction, armature, torque offsets):
    ones bounded below by 0 (``consistent``, :mod:`ineid.identify.extras`); offsets ``b`` by
    centring when ``bias="estimate"``.
 
+With ``--torque-constant-unknown`` (``SolveSettings.torque_constant_unknown``) a motor-current
+channel's torque constants are identified in step 2 too. With ``k_j = k0_j (1 + d_j)`` (``k0``
+the channel's nominal ``torque_constant``) the currents read ``i_j (1 + d_j) = T_j (Y_j theta + E_j x)``,
+so the residual ``i_j - T_j Y_j theta_hat = -i_j d_j + T_j E_j x`` is linear in ``d_j``: one more
+column per joint, ``-i_j`` (the measured current, row ``j``), appended to ``E`` (its base parameters
+over generic frames take the currents predicted at the CAD parameters in its stead). They are
+reported last, after the other extra parameters, as ``<joint>.k = k0_j (1 + d_j)`` with std
+``|k0_j| std(d_j)`` (prior ``k0_j``; ``base_hat`` holds ``d_j``). The residuals use the identified
+constants: the prediction ``(T (Y theta + E x) + b) / (1 + d)``, and the offsets reported are
+``b / (1 + d)``, in A.
+
 The results hold ``[theta_u, x]`` as a one-step solve does, with block-diagonal base
 parameters (those of step 1, then those of ``E``). The standard deviations of ``x`` are
 conditional on ``theta_hat`` (its uncertainty is not propagated into step 2); the residual
@@ -92,6 +103,7 @@ def wrench_settings(ds, settings, model):
                                   status="two_step_nothing")
     return dataclasses.replace(settings, use=wrench.keys, two_step=False, friction=(), coulomb_zone=0.0,
                                asymmetric_friction=False, armature=False, torque_offset=False,
+                               torque_constant_unknown=False,
                                axis_sigma=_axis_slice(settings, channels, wrench, model))
 
 
@@ -114,17 +126,54 @@ def stacked_bases(a: BaseParameters, b: BaseParameters) -> BaseParameters:
     )
 
 
+def _k_channels(torque: ChannelSet, model) -> list:
+    """``(axis block, k0)`` of each motor-current channel of ``torque`` whose torque constants are identified."""
+    return [(b, np.asarray(b.channel.torque_constant)) for b in torque.blocks(model)
+            if getattr(b.channel, "identify_k", False)]
+
+
+def k_columns(values: np.ndarray, blocks: list, n_axes: int) -> np.ndarray:
+    """The columns ``-i_j`` of the relative torque-constant corrections ``d``: (..., n_axes, n_k) from the stacked
+    currents ``values`` (..., n_axes), row ``j`` of each channel's block holding its joint's."""
+    n_k = sum(len(k0) for _, k0 in blocks)
+    out = np.zeros(values.shape[:-1] + (n_axes, n_k))
+    col = 0
+    for b, k0 in blocks:
+        for j in range(len(k0)):
+            out[..., b.start + j, col + j] = -values[..., b.start + j]
+        col += len(k0)
+    return out
+
+
 def extra_base_parameters(model, torque: ChannelSet, bias: bool) -> BaseParameters:
     """The base parameters of the extra kept columns ``E`` of ``torque`` alone (the links known), over generic
-    frames, with the scales of :mod:`ineid.identify.extras`; centred per axis with ``bias``."""
+    frames, with the scales of :mod:`ineid.identify.extras`; centred per axis with ``bias``. The columns of the
+    identified torque constants (module doc) come last, with scale 1 (``d`` is relative)."""
     q, qd, qdd = generic_frames(model)
     w = _regressor_unknown(model, q, qd, qdd, torque)
     scales = unknown_scales(model, w, torque)
-    n_e = torque.n_extra(model)
-    e = w[:, w.shape[1] - n_e:]
+    n_e, n_axes = torque.n_extra(model), torque.n_axes(model)
+    e, names, scales = w[:, w.shape[1] - n_e:], torque.extra_names(model), scales[len(scales) - n_e:]
+    blocks = _k_channels(torque, model)
+    if blocks:  # the currents predicted at the CAD parameters stand in for the measured ones
+        predicted = predict_wrench(model, q[None], qd[None], qdd[None], model.theta_cad[None], torque)[0]
+        k = k_columns(predicted, blocks, n_axes).reshape(len(q) * n_axes, -1)
+        e = np.concatenate([e, k], axis=1)
+        names = (*names, *(n for b, _ in blocks for n in b.channel.k_names(model)))
+        scales = np.concatenate([scales, np.ones(k.shape[1])])
     if bias:
-        e = centred_regressor(e, torque.n_axes(model), _offset_mask(torque, model, True))
-    return base_parameters_from_regressor(e, torque.extra_names(model), scales[len(scales) - n_e:], n_extra=n_e)
+        e = centred_regressor(e, n_axes, _offset_mask(torque, model, True))
+    return base_parameters_from_regressor(e, names, scales, n_extra=len(names))
+
+
+def _stack_order(channels: ChannelSet, wrench: ChannelSet, torque: ChannelSet, model) -> np.ndarray:
+    """Indices taking ``[wrench axes, torque axes]`` into ``channels``' stacked order."""
+    where, start = {}, 0
+    for part in (wrench, torque):
+        for b in part.blocks(model):
+            where[b.channel.key] = np.arange(start + b.start, start + b.stop)
+        start += part.n_axes(model)
+    return np.concatenate([where[k] for k in channels.keys])
 
 
 def second_step(first, ds, settings, model) -> dict:
@@ -137,6 +186,8 @@ def second_step(first, ds, settings, model) -> dict:
     n_fit, n_val = first.n_frames_fit, first.n_frames_validation
     n_axes, n_e = torque.n_axes(model), torque.n_extra(model)
     base_x = extra_base_parameters(model, torque, with_bias)
+    k_blocks = _k_channels(torque, model)
+    n_x = base_x.n_params  # n_e, then the torque constants' corrections d
     theta = model.full_theta(np.nan_to_num(first.theta_hat), ds.theta_known)
     mask = torque.offset_mask(model)
     lost = mask.astype(np.float64) if with_bias else None
@@ -148,12 +199,15 @@ def second_step(first, ds, settings, model) -> dict:
                                       "use weights='estimate'", status="no_noise_levels")
     c = ds.n_configs
     fits, parts, rms = [], [], np.empty(c)
-    per = max(1, CHUNK_ROWS // max(n_fit * n_axes * max(n_e, 1), 1))
+    per = max(1, CHUNK_ROWS // max(n_fit * n_axes * max(n_x, 1), 1))
     for start in range(0, c, per):  # the stacks of E of a chunk of configurations at a time
         sl = slice(start, min(start + per, c))
         q, qd, qdd = (a[sl, :n_fit] for a in (ds.q, ds.qd, ds.qdd))
-        resid = ds.measured(torque)[sl, :n_fit] - predict_wrench(model, q, qd, qdd, theta[sl], torque)
+        values = ds.measured(torque)[sl, :n_fit]
+        resid = values - predict_wrench(model, q, qd, qdd, theta[sl], torque)
         w = torque.extra_rows(model, q, qd, qdd).reshape(len(q), n_fit * n_axes, n_e)
+        if k_blocks:
+            w = np.concatenate([w, k_columns(values, k_blocks, n_axes).reshape(len(q), n_fit * n_axes, -1)], axis=2)
         y = resid.reshape(len(q), n_fit * n_axes)
         if with_bias:
             w, y, off = remove_offsets(w, y, n_axes, mask)
@@ -164,29 +218,44 @@ def second_step(first, ds, settings, model) -> dict:
     offsets = Offsets.concat(parts) if with_bias else None
     if with_bias:
         _offset_dof(fit, int(mask.sum()))
-    prior_x = np.zeros(n_e)
+    prior_x = np.zeros(n_x)
     est = linear_estimate(fit, base_x, prior_x)
     if settings.method == "consistent":  # friction and armature >= 0
         solver = NlpSolver.build("consistent", base_x, prior_x, settings.pull, settings.entropic)
         est = nlp_estimate(fit, solver, rms, np.where(np.isfinite(est.theta), est.theta, 0.0))
-    x = np.nan_to_num(est.theta)
+    x = np.nan_to_num(est.theta[:, :n_e])
+    gain = np.ones((c, n_axes))  # 1 + d on the axes of identified torque constants
+    if k_blocks:
+        gain[:, np.concatenate([np.arange(b.start, b.stop) for b, _ in k_blocks])] += np.nan_to_num(est.theta[:, n_e:])
+    gain_all = np.concatenate([np.ones((c, wrench.n_axes(model))), gain], axis=1)
     bias_hat = bias_std = None
     if with_bias:
         b_t, s_t = _bias_estimate(offsets, est, base_x)
-        parts = {**wrench.split(first.bias_hat, model), **torque.split(b_t, model)}
-        stds = {**wrench.split(first.bias_std, model), **torque.split(s_t, model)}
+        parts = {**wrench.split(first.bias_hat, model), **torque.split(b_t / gain, model)}
+        stds = {**wrench.split(first.bias_std, model), **torque.split(s_t / np.abs(gain), model)}
         bias_hat = np.concatenate([parts[k] for k in channels.keys], axis=1)
         bias_std = np.concatenate([stds[k] for k in channels.keys], axis=1)
     frames = slice(0, n_fit + n_val)
-    sums = residual_sums(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], ds.measured(channels)[:, frames],
-                         theta, n_fit, None if bias_hat is None else np.nan_to_num(bias_hat), channels, x)
+    values = ds.measured(channels)[:, frames]
+    order = _stack_order(channels, wrench, torque, model)
+    gain_all = gain_all[:, order]
+    sums = residual_sums(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], values * gain_all[:, None],
+                         theta, n_fit, None if bias_hat is None else np.nan_to_num(bias_hat) * gain_all, channels, x)
+    if k_blocks:  # (i (1 + d) - prediction)^2 / (1 + d)^2 per axis; the held-out values unscaled
+        sums = (sums[0] / gain_all**2, sums[1] / gain_all**2, (values[:, n_fit:] ** 2).sum(axis=(1, 2)))
+    theta_x, std_x = est.theta.copy(), est.theta_std.copy()
+    if k_blocks:  # d -> k = k0 (1 + d)
+        k0 = np.concatenate([k for _, k in k_blocks])
+        theta_x[:, n_e:] = k0 * (1.0 + est.theta[:, n_e:])
+        std_x[:, n_e:] = np.abs(k0) * est.theta_std[:, n_e:]
+        prior_x[n_e:] = k0
     ok = first.success & est.success
     status = np.where(first.success, np.asarray(est.status, dtype=object), first.status).astype(object)
     return dict(
         base=stacked_bases(first.base, base_x), theta_prior=np.concatenate([first.theta_prior, prior_x]), sums=sums,
         n_fit=n_fit, n_val=n_val, channels=channels, model=model,
-        theta_hat=np.concatenate([first.theta_hat, est.theta], axis=1),
-        theta_std=np.concatenate([first.theta_std, est.theta_std], axis=1),
+        theta_hat=np.concatenate([first.theta_hat, theta_x], axis=1),
+        theta_std=np.concatenate([first.theta_std, std_x], axis=1),
         base_hat=np.concatenate([first.base_hat, est.beta], axis=1),
         base_std=np.concatenate([first.base_std, est.beta_std], axis=1),
         success=ok, status=status, seconds=first.seconds + (time.perf_counter() - t0) / max(c, 1),
