@@ -279,3 +279,24 @@ def test_sweep_resumes(run, data, tmp_path, monkeypatch):
     assert len(rows) == 3 and all(",ok" in row for row in rows[1:])
     metrics = (out / "simple-tanh-single-standard-adam-mse" / "metrics.jsonl").read_text().splitlines()
     assert [json.loads(m)["epoch"] for m in metrics] == [1, 2, 3]
+
+
+def test_a_signal_swallowed_by_a_gc_callback_is_delivered_again():
+    """SIGTERM's exception raised inside a callback whose exceptions Python ignores (JAX's
+    ``_xla_gc_callback``) used to be dropped, and the command ran on; the hook sends it again."""
+    import signal
+    import threading
+    import types
+
+    from ineid._atomic import Terminated, redeliver_ignored_interrupt
+
+    got = threading.Event()
+    old = signal.signal(signal.SIGTERM, lambda *_: got.set())
+    try:
+        redeliver_ignored_interrupt(types.SimpleNamespace(exc_value=Terminated("terminated by signal 15")))
+        for _ in range(100):  # the handler runs in this (main) thread once the signal arrives
+            if got.wait(0.01):
+                break
+        assert got.is_set()
+    finally:
+        signal.signal(signal.SIGTERM, old)
