@@ -19,7 +19,6 @@ from ineid.robots.chunked import (  # noqa: F401  (CHUNK_FRAMES, SMALL_FRAMES, S
     host_array,
     nonzero_flat,
     run_chunked,
-    theta_kernel,
 )
 from ineid.robots.cuts import CutRegressors
 from ineid.robots.payload import extended_links, extended_theta_cad, payload_modules, resolve_payloads
@@ -310,20 +309,7 @@ class RobotModel(CutRegressors):
         instead of forming ``Psi`` (several times faster), compiled once per robot and
         chunked like :meth:`regressor`. Inside ``jax.jit`` use :attr:`jax_base_wrench`.
         """
-        theta = host_array("theta", self.theta_cad if theta is None else theta)
-        n_par = 10 * self.n_links
-        if theta.ndim == 0 or theta.shape[-1] != n_par:
-            raise ValueError(f"theta must have shape (..., {n_par}), got {tuple(theta.shape)}")
-        per_frame = theta.ndim > 1
-        flat, batch = self._states(q, qd, qdd, theta if per_frame else None)
-        consts = (self._gravity_device,) if per_frame else (theta, self._gravity_device)
-        out = np.empty((len(flat[0]), 6))
-
-        def write(start, stop, rows):
-            out[start:stop] = rows[: stop - start]
-
-        run_chunked(theta_kernel(_jax_functions(self._jax).wrench), flat, consts, write)
-        return out.reshape(batch + (6,))
+        return self._chunked_contracted(_jax_functions(self._jax).wrench, 6, q, qd, qdd, theta)
 
     @cached_property
     def _gravity_device(self):
