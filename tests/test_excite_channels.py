@@ -37,6 +37,7 @@ def test_design_base_covers_the_extra_parameters(model):
     assert np.array_equal(base.columns[-12:], 4 + 10 * model.n_links + np.arange(12))
 
 
+@pytest.mark.slow  # a second torque design (the CLI test below designs one by default): make test-slow
 def test_torque_design_beats_random_and_predicts_its_spread(model):
     settings = ExcitationSettings(5.0, harmonics=3, starts=1, seed=3, channels=TORQUES)
     res = design_excitation(model, settings)

@@ -93,8 +93,7 @@ def test_joint_torques_per_frame_theta_and_broadcast(case):
 
 def test_link_wrench_matches_pinocchio(case):
     model, pin_model, (q, qd, qdd), tol = case
-    cuts = range(model.n_dof - 1) if tol <= 1e-12 else (0, model.n_dof // 2)  # every cut of the small arms
-    for i in cuts:
+    for i in (0, model.n_dof // 2):  # the first cut and one inside the chain (each compiles its own kernels)
         link = model.link_names[i]
         ref = pinocchio_link_wrench(pin_model, q, qd, qdd, i + 1)
         assert rel_err(model.link_wrench_regressor(q, qd, qdd, link) @ model.theta_cad, ref) < tol, link
