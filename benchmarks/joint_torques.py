@@ -16,9 +16,9 @@ Every row's first frames are checked against Pinocchio (1e-10 relative).
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
+from public_api import best  # benchmarks/public_api.py
 from regressor import header, sample  # benchmarks/regressor.py
 
 import ineid
@@ -28,15 +28,6 @@ from ineid.reference import (
     pinocchio_model,
     pinocchio_q,
 )
-
-
-def best(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def robots():

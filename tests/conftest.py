@@ -74,6 +74,22 @@ def real_robot(name: str) -> tuple[Path, dict | None]:
     return example_robot_data_dir() / rel, locked
 
 
+def robot_and_pinocchio(name: str, gravity):
+    """``(ineid model, Pinocchio model)`` of a test arm: ``sweaty-arm``, ``mixed-chain`` (the fixture) or a
+    :data:`REAL_ROBOTS` arm, both with ``gravity``."""
+    from ineid.reference import pinocchio_model
+
+    if name == "sweaty-arm":
+        model = ineid.load_robot("sweaty-arm", gravity=gravity)
+        return model, pinocchio_model(model.urdf_path, gravity=gravity)
+    if name == "mixed-chain":
+        path = FIXTURES / "mixed_chain.urdf"
+        return ineid.load_robot(path, gravity=gravity), pinocchio_model(path, gravity=gravity)
+    path, locked = real_robot(name)
+    model = ineid.load_robot(path, gravity=gravity, locked_joints=locked)
+    return model, pinocchio_model(path, gravity=gravity, locked_joints=locked)
+
+
 def random_states(model, n: int, rng: np.random.Generator):
     """q within limits, qd and qdd within the sampling bounds: (n, n_dof) each."""
     from ineid.data.sampling import model_uniform_states

@@ -23,11 +23,10 @@ from ineid.reference import (
     pinocchio_joint_torque_regressor,
     pinocchio_joint_torques,
     pinocchio_link_wrench,
-    pinocchio_model,
     pinocchio_theta,
 )
 
-from .conftest import FIXTURES, random_states, real_robot, rel_err
+from .conftest import FIXTURES, random_states, rel_err, robot_and_pinocchio
 
 N_STATES = 60
 GRAVITY = (0.3, -0.4, -9.81)
@@ -35,15 +34,7 @@ EXACT = {"sweaty-arm": 1e-12, "mixed-chain": 1e-12}
 
 
 def _case(name):
-    if name == "sweaty-arm":
-        model = ineid.load_robot("sweaty-arm", gravity=GRAVITY)
-        return model, pinocchio_model(model.urdf_path, gravity=GRAVITY)
-    if name == "mixed-chain":
-        path = FIXTURES / "mixed_chain.urdf"
-        return ineid.load_robot(path, gravity=GRAVITY), pinocchio_model(path, gravity=GRAVITY)
-    path, locked = real_robot(name)
-    return (ineid.load_robot(path, gravity=GRAVITY, locked_joints=locked),
-            pinocchio_model(path, gravity=GRAVITY, locked_joints=locked))
+    return robot_and_pinocchio(name, GRAVITY)
 
 
 @pytest.fixture(scope="module", params=["sweaty-arm", "mixed-chain", "ur5",  # 7-joint arms compile for minutes:

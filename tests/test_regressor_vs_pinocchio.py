@@ -13,16 +13,14 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import ineid
 from ineid.reference import (
     pinocchio_base_regressor,
     pinocchio_base_wrench,
-    pinocchio_model,
     pinocchio_theta,
 )
 from ineid.symbolic import derive_base_wrench_regressor
 
-from .conftest import FIXTURES, random_states, real_robot, rel_err
+from .conftest import random_states, rel_err, robot_and_pinocchio
 
 N_STATES = 1000
 TOL = 1e-10
@@ -30,15 +28,7 @@ GRAVITY = (0.3, -0.4, -9.81)  # tilted, so every gravity component is exercised
 
 
 def _case(name):
-    if name == "sweaty-arm":
-        model = ineid.load_robot("sweaty-arm", gravity=GRAVITY)
-        return model, pinocchio_model(model.urdf_path, gravity=GRAVITY)
-    if name == "mixed-chain":
-        path = FIXTURES / "mixed_chain.urdf"
-        return ineid.load_robot(path, gravity=GRAVITY), pinocchio_model(path, gravity=GRAVITY)
-    path, locked = real_robot(name)
-    model = ineid.load_robot(path, gravity=GRAVITY, locked_joints=locked)
-    return model, pinocchio_model(path, gravity=GRAVITY, locked_joints=locked)
+    return robot_and_pinocchio(name, GRAVITY)
 
 
 ROBOTS = ["sweaty-arm", "ur5", "panda", "kinova", "mixed-chain"]

@@ -25,14 +25,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.channels.base import Channel, check_key, register
-from ineid.channels.pose import SensorPose, parse_sensor_pose
-from ineid.channels.wrench import WRENCH_AXES, WRENCH_UNITS, BaseWrench
+from ineid.channels.pose import SensorPose, parse_sensor_pose, regressor_in_sensor, wrench_in_sensor
+from ineid.channels.wrench import BaseWrench, WrenchSensor
 from ineid.errors import DatasetError
 
 
 @register
 @dataclass(frozen=True, kw_only=True)
-class LinkWrench(Channel):
+class LinkWrench(WrenchSensor):
     """The wrench at an F/T sensor on moving link ``link`` (see the module docstring).
 
     Attributes:
@@ -44,7 +44,6 @@ class LinkWrench(Channel):
 
     key: str = "wrench_link"
     link: str = ""
-    sensor: SensorPose | None = None
 
     kind = "link_wrench"
     RECORD_FIELDS = ("link", "sensor")
@@ -53,28 +52,12 @@ class LinkWrench(Channel):
         super().__post_init__()
         if not isinstance(self.link, str) or not self.link:
             raise DatasetError(f"link-wrench channel {self.key!r}: name the link the sensor is mounted on")
-        if self.sensor is not None and not isinstance(self.sensor, SensorPose):
-            raise TypeError(f"sensor must be a SensorPose or None, got {type(self.sensor).__name__}")
-
-    def axes(self, model=None) -> tuple[str, ...]:
-        return WRENCH_AXES
-
-    def units(self, model=None) -> tuple[str, ...]:
-        return WRENCH_UNITS
-
-    def n_axes(self, model=None) -> int:
-        return 6
 
     def describe(self) -> str:
-        frame = "link frame" if self.transform() is None else f"sensor frame {self.sensor.describe()}"
-        return (f"wrench at link {self.link!r} '{self.key}' ({frame})"
+        return (f"wrench at link {self.link!r} '{self.key}' ({self.frame_text('link frame')})"
                 + (", six offsets identified" if self.offsets else ""))
 
     # -- the model ------------------------------------------------------------------------
-    def transform(self) -> np.ndarray | None:
-        """``X`` (6, 6) of the sensor pose in the link, or None for the link frame."""
-        return None if self.sensor is None or self.sensor.is_identity else self.sensor.transform()
-
     def entries_function(self, model):
         return model.jax_link_wrench_functions(self.link).entries
 
@@ -91,27 +74,21 @@ class LinkWrench(Channel):
         return model.jax_link_wrench_functions(self.link).wrench
 
     def rows(self, model, q, qd, qdd) -> np.ndarray:
-        rows = model.link_wrench_regressor(q, qd, qdd, self.link)
-        t = self.transform()
-        return rows if t is None else t @ rows
+        return regressor_in_sensor(self.transform(), model.link_wrench_regressor(q, qd, qdd, self.link))
 
     def predict(self, model, q, qd, qdd, theta) -> np.ndarray:
-        w = model.link_wrench(q, qd, qdd, self.link, theta)
-        t = self.transform()
-        return w if t is None else w @ t.T
+        return wrench_in_sensor(self.transform(), model.link_wrench(q, qd, qdd, self.link, theta))
 
     # -- record ---------------------------------------------------------------------------
     def _record(self) -> dict:
-        return {"link": self.link, "sensor": None if self.sensor is None else self.sensor.to_dict()}
+        return {"link": self.link, **super()._record()}
 
     @classmethod
     def _parse_record(cls, d: Mapping, where: str) -> dict:
-        link, sensor = d.get("link"), d.get("sensor")
+        link = d.get("link")
         if not isinstance(link, str) or not link:
             raise DatasetError(f"{where}: the link-wrench channel must name its link, got {link!r}")
-        if sensor is not None and not isinstance(sensor, Mapping):
-            raise DatasetError(f"{where}: the link-wrench channel's sensor must be a pose record or null, got {sensor!r}")
-        return {"link": link, "sensor": None if sensor is None else SensorPose.from_dict(sensor, f"{where}: sensor")}
+        return {"link": link, **super()._parse_record(d, where)}
 
 
 LINK_KEY_PREFIX = "wrench_"

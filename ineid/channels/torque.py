@@ -231,7 +231,8 @@ class JointTorque(Channel):
         out = {name: d[name] for name in cls.RECORD_FIELDS if name in d}
         if "friction" in out:
             if not isinstance(out["friction"], list):
-                raise DatasetError(f"{where}: the joint-torque channel's friction must be a list, got {out['friction']!r}")
+                raise DatasetError(f"{where}: the joint-torque channel's friction must be a list, "
+                                   f"got {out['friction']!r}")
             out["friction"] = tuple(out["friction"])
         return out
 

@@ -29,23 +29,18 @@ WRENCH_AXES = ("fx", "fy", "fz", "mx", "my", "mz")
 WRENCH_UNITS = ("N", "N", "N", "N*m", "N*m", "N*m")
 
 
-@register
 @dataclass(frozen=True, kw_only=True)
-class BaseWrench(Channel):
-    """The wrench under the base, in the base frame or a sensor's (see the module docstring).
+class WrenchSensor(Channel):
+    """What every six-axis F/T sensor channel shares (not a kind of its own): axes ``fx..mz`` in N and
+    N*m, the mount pose ``sensor`` whose wrench transform is ``T`` (None: the model's frame), six offsets,
+    and the pose in the record. :class:`BaseWrench` (under the base) and
+    :class:`ineid.channels.link_wrench.LinkWrench` (on a link) differ only in ``Phi``.
 
     Attributes:
-        key: where its values are stored (default ``"wrench"``, the dataset's ``wrench``).
-        sensor: the sensor's pose in the base frame; None (or the identity pose): the
-            wrench is in the base frame, moment about the base origin.
-        offsets: six constant offsets (N, N*m, sensor axes) are identified with the parameters.
+        sensor: the sensor's pose in the model's frame of ``Phi``; None (or the identity pose): that frame.
     """
 
-    key: str = "wrench"
     sensor: SensorPose | None = None
-
-    kind = "wrench"
-    RECORD_FIELDS = ("sensor",)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -61,18 +56,51 @@ class BaseWrench(Channel):
     def n_axes(self, model=None) -> int:
         return 6
 
-    def describe(self) -> str:
-        frame = "base frame" if self.transform() is None else f"sensor frame {self.sensor.describe()}"
-        return f"base wrench '{self.key}' ({frame})" + (", six offsets identified" if self.offsets else "")
+    def frame_text(self, own: str) -> str:
+        """``own`` (the model's frame) or ``sensor frame xyz=... rpy=...``, for :meth:`describe`."""
+        return own if self.transform() is None else f"sensor frame {self.sensor.describe()}"
 
-    def with_sensor(self, sensor: SensorPose | None) -> BaseWrench:
+    def with_sensor(self, sensor: SensorPose | None) -> WrenchSensor:
         return replace(self, sensor=sensor)
 
-    # -- the model ------------------------------------------------------------------------
     def transform(self) -> np.ndarray | None:
-        """``X`` (6, 6) of the sensor pose, or None for the base frame (no sensor, or one at the base origin)."""
+        """``X`` (6, 6) of the sensor pose, or None for the model's frame (no sensor, or the identity pose)."""
         return None if self.sensor is None or self.sensor.is_identity else self.sensor.transform()
 
+    def _record(self) -> dict:
+        return {"sensor": None if self.sensor is None else self.sensor.to_dict()}
+
+    @classmethod
+    def _parse_record(cls, d: Mapping, where: str) -> dict:
+        sensor = d.get("sensor")
+        if sensor is not None and not isinstance(sensor, Mapping):
+            raise DatasetError(f"{where}: the {cls.kind} channel's sensor must be a pose record or null, "
+                               f"got {sensor!r}")
+        return {"sensor": None if sensor is None else SensorPose.from_dict(sensor, f"{where}: sensor")}
+
+
+@register
+@dataclass(frozen=True, kw_only=True)
+class BaseWrench(WrenchSensor):
+    """The wrench under the base, in the base frame or a sensor's (see the module docstring).
+
+    Attributes:
+        key: where its values are stored (default ``"wrench"``, the dataset's ``wrench``).
+        sensor: the sensor's pose in the base frame; None (or the identity pose): the
+            wrench is in the base frame, moment about the base origin.
+        offsets: six constant offsets (N, N*m, sensor axes) are identified with the parameters.
+    """
+
+    key: str = "wrench"
+
+    kind = "wrench"
+    RECORD_FIELDS = ("sensor",)
+
+    def describe(self) -> str:
+        return (f"base wrench '{self.key}' ({self.frame_text('base frame')})"
+                + (", six offsets identified" if self.offsets else ""))
+
+    # -- the model ------------------------------------------------------------------------
     def entries_function(self, model):
         return model.jax_regressor_entries
 
@@ -101,17 +129,6 @@ class BaseWrench(Channel):
 
     def predict(self, model, q, qd, qdd, theta) -> np.ndarray:
         return wrench_in_sensor(self.transform(), model.base_wrench(q, qd, qdd, theta))
-
-    # -- record ---------------------------------------------------------------------------
-    def _record(self) -> dict:
-        return {"sensor": None if self.sensor is None else self.sensor.to_dict()}
-
-    @classmethod
-    def _parse_record(cls, d: Mapping, where: str) -> dict:
-        sensor = d.get("sensor")
-        if sensor is not None and not isinstance(sensor, Mapping):
-            raise DatasetError(f"{where}: the wrench channel's sensor must be a pose record or null, got {sensor!r}")
-        return {"sensor": None if sensor is None else SensorPose.from_dict(sensor, f"{where}: sensor")}
 
 
 BASE_WRENCH = ChannelSet.of(BaseWrench())

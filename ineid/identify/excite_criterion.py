@@ -16,7 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ineid.channels import BASE_WRENCH, BaseWrench, ChannelSet
+from ineid.channels import BASE_WRENCH, ChannelSet
+from ineid.channels.wrench import WrenchSensor
 from ineid.data.noise import NoiseModel
 from ineid.errors import ExcitationError
 from ineid.identify.identifiability import BaseParameters, base_parameters, numerical_rank
@@ -107,7 +108,7 @@ def design_noise(noise: NoiseModel | None = None, channels: ChannelSet | None = 
     channels = BASE_WRENCH if channels is None else channels
     parts = []
     for c in channels:
-        if isinstance(c, BaseWrench) or c.axes(model) == BaseWrench().axes():
+        if isinstance(c, WrenchSensor):  # under the base or on a link: six axes fx..mz
             sigma, what = wrench, "the wrench noise (force= and moment=)"
         else:
             given = None if noise is None else dict(noise.channels).get(c.key)
