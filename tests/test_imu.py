@@ -294,3 +294,42 @@ def test_bad_imus_are_one_line_each(arm, recording):
     with pytest.raises(DatasetError) as e:
         estimate_joint_states(arm, q, qd_enc, qdd_enc, lone, readings)
     _one_line(e, "'upper_arm'", "gyro", "pose")
+
+
+def _imported(arm, recording, readings, mounts, bits: int = 10):
+    """The import (``recording_dataset``) of the recording with ``bits``-bit encoders, MuJoCo's wrench and these
+    IMU readings: ``(dataset, relative qd error, relative qdd error, largest base error)`` against the truth."""
+    from ineid.data.recording import ImportSettings, recording_dataset
+    from ineid.data.streams import ImuStream, Streams
+    from ineid.identify import SolveSettings, solve_dataset
+
+    t, step = recording["t"], 2 * np.pi / 2**bits
+    q = np.round(recording["q"] / step) * step
+    imus = tuple(ImuStream(m.name, t, {k: readings[m.name][k] for k in m.kinds}) for m in mounts)
+    texts = tuple(f"{m.link}:{','.join(repr(float(v)) for v in (*m.sensor.xyz, *m.sensor.rpy))}" for m in mounts)
+    ds, _ = recording_dataset(Streams(t, q, None, None, t, recording["wrench"], "imu test", imus=imus), arm,
+                              ImportSettings(imus=texts))
+    at = np.searchsorted(t, ds.time[0])
+    assert np.allclose(t[at], ds.time[0])
+    res = solve_dataset(ds, SolveSettings())
+    b = res.base
+    beta = recording["theta"][arm.unknown_index] @ b.B.T
+    base = float((np.abs(res.base_hat[0] - beta) / np.maximum(np.abs(beta), b.scales[b.base_index])).max())
+    return ds, _rel(ds.qd[0], recording["qd"][at]), _rel(ds.qdd[0], recording["qdd"][at]), base
+
+
+@pytest.mark.parametrize("links", [("upper_arm", "forearm"), ("forearm",), ("upper_arm",)])
+def test_imus_on_some_links_never_lose_to_the_encoders(arm, recording, links):
+    """Gyros (0.005 rad/s, biased) on some links only, 10-bit encoders, fast motion, through the import: the fused
+    qd, qdd and the identification are no worse than the encoders' alone, qd clearly better. The gyros leave a
+    direction unseen (a joint beyond them, three axes for four joints, or the shoulder's axes lining up), where
+    the encoders' derivatives at their own cut-off carry it. Measured: qd 0.0045 / 0.0041 / 0.0078 against 0.012,
+    qdd 0.013 / 0.018 / 0.015 against 0.019, base 0.013 / 0.030 / 0.018 against 0.049; before, IMUs on the upper
+    arm and forearm gave qd 0.023 against 0.007 rad/s (issue 22)."""
+    rng = np.random.default_rng(21)
+    noisy = _noisy(recording, rng, ImuNoise())
+    mounts = [replace(m, kinds=("gyro",)) for m in recording["mounts"] if m.link in links]
+    _, qd_e, qdd_e, base_e = _imported(arm, recording, noisy, [])
+    ds, qd_f, qdd_f, base_f = _imported(arm, recording, noisy, mounts)
+    assert ds.meta.origin["imu"]["mounts"] and qd_f < 0.7 * qd_e, (qd_f, qd_e)
+    assert qdd_f < 1.0 * qdd_e and base_f < 1.0 * base_e, (qdd_f, qdd_e, base_f, base_e)

@@ -13,10 +13,11 @@
    zero-phase Butterworth (:class:`ineid.data.signals.LowPass`) at the cut-off it would choose
    from these angles (:func:`ineid.data.signals.choose_cutoff`; with gyros
    :func:`ineid.data.recording_imu.imu_cutoff`) or the one given, and the angles
-   are differentiated by central differences; the motion being periodic, the signals are filtered
-   as periodic (no edges to drop);
+   are differentiated by central differences (the fusion's priors at the angles' own cut-off when
+   gyros raised it); the motion being periodic, the signals are filtered as periodic (no edges to drop);
 4. :func:`ineid.data.state_estimation.estimate_joint_states` fuses them, with the IMUs' noise as
-   the filter leaves it.
+   the filter leaves it plus the filter's own model error
+   (:func:`ineid.data.recording_imu.filter_model_error`).
 
 The dataset's ``q``, ``qd``, ``qdd`` and channel values are then what a lab's import gives;
 the truth stays in the ``*_clean`` arrays. :func:`rehearse` does one configuration.
@@ -112,7 +113,13 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
         the filtered values, and the :class:`ineid.data.state_estimation.EstimationSummary` (None without IMUs).
     """
     from ineid.data.imu import imu_readings  # noqa: PLC0415
-    from ineid.data.recording_imu import filtered_noise, imu_cutoff, qdd_prior  # noqa: PLC0415
+    from ineid.data.recording_imu import (  # noqa: PLC0415
+        filter_model_error,
+        filtered_noise,
+        imu_cutoff,
+        qdd_prior,
+        with_model_error,
+    )
     from ineid.data.state_estimation import EstimationSettings, ImuNoise, estimate_joint_states  # noqa: PLC0415
 
     time = np.asarray(time, dtype=np.float64)
@@ -121,9 +128,9 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
     h = float(time[1] - time[0])
     rate = 1.0 / h
     q_enc = quantize(q, rehearsal.encoder_bits, model.joint_types)
-    cutoff = rehearsal.cutoff
-    if cutoff is None:  # the import's rules: the angles', or with gyros the upper bound
-        cutoff = min(signals.choose_cutoff(q_enc, rate).cutoff, 0.4 * rate)
+    cutoff = priors_cutoff = rehearsal.cutoff
+    if cutoff is None:  # the import's rules: the angles', or with gyros the upper bound (priors at the angles')
+        cutoff = priors_cutoff = min(signals.choose_cutoff(q_enc, rate).cutoff, 0.4 * rate)
         if any("gyro" in m.kinds for m in rehearsal.mounts):
             cutoff = imu_cutoff(q_enc, rate, cutoff, [m.kinds for m in rehearsal.mounts],
                                 rehearsal.noise.get("gyro", 0.0) or 1e-2 * ImuNoise().gyro)[0]
@@ -145,7 +152,12 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
     summary = None
     if rehearsal.mounts:  # as the import does: the default settings (biases estimated), the noise as filtered
         # the mounts are exact by construction: no residual check (that is for a lab's mistakes)
-        settings = EstimationSettings(noise=filtered_noise(rehearsal.noise, cutoff, rate), max_residual_ratio=1e12,
+        noise = with_model_error(filtered_noise(rehearsal.noise, cutoff, rate),
+                                 filter_model_error(model, rehearsal.mounts, q_f, h, lambda x: periodic_filter(x, low)))
+        raised = priors_cutoff < cutoff  # the priors: the encoders at their own cut-off (recording_imu.encoder_priors)
+        if raised:
+            qd_e, qdd_e = periodic_derivatives(periodic_filter(q_enc, signals.LowPass(priors_cutoff, rate)), h)
+        settings = EstimationSettings(noise=noise, cutoff=cutoff if raised else None, max_residual_ratio=1e12,
                                       max_encoder_misfit=1e12, qdd_prior=qdd_prior(rehearsal.mounts))
         qd_e, qdd_e, summary = estimate_joint_states(model, q_f, qd_e, qdd_e, rehearsal.mounts, readings, settings,
                                                      time=time)

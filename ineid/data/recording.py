@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -268,7 +268,7 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
 
     # 1. filter (and differentiate) each stream on a uniform grid at its own rate: the joints' other
     #    channels (torques) with the angles, through the same filter as the wrench
-    choice, cutoff_note = None, None
+    choice, cutoff_note, priors_cutoff = None, None, None
     cutoff = settings.cutoff
     if not measured and cutoff is None:
         choice = signals.choose_cutoff(signals.to_uniform(tq, q, hq)[1], 1.0 / hq)
@@ -277,15 +277,16 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
             from ineid.data.recording_imu import imu_cutoff  # noqa: PLC0415
 
             gyro = (settings.imu_noise or {}).get("gyro", 0.005)
-            cutoff, cutoff_note = imu_cutoff(signals.to_uniform(tq, q, hq)[1], 1.0 / hq, cutoff,
-                                             [tuple(s.readings) for s in streams.imus], gyro)
+            angles_cutoff, q_u = cutoff, signals.to_uniform(tq, q, hq)[1]
+            cutoff, cutoff_note = imu_cutoff(q_u, 1.0 / hq, cutoff, [tuple(s.readings) for s in streams.imus], gyro)
             cutoff = min(cutoff, 0.4 * rate)
+            priors_cutoff = angles_cutoff if angles_cutoff < cutoff else None
     if cutoff is not None and cutoff >= 0.45 * rate:
         raise DatasetError(
             f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold (Nyquist {rate / 2:g} Hz); "
             f"use --cutoff below {0.45 * rate:g} Hz or a higher --rate"
         )
-    prepared = _prepare_imus(streams, model, settings, cutoff, tq)
+    prepared = _prepare_imus(streams, model, settings, cutoff, tq, priors_cutoff)
     joint_parts = {**joint_arrays, **riders}
     if cutoff is not None:
         tq_u, jq = signals.to_uniform(tq, np.concatenate(list(joint_parts.values()), axis=1), hq)
@@ -302,7 +303,7 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
             w_s = signals.LowPass(cutoff, 1.0 / hw).apply(w_s)
         else:
             tw_u, w_s = tq_u, None
-        edge = signals.edge_seconds(cutoff)
+        edge = signals.edge_seconds(min(cutoff, priors_cutoff or cutoff))
     else:
         tq_u, q_s, qd_s, qdd_s = tq, q, joint_arrays["qd"], joint_arrays["qdd"]
         riders_s = riders
@@ -348,8 +349,10 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     if prepared is not None:  # q the encoders', qd and qdd fused with the IMUs
         from ineid.data.recording_imu import imu_summary_lines  # noqa: PLC0415
 
-        qd_f, qdd_f, estimate, imu_record = prepared.fuse(model, grid, joints[:, :n], joints[:, n:2 * n],
-                                                          joints[:, 2 * n:3 * n], settings.estimation, settings.imu_noise)
+        priors = joints[:, n:3 * n] if priors_cutoff is None else _on_grid(tq_u, np.concatenate(prepared.encoder_priors(
+            signals.to_uniform(tq, q, hq)[1], 1.0 / hq), axis=1), grid)[0]
+        qd_f, qdd_f, estimate, imu_record = prepared.fuse(model, grid, joints[:, :n], priors[:, :n], priors[:, n:],
+                                                          settings.estimation, settings.imu_noise)
         joints[:, n:2 * n], joints[:, 2 * n:3 * n] = qd_f, qdd_f
         imu_lines = tuple(imu_summary_lines(prepared, estimate))
     resampled = [name for name, moved in (("joints", moved_q), ("wrench", moved_w)) if moved]
@@ -391,7 +394,8 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     return ds, summary
 
 
-def _prepare_imus(streams: Streams, model, settings: ImportSettings, cutoff: float | None, tq: np.ndarray):
+def _prepare_imus(streams: Streams, model, settings: ImportSettings, cutoff: float | None, tq: np.ndarray,
+                  priors_cutoff: float | None = None):
     """The recording's IMU streams matched, delayed and filtered (:func:`ineid.data.recording_imu.prepare_imus`),
     or None without IMUs; ``--imu`` or ``--imu-delay`` without IMU readings is one line."""
     if not streams.imus:
@@ -402,8 +406,8 @@ def _prepare_imus(streams: Streams, model, settings: ImportSettings, cutoff: flo
         return None
     from ineid.data.recording_imu import prepare_imus  # noqa: PLC0415
 
-    return prepare_imus(streams.imus, settings.imus, model, cutoff, settings.imu_delay, (float(tq[0]), float(tq[-1])),
-                        streams.source)
+    return replace(prepare_imus(streams.imus, settings.imus, model, cutoff, settings.imu_delay,
+                                (float(tq[0]), float(tq[-1])), streams.source), priors_cutoff=priors_cutoff)
 
 
 def _columns(x: np.ndarray, like: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

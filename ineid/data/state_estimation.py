@@ -32,11 +32,15 @@ accelerometers are linear in ``qdd`` alone (no bias), whitened by their noise, w
 of the fused ``qd``) of std ``s_p``: per frame ``qdd_k = (H_k^T H_k + P_p)^-1 (H_k^T z_k + P_p qdd_prior,k)``.
 Without such sensors ``qdd`` is the prior.
 
-**Prior weights from the data** (``encoder_qd_std=None``): a first pass with a prior 1e-9 times as
-heavy as the sensors gives the sensors' own estimate ``x1`` and its covariance ``C1``; per joint
-``s^2 = median_k (prior - x1)^2 / 0.455 - mean_k C1_jj`` (robust: a few bad frames do not inflate
-it), floored at ``1e-3`` of the sensors' own std (the encoders are then far better than the IMUs
-and win). The same for ``qdd``.
+**Prior weights from the data** (``encoder_qd_std=None``): per joint the sensors' estimate of that
+joint's rate alone, the others held at the prior, differs from the prior by the prior's error, the
+others' errors leaking through the maps, and the sensors' noise; the prior's variance per joint solves
+that robustly (:func:`ineid.data.prior_weights.prior_variance`: medians, so a filter's edges and
+near-singular frames do not move it), floored at ``1e-3`` of the sensors' own std (the encoders are then
+far better than the IMUs and win). With gyro biases, biases and weights alternate (:data:`BIAS_ROUNDS`),
+starting from the readings' mean misfit against the prior. The same for ``qdd``. With
+``qdd_prior="gyros"`` and the filter's ``cutoff`` the derivative of the fused ``qd`` is weighed against
+the encoders' ``qdd`` frame by frame (:attr:`EstimationSettings.cutoff`).
 
 **What the data cannot tell.** Each frame is estimated on its own (the biases aside): no smoothing
 over time, so low-pass the IMU streams as the angles are and give the noise the filter leaves. A
@@ -70,20 +74,20 @@ from ineid.data.gyro_bias import (
     unidentified_directions,
 )
 from ineid.data.imu import UNITS, ImuMount, _check_names, jacobians_from, link_jacobians, link_motion, moving_index
+from ineid.data.prior_weights import blend, prior_variance
 from ineid.errors import DatasetError
 
 WEAK = 1e-9
 """The first pass's prior weight, relative to the sensors' largest mean information per joint: the
 sensors' own estimate, to 1e-9, where they determine the rates (the prior where they do not)."""
-MEDIAN_CHI2_1 = 0.454936
-"""The median of a squared standard normal: ``median(d^2) / 0.455`` estimates ``var(d)`` robustly (a few
-bad frames, such as a filter's edges, do not inflate it)."""
 RESIDUAL_FLOOR = 0.01
 """A residual within this fraction of its readings' RMS (about their mean) is never a misfit, whatever the noise:
 low-passed readings against the model at low-passed angles differ by about 1e-3 of it; an IMU turned by
 0.1 rad among others on the chain leaves 2.7 %."""
-FLOOR = 1e-3
-"""The prior std is at least this fraction of the sensors' own std."""
+BIAS_ROUNDS = 3
+"""With gyro biases: rounds of (biases from the fusion at the current prior weights, then the weights with those
+biases taken off). The sensors alone cannot place a bias their frames confound with the rates (an IMU whose gyro
+sees three joints, say)."""
 
 
 @dataclass(frozen=True)
@@ -124,6 +128,11 @@ class EstimationSettings:
             of the predicted RMS (and by more than ``max_residual_ratio`` times the noise): DatasetError.
         qdd_prior: ``"encoders"`` (``qdd_enc``) or ``"gyros"`` (the derivative of the fused ``qd``,
             central differences over ``time``: low-pass the gyros first).
+        cutoff: Hz, the low-pass the readings and the angles went through (None: unknown). With
+            ``qdd_prior="gyros"`` the derivative of the fused ``qd`` is then weighed frame by frame against
+            ``qdd_enc`` (:func:`ineid.data.prior_weights.blend`; its variance ``(2 pi cutoff)^2 / 3`` times the
+            fused ``qd``'s, that of white noise through the filter): where the gyros see a joint poorly in a frame
+            (IMUs on some links only) ``qdd`` leans on the encoders; give ``qdd_enc`` at the angles' own cut-off.
     """
 
     noise: ImuNoise = field(default_factory=ImuNoise)
@@ -134,10 +143,13 @@ class EstimationSettings:
     max_residual_ratio: float = 5.0
     max_encoder_misfit: float = 0.2
     qdd_prior: str = "encoders"
+    cutoff: float | None = None
 
     def __post_init__(self) -> None:
         if self.qdd_prior not in ("encoders", "gyros"):
             raise DatasetError(f"qdd_prior must be 'encoders' or 'gyros', got {self.qdd_prior!r}")
+        if self.cutoff is not None and not (np.isfinite(self.cutoff) and self.cutoff > 0):
+            raise DatasetError(f"cutoff must be a positive number of Hz or None, got {self.cutoff!r}")
         for k in ("max_residual_ratio", "max_encoder_misfit"):
             v = getattr(self, k)
             if not (np.isfinite(v) and v > 0):
@@ -159,7 +171,8 @@ class EstimationSummary:
             the bias rests on the encoders' mean rate alone, with no std.
         residual_rms: per IMU, per kind: RMS of reading minus fitted value (its unit).
         noise: the noise used.
-        qd_prior_std, qdd_prior_std: (n_dof,) the priors' std used (None: that prior alone gave the estimate).
+        qd_prior_std, qdd_prior_std: (n_dof,) the priors' std used (None: that prior alone gave the estimate;
+            NaN for a joint no IMU sees).
         qdd_prior: which prior ``qdd`` had (``encoders`` or ``gyros``).
         n_frames: frames estimated.
         q_error_std: (n_dof,) the encoders' angle-error std the biases' std assumes (rad; None without biases).
@@ -217,7 +230,8 @@ class EstimationSummary:
         for label, s in (("qd", self.qd_prior_std), ("qdd", self.qdd_prior_std)):
             if s is not None:
                 out.append(f"  prior on {label} ({'encoders' if label == 'qd' else self.qdd_prior}) std: "
-                           + " ".join(f"{v:.3g}" for v in s))
+                           + " ".join("unseen" if not np.isfinite(v) else f"{v:.3g}" for v in s)
+                           + (" (unseen: no IMU sees that joint; the prior alone)" if not np.all(np.isfinite(s)) else ""))
         return out
 
 
@@ -277,10 +291,16 @@ def _prior_std(given, h, z, prior, bias: bool, n: int, label: str) -> np.ndarray
             raise DatasetError(f"encoder_{label}_std must be positive numbers (one, or one per joint), got {given!r}")
         return s
     info = np.mean(np.einsum("fmn,fmn->fn", h, h), axis=0)  # the sensors' mean information per joint
-    x1, _, _, var1 = _fuse(h, z, prior, WEAK * (np.max(info) + 1e-300) * np.ones(n), bias)
-    own = np.mean(var1, axis=0)
-    s2 = np.median((prior - x1) ** 2, axis=0) / MEDIAN_CHI2_1 - own
-    return np.sqrt(np.maximum(s2, (FLOOR**2) * own))
+    weak = WEAK * (np.max(info) + 1e-300)
+    # the biases first from the readings' mean misfit against the prior (its errors average out), then
+    # alternately the weights and the biases at those weights
+    beta = np.mean(z - np.einsum("fmn,fn->fm", h, prior), axis=0) if bias else np.zeros(h.shape[1])
+    s2 = np.zeros(n)
+    for i in range(1 + (BIAS_ROUNDS if bias else 0)):
+        if i:
+            beta = _fuse(h, z, prior, 1.0 / s2, True)[1]
+        s2 = prior_variance(h, z - beta - np.einsum("fmn,fn->fm", h, prior), weak)
+    return np.sqrt(s2)
 
 
 def _check_inputs(model, q, qd_enc, qdd_enc, mounts, readings):
@@ -365,8 +385,8 @@ def estimate_joint_states(model, q, qd_enc, qdd_enc, mounts: Sequence[ImuMount],
             return np.concatenate([(mount_rotation(m) @ jq[:, moving_index(model, m), 0]) for m in gyros],
                                   axis=1) / noise.gyro
         z = np.concatenate([np.asarray(readings[m.name]["gyro"], dtype=np.float64) for m in gyros], axis=1) / noise.gyro
-        qd_std = _prior_std(settings.encoder_qd_std, h, z, qd_enc, settings.gyro_bias, n, "qd")
-        qd, beta, s_inv, _ = _fuse(h, z, qd_enc, 1.0 / qd_std**2, settings.gyro_bias)
+        qd_std, gyro_maps_h = _prior_std(settings.encoder_qd_std, h, z, qd_enc, settings.gyro_bias, n, "qd"), h
+        qd, beta, s_inv, qd_var = _fuse(h, z, qd_enc, 1.0 / qd_std**2, settings.gyro_bias)
         white = z - np.einsum("fmn,fn->fm", h, qd) - beta
         res = white * noise.gyro
         cov, null = np.zeros_like(s_inv), np.zeros((0, len(beta)))
@@ -390,6 +410,8 @@ def estimate_joint_states(model, q, qd_enc, qdd_enc, mounts: Sequence[ImuMount],
         if time is None or not gyros:
             raise DatasetError("qdd_prior='gyros' needs the frames' time and at least one gyro; or use 'encoders'")
         prior = np.gradient(qd, np.asarray(time, dtype=np.float64), axis=0)
+        if settings.cutoff is not None:  # weighed against the encoders' where the gyros see a joint poorly
+            prior, _ = blend(prior, qd_var * (2 * np.pi * settings.cutoff) ** 2 / 3, qdd_enc)
     else:
         prior = qdd_enc
     acc = [(m, k) for m in mounts for k in ("alpha", "accel") if k in m.kinds]
@@ -409,6 +431,11 @@ def estimate_joint_states(model, q, qd_enc, qdd_enc, mounts: Sequence[ImuMount],
         for i, (m, k) in enumerate(acc):
             residual[m.name][k] = float(np.sqrt(np.mean(res[:, 3 * i: 3 * i + 3] ** 2)) * getattr(noise, k))
 
+    def shown(std, maps):  # NaN for a joint no sensor sees (its std is the placeholder 1 / weak)
+        return None if std is None else np.where(np.abs(maps).sum(axis=(0, 1)) > 0, std, np.nan)
+
+    qd_std = shown(qd_std, gyro_maps_h) if gyros else qd_std
+    qdd_std = shown(qdd_std, h) if acc else qdd_std
     summary = EstimationSummary(tuple(mounts), bias, bias_std, residual, noise, qd_std, qdd_std,
                                 settings.qdd_prior, f, bias_cov, free, q_err)
     _check_fit(mounts, readings, settings, summary, qd_enc, prior, gyro_maps, acc_maps)

@@ -11,6 +11,8 @@ for each sensor set
 * ``12-bit``, ``10-bit``: coarse encoders, filtered and differentiated;
 * ``+gyro``: the coarse encoders and a gyroscope on every moving link;
 * ``+gyro+alpha``: and an angular-acceleration sensor (the paper's) on every moving link;
+* ``+gyro2``: gyroscopes on the last two moving links only (the unknown ones: a lab's cheapest retrofit),
+  which leave joint directions unseen;
 
 over the logging rate and the motion's bandwidth (its highest harmonic), and identifies the
 unknown links by linear least squares on the first ``fit_share`` of each period. Errors:
@@ -35,7 +37,8 @@ import numpy as np
 
 from ineid._atomic import save_figure, write_csv
 
-SENSOR_SETS = ("fine", "12-bit", "12-bit+gyro", "12-bit+gyro+alpha", "10-bit", "10-bit+gyro", "10-bit+gyro+alpha")
+SENSOR_SETS = ("fine", "12-bit", "12-bit+gyro", "12-bit+gyro+alpha", "10-bit", "10-bit+gyro", "10-bit+gyro+alpha",
+               "10-bit+gyro2")
 """The sensor sets, in table order (:func:`sensor_set`)."""
 FINE_BITS = 20
 IMU_NOISE = {"gyro": 0.005, "alpha": 0.17}
@@ -78,14 +81,15 @@ class SensorStudySize:
 
 
 def sensor_set(name: str, model) -> tuple[int, tuple]:
-    """``(encoder bits, IMU mounts)`` of a :data:`SENSOR_SETS` name: IMUs at every moving link's origin."""
+    """``(encoder bits, IMU mounts)`` of a :data:`SENSOR_SETS` name: IMUs at every moving link's origin (``gyro2``:
+    the last two's)."""
     from ineid.data.imu import ImuMount  # noqa: PLC0415
 
     if name not in SENSOR_SETS:
         raise ValueError(f"sensor set must be one of {', '.join(SENSOR_SETS)}, got {name!r}")
     bits = FINE_BITS if name == "fine" else int(name.split("-")[0])
     kinds = tuple(k for k in ("gyro", "alpha") if f"+{k}" in name)
-    links = [j.link for j in model.chain.joints]
+    links = [j.link for j in model.chain.joints][-2 if name.endswith("gyro2") else 0:]
     return bits, tuple(ImuMount(link, kinds=kinds) for link in links) if kinds else ()
 
 
