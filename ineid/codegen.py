@@ -122,7 +122,7 @@ def load_robot(
     path = Path(key)
     if not path.is_file():
         raise RobotModelError(
-            f"{key!r} is neither a built-in robot ({', '.join(BUILTIN_ROBOTS)}) nor a URDF or MJCF file that exists"
+            f"{key!r} is neither a built-in robot ({', '.join(BUILTIN_ROBOTS)}) nor a URDF file (or MJCF) that exists"
         )
     chain, urdf_text = robot_file_chain(path, locked_joints)  # an MJCF comes with the URDF written from it
     jax_mod, ca_mod = generated_modules_for(chain, chain.name, codegen_dir)

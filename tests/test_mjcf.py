@@ -152,6 +152,13 @@ def test_menagerie_style_model_matches_mujoco_inverse_dynamics(menagerie, rng):
     j2 = model.link_names.index("link2")
     mass, mc = model.theta_cad[10 * j2], model.theta_cad[10 * j2 + 1: 10 * j2 + 4]
     assert np.allclose(mc / mass, np.array([0.1, 0.0, 0.01]) - (0, 0.01, -0.02), rtol=0, atol=1e-15)
+    # colliding geoms: link1's capsule (a cylinder of its segment) and link3's box, for the excitation's capsules
+    assert '<cylinder radius="0.03" length="0.1" />' in model.urdf_text and '<box size="0.2 0.04 0.04" />' in model.urdf_text
+    from ineid.robots.collision import body_capsules
+
+    capsules = {c.name: c for c in body_capsules(model.urdf_text, model.chain).capsules}
+    assert set(capsules) == {"base", "link1", "link3"} and capsules["link1"].radius == 0.03
+    assert np.allclose(np.abs(capsules["link1"].b - capsules["link1"].a), [0, 0, 0.1], rtol=0, atol=1e-12)
     q, qd, qdd = random_states(model, 25, rng)
     expected = mujoco_base_wrench(m, q, qd, qdd)
     theta = np.broadcast_to(model.theta_cad, (len(q), model.theta_cad.size))
@@ -244,6 +251,8 @@ BAD = {
     "branch": ('<body name="tool" pos="0.2 0 0" euler="0 90 0">',
                '<body name="tool" pos="0.2 0 0" euler="0 90 0"><joint name="jt" axis="0 0 1"/>',
                "branching tree: body 'link3' has 2 moving child joints"),
+    "equality": ("<actuator>", '<equality><joint name="couple" joint1="j1" joint2="j3"/></equality><actuator>',
+                 "<equality> constraint couple"),
     "two joints": ('<joint name="j1" axis="0 0 1" range="-170 170"/>',
                    '<joint name="j1" axis="0 0 1" range="-170 170"/><joint name="j1b" axis="1 0 0"/>',
                    "body 'link1' has 2 joints"),
@@ -296,3 +305,32 @@ def test_cli_with_an_mjcf_robot(run, menagerie, folder):
     assert rel_err(back.theta_cad[back.unknown_index], results.theta_links[1]) < 1e-12
     line = one_line_error(run("export-mjcf", res, "--robot", path, "--config", 1, "--out", out))
     assert line == f"Error: {out} exists; pass --overwrite to replace it"
+
+
+def test_arm_hinged_on_the_world_with_unnamed_bodies(tmp_path):
+    """No fixed base body: the world is the root link; unnamed bodies and joints get names, with a note."""
+    from ineid.robots.mjcf import load_mjcf_chain
+
+    path = tmp_path / "bare.mjcf"
+    path.write_text('<mujoco><worldbody><geom type="plane" size="1 1 .1"/><body pos="0 0 0.5"><joint axis="0 0 1"/>'
+                    '<geom type="sphere" size="0.1" pos="0.2 0 0"/><body pos="0.3 0 0"><joint name="b" axis="0 1 0" '
+                    'pos="0.05 0 0"/><geom type="box" size=".1 .02 .02" pos=".1 0 0"/></body></body></worldbody></mujoco>')
+    chain, _ = load_mjcf_chain(path)
+    assert chain.root_link == "world" and [j.name for j in chain.joints] == ["joint0", "b"]
+    assert [j.link for j in chain.joints] == ["body1", "body2"] and "body1, body2, joint0" in chain.notes[0]
+    assert np.allclose(chain.joints[1].parent_p_joint, [0.35, 0, 0], rtol=0, atol=1e-15)  # at the hinge's pos
+    assert np.allclose(chain.joints[1].theta[1:4] / chain.joints[1].theta[0], [0.05, 0, 0], rtol=0, atol=1e-15)
+
+
+def test_export_urdf_results_into_the_mjcf_twin(arm_xml, model, folder):
+    """Results identified on sweaty-arm's URDF, written into its MJCF twin (same names and frames)."""
+    from ineid.identify import export_mjcf
+
+    forearm = perturbed(model, "forearm", 3)
+    out = folder / "twin.xml"
+    export_mjcf(fake_results(model, {"forearm": forearm}), 7, arm_xml, out)
+    back = ineid.load_robot(out)
+    i = back.link_names.index("forearm")
+    assert rel_err(back.theta_cad[10 * i: 10 * i + 10], forearm) < 1e-12
+    removed, added = changed_lines(arm_xml.read_text().replace("><", ">\n<"), out.read_text().replace("><", ">\n<"))
+    assert len(removed) == len(added) == 1 and "<inertial " in added[0]

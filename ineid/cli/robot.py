@@ -106,7 +106,7 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
         path = Path(robot)
         if not path.is_file():
             raise click.BadParameter(
-                f"{robot!r} is neither a built-in robot ({', '.join(BUILTIN_ROBOTS)}) nor an existing URDF or MJCF file",
+                f"{robot!r} is neither a built-in robot ({', '.join(BUILTIN_ROBOTS)}) nor an existing URDF file (or MJCF)",
                 param_hint="ROBOT",
             )
         chain = robot_file_chain(path, locked)[0]

@@ -46,7 +46,7 @@ from ineid.robots.chain import Chain
 
 INSTALL_HINT = "needs MuJoCo: pip install 'ineid[mujoco]'"
 MJCF_SUFFIXES = (".xml", ".mjcf")
-"""A robot file with one of these suffixes (or whose top element is ``<mujoco>``) is read as MJCF."""
+"""A robot file whose top element is ``<mujoco>`` is read as MJCF; one that is not XML, by these suffixes."""
 
 _HINGE, _SLIDE = 3, 2  # mjtJoint: FREE 0, BALL 1, SLIDE 2, HINGE 3
 _JOINT_KIND = {0: "free", 1: "ball", 2: "slide", 3: "hinge"}
@@ -63,18 +63,14 @@ def import_mujoco(purpose: str = "the MuJoCo simulation"):
 
 
 def is_mjcf(path: str | Path) -> bool:
-    """Whether the robot file ``path`` is MJCF: its suffix (:data:`MJCF_SUFFIXES`), else its top element."""
-    path = Path(path)
-    if path.suffix.lower() in MJCF_SUFFIXES:
-        return True
-    if path.suffix.lower() == ".urdf":
-        return False
+    """Whether the robot file ``path`` is MJCF: its top element is ``<mujoco>`` (unreadable or not XML:
+    its suffix is one of :data:`MJCF_SUFFIXES`, so MuJoCo's parser says what is wrong)."""
     try:
         for _, el in ET.iterparse(path, events=("start",)):
             return el.tag == "mujoco"
     except (OSError, ET.ParseError):
-        return False
-    return False
+        pass
+    return Path(path).suffix.lower() in MJCF_SUFFIXES
 
 
 @dataclass(frozen=True)
@@ -141,6 +137,11 @@ def read_mjcf(path: str | Path) -> MjcfRobot:
     scenery = [names["body"][b] for b in range(1, m.nbody) if int(m.body_rootid[b]) != top and parent[b] == 0]
     if scenery:
         notes.append(f"bodies welded to the world outside the robot are not part of it: {', '.join(scenery)}")
+    unnamed = [names["body"][b] for b in members if names["xml_body"][b] is None]
+    unnamed += [names["joint"][j] for b in members for j in range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b])
+                if not mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)]
+    if unnamed:
+        notes.append(f"unnamed bodies and joints are called {', '.join(unnamed)} (export-mjcf needs named bodies)")
     world_R_root = _quat_matrix(mujoco, m.body_quat[root]) if root else np.eye(3)
     g_base = world_R_root.T @ np.asarray(m.opt.gravity, dtype=np.float64)
     if not np.allclose(g_base, (0.0, 0.0, -9.81), rtol=0, atol=1e-12):
@@ -160,7 +161,7 @@ def read_mjcf(path: str | Path) -> MjcfRobot:
             continue
         _joint(mujoco, m, b, shift, names, robot, source)
     ET.indent(robot, space="  ")
-    text = '<?xml version="1.0"?>\n<!-- written by ineid from the MJCF ' + _comment(source) + " -->\n"
+    text = '<?xml version="1.0"?>\n<!-- written by ineid from an MJCF compiled by MuJoCo (ineid.robots.mjcf) -->\n'
     return MjcfRobot(source, text + ET.tostring(robot, encoding="unicode") + "\n", names["body"][root], bodies,
                      tuple(notes))
 
@@ -232,11 +233,6 @@ def _model_name(path) -> str:
     except (OSError, ET.ParseError):
         pass
     return Path(path).stem
-
-
-def _comment(text: str) -> str:
-    """``text`` safe inside an XML comment (no ``--``)."""
-    return text.replace("--", "- -")
 
 
 def _shift(m, b: int) -> np.ndarray:
