@@ -334,3 +334,24 @@ def test_export_urdf_results_into_the_mjcf_twin(arm_xml, model, folder):
     assert rel_err(back.theta_cad[10 * i: 10 * i + 10], forearm) < 1e-12
     removed, added = changed_lines(arm_xml.read_text().replace("><", ">\n<"), out.read_text().replace("><", ">\n<"))
     assert len(removed) == len(added) == 1 and "<inertial " in added[0]
+
+
+def test_export_mjcf_edits_any_spelling_of_inertial(menagerie, folder):
+    """``<inertial ...></inertial>``, a comment with ``>`` and quotes before it: only the element is replaced."""
+    from ineid.identify import export_mjcf
+
+    path, model, _ = menagerie
+    old = '<inertial pos="0.1 0 0.01" mass="0.9" fullinertia="0.004 0.02 0.021 0.0001 -0.0002 0.0003"/>'
+    text = MENAGERIE.replace(old, "<!-- a > b, \"it's\" -->\n          " + old[:-2] + ">\n          </inertial>")
+    spelled = folder / "spelled.xml"
+    spelled.write_text(text)
+    link2 = perturbed(model, "link2", 9)
+    out = folder / "spelled_out.xml"
+    export_mjcf(fake_results(model, {"link2": link2}), 7, spelled, out)
+    new = out.read_text()
+    start, stop = text.index('<inertial pos="0.1'), text.index("</inertial>") + len("</inertial>")
+    written = new[start: new.index("/>", start) + 2]
+    assert written.startswith('<inertial pos="') and "fullinertia=" in written
+    assert new[:start] == text[:start] and new[start + len(written):] == text[stop:]
+    back = ineid.load_robot(out)
+    assert rel_err(back.theta_cad[10:20], link2) < 1e-12

@@ -97,6 +97,8 @@ def mjcf_with_inertials(mjcf_path: str | Path, theta_by_link: dict[str, np.ndarr
             new = f'<inertial pos="{_fmt(c)}" mass="{m!r}" fullinertia="{_fmt(full)}"/>'
         if inertial is not None:
             edits.append((inertial[0], inertial[1], new.encode()))
+        elif data[start_end - 2:start_end] == b"/>":  # <body name=.../>: open it
+            edits.append((start_end - 2, start_end, (">" + _indent(data, start_end) + new + "</body>").encode()))
         else:
             edits.append((start_end, start_end, (_indent(data, start_end) + new).encode()))
     for start, stop, new in sorted(edits, reverse=True):
@@ -130,10 +132,11 @@ def _body_spans(data: bytes) -> dict[str, tuple[int, tuple[int, int] | None]]:
 
     def end(tag):
         _, attrs, begin = stack.pop()
-        at = parser.CurrentByteIndex
-        stop = data.index(b">", at) + 1 if data[at:at + 2] == b"</" else _tag_end(data, begin)
+        tag_stop = _tag_end(data, begin)
+        # an empty element ends with its start tag; else expat is at the end tag's "<"
+        stop = tag_stop if data[tag_stop - 2:tag_stop] == b"/>" else data.index(b">", parser.CurrentByteIndex) + 1
         if tag == "body" and attrs.get("name"):
-            out.setdefault(attrs["name"], [None, None])[0] = _tag_end(data, begin)
+            out.setdefault(attrs["name"], [None, None])[0] = tag_stop
         elif tag == "inertial" and stack and stack[-1][0] == "body" and stack[-1][1].get("name"):
             out.setdefault(stack[-1][1]["name"], [None, None])[1] = (begin, stop)
 
