@@ -89,10 +89,11 @@ def load_robot(
     locked_joints: Mapping[str, float] | None = None,
     codegen_dir: str | Path | None = None,
 ) -> RobotModel:
-    """Load a built-in robot by name or any serial-chain URDF by path.
+    """Load a built-in robot by name or any serial-chain URDF or MJCF by path.
 
     Args:
-        robot: a built-in name (``"sweaty-arm"``) or a path to a ``.urdf`` file.
+        robot: a built-in name (``"sweaty-arm"``), a path to a ``.urdf`` file, or to an MJCF
+            (``.xml``; read by MuJoCo, :mod:`ineid.robots.mjcf`: needs ``ineid[mujoco]``).
         unknown_links: moving links whose parameters are to be identified; default: the
             built-in robot's choice, or every moving link of a URDF.
         gravity: (3,) m/s^2 in the base frame.
@@ -103,9 +104,11 @@ def load_robot(
             generated code is derived once with SymPy (seconds).
 
     Raises:
-        RobotModelError: unknown name, unreadable or unusable URDF, or bad link choice.
+        RobotModelError: unknown name, unreadable or unusable URDF or MJCF, or bad link choice.
+        OptionalDependencyError: an MJCF without MuJoCo installed.
     """
     from ineid.generated import load_builtin  # noqa: PLC0415
+    from ineid.robots.mjcf import robot_file_chain  # noqa: PLC0415
 
     key = str(robot)
     if key in BUILTIN_ROBOTS and not Path(key).is_file():
@@ -119,9 +122,11 @@ def load_robot(
     path = Path(key)
     if not path.is_file():
         raise RobotModelError(
-            f"{key!r} is neither a built-in robot ({', '.join(BUILTIN_ROBOTS)}) nor a URDF file that exists"
+            f"{key!r} is neither a built-in robot ({', '.join(BUILTIN_ROBOTS)}) nor a URDF file (or MJCF) that exists"
         )
-    chain = load_chain(path, locked_joints=locked_joints)
+    chain, urdf_text = robot_file_chain(path, locked_joints)  # an MJCF comes with the URDF written from it
     jax_mod, ca_mod = generated_modules_for(chain, chain.name, codegen_dir)
     links = [j.link for j in chain.joints] if unknown_links is None else unknown_links
-    return RobotModel(chain, path.resolve(), chain.name, gravity, links, jax_mod, ca_mod, locked_joints)
+    urdf_path = path.resolve() if urdf_text is None else None
+    return RobotModel(chain, urdf_path, chain.name, gravity, links, jax_mod, ca_mod, locked_joints,
+                      urdf_text=urdf_text, model_path=path.resolve())

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.errors import DatasetError
+from ineid.robots.cad_rounding import matrix_rpy  # noqa: F401  (public here: ineid.channels.matrix_rpy)
 
 
 def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -46,15 +47,6 @@ def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
     ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
     rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
     return rz @ ry @ rx
-
-
-def matrix_rpy(r: np.ndarray) -> tuple[float, float, float]:
-    """``(roll, pitch, yaw)`` with ``rpy_matrix(roll, pitch, yaw) == r`` (pitch in [-pi/2, pi/2])."""
-    r = np.asarray(r, dtype=np.float64)
-    pitch = math.atan2(-r[2, 0], math.hypot(r[0, 0], r[1, 0]))
-    if math.hypot(r[0, 0], r[1, 0]) < 1e-12:  # gimbal lock: put the whole turn into roll
-        return math.atan2(-r[1, 2], r[1, 1]), pitch, 0.0
-    return math.atan2(r[2, 1], r[2, 2]), pitch, math.atan2(r[1, 0], r[0, 0])
 
 
 def wrench_transform(base_R_sensor: np.ndarray, base_p_sensor: np.ndarray) -> np.ndarray:

@@ -1,7 +1,8 @@
 """The ``ineid`` command: parse arguments, call the library, print or write the result.
 
 One module per verb group (:mod:`.robot`: robot, generate; :mod:`.data`; :mod:`.excite`;
-:mod:`.identify`: identifiability, solve, export-urdf, study, results; :mod:`.learn`: train, evaluate, sweep),
+:mod:`.identify`: identifiability, solve, export-urdf, study, results; :mod:`.export_mjcf`; :mod:`.learn`: train,
+evaluate, sweep),
 shared options in :mod:`.options`, console output in :mod:`.output`. Heavy libraries (JAX,
 CasADi, h5py, yourdfpy) are imported inside the commands, so ``ineid --help`` imports none
 of them. Any :class:`ineid.IneidError` becomes a one-line message and exit status 1, and so
@@ -103,7 +104,7 @@ def configure_logging(verbosity: int) -> None:
 def main(ctx: click.Context, verbose: int, quiet: int) -> None:
     """Identify a robot arm's inertial parameters from its base force/torque sensor.
 
-    ROBOT is a built-in name (sweaty-arm) or a path to a serial-chain URDF file.
+    ROBOT is a built-in name (sweaty-arm) or a path to a serial-chain URDF or MJCF (.xml, needs ineid[mujoco]) file.
     """
     ctx.obj = {"verbosity": verbose - quiet}
     configure_logging(verbose - quiet)
@@ -118,9 +119,9 @@ def main(ctx: click.Context, verbose: int, quiet: int) -> None:
         enable_compilation_cache()  # JAX not imported yet: sets the environment variables JAX reads
 
 
-from ineid.cli import cache, data, excite, identify, learn, robot  # noqa: E402  (commands register on main)
+from ineid.cli import cache, data, excite, export_mjcf, identify, learn, robot  # noqa: E402  (commands register on main)
 
-for _module in (robot, data, excite, identify, learn, cache):
+for _module in (robot, data, excite, identify, export_mjcf, learn, cache):
     _module.register(main)
 
 __all__ = ["IneidGroup", "main"]

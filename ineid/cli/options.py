@@ -4,7 +4,7 @@ Flag names carry one meaning across commands:
 
 =====================  ====================================================================
 ``ROBOT``              positional where the robot is the command's subject: a built-in name
-                       (sweaty-arm) or a URDF path; ``data import`` (whose subject is the
+                       (sweaty-arm), a URDF path or an MJCF path (``.xml``, ``ineid[mujoco]``); ``data import`` (whose subject is the
                        recording) takes ``--robot`` (required)
 ``--unknown-links``    comma-separated links to identify
 ``--lock JOINT=POS``   treat a URDF joint as fixed (repeatable)
@@ -210,7 +210,7 @@ unknown_links_option = click.option(
 )  # fmt: skip
 lock_option = click.option(
     "--lock", "locked", multiple=True, metavar="JOINT=POS", callback=_parse_locked,
-    help="Treat a URDF joint as fixed at POS (repeatable).",
+    help="Treat a URDF (or MJCF) joint as fixed at POS (repeatable).",
 )  # fmt: skip
 gravity_option = click.option(
     "--gravity", nargs=3, type=FINITE, default=None, metavar="GX GY GZ",
@@ -248,7 +248,7 @@ def robot_options(positional: str = "required", with_gravity: bool = True) -> Ca
         if positional == "option":
             # Required: a silent default (sweaty-arm) imported another arm's recording as the built-in's.
             return click.option("--robot", required=True, metavar="ROBOT",
-                                help="The recorded robot: a built-in name (sweaty-arm) or a URDF path.")(g)  # fmt: skip
+                                help="The recorded robot: a built-in name (sweaty-arm), a URDF or an MJCF path.")(g)  # fmt: skip
         if positional == "optional":
             g = click.option("--robot", "deprecated_robot", default=None, hidden=True)(g)
         return click.argument("robot", metavar="[ROBOT]" if positional == "optional" else "ROBOT",

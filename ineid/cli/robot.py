@@ -33,7 +33,7 @@ def robot_show(robot) -> None:
 
     model = robot.load()
     con = console()
-    con.print(f"[bold]{shown(model.name)}[/bold]  {shown(model.urdf_path)}")
+    con.print(f"[bold]{shown(model.name)}[/bold]  {shown(model.model_path)}")
     con.print(
         f"{model.n_dof} moving joints, base link {shown(repr(model.chain.root_link))}, "
         f"gravity {model.gravity.tolist()} m/s^2, "
@@ -88,7 +88,8 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
     from ineid._trust import MANIFEST, is_manifest  # noqa: PLC0415
     from ineid.codegen import default_codegen_dir, generate_code  # noqa: PLC0415
     from ineid.generated import BUILTIN_DIR, file_names  # noqa: PLC0415
-    from ineid.robots import BUILTIN_ROBOTS, load_chain  # noqa: PLC0415
+    from ineid.robots import BUILTIN_ROBOTS  # noqa: PLC0415
+    from ineid.robots.mjcf import robot_file_chain  # noqa: PLC0415
     from ineid.symbolic.emit import GENERATOR  # noqa: PLC0415
 
     if all_builtin == (robot is not None):
@@ -105,10 +106,10 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
         path = Path(robot)
         if not path.is_file():
             raise click.BadParameter(
-                f"{robot!r} is neither a built-in robot ({', '.join(BUILTIN_ROBOTS)}) nor an existing URDF file",
+                f"{robot!r} is neither a built-in robot ({', '.join(BUILTIN_ROBOTS)}) nor an existing URDF file (or MJCF)",
                 param_hint="ROBOT",
             )
-        chain = load_chain(path, locked_joints=locked)
+        chain = robot_file_chain(path, locked)[0]
         jobs = [(path, chain.name, out_dir or default_codegen_dir(chain), f"ineid generate {robot}")]
     for _, name, target, _ in jobs:
         for fname in file_names(name):
@@ -120,7 +121,7 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
             check_output(manifest, overwrite)
     for urdf, name, target, regen in jobs:
         t0 = time.perf_counter()
-        chain = load_chain(urdf, locked_joints=locked)
+        chain = robot_file_chain(urdf, locked)[0]
         emitted = generate_code(chain, name, target, regen)
         seconds = time.perf_counter() - t0
         click.echo(

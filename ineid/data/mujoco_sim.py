@@ -31,19 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.channels.pose import SensorPose
-from ineid.errors import OptionalDependencyError
 from ineid.params import inertial_from_theta
-
-INSTALL_HINT = "needs MuJoCo: pip install 'ineid[mujoco]'"
-
-
-def import_mujoco(purpose: str = "the MuJoCo simulation"):
-    """The ``mujoco`` module, or :class:`OptionalDependencyError` naming ``purpose`` and the install command."""
-    try:
-        import mujoco  # noqa: PLC0415
-    except ImportError:
-        raise OptionalDependencyError(f"{purpose} {INSTALL_HINT}") from None
-    return mujoco
+from ineid.robots.mjcf import INSTALL_HINT, import_mujoco  # noqa: F401  (importable here too)
 
 
 def _quat(r: np.ndarray) -> np.ndarray:

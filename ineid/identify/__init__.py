@@ -3,13 +3,14 @@
 Data flow: a :class:`ineid.data.Dataset` -> stacked systems (:mod:`.systems`) -> the base
 least-squares fit (:func:`fit_base`) -> standard parameters by the null-space rule
 (:func:`linear_estimate`) or by IPOPT (:class:`NlpSolver`) -> :func:`solve_dataset`
-results -> :func:`save_results` / :func:`export_urdf`. Never imports sympy.
+results -> :func:`save_results` / :func:`export_urdf` / :func:`export_mjcf`. Never imports sympy.
 """
 
 from __future__ import annotations
 
 from ineid.identify.delay import estimate_delay  # importing it registers the estimate with data.recording
 from ineid.identify.export import export_urdf, urdf_with_inertials
+from ineid.identify.export_mjcf import export_mjcf, mjcf_with_inertials
 from ineid.identify.identifiability import (
     BaseParameters,
     BiasCost,
@@ -43,12 +44,14 @@ __all__ = [
     "bias_cost",
     "error_summary",
     "estimate_delay",
+    "export_mjcf",
     "export_urdf",
     "fit_base",
     "generic_frames",
     "identify_frames",
     "linear_estimate",
     "load_results",
+    "mjcf_with_inertials",
     "nlp_estimate",
     "parameter_scales",
     "relative_error",

@@ -117,6 +117,16 @@ def export_urdf(results, config: int, out: str | Path, overwrite: bool = False) 
     """
     out = Path(out)
     check_output(out, overwrite)
+    text = urdf_with_inertials(results.meta["urdf"], estimate_of(results, config), results.meta.get("locked_joints"))
+    return atomic_write(out, text)
+
+
+def estimate_of(results, config: int) -> dict[str, np.ndarray]:
+    """``{link: (10,) parameters}`` of configuration ``config``'s identified links (what an export writes).
+
+    Raises:
+        IdentificationError: the configuration is not in the results, or was not identified.
+    """
     rows = np.flatnonzero(np.asarray(results.config_index) == config)
     if rows.size == 0:
         shown = ", ".join(str(i) for i in results.config_index[:8]) + (", ..." if results.n > 8 else "")
@@ -128,6 +138,4 @@ def export_urdf(results, config: int, out: str | Path, overwrite: bool = False) 
             status=str(results.status[i]),
         )
     theta = results.theta_links[i].reshape(-1, 10)  # the links only: extra parameters (friction...) are no URDF
-    by_link = dict(zip(results.meta["unknown_links"], theta, strict=True))
-    text = urdf_with_inertials(results.meta["urdf"], by_link, results.meta.get("locked_joints"))
-    return atomic_write(out, text)
+    return dict(zip(results.meta["unknown_links"], theta, strict=True))

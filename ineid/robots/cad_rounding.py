@@ -44,6 +44,15 @@ def rpy_rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
     return rz @ ry @ rx
 
 
+def matrix_rpy(r: np.ndarray) -> tuple[float, float, float]:
+    """``(roll, pitch, yaw)`` with ``rpy_rotation(roll, pitch, yaw) == r`` (pitch in [-pi/2, pi/2])."""
+    r = np.asarray(r, dtype=np.float64)
+    pitch = math.atan2(-r[2, 0], math.hypot(r[0, 0], r[1, 0]))
+    if math.hypot(r[0, 0], r[1, 0]) < 1e-12:  # gimbal lock: put the whole turn into roll
+        return math.atan2(-r[1, 2], r[1, 1]), pitch, 0.0
+    return math.atan2(r[2, 1], r[2, 2]), pitch, math.atan2(r[1, 0], r[0, 0])
+
+
 def snap_joint_angles(root: ET.Element, robot) -> list[str]:
     """Snap CAD-rounded joint ``<origin rpy>`` angles in ``robot`` (yourdfpy's, changed in place).
 

@@ -48,13 +48,16 @@ class RobotModel(CutRegressors):
         casadi_module: ModuleType,
         locked_joints: Mapping[str, float] | None = None,
         urdf_text: str | None = None,
+        model_path: Path | None = None,
     ) -> None:
         if urdf_path is None and urdf_text is None:
             raise ValueError("RobotModel needs urdf_path or urdf_text")
         self.chain = chain
         self.locked_joints: dict[str, float] = dict(locked_joints or {})
         self.urdf_path = None if urdf_path is None else Path(urdf_path)
-        """The URDF file, or None for a model rebuilt from a dataset's URDF text."""
+        """The URDF file, or None for a model rebuilt from a dataset's URDF text (or read from an MJCF)."""
+        self.model_path = self.urdf_path if model_path is None else Path(model_path)
+        """The robot file the model was loaded from: the URDF, or the MJCF whose URDF ``urdf_text`` is."""
         self._urdf_text = urdf_text
         self.name = name
         self.gravity = np.asarray(gravity, dtype=np.float64)
