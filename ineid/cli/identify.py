@@ -185,7 +185,7 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
                    "value (0.5: 50 %). Default: unbounded, the minimum-norm solution.")
 @click.option("--backend", type=LibraryChoice(f"{_SOLVE}:BACKENDS"), cls=LibraryOption,
               default_from=f"{_SOLVE}:SolveSettings.backend",
-              help="Least squares: fused JAX kernels; CasADi per configuration (linear only); or "
+              help="Least squares: fused JAX kernels; CasADi per configuration (no compilation); or "
                    "casadi-c, the CasADi route compiled to C (IPOPT problems too; needs a C compiler).")
 @click.option("--workers", type=WORKERS, default=None,
               help="Processes for IPOPT (default: CPU count, at most 4 x; fewer than 256 configurations run in one).")
@@ -480,9 +480,11 @@ def study_noise(ctx, robot, levels, fit_frames, n_configs, methods, seed, worker
 
 def register(main: click.Group) -> None:
     from ineid.cli.study_formulations import study_formulations  # noqa: PLC0415
+    from ineid.cli.study_paper import study_paper  # noqa: PLC0415
     from ineid.cli.study_sensors import study_sensors  # noqa: PLC0415
 
     study.add_command(study_formulations)
+    study.add_command(study_paper)
     study.add_command(study_sensors)
     for command in (identifiability, solve, export_urdf_cmd, results, study):
         main.add_command(command)

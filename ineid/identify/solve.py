@@ -93,7 +93,7 @@ class SolveSettings:
             (:func:`ineid.identify.classical.cad_bounds`); None: unbounded (minimum norm).
         pull, entropic: prior weights of the IPOPT solvers (see :mod:`ineid.identify.nlp`).
         backend: ``"jax"`` (fused normal-equation blocks, batched), ``"casadi"`` (per
-            configuration, the generated CasADi function and CasADi's QR; linear method only)
+            configuration, the generated CasADi function and CasADi's QR; no compilation)
             or ``"casadi-c"`` (the same blocks as ``"jax"`` from the CasADi function printed
             as C and compiled, see :mod:`ineid.identify.casadi_c`, and for ``nonlinear`` /
             ``consistent`` the IPOPT problem compiled too; needs a C compiler).
@@ -160,8 +160,8 @@ class SolveSettings:
             raise ValueError(f"bias must be one of {', '.join(BIAS_MODES)}, got {self.bias!r}")
         if self.backend == "casadi-c" and self.bias == "estimate":
             raise ValueError("backend='casadi-c' does not estimate sensor offsets; use backend 'jax' or 'casadi'")
-        if self.backend == "casadi" and self.method != "linear":  # casadi-c serves every method
-            raise ValueError("backend='casadi' applies to the linear method")
+        if self.backend == "casadi" and self.method not in BUILTIN_METHODS:  # casadi-c serves every method
+            raise ValueError("backend='casadi' applies to identify's own methods, not a trained network")
         if self.bounds is not None and (self.method != "lsqlin" or not (np.isfinite(self.bounds) and self.bounds > 0)):
             raise ValueError(f"bounds (a fraction > 0 of the CAD values) go with method='lsqlin', got {self.bounds}")
         if self.frames is not None and self.frames < 1:
