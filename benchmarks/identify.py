@@ -11,6 +11,8 @@ memory first (not timed). Rows:
 * the peer: the regressor from Pinocchio (``computeJointTorqueRegressor`` with a free-flyer
   base, frame by frame) and ``numpy.linalg.lstsq`` on the 20 columns, per configuration,
   what a lab would write with Pinocchio alone;
+* the paper's ``lsqlin`` and ``lsqnonlin`` (:mod:`ineid.identify.classical`), all configurations, and
+  ``lsqnonlin``'s trust region alone on the subset, batched against scipy's own loop;
 * nonlinear and consistent (IPOPT) on a subset, one process and all cores;
 * ``--backend casadi-c``: the same normal-equation blocks from the generated CasADi function
   printed as C and compiled (the compiler's seconds are paid once and cached), and the IPOPT
@@ -147,6 +149,24 @@ def main() -> None:
         res = solve_dataset(ds, SolveSettings(backend="casadi-c"), model=model)
         row("linear, casadi-c (compiled C blocks), all configurations", ds.n_configs, time.perf_counter() - t0,
             np.median(relative_error(res.base_hat, res.base_true)))
+    for method in ("lsqlin", "lsqnonlin"):  # the paper's solvers (ineid.identify.classical), all configurations
+        t0 = time.perf_counter()
+        res = solve_dataset(ds, SolveSettings(method=method, weights="none"), model=model)
+        row(f"{method} (the paper's; batched), all configurations, {res.success.mean():.0%} ok", ds.n_configs,
+            time.perf_counter() - t0, np.nanmedian(relative_error(res.base_hat, res.base_true)))
+    from ineid.identify import base_parameters  # noqa: PLC0415
+    from ineid.identify.classical import lsqnonlin_theta  # noqa: PLC0415
+    from ineid.identify.fused import information_blocks  # noqa: PLC0415
+    from ineid.identify.linear import fit_base_blocks  # noqa: PLC0415
+
+    base = base_parameters(model)
+    blocks = information_blocks(model, base, sub.q[:, :n_fit], sub.qd[:, :n_fit], sub.qdd[:, :n_fit],
+                                sub.wrench[:, :n_fit], sub.theta_known)
+    fit, _ = fit_base_blocks(blocks, base, "none", None, None)
+    for engine in ("batched", "scipy"):
+        t0 = time.perf_counter()
+        lsqnonlin_theta(fit, base, model.theta_cad[model.unknown_index], engine=engine)
+        row(f"  lsqnonlin's trust region alone, {engine}", sub.n_configs, time.perf_counter() - t0, float("nan"))
     for method in ("nonlinear", "consistent"):
         for workers in sorted({1, os.cpu_count() or 1}):
             t0 = time.perf_counter()

@@ -26,8 +26,12 @@ import numpy as np
 from ineid.errors import IdentificationError
 
 
-def numerical_rank(singular_values: np.ndarray, rtol: float = 1e-9) -> int:
-    """The singular values above ``rtol`` times the largest (:data:`ineid.identify.identifiability.RANK_RTOL`)."""
+RANK_RTOL = 1e-9
+"""Singular values below this fraction of the largest count as zero (scaled regressor)."""
+
+
+def numerical_rank(singular_values: np.ndarray, rtol: float = RANK_RTOL) -> int:
+    """The number of singular values above ``rtol`` times the largest."""
     s = np.asarray(singular_values)
     return int(np.sum(s > rtol * s.max())) if s.size and s.max() > 0 else 0
 

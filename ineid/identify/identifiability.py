@@ -40,12 +40,9 @@ import numpy as np
 from ineid.channels import BASE_WRENCH, ChannelSet
 from ineid.errors import IdentificationError
 from ineid.identify.extras import extra_scales
-from ineid.identify.frame_minimum import FrameMinimum, frame_minimum_from_regressor, numerical_rank
+from ineid.identify.frame_minimum import RANK_RTOL, FrameMinimum, frame_minimum_from_regressor, numerical_rank
 from ineid.identify.systems import parameter_scales, stack_casadi
 from ineid.params import param_names
-
-RANK_RTOL = 1e-9
-"""Singular values below this fraction of the largest count as zero (scaled regressor)."""
 
 STRUCTURAL_FRAMES = 200
 """Generic frames used to find the structural base parameters."""
