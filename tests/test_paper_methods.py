@@ -135,6 +135,7 @@ def test_results_files_of_the_paper_methods(run, tmp_path, model, clean, solved)
     r = run("solve", data, "--method", "lsqlin", "--bounds", 0.5, "--fit-frames", FRAMES, "--backend", "casadi",
             "--weights", "none", "--out", out)
     assert r.exit_code == 0 and "3/3 configurations identified" in r.output, r.output
+    assert "no (solver)" in r.output and "no (prior)" not in r.output  # the data do not decide them, nor a prior
     r = run("results", "info", out)
     assert r.exit_code == 0 and "lsqlin" in r.output, r.output
     assert load_results(out).settings.bounds == 0.5
