@@ -27,7 +27,7 @@ plain objective is ``weights="none"`` (on clean data every weighting gives the s
   another point of the solution set); the minimum norm is the one well-defined choice, and the
   one the issue names. With bounds (``lb <= theta <= ub``, :func:`cad_bounds`): bounded least
   squares by :func:`scipy.optimize.lsq_linear` (trust-region reflective, as MATLAB's
-  ``lsqlin`` with bounds), started from the unbounded solution clipped into the box.
+  ``lsqlin`` with bounds), per configuration.
 * ``lsqnonlin`` (:func:`lsqnonlin_theta`): per link ``x = (m, c, I_C)``, ``theta(x) = (m, m c,
   I_C + m S(c)^T S(c))`` (the form of :mod:`ineid.identify.nlp`'s ``nonlinear``), the channels'
   extra parameters as they are; scipy's ``least_squares(method="trf")`` (MATLAB's
@@ -113,7 +113,7 @@ def lsqlin_theta(fit: BaseFit, base: BaseParameters, bounds: tuple[np.ndarray, n
                 sol = lsq_linear(a[i], b[i], bounds=(lb, ub), method="trf", lsq_solver="exact", tol=1e-13,
                                  max_iter=1000)
                 theta[i] = np.clip(sol.x, lb, ub)
-                if sol.status < 0:
+                if sol.status <= 0:  # -1: failed; 0: max_iter reached
                     status[i] = f"lsqlin: {sol.message}"
             if progress is not None:
                 progress(i + 1, c)
