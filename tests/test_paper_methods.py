@@ -173,8 +173,8 @@ def fm_scales(model):
 
 def test_study_paper_quick(run, tmp_path):
     out = tmp_path / "paper.csv"
-    r = run("study", "paper", "--quick", "--frames", "4,10", "--csv", out)
-    assert r.exit_code == 0, r.output
+    r = run("study", "paper", "--quick", "--frames", "4,10", "--csv", out, "--plot", tmp_path / "paper.png")
+    assert r.exit_code == 0 and (tmp_path / "paper.png").stat().st_size > 10_000, r.output
     for text in ("The paper's classical experiments, sweaty-arm: 20 configurations", "forearm.Icxx",
                  "The paper's claims (section 4), checked", "holds, for another reason", "does not hold"):
         assert text in r.output, text
