@@ -25,7 +25,6 @@ import numpy as np
 
 from ineid.errors import IdentificationError
 
-
 RANK_RTOL = 1e-9
 """Singular values below this fraction of the largest count as zero (scaled regressor)."""
 
