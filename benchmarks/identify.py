@@ -11,6 +11,8 @@ memory first (not timed). Rows:
 * the peer: the regressor from Pinocchio (``computeJointTorqueRegressor`` with a free-flyer
   base, frame by frame) and ``numpy.linalg.lstsq`` on the 20 columns, per configuration,
   what a lab would write with Pinocchio alone;
+* the paper's ``lsqlin`` and ``lsqnonlin`` (:mod:`ineid.identify.classical`), all configurations, and
+  ``lsqnonlin``'s trust region alone on the subset, batched against scipy's own loop;
 * nonlinear and consistent (IPOPT) on a subset, one process and all cores;
 * ``--backend casadi-c``: the same normal-equation blocks from the generated CasADi function
   printed as C and compiled (the compiler's seconds are paid once and cached), and the IPOPT
@@ -94,12 +96,36 @@ def pinocchio_peer(model, ds, n_fit: int) -> tuple[np.ndarray, float]:
     return out, time.perf_counter() - t0
 
 
+def paper_rows(model, ds, sub, n_fit: int, row) -> None:
+    """The paper's lsqlin and lsqnonlin on every configuration, and lsqnonlin's trust region alone on ``sub``:
+    batched (:func:`ineid.identify.classical.trf`) against scipy's own loop."""
+    for method in ("lsqlin", "lsqnonlin"):  # the paper's solvers (ineid.identify.classical), all configurations
+        t0 = time.perf_counter()
+        res = solve_dataset(ds, SolveSettings(method=method, weights="none"), model=model)
+        row(f"{method} (the paper's; batched), all configurations, {res.success.mean():.0%} ok", ds.n_configs,
+            time.perf_counter() - t0, np.nanmedian(relative_error(res.base_hat, res.base_true)))
+    from ineid.identify import base_parameters  # noqa: PLC0415
+    from ineid.identify.classical import lsqnonlin_theta  # noqa: PLC0415
+    from ineid.identify.fused import information_blocks  # noqa: PLC0415
+    from ineid.identify.linear import fit_base_blocks  # noqa: PLC0415
+
+    base = base_parameters(model)
+    blocks = information_blocks(model, base, sub.q[:, :n_fit], sub.qd[:, :n_fit], sub.qdd[:, :n_fit],
+                                sub.wrench[:, :n_fit], sub.theta_known)
+    fit, _ = fit_base_blocks(blocks, base, "none", None, None)
+    for engine in ("batched", "scipy"):
+        t0 = time.perf_counter()
+        lsqnonlin_theta(fit, base, model.theta_cad[model.unknown_index], engine=engine)
+        row(f"  lsqnonlin's trust region alone, {engine}", sub.n_configs, time.perf_counter() - t0, float("nan"))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--configs-per-link", type=int, default=100, help="factorial size (100 -> 10,000 configurations)")
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--subset", type=int, default=400, help="configurations for the per-configuration rows")
     ap.add_argument("--no-cli", dest="cli", action="store_false", help="skip the whole-command timing")
+    ap.add_argument("--paper-only", action="store_true", help="only the paper's lsqlin and lsqnonlin rows")
     args = ap.parse_args()
 
     model = ineid.load_robot("sweaty-arm")
@@ -108,7 +134,7 @@ def main() -> None:
     ds = generate_dataset(model, spec)
     n_fit = args.frames - int(0.2 * args.frames)
     sub = ds.select(slice(0, min(args.subset, ds.n_configs)))
-    for warm in (SolveSettings(), SolveSettings(weights="estimate")):  # compile the chunk shapes of both kernels
+    for warm in (SolveSettings(), SolveSettings(weights="none")):  # compile the chunk shapes of both kernels
         solve_dataset(ds.select(slice(0, 8)), warm, model=model)
     print(f"machine: {cpu_description()}; ineid {ineid.__version__}")
     print(
@@ -122,6 +148,9 @@ def main() -> None:
     def row(name, n, seconds, err):
         print(f"{name:58s} {n:8,d} {seconds:9.2f} {n / seconds:10,.0f} {err:18.4g}")
 
+    if args.paper_only:
+        paper_rows(model, ds, sub, n_fit, row)
+        return
     t0 = time.perf_counter()
     res = solve_dataset(ds, SolveSettings(), model=model)
     linear_seconds = time.perf_counter() - t0
@@ -147,6 +176,7 @@ def main() -> None:
         res = solve_dataset(ds, SolveSettings(backend="casadi-c"), model=model)
         row("linear, casadi-c (compiled C blocks), all configurations", ds.n_configs, time.perf_counter() - t0,
             np.median(relative_error(res.base_hat, res.base_true)))
+    paper_rows(model, ds, sub, n_fit, row)
     for method in ("nonlinear", "consistent"):
         for workers in sorted({1, os.cpu_count() or 1}):
             t0 = time.perf_counter()

@@ -210,7 +210,8 @@ def test_solve_and_export(run, tmp_path, small_data):
     r = run("solve", small_data, "--select", "0:zz", "--out", tmp_path / "bad.h5")
     assert r.exit_code == 2 and "A:B[:STEP]" in r.output
     line = one_line_error(run("solve", small_data, "--fit-frames", 2, "--out", tmp_path / "few.h5"))
-    assert "use at least 3 frames" in line and not (tmp_path / "few.h5").exists()
+    assert "2 frames give 12 equations for 17 identifiable parameters; use at least 4 frames" in line
+    assert not (tmp_path / "few.h5").exists()
     r = run("solve", small_data, "--weights", "noise", "--select", "0", "--out", tmp_path / "n.h5")
     assert r.exit_code == 0 and (tmp_path / "n.h5").exists()  # the file records its noise levels
     r = run("solve", small_data, "--sigma", 1, 1, 1, 1, 1, 1, "--out", tmp_path / "s.h5")

@@ -97,7 +97,9 @@ def test_frame_analysis(model, base):
     rest = analyze_frames(model, q, 0 * qd, 0 * qdd)
     assert not rest.ok and rest.rank < 17 and "frames at rest show only gravity" in rest.problem()
     few = analyze_frames(model, q[:2], qd[:2], qdd[:2])
-    assert "2 frames give 12 equations for 17 identifiable parameters; use at least 3 frames" in few.problem()
+    assert "2 frames give 12 equations for 17 identifiable parameters; use at least 4 frames" in few.problem()
+    three = analyze_frames(model, q[:3], qd[:3], qdd[:3])  # 18 equations, but the force rows give only 6
+    assert three.rank == 15 and three.problem().startswith("use at least 4 frames (more with noise): 3 generic frames give rank 15 of 17, since the fx, fy, fz rows span only 6 of the 17")
 
 
 # -- linear -------------------------------------------------------------------------------
@@ -148,7 +150,7 @@ def test_casadi_route_equals_jax(model, clean):
 
 
 def test_too_few_frames_and_rank_deficiency(model, clean):
-    with pytest.raises(IdentificationError, match="use at least 3 frames") as e:
+    with pytest.raises(IdentificationError, match="use at least 4 frames") as e:
         solve_dataset(clean.select(frames=slice(0, 2)), SolveSettings(frames=2), model=model)
     assert e.value.status == "too_few_frames"
     still = clean.select(slice(0, 3))

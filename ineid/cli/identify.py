@@ -93,7 +93,8 @@ def identifiability(robot, n_frames, seed, data_path, config, bias, **channel_fl
     cond = "inf" if not np.isfinite(a.condition_number) else f"{a.condition_number:.4g}"
     con.print(f"condition number (scaled, identifiable part): {cond}; fewest leading frames reaching rank "
               f"{base.rank}: {a.min_frames if a.min_frames is not None else 'never'} "
-              f"(at least {-(-base.rank // a.n_axes)}: {a.n_axes} equations per frame)")
+              f"(any frames need at least {a.minimum.frames}"
+              + (f": {a.minimum.reason})" if a.minimum.reason else f": {a.n_axes} equations per frame)"))
     con.print("singular values (scaled): " + " ".join(f"{v:.3g}" for v in a.singular_values))
     if a.problem():
         con.print(f"[bold red]these frames are not enough:[/bold red] {shown(a.problem())}")
@@ -178,10 +179,13 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
               help="Wrench noise std per axis (N, N*m) for --weights noise.")
 @click.option("--start", type=LibraryChoice(f"{_SOLVE}:STARTS"), cls=LibraryOption,
               default_from=f"{_SOLVE}:SolveSettings.start",
-              help="IPOPT start: the CAD values, or the linear estimate (made physical).")
+              help="IPOPT's (and lsqnonlin's) start: the CAD values, or the linear estimate (made physical).")
+@click.option("--bounds", type=FiniteFloatRange(min=0, min_open=True), default=None, metavar="FRACTION",
+              help="lsqlin only: keep every parameter within FRACTION of max(|CAD value|, its scale) of its CAD "
+                   "value (0.5: 50 %). Default: unbounded, the minimum-norm solution.")
 @click.option("--backend", type=LibraryChoice(f"{_SOLVE}:BACKENDS"), cls=LibraryOption,
               default_from=f"{_SOLVE}:SolveSettings.backend",
-              help="Least squares: fused JAX kernels; CasADi per configuration (linear only); or "
+              help="Least squares: fused JAX kernels; CasADi per configuration (no compilation); or "
                    "casadi-c, the CasADi route compiled to C (IPOPT problems too; needs a C compiler).")
 @click.option("--workers", type=WORKERS, default=None,
               help="Processes for IPOPT (default: CPU count, at most 4 x; fewer than 256 configurations run in one).")
@@ -200,8 +204,8 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Results file (.h5).")
 @overwrite_option
 @click.pass_context
-def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection, weights, sigma, start, backend,
-          workers, bias, known_uncertainty, plot_path, out, overwrite, **channel_flags) -> None:
+def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection, weights, sigma, start, bounds,
+          backend, workers, bias, known_uncertainty, plot_path, out, overwrite, **channel_flags) -> None:
     """Identify the unknown links of every selected configuration of DATA.h5.
 
     Several DATA files (recordings of one robot): configuration i of each is fitted jointly from
@@ -244,7 +248,7 @@ def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection
         settings = SolveSettings(
             method=method, frames=fit_frames, weights=weights, axis_sigma=tuple(sigma) if sigma else None, start=start,
             backend=backend, workers=workers or os.cpu_count() or 1, bias=bias,
-            run=None if run_dir is None else str(run_dir), known_uncertainty=known_uncertainty,
+            run=None if run_dir is None else str(run_dir), known_uncertainty=known_uncertainty, bounds=bounds,
             **settings_flags(channel_flags),
         )  # fmt: skip
     except ValueError as e:
@@ -476,9 +480,11 @@ def study_noise(ctx, robot, levels, fit_frames, n_configs, methods, seed, worker
 
 def register(main: click.Group) -> None:
     from ineid.cli.study_formulations import study_formulations  # noqa: PLC0415
+    from ineid.cli.study_paper import study_paper  # noqa: PLC0415
     from ineid.cli.study_sensors import study_sensors  # noqa: PLC0415
 
     study.add_command(study_formulations)
+    study.add_command(study_paper)
     study.add_command(study_sensors)
     for command in (identifiability, solve, export_urdf_cmd, results, study):
         main.add_command(command)

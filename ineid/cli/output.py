@@ -133,6 +133,8 @@ def print_results(res, out) -> None:
         what = ("wrench error ||w - Psi theta_hat|| / ||w||" if keys in ([], ["wrench"])
                 else f"error of {shown(', '.join(map(str, keys)))} ||y - y_hat|| / ||y||")
         con.print(f"held-out {what}: median {median:.3g}, 95th percentile {p95:.3g}")
+    # what decides the parameters the data do not: the CAD prior, or (the paper's solvers) where the solver stopped
+    undecided = "no (solver)" if res.settings.method in ("lsqlin", "lsqnonlin") else "no (prior)"
     if res.theta_true is not None and n_ok:
         for title, est, truth, names, ident in (
             ("standard parameters", res.theta_hat, res.theta_true, res.param_names, res.base.identifiable),
@@ -149,7 +151,7 @@ def print_results(res, out) -> None:
                 cells = [row.name, f"{row.median:.3g}", f"{row.p95:.3g}", f"{100 * row.within_1:.1f}%",
                          f"{100 * row.within_5:.1f}%"]
                 if ident is not None:
-                    cells.append("yes" if row.identifiable else "no (prior)")
+                    cells.append("yes" if row.identifiable else undecided)
                 tab.add_row(*cells)
             con.print(tab)
         from ineid.params import all_links_physical  # noqa: PLC0415
@@ -164,7 +166,7 @@ def print_results(res, out) -> None:
         for k, name in enumerate(res.param_names):
             std = res.theta_std[i, k]
             tab.add_row(name, f"{res.theta_hat[i, k]:.6g}", "-" if not np.isfinite(std) else f"{std:.3g}",
-                          f"{res.theta_prior[k]:.6g}", "yes" if res.base.identifiable[k] else "no (prior)")
+                          f"{res.theta_prior[k]:.6g}", "yes" if res.base.identifiable[k] else undecided)
         con.print(tab)
         tab = table("Base parameters", ("base parameter", "estimate", "std"), left=("base parameter",))
         for k, name in enumerate(res.base.names):

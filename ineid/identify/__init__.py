@@ -2,7 +2,8 @@
 
 Data flow: a :class:`ineid.data.Dataset` -> stacked systems (:mod:`.systems`) -> the base
 least-squares fit (:func:`fit_base`) -> standard parameters by the null-space rule
-(:func:`linear_estimate`) or by IPOPT (:class:`NlpSolver`) -> :func:`solve_dataset`
+(:func:`linear_estimate`), by IPOPT (:class:`NlpSolver`) or by the paper's MATLAB solvers
+(:mod:`.classical`) -> :func:`solve_dataset`
 results -> :func:`save_results` / :func:`export_urdf` / :func:`export_mjcf`. Never imports sympy.
 """
 
@@ -11,6 +12,7 @@ from __future__ import annotations
 from ineid.identify.delay import estimate_delay  # importing it registers the estimate with data.recording
 from ineid.identify.export import export_urdf, urdf_with_inertials
 from ineid.identify.export_mjcf import export_mjcf, mjcf_with_inertials
+from ineid.identify.frame_minimum import FrameMinimum
 from ineid.identify.identifiability import (
     BaseParameters,
     BiasCost,
@@ -19,6 +21,7 @@ from ineid.identify.identifiability import (
     base_parameters,
     base_parameters_from_regressor,
     bias_cost,
+    frame_minimum,
     generic_frames,
 )
 from ineid.identify.linear import BaseFit, Estimate, fit_base, linear_estimate, standard_from_base
@@ -35,6 +38,7 @@ __all__ = [
     "BiasCost",
     "Estimate",
     "FrameAnalysis",
+    "FrameMinimum",
     "NlpSolver",
     "SolveResults",
     "SolveSettings",
@@ -47,6 +51,7 @@ __all__ = [
     "export_mjcf",
     "export_urdf",
     "fit_base",
+    "frame_minimum",
     "generic_frames",
     "identify_frames",
     "linear_estimate",

@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from ineid.errors import IdentificationError
-from ineid.identify.identifiability import base_parameters
+from ineid.identify.identifiability import base_parameters, frame_minimum
 from ineid.identify.solve import SolveResults, SolveSettings, solve_dataset
-from ineid.identify.systems import check_frames
 
 
 def identify_frames(
@@ -50,7 +49,7 @@ def identify_frames(
             raise IdentificationError(f"{label} holds NaN or infinite values; drop or repair those frames",
                                       status="non_finite")
     base = base_parameters(model, bias=bias == "estimate")
-    check_frames(len(arrays[0]), base.rank + 6 * (bias == "estimate"))
+    frame_minimum(model, bias == "estimate").require(len(arrays[0]))
     analysis = analyze_frames(model, *arrays[:3], base, bias=bias == "estimate")
     if not analysis.ok:
         raise IdentificationError(analysis.problem(), status="rank_deficient")

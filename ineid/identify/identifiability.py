@@ -40,21 +40,14 @@ import numpy as np
 from ineid.channels import BASE_WRENCH, ChannelSet
 from ineid.errors import IdentificationError
 from ineid.identify.extras import extra_scales
+from ineid.identify.frame_minimum import RANK_RTOL, FrameMinimum, frame_minimum_from_regressor, numerical_rank
 from ineid.identify.systems import parameter_scales, stack_casadi
 from ineid.params import param_names
-
-RANK_RTOL = 1e-9
-"""Singular values below this fraction of the largest count as zero (scaled regressor)."""
 
 STRUCTURAL_FRAMES = 200
 """Generic frames used to find the structural base parameters."""
 
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def numerical_rank(singular_values: np.ndarray, rtol: float = RANK_RTOL) -> int:
-    s = np.asarray(singular_values)
-    return int(np.sum(s > rtol * s.max())) if s.size and s.max() > 0 else 0
 
 
 def _greedy_independent(w: np.ndarray, rtol: float = 1e-7, atol: float | None = None) -> list[int]:
@@ -301,6 +294,23 @@ def base_parameters(model, bias: bool = False, channels: ChannelSet | None = Non
     return cache[key]
 
 
+def frame_minimum(model, bias: bool = False, channels: ChannelSet | None = None) -> FrameMinimum:
+    """The fewest frames that determine the base parameters of ``model``'s unknown links from ``channels``
+    (None: the base wrench), with their offsets when ``bias`` (:mod:`ineid.identify.frame_minimum`): the
+    rank of the first ``F`` of the :func:`generic_frames`, ``F = 1, 2, ...``; cached like :func:`base_parameters`."""
+    base = base_parameters(model, bias, channels)
+    cache = _CACHE.setdefault(model, {})
+    key = ("frame_minimum", tuple(model.unknown_links), bool(bias), _phi_key(model, channels))
+    if key not in cache:
+        chans = BASE_WRENCH if channels is None else channels
+        w = _regressor_unknown(model, *generic_frames(model), channels) * base.scales
+        names, units = chans.axes(model), chans.units(model)
+        groups = [(n.split(".")[0] if "." in n else "", u) for n, u in zip(names, units, strict=True)]
+        cache[key] = frame_minimum_from_regressor(w, len(names), base.rank, names, groups,
+                                                  _offset_mask(channels, model, bias))
+    return cache[key]
+
+
 def centred_regressor(w: np.ndarray, n_axes: int = 6, mask: np.ndarray | None = None) -> np.ndarray:
     """A stacked regressor (AF, p) minus its mean over the frames, per axis (``n_axes`` a frame; only
     ``mask``'s axes when given).
@@ -332,6 +342,7 @@ class FrameAnalysis:
         min_frames: fewest leading frames that reach ``structural_rank`` (None if never).
         undetermined: base parameters these frames leave undetermined.
         n_axes: measured axes a frame (six: the base wrench).
+        minimum: the fewest frames any frames need (:func:`frame_minimum`).
     """
 
     n_frames: int
@@ -342,6 +353,7 @@ class FrameAnalysis:
     min_frames: int | None
     undetermined: tuple[str, ...]
     n_axes: int = 6
+    minimum: FrameMinimum | None = None
 
     @property
     def ok(self) -> bool:
@@ -351,13 +363,8 @@ class FrameAnalysis:
         """A one-line explanation of what is missing, or None when the frames suffice."""
         if self.ok:
             return None
-        needed = -(-self.structural_rank // self.n_axes)
-        if self.n_axes * self.n_frames < self.structural_rank:
-            return (
-                f"{self.n_frames} frame{'s' if self.n_frames != 1 else ''} give {self.n_axes * self.n_frames} "
-                "equations for "
-                f"{self.structural_rank} identifiable parameters; use at least {needed} frames (more with noise)"
-            )
+        if self.minimum is not None and self.n_frames < self.minimum.frames:
+            return self.minimum.message(self.n_frames)
         shown = ", ".join(self.undetermined[:4]) + (", ..." if len(self.undetermined) > 4 else "")
         return (
             f"the frames determine only {self.rank} of the {self.structural_rank} identifiable parameters "
@@ -396,7 +403,8 @@ def analyze_frames(model, q, qd, qdd, base: BaseParameters | None = None, bias: 
         wb = ws[:, base.base_index]
         kept = set(_greedy_independent(wb, rtol=1e-6))
         undetermined = tuple(base.names[i] for i in range(r) if i not in kept)
-    return FrameAnalysis(len(q), rank, r, sv, cond, min_frames, undetermined, n_axes)
+    return FrameAnalysis(len(q), rank, r, sv, cond, min_frames, undetermined, n_axes,
+                         frame_minimum(model, bias, channels))
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ import numpy as np
 from ineid.errors import IdentificationError
 from ineid.identify.extras import prior_with_extras
 from ineid.identify.fused import InformationBlocks, information_blocks
-from ineid.identify.identifiability import base_parameters
+from ineid.identify.identifiability import base_parameters, frame_minimum
 from ineid.identify.known import with_known_uncertainty
 from ineid.identify.linear import fit_base, fit_base_blocks, linear_estimate, linear_theta, with_exact_rss
 from ineid.identify.solve import (
@@ -126,7 +126,10 @@ def solve_recordings(datasets, settings, model=None, validate=None, progress=Non
     prior = prior_with_extras(model, channels)  # [theta_cad_u, 0 for each extra parameter]
     n_offsets = int(mask.sum()) if with_bias else 0
     n_total = sum(d.n_frames for d in datasets)
-    check_frames(n_total, base.rank + n_offsets * len(datasets), n_axes)
+    if with_bias:  # each input centred on its own: counting, the per-configuration rank checks do the rest
+        check_frames(n_total, base.rank + n_offsets * len(datasets), n_axes)
+    else:  # the inputs' frames stacked: the structural minimum (ineid.identify.frame_minimum)
+        frame_minimum(model, False, channels).require(n_total)
     axis_sigma = _axis_sigma(ds0, settings, channels, model)
 
     # 1. the blocks of each input (centred on its own with offsets), summed

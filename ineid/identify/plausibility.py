@@ -91,7 +91,8 @@ def linear_counterpart(ds, res, model):
     from ineid.identify.solve import solve_dataset  # noqa: PLC0415
 
     network = res.settings.method == "network"
-    settings = replace(res.settings, method="linear", frames=res.n_frames_fit, backend="jax", run=None,
+    backend = "casadi" if res.settings.backend == "casadi" else "jax"  # the route chosen: no compilation
+    settings = replace(res.settings, method="linear", frames=res.n_frames_fit, backend=backend, run=None, bounds=None,
                        weights="none" if network else res.settings.weights,
                        axis_sigma=None if network else res.settings.axis_sigma)  # fmt: skip
     return solve_dataset(ds, settings, model=model)

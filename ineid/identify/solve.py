@@ -28,9 +28,11 @@ from ineid.cache import enable_compilation_cache
 from ineid.channels import ChannelSet
 from ineid.errors import IdentificationError
 from ineid.identify.choose import actuation_requested, check_actuation, solve_channels
+from ineid.identify.classical import CLASSICAL_METHODS, classical_estimate
 from ineid.identify.extras import prior_with_extras
+from ineid.identify.frame_minimum import FrameMinimum
 from ineid.identify.fused import information_blocks
-from ineid.identify.identifiability import BaseParameters, base_parameters
+from ineid.identify.identifiability import BaseParameters, base_parameters, frame_minimum
 from ineid.identify.linear import WEIGHT_MODES, linear_estimate, linear_theta, with_exact_rss
 from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL
 from ineid.identify.payload import payload_section
@@ -49,11 +51,11 @@ from ineid.identify.steps import (  # noqa: F401  (PARALLEL_MIN_CONFIGS, physica
     predicted_wrench,
     residual_summary,
 )
-from ineid.identify.systems import Offsets, check_frames
+from ineid.identify.systems import Offsets
 from ineid.progress import Progress
 
-BUILTIN_METHODS = ("linear", "nonlinear", "consistent")
-"""The methods identify implements itself."""
+BUILTIN_METHODS = ("linear", "nonlinear", "consistent", *CLASSICAL_METHODS)
+"""The methods identify implements itself; ``lsqlin``, ``lsqnonlin``: the paper's (:mod:`ineid.identify.classical`)."""
 METHODS = (*BUILTIN_METHODS, "network")
 """Every method; ``network`` (a trained run) is implemented by :mod:`ineid.learn.amortized`, which
 registers it when imported (:func:`register_method`): identify never imports learn."""
@@ -75,7 +77,8 @@ class SolveSettings:
 
     Attributes:
         method: ``"linear"``, ``"nonlinear"`` (the paper's mass / centre of mass / inertia
-            form) or ``"consistent"`` (log-Cholesky, always physical).
+            form) or ``"consistent"`` (log-Cholesky, always physical); ``"lsqlin"``, ``"lsqnonlin"``: the
+            paper's MATLAB solvers over every standard parameter, its reference (:mod:`ineid.identify.classical`).
         frames: frames fitted per configuration (the first ``frames``); the rest are held
             out for validation. ``None``: all but the last 20 % (all, when too few).
         weights: ``"estimate"`` (the default: the noise of each measured axis estimated from the
@@ -84,11 +87,13 @@ class SolveSettings:
             every axis assumed: the standard deviations are wrong where it differs).
         axis_sigma: (A,) noise standard deviations per measured axis (the base wrench: fx..mz)
             for ``weights="noise"``.
-        start: IPOPT start, ``"prior"`` (the CAD values) or ``"linear"`` (the linear
+        start: IPOPT's (and ``lsqnonlin``'s) start, ``"prior"`` (the CAD values) or ``"linear"`` (the linear
             estimate, made physical for ``consistent`` if needed).
+        bounds: ``lsqlin``'s box, ``theta_cad -/+ bounds * max(|theta_cad|, scale)``
+            (:func:`ineid.identify.classical.cad_bounds`); None: unbounded (minimum norm).
         pull, entropic: prior weights of the IPOPT solvers (see :mod:`ineid.identify.nlp`).
         backend: ``"jax"`` (fused normal-equation blocks, batched), ``"casadi"`` (per
-            configuration, the generated CasADi function and CasADi's QR; linear method only)
+            configuration, the generated CasADi function and CasADi's QR; no compilation)
             or ``"casadi-c"`` (the same blocks as ``"jax"`` from the CasADi function printed
             as C and compiled, see :mod:`ineid.identify.casadi_c`, and for ``nonlinear`` /
             ``consistent`` the IPOPT problem compiled too; needs a C compiler).
@@ -140,6 +145,7 @@ class SolveSettings:
     torque_offset: bool = False
     two_step: bool = False
     torque_constant_unknown: bool = False
+    bounds: float | None = None
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -154,8 +160,10 @@ class SolveSettings:
             raise ValueError(f"bias must be one of {', '.join(BIAS_MODES)}, got {self.bias!r}")
         if self.backend == "casadi-c" and self.bias == "estimate":
             raise ValueError("backend='casadi-c' does not estimate sensor offsets; use backend 'jax' or 'casadi'")
-        if self.backend == "casadi" and self.method != "linear":  # casadi-c serves every method
-            raise ValueError("backend='casadi' applies to the linear method")
+        if self.backend == "casadi" and self.method not in BUILTIN_METHODS:  # casadi-c serves every method
+            raise ValueError("backend='casadi' applies to identify's own methods, not a trained network")
+        if self.bounds is not None and (self.method != "lsqlin" or not (np.isfinite(self.bounds) and self.bounds > 0)):
+            raise ValueError(f"bounds (a fraction > 0 of the CAD values) go with method='lsqlin', got {self.bounds}")
         if self.frames is not None and self.frames < 1:
             raise ValueError(f"frames must be >= 1, got {self.frames}")
         if self.method == "network" and self.bias != "none":
@@ -255,20 +263,21 @@ class SolveResults:
         return len(self.config_index)
 
 
-def _frame_split(n_frames: int, frames: int | None, rank: int, n_axes: int = 6) -> tuple[int, int]:
+def _frame_split(n_frames: int, frames: int | None, minimum: FrameMinimum) -> tuple[int, int]:
+    """``(fitted, held out)`` frames a configuration; fewer than ``minimum.frames`` fitted is refused."""
     if frames is not None:
         if frames > n_frames:
             raise IdentificationError(
                 f"--fit-frames {frames} but the dataset has {n_frames} frames per configuration; use at most {n_frames}",
                 status="too_many_frames",
             )
-        check_frames(frames, rank, n_axes)
+        minimum.require(frames)
         return frames, n_frames - frames
     held = int(HOLDOUT_FRACTION * n_frames)
     fit = n_frames - held
-    if n_axes * fit < 2 * rank:  # too few to spare any: fit them all
+    if minimum.n_axes * fit < 2 * (minimum.rank + minimum.n_offsets):  # too few to spare any: fit them all
         fit, held = n_frames, 0
-    check_frames(fit, rank, n_axes)
+    minimum.require(fit)
     return fit, held
 
 
@@ -350,11 +359,10 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         return dataset_results(ds, settings, t_start=t_start, **second_step(first, ds, settings, model))
     with_bias = settings.bias == "estimate"
     channels = solve_channels(ds, settings, model)
-    n_axes = channels.n_axes(model)
     base = base_parameters(model, bias=with_bias, channels=channels)
     prior = prior_with_extras(model, channels)  # [theta_cad_u, 0 for each extra parameter]
     n_offsets = int(channels.offset_mask(model).sum())
-    n_fit, n_val = _frame_split(ds.n_frames, settings.frames, base.rank + n_offsets, n_axes)
+    n_fit, n_val = _frame_split(ds.n_frames, settings.frames, frame_minimum(model, with_bias, channels))
     axis_sigma = _axis_sigma(ds, settings, channels, model)
     c = ds.n_configs
     fit_sl = slice(0, n_fit)
@@ -391,6 +399,10 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
     # 3. standard parameters
     if settings.method == "linear":
         est = linear_estimate(fit, base, prior)
+    elif settings.method in CLASSICAL_METHODS:  # the paper's solvers on the same base fit
+        est, classical_seconds = classical_estimate(settings, fit, base, prior, progress)
+        seconds = seconds + classical_seconds
+        sums = estimate_residual_sums(model, ds, n_fit, n_val, est.theta, channels, offsets)
     else:
         start = prior if settings.start == "prior" else physical_start(theta_lin, prior, base.scales, base.n_extra)
         est, nlp_seconds = _run_nlp(fit, base, settings, prior, rms, start, progress)

@@ -69,11 +69,10 @@ def noise_study(
     """Run the sweep; one :class:`StudyRow` per (level, frames, method)."""
     import time  # noqa: PLC0415
 
-    from ineid.identify.identifiability import base_parameters  # noqa: PLC0415
-    from ineid.identify.systems import check_frames  # noqa: PLC0415
+    from ineid.identify.identifiability import frame_minimum  # noqa: PLC0415
 
     for k in frames:
-        check_frames(int(k), base_parameters(model).rank)
+        frame_minimum(model).require(int(k))
     # compile the regressor shapes once, so the first row's time is solving, not compiling
     warm = generate_dataset(model, DatasetSpec(Combination("random", n_configs=2), n_frames=max(frames), seed=seed))
     solve_dataset(warm, SolveSettings(frames=max(frames)), model=model)

@@ -126,7 +126,11 @@ def stack_casadi(model, q, qd, qdd, wrench, theta_known,
 
 
 def check_frames(n_frames: int, rank_needed: int, n_axes: int = 6) -> None:
-    """Refuse fewer frames than equations needed: ``A F >= rank`` of the identifiable part (``A`` axes a frame)."""
+    """Refuse fewer frames than equations needed: ``A F >= rank`` of the identifiable part (``A`` axes a frame).
+
+    A necessary count only: the fewest frames that can determine the base parameters are often more
+    (:mod:`ineid.identify.frame_minimum`); the solvers refuse by that minimum where it applies (one
+    recording's frames), and by this count only for several recordings with their own offsets."""
     needed = -(-rank_needed // n_axes)
     if n_frames < needed:
         raise IdentificationError(

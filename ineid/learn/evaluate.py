@@ -160,7 +160,7 @@ def evaluate(run: Run, ds: Dataset, configs: np.ndarray | None = None, model: Ro
         linear: also compute the classical references on the same configurations and
             frames: the linear least squares and the Gaussian-prior estimate.
     """
-    from ineid.identify import SolveSettings, base_parameters, solve_dataset  # noqa: PLC0415
+    from ineid.identify import SolveSettings, base_parameters, frame_minimum, solve_dataset  # noqa: PLC0415
     from ineid.identify.results import relative_error  # noqa: PLC0415
     from ineid.identify.systems import predict_wrench  # noqa: PLC0415
     from ineid.params import all_links_physical  # noqa: PLC0415
@@ -198,7 +198,7 @@ def evaluate(run: Run, ds: Dataset, configs: np.ndarray | None = None, model: Ro
         physical_share=float(all_links_physical(theta_hat).mean()),
         identifiable=base.identifiable.tolist(),
     )
-    if linear and channels.n_axes(model) * f_used >= base.rank:
+    if linear and f_used >= frame_minimum(model, channels=channels).frames:  # what solve_dataset accepts
         res = solve_dataset(sub, SolveSettings(frames=f_used), model=model)
         ok = res.success
         ev.linear = _stats(res.theta_hat[ok], truth[ok], names)
