@@ -108,3 +108,18 @@ def prior_variance(h: np.ndarray, r: np.ndarray, weak: float) -> np.ndarray:
         mu2 = np.minimum(mu2, WINSOR * np.median(mu2, axis=0) + 1e-300)
         s2 = np.where(seen, np.maximum(np.mean(mu2 + np.diagonal(inv, axis1=1, axis2=2), axis=0), floor), 1.0 / weak)
     return s2
+
+
+COVERAGE_MIN = 0.1
+"""The gyros see every joint's rate when :func:`coverage` is at least this: a gyro on every moving link of the
+built-in arm gives 0.83; on its upper arm and forearm only, 0.006 (the shoulder's axes line up); fewer gyro
+axes than joints, 0."""
+
+
+def coverage(g: np.ndarray) -> float:
+    """How well gyros see every joint's rate: the 1st percentile over the frames of the least singular value of
+    their stacked maps ``g`` (F, m, n), ``d w / d qd`` in rad/s per rad/s (0 with fewer rows than joints)."""
+    g = np.asarray(g, dtype=np.float64)
+    if g.shape[1] < g.shape[2] or not len(g):
+        return 0.0
+    return float(np.percentile(np.linalg.svd(g[:: max(1, len(g) // 2000)], compute_uv=False)[:, -1], 1))
