@@ -48,6 +48,8 @@ def _window(v, span) -> tuple[np.ndarray, str]:
 
         raise DatasetError(f"the span {span[0]:g}..{span[1]:g} s holds {keep.size} validation frames; the frames run "
                            f"from {v.time[0]:.6g} to {v.time[-1]:.6g} s")  # fmt: skip
+    if keep.size == len(v.time):
+        return keep, "whole span"
     return keep, f"{v.time[keep[0]]:.4g}..{v.time[keep[-1]]:.4g} s of {v.time[0]:.4g}..{v.time[-1]:.4g} s"
 
 
