@@ -24,7 +24,7 @@ from markupsafe import escape
 
 from ineid.data import Combination, DatasetSpec, FrameSampling, NoiseModel, generate_dataset, load_dataset
 from ineid.identify import load_results
-from ineid.identify.html_report import ReportInputs, build_report, inputs_from_files
+from ineid.identify.html_report import build_report, inputs_from_files
 from ineid.identify.residuals import check_residual
 
 DELAY_FRAMES = 2
@@ -75,8 +75,8 @@ def test_report_shows_the_results(solved):
     data, results, page = solved["clean"]
     text = page.read_text()
     res = load_results(results)
-    assert text.startswith("<!DOCTYPE html>") and "<script" not in text and "http" not in text.replace(
-        "http-equiv", "")  # self-contained: nothing to fetch
+    assert text.startswith("<!DOCTYPE html>") and "<script" not in text
+    assert not re.search(r'(src|href)="(?!data:image/png;base64,|#)', text)  # self-contained: nothing to fetch
     assert f"Rank <strong>{len(res.base.names)}</strong> of {len(res.param_names)}" in text
     for name in res.base.names:
         assert f'<li class="name">{html.escape(name)}</li>' in text
@@ -103,6 +103,46 @@ def test_report_shows_the_results(solved):
     assert "pseudo-inertia eigenvalues" in text and text.count('<img src="data:image/png;base64,') == 2
     assert codes(text) <= {"not_physical"}, "clean data: no residual warning"
     assert (page.parent / "clean.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_report_of_data_on_an_excite_trajectory(solved, tmp_path, model):
+    """Data sampled on a designed trajectory (the CSV of `ineid excite`, its design JSON beside it): the page
+    shows the trajectory's record and the design's condition number and expected std, which the solve's std
+    bear out (independent: the design's information matrix against the fit's residual-based covariance)."""
+    import json
+
+    from ineid.data.trajectory import write_trajectory_csv
+    from ineid.identify import base_parameters
+    from ineid.identify.systems import stack_casadi
+
+    ds = load_dataset(solved["clean"][0])
+    q, qd, qdd, t = ds.q[0], ds.qd[0], ds.qdd[0], ds.time[0]
+    write_trajectory_csv(tmp_path / "traj.csv", t, q, qd, qdd)
+    # the design record `ineid excite` writes: the expected std of the base parameters under the stated noise,
+    # sigma^2 (W_b^T W_b)^-1 with W_b the base columns of the noise-scaled regressor of every frame
+    base = base_parameters(model)
+    sigma = np.array([0.5, 0.5, 0.5, 0.05, 0.05, 0.05])
+    w, _ = stack_casadi(model, q, qd, qdd, np.zeros((len(q), 6)), ds.theta_known)
+    w_b = (w.reshape(len(q), 6, -1) / sigma[:, None]).reshape(6 * len(q), -1)[:, base.base_index]
+    std = np.sqrt(np.diag(np.linalg.inv(w_b.T @ w_b)))
+    record = {"criterion": "d-opt", "base_parameters": list(base.names), "wrench_noise_std": sigma.tolist(),
+              "optimized": {"condition_number": 123.4, "std": std.tolist()}, "random_fourier": {"condition_number": 567.8}}
+    (tmp_path / "traj.json").write_text(json.dumps({"design": record}))
+    data, results, page = tmp_path / "d.h5", tmp_path / "r.h5", tmp_path / "r.html"
+    ok(invoke("-q", "data", "generate", "sweaty-arm", "--frame-mode", "trajectory", "--trajectory",
+              tmp_path / "traj.csv", "--n-configs", 1, "--noise", "force=0.5,moment=0.05", "--seed", 2, "--out", data))
+    ok(invoke("-q", "solve", data, "--backend", "casadi", "--out", results, "--report", page))
+    text = page.read_text()
+    assert "Trajectory of <code>ineid excite</code>" in text and "traj.json" in text
+    assert "condition number 123.4 (a random Fourier trajectory of the same bounds: 567.8)" in " ".join(text.split())
+    rows = re.findall(r'<tr><td class="name">([^<]*)</td><td class="num">([^<]*)</td><td class="num">([^<]*)</td>'
+                      r"</tr>", text.split("Its design")[1])  # fmt: skip
+    res = load_results(results)
+    assert [html.unescape(n) for n, _, _ in rows] == list(res.base.names)
+    expected, estimated = (np.array([float(r[k]) for r in rows]) for k in (1, 2))
+    np.testing.assert_allclose(expected, std, rtol=5e-3)  # 3 digits shown
+    # 80 % of the frames fitted: std about sqrt(1.25) x the design's, with the noise estimated from the residuals
+    assert np.all((estimated / expected > 0.9) & (estimated / expected < 1.5)), estimated / expected
 
 
 def test_residual_tests_find_the_delay(solved):
