@@ -164,10 +164,8 @@ def _delay(res, ds, model, i: int):
     records = res.meta.get("channels")
     channels = ds.meta.channels if records is None else ChannelSet.from_list(records, "the results' channels")
     one = ds.select(configs=[i], frames=slice(0, MAX_SCAN_FRAMES))
-    known = np.asarray(one.theta_known, dtype=np.float64)
     # the CasADi route: a one-off evaluation needs no compilation
-    w, y = stack_casadi(model, one.q[0], one.qd[0], one.qdd[0], one.measured(channels)[0],
-                        known.reshape(-1, known.shape[-1])[0], channels)  # fmt: skip
+    w, y = stack_casadi(model, one.q[0], one.qd[0], one.qdd[0], one.measured(channels)[0], one.theta_known, channels)
     n_axes = channels.n_axes(model)
     return delay_scan(one.time[0], y.reshape(-1, n_axes), w.reshape(-1, n_axes, w.shape[-1]))
 
