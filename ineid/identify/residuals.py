@@ -10,7 +10,8 @@ structure a white residual does not have:
   sampled fast contributes almost nothing to them; white noise of std ``sigma`` gives
   ``std(d2 x) = sqrt(6) sigma``). A recording low-pass filtered at import keeps less noise above
   its cut-off, so there it is a lower bound.
-* **model error** (``model_error``): residual RMS above :data:`NOISE_FACTOR` times the noise.
+* **model error** (``model_error``): residual RMS above :data:`NOISE_FACTOR` times the noise (and above
+  :data:`NEGLIGIBLE` of the signal's RMS).
 * **delay** (``delay``): measurements stamped ``d`` late do not fit the model of the joints' frames,
   and the fitted parameters absorb part of the mismatch, so the residual alone does not show it.
   :func:`delay_scan` refits the linear model (every unknown column, an offset per axis, each axis
@@ -66,6 +67,9 @@ MIN_PERIODS = 3
 """The spectral peak test looks at frequencies of at least this many periods in the validation span."""
 MIN_FRAMES = 64
 """Fewest validation frames (a time series) for the structure tests."""
+NEGLIGIBLE = 1e-3
+"""A residual RMS below this fraction of the signal's RMS is no model error whatever the noise (a noise-free
+recording's residual is its filter's error, far below anything a model error leaves)."""
 ROUNDING = 1e-9
 """A residual RMS below this fraction of the signal's RMS is rounding: no tests."""
 
@@ -247,7 +251,7 @@ def check_residual(time, measured, predicted, axes, units, blocks, qd=None, nois
                 f = _friction_columns(qd[:, joint_of[a]])
                 extra["friction_share"] = explained_share(c, np.hstack([g, f])) - explained_share(c, g)
         out.axes.append(AxisCheck(axes[a], units[a], float(rms[a]), float(noise[a]), **extra))
-    _model_error(out, above)
+    _model_error(out, rms > NEGLIGIBLE * scale)
     if tested:
         _structure(out, r, delay)
     return out
