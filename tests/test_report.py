@@ -145,6 +145,26 @@ def test_report_of_data_on_an_excite_trajectory(solved, tmp_path, model):
     assert np.all((estimated / expected > 0.9) & (estimated / expected < 1.5)), estimated / expected
 
 
+def test_report_on_a_separate_validation_recording(solved, tmp_path):
+    """solve --validate: the page validates on every frame of the other recording (here the delayed twin of the
+    same arm: its delay is found there), with the RMS the solve recorded; moved, it is named missing."""
+    clean, delayed = solved["clean"][0], solved["delayed"][0]
+    results, page = tmp_path / "r.h5", tmp_path / "r.html"
+    ok(invoke("-q", "solve", clean, "--validate", delayed, "--out", results, "--report", page))
+    text, res = page.read_text(), load_results(results)
+    assert "400 frames of the recording delayed.h5" in text and "delay" in codes(text)
+    rms = re.findall(r'<tr><td class="name">(?:f|m)[xyz]</td><td>(?:N|N\*m)</td><td class="num">([^<]*)</td>', text)
+    np.testing.assert_allclose([float(r) for r in rms], res.meta["validation"]["rms"], rtol=2e-3)
+    moved = tmp_path / "elsewhere.h5"
+    shutil.copy(delayed, moved)
+    with h5py.File(results, "a") as f:
+        f.attrs["validation"] = f.attrs["validation"].replace(str(delayed), str(tmp_path / "gone.h5"))
+    out = invoke("report", results, "--out", tmp_path / "a.html")
+    assert out.exit_code == 0 and "the validation recording" in out.output and "--validate NEW_PATH" in out.output
+    ok(invoke("report", results, "--validate", moved, "--out", tmp_path / "b.html"))
+    assert "frames of the recording elsewhere.h5" in (tmp_path / "b.html").read_text()
+
+
 def test_residual_tests_find_the_delay(solved):
     """The wrench two frames (50 ms) late warns delay, found exactly by the shifted refit; the clean dataset
     warns nothing (test above)."""

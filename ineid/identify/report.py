@@ -124,7 +124,7 @@ def validation_on(res, ds, model=None, config: int | None = None) -> Validation:
     if res.settings.bias == "estimate":
         pred = pred + (meas - pred).mean(axis=0) * channels.offset_mask(model)
     t = one.time[0] if one.time is not None else np.arange(ds.n_frames, dtype=np.float64)
-    name = "the validation recording" if ds.path is None else f"the recording {Path(ds.path).name}"
+    name = "frames of the validation recording" if ds.path is None else f"frames of the recording {Path(ds.path).name}"
     return _validation(model, channels, meas, pred, t, one, slice(None), True, int(res.config_index[i]), name)
 
 
