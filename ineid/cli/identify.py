@@ -30,6 +30,7 @@ from ineid.cli.options import (
     select_option,
 )
 from ineid.cli.output import ProgressBar, console, plain, print_findings, print_results, shown, table
+from ineid.cli.report import check_solve_outputs, plot_span_option, report_option, write_solve_outputs
 
 _SOLVE = "ineid.identify.solve"
 
@@ -200,12 +201,15 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
 @channel_options(two_step=True)
 @click.option("--plot", "plot_path", type=click.Path(path_type=Path), default=None, metavar="FILE",
               help="Write measured vs predicted wrench of the held-out frames (first solved configuration), "
-                   "per axis with the residual RMS (.png, .pdf, .svg).")
+                   "per axis with the residual and its RMS (.png, .pdf, .svg).")
+@plot_span_option
+@report_option
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Results file (.h5).")
 @overwrite_option
 @click.pass_context
 def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection, weights, sigma, start, bounds,
-          backend, workers, bias, known_uncertainty, plot_path, out, overwrite, **channel_flags) -> None:
+          backend, workers, bias, known_uncertainty, plot_path, plot_span, report_path, out, overwrite,
+          **channel_flags) -> None:
     """Identify the unknown links of every selected configuration of DATA.h5.
 
     Several DATA files (recordings of one robot): configuration i of each is fitted jointly from
@@ -238,8 +242,7 @@ def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection
         raise click.UsageError(f"{', '.join(given)} do not apply to --method network")
     if method == "network":  # a trained run as the solver: ineid.learn registers it with solve_dataset
         import ineid.learn.amortized  # noqa: F401, PLC0415
-    if plot_path is not None:
-        prepare_output(plot_path, overwrite, option="--plot", inputs=[*inputs, ("the results file (--out)", out)])
+    check_solve_outputs(plot_path, plot_span, report_path, overwrite, [*inputs, ("the results file (--out)", out)])
     if sigma is not None and weights != "noise":
         raise click.UsageError("--sigma goes with --weights noise")
     _, shapes = read_meta(data_path)
@@ -261,6 +264,7 @@ def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection
                                        "(every frame of the inputs is fitted, by the jax backend)")
     ds = load_dataset(data_path, configs=idx, clean=False)
     model = ds.model()
+    val = None
     if joint:
         from ineid.identify.joint import solve_recordings  # noqa: PLC0415
 
@@ -268,10 +272,11 @@ def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection
         val = None if validate_path is None else load_dataset(validate_path, configs=idx, clean=False)
         with ProgressBar(f"solving ({method})", "configurations", quiet(ctx)) as bar:
             res = solve_recordings([ds, *more], settings, model=model, validate=val, progress=bar)
-        ds = _joined(ds, more)  # the plausibility checks see every frame fitted
+        solved_ds, ds = ds, _joined(ds, more)  # the plausibility checks see every frame fitted
     else:
         with ProgressBar(f"solving ({method})", "configurations", quiet(ctx)) as bar:
             res = solve_dataset(ds, settings, model=model, progress=bar)
+        solved_ds = ds
     from ineid.identify.plausibility import check_solve  # noqa: PLC0415
 
     findings = check_solve(ds, res, model)
@@ -281,16 +286,8 @@ def solve(ctx, data_paths, validate_path, method, run_dir, fit_frames, selection
     if res.meta.get("validation"):
         _print_validation(res)
     print_findings(findings)
-    if plot_path is not None and res.success.any():
-        from ineid.identify.report import plot_validation, validation  # noqa: PLC0415
-
-        v = validation(res, ds)
-        name = plain(res.meta["robot"])  # one line in the title, and not a page long
-        plot_validation(v, plot_path, title=f"{name if len(name) <= 60 else name[:57] + '...'}, {method}: ")
-        console().print(f"residual RMS per axis ({shown(' '.join(v.axes))}): " + " ".join(f"{r:.3g}" for r in v.rms)
-                        + f"; wrote {shown(plot_path)}")
-    elif plot_path is not None:
-        console().print(f"no configuration identified: {shown(plot_path)} not written")
+    write_solve_outputs(res, solved_ds, model, method, plot_path, plot_span, report_path, out,
+                        validate=val, overwrite=overwrite)
 
 
 def _joined(ds, more):

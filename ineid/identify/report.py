@@ -2,10 +2,14 @@
 
 For one configuration (a recording has one) the held-out frames' measured wrench and the
 estimate's prediction ``X Psi(q, qd, qdd) theta_hat + b_hat`` (sensor frame, offsets
-included when estimated), one panel per axis, with the residual's RMS per axis in each
-panel's title. Without held-out frames the fitted frames are shown, and the title says so.
-Any other measurement channels the results were fitted on are shown the same way, one
-panel per stacked axis, named and in the units the channels give.
+included when estimated), one panel per axis with the residual ``measured - predicted``
+under it, and the residual's RMS per axis in each panel's title. Without held-out frames the
+fitted frames are shown, and the title says so. Any other measurement channels the results
+were fitted on are shown the same way, one panel per stacked axis, named and in the units
+the channels give. A long validation span is shown in part (``span``, default the first
+:data:`ineid.identify.report_figures.DEFAULT_SPAN` seconds of one longer than twice that), the
+RMS always over all of it. :func:`validation_on` is the same for a separate recording
+(``ineid solve ... --validate``).
 """
 
 from __future__ import annotations
@@ -33,6 +37,10 @@ class Validation:
         config: the configuration's index in the dataset file.
         frame: ``"sensor"`` or ``"base"``.
         axes, units: the names and units of the A axes.
+        series: ``time`` holds time stamps of a time series (else frame numbers of independent frames).
+        qd: (F, n_dof) the frames' joint velocities, rad/s (None when unknown).
+        blocks: ``(channel key, start, stop, channel kind)`` of each channel among the A axes.
+        source: where the frames come from (text: "held-out frames", "the recording X").
     """
 
     time: np.ndarray
@@ -44,6 +52,10 @@ class Validation:
     frame: str
     axes: tuple[str, ...] = AXES
     units: tuple[str, ...] = UNITS
+    series: bool = False
+    qd: np.ndarray | None = None
+    blocks: tuple[tuple[str, int, int, str], ...] = (("wrench", 0, 6, "wrench"),)
+    source: str = ""
 
 
 def validation(res, ds, model=None, config: int | None = None) -> Validation:
@@ -80,47 +92,63 @@ def validation(res, ds, model=None, config: int | None = None) -> Validation:
     pred = predicted_wrench(model, one, res.theta_hat[i : i + 1], frames, bias=bias, channels=channels)[0]
     meas = one.measured(channels)[0, frames]
     t = one.time[0, frames] if one.time is not None else np.arange(ds.n_frames, dtype=np.float64)[frames]
+    source = "held-out frames" if held_out else "fitted frames (none held out)"
+    return _validation(model, channels, meas, pred, t, one, frames, held_out, int(res.config_index[i]), source)
+
+
+def validation_on(res, ds, model=None, config: int | None = None) -> Validation:
+    """The :class:`Validation` of ``res`` on a separate recording ``ds`` (``ineid solve ... --validate ds``).
+
+    Every frame of ``ds`` is predicted by the estimates; with offsets estimated
+    (``bias="estimate"``) each axis's offset is fitted alone on ``ds``, the parameters fixed (the
+    mean residual taken out), as :func:`ineid.identify.joint.validation_error` does.
+
+    Raises:
+        DatasetError: the configuration was not solved, or none was.
+    """
+    from ineid.identify.steps import predicted_wrench  # noqa: PLC0415
+
+    model = model or ds.model()
+    solved = np.flatnonzero(res.success)
+    if not solved.size:
+        raise DatasetError("no configuration was identified, so there is nothing to validate; see the solver status")
+    hits = solved if config is None else np.flatnonzero((np.asarray(res.config_index) == config) & res.success)
+    if not hits.size:
+        raise DatasetError(f"configuration {config} was not solved; solved ones: {res.config_index[solved][:10].tolist()}")
+    i = int(hits[0])
+    records = res.meta.get("channels")
+    channels = ds.meta.channels if records is None else ChannelSet.from_list(records, "the results' channels")
+    one = ds.select(configs=[i])
+    meas = one.measured(channels)[0]
+    pred = predicted_wrench(model, one, res.theta_hat[i : i + 1], channels=channels)[0]
+    if res.settings.bias == "estimate":
+        pred = pred + (meas - pred).mean(axis=0) * channels.offset_mask(model)
+    t = one.time[0] if one.time is not None else np.arange(ds.n_frames, dtype=np.float64)
+    name = "frames of the validation recording" if ds.path is None else f"frames of the recording {Path(ds.path).name}"
+    return _validation(model, channels, meas, pred, t, one, slice(None), True, int(res.config_index[i]), name)
+
+
+def _validation(model, channels, meas, pred, t, one, frames, held_out, config, source) -> Validation:
     rms = np.sqrt(np.mean((meas - pred) ** 2, axis=0))
     frame = "sensor" if channels.transform(model) is not None else "base"
-    return Validation(t, meas, pred, rms, held_out, int(res.config_index[i]), frame, channels.axes(model),
-                      channels.units(model))
+    blocks = tuple((b.channel.key, b.start, b.stop, b.channel.kind) for b in channels.blocks(model))
+    return Validation(t, meas, pred, rms, held_out, config, frame, channels.axes(model), channels.units(model),
+                      series=one.time is not None, qd=np.asarray(one.qd[0, frames]), blocks=blocks, source=source)
 
 
-def plot_validation(v: Validation, path: str | Path, title: str = "") -> Path:
-    """One panel per axis (fx..mz for the base wrench) of measured and predicted values over time, RMS in
-    each title, the axes down two columns; written atomically.
+def plot_validation(v: Validation, path: str | Path, title: str = "", span: tuple[float, float] | None = None) -> Path:
+    """One panel per axis (fx..mz for the base wrench) of measured and predicted values over time with the
+    residual under it, RMS in each title, the axes down two columns; written atomically.
 
+    ``span``: ``(start, stop)`` seconds shown (default: :func:`ineid.identify.report_figures.default_span`).
     ``title`` (it may hold names from the inputs) is drawn literally: mathtext is off for it.
     """
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
     from ineid._atomic import save_figure  # noqa: PLC0415
+    from ineid.identify.report_figures import validation_figure  # noqa: PLC0415
 
-    n_rows = -(-len(v.axes) // 2)
-    fig, axes = plt.subplots(n_rows, 2, figsize=(12, 3 * n_rows), sharex=True, squeeze=False)
-    for k, ax in enumerate(axes.T.ravel()):
-        if k >= len(v.axes):
-            ax.set_visible(False)
-            continue
-        ax.plot(v.time, v.measured[:, k], lw=1.2, color="0.3", label="measured")
-        ax.plot(v.time, v.predicted[:, k], lw=0.9, color="tab:red", ls="--", label="predicted")
-        scale = np.sqrt(np.mean(v.measured[:, k] ** 2))
-        rel = f", {100 * v.rms[k] / scale:.2g} % of RMS" if scale > 0 else ""
-        # axis names may come from the inputs (joint names): literal text
-        ax.set_title(f"{v.axes[k]}: residual RMS {v.rms[k]:.3g} {v.units[k]}{rel}", fontsize=10, parse_math=False)
-        ax.set_ylabel(f"{v.axes[k]} ({v.units[k]})", parse_math=False)
-        ax.grid(alpha=0.3)
-    for ax in axes[-1]:
-        ax.set_xlabel("time (s)")
-    axes[0, 0].legend(loc="best", fontsize=9)
-    which = "held-out frames" if v.held_out else "fitted frames (none held out)"
-    # The title holds the robot's name: literal text, never mathtext (a "$" in it would be parsed).
-    fig.suptitle(f"{title}measured vs predicted wrench, {which}, configuration {v.config}, {v.frame} frame",
-                 parse_math=False)
-    fig.tight_layout()
+    fig = validation_figure(v, title=title, span=span)
     try:
         return save_figure(fig, path, dpi=110)
     finally:
