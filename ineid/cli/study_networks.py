@@ -55,7 +55,15 @@ def study_networks(ctx, plan_name, quick, data_path, epochs, siamese_epochs, n_t
 
     from ineid.cli.options import on_interrupt, prepare_output  # noqa: PLC0415
     from ineid.learn.paper_claims import check_claims, write_claims  # noqa: PLC0415
-    from ineid.learn.paper_networks import FILE, SIZES, plan, run_study, sweep_folders, trials  # noqa: PLC0415
+    from ineid.learn.paper_networks import (  # noqa: PLC0415
+        FILE,
+        SIZES,
+        check_study_folder,
+        plan,
+        run_study,
+        sweep_folders,
+        trials,
+    )
 
     if resume and overwrite:
         raise click.UsageError("give --resume (continue the study) or --overwrite (start it afresh), not both")
@@ -79,10 +87,12 @@ def study_networks(ctx, plan_name, quick, data_path, epochs, siamese_epochs, n_t
 
         ds = load_dataset(data_path, clean=False)
     else:
-        from ineid.data import generate_dataset  # noqa: PLC0415
         from ineid import load_robot  # noqa: PLC0415
+        from ineid.data import generate_dataset  # noqa: PLC0415
 
         ds = generate_dataset(load_robot("sweaty-arm"), size.dataset)
+
+    check_study_folder(ds, parts, size, out_dir, resume=resume, overwrite=overwrite)
 
     def left_behind() -> str | None:
         started = [f for f in sweep_folders(parts, size, out_dir) if f.is_dir()]

@@ -37,7 +37,7 @@ from pathlib import Path
 from ineid._atomic import write_csv
 from ineid.data import Combination, DatasetSpec
 from ineid.learn.models import ModelSpec
-from ineid.learn.sweep import SWEEP_RECORD, Grid, SweepRow, sweep
+from ineid.learn.sweep import SWEEP_RECORD, Grid, SweepRow, check_sweep_folder, sweep
 from ineid.learn.train import TrainConfig
 from ineid.learn.trials import run_name
 
@@ -158,6 +158,21 @@ def sweep_folders(parts: list[Part], size: Size, out_dir: str | Path) -> list[Pa
     return [Path(out_dir) / p.name / f"seed-{s}" for s in size.seeds for p in parts]
 
 
+def check_study_folder(ds, parts: list[Part], size: Size, out_dir: str | Path, *, resume: bool = False,
+                       overwrite: bool = False) -> None:
+    """Whether :func:`run_study` may write ``out_dir`` (called by it; the CLI calls it before its progress bar).
+
+    Raises:
+        TrainingError: a sweep folder holds runs and neither ``resume`` nor ``overwrite``, or
+            ``resume`` of a sweep of other settings or another dataset.
+    """
+    for seed in size.seeds:
+        for part in parts:
+            folder = Path(out_dir) / part.name / f"seed-{seed}"
+            check_sweep_folder(ds, part.grid, base_config(size, part, seed), folder, overwrite=overwrite,
+                               resume=resume and (folder / SWEEP_RECORD).is_file())  # fmt: skip
+
+
 def run_study(ds, parts: list[Part], size: Size, out_dir: str | Path, *, model=None, progress=None,
               resume: bool = False, overwrite: bool = False, engine: str = "sequential", **engine_kw) -> list[StudyRow]:
     """Run every part once per seed (seed by seed, so the first seed of every cell comes first) and write
@@ -178,6 +193,7 @@ def run_study(ds, parts: list[Part], size: Size, out_dir: str | Path, *, model=N
             ``resume``/``overwrite``, or another sweep to resume).
     """
     out_dir = Path(out_dir)
+    check_study_folder(ds, parts, size, out_dir, resume=resume, overwrite=overwrite)
     model = model or ds.model()
     total, done, rows = trials(parts, size), 0, []
     for seed in size.seeds:
