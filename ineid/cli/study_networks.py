@@ -87,7 +87,7 @@ def study_networks(ctx, plan_name, quick, data_path, epochs, siamese_epochs, n_t
 
         ds = load_dataset(data_path, clean=False)
     else:
-        from ineid import load_robot  # noqa: PLC0415
+        from ineid.codegen import load_robot  # noqa: PLC0415
         from ineid.data import generate_dataset  # noqa: PLC0415
 
         ds = generate_dataset(load_robot("sweaty-arm"), size.dataset)
