@@ -29,7 +29,7 @@ def _fmt(x: float) -> str:
               help="Train on this dataset (default: the paper's, generated: 10,000 configurations x 100 frames).")
 @click.option("--epochs", type=click.IntRange(min=1), default=None, help="Epochs of every trial (default 100).")
 @click.option("--siamese-epochs", type=click.IntRange(min=1), default=None,
-              help="Epochs of the decisive plan's Siamese-claim cells (default 20).")
+              help="Epochs of the decisive plan's Siamese-claim cells (default 10).")
 @click.option("--n-train", type=click.IntRange(min=1), default=None, help="Training configurations (default 3,000).")
 @click.option("--n-val", type=click.IntRange(min=1), default=None, help="Validation configurations (default 500).")
 @click.option("--n-test", type=click.IntRange(min=1), default=None, help="Test configurations (default 500).")

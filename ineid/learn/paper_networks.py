@@ -86,7 +86,7 @@ class Size:
 
 
 SIZES = {
-    "paper": Size(DatasetSpec(seed=0), 3000, 500, 500, epochs=100, siamese_epochs=20, seeds=(0, 1)),
+    "paper": Size(DatasetSpec(seed=0), 3000, 500, 500, epochs=100, siamese_epochs=10, seeds=(0, 1)),
     "quick": Size(DatasetSpec(Combination("random", n_configs=24), n_frames=20, seed=0), 12, 6, 6, epochs=2,
                   siamese_epochs=2, seeds=(0,), batch=64, siamese_batch=16),
 }  # fmt: skip
@@ -155,7 +155,7 @@ def trials(parts: list[Part], size: Size) -> int:
 
 def sweep_folders(parts: list[Part], size: Size, out_dir: str | Path) -> list[Path]:
     """The sweep folders of a study, ``OUT/<part>/seed-<seed>``, in the order they run."""
-    return [Path(out_dir) / p.name / f"seed-{s}" for s in size.seeds for p in parts]
+    return [Path(out_dir) / p.name / f"seed-{s}" for p in parts for s in size.seeds]
 
 
 def check_study_folder(ds, parts: list[Part], size: Size, out_dir: str | Path, *, resume: bool = False,
@@ -166,8 +166,8 @@ def check_study_folder(ds, parts: list[Part], size: Size, out_dir: str | Path, *
         TrainingError: a sweep folder holds runs and neither ``resume`` nor ``overwrite``, or
             ``resume`` of a sweep of other settings or another dataset.
     """
-    for seed in size.seeds:
-        for part in parts:
+    for part in parts:
+        for seed in size.seeds:
             folder = Path(out_dir) / part.name / f"seed-{seed}"
             check_sweep_folder(ds, part.grid, base_config(size, part, seed), folder, overwrite=overwrite,
                                resume=resume and (folder / SWEEP_RECORD).is_file())  # fmt: skip
@@ -175,8 +175,8 @@ def check_study_folder(ds, parts: list[Part], size: Size, out_dir: str | Path, *
 
 def run_study(ds, parts: list[Part], size: Size, out_dir: str | Path, *, model=None, progress=None,
               resume: bool = False, overwrite: bool = False, engine: str = "sequential", **engine_kw) -> list[StudyRow]:
-    """Run every part once per seed (seed by seed, so the first seed of every cell comes first) and write
-    ``OUT/networks.csv``; each sweep folder is an ordinary ``ineid sweep`` folder.
+    """Run every part once per seed (part by part, so the first parts' claims are decided first) and write
+    ``OUT/networks.csv`` after each sweep; each sweep folder is an ordinary ``ineid sweep`` folder.
 
     Args:
         ds: the dataset (:attr:`Size.dataset` generated, or a user's).
@@ -196,8 +196,8 @@ def run_study(ds, parts: list[Part], size: Size, out_dir: str | Path, *, model=N
     check_study_folder(ds, parts, size, out_dir, resume=resume, overwrite=overwrite)
     model = model or ds.model()
     total, done, rows = trials(parts, size), 0, []
-    for seed in size.seeds:
-        for part in parts:
+    for part in parts:
+        for seed in size.seeds:
             base = base_config(size, part, seed)
             folder = out_dir / part.name / f"seed-{seed}"
             cfgs = part.grid.configs(base)
@@ -213,7 +213,7 @@ def run_study(ds, parts: list[Part], size: Size, out_dir: str | Path, *, model=N
             by_name = {r.name: r for r in got}
             rows += [StudyRow.of(by_name[run_name(c)], part.name, c) for c in cfgs]
             done += len(cfgs)
-    write_rows(rows, out_dir / FILE)
+            write_rows(rows, out_dir / FILE)  # the rows so far: an interrupted study keeps them
     return rows
 
 
