@@ -212,3 +212,11 @@ def test_quick_study_refuses_then_resumes(quick_study, run):
     assert errors() == before  # read back, not trained again
     bad = run("study", "networks", "--quick", "--out", out, "--resume", "--epochs", "3")
     assert bad.exit_code != 0 and "different run settings" in bad.output and "Traceback" not in bad.output
+
+
+def test_study_usage_errors(run, tmp_path):
+    r = run("study", "networks", "--quick", "--address", "auto", "--out", tmp_path / "s")
+    assert r.exit_code == 2 and "--address and --cpus-per-trial go with --engine ray" in r.output
+    r = run("study", "networks", "--quick", "--resume", "--overwrite", "--out", tmp_path / "s")
+    assert r.exit_code == 2 and "not both" in r.output
+    assert not (tmp_path / "s").exists()
