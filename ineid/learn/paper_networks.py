@@ -30,7 +30,6 @@ claims on them.
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -237,9 +236,3 @@ def read_rows(path: str | Path) -> list[StudyRow]:
             out.append(StudyRow(**kw))
     return out
 
-
-def describe(size: Size, parts: list[Part]) -> dict:
-    """The study's settings as JSON types (for its report)."""
-    return json.loads(json.dumps({"parts": [{"name": p.name, "grid": dataclasses.asdict(p.grid),
-                                             "siamese_size": p.siamese_size} for p in parts],
-                                  "size": dataclasses.asdict(size)}, default=str))  # fmt: skip
