@@ -477,11 +477,13 @@ def study_noise(ctx, robot, levels, fit_frames, n_configs, methods, seed, worker
 
 def register(main: click.Group) -> None:
     from ineid.cli.study_formulations import study_formulations  # noqa: PLC0415
+    from ineid.cli.study_networks import study_networks  # noqa: PLC0415
     from ineid.cli.study_paper import study_paper  # noqa: PLC0415
     from ineid.cli.study_sensors import study_sensors  # noqa: PLC0415
 
     study.add_command(study_formulations)
     study.add_command(study_paper)
     study.add_command(study_sensors)
+    study.add_command(study_networks)
     for command in (identifiability, solve, export_urdf_cmd, results, study):
         main.add_command(command)

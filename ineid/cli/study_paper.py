@@ -1,8 +1,8 @@
 """``ineid study paper``: the paper's section 4 on its own data layout, per parameter, its claims checked.
 
 The command prints its sections one after the other (:data:`SECTIONS` order): the classical solvers
-(:mod:`ineid.identify.study_paper`), then the paper's claims. A later section (the networks of the
-paper's section 5) adds its own option and its own printer after them, reusing the same dataset size.
+(:mod:`ineid.identify.study_paper`), then the paper's claims, and with ``--networks DIR`` the paper's
+network exploration (``ineid study networks --plan decisive``, its quick size with ``--quick``).
 """
 
 from __future__ import annotations
@@ -69,8 +69,8 @@ def print_claims(con, claims) -> None:
     con.print(t)
 
 
-SECTIONS = ("classical", "claims")
-"""What the command prints, in order; the networks' section goes after these."""
+SECTIONS = ("classical", "claims", "networks")
+"""What the command prints, in order (the networks with ``--networks``)."""
 
 
 @click.command("paper")
@@ -92,13 +92,17 @@ SECTIONS = ("classical", "claims")
               help="Write the rows (method, frames, parameter) as CSV.")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the share within 5 % per parameter (PNG, or the format of the suffix).")
+@click.option("--networks", "networks_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              metavar="DIR", help="Then the paper's network exploration too (ineid study networks --plan decisive, "
+                                  "--quick with --quick), its sweeps and claims written to DIR (sweaty-arm only).")
 @overwrite_option
 @click.pass_context
 def study_paper(ctx, robot, quick, n_configs, frames, methods, parameters, seed, workers, csv_path, plot_path,
-                overwrite):
+                networks_dir, overwrite):
     """The paper's classical experiments on ROBOT (default sweaty-arm): lsqlin, lsqnonlin, linear and consistent
     on the paper's layout of clean data, per parameter in the paper's terms (share within 5 %, the 50-95 %
-    accuracy band), with why each parameter is or is not identifiable, and the paper's claims checked."""
+    accuracy band), with why each parameter is or is not identifiable, and the paper's claims checked; with
+    --networks, then its network exploration (``ineid study networks``)."""
     from dataclasses import replace  # noqa: PLC0415
 
     from ineid.identify.identifiability import frame_minimum  # noqa: PLC0415
@@ -107,6 +111,12 @@ def study_paper(ctx, robot, quick, n_configs, frames, methods, parameters, seed,
     for path, option in ((csv_path, "--csv"), (plot_path, "--plot")):
         if path is not None:
             prepare_output(path, overwrite, inputs=robot_inputs(robot), option=option)
+    if networks_dir is not None:
+        if robot.robot != "sweaty-arm":
+            raise click.UsageError(f"--networks re-runs the paper's networks on sweaty-arm; drop it for {robot.robot}")
+        if networks_dir.exists() and any(networks_dir.iterdir()) and not overwrite:
+            raise click.UsageError(f"--networks {networks_dir} holds files; give an empty or new folder, or "
+                                   "--overwrite (or continue it with ineid study networks --resume)")
     size = SIZES["quick" if quick else "full"]
     if n_configs is not None:
         size = replace(size, per_link=None, n_configs=n_configs)
@@ -121,7 +131,6 @@ def study_paper(ctx, robot, quick, n_configs, frames, methods, parameters, seed,
                                "relative error)")
     minimum = frame_minimum(model)
     print_claims(con, check_claims(rows, minimum))
-    # the networks' section (issue 25, part B) follows here, on the same size
     written = []
     if csv_path is not None:
         write_rows(rows, csv_path)
@@ -131,3 +140,7 @@ def study_paper(ctx, robot, quick, n_configs, frames, methods, parameters, seed,
         written.append(str(plot_path))
     if written:
         click.echo(f"wrote {' and '.join(written)}")
+    if networks_dir is not None:  # the networks' section: the same command as ineid study networks
+        from ineid.cli.study_networks import study_networks  # noqa: PLC0415
+
+        ctx.invoke(study_networks, plan_name="decisive", quick=quick, out_dir=networks_dir, overwrite=overwrite)
