@@ -26,7 +26,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
-from ineid.errors import OutputBusyError, OutputExistsError
+from ineid.errors import DatasetError, OutputBusyError, OutputExistsError
 
 _log = logging.getLogger("ineid.atomic")
 
@@ -39,6 +39,18 @@ def check_output(path: str | Path, overwrite: bool) -> Path:
     path = Path(path)
     if (path.exists() or path.is_symlink()) and not overwrite:
         raise OutputExistsError(f"{path} exists; pass --overwrite to replace it")
+    return path
+
+
+def check_output_file(path: str | Path, overwrite: bool, example: str) -> Path:
+    """:func:`check_output` for a file: also refused, one line each, when ``path`` is a folder (``example`` names a
+    file to give instead, ``results.h5``) or its folder does not exist."""
+    path = Path(path)
+    if path.is_dir():
+        raise DatasetError(f"{path} is a folder; give a file name such as {example}")
+    check_output(path, overwrite)
+    if not path.parent.is_dir():
+        raise DatasetError(f"folder {path.parent} does not exist; create it first")
     return path
 
 

@@ -253,12 +253,7 @@ def write_report(html: str, path: str | Path, overwrite: bool = False) -> Path:
         OutputExistsError: ``path`` exists and ``overwrite`` is off.
         DatasetError: ``path`` is a folder or its folder does not exist.
     """
-    from ineid._atomic import atomic_write, check_output  # noqa: PLC0415
+    from ineid._atomic import atomic_write, check_output_file  # noqa: PLC0415
 
-    path = Path(path)
-    if path.is_dir():
-        raise DatasetError(f"{path} is a folder; give a file name such as report.html")
-    check_output(path, overwrite)
-    if not path.parent.is_dir():
-        raise DatasetError(f"folder {path.parent} does not exist; create it first")
+    path = check_output_file(path, overwrite, "report.html")
     return atomic_write(path, html.encode("utf-8"))

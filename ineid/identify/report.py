@@ -73,16 +73,7 @@ def validation(res, ds, model=None, config: int | None = None) -> Validation:
     from ineid.identify.steps import predicted_wrench  # noqa: PLC0415
 
     model = model or ds.model()
-    solved = np.flatnonzero(res.success)
-    if not solved.size:
-        raise DatasetError("no configuration was identified, so there is nothing to validate; see the solver status")
-    if config is None:
-        i = int(solved[0])
-    else:
-        hits = np.flatnonzero(np.asarray(res.config_index) == config)
-        if not hits.size or not res.success[hits[0]]:
-            raise DatasetError(f"configuration {config} was not solved; solved ones: {res.config_index[solved][:10].tolist()}")
-        i = int(hits[0])
+    i = _solved(res, config)
     held_out = res.n_frames_validation > 0
     frames = slice(res.n_frames_fit, res.n_frames_fit + res.n_frames_validation) if held_out else slice(0, res.n_frames_fit)
     one = ds.select(configs=[i])
@@ -109,13 +100,7 @@ def validation_on(res, ds, model=None, config: int | None = None) -> Validation:
     from ineid.identify.steps import predicted_wrench  # noqa: PLC0415
 
     model = model or ds.model()
-    solved = np.flatnonzero(res.success)
-    if not solved.size:
-        raise DatasetError("no configuration was identified, so there is nothing to validate; see the solver status")
-    hits = solved if config is None else np.flatnonzero((np.asarray(res.config_index) == config) & res.success)
-    if not hits.size:
-        raise DatasetError(f"configuration {config} was not solved; solved ones: {res.config_index[solved][:10].tolist()}")
-    i = int(hits[0])
+    i = _solved(res, config)
     records = res.meta.get("channels")
     channels = ds.meta.channels if records is None else ChannelSet.from_list(records, "the results' channels")
     one = ds.select(configs=[i])
@@ -126,6 +111,21 @@ def validation_on(res, ds, model=None, config: int | None = None) -> Validation:
     t = one.time[0] if one.time is not None else np.arange(ds.n_frames, dtype=np.float64)
     name = "frames of the validation recording" if ds.path is None else f"frames of the recording {Path(ds.path).name}"
     return _validation(model, channels, meas, pred, t, one, slice(None), True, int(res.config_index[i]), name)
+
+
+def _solved(res, config: int | None) -> int:
+    """The row of ``res`` holding configuration ``config`` (the file's index; None: the first solved one).
+
+    Raises:
+        DatasetError: none was solved, or ``config`` was not.
+    """
+    solved = np.flatnonzero(res.success)
+    if not solved.size:
+        raise DatasetError("no configuration was identified, so there is nothing to validate; see the solver status")
+    hits = solved if config is None else np.flatnonzero((np.asarray(res.config_index) == config) & res.success)
+    if not hits.size:
+        raise DatasetError(f"configuration {config} was not solved; solved ones: {res.config_index[solved][:10].tolist()}")
+    return int(hits[0])
 
 
 def _validation(model, channels, meas, pred, t, one, frames, held_out, config, source) -> Validation:

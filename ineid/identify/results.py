@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid._atomic import atomic_write, check_output
+from ineid._atomic import atomic_write, check_output_file
 from ineid._faults import require_disk
 from ineid.channels import WRENCH_AXES
 from ineid.errors import DatasetError
@@ -36,12 +36,7 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
 
     from ineid._version import __version__  # noqa: PLC0415
 
-    path = Path(path)
-    if path.is_dir():
-        raise DatasetError(f"{path} is a folder; give a file name such as results.h5")
-    check_output(path, overwrite)
-    if not path.parent.is_dir():
-        raise DatasetError(f"folder {path.parent} does not exist; create it first")
+    path = check_output_file(path, overwrite, "results.h5")
     text = h5py.string_dtype()
     # Built in memory, then written by Python: HDF5 writing straight to a disk that fills up
     # fails inside the library's flushes and can crash the interpreter when the file is closed
