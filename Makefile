@@ -32,7 +32,7 @@ demo: setup
 	$(INEID) -q data generate sweaty-arm --factorial 10 --n-frames 100 --seed 1 --noise force=0.5,moment=0.05 \
 		--out $(VENV)/demo-data.h5 --overwrite
 	$(INEID) -q solve $(VENV)/demo-data.h5 --method consistent --weights estimate --select 0:20 \
-		--out $(VENV)/demo-results.h5 --overwrite
+		--out $(VENV)/demo-results.h5 --report $(VENV)/demo-report.html --overwrite
 	$(INEID) export-urdf $(VENV)/demo-results.h5 --config 0 --out $(VENV)/demo-identified.urdf --overwrite
 	$(INEID) -q train $(VENV)/demo-data.h5 --arch net2 --sample-frames 10 --siamese --loss physics --beta 10 \
 		--epochs 30 --batch 32 --lr 3e-3 --out $(VENV)/demo-run --overwrite
