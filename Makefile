@@ -38,7 +38,7 @@ demo: setup
 		--epochs 30 --batch 32 --lr 3e-3 --out $(VENV)/demo-run --overwrite
 
 test: setup-dev
-	$(PY) -m pytest -q --durations=25
+	$(PY) -m pytest -q -n 2 --durations=25
 
 test-slow: setup-dev
 	$(PY) -m pytest -q -m slow
