@@ -69,6 +69,9 @@ def blend(a: np.ndarray, var_a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, 
     return w * a + (1 - w) * b, np.sqrt(s2)
 
 
+MAX_FRAMES = 5000
+""":func:`prior_variance` reads at most this many frames, evenly spaced (a long recording's estimate is no better
+for more, and its cost grows with them)."""
 EM_ROUNDS = 40
 """Expectation-maximisation rounds of :func:`prior_variance` (each one batched solve over the frames)."""
 WINSOR = 25.0
@@ -92,6 +95,8 @@ def prior_variance(h: np.ndarray, r: np.ndarray, weak: float) -> np.ndarray:
         h: (F, m, n) whitened maps. r: (F, m) whitened residuals at the prior. weak: a tiny weight (1 / the
             variance of a joint nobody sees).
     """
+    step = max(1, len(h) // MAX_FRAMES)  # one variance per joint: a few thousand frames tell it
+    h, r = h[::step], r[::step]
     n = h.shape[2]
     hh = np.einsum("fmi,fmj->fij", h, h)
     g = np.einsum("fmj,fm->fj", h, r)
@@ -102,8 +107,7 @@ def prior_variance(h: np.ndarray, r: np.ndarray, weak: float) -> np.ndarray:
     s2 = np.where(seen, np.maximum(s2, floor), 1.0 / weak)
     eye = np.eye(n)
     for _ in range(EM_ROUNDS if seen.any() else 0):
-        chol = np.linalg.cholesky(hh + eye / s2)
-        inv = np.linalg.solve(np.swapaxes(chol, 1, 2), np.linalg.solve(chol, np.broadcast_to(eye, hh.shape)))
+        inv = np.linalg.inv(hh + eye / s2)
         mu2 = np.einsum("fij,fj->fi", inv, g) ** 2
         mu2 = np.minimum(mu2, WINSOR * np.median(mu2, axis=0) + 1e-300)
         s2 = np.where(seen, np.maximum(np.mean(mu2 + np.diagonal(inv, axis1=1, axis2=2), axis=0), floor), 1.0 / weak)
