@@ -271,13 +271,14 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     choice, cutoff_note, priors_cutoff = None, None, None
     cutoff = settings.cutoff
     if not measured and cutoff is None:
-        choice = signals.choose_cutoff(signals.to_uniform(tq, q, hq)[1], 1.0 / hq)
+        q_u = signals.to_uniform(tq, q, hq)[1]  # the angles on a uniform grid: the cut-off rules and the priors
+        choice = signals.choose_cutoff(q_u, 1.0 / hq)
         cutoff = min(choice.cutoff, 0.4 * rate)
         if any("gyro" in s.readings for s in streams.imus):  # the gyros measure qd: recording_imu's rule
             from ineid.data.recording_imu import imu_cutoff  # noqa: PLC0415
 
             gyro = (settings.imu_noise or {}).get("gyro", 0.005)
-            angles_cutoff, q_u = cutoff, signals.to_uniform(tq, q, hq)[1]
+            angles_cutoff = cutoff
             cutoff, cutoff_note = imu_cutoff(q_u, 1.0 / hq, cutoff, [tuple(s.readings) for s in streams.imus], gyro)
             cutoff = min(cutoff, 0.4 * rate)
             priors_cutoff = angles_cutoff if angles_cutoff < cutoff else None
@@ -347,10 +348,10 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     wrench, moved_w = _on_grid(tw_u, w_s, grid) if has_wrench else (None, False)
     imu_lines, imu_record = (), None
     if prepared is not None:  # q the encoders', qd and qdd fused with the IMUs
-        from ineid.data.recording_imu import imu_summary_lines  # noqa: PLC0415
+        from ineid.data.recording_imu import encoder_priors, imu_summary_lines  # noqa: PLC0415
 
-        priors = joints[:, n:3 * n] if priors_cutoff is None else _on_grid(tq_u, np.concatenate(prepared.encoder_priors(
-            signals.to_uniform(tq, q, hq)[1], 1.0 / hq), axis=1), grid)[0]
+        priors = joints[:, n:3 * n] if priors_cutoff is None else _on_grid(
+            tq_u, np.concatenate(encoder_priors(q_u, 1.0 / hq, priors_cutoff), axis=1), grid)[0]
         qd_f, qdd_f, estimate, imu_record = prepared.fuse(model, grid, joints[:, :n], priors[:, :n], priors[:, n:],
                                                           settings.estimation, settings.imu_noise)
         joints[:, n:2 * n], joints[:, 2 * n:3 * n] = qd_f, qdd_f

@@ -140,11 +140,7 @@ class PreparedImus:
     stop: float
     delay: float
     cutoff: float | None = None
-    priors_cutoff: float | None = None  # Hz: the encoders' priors' cut-off, when below ``cutoff``
-
-    def encoder_priors(self, q: np.ndarray, rate: float) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`encoder_priors` at :attr:`priors_cutoff` of the unfiltered uniform angles ``q``."""
-        return encoder_priors(q, rate, self.priors_cutoff)
+    priors_cutoff: float | None = None  # Hz: the priors' cut-off (:func:`encoder_priors`), below ``cutoff``
 
     def fuse(self, model, grid: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, settings=None,
              imu_noise: dict | None = None):

@@ -32,15 +32,16 @@ accelerometers are linear in ``qdd`` alone (no bias), whitened by their noise, w
 of the fused ``qd``) of std ``s_p``: per frame ``qdd_k = (H_k^T H_k + P_p)^-1 (H_k^T z_k + P_p qdd_prior,k)``.
 Without such sensors ``qdd`` is the prior.
 
-**Prior weights from the data** (``encoder_qd_std=None``): per joint the sensors' estimate of that
-joint's rate alone, the others held at the prior, differs from the prior by the prior's error, the
-others' errors leaking through the maps, and the sensors' noise; the prior's variance per joint solves
-that robustly (:func:`ineid.data.prior_weights.prior_variance`: medians, so a filter's edges and
-near-singular frames do not move it), floored at ``1e-3`` of the sensors' own std (the encoders are then
-far better than the IMUs and win). With gyro biases, biases and weights alternate (:data:`BIAS_ROUNDS`),
-starting from the readings' mean misfit against the prior. The same for ``qdd``. With
-``qdd_prior="gyros"`` and the filter's ``cutoff`` the derivative of the fused ``qd`` is weighed against
-the encoders' ``qdd`` frame by frame (:attr:`EstimationSettings.cutoff`).
+**Prior weights from the data** (``encoder_qd_std=None``): the sensors' residuals at the prior are
+the prior's errors seen through the maps plus the sensors' noise; the prior's error variance per joint
+(independent joints: one encoder each) is their maximum-likelihood estimate by expectation-maximisation
+over the frames (:func:`ineid.data.prior_weights.prior_variance`: winsorized, so a filter's edges do not
+move it, and near-singular frames, where the posterior is the prior's own, neither swamp nor shrink it),
+floored at ``1e-3`` of the sensors' own std (the encoders are then far better than the IMUs and win).
+With gyro biases, biases and weights alternate (:data:`BIAS_ROUNDS`), starting from the readings' mean
+misfit against the prior. The same for ``qdd``. With ``qdd_prior="gyros"``, the filter's ``cutoff``
+and gyros that leave a direction unseen, the derivative of the fused ``qd`` is weighed against the
+encoders' ``qdd`` frame by frame (:attr:`EstimationSettings.cutoff`).
 
 **What the data cannot tell.** Each frame is estimated on its own (the biases aside): no smoothing
 over time, so low-pass the IMU streams as the angles are and give the noise the filter leaves. A
