@@ -87,5 +87,10 @@ class StorageError(IneidError):
     """
 
 
+class InputFileError(IneidError):
+    """An input cannot be read safely: not a regular file (a FIFO, a device), too large for its format,
+    or a file that reaches outside itself (an HDF5 external link). The message names the file and the fix."""
+
+
 class ResourceError(IneidError):
     """A request needs more memory (or another machine resource) than there is, or than ineid allows."""

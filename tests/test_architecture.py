@@ -29,6 +29,7 @@ TOP_LEVEL = {
     "ineid._atomic": "foundation",
     "ineid._trust": "foundation",
     "ineid._faults": "foundation",
+    "ineid._inputs": "foundation",
     "ineid._version": "foundation",
     "ineid.cache": "foundation",
     "ineid.progress": "foundation",
