@@ -232,6 +232,30 @@ def test_train_overwrite_interrupted_keeps_the_old_run(run, data, tmp_path, monk
     assert (tmp_path / "new" / "checkpoint.msgpack").is_file()
 
 
+def test_train_overwrite_interrupted_during_the_swap_ends_with_the_new_run(run, data, tmp_path, monkeypatch):
+    """Ctrl-C while the finished run is swapped in is held back until the new run is in place; the line says so."""
+    import ineid._atomic as atomic
+    import ineid.learn
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "model.msgpack").write_bytes(b"the previous run")
+    evaluate = ineid.learn.evaluate  # without the least-squares comparisons: what is tested is the swap
+    monkeypatch.setattr(ineid.learn, "evaluate", lambda r, ds, model=None: evaluate(r, ds, model=model, linear=False))
+    make = atomic.create_temporary_folder
+
+    def signalled(path, kind="tmp"):  # the folder the old run is set aside in is made inside the swap
+        if kind == "old":
+            os.kill(os.getpid(), signal.SIGINT)
+        return make(path, kind)
+
+    monkeypatch.setattr(atomic, "create_temporary_folder", signalled)
+    line = last_line(run("-q", "train", data, *TRAIN, "--epochs", 1, "--out", out, "--overwrite"), 130)
+    assert line == f"ineid: interrupted; {out} holds the new run, complete (it had replaced the previous one)"
+    assert (out / "model.msgpack").read_bytes() != b"the previous run" and (out / "evaluation.json").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
 def test_train_sigterm_exits_143(data, tmp_path):
     out = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "ineid.cli", "-q", "train", data, *TRAIN, "--epochs", "100000",
