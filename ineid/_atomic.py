@@ -2,10 +2,12 @@
 
 Every file ineid writes goes through here: :func:`atomic_write` for data in memory,
 :func:`atomic_output` for files written by a library (HDF5, matplotlib, CSV writers), and
-:class:`ineid.data.write.DatasetWriter` (which uses :func:`temporary_path`) for streamed
+:class:`ineid.data.write.DatasetWriter` (which uses :func:`create_temporary`) for streamed
 datasets. A temporary file beside the target is renamed into place only when complete, so
 an exception, Ctrl-C or (once :func:`terminate_on_sigterm` is installed) a scheduler's
-SIGTERM leaves either the old file or nothing, never half a file.
+SIGTERM leaves either the old file or nothing, never half a file. Temporaries have
+unpredictable names and are created exclusively, never through a link
+(:mod:`ineid._temporary`).
 
 Folders (training runs) are built under a hidden name beside the target and swapped in when
 complete (:func:`staging_folder`, :func:`replace_folder`). :func:`output_lock` makes a second
@@ -15,18 +17,26 @@ the temporary files that a killed run (SIGKILL, power loss) left beside the outp
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
-import re
 import shutil
 import signal
+import stat
 import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
-from ineid.errors import DatasetError, OutputBusyError, OutputExistsError
+from ineid._temporary import (
+    create_temporary,
+    create_temporary_folder,
+    is_temporary,
+    remove_stale_temporaries,
+    temporary_stem,
+)
+from ineid.errors import DatasetError, OutputBusyError, OutputExistsError, StorageError
 
 _log = logging.getLogger("ineid.atomic")
 
@@ -54,23 +64,17 @@ def check_output_file(path: str | Path, overwrite: bool, example: str) -> Path:
     return path
 
 
-def temporary_path(path: str | Path) -> Path:
-    """The hidden temporary name a file is written under before it replaces ``path``."""
-    path = Path(path)
-    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
-
-
 @contextmanager
 def atomic_output(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path to write; on a normal exit it replaces ``path``, otherwise it is deleted.
+    """Yield the name of a new empty temporary file to write; on a normal exit it replaces ``path``,
+    otherwise it is deleted.
 
-    Writers that append their own suffix (``savefig`` with a format) are given the suffix
-    of ``path``, so the temporary file keeps it: ``.name.<pid>.tmp.png``.
+    The file exists already (:func:`create_temporary`: a file of this process, not a link), so
+    a writer that opens it by name writes into it. It keeps the suffix of ``path``
+    (``.NAME.ineid-PID-RANDOM.tmp.png``) for writers that go by the suffix.
     """
     path = Path(path)
-    tmp = temporary_path(path)
-    if path.suffix:
-        tmp = tmp.with_name(tmp.name + path.suffix)
+    tmp = create_temporary(path, path.suffix)
     try:
         yield tmp
         os.replace(tmp, path)
@@ -191,10 +195,74 @@ def same_path(a: str | Path, b: str | Path) -> bool:
     return a.resolve() == b.resolve()
 
 
+LOCK_BYTES = 32
+"""The most a lock file of ineid holds (its holder's pid and a newline); a bigger file at a lock's name is someone's."""
+
+
 def lock_path(path: str | Path) -> Path:
-    """The hidden lock file of an output: ``.NAME.lock`` beside it."""
+    """The hidden lock file of an output: ``.NAME.lock`` beside it (a long name shortened as in its
+    temporaries, :func:`ineid._temporary.temporary_stem`)."""
     path = Path(path)
-    return path.with_name(f".{path.name}.lock")
+    return path.with_name(f".{temporary_stem(path.name)}.lock")
+
+
+def _lock_problem(st: os.stat_result, fd: int | None = None) -> str | None:
+    """What makes ``st`` (and the open ``fd``) something other than a lock file ineid could have made
+    (a regular file with one name, holding nothing or a pid), or None."""
+    if stat.S_ISLNK(st.st_mode):
+        return "is a symbolic link"
+    if not stat.S_ISREG(st.st_mode):
+        return "is not a regular file"
+    if st.st_nlink > 1:
+        return "has other names (hard links)"
+    held = os.pread(fd, LOCK_BYTES + 1, 0).strip() if fd is not None else b""
+    if st.st_size > LOCK_BYTES or (held and not held.isdigit()):
+        return "holds other data"
+    return None
+
+
+def _foreign_lock(lock: Path, problem: str, option: str) -> StorageError:
+    return StorageError(f"{lock} {problem}, not a lock file of ineid; remove it, or choose another {option}")
+
+
+def _open_lock(lock: Path, option: str) -> tuple[int, bool] | None:
+    """Open the lock file ``lock``, creating it, never through a link: ``(fd, owned)``, ``owned`` when it is
+    this user's file (only then is the holder's pid written in it); None where it cannot be opened
+    (a read-only or missing folder: the write itself then fails with the reason).
+
+    A name already taken is checked (:func:`_lock_problem`) before it is opened, so a FIFO or a
+    device is never opened, and again through the open file.
+
+    Raises:
+        StorageError: the name holds a link, something other than a regular file, a file with
+            other names or other data.
+    """
+    flags = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        problem = _lock_problem(os.lstat(lock))
+    except OSError:  # none yet (or the folder is unusable: the open below says so)
+        problem = None
+    if problem:
+        raise _foreign_lock(lock, problem, option)
+    try:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT | flags, 0o644)
+    except OSError as e:
+        if e.errno == errno.ELOOP:  # a link planted since the check above
+            raise _foreign_lock(lock, "is a symbolic link", option) from None
+        try:  # another user's lock file in a shared folder: lockable, not writable
+            fd = os.open(lock, os.O_RDONLY | flags)
+        except OSError:
+            _log.debug("no lock for %s (%s)", lock, e)
+            return None
+    try:
+        st = os.fstat(fd)
+        problem = _lock_problem(st, fd)
+        if problem:
+            raise _foreign_lock(lock, problem, option)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd, not hasattr(os, "geteuid") or st.st_uid == os.geteuid()
 
 
 def _lock_key(lock: Path) -> str:
@@ -220,11 +288,13 @@ def output_lock(path: str | Path, option: str = "--out") -> Iterator[Path]:
     processes are removed (:func:`remove_stale_temporaries`). The lock file is removed on
     exit. Re-entrant within a process (the CLI holds it, the library takes it again).
 
-    Where the lock file cannot be created (a read-only or missing folder) nothing is locked:
-    the write itself then fails with the reason.
+    The lock file is opened without following a link (:func:`_open_lock`); the pid is
+    written only into a lock file of this user. Where it cannot be created (a read-only or
+    missing folder) nothing is locked: the write itself then fails with the reason.
 
     Raises:
         OutputBusyError: another process holds the lock.
+        StorageError: the lock's name holds a link or anything but a lock file of ineid.
     """
     path = Path(path)
     lock = lock_path(path)
@@ -242,12 +312,11 @@ def output_lock(path: str | Path, option: str = "--out") -> Iterator[Path]:
         yield path
         return
     while True:
-        try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-        except OSError as e:
-            _log.debug("no lock for %s (%s)", path, e)
+        opened = _open_lock(lock, option)
+        if opened is None:
             yield path
             return
+        fd, owned = opened
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -262,17 +331,17 @@ def output_lock(path: str | Path, option: str = "--out") -> Iterator[Path]:
             yield path
             return
         try:  # the previous holder may have removed the file between our open and flock: lock the new one
-            current = os.stat(lock)
-            mine = os.fstat(fd)
-            if (current.st_dev, current.st_ino) == (mine.st_dev, mine.st_ino):
+            current, held = os.lstat(lock), os.fstat(fd)
+            if (current.st_dev, current.st_ino) == (held.st_dev, held.st_ino):
                 break
         except FileNotFoundError:
             pass
         os.close(fd)
     _held[key] = 1
     try:
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        if owned:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         remove_stale_temporaries(path)
         yield path
     finally:
@@ -289,79 +358,6 @@ def output_lock(path: str | Path, option: str = "--out") -> Iterator[Path]:
         os.close(fd)
 
 
-_TEMPORARY = re.compile(r"(\d+)\.(tmp|old)(\..*)?")
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError, ValueError):
-        return pid > 0
-    return True
-
-
-def _size(path: Path) -> int:
-    if path.is_dir() and not path.is_symlink():
-        return sum(p.stat().st_size for p in path.rglob("*") if p.is_file() and not p.is_symlink())
-    return path.lstat().st_size
-
-
-def human_size(n: int) -> str:
-    """``206 MB``, ``3.1 kB``, ``12 bytes`` (decimal units)."""
-    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
-        if n >= scale:
-            v = n / scale
-            return f"{v:.1f} {unit}" if v < 10 else f"{v:.0f} {unit}"
-    return f"{n} bytes"
-
-
-def remove_stale_temporaries(path: str | Path) -> list[Path]:
-    """Remove the temporaries of ``path`` that processes no longer alive left beside it; one warning each.
-
-    Temporaries are ``.NAME.<pid>.tmp*`` (files of :func:`atomic_output`, folders of
-    :func:`staging_folder`) and ``.NAME.<pid>.old`` (a folder moved aside by
-    :func:`replace_folder`). A process killed in the middle of :func:`replace_folder` (the
-    old folder moved aside, the new one not yet in place) leaves no ``NAME``: then its
-    ``.old`` folder is moved back instead. Temporaries of live processes are left alone.
-    Call it holding the output's lock (:func:`output_lock` does), so no ineid writer of
-    ``path`` is running.
-
-    Returns:
-        The temporaries removed (or moved back).
-    """
-    path = Path(path)
-    prefix = f".{path.name}."
-    try:
-        entries = [p for p in path.parent.iterdir() if p.name.startswith(prefix)]
-    except OSError:
-        return []
-    done = []
-    for entry in sorted(entries):
-        m = _TEMPORARY.fullmatch(entry.name[len(prefix) :])
-        if m is None or int(m[1]) == os.getpid() or _alive(int(m[1])):
-            continue
-        try:
-            if m[2] == "old" and not (path.exists() or path.is_symlink()):
-                os.rename(entry, path)
-                _log.warning("restored %s from %s, left by an interrupted ineid run", path, entry.name)
-            else:
-                kind = "folder" if entry.is_dir() and not entry.is_symlink() else "file"
-                size = human_size(_size(entry))
-                if kind == "folder":
-                    shutil.rmtree(entry)
-                else:
-                    entry.unlink()
-                _log.warning("removed a stale temporary %s %s (%s) left by an interrupted ineid run", kind, entry.name,
-                             size)  # fmt: skip
-        except OSError as e:
-            _log.warning("could not remove the stale temporary %s: %s", entry, e.strerror or e)
-            continue
-        done.append(entry)
-    return done
-
-
 # -- folders ------------------------------------------------------------------------------------------
 
 
@@ -372,37 +368,51 @@ def _real(path: str | Path) -> Path:
 
 
 def staging_folder(path: str | Path) -> Path:
-    """A new empty hidden folder ``.NAME.<pid>.tmp`` beside ``path`` (or beside the folder a
-    symlink ``path`` points to) to build its replacement in."""
+    """A new empty hidden folder ``.NAME.ineid-PID-RANDOM.tmp`` beside ``path`` (or beside the folder a
+    symlink ``path`` points to) to build its replacement in (:func:`ineid._temporary.create_temporary_folder`)."""
     path = _real(path)
-    staging = temporary_path(path)
-    if staging.exists():  # this process's own leftover
-        shutil.rmtree(staging)
-    staging.mkdir(parents=True)
-    return staging
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return create_temporary_folder(path)
 
 
 @contextmanager
 def _signals_deferred() -> Iterator[None]:
-    """SIGINT and SIGTERM wait until the block is done (main thread; elsewhere no change)."""
+    """SIGINT and SIGTERM that come during the block take effect once it is done (main thread; elsewhere no change).
+
+    Python runs signal handlers in the main thread, whichever thread the signal reached (a
+    process-directed signal goes to any thread that does not block it: JAX's, XLA's), so
+    the handlers themselves are swapped for one that notes the signal; after the block the
+    previous handlers are put back and each signal noted is raised again.
+    """
+    signums = (signal.SIGINT, signal.SIGTERM)
+    came: list[int] = []
+    previous = {s: signal.getsignal(s) for s in signums}
+    if any(handler is None for handler in previous.values()):  # a handler set outside Python: cannot be put back
+        yield
+        return
     try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-    except (AttributeError, ValueError, OSError):
+        for s in signums:
+            signal.signal(s, lambda signum, frame: came.append(signum))
+    except ValueError:  # not the main thread
         yield
         return
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        for s in dict.fromkeys(came):
+            signal.raise_signal(s)
 
 
 def replace_folder(new: str | Path, path: str | Path, keep: tuple[str, ...] | None = None) -> Path:
     """Put the complete folder ``new`` at ``path``, replacing the folder there; the old one is removed last.
 
-    The old folder is renamed aside (``.NAME.<pid>.old``), ``new`` renamed into place, then
-    the old one deleted, with Ctrl-C and SIGTERM held back until it is done; so ``path``
-    holds the old folder or the new one, whole. (A kill between the renames is repaired by
-    the next :func:`remove_stale_temporaries`.)
+    The old folder is renamed aside (onto ``.NAME.ineid-PID-RANDOM.old``, an empty folder made
+    for it), ``new`` renamed into place, then the old one deleted, with Ctrl-C and SIGTERM
+    held back until it is done; so ``path`` holds the old folder or the new one, whole, and a
+    signal that came meanwhile is raised once the new one is in place. (A kill between the
+    renames is repaired by the next :func:`remove_stale_temporaries`.)
 
     Args:
         new: the finished folder (on the same file system, e.g. :func:`staging_folder`).
@@ -411,18 +421,17 @@ def replace_folder(new: str | Path, path: str | Path, keep: tuple[str, ...] | No
             not ineid temporaries (files the user put there) are carried into the new folder.
     """
     new, path = Path(new), _real(path)
-    aside = path.with_name(f".{path.name}.{os.getpid()}.old")
     with _signals_deferred():
+        aside = None
         if path.is_dir():
             if keep is not None:
                 for entry in path.iterdir():
-                    if entry.name not in keep and not _is_temporary(entry.name) and not (new / entry.name).exists():
+                    carried = entry.name not in keep and not is_temporary(entry.name)
+                    if carried and not os.path.lexists(new / entry.name):
                         os.rename(entry, new / entry.name)
-            os.rename(path, aside)
+            aside = create_temporary_folder(path, "old")
+            os.rename(path, aside)  # replaces the empty folder just made: the name is this process's
         os.rename(new, path)
-        shutil.rmtree(aside, ignore_errors=True)
+        if aside is not None:
+            shutil.rmtree(aside, ignore_errors=True)
     return path
-
-
-def _is_temporary(name: str) -> bool:
-    return name.startswith(".") and (re.search(r"\.\d+\.(tmp|old)(\..*)?$", name) is not None or name.endswith(".lock"))

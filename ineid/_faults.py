@@ -10,7 +10,8 @@ Anything else keeps its traceback: it is a bug.
 :func:`require_disk` and :func:`require_memory` refuse a big write or allocation before it
 starts, with the sizes in the message.
 
-Imports only the standard library (``ineid --help`` loads this module).
+Imports only the standard library and :mod:`ineid._temporary` (itself standard library only; ``ineid --help``
+loads this module).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import re
 import shutil
 from pathlib import Path
 
+from ineid._temporary import target_name
 from ineid.errors import ResourceError, StorageError
 
 FAULT_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENAMETOOLONG,
@@ -29,8 +31,6 @@ FAULT_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACC
 
 _ERRNO = re.compile(r"\berrno\s*=\s*(\d+)")
 _NAME = re.compile(r"\b(?:file)?name\s*=\s*'([^']*)'")
-_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.\d+\.tmp(?:\.[^.]+)?$")
-"""The hidden name of :func:`ineid._atomic.temporary_path` (``.NAME.PID.tmp[.SUFFIX]``)."""
 _SHOWN_CHARS = 120
 
 
@@ -58,8 +58,8 @@ def fault_path(exc: BaseException) -> str | None:
     if name is None:
         return None
     path = Path(os.fsdecode(name))
-    temporary = _TEMPORARY.match(path.name)
-    return str(path.with_name(temporary.group("name")) if temporary else path)
+    target = target_name(path.name)
+    return str(path.with_name(target) if target else path)
 
 
 def _in_cache(path: str | None) -> bool:

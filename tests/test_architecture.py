@@ -27,6 +27,7 @@ LAYERS = ("foundation", "params", "robots", "generated", "symbolic", "channels",
 TOP_LEVEL = {
     "ineid.errors": "foundation",
     "ineid._atomic": "foundation",
+    "ineid._temporary": "foundation",
     "ineid._trust": "foundation",
     "ineid._faults": "foundation",
     "ineid._inputs": "foundation",

@@ -22,6 +22,7 @@ import pytest
 from click.testing import CliRunner
 
 from ineid._faults import describe_fault, fault_path
+from ineid._temporary import temporary_path
 from ineid.cli import main
 
 from .conftest import FIXTURES
@@ -107,7 +108,7 @@ def trained(data, tmp_path_factory) -> Path:
 
 def test_faults_are_recognised_in_python_and_h5py_forms(tmp_path):
     out = tmp_path / "r.h5"
-    tmp = tmp_path / f".r.h5.{os.getpid()}.tmp.h5"
+    tmp = temporary_path(out, ".h5")
     assert describe_fault(OSError(errno.ENOSPC, "No space left on device", str(tmp))) == (
         f"no space left on device writing {out}; free some space or choose another --out")
     # h5py's RuntimeError from a dataset's dealloc carries the errno only in its text
@@ -179,7 +180,7 @@ def test_full_disk_on_data_generate(monkeypatch, tmp_path):
     out = tmp_path / "d.h5"
 
     def full(self, name, nbytes, rows):
-        raise h5py_error(errno.ENOSPC, write.temporary_path(out))
+        raise h5py_error(errno.ENOSPC, temporary_path(out))
 
     monkeypatch.setattr(write._SpaceWatch, "check", full)
     line = one_line(run("-q", "data", "generate", "--n-configs", 40, "--n-frames", 6, "--seed", 1, "--out", out))
@@ -254,14 +255,15 @@ def test_real_full_and_read_only_disks(tmp_path, small):
 
 
 def test_read_only_output_folder(monkeypatch, tmp_path, results):
-    """EROFS from Python's open (export-urdf) and from HDF5's file creation (data generate)."""
+    """EROFS where the temporary file is created (export-urdf) and from HDF5's file creation (data generate)."""
+    import ineid._atomic
+
     out = tmp_path / "x.urdf"
 
-    def refuse(self, *a, **k):
-        raise OSError(errno.EROFS, "Read-only file system", str(self))
+    def refuse(path, suffix=""):
+        raise OSError(errno.EROFS, "Read-only file system", str(temporary_path(path, suffix)))
 
-    monkeypatch.setattr(Path, "write_text", refuse)
-    monkeypatch.setattr(Path, "unlink", refuse)
+    monkeypatch.setattr(ineid._atomic, "create_temporary", refuse)
     line = one_line(run("export-urdf", results, "--config", 2, "--out", out))
     assert line == f"Error: {out} is on a read-only file system; choose another --out"
     monkeypatch.undo()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -167,22 +168,29 @@ def test_two_processes_writing_one_file(tmp_path):
 def test_stale_temporaries_are_removed_by_the_next_write(run, tmp_path):
     pid = dead_pid()
     out = tmp_path / "x.h5"
-    stale = tmp_path / f".x.h5.{pid}.tmp"
+    stale = tmp_path / f".x.h5.ineid-{pid}-0123abcd.tmp"
     stale.write_bytes(b"\0" * 2_500_000)
-    (tmp_path / f".x.h5.{pid}.tmp.png").write_bytes(b"png")  # a figure's
-    (tmp_path / f".x.h5.{os.getppid()}.tmp").write_bytes(b"")  # a live process's: kept
-    (tmp_path / f".xx.h5.{pid}.tmp").write_bytes(b"")  # another output's: kept
+    (tmp_path / f".x.h5.ineid-{pid}-4567cdef.tmp.h5").write_bytes(b"h5")  # atomic_output's, with the output's suffix
+    kept = [
+        f".x.h5.ineid-{os.getppid()}-0123abcd.tmp",  # a live process's
+        f".xx.h5.ineid-{pid}-0123abcd.tmp",  # another output's
+        f".x.h5.ineid-{pid}-0123abcd.tmp.png",  # not a suffix ineid gives this output's temporaries
+        ".x.h5.4000000.tmp.notes",  # the user's, named like a temporary of another scheme
+        f".x.h5.{pid}.tmp",
+    ]
+    for name in kept:
+        (tmp_path / name).write_bytes(b"mine")
     r = run("data", "generate", "--n-configs", 2, "--n-frames", 2, "--out", out)
     assert r.exit_code == 0, r.output
-    assert (f"ineid: removed a stale temporary file .x.h5.{pid}.tmp (2.5 MB) left by an interrupted ineid run"
+    assert (f"ineid: removed a stale temporary file {stale.name} (2.5 MB) left by an interrupted ineid run"
             in r.output.splitlines())  # fmt: skip
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
-        ["x.h5", f".x.h5.{os.getppid()}.tmp", f".xx.h5.{pid}.tmp"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["x.h5", *kept])
+    assert all((tmp_path / name).read_bytes() == b"mine" for name in kept)
     # a folder killed between the two renames of a swap: the old one is moved back
     run_dir = tmp_path / "run"
-    (tmp_path / f".run.{pid}.old").mkdir()
-    (tmp_path / f".run.{pid}.old" / "model.msgpack").write_bytes(b"old")
-    (tmp_path / f".run.{pid}.tmp").mkdir()
+    (tmp_path / f".run.ineid-{pid}-0123abcd.old").mkdir()
+    (tmp_path / f".run.ineid-{pid}-0123abcd.old" / "model.msgpack").write_bytes(b"old")
+    (tmp_path / f".run.ineid-{pid}-4567cdef.tmp").mkdir()
     assert len(remove_stale_temporaries(run_dir)) == 2
     assert (run_dir / "model.msgpack").read_bytes() == b"old"
     assert not any(p.name.startswith(".run.") for p in tmp_path.iterdir())
@@ -222,6 +230,30 @@ def test_train_overwrite_interrupted_keeps_the_old_run(run, data, tmp_path, monk
     assert line == (f"ineid: interrupted; the run in {tmp_path / 'new'} can be continued with `ineid train {data} ... "
                     f"--out {tmp_path / 'new'} --resume` (the same settings)")  # fmt: skip
     assert (tmp_path / "new" / "checkpoint.msgpack").is_file()
+
+
+def test_train_overwrite_interrupted_during_the_swap_ends_with_the_new_run(run, data, tmp_path, monkeypatch):
+    """Ctrl-C while the finished run is swapped in is held back until the new run is in place; the line says so."""
+    import ineid._atomic as atomic
+    import ineid.learn
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "model.msgpack").write_bytes(b"the previous run")
+    evaluate = ineid.learn.evaluate  # without the least-squares comparisons: what is tested is the swap
+    monkeypatch.setattr(ineid.learn, "evaluate", lambda r, ds, model=None: evaluate(r, ds, model=model, linear=False))
+    make = atomic.create_temporary_folder
+
+    def signalled(path, kind="tmp"):  # the folder the old run is set aside in is made inside the swap
+        if kind == "old":
+            os.kill(os.getpid(), signal.SIGINT)
+        return make(path, kind)
+
+    monkeypatch.setattr(atomic, "create_temporary_folder", signalled)
+    line = last_line(run("-q", "train", data, *TRAIN, "--epochs", 1, "--out", out, "--overwrite"), 130)
+    assert line == f"ineid: interrupted; {out} holds the new run, complete (it had replaced the previous one)"
+    assert (out / "model.msgpack").read_bytes() != b"the previous run" and (out / "evaluation.json").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
 
 
 def test_train_sigterm_exits_143(data, tmp_path):
@@ -300,3 +332,146 @@ def test_a_signal_swallowed_by_a_gc_callback_is_delivered_again():
         assert got.is_set()
     finally:
         signal.signal(signal.SIGTERM, old)
+
+
+# -- names ineid makes up beside an output ----------------------------------------------------------------
+
+
+def plant_links(out, victims):
+    """A symbolic link at every name an older scheme gave the temporaries and the lock of ``out`` in this
+    process (``.NAME.PID.tmp[.SUFFIX]``, ``.NAME.lock``), each to a file of its own in ``victims``."""
+    names = [f".{out.name}.{os.getpid()}.tmp", f".{out.name}.{os.getpid()}.tmp{out.suffix}", f".{out.name}.lock"]
+    for name in names:
+        victim = victims / f"victim-of-{name}"
+        victim.write_text("the user's data")
+        (out.parent / name).symlink_to(victim)
+    return [out.parent / name for name in names]
+
+
+def test_links_planted_beside_an_output_are_never_followed(run, tmp_path):
+    """data generate, solve, export-urdf and report, each with links planted at the names of its temporaries
+    and lock: a link at the lock's name is refused in one line; the temporaries' are skipped; nothing they
+    point at changes."""
+    shared, victims = tmp_path / "shared", tmp_path / "victims"
+    shared.mkdir(), victims.mkdir()
+    data, results = shared / "d.h5", shared / "r.h5"
+    commands = [
+        ("data", "generate", "--factorial", 2, "--n-frames", 10, "--out", data),
+        ("-q", "solve", data, "--out", results),
+        ("export-urdf", results, "--config", 0, "--out", shared / "o.urdf"),
+        ("report", results, "--out", shared / "o.html"),
+    ]
+    for args in commands:
+        out = args[-1]
+        links = plant_links(out, victims)
+        refusal = f"Error: {links[-1]} is a symbolic link, not a lock file of ineid; remove it, or choose another --out"
+        assert last_line(run(*args), 1) == refusal
+        assert not out.exists()
+        links[-1].unlink()
+        r = run(*args)
+        assert r.exit_code == 0, r.output
+        assert out.is_file() and not out.is_symlink()
+        assert all(link.is_symlink() for link in links[:-1])  # not ineid's: left as they were
+        assert {p.read_text() for p in victims.iterdir()} == {"the user's data"}
+    assert not [p.name for p in shared.iterdir() if ".ineid-" in p.name or p.name.endswith(".lock")]
+
+
+def test_a_253_character_out_name_is_written(run, tmp_path):
+    out = tmp_path / ("d" * 250 + ".h5")
+    r = run("data", "generate", "--factorial", 2, "--n-frames", 10, "--out", out)
+    assert r.exit_code == 0, r.output
+    assert [p.name for p in tmp_path.iterdir()] == [out.name]
+
+
+def test_report_refuses_to_replace_the_dataset_its_results_were_solved_on(run, tmp_path):
+    data, results = tmp_path / "d.h5", tmp_path / "r.h5"  # as the test above makes them: its solver is compiled
+    assert run("data", "generate", "--factorial", 2, "--n-frames", 10, "--out", data).exit_code == 0
+    assert run("-q", "solve", data, "--out", results).exit_code == 0
+    before = data.read_bytes()
+    for command in (("report", results), ("export-urdf", results, "--config", 0)):
+        line = last_line(run(*command, "--out", data, "--overwrite"), 1)
+        assert line == f"Error: --out {data} is the dataset the results were solved on; choose another file"
+    assert data.read_bytes() == before
+
+
+def test_generate_refuses_to_replace_the_robot_file(run, tmp_path):
+    from ineid.robots import BUILTIN_ROBOTS
+
+    robot = tmp_path / "gen" / "sweaty_arm_jax.py"  # the name of a module generate writes for this robot
+    robot.parent.mkdir()
+    robot.write_text(BUILTIN_ROBOTS["sweaty-arm"].urdf_path.read_text())
+    before = snapshot(robot.parent)
+    line = last_line(run("generate", robot, "--out", robot.parent, "--overwrite"), 1)
+    assert line == f"Error: --out {robot.parent} would replace {robot}, the robot file; choose another folder"
+    assert snapshot(robot.parent) == before
+
+
+def test_generate_interrupted_leaves_modules_that_match_their_manifest(run, tmp_path, monkeypatch):
+    """Ctrl-C after generate's first module is written: exit 130 once all the modules and their
+    manifest are written, never new modules beside the old manifest (which ineid would refuse to load)."""
+    from ineid._trust import verified
+    from ineid.generated import file_names
+    from ineid.symbolic import emit
+
+    gen, names = tmp_path / "gen", file_names("sweaty-arm")
+    emit.write_files({name: f"# Generated by {emit.GENERATOR}: an older version\n" for name in names}, gen)
+    write = emit.atomic_write
+
+    def interrupted(path, data):
+        write(path, data)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(emit, "atomic_write", interrupted)
+    line = last_line(run("generate", "sweaty-arm", "--out", gen), 130)
+    assert line == "ineid: interrupted; no partial output file was left"
+    modules = verified(gen, names, private=False)  # the manifest matches every module
+    assert all(b"an older version" not in text for text in modules.values())
+
+
+def _can_mount() -> bool:
+    return hasattr(os, "geteuid") and os.geteuid() == 0 and shutil.which("mount") is not None
+
+
+@pytest.mark.skipif(not _can_mount(), reason="needs root to mount a small tmpfs")
+def test_a_new_run_that_fills_the_disk_leaves_nothing(run, data, tmp_path):
+    """A 56 KiB tmpfs holds the run's first checkpoint, not its second: the error is one line, and no
+    folder is left (an interruption there would keep the run to resume; an error has nothing to resume)."""
+    full = tmp_path / "full"
+    full.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=56k", "tmpfs", str(full)], check=False).returncode:
+        pytest.skip("mount failed")
+    try:
+        line = last_line(run("-q", "train", data, *TRAIN, "--epochs", 3, "--out", full / "run"), 1)
+        assert line.startswith("Error: no space left on device writing ") and "choose another --out" in line
+        assert os.listdir(full) == []
+    finally:
+        subprocess.run(["umount", str(full)], check=False)
+
+
+def test_train_overwrite_terminated_after_its_last_epoch_keeps_the_old_run(data, tmp_path):
+    """SIGTERM once the new run's model is written, while it is evaluated: the evaluation is part of the
+    new run, built beside the old one, so the old run is untouched and nothing else is left."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "model.msgpack").write_bytes(b"the previous run")
+    (out / "notes.txt").write_text("mine")
+    before = snapshot(out)
+    args = [sys.executable, "-m", "ineid.cli", "-q", "train", data, *TRAIN, "--epochs", "2", "--out", out]
+    proc = subprocess.Popen([*args, "--overwrite"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    def new_model() -> bool:  # the new run's model, wherever the run is built
+        models = [*tmp_path.glob(".run.*/model.msgpack"), out / "model.msgpack"]
+        return any(m.is_file() and m.read_bytes() != b"the previous run" for m in models)
+
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None and not new_model():
+        time.sleep(0.02)
+    assert new_model(), proc.communicate()
+    time.sleep(0.2)  # into the evaluation (a second or more), past the moment a run is swapped in right after training
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    left = f"ineid: terminated (SIGTERM); {out} keeps its previous run, untouched (the new one was not finished)"
+    assert err.strip().splitlines()[-1] == left
+    assert snapshot(out) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]

@@ -101,6 +101,7 @@ def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, r
     With --encoder-bits and --imu the design accounts for the joint-state errors the lab's encoders and
     link IMUs will cause (to first order: they inflate the noise).
     """
+    from ineid._atomic import _signals_deferred
     from ineid.data.trajectory import write_trajectory_csv, write_trajectory_json  # noqa: PLC0415
     from ineid.identify.excite import ExcitationSettings, design_excitation  # noqa: PLC0415
 
@@ -132,8 +133,9 @@ def excite(ctx, robot, duration, harmonics, base_frequency, criterion, starts, r
         f"joints: {json.dumps(list(model.joint_names))}",  # JSON: names may hold commas
         f"coefficients: {coefficients.name}",
     ]
-    write_trajectory_json(coefficients, res.trajectory, {"design": res.to_dict()}, overwrite=overwrite)
-    write_trajectory_csv(out, t, q, qd, qdd, comments, overwrite=overwrite)
+    with _signals_deferred():  # a pair: an interruption leaves both old files or both new ones
+        write_trajectory_json(coefficients, res.trajectory, {"design": res.to_dict()}, overwrite=overwrite)
+        write_trajectory_csv(out, t, q, qd, qdd, comments, overwrite=overwrite)
     print_design(res, model)
     print_limits(res, model)
     click.echo(f"wrote {out} ({len(t):,} samples) and {coefficients}")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ineid.cli.options import overwrite_option, prepare_output
+from ineid.cli.options import overwrite_option, prepare_output, results_inputs
 from ineid.cli.output import plain
 
 
@@ -21,7 +21,8 @@ def export_mjcf_cmd(results_path, robot, config, out, overwrite) -> None:
     """Write the MJCF ROBOT with the identified bodies' inertials of one configuration; the rest of the file as it was."""
     from ineid.identify import export_mjcf, load_results  # noqa: PLC0415
 
-    prepare_output(out, overwrite, inputs=[("the input results file", results_path), ("the input MJCF", robot)])
+    inputs = [("the input results file", results_path), ("the input MJCF", robot), *results_inputs(results_path)]
+    prepare_output(out, overwrite, inputs=inputs)
     res = load_results(results_path)
     export_mjcf(res, config, robot, out, overwrite=overwrite)
     click.echo(f"wrote {out}: {plain(', '.join(res.meta['unknown_links']))} of configuration {config} "

@@ -23,6 +23,7 @@ from ineid.cli.options import (
     parse_selection,
     prepare_output,
     quiet,
+    results_inputs,
     robot_inputs,
     robot_options,
     run_inputs,
@@ -343,7 +344,7 @@ def export_urdf_cmd(results_path, config, out, overwrite) -> None:
     """Write the model's URDF with the identified links' inertials of one configuration."""
     from ineid.identify import export_urdf, load_results  # noqa: PLC0415
 
-    prepare_output(out, overwrite, inputs=[("the input results file", results_path)])
+    prepare_output(out, overwrite, inputs=[("the input results file", results_path), *results_inputs(results_path)])
     res = load_results(results_path)
     export_urdf(res, config, out, overwrite=overwrite)
     click.echo(f"wrote {out}: {plain(', '.join(res.meta['unknown_links']))} of configuration {config} "

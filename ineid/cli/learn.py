@@ -60,6 +60,16 @@ def _run_options(f):
     return f
 
 
+def _folder_id(path: Path) -> tuple[int, int] | None:
+    """``(device, inode)`` of the folder at ``path`` (through a link), None if there is none: a folder
+    swapped in by :func:`ineid._atomic.replace_folder` has another."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
 def _train_config(model_kw: dict, kw: dict):
     """A :class:`TrainConfig` from the options; a bad combination is a usage error."""
     from ineid.learn import ModelSpec, TrainConfig  # noqa: PLC0415
@@ -110,10 +120,13 @@ def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, arch, ac
                              frames=sample_frames), kw)  # fmt: skip
     prepare_output(run_dir, overwrite, kind="folder", inputs=[("the input dataset", data_path)], contents=RUN_FILES)
     replacing = overwrite and not resume and holds_run(run_dir)
+    previous = _folder_id(run_dir)
 
     def left_behind() -> str | None:
-        if replacing:
+        if replacing and _folder_id(run_dir) == previous:
             return f"{run_dir} keeps its previous run, untouched (the new one was not finished)"
+        if replacing:  # the signal came during the swap, held back until the new run was in place
+            return f"{run_dir} holds the new run, complete (it had replaced the previous one)"
         if (run_dir / CHECKPOINT).is_file():
             return (f"the run in {run_dir} can be continued with "
                     f"`ineid train {data_path} ... --out {run_dir} --resume` (the same settings)")
@@ -121,6 +134,13 @@ def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, arch, ac
 
     ds = load_dataset(data_path, clean=False)
     model = ds.model()
+    evaluations = []
+
+    def finish(work: Path) -> None:  # part of the run: written before a replacement is swapped in
+        ev = evaluate(load_run(work), ds, model=model)
+        atomic_write(work / EVALUATION, json.dumps(ev.to_dict(), indent=1))
+        evaluations.append(ev)
+
     with on_interrupt(left_behind), ProgressBar(f"training {cfg.model.name}", "epochs", quiet(ctx)) as bar:
 
         def progress(epoch, total, rec):
@@ -129,15 +149,13 @@ def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, arch, ac
                                 f"{rec['val_mse']:.4f}  val phys {rec['val_phys']:.4f}")  # fmt: skip
 
         result = train(ds, cfg, run_dir, dataset_path=str(data_path), resume=resume, overwrite=overwrite,
-                       progress=progress, model=model, physics_mode=physics_mode)
+                       progress=progress, model=model, physics_mode=physics_mode, finish=finish)
     click.echo(
         f"{result.epochs_run} epochs in {result.seconds:.1f} s"
         + (" (stopped early)" if result.stopped_early else "")
         + f"; best validation MSE {result.best_val_mse:.4g} at epoch {result.best_epoch}; wrote {run_dir}"
     )
-    ev = evaluate(load_run(run_dir), ds, model=model)
-    atomic_write(run_dir / EVALUATION, json.dumps(ev.to_dict(), indent=1))
-    print_evaluation(ev)
+    print_evaluation(evaluations[-1])
 
 
 @click.command("evaluate")

@@ -348,6 +348,23 @@ def run_inputs(run_dir: Path | None, what: str = "the input run") -> list[tuple[
     return [(f"{what}'s {name}", Path(run_dir) / name) for name in RUN_FILES if name != EVALUATION]
 
 
+def results_inputs(results_path: Path) -> list[tuple[str, Path | None]]:
+    """The files a results file records as what it was solved on (the dataset, each recording, the
+    validation recording), as inputs: a command that reads the results never replaces them. Nothing for
+    a results file that does not read (the command's own read says why)."""
+    from ineid.errors import DatasetError
+    from ineid.identify.results import load_results
+
+    try:
+        meta = load_results(results_path).meta
+    except (DatasetError, OSError):
+        return []
+    found = [("the dataset the results were solved on", meta.get("dataset_path"))]
+    found += [("a recording the results were solved on", r.get("path")) for r in meta.get("recordings") or []]
+    found.append(("the validation recording of the results", (meta.get("validation") or {}).get("path")))
+    return [(what, Path(path)) for what, path in found if path]
+
+
 @contextmanager
 def on_interrupt(left_behind: Callable[[], str | None]) -> Iterator[None]:
     """On Ctrl-C or SIGTERM, let the CLI say what the command left on purpose (``left_behind()``, or

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from ineid.cli.options import overwrite_option, prepare_output
+from ineid.cli.options import overwrite_option, prepare_output, results_inputs
 from ineid.cli.output import console, plain, shown
 
 plot_span_option = click.option(
@@ -88,8 +88,13 @@ def report(results_path, data_path, validate_path, config, out, overwrite) -> No
     view it; print it from the browser."""
     from ineid.identify.html_report import build_report, inputs_from_files, write_report  # noqa: PLC0415
 
-    prepare_output(out, overwrite, inputs=[("the input results file", results_path), ("the dataset (--data)", data_path),
-                                           ("the validation recording (--validate)", validate_path)])
+    read = [
+        ("the input results file", results_path),
+        ("the dataset (--data)", data_path),
+        ("the validation recording (--validate)", validate_path),
+        *results_inputs(results_path),
+    ]
+    prepare_output(out, overwrite, inputs=read)
     inputs = inputs_from_files(results_path, data_path, validate_path)
     html = build_report(inputs, config)
     write_report(html, out, overwrite=overwrite)

@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid._atomic import check_output, temporary_path
+from ineid._atomic import check_output
+from ineid._temporary import create_temporary
 from ineid._faults import format_bytes, free_disk
 from ineid.data.meta import FORMAT, VERSION, DatasetMeta, expected_shapes
 from ineid.errors import DatasetError, StorageError
@@ -119,7 +120,7 @@ class DatasetWriter:
         if unknown:
             raise ValueError(f"not per-configuration datasets: {unknown}")
         self.rows = rows or chunk_rows(self.n_frames, row_width(meta), self.n_configs)
-        self._tmp = temporary_path(self.path)
+        self._tmp = create_temporary(self.path)  # a file of this process: h5py's "w" writes into it
         try:
             self._file = h5py.File(self._tmp, "w")
         except BaseException:

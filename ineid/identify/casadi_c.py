@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid._atomic import temporary_path
+from ineid._temporary import create_temporary
 from ineid._trust import Untrusted, opened, read_checked, recorded_hashes, sha256, write_manifest
 from ineid.cache import cache_dir, private_folder  # noqa: F401  (cache_dir: tests find the libraries)
 from ineid.errors import CodegenError
@@ -96,7 +96,7 @@ def compile_function(fn, compiler: str | None = None):
             except Untrusted as e:
                 log.warning("the cached compiled CasADi function %s in %s %s; compiling it again",
                             name, folder, e.reason)
-        partial = temporary_path(library)
+        partial = create_temporary(library)
         cmd = [*shlex.split(cc), *CFLAGS, "-o", str(partial), str(source)]
         log.info("compiling CasADi function %s: %s", name, " ".join(cmd))
         try:

@@ -218,10 +218,13 @@ def writing_run(run_dir: str | Path, *, resume: bool, overwrite: bool) -> Iterat
 
     - ``overwrite`` of a folder holding a run: the new run is trained in a hidden folder
       beside it (:func:`ineid._atomic.staging_folder`) and swapped in when the block ends
-      normally (:func:`ineid._atomic.replace_folder`; other files of the old folder are
-      carried over). An exception, Ctrl-C or SIGTERM leaves the old run untouched.
-    - A new run (a new or empty folder) is written in place: an interruption after its
-      first checkpoint leaves a run to continue with ``resume``; before it, nothing.
+      normally (:func:`ineid._atomic.replace_folder`, the last step; other files of the old
+      folder are carried over). An exception, Ctrl-C or SIGTERM before the swap leaves the
+      old run untouched; one during the swap is raised once the new run is in place.
+    - A new run (a new or empty folder) is written in place: Ctrl-C or SIGTERM after its
+      first checkpoint leaves a run to continue with ``resume``; before it, nothing. An
+      error (a full disk, a diverged loss) leaves nothing: the files of the run are
+      removed, and the folder if the run made it.
     - ``resume``: in place, each file replaced atomically.
 
     Raises:
@@ -229,6 +232,7 @@ def writing_run(run_dir: str | Path, *, resume: bool, overwrite: bool) -> Iterat
     """
     import shutil  # noqa: PLC0415
 
+    from ineid._atomic import Terminated
     from ineid._atomic import output_lock, remove_stale_temporaries, replace_folder, staging_folder  # noqa: PLC0415
 
     run_dir = Path(run_dir)
@@ -242,19 +246,20 @@ def writing_run(run_dir: str | Path, *, resume: bool, overwrite: bool) -> Iterat
         work = staging_folder(run_dir) if staged else run_dir
         try:
             yield work
-        except BaseException:
+            if staged:
+                replace_folder(work, run_dir, keep=RUN_FILES)
+        except BaseException as e:
             if staged:
                 shutil.rmtree(work, ignore_errors=True)
             elif not resume and not held:
-                _discard_unstarted(run_dir, created)
+                _discard_new(run_dir, created, resumable=isinstance(e, (KeyboardInterrupt, Terminated)))
             raise
-        if staged:
-            replace_folder(work, run_dir, keep=RUN_FILES)
 
 
-def _discard_unstarted(run_dir: Path, created: bool) -> None:
-    """A new run interrupted before its first checkpoint has nothing to resume: remove what it wrote."""
-    if (run_dir / CHECKPOINT).is_file():
+def _discard_new(run_dir: Path, created: bool, resumable: bool) -> None:
+    """Remove what a new run that stopped wrote: everything after an error, and after an interruption
+    unless it reached its first checkpoint (``resumable``: that is kept to continue with ``resume``)."""
+    if resumable and (run_dir / CHECKPOINT).is_file():
         return
     for name in RUN_FILES:
         (run_dir / name).unlink(missing_ok=True)

@@ -13,6 +13,7 @@ ends bit for bit where the uninterrupted run would have.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -188,6 +189,7 @@ def train(
     progress: EpochProgress | None = None,
     model: RobotModel | None = None,
     physics_mode: str = "cached",
+    finish: Callable[[Path], None] | None = None,
 ) -> TrainResult:
     """Train a network on ``ds`` into ``run_dir`` (see module doc).
 
@@ -202,6 +204,9 @@ def train(
         progress: ``progress(epoch, epochs, metrics)`` after every epoch.
         model: the dataset's robot model (default: rebuilt from the dataset).
         physics_mode: ``"cached"`` or ``"inline"`` regressor in the physics loss.
+        finish: ``finish(folder)`` once training is done, with the folder the run was trained
+            in (the hidden one of a replacement): what it writes there (``ineid train``'s
+            evaluation) is part of the run, swapped in with it.
 
     Raises:
         TrainingError: the folder holds another run, or a resume does not match it.
@@ -212,6 +217,8 @@ def train(
               "model": model, "physics_mode": physics_mode}  # fmt: skip
     with writing_run(run_dir, resume=resume, overwrite=overwrite) as work:
         result = _train_into(ds, cfg, work, **kwargs)
+        if finish is not None:
+            finish(work)
     result.run_dir = Path(run_dir)
     return result
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import sympy as sp
 from sympy.printing.str import StrPrinter
 
-from ineid._atomic import atomic_write
+from ineid._atomic import _signals_deferred, atomic_write
 from ineid.errors import CodegenError
 from ineid.generated import file_names
 from ineid.generated._source import check_module_source
@@ -285,14 +285,17 @@ def write_files(files: dict[str, str] | dict[str, bytes], directory: str | Path,
     :func:`ineid.generated.load_from_directory` checks before it runs them.
 
     Text is written as UTF-8, so the bytes hashed are the bytes written. ``manifest=False``
-    only for the package's own ``ineid/generated`` (package code, not checked).
+    only for the package's own ``ineid/generated`` (package code, not checked). Ctrl-C and
+    SIGTERM wait until the last file is written, so an interruption leaves the old files and
+    manifest or the new ones, never modules that their manifest does not match.
     """
     from ineid._trust import write_manifest  # noqa: PLC0415
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     data = {name: text.encode() if isinstance(text, str) else text for name, text in files.items()}
-    written = [atomic_write(directory / name, data[name]) for name in sorted(data)]
-    if manifest:
-        write_manifest(directory, data, private=False)
+    with _signals_deferred():
+        written = [atomic_write(directory / name, data[name]) for name in sorted(data)]
+        if manifest:
+            write_manifest(directory, data, private=False)
     return written
