@@ -13,6 +13,7 @@ estimates on the fitted and held-out frames (:func:`estimate_residual_sums`,
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 
 import numpy as np
@@ -25,6 +26,8 @@ from ineid.identify.linear import BaseFit, Estimate, axis_weights, fit_base, fit
 from ineid.identify.nlp import NlpSolver, estimate_from_solves, nlp_estimate
 from ineid.identify.systems import Offsets, predict_wrench, remove_offsets, stack, stack_casadi
 from ineid.robots.model import SMALL_JOB_FRAMES
+
+log = logging.getLogger(__name__)
 
 PARALLEL_MIN_CONFIGS = 256
 """Fewer configurations are solved in this process: starting workers costs about a second."""
@@ -289,6 +292,7 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
             if progress is not None:
                 progress(done, total)
 
+        log.info("IPOPT: %s solves of %d configurations", settings.method, c)
         est = nlp_estimate(fit, solver, rms, start, progress=timed)
         return est, seconds
     import multiprocessing as mp  # noqa: PLC0415
@@ -304,6 +308,7 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
     success = np.zeros(c, dtype=bool)
     status = np.empty(c, dtype=object)
     ctx = mp.get_context("spawn")  # JAX's threads and fork do not mix
+    log.info("IPOPT: %s solves of %d configurations in %d worker processes", settings.method, c, workers)
     with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_nlp_worker_init,
                              initargs=(settings.method, base, prior, settings.pull, settings.entropic,
                                        settings.backend == "casadi-c", _nlp_options(settings))) as pool:
