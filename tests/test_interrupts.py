@@ -234,3 +234,22 @@ def test_solve_sigterm_in_ipopt_keeps_the_previous_results_and_report(many, tmp_
             "--overwrite")
     seconds = interrupt_in_ipopt(args, tmp_path, signal.SIGTERM, previous(tmp_path, "o.h5", "o.html"), after=0.2)
     assert seconds < 10  # within an iteration (plus the exit), not after every configuration
+
+
+@pytest.mark.slow  # 2,000 configurations and worker processes started (~15 s)
+@pytest.mark.parametrize(("signum", "group"), [(signal.SIGTERM, False), (signal.SIGINT, True)],
+                         ids=["SIGTERM", "SIGINT-to-the-group"])
+def test_solve_workers_stop_at_once(tmp_path, signum, group):
+    """With worker processes the main process stops them: the queued blocks are dropped and the running ones
+    end at their next configuration, instead of the pool solving every block first (seconds here); a Ctrl-C
+    that reaches the workers too is left to the main process (no worker's traceback, no CasADi warning)."""
+    import ineid
+    from ineid.data import Combination, DatasetSpec, write_dataset
+
+    data = tmp_path / "data" / "many.h5"
+    data.parent.mkdir()
+    write_dataset(ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=2000), n_frames=10,
+                                                             seed=3), data)
+    args = ("solve", data, "--method", "consistent", "--workers", 2, "--out", "o.h5", "--overwrite")
+    seconds = interrupt_in_ipopt(args, tmp_path, signum, previous(tmp_path, "o.h5"), after=1.0, group=group)
+    assert seconds < 3
