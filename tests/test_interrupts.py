@@ -253,3 +253,32 @@ def test_solve_workers_stop_at_once(tmp_path, signum, group):
     args = ("solve", data, "--method", "consistent", "--workers", 2, "--out", "o.h5", "--overwrite")
     seconds = interrupt_in_ipopt(args, tmp_path, signum, previous(tmp_path, "o.h5"), after=1.0, group=group)
     assert seconds < 3
+
+
+def test_a_local_ray_cluster_leaves_ineids_sigterm_handler(ineid_handlers, tmp_path, monkeypatch):
+    """Ray's head node, started in this process by ``ray.init``, installs a SIGTERM handler that exits 1 without a
+    line; the ray engine puts ineid's back (and stops the cluster on the way out)."""
+    import types
+
+    from ineid.learn import ModelSpec, TrainConfig, ray_engine
+
+    ours = signal.getsignal(signal.SIGTERM)
+    seen = []
+
+    def init(**_):
+        signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))
+
+    def get(ref):
+        raise RuntimeError("the trial failed")
+
+    task = types.SimpleNamespace(options=lambda **_: task, remote=lambda *args: object())
+    fake = types.SimpleNamespace(is_initialized=lambda: False, init=init, shutdown=lambda: seen.append("shutdown"),
+                                 remote=lambda fn: task, put=lambda x: x, get=get,
+                                 wait=lambda refs, num_returns: (seen.append(signal.getsignal(signal.SIGTERM))
+                                                                 or ([refs[0]], refs[1:])),
+                                 exceptions=types.SimpleNamespace(RayError=RuntimeError))
+    monkeypatch.setitem(sys.modules, "ray", fake)
+    rows = ray_engine.ray_trials(None, [TrainConfig(model=ModelSpec("simple"))], tmp_path / "sweep",
+                                 ray_init={"num_cpus": 1})
+    assert rows[0].status.startswith("failed")
+    assert seen == [ours, "shutdown"]
