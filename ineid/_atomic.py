@@ -23,12 +23,15 @@ import os
 import shutil
 import signal
 import stat
-import sys
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
+from ineid._interrupts import (  # the signals' names, also importable from here
+    Terminated as Terminated,
+    redeliver_ignored_interrupt as redeliver_ignored_interrupt,
+    terminate_on_sigterm as terminate_on_sigterm,
+)
 from ineid._temporary import (
     create_temporary,
     create_temporary_folder,
@@ -97,59 +100,6 @@ def atomic_write(path: str | Path, data: str | bytes) -> Path:
         else:
             tmp.write_bytes(data)
     return Path(path)
-
-
-class Terminated(BaseException):  # noqa: N818 - named for the signal, like KeyboardInterrupt
-    """Raised in the main thread by SIGTERM once :func:`terminate_on_sigterm` is installed.
-
-    A ``BaseException``, like ``KeyboardInterrupt``, so it unwinds through every
-    ``except Exception`` and the atomic writers' cleanup runs.
-    """
-
-
-def _raise_terminated(signum, frame) -> None:  # noqa: ARG001
-    raise Terminated(f"terminated by signal {signum}")
-
-
-REDELIVER_SECONDS = 0.01
-"""Delay before a signal whose exception Python ignored is sent again (:func:`redeliver_ignored_interrupt`)."""
-
-
-def redeliver_ignored_interrupt(unraisable) -> None:
-    """``sys.unraisablehook``: send SIGTERM (SIGINT) again when its :class:`Terminated`
-    (``KeyboardInterrupt``) was raised where Python ignores exceptions.
-
-    A signal's handler runs in the main thread at the next instruction, which can be inside
-    a garbage-collection callback or a ``__del__`` (JAX registers one: ``_xla_gc_callback``);
-    there the exception is printed as "Exception ignored" and dropped, and the command would
-    run on as if never signalled. The signal is sent again a moment later (from a timer thread,
-    so that the handler runs after this hook has returned, in ordinary code); anything else
-    goes to the previous hook.
-    """
-    exc = getattr(unraisable, "exc_value", None)
-    signum = signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT if isinstance(
-        exc, KeyboardInterrupt) else None
-    if signum is None:
-        _PREVIOUS_UNRAISABLEHOOK(unraisable)
-        return
-    timer = threading.Timer(REDELIVER_SECONDS, os.kill, (os.getpid(), signum))
-    timer.daemon = True
-    timer.start()
-
-
-_PREVIOUS_UNRAISABLEHOOK = sys.unraisablehook
-
-
-def terminate_on_sigterm() -> None:
-    """Turn SIGTERM into :class:`Terminated` in the main thread (a no-op elsewhere); a SIGTERM or SIGINT
-    whose exception lands where Python ignores exceptions is delivered again
-    (:func:`redeliver_ignored_interrupt`)."""
-    try:
-        signal.signal(signal.SIGTERM, _raise_terminated)
-    except ValueError:  # not the main thread
-        print("ineid: SIGTERM handler not installed (not the main thread)", file=sys.stderr)
-        return
-    sys.unraisablehook = redeliver_ignored_interrupt
 
 
 def write_csv(path: str | Path, fieldnames: list[str], rows: list[dict] | list[list]) -> Path:

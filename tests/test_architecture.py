@@ -31,6 +31,7 @@ TOP_LEVEL = {
     "ineid._trust": "foundation",
     "ineid._faults": "foundation",
     "ineid._inputs": "foundation",
+    "ineid._interrupts": "foundation",
     "ineid._version": "foundation",
     "ineid.cache": "foundation",
     "ineid.progress": "foundation",

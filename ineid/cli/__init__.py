@@ -23,7 +23,7 @@ import warnings
 
 import click
 
-from ineid._atomic import Terminated, terminate_on_sigterm
+from ineid._interrupts import Terminated, terminate_on_sigterm
 from ineid._faults import describe_fault
 from ineid.errors import IneidError
 

@@ -369,7 +369,7 @@ def results_inputs(results_path: Path) -> list[tuple[str, Path | None]]:
 def on_interrupt(left_behind: Callable[[], str | None]) -> Iterator[None]:
     """On Ctrl-C or SIGTERM, let the CLI say what the command left on purpose (``left_behind()``, or
     None for nothing) instead of "no partial output file was left"; the exit status stays 130 / 143."""
-    from ineid._atomic import Terminated  # noqa: PLC0415
+    from ineid._interrupts import Terminated  # noqa: PLC0415
 
     try:
         yield

@@ -68,6 +68,7 @@ References:
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -105,6 +106,8 @@ from ineid.identify.excite_safety import (
 from ineid.identify.excite_states import state_errors, states_record
 from ineid.identify.excite_trajectory import Bounds, _ipopt_solver, _Problem, _rest_basis, design_bounds  # noqa: F401  (re-exported)
 from ineid.progress import Progress
+
+log = logging.getLogger(__name__)
 
 MAX_STARTS = 10_000
 """At most this many random starts (each an IPOPT solve of seconds; all are drawn up front)."""
@@ -379,6 +382,7 @@ def design_excitation(
     records: list[StartRecord] = []
     best_x, best_f = None, math.inf
     unsafe: tuple[float, str] | None = None  # the smallest grid slack of a rejected start, and its constraint
+    log.info("IPOPT: %d start%s of %d variables", starts, "" if starts == 1 else "s", len(x0s[0]))
     for k, x0 in enumerate(x0s):
         t0 = time.perf_counter()
         f_start = problem.value(x0)

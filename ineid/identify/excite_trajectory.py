@@ -26,6 +26,7 @@ from ineid.identify.excite_criterion import (
     regressor_and_derivatives,
     scaled_regressor,
 )
+from ineid.identify.ipopt import nlpsol
 
 
 def _rest_basis(harmonics: int) -> np.ndarray:
@@ -344,7 +345,7 @@ def _ipopt_solver(problem: _Problem, max_iter: int, tol: float, safety=None):
         "ipopt.jac_d_constant": "no" if safety is not None else "yes",
         "ipopt.jac_c_constant": "yes",
     }
-    solver = ca.nlpsol("excitation", "ipopt", nlp, opts)
+    solver = nlpsol("excitation", nlp, opts, keep=(objective, extra))  # stops on SIGINT, SIGTERM
     lbx = np.concatenate([np.r_[-1.0, np.full(problem.nz - 1, -np.inf)] for _ in range(problem.n)])
     ubx = -lbx
     return solver, (objective, extra), {"lbx": lbx, "ubx": ubx, "lbg": lo, "ubg": hi}

@@ -57,6 +57,7 @@ import numpy as np
 from ineid.errors import CodegenError, IdentificationError
 from ineid.identify.extras import nonnegative
 from ineid.identify.identifiability import BaseParameters
+from ineid.identify.ipopt import nlpsol
 from ineid.identify.linear import BaseFit, Estimate, standard_std
 from ineid.params import N_PARAMS_PER_LINK, inertial_from_theta, pseudo_inertia
 
@@ -292,7 +293,7 @@ class NlpSolver:
                                    "install one or use the default backend")
             opts.update({"jit": True, "compiler": "shell",
                          "jit_options": {"compiler": cc, "flags": ["-O2"], "verbose": False}})
-        solver = ca.nlpsol(f"ineid_{method}", "ipopt", {"x": x, "p": p, "f": f, "g": g}, opts)
+        solver = nlpsol(f"ineid_{method}", {"x": x, "p": p, "f": f, "g": g}, opts)  # stops on SIGINT, SIGTERM
         theta_fn = ca.Function("theta", [x], [theta])
         return cls(method, base, prior, pull, entropic, solver, theta_fn)
 

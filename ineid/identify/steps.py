@@ -13,6 +13,8 @@ estimates on the fitted and held-out frames (:func:`estimate_residual_sums`,
 from __future__ import annotations
 
 import dataclasses
+import logging
+import signal
 import time
 
 import numpy as np
@@ -25,6 +27,8 @@ from ineid.identify.linear import BaseFit, Estimate, axis_weights, fit_base, fit
 from ineid.identify.nlp import NlpSolver, estimate_from_solves, nlp_estimate
 from ineid.identify.systems import Offsets, predict_wrench, remove_offsets, stack, stack_casadi
 from ineid.robots.model import SMALL_JOB_FRAMES
+
+log = logging.getLogger(__name__)
 
 PARALLEL_MIN_CONFIGS = 256
 """Fewer configurations are solved in this process: starting workers costs about a second."""
@@ -254,8 +258,13 @@ def _nlp_options(settings) -> dict | None:
     return {"max_iter": BIAS_MAX_ITER} if settings.bias == "estimate" else None
 
 
-def _nlp_worker_init(method, base, prior, pull, entropic, compiled, options=None):
-    global _WORKER_SOLVER  # noqa: PLW0603 - one compiled solver per worker process
+def _nlp_worker_init(method, base, prior, pull, entropic, compiled, options=None, stop=None):
+    global _WORKER_SOLVER, _WORKER_STOP  # noqa: PLW0603 - one compiled solver per worker process
+    # Ctrl-C and SIGTERM are the main process's to handle: it sets ``stop`` and drops the queued blocks
+    # (a worker interrupted on its own would print a traceback, or die and break the pool)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    _WORKER_STOP = stop
     _WORKER_SOLVER = NlpSolver.build(method, base, prior, pull, entropic, options, compiled=compiled)
 
 
@@ -263,6 +272,8 @@ def _nlp_worker(args):
     r, beta, sigma2, rms, start, full_rank = args
     out = []
     for i in range(len(r)):
+        if _WORKER_STOP is not None and _WORKER_STOP.is_set():
+            break  # the main process was interrupted: it reads nothing more
         t0 = time.perf_counter()
         if not full_rank[i]:
             out.append((None, False, None, time.perf_counter() - t0))
@@ -289,6 +300,7 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
             if progress is not None:
                 progress(done, total)
 
+        log.info("IPOPT: %s solves of %d configurations", settings.method, c)
         est = nlp_estimate(fit, solver, rms, start, progress=timed)
         return est, seconds
     import multiprocessing as mp  # noqa: PLC0415
@@ -304,24 +316,31 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
     success = np.zeros(c, dtype=bool)
     status = np.empty(c, dtype=object)
     ctx = mp.get_context("spawn")  # JAX's threads and fork do not mix
+    log.info("IPOPT: %s solves of %d configurations in %d worker processes", settings.method, c, workers)
+    stop = ctx.Event()
     with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_nlp_worker_init,
                              initargs=(settings.method, base, prior, settings.pull, settings.entropic,
-                                       settings.backend == "casadi-c", _nlp_options(settings))) as pool:
-        done = 0
-        for j, out in enumerate(pool.map(_nlp_worker, jobs)):
-            for k, (th, ok, st, sec) in enumerate(out):
-                i = j * block + k
-                seconds[i] = sec
-                if th is None:
-                    status[i] = f"rank_deficient ({fit.rank[i]} of {base.rank})"
-                    continue
-                success[i] = ok
-                status[i] = "ok" if ok else st
-                if ok:
-                    theta[i] = th
-            done += len(out)
-            if progress is not None:
-                progress(done, c)
+                                       settings.backend == "casadi-c", _nlp_options(settings), stop)) as pool:
+        try:
+            done = 0
+            for j, out in enumerate(pool.map(_nlp_worker, jobs)):
+                for k, (th, ok, st, sec) in enumerate(out):
+                    i = j * block + k
+                    seconds[i] = sec
+                    if th is None:
+                        status[i] = f"rank_deficient ({fit.rank[i]} of {base.rank})"
+                        continue
+                    success[i] = ok
+                    status[i] = "ok" if ok else st
+                    if ok:
+                        theta[i] = th
+                done += len(out)
+                if progress is not None:
+                    progress(done, c)
+        except BaseException:  # Ctrl-C, SIGTERM, an error: stop now, not once every queued block is solved
+            stop.set()
+            pool.shutdown(cancel_futures=True)
+            raise
     return estimate_from_solves(theta, success, status, fit, base), seconds
 
 

@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import tempfile
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -109,6 +111,7 @@ def ray_trials(ds, cfgs: list[TrainConfig], out_dir: Path, *, dataset_path: str 
         return rows
     started = False
     if not ray.is_initialized():
+        sigterm = signal.getsignal(signal.SIGTERM)
         if address is None:
             options = {"include_dashboard": False, "log_to_driver": False, **(ray_init or {})}
             cpus = options.get("num_cpus") or os.cpu_count() or 1
@@ -118,6 +121,10 @@ def ray_trials(ds, cfgs: list[TrainConfig], out_dir: Path, *, dataset_path: str 
         else:
             ray.init(address=address, log_to_driver=False)
         started = True
+        if sigterm is not None and threading.current_thread() is threading.main_thread():
+            # a local cluster's head installs its own SIGTERM handler in this process (stop Ray's processes, exit 1,
+            # no line); ineid's stays, and the shutdown below stops those processes
+            signal.signal(signal.SIGTERM, sigterm)
     try:
         task = ray.remote(_trial).options(num_cpus=cpus_per_trial, num_gpus=gpus_per_trial, max_retries=0)
         ds_ref = ray.put(ds)
