@@ -120,7 +120,7 @@ def load_robot(
         links = spec.unknown_links if unknown_links is None else unknown_links
         return RobotModel(chain, spec.urdf_path, key, gravity, links, jax_mod, ca_mod)
     path = Path(key)
-    if not path.is_file():
+    if not path.exists():  # a FIFO or a folder is refused by robot_file_chain, naming what it is
         raise RobotModelError(
             f"{key!r} is neither a built-in robot ({', '.join(BUILTIN_ROBOTS)}) nor a URDF file (or MJCF) that exists"
         )

@@ -355,3 +355,23 @@ def test_export_mjcf_edits_any_spelling_of_inertial(menagerie, folder):
     assert new[:start] == text[:start] and new[start + len(written):] == text[stop:]
     back = ineid.load_robot(out)
     assert rel_err(back.theta_cad[10:20], link2) < 1e-12
+
+
+def test_export_mjcf_keeps_the_declared_encoding(menagerie, folder):
+    """An MJCF declared ISO-8859-1 with accents in a comment (MuJoCo reads it): every byte but the edited
+    ``<inertial>`` written back as it was, in that encoding; MuJoCo and ineid read the result."""
+    from ineid.identify import export_mjcf
+
+    path, model, _ = menagerie
+    head = '<?xml version="1.0" encoding="ISO-8859-1"?>\n<!-- bras articulé, réglé à 0° -->\n'
+    latin = folder / "latin.xml"
+    latin.write_bytes((head + MENAGERIE).encode("latin-1"))
+    link2 = perturbed(model, "link2", 4)
+    out = folder / "latin_out.xml"
+    export_mjcf(fake_results(model, {"link2": link2}), 7, latin, out)
+    before, after = latin.read_bytes().split(b"\n"), out.read_bytes().split(b"\n")
+    changed = [(a, b) for a, b in zip(before, after, strict=True) if a != b]
+    assert len(changed) == 1 and all(line.lstrip().startswith(b"<inertial ") for line in changed[0])
+    back = ineid.load_robot(out)
+    i = back.link_names.index("link2")
+    assert rel_err(back.theta_cad[10 * i: 10 * i + 10], link2) < 1e-12

@@ -7,6 +7,7 @@ import pytest
 
 import ineid
 from ineid import RobotModelError
+from ineid.errors import InputFileError
 from ineid.reference import pinocchio_model, pinocchio_theta
 from ineid.robots import load_chain
 from ineid.robots.urdf import parse_chain
@@ -114,14 +115,33 @@ def test_locked_joints_turn_a_tree_into_a_chain():
         (urdf(extra='<joint name="j9" type="fixed"><parent link="b"/><child link="c"/><origin rpy="0 nan 0"/></joint>'
                     '<link name="c"/>'), "joint 'j9': <origin"),
         (urdf().replace('<origin xyz="0 0 0.1" rpy="0 0 0"/>', '<origin xyz="0 0 nan" rpy="0 0 0"/>', 1),
-         "link 'a': <inertial><origin> holds a non-finite value"),
+         "link 'a': <inertial><origin xyz='0 0 nan'> holds a non-finite value"),
         (urdf().replace('name="j2"', 'name="j1"'), "two <joint> elements are named 'j1'; give every joint its own"),
         (urdf(extra=LINK.format(name="b", m="2", ixx="0.01", iyy="0.01", izz="0.01")),
          "two <link> elements are named 'b'; give every link its own name"),
         ("<robot name='t'><link name='a'/></robot>", "no moving joint"),
+        # every number ineid reads: finite, limits not negative (0 is URDF writers' "not given")
+        (urdf().replace('velocity="2"', 'velocity="nan"', 1), "joint 'j1': <limit velocity='nan'> holds a non-finite"),
+        (urdf().replace('velocity="2"', 'velocity="-3"', 1),
+         "joint 'j1': <limit velocity='-3'> is negative; give the joint's speed limit \\(a positive number\\), or "
+         "leave the attribute out for ineid's default$"),
+        (urdf().replace('effort="1"', 'effort="-1"', 1), "joint 'j1': <limit effort='-1'> is negative"),
+        (urdf().replace('lower="-1"', 'lower="-inf"', 1), "joint 'j1': <limit lower='-inf'> holds a non-finite"),
+        (urdf().replace('upper="1"', 'upper="fast"', 1),
+         "joint 'j1': <limit upper='fast'> is not a number; give a number"),
+        (urdf().replace('lower="-1"', 'lower="2"', 1), "joint 'j1': lower limit 2.0 is not below upper limit 1.0"),
+        (urdf(axis="0 1"), "joint 'j2': <axis xyz='0 1'> holds 2 numbers; give 3"),
+        (urdf(m1="nan"), "link 'a': <inertial><mass value='nan'> holds a non-finite value"),
+        (urdf(inertia=("0.01", "inf", "0.01")), "link 'a': <inertial><inertia iyy='inf'> holds a non-finite value"),
+        (urdf(extra='<joint name="j9" type="fixed"><parent link="b"/><child link="c"/><mimic joint="j1" '
+                    'multiplier="nan"/></joint><link name="c"/>'), "joint 'j9': <mimic multiplier='nan'> holds"),
+        (urdf(extra='<link name="c"><collision><geometry><sphere radius="nan"/></geometry></collision></link>'
+                    '<joint name="j9" type="fixed"><parent link="b"/><child link="c"/></joint>'),
+         "link 'c': <collision><geometry><sphere radius='nan'> holds a non-finite value"),
     ],
 )
 def test_bad_models_raise_robot_model_error(text, message):
+    """One line naming the element, the attribute, its value and the fix; each case fails without its check."""
     if not message:
         assert parse_chain(text).n_dof == 1
         return
@@ -132,7 +152,7 @@ def test_bad_models_raise_robot_model_error(text, message):
 def test_missing_file_and_unknown_name():
     with pytest.raises(RobotModelError, match="neither a built-in robot"):
         ineid.load_robot("no-such-robot")
-    with pytest.raises(RobotModelError, match="cannot read URDF"):
+    with pytest.raises(InputFileError, match="^the URDF /nonexistent/x.urdf does not exist; check the path$"):
         load_chain("/nonexistent/x.urdf")
 
 
@@ -140,8 +160,10 @@ def test_sampling_bounds_from_urdf():
     chain = parse_chain(urdf().replace("<limit", '<ineid acceleration="7.5"/><limit', 1))
     assert chain.joints[0].qdd_max == 7.5 and chain.joints[0].qd_max == 2.0
     assert chain.joints[1].qdd_max == 10.0  # the default
-    with pytest.raises(RobotModelError, match="acceleration bound -1.0 must be positive"):
+    with pytest.raises(RobotModelError, match="joint 'j1': <ineid acceleration='-1'> is negative"):
         parse_chain(urdf().replace("<limit", '<ineid acceleration="-1"/><limit', 1))
+    with pytest.raises(RobotModelError, match="acceleration bound 0.0 must be positive"):
+        parse_chain(urdf().replace("<limit", '<ineid acceleration="0"/><limit', 1))
 
 
 def test_a_parsed_urdf_is_remembered_exactly(tmp_path, monkeypatch):

@@ -105,7 +105,7 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
         jobs = [(BUILTIN_ROBOTS[robot].urdf_path, robot, out_dir or BUILTIN_DIR, "make generate")]
     else:
         path = Path(robot)
-        if not path.is_file():
+        if not path.exists():  # a FIFO or a folder is refused by robot_file_chain, naming what it is
             raise click.BadParameter(
                 f"{robot!r} is neither a built-in robot ({', '.join(BUILTIN_ROBOTS)}) nor an existing URDF file (or MJCF)",
                 param_hint="ROBOT",

@@ -26,13 +26,14 @@ MuJoCo is imported lazily: only the tests and ``ineid study formulations`` need 
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
 
 from ineid.channels.pose import SensorPose
 from ineid.params import inertial_from_theta
-from ineid.robots.mjcf import INSTALL_HINT, import_mujoco  # noqa: F401  (importable here too)
+from ineid.robots.mjcf import INSTALL_HINT, import_mujoco, mujoco_warnings  # noqa: F401  (importable here too)
 
 
 def _quat(r: np.ndarray) -> np.ndarray:
@@ -227,7 +228,8 @@ def simulate(model, theta: np.ndarray, sensor: SensorPose | None, duration: floa
     ref = reference or Reference.random(model, rng, base_frequency=0.2, harmonics=4)
     root_theta = root_link_theta(model) if root_theta is None else np.asarray(root_theta, dtype=np.float64)
     xml = arm_mjcf(model.chain, theta, root_theta, sensor, 1.0 / (rate * steps_per_sample), friction)
-    m = mujoco.MjModel.from_xml_string(xml)
+    with mujoco_warnings(mujoco):  # not MuJoCo's default handler, which writes MUJOCO_LOG.TXT into the working folder
+        m = mujoco.MjModel.from_xml_string(xml)
     d = mujoco.MjData(m)
     d.qpos[:], d.qvel[:], _ = ref(0.0)
     mass = np.empty((m.nv, m.nv))
@@ -249,17 +251,20 @@ def simulate(model, theta: np.ndarray, sensor: SensorPose | None, duration: floa
     time = np.empty(n)
     mujoco.set_mjcb_control(control)
     try:
-        for k in range(n):
-            mujoco.mj_forward(m, d)
-            time[k] = d.time
-            out["q"][k], out["qd"][k], out["qdd"][k] = d.qpos, d.qvel, d.qacc
-            out["tau"][k] = d.qfrc_actuator
-            out["friction"][k] = -(d.qfrc_passive + d.qfrc_constraint + d.qfrc_applied)
-            wrench[k] = -d.sensordata[:6]
-            for _ in range(steps_per_sample):
-                mujoco.mj_step(m, d)
+        with mujoco_warnings(mujoco) as warnings:  # an unstable step warns: said here, not in MUJOCO_LOG.TXT
+            for k in range(n):
+                mujoco.mj_forward(m, d)
+                time[k] = d.time
+                out["q"][k], out["qd"][k], out["qdd"][k] = d.qpos, d.qvel, d.qacc
+                out["tau"][k] = d.qfrc_actuator
+                out["friction"][k] = -(d.qfrc_passive + d.qfrc_constraint + d.qfrc_applied)
+                wrench[k] = -d.sensordata[:6]
+                for _ in range(steps_per_sample):
+                    mujoco.mj_step(m, d)
     finally:
         mujoco.set_mjcb_control(None)
+    for message in dict.fromkeys(" ".join(w.split()) for w in warnings):
+        logging.getLogger(__name__).warning("MuJoCo: %s", message)
     return Simulation(time, out["q"], out["qd"], out["qdd"], wrench, np.asarray(theta, dtype=np.float64), root_theta,
                       out["tau"], out["friction"])
 

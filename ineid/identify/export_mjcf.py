@@ -11,6 +11,12 @@ welded to it that carries mass gets ``<inertial pos="0 0 0" mass="0" diaginertia
 MuJoCo before it replaces the output, and every body written must read back to what was meant
 (a ``<compiler inertiafromgeom="true">``, ``boundmass`` or ``boundinertia`` that overrides it is
 refused). Bodies must be named and in the main file (not in an ``<include>``d one).
+
+The file is edited as bytes in the encoding its XML declaration names (UTF-8 without one): every
+byte outside the replaced elements is written back as it was, and what ineid writes is ASCII,
+the same bytes in any encoding MuJoCo reads. MuJoCo reads a file's bytes as UTF-8 whatever it
+declares, so an encoding that is not a superset of ASCII (UTF-16, UTF-32) cannot be a MuJoCo
+model and is refused, as is a file that is not valid in the encoding it declares.
 """
 
 from __future__ import annotations
@@ -24,7 +30,8 @@ from ineid._atomic import atomic_output, check_output
 from ineid.errors import IdentificationError, RobotModelError
 from ineid.identify.export import estimate_of
 from ineid.params import inertial_from_theta, physical_violations
-from ineid.robots.mjcf import import_mujoco, read_mjcf
+from ineid.robots.mjcf import compile_mjcf, import_mujoco, read_mjcf
+from ineid.robots.robot_files import xml_encoding
 
 ZERO_INERTIAL = '<inertial pos="0 0 0" mass="0" diaginertia="0 0 0"/>'
 """What a body welded to an identified body gets: its mass is in the identified body's estimate."""
@@ -33,8 +40,8 @@ FRAME_ATOL = 1e-9
 
 
 def mjcf_with_inertials(mjcf_path: str | Path, theta_by_link: dict[str, np.ndarray], results_urdf: str | None = None,
-                        locked_joints=None) -> tuple[str, dict[str, tuple[float, np.ndarray, np.ndarray]]]:
-    """The MJCF's text with the given bodies' inertials replaced, and what each body written must read back as.
+                        locked_joints=None) -> tuple[bytes, dict[str, tuple[float, np.ndarray, np.ndarray]]]:
+    """The MJCF's bytes with the given bodies' inertials replaced, and what each body written must read back as.
 
     Args:
         mjcf_path: the MuJoCo model (the robot the results were identified on, or the same robot).
@@ -45,13 +52,14 @@ def mjcf_with_inertials(mjcf_path: str | Path, theta_by_link: dict[str, np.ndarr
         locked_joints: as when the model was loaded.
 
     Returns:
-        ``(text, expected)``: ``expected[body] = (mass, com, inertia about com)`` in the body frame,
+        ``(data, expected)``: the file's bytes, edited (in the encoding it declares); ``expected[body] = (mass, com, inertia about com)`` in the body frame,
         for each body written (by its MJCF name).
 
     Raises:
         IdentificationError: an estimate is not a rigid body (identify with ``--method consistent``).
-        RobotModelError: a link is not a body of the MJCF, the MJCF is not the results' robot, or a
-            body is unnamed or defined in an included file.
+        RobotModelError: a link is not a body of the MJCF, the MJCF is not the results' robot, a
+            body is unnamed or defined in an included file, or the file's encoding is not one MuJoCo
+            reads or its bytes are not valid in it.
     """
     from ineid.robots.urdf import parse_chain  # noqa: PLC0415
 
@@ -79,6 +87,7 @@ def mjcf_with_inertials(mjcf_path: str | Path, theta_by_link: dict[str, np.ndarr
                 if welded not in theta_by_link and chain.body_links[welded].theta[0] > 0:
                     expected[welded] = (0.0, np.zeros(3), np.zeros((3, 3)))
     data = Path(mjcf_path).read_bytes()
+    encoding = xml_encoding(data, robot.source)
     spans = _body_spans(data)
     edits = []
     by_xml: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
@@ -95,15 +104,16 @@ def mjcf_with_inertials(mjcf_path: str | Path, theta_by_link: dict[str, np.ndarr
         else:
             full = (ic[0, 0], ic[1, 1], ic[2, 2], ic[0, 1], ic[0, 2], ic[1, 2])
             new = f'<inertial pos="{_fmt(c)}" mass="{m!r}" fullinertia="{_fmt(full)}"/>'
+        new_bytes = new.encode(encoding)
         if inertial is not None:
-            edits.append((inertial[0], inertial[1], new.encode()))
+            edits.append((inertial[0], inertial[1], new_bytes))
         elif data[start_end - 2:start_end] == b"/>":  # <body name=.../>: open it
-            edits.append((start_end - 2, start_end, (">" + _indent(data, start_end) + new + "</body>").encode()))
+            edits.append((start_end - 2, start_end, b">" + _indent(data, start_end) + new_bytes + b"</body>"))
         else:
-            edits.append((start_end, start_end, (_indent(data, start_end) + new).encode()))
-    for start, stop, new in sorted(edits, reverse=True):
-        data = data[:start] + new + data[stop:]
-    return data.decode(), by_xml
+            edits.append((start_end, start_end, _indent(data, start_end) + new_bytes))
+    for start, stop, new_bytes in sorted(edits, reverse=True):
+        data = data[:start] + new_bytes + data[stop:]
+    return data, by_xml
 
 
 def _check_same_robot(results_chain, chain, source: str) -> None:
@@ -162,10 +172,10 @@ def _tag_end(data: bytes, begin: int) -> int:
     raise RobotModelError("the MJCF has an unterminated tag")
 
 
-def _indent(data: bytes, at: int) -> str:
-    """A newline and the indentation of the line holding offset ``at``, two spaces deeper."""
-    line = data[data.rfind(b"\n", 0, at) + 1:at].decode()
-    return "\n" + line[: len(line) - len(line.lstrip())] + "  "
+def _indent(data: bytes, at: int) -> bytes:
+    """A newline and the indentation (spaces and tabs) of the line holding offset ``at``, two spaces deeper."""
+    line = data[data.rfind(b"\n", 0, at) + 1:at]
+    return b"\n" + line[: len(line) - len(line.lstrip(b" \t"))] + b"  "
 
 
 def _fmt(v) -> str:
@@ -180,12 +190,9 @@ def check_read_back(path: str | Path, expected: dict[str, tuple[float, np.ndarra
             body reads back otherwise (the compiler overrides ``<inertial>``).
     """
     mujoco = import_mujoco("export-mjcf")
-    try:
-        m = mujoco.MjModel.from_xml_path(str(path))
-    except ValueError as e:
-        raise RobotModelError(f"MuJoCo cannot compile the exported model from its folder ({' '.join(str(e).split())}); "
-                              "nothing was written: write it beside the original (includes and meshes are found "
-                              "relative to the model file)") from None
+    m, _ = compile_mjcf(mujoco, path, "", "the exported model from its folder",
+                        "nothing was written: write it beside the original (includes and meshes are found relative "
+                        "to the model file)")
     for name, (mass, c, ic) in expected.items():
         b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
         r = np.empty(9)
@@ -214,8 +221,8 @@ def export_mjcf(results, config: int, robot: str | Path, out: str | Path, overwr
     """
     out = check_output(out, overwrite)
     by_link = estimate_of(results, config)
-    text, expected = mjcf_with_inertials(robot, by_link, results.meta["urdf"], results.meta.get("locked_joints"))
+    data, expected = mjcf_with_inertials(robot, by_link, results.meta["urdf"], results.meta.get("locked_joints"))
     with atomic_output(out) as tmp:
-        tmp.write_text(text)
+        tmp.write_bytes(data)
         check_read_back(tmp, expected)
     return out

@@ -43,7 +43,9 @@ def link_inertial(link, source: str) -> tuple[np.ndarray, str | None]:
     m = float(inertial.mass if inertial.mass is not None else 0.0)
     inertia = np.asarray(inertial.inertia if inertial.inertia is not None else np.zeros((3, 3)), dtype=np.float64)
     if not (math.isfinite(m) and np.all(np.isfinite(inertia))):
-        raise RobotModelError(f"{source}: link {link.name!r}: <inertial> holds a non-finite value")
+        entries = " ".join(f"{v:g}" for v in inertia[np.triu_indices(3)])
+        raise RobotModelError(f"{source}: link {link.name!r}: <inertial> holds a non-finite value (mass {m:g}, "
+                              f"inertia {entries}); give finite numbers")
     if m < 0:
         raise RobotModelError(f"{source}: link {link.name!r}: mass {m:g} kg is negative; give it a positive mass")
     if m <= FRAME_MASS:

@@ -28,21 +28,29 @@ in more than one subtree; one line says which element and what to do. Actuators,
 contacts and options are ignored (MuJoCo's gravity: see the note in ``robot show``).
 Primitive collision geoms become ``<collision>`` (capsules as cylinders of the same segment,
 meshes and ellipsoids as their bounding box): the excitation's collision model reads them.
+
+Before MuJoCo reads a file, :func:`ineid.robots.robot_files.scan_mjcf` bounds it (regular files,
+bytes, bodies, joints, elements, encoding); while MuJoCo runs, its warnings come to ineid
+(:func:`mujoco_warnings`), never to ``MUJOCO_LOG.TXT`` in the working folder: a NaN is refused,
+other warnings become notes.
 """
 
 from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from ineid._inputs import regular_file
 from ineid.errors import OptionalDependencyError, RobotModelError
 from ineid.robots.cad_rounding import matrix_rpy
 from ineid.robots.chain import Chain
+from ineid.robots.robot_files import MJCF_MAX_BYTES, URDF_MAX_BYTES, scan_mjcf
 
 INSTALL_HINT = "needs MuJoCo: pip install 'ineid[mujoco]'"
 MJCF_SUFFIXES = (".xml", ".mjcf")
@@ -62,13 +70,53 @@ def import_mujoco(purpose: str = "the MuJoCo simulation"):
     return mujoco
 
 
+@contextmanager
+def mujoco_warnings(mujoco) -> Iterator[list[str]]:
+    """Collect MuJoCo's warnings while the block runs (the list yielded), instead of its default handler's.
+
+    MuJoCo's default handler appends each warning (``XML contains a 'NaN'``, for one) to
+    ``MUJOCO_LOG.TXT`` in the current working folder and prints it on stderr; ineid installs its own
+    handler (``mujoco.set_mju_user_warning``) around every MuJoCo call that can warn, and puts back the
+    one before it afterwards, so nothing is written into the user's folder.
+    """
+    warnings: list[str] = []
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(warnings.append)
+    try:
+        yield warnings
+    finally:
+        mujoco.set_mju_user_warning(previous)
+
+
+def compile_mjcf(mujoco, path: str | Path, source: str, what: str = "the model", fix: str = "fix the MJCF"):
+    """``(MjModel, warnings)`` of the MJCF ``path``, compiled by MuJoCo, its warnings caught (:func:`mujoco_warnings`).
+
+    ``source`` begins the messages (none when empty), ``what`` names the model in them and ``fix`` ends them.
+
+    Raises:
+        RobotModelError: MuJoCo cannot compile it, or warns of a NaN (one line with MuJoCo's words).
+    """
+    with mujoco_warnings(mujoco) as warnings:
+        try:
+            m = mujoco.MjModel.from_xml_path(str(path))
+        except ValueError as e:
+            m, error = None, " ".join(str(e).split())
+    where = f"{source}: " if source else ""
+    nan = [w for w in warnings if "NaN" in w]
+    if nan:
+        raise RobotModelError(f"{where}MuJoCo reads a NaN in {what} ({' '.join(nan[0].split())}); give finite numbers")
+    if m is None:
+        raise RobotModelError(f"{where}MuJoCo cannot compile {what} ({error}); {fix}")
+    return m, [" ".join(w.split()) for w in warnings]
+
+
 def is_mjcf(path: str | Path) -> bool:
     """Whether the robot file ``path`` is MJCF: its top element is ``<mujoco>`` (unreadable or not XML:
     its suffix is one of :data:`MJCF_SUFFIXES`, so MuJoCo's parser says what is wrong)."""
     try:
         for _, el in ET.iterparse(path, events=("start",)):
             return el.tag == "mujoco"
-    except (OSError, ET.ParseError):
+    except (OSError, ET.ParseError, LookupError):  # LookupError: an encoding Python does not know
         pass
     return Path(path).suffix.lower() in MJCF_SUFFIXES
 
@@ -105,21 +153,19 @@ def read_mjcf(path: str | Path) -> MjcfRobot:
 
     Raises:
         OptionalDependencyError: MuJoCo is not installed.
-        RobotModelError: MuJoCo cannot compile the file, or the model is not one serial arm
+        InputFileError: the file, or one it includes or names, is not a regular file, or the model is
+            over the limits of :mod:`ineid.robots.robot_files` (refused before MuJoCo reads it).
+        RobotModelError: the file is not valid in the encoding it declares, MuJoCo cannot compile it or
+            reads a NaN in it, a number of the robot is not finite, or the model is not one serial arm
             of hinge and slide joints (free or ball joints, tendons, equality constraints,
             several joints in one body, joints in several subtrees of the world).
     """
     mujoco = import_mujoco("MJCF")
     source = str(path)
-    if not Path(path).is_file():
-        raise RobotModelError(f"{source}: no such MJCF file")
-    try:
-        m = mujoco.MjModel.from_xml_path(source)
-    except ValueError as e:
-        detail = " ".join(str(e).split())
-        raise RobotModelError(f"{source}: MuJoCo cannot compile the model ({detail}); fix the MJCF") from None
+    scan_mjcf(path)
+    m, warnings = compile_mjcf(mujoco, path, source)
     _check_supported(mujoco, m, source)
-    names = _names(mujoco, m)
+    names = _names(mujoco, m, source)
     parent = m.body_parentid
     moving = [b for b in range(1, m.nbody) if m.body_jntnum[b] > 0]
     if not moving:
@@ -133,7 +179,8 @@ def read_mjcf(path: str | Path) -> MjcfRobot:
     top = tops[0]
     root = 0 if m.body_jntnum[top] > 0 else top
     members = [b for b in range(1, m.nbody) if int(m.body_rootid[b]) == top]
-    notes = []
+    _check_finite(m, members, names, source)
+    notes = [f"MuJoCo warns: {w}" for w in warnings]
     scenery = [names["body"][b] for b in range(1, m.nbody) if int(m.body_rootid[b]) != top and parent[b] == 0]
     if scenery:
         notes.append(f"bodies welded to the world outside the robot are not part of it: {', '.join(scenery)}")
@@ -176,7 +223,16 @@ def load_mjcf_chain(path: str | Path, locked_joints: Mapping[str, float] | None 
 
 
 def robot_file_chain(path: str | Path, locked_joints: Mapping[str, float] | None = None) -> tuple[Chain, str | None]:
-    """``(chain, urdf_text)`` of a robot file: an MJCF (:func:`is_mjcf`) through its URDF, else a URDF (text None)."""
+    """``(chain, urdf_text)`` of a robot file: an MJCF (:func:`is_mjcf`) through its URDF, else a URDF (text None).
+
+    Raises:
+        InputFileError: the file is not a regular file (checked before it is opened), or is over its
+            format's limits (:mod:`ineid.robots.robot_files`).
+    """
+    if Path(path).suffix.lower() == ".urdf":
+        path = regular_file(path, "the URDF", max_bytes=URDF_MAX_BYTES, limit_name="URDF_MAX_BYTES")
+    else:  # bounded before is_mjcf reads up to its first element
+        path = regular_file(path, "the robot file", max_bytes=MJCF_MAX_BYTES, limit_name="MJCF_MAX_BYTES")
     if is_mjcf(path):
         return load_mjcf_chain(path, locked_joints)
     from ineid.robots.urdf import load_chain  # noqa: PLC0415
@@ -189,7 +245,7 @@ def robot_file_chain(path: str | Path, locked_joints: Mapping[str, float] | None
 
 def _check_supported(mujoco, m, source: str) -> None:
     def name(kind, i, fallback):
-        return mujoco.mj_id2name(m, kind, i) or fallback
+        return _name(mujoco, m, kind, i, source) or fallback
 
     if m.ntendon:
         tendons = ", ".join(name(mujoco.mjtObj.mjOBJ_TENDON, i, f"#{i}") for i in range(m.ntendon))
@@ -218,19 +274,57 @@ def _check_supported(mujoco, m, source: str) -> None:
                                   "joint a body of its own (nested, with no pos or quat)")
 
 
-def _names(mujoco, m) -> dict[str, list]:
+def _name(mujoco, m, kind, i: int, source: str) -> str | None:
+    """The name of object ``i``, or None; MuJoCo keeps a name's bytes as written, whatever the file's encoding."""
+    try:
+        return mujoco.mj_id2name(m, kind, i)
+    except UnicodeDecodeError:
+        raise RobotModelError(f"{source}: the name of {kind.name[6:].lower()} #{i} is not UTF-8 (MuJoCo reads a file's "
+                              "bytes as UTF-8, whatever its XML declaration says); save the MJCF as UTF-8") from None
+
+
+def _names(mujoco, m, source: str) -> dict[str, list]:
     """Body and joint names; an unnamed one gets ``body<id>`` / ``joint<id>`` (``xml_body``: None then)."""
-    xml_body = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or None for b in range(m.nbody)]
+    xml_body = [_name(mujoco, m, mujoco.mjtObj.mjOBJ_BODY, b, source) or None for b in range(m.nbody)]
     body = [n or f"body{b}" for b, n in enumerate(xml_body)]
-    joint = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}" for j in range(m.njnt)]
+    joint = [_name(mujoco, m, mujoco.mjtObj.mjOBJ_JOINT, j, source) or f"joint{j}" for j in range(m.njnt)]
     return {"xml_body": xml_body, "body": body, "joint": joint}
+
+
+_BODY_FIELDS = ("body_pos", "body_quat", "body_mass", "body_ipos", "body_iquat", "body_inertia")
+_JOINT_FIELDS = ("jnt_pos", "jnt_axis", "jnt_range")
+
+
+def _check_finite(m, members: list[int], names: dict[str, list], source: str) -> None:
+    """Every number ineid reads of the robot's bodies and joints is finite (MuJoCo compiles ``inf``), and each
+    joint's range is in order."""
+    for b in members:
+        for f in _BODY_FIELDS:
+            value = np.asarray(getattr(m, f)[b], dtype=np.float64)
+            if not np.all(np.isfinite(value)):
+                raise RobotModelError(f"{source}: body {names['body'][b]!r}: {f[5:]} {_fmt(value)} is not finite; "
+                                      "give finite numbers")
+        for j in range(int(m.body_jntadr[b]), int(m.body_jntadr[b] + m.body_jntnum[b])):
+            for f in _JOINT_FIELDS:
+                value = np.asarray(getattr(m, f)[j], dtype=np.float64)
+                if not np.all(np.isfinite(value)):
+                    raise RobotModelError(f"{source}: joint {names['joint'][j]!r}: {f[4:]} {_fmt(value)} is not "
+                                          "finite; give finite numbers")
+            ref = float(m.qpos0[int(m.jnt_qposadr[j])])
+            if not math.isfinite(ref):
+                raise RobotModelError(f"{source}: joint {names['joint'][j]!r}: ref {ref!r} is not finite; give a "
+                                      "finite number")
+            lo, hi = (float(v) for v in m.jnt_range[j])
+            if lo > hi:
+                raise RobotModelError(f"{source}: joint {names['joint'][j]!r}: range {lo!r} {hi!r} (compiled, rad or "
+                                      "m) has its lower end above the upper one; give range=\"LOWER UPPER\"")
 
 
 def _model_name(path) -> str:
     try:
         for _, el in ET.iterparse(path, events=("start",)):
             return el.get("model") or Path(path).stem
-    except (OSError, ET.ParseError):
+    except (OSError, ET.ParseError, LookupError):  # LookupError: an encoding Python does not know
         pass
     return Path(path).stem
 

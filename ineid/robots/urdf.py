@@ -18,9 +18,12 @@ Parsing is yourdfpy's (once per URDF text: the result is kept in the cache folde
 * a moving link without mass is kept (a known link contributing nothing), but a chain whose
   moving links carry no mass at all is refused.
 
-Sampling bounds: ``<limit velocity=...>`` bounds ``|qd|``; the acceleration bound, which
-URDF has no field for, comes from an optional ``<ineid acceleration="..."/>`` element
-inside a ``<joint>`` (ignored by other URDF readers), else :data:`DEFAULT_QDD_MAX`.
+Sampling bounds: ``<limit velocity=...>`` bounds ``|qd|`` (absent or ``0``, URDF writers' "not
+given": :data:`DEFAULT_QD_MAX`); the acceleration bound, which URDF has no field for, comes from
+an optional ``<ineid acceleration="..."/>`` element inside a ``<joint>`` (ignored by other URDF
+readers), else :data:`DEFAULT_QDD_MAX`. Every number read is checked first
+(:mod:`ineid.robots.urdf_checks`: finite, limits not negative), and the text is bounded
+(:mod:`ineid.robots.robot_files`).
 
 :class:`Chain` and :class:`JointSpec` are defined in :mod:`ineid.robots.chain` (importable
 from here too).
@@ -36,11 +39,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ineid._inputs import regular_file
 from ineid.errors import RobotModelError
 from ineid.params import theta_from_inertial
 from ineid.robots.cad_rounding import snap_joint_angles
 from ineid.robots.chain import BodyLink, Chain, JointSpec
 from ineid.robots.inertial import link_inertial
+from ineid.robots.robot_files import URDF_MAX_BYTES, check_urdf_size
+from ineid.robots.urdf_checks import check_lxml, check_urdf_tree
 from ineid.robots.urdf_cache import CHAIN_SUBDIR, _chain_file, _chain_key, _store_chain, cached_chain  # noqa: F401
 
 DEFAULT_QD_MAX = 3.0
@@ -56,10 +62,12 @@ def load_chain(path: str | Path, locked_joints: Mapping[str, float] | None = Non
     """Read a URDF file into a :class:`Chain`.
 
     Raises:
+        InputFileError: the file is not a regular file, or is over :data:`~ineid.robots.robot_files.URDF_MAX_BYTES`
+            (or its links and joints over their limits).
         RobotModelError: the file is unreadable, malformed, not a serial chain, or has
-            an unsupported joint or a non-physical inertial.
+            an unsupported joint, a number that is not finite or a negative limit, or a non-physical inertial.
     """
-    path = Path(path)
+    path = regular_file(path, "the URDF", max_bytes=URDF_MAX_BYTES, limit_name="URDF_MAX_BYTES")
     try:
         text = path.read_bytes()
     except OSError as e:
@@ -74,6 +82,7 @@ def parse_chain(text: bytes | str, source: str = "<urdf>", locked_joints: Mappin
     processes skip yourdfpy (and its trimesh import, about half a second).
     """
     data = text.encode() if isinstance(text, str) else text
+    check_urdf_size(len(data), source)
     key = _chain_key(data, source, locked_joints)
     chain = cached_chain(key)
     if chain is not None:
@@ -84,25 +93,16 @@ def parse_chain(text: bytes | str, source: str = "<urdf>", locked_joints: Mappin
 
 
 def _parse_chain(data: bytes, source: str, locked_joints: Mapping[str, float] | None) -> Chain:
-    import yourdfpy  # noqa: PLC0415  (heavy: trimesh)
-
     try:
         root = ET.fromstring(data)
     except ET.ParseError as e:
         raise RobotModelError(f"{source}: malformed XML ({e}); fix the file so that it is well-formed XML") from None
+    except LookupError as e:  # the XML declaration names an encoding Python does not know
+        raise RobotModelError(f"{source}: {e} in the XML declaration; save the URDF as UTF-8") from None
     if root.tag != "robot":
         raise RobotModelError(f"{source}: top-level element is <{root.tag}>, a URDF needs <robot>")
-    _check_elements(root, source)
-    try:
-        robot = yourdfpy.URDF.load(
-            io.BytesIO(data),
-            build_scene_graph=False,
-            load_meshes=False,
-            build_collision_scene_graph=False,
-            load_collision_meshes=False,
-        ).robot
-    except Exception as e:  # yourdfpy raises assorted builtin errors for bad attribute values
-        raise RobotModelError(f"{source}: invalid URDF ({type(e).__name__}: {e})") from None
+    check_urdf_tree(root, source)
+    robot = _yourdfpy_robot(data, source)
     qdd_bounds = {
         j.get("name"): j.find("ineid").get("acceleration")
         for j in root.iter("joint")
@@ -112,39 +112,16 @@ def _parse_chain(data: bytes, source: str, locked_joints: Mapping[str, float] | 
     return _build_chain(robot, source, dict(locked_joints or {}), qdd_bounds, notes)
 
 
-def _check_elements(root: ET.Element, source: str) -> None:
-    # yourdfpy reports missing names with a bare KeyError, and keeps the last of two
-    # elements with one name; say which element instead.
-    for tag in ("link", "joint"):
-        seen: set[str] = set()
-        for el in root.findall(tag):
-            name = el.get("name")
-            if name is None:
-                raise RobotModelError(f"{source}: a <{tag}> element has no name attribute")
-            if name in seen:
-                raise RobotModelError(
-                    f"{source}: two <{tag}> elements are named {name!r}; give every {tag} its own name"
-                )
-            seen.add(name)
-    for j in root.findall("joint"):
-        for sub, attrs in (("origin", ("xyz", "rpy")), ("axis", ("xyz",))):
-            el = j.find(sub)
-            for attr in attrs:
-                if el is not None and _non_finite(el.get(attr)):
-                    raise RobotModelError(f"{source}: joint {j.get('name')!r}: <{sub} {attr}={el.get(attr)!r}> holds a "
-                                          "non-finite value (nan or inf); give finite numbers")
-        for sub in ("parent", "child"):
-            s = j.find(sub)
-            if s is None or s.get("link") is None:
-                raise RobotModelError(f"{source}: joint {j.get('name')!r} has no <{sub} link=...>")
+def _yourdfpy_robot(data: bytes, source: str):
+    """yourdfpy's ``Robot`` of URDF ``data`` (no meshes, no scene graph), once lxml has read it (:func:`check_lxml`)."""
+    import yourdfpy  # noqa: PLC0415  (heavy: trimesh)
 
-
-def _non_finite(text: str | None) -> bool:
-    """The attribute holds numbers and one of them is nan or inf (unparsable text is yourdfpy's to report)."""
+    check_lxml(data, source)
     try:
-        return text is not None and not all(math.isfinite(float(v)) for v in text.split())
-    except ValueError:
-        return False
+        return yourdfpy.URDF.load(io.BytesIO(data), build_scene_graph=False, load_meshes=False,
+                                  build_collision_scene_graph=False, load_collision_meshes=False).robot
+    except Exception as e:  # yourdfpy raises assorted builtin errors for bad attribute values
+        raise RobotModelError(f"{source}: invalid URDF ({type(e).__name__}: {e})") from None
 
 
 def _check_finite_joint(j, source: str) -> None:
@@ -373,14 +350,9 @@ def fixed_frame_pose(
         RobotModelError: the URDF does not parse, has no such link, or a moving joint
             lies between the frame and the root.
     """
-    import yourdfpy  # noqa: PLC0415
-
     data = text.encode() if isinstance(text, str) else text
-    try:
-        robot = yourdfpy.URDF.load(io.BytesIO(data), build_scene_graph=False, load_meshes=False,
-                                   build_collision_scene_graph=False, load_collision_meshes=False).robot
-    except Exception as e:  # yourdfpy raises assorted builtin errors for bad attribute values
-        raise RobotModelError(f"{source}: invalid URDF ({type(e).__name__}: {e})") from None
+    check_urdf_size(len(data), source)
+    robot = _yourdfpy_robot(data, source)
     links = [link.name for link in robot.links]
     if frame not in links:
         joint = next((j for j in robot.joints if j.name == frame), None)

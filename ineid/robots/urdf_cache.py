@@ -20,7 +20,8 @@ from ineid.robots.chain import BodyLink, Chain, JointSpec
 CHAIN_SUBDIR = "chains"
 """Parsed URDFs live in ``cache_dir() / CHAIN_SUBDIR`` as JSON, one file per URDF text."""
 
-_PARSER_FILES = ("urdf.py", "inertial.py", "cad_rounding.py", "chain.py", "urdf_cache.py")
+_PARSER_FILES = ("urdf.py", "urdf_checks.py", "robot_files.py", "inertial.py", "cad_rounding.py", "chain.py",
+                 "urdf_cache.py")
 """The modules a parse depends on: a change to any of them parses every URDF again."""
 
 
