@@ -258,7 +258,8 @@ def test_degrees_convert_revolute_joints_only():
     si = in_si_units(streams, m, "deg", 0.001)
     for a in (si.q, si.qd, si.qdd):
         assert np.allclose(a[0], [math.pi / 2, 0.1] + [math.pi / 4] * (m.n_dof - 2))
-    assert np.allclose(si.wrench, 0.001) and si.origin == {"angle_unit": "deg", "wrench_scale": 0.001}
+    assert np.allclose(si.wrench, 0.001) and si.origin == {"angle_unit": "deg", "wrench_scale": 0.001,
+                                                           "time_unit": "s", "force_unit": "N", "moment_unit": "Nm"}
 
 
 def test_degree_rule_skips_continuous_and_prismatic_joints():
