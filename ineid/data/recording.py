@@ -459,7 +459,12 @@ def import_recording(path: str | Path, model, settings: ImportSettings = ImportS
         from ineid.data.csv_import import read_csv_streams  # noqa: PLC0415
 
         streams = read_csv_streams(path, model, progress)
-    return recording_dataset(streams, model, settings)
+    try:
+        return recording_dataset(streams, model, settings)
+    except DatasetError as e:  # a time column in ms fails the cut-off rules first, whose fix is not the cause's
+        from ineid.data.plausibility import with_time_unit_hint
+
+        raise with_time_unit_hint(e, streams, model, settings) from None
 
 
 def read_recording_csv(path: str | Path, model, flip_wrench: bool = False, settings=None) -> Dataset:
