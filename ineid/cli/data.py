@@ -221,6 +221,12 @@ def _delay(ctx, param, value: str) -> float | None:
               help="Multiply every force and moment by FACTOR (0.001 for a wrench in mN and N*mm).")
 @click.option("--angle-unit", type=click.Choice(["rad", "deg"]), default="rad", show_default=True,
               help="Unit of the revolute joints' angles (and of measured qd, qdd); deg converts them to rad.")
+@click.option("--time-unit", type=click.Choice(["s", "ms", "us", "ns"]), default="s", show_default=True,
+              help="Unit of the time stamps (of every stream); converted to s.")
+@click.option("--force-unit", type=click.Choice(["N", "mN", "kN"]), default="N", show_default=True,
+              help="Unit of the wrench's forces; converted to N (before --wrench-scale).")
+@click.option("--moment-unit", type=click.Choice(["Nm", "Nmm", "kNm"]), default="Nm", show_default=True,
+              help="Unit of the wrench's moments (Nmm: N*mm, also mN*m); converted to N*m (before --wrench-scale).")
 @torque_constant_option
 @gear_ratio_option
 @imu_import
@@ -228,8 +234,8 @@ def _delay(ctx, param, value: str) -> float | None:
 @overwrite_option
 @click.pass_context
 def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic, wrench_topic, flip_wrench,
-                wrench_scale, angle_unit, torque_constant, gear_ratio, imus, imu_topics, imu_delay, imu_noise, out,
-                overwrite) -> None:
+                wrench_scale, angle_unit, time_unit, force_unit, moment_unit, torque_constant, gear_ratio, imus,
+                imu_topics, imu_delay, imu_noise, out, overwrite) -> None:
     """Import a recording: a CSV (time, q1..qn, [qd1..qn, qdd1..qn,] [tau1..taun,] fx fy fz mx my mz; the wrench
     optional with torques), a ROS 1 .bag, or a ROS 2 bag folder or .mcap (sensor_msgs/JointState with its
     effort as joint torques, geometry_msgs/WrenchStamped). Link IMUs (imu_<NAME>_wx.. columns, sensor_msgs/Imu
@@ -247,7 +253,8 @@ def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic,
         parse_imu_text(text, model)
     settings = ImportSettings(sensor_pose=sensor_pose, cutoff=cutoff, rate=rate, delay=delay or 0.0,
                               estimate_delay=delay is None, flip_wrench=flip_wrench, angle_unit=angle_unit,
-                              wrench_scale=wrench_scale, torque_constant=torque_constant,
+                              wrench_scale=wrench_scale, time_unit=time_unit, force_unit=force_unit,
+                              moment_unit=moment_unit, torque_constant=torque_constant,
                               gear_ratio=gear_ratio, imus=tuple(imus), imu_delay=imu_delay,
                               imu_noise=imu_noise)  # fmt: skip
     with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:

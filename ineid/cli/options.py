@@ -212,8 +212,21 @@ lock_option = click.option(
     "--lock", "locked", multiple=True, metavar="JOINT=POS", callback=_parse_locked,
     help="Treat a URDF (or MJCF) joint as fixed at POS (repeatable).",
 )  # fmt: skip
+
+
+def _gravity(ctx, param, value: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
+    """``--gravity`` as given; one warning line when it looks like another unit than m/s^2."""
+    if value is not None:
+        from ineid.cli.output import print_findings
+        from ineid.data.plausibility import check_gravity
+
+        found = check_gravity(value, "--gravity")
+        print_findings([found] if found is not None else [])
+    return value
+
+
 gravity_option = click.option(
-    "--gravity", nargs=3, type=FINITE, default=None, metavar="GX GY GZ",
+    "--gravity", nargs=3, type=FINITE, default=None, metavar="GX GY GZ", callback=_gravity,
     help="m/s^2, base frame (default 0 0 -9.81).",
 )  # fmt: skip
 

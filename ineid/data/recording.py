@@ -45,12 +45,9 @@ from ineid.data.recording_channels import (  # noqa: F401  (resolve_sensor re-ex
     rider_channels,
 )
 from ineid.data.schema import Dataset, DatasetMeta
-from ineid.data.streams import Streams, in_si_units, units_note
+from ineid.data.streams import ANGLE_UNITS, SI_UNITS, Streams, check_units, in_si_units, units_note
 from ineid.errors import DatasetError
 from ineid.progress import Progress
-
-ANGLE_UNITS = ("rad", "deg")
-"""Units of a recording's revolute joint angles (``data import --angle-unit``)."""
 
 
 @dataclass(frozen=True)
@@ -71,6 +68,8 @@ class ImportSettings:
             Prismatic joints stay in m.
         wrench_scale: every force and moment is multiplied by it (0.001 for a wrench in mN
             and N*mm); finite and positive (``flip_wrench`` negates).
+        time_unit, force_unit, moment_unit: the units of the time stamps, forces and moments
+            (:data:`ineid.data.streams.TIME_UNITS`, ...), converted to s, N and N*m.
         estimate_delay: estimate ``delay`` from the model instead
             (:func:`ineid.identify.delay.estimate_delay`, within ``+-max_delay`` s).
         max_delay: s, the search range of ``estimate_delay``.
@@ -97,6 +96,9 @@ class ImportSettings:
     max_delay: float = 0.05
     angle_unit: str = "rad"
     wrench_scale: float = 1.0
+    time_unit: str = "s"
+    force_unit: str = "N"
+    moment_unit: str = "Nm"
     torque_constant: tuple[float, ...] | None = None
     gear_ratio: tuple[float, ...] | None = None
     imus: tuple[str, ...] = ()
@@ -105,6 +107,7 @@ class ImportSettings:
     estimation: object | None = None
 
     def __post_init__(self) -> None:
+        check_units(self.time_unit, self.force_unit, self.moment_unit)
         if self.angle_unit not in ANGLE_UNITS:
             raise DatasetError(f"angle_unit must be one of {', '.join(ANGLE_UNITS)}, got {self.angle_unit!r}")
         if not (math.isfinite(self.wrench_scale) and self.wrench_scale > 0):
@@ -210,13 +213,16 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     if streams.wrench is None:  # the wrench's settings on a recording without one: a mistake, said once
         given = [flag for flag, on in (("--sensor-pose", settings.sensor_pose is not None),
                                        ("--flip-wrench", settings.flip_wrench),
-                                       ("--wrench-scale", settings.wrench_scale != 1.0)) if on]
+                                       ("--wrench-scale", settings.wrench_scale != 1.0),
+                                       ("--force-unit", settings.force_unit != "N"),
+                                       ("--moment-unit", settings.moment_unit != "Nm")) if on]
         if given:
             raise DatasetError(f"{streams.source}: {', '.join(given)} set{'s' if len(given) == 1 else ''} up the "
                                "F/T sensor, and the recording has no wrench; drop it")
-    if settings.angle_unit != "rad" or settings.wrench_scale != 1.0:
-        streams = in_si_units(streams, model, settings.angle_unit, settings.wrench_scale)
-        settings = replace(settings, angle_unit="rad", wrench_scale=1.0)
+    units = {k: getattr(settings, k) for k in SI_UNITS}
+    if units != SI_UNITS:
+        streams = in_si_units(streams, model, **units)
+        settings = replace(settings, **SI_UNITS)
     has_wrench = streams.wrench is not None
     if settings.estimate_delay:
         if not has_wrench:
@@ -344,13 +350,13 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
         raise DatasetError(f"{src}: {len(grid)} frame{'s' if len(grid) != 1 else ''} left on the common time base; "
                            "record longer or raise --rate")
     joints = np.concatenate([q_s, qd_s, qdd_s, *riders_s.values()], axis=1)
-    joints, moved_q = _on_grid(tq_u, joints, grid)
-    wrench, moved_w = _on_grid(tw_u, w_s, grid) if has_wrench else (None, False)
+    joints, moved_q = signals.on_grid(tq_u, joints, grid)
+    wrench, moved_w = signals.on_grid(tw_u, w_s, grid) if has_wrench else (None, False)
     imu_lines, imu_record = (), None
     if prepared is not None:  # q the encoders', qd and qdd fused with the IMUs
         from ineid.data.recording_imu import encoder_priors, imu_summary_lines  # noqa: PLC0415
 
-        priors = joints[:, n:3 * n] if priors_cutoff is None else _on_grid(
+        priors = joints[:, n:3 * n] if priors_cutoff is None else signals.on_grid(
             tq_u, np.concatenate(encoder_priors(q_u, 1.0 / hq, priors_cutoff), axis=1), grid)[0]
         qd_f, qdd_f, estimate, imu_record = prepared.fuse(model, grid, joints[:, :n], priors[:, :n], priors[:, n:],
                                                           settings.estimation, settings.imu_noise)
@@ -420,16 +426,6 @@ def _columns(x: np.ndarray, like: dict[str, np.ndarray]) -> dict[str, np.ndarray
     return out
 
 
-def _on_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, bool]:
-    """``x`` at ``grid``: the samples themselves where the stream's stamps are the grid, else a cubic spline."""
-    i0 = int(np.searchsorted(t, grid[0] - 1e-9 * abs(grid[0]) - 1e-12))
-    part = t[i0:i0 + len(grid)]
-    h = (grid[-1] - grid[0]) / max(len(grid) - 1, 1)
-    if len(part) == len(grid) and np.all(np.abs(part - grid) <= 1e-6 * h):
-        return np.array(x[i0:i0 + len(grid)]), False
-    return signals.interpolate(t, x, grid), True
-
-
 def import_recording(path: str | Path, model, settings: ImportSettings = ImportSettings(), joint_topic: str = "/joint_states",
                      wrench_topic: str | None = None, progress: Progress | None = None,
                      imu_topics: tuple[str, ...] = ()) -> tuple[Dataset, ImportSummary]:
@@ -463,7 +459,12 @@ def import_recording(path: str | Path, model, settings: ImportSettings = ImportS
         from ineid.data.csv_import import read_csv_streams  # noqa: PLC0415
 
         streams = read_csv_streams(path, model, progress)
-    return recording_dataset(streams, model, settings)
+    try:
+        return recording_dataset(streams, model, settings)
+    except DatasetError as e:  # a time column in ms fails the cut-off rules first, whose fix is not the cause's
+        from ineid.data.plausibility import with_time_unit_hint
+
+        raise with_time_unit_hint(e, streams, model, settings) from None
 
 
 def read_recording_csv(path: str | Path, model, flip_wrench: bool = False, settings=None) -> Dataset:

@@ -96,6 +96,16 @@ def interpolate(t: np.ndarray, x: np.ndarray, t_new: np.ndarray, _spline=None) -
     return _spline(t, np.asarray(x, dtype=np.float64), k=3, axis=0)(t_new)
 
 
+def on_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, bool]:
+    """``x`` at ``grid``: the samples themselves where the stream's stamps are the grid, else a cubic spline."""
+    i0 = int(np.searchsorted(t, grid[0] - 1e-9 * abs(grid[0]) - 1e-12))
+    part = t[i0:i0 + len(grid)]
+    h = (grid[-1] - grid[0]) / max(len(grid) - 1, 1)
+    if len(part) == len(grid) and np.all(np.abs(part - grid) <= 1e-6 * h):
+        return np.array(x[i0:i0 + len(grid)]), False
+    return interpolate(t, x, grid), True
+
+
 @dataclass(frozen=True)
 class LowPass:
     """A zero-phase Butterworth low-pass: ``order`` forward, then backward.

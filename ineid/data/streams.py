@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ineid.errors import DatasetError
+
 
 @dataclass
 class Streams:
@@ -69,20 +71,51 @@ class ImuStream:
     where: str = ""
 
 
-def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: float = 1.0) -> Streams:
-    """``streams`` with revolute joints' ``q`` (``qd``, ``qdd``) in rad and the wrench multiplied by ``wrench_scale``.
+ANGLE_UNITS = ("rad", "deg")
+"""Units of a recording's revolute joint angles (``data import --angle-unit``)."""
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+"""Units of a recording's time stamps (``data import --time-unit``), in seconds."""
+FORCE_UNITS = {"N": 1.0, "mN": 1e-3, "kN": 1e3}
+"""Units of a recording's forces (``data import --force-unit``), in N."""
+MOMENT_UNITS = {"Nm": 1.0, "Nmm": 1e-3, "kNm": 1e3}
+"""Units of a recording's moments (``data import --moment-unit``), in N*m (``Nmm`` is also mN*m)."""
+SI_UNITS = {"angle_unit": "rad", "time_unit": "s", "force_unit": "N", "moment_unit": "Nm", "wrench_scale": 1.0}
+"""The unit settings of an import (:class:`ineid.data.recording.ImportSettings`) that convert nothing."""
+
+
+def check_units(time_unit: str, force_unit: str, moment_unit: str) -> None:
+    """Refuse a time, force or moment unit not in :data:`TIME_UNITS`, :data:`FORCE_UNITS`, :data:`MOMENT_UNITS`.
+
+    Raises:
+        DatasetError: naming the setting and its choices.
+    """
+    for name, value, units in (("time_unit", time_unit, TIME_UNITS), ("force_unit", force_unit, FORCE_UNITS),
+                               ("moment_unit", moment_unit, MOMENT_UNITS)):
+        if value not in units:
+            raise DatasetError(f"{name} must be one of {', '.join(units)}, got {value!r}")
+
+
+def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: float = 1.0, time_unit: str = "s",
+                force_unit: str = "N", moment_unit: str = "Nm") -> Streams:
+    """``streams`` in SI units: time stamps in s, revolute joints' ``q`` (``qd``, ``qdd``) in rad, forces in N and
+    moments in N*m, then the wrench multiplied by ``wrench_scale``.
 
     Args:
         streams: as read from the file.
         model: the :class:`ineid.RobotModel` (which joints are revolute: prismatic ones stay in m).
         angle_unit: ``"rad"`` (nothing to convert) or ``"deg"``.
         wrench_scale: the factor on every force and moment.
+        time_unit, force_unit, moment_unit: keys of :data:`TIME_UNITS`, :data:`FORCE_UNITS`,
+            :data:`MOMENT_UNITS`: the unit of every stream's time stamps (joints, wrench, IMUs), of the
+            wrench's forces and of its moments. Measured ``qd``, ``qdd`` and the IMUs' readings are per s
+            whatever the time stamps' unit.
 
     Returns:
-        A new :class:`Streams`; its ``origin`` records ``angle_unit`` and ``wrench_scale``.
+        A new :class:`Streams`; its ``origin`` records the five settings.
     """
     from dataclasses import replace  # noqa: PLC0415
 
+    check_units(time_unit, force_unit, moment_unit)
     factor = np.ones(model.n_dof)
     if angle_unit == "deg":
         factor[[k for k, kind in enumerate(model.joint_types) if kind == "revolute"]] = math.pi / 180
@@ -92,16 +125,33 @@ def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: 
         a = None if a is None else np.asarray(a, dtype=np.float64)
         # a wrongly shaped array is left as it is: recording_dataset names the problem
         joints[k] = a * factor if a is not None and a.ndim == 2 and a.shape[1] == model.n_dof else a
-    origin = {**streams.origin, "angle_unit": angle_unit, "wrench_scale": float(wrench_scale)}
+    origin = {**streams.origin, "angle_unit": angle_unit, "wrench_scale": float(wrench_scale), "time_unit": time_unit,
+              "force_unit": force_unit, "moment_unit": moment_unit}
     wrench = None if streams.wrench is None else np.asarray(streams.wrench, dtype=np.float64) * wrench_scale
-    return replace(streams, **joints, wrench=wrench, origin=origin)
+    if wrench is not None and wrench.ndim == 2 and wrench.shape[1] == 6:
+        wrench = wrench * np.repeat([FORCE_UNITS[force_unit], MOMENT_UNITS[moment_unit]], 3)
+    seconds = TIME_UNITS[time_unit]
+
+    def stamps(t):
+        return None if t is None else np.asarray(t, dtype=np.float64) * seconds
+
+    return replace(streams, **joints, wrench=wrench, origin=origin, joint_time=stamps(streams.joint_time),
+                   wrench_time=stamps(streams.wrench_time),
+                   imus=tuple(replace(s, time=stamps(s.time)) for s in streams.imus))
 
 
 def units_note(origin: dict) -> str | None:
     """The summary line of :func:`in_si_units`'s conversions, or None."""
     parts = []
+    if origin.get("time_unit", "s") != "s":
+        parts.append(f"time stamps converted from {origin['time_unit']}")
     if origin.get("angle_unit") == "deg":
         parts.append("revolute joint angles (and measured qd, qdd) converted from degrees")
+    converted = [f"{what} from {origin[key]}" for what, key, si in (("forces", "force_unit", "N"),
+                                                                   ("moments", "moment_unit", "Nm"))
+                 if origin.get(key, si) != si]
+    if converted:
+        parts.append(" and ".join(converted) + " converted")
     if origin.get("wrench_scale", 1.0) != 1.0:
         parts.append(f"wrench multiplied by {origin['wrench_scale']:g}")
     return "; ".join(parts) or None

@@ -8,16 +8,25 @@ estimates of :func:`ineid.identify.solve_dataset`:
   masses; without offsets a base parameter, the force rows' gravity column) is negative
   (``total_mass_negative``: a flipped wrench, or a sensor turned over without
   ``--sensor-pose``), or more than :data:`MASS_FACTOR` times above or below the URDF's
-  (``total_mass_scale``: the wrench's unit; the factor that fixes it is suggested);
+  (``total_mass_scale``: the wrench's unit; the units that fix it are suggested);
 * held-out error: the median over the configurations of the relative wrench error on the
   held-out frames (on the fitted frames when none are held out; with offsets estimated,
   relative to the wrench less its mean) above :data:`HELD_OUT_ERROR`
   (``held_out_error``: the model explains almost nothing);
 * the fitted static force (the mean of the fitted frames less the estimated offsets, in the
-  base frame) against gravity, as :func:`ineid.data.plausibility.check_static_force`.
+  base frame) against gravity, as :func:`ineid.data.plausibility.check_static_force`;
+* units only a fit can tell (:mod:`ineid.identify.unit_fits`): where the solve's linear fit
+  leaves more than :data:`FIT_GATE` of the measurements unexplained, a subsample is refitted
+  with the joint angles in the other unit (``angles_in_degrees``, ``angles_in_radians``) and
+  with the moments x 0.001 and x 1000, each with the known links' contribution scaled freely (the
+  wrench's scale); one that leaves less than 1 / :data:`UNIT_GAIN` of the stored units' error, or
+  the stored units with a scale a power of ten off 1 leaving less than 1 / :data:`UNIT_GAIN` of
+  the solve's, warns (``wrench_unit``: the force unit from the scale, the moment unit from it and
+  the moments' factor).
 
 :func:`check_solve` runs them all, most basic cause first, and leaves out what would only
-repeat a consequence: angles in degrees make every fit check meaningless; a fit that explains
+repeat a consequence: gravity in another unit, time stamps in another unit and angles in
+degrees make every fit check meaningless, so do units a refit finds; a fit that explains
 nothing makes its mass and fitted static force meaningless (without offsets the static force
 is the data's own mean: pointing up, it is the cause, reported instead); a negative mass
 already says what the static force would.
@@ -29,23 +38,39 @@ import math
 
 import numpy as np
 
-from ineid.channels import BaseWrench, ChannelSet
+from ineid.channels import BaseWrench
 from ineid.data.plausibility import (
     Finding,
     check_angle_units,
+    check_gravity,
+    check_recording_time,
     check_static_force,
     mean_force_in_base,
     moving_mass,
+    power_of_ten,
+    times,
 )
+from ineid.data.streams import FORCE_UNITS, MOMENT_UNITS
 from ineid.errors import IdentificationError
+from ineid.identify.unit_fits import fit_error, fitted_channels, refit_units
 
-__all__ = ["Finding", "check_held_out_error", "check_solve", "check_total_mass", "estimated_total_mass",
-           "fitted_static_force", "linear_counterpart"]  # fmt: skip
+__all__ = ["Finding", "check_fitted_units", "check_held_out_error", "check_solve", "check_total_mass",
+           "estimated_total_mass", "fitted_channels", "fitted_static_force", "linear_counterpart"]  # fmt: skip
 
 MASS_FACTOR = 3.0
 """An estimated total mass more than this factor above or below the URDF's warns."""
 HELD_OUT_ERROR = 0.5
 """A median relative held-out wrench error above this warns (1: the model explains nothing)."""
+FIT_GATE = 0.005
+"""The units are refitted only where the solve's linear fit leaves more than this of the measurements unexplained
+(:func:`ineid.identify.unit_fits.fit_error`): noise-free data leave 1e-4 at most (nothing to refit), the least a
+unit mistake left on the recordings measured was 0.057 (radians imported as degrees, +-4 degrees of motion, no
+offsets), and a recording's noise alone leaves more than this."""
+UNIT_GAIN = 10.0
+"""Another unit warns where its refit leaves less than 1 / this of the stored units' error: on the mistakes
+measured the right units left 1e-4 to 1e-7 of the wrong ones' error; noise alone leaves the two alike."""
+_FORCE_NAMES = {f: (u, u) for u, f in FORCE_UNITS.items()}
+_MOMENT_NAMES = {f: (u, {"Nm": "N*m", "Nmm": "N*mm (mN*m)", "kNm": "kN*m"}[u]) for u, f in MOMENT_UNITS.items()}
 
 
 def estimated_total_mass(res, model) -> np.ndarray:
@@ -60,20 +85,18 @@ def estimated_total_mass(res, model) -> np.ndarray:
     return np.where(np.asarray(res.success, dtype=bool), total, np.nan)
 
 
-def _power_of_ten(factor: float) -> float | None:
-    """The power of ten within 2x of ``factor`` (other than 1), or None."""
-    if not (factor > 0 and math.isfinite(factor)):
-        return None
-    p = round(math.log10(factor))
-    return 10.0**p if p != 0 and abs(math.log10(factor) - p) < math.log10(2) else None
-
-
-def _times(ratio: float) -> str:
-    """``1330x``, ``5.2x``, ``0.0012x``: a ratio as a reader says it."""
-    return f"{ratio:.0f}x" if ratio >= 100 else f"{ratio:.2g}x"
-
-
-_UNITS = {1e-3: "mN or N*mm", 1e3: "kN"}
+def _wrench_fix(force: float, moment: float) -> tuple[str, str]:
+    """``(the units in words, the import options)`` of forces and moments that want these factors to become
+    N and N*m; ``--wrench-scale`` where no unit gives them."""
+    if force in _FORCE_NAMES and moment in _MOMENT_NAMES:
+        (fu, fw), (mu, mw) = _FORCE_NAMES[force], _MOMENT_NAMES[moment]
+        options = [f"--force-unit {fu}"] * (fu != "N") + [f"--moment-unit {mu}"] * (mu != "Nm")
+        return f"forces in {fw} and moments in {mw}", "data import " + " ".join(options)
+    if force == moment:
+        return "units other than N and N*m", f"data import --wrench-scale {force:g}"
+    return (f"forces x {force:g} and moments x {moment:g} off N and N*m",
+            f"data import --force-unit, --moment-unit and --wrench-scale to make the forces x {force:g} and the "
+            f"moments x {moment:g}")
 
 
 def linear_counterpart(ds, res, model):
@@ -101,8 +124,8 @@ def linear_counterpart(ds, res, model):
 def check_total_mass(res, model) -> Finding | None:
     """A total mass (median over configurations) that is negative or more than :data:`MASS_FACTOR` off the URDF's.
 
-    The factor suggested for ``--wrench-scale`` is the power of ten within 2x of
-    ``URDF mass / estimate`` (a unit mistake); none is suggested otherwise.
+    The units suggested (``--force-unit``, ``--moment-unit``; ``--wrench-scale`` where none fits) are those
+    of the power of ten within 2x of ``URDF mass / estimate`` (a unit mistake); none is suggested otherwise.
     """
     m = estimated_total_mass(res, model)
     m = m[np.isfinite(m)]
@@ -116,8 +139,8 @@ def check_total_mass(res, model) -> Finding | None:
     if est < 0:
         # with offsets estimated the static part is absorbed and a flipped wrench leaves a small
         # negative mass: only a large one also says something about the unit
-        scale = _power_of_ten(-1 / ratio) if -ratio > MASS_FACTOR else None
-        unit = f"; its size is {_times(-ratio)} the URDF's: also --wrench-scale {scale:g}" if scale else ""
+        scale = power_of_ten(-1 / ratio) if -ratio > MASS_FACTOR else None
+        unit = f"; its size is {times(-ratio)} the URDF's: also {_wrench_fix(scale, scale)[1]}" if scale else ""
         return Finding(
             "total_mass_negative",
             f"{what} is negative (the URDF's: {urdf:.4g} kg): the wrench's sign looks flipped (data import "
@@ -125,14 +148,14 @@ def check_total_mass(res, model) -> Finding | None:
         )
     if 1 / MASS_FACTOR <= ratio <= MASS_FACTOR:
         return None
-    scale = _power_of_ten(1 / ratio) if ratio > 0 else None
+    scale = power_of_ten(1 / ratio) if ratio > 0 else None
     if scale is not None:
-        unit = _UNITS.get(scale, "units other than N and N*m")
-        hint = f"is the wrench in {unit}? (data import --wrench-scale {scale:g})"
+        words, options = _wrench_fix(scale, scale)
+        hint = f"the wrench looks like {words} ({options})"
     else:
         hint = ("check the sensor pose (data import --sensor-pose), the wrench's unit (data import --wrench-scale) "
                 "and the URDF's masses")
-    return Finding("total_mass_scale", f"{what} is {_times(ratio)} the URDF's {urdf:.4g} kg: {hint}")
+    return Finding("total_mass_scale", f"{what} is {times(ratio)} the URDF's {urdf:.4g} kg: {hint}")
 
 
 def _held_out_errors(res, ds) -> tuple[np.ndarray, str]:
@@ -191,12 +214,6 @@ def check_held_out_error(res, ds) -> Finding | None:
     )
 
 
-def fitted_channels(res, ds) -> ChannelSet:
-    """The measurement channels ``res`` was fitted on (its records; a results file of ineid 0.1: the dataset's)."""
-    records = res.meta.get("channels")
-    return ds.meta.channels if records is None else ChannelSet.from_list(records, "the results' channels")
-
-
 def fitted_static_force(res, ds) -> np.ndarray | None:
     """The fitted model's static force (3,), N, base frame: the mean over the solved configurations
     of the fitted frames' mean force less the estimated force offsets (none without ``--bias estimate``),
@@ -212,6 +229,62 @@ def fitted_static_force(res, ds) -> np.ndarray | None:
     return mean_force_in_base(mean, block.channel.sensor)
 
 
+def _force_factor(fit, model) -> float:
+    """The factor that makes the forces of a :class:`ineid.identify.unit_fits.UnitFit` N: the power of ten within
+    2x of ``1 / scale`` (without known links: of ``URDF mass / fitted mass`` of the unknown links) where that is
+    more than :data:`MASS_FACTOR` off 1, else 1."""
+    urdf = float(np.sum(np.asarray(model.theta_cad, dtype=np.float64)[model.unknown_index][0::10]))
+    scale = fit.scale if math.isfinite(fit.scale) else (fit.mass / urdf if urdf > 0 else 1.0)
+    off = scale > 0 and not 1 / MASS_FACTOR <= scale <= MASS_FACTOR
+    return (power_of_ten(1 / scale) or 1.0) if off else 1.0
+
+
+def check_fitted_units(ds, res, linear, model) -> Finding | None:
+    """Joint angles in the other unit, or a wrench in other units than N and N*m, told by refits (module docstring).
+
+    Args:
+        ds: the solved :class:`ineid.data.Dataset`.
+        res: its :class:`ineid.identify.SolveResults` (the channels fitted, the offsets).
+        linear: the solve's linear least squares (:func:`linear_counterpart`; None: ``res``'s own error gates).
+        model: its :class:`ineid.RobotModel`.
+
+    Returns:
+        A :class:`Finding` (``angles_in_degrees``, ``angles_in_radians`` or ``wrench_unit``) naming the
+        likely unit and the import option, or None.
+    """
+    solved = fit_error(res if linear is None else linear, ds)  # inf where it failed everywhere
+    if not solved > FIT_GATE:
+        return None
+    imported_deg = (ds.meta.origin or {}).get("angle_unit") == "deg"
+    angle = 180 / math.pi if imported_deg else math.pi / 180
+    channels = fitted_channels(res, ds)
+    wrench = any(isinstance(c, BaseWrench) for c in channels)
+    hypotheses = [(1.0, 1.0), (angle, 1.0)] + ([(1.0, 1e-3), (1.0, 1e3)] if wrench else [])
+    fits = refit_units(ds, channels, res.settings.bias == "estimate", model, hypotheses)
+    best = min(fits, key=lambda f: f.error)
+    force = _force_factor(best, model) if wrench else 1.0
+    # against the stored units refitted (another unit won), or against the solve (the wrench's scale alone)
+    before = fits[0].error if best is not fits[0] else solved
+    if (best is fits[0] and force == 1.0) or not best.error * UNIT_GAIN < before:
+        return None
+    what = "wrench" if wrench else "measurements"
+    ratio = before / best.error if 0 < best.error and math.isfinite(before) else math.inf
+    gain = " over 1000x better" if ratio > 1000 else f" {times(ratio)} better"
+    evidence = (f"the model explains the {what}{gain} (error {best.error:.2g} against {before:.2g}, a linear fit of "
+                f"{best.n_frames} frames)")
+    if best.angle != 1.0:
+        if imported_deg:
+            return Finding("angles_in_radians", "the joint angles look like radians that --angle-unit deg converted "
+                           f"again: read as radians {evidence}: import the recording without --angle-unit deg")
+        return Finding("angles_in_degrees", f"the joint angles look like degrees: read as degrees {evidence}: "
+                       "import the recording with data import --angle-unit deg")
+    moment = force * best.moment
+    words, options = _wrench_fix(force, moment)
+    change = f"the wrench x {force:g}" if force == moment else " and ".join(
+        f"the {name} x {k:g}" for name, k in (("forces", force), ("moments", moment)) if k != 1.0)
+    return Finding("wrench_unit", f"the wrench looks like {words}: with {change} {evidence}: {options}")
+
+
 def check_solve(ds, res, model=None) -> list[Finding]:
     """Every plausibility check of a solve, most basic cause first (see the module docstring).
 
@@ -224,13 +297,17 @@ def check_solve(ds, res, model=None) -> list[Finding]:
         The findings, at most one per likely mistake; empty when all is plausible.
     """
     model = model or ds.model()
-    degrees = check_angle_units(model, ds.q)
-    if degrees is not None:  # every fit of these frames is garbage: nothing more to learn
-        return [degrees]
+    first = (check_gravity(model.gravity, "the dataset's gravity", "data import or data generate --gravity")
+             or check_recording_time(ds) or check_angle_units(model, ds.q))
+    if first is not None:  # every fit of these frames is garbage: nothing more to learn
+        return [first]
     try:
         linear = linear_counterpart(ds, res, model)
     except IdentificationError:  # too few frames for the linear fit (a trained run's short samples)
         linear = None
+    units = check_fitted_units(ds, res, linear, model)
+    if units is not None:  # the fits under the stored units are garbage too
+        return [units]
     fit = res if np.asarray(res.success, dtype=bool).any() else linear  # a method that failed everywhere
     if fit is None or not np.asarray(fit.success, dtype=bool).any():
         return []
