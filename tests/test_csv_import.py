@@ -160,7 +160,7 @@ def test_peak_memory_is_a_small_multiple_of_the_arrays(tmp_path, model):
         tracemalloc.stop()
     arrays = 50_000 * 11 * 8
     assert len(streams.joint_time) == 50_000 and np.array_equal(streams.wrench, w)
-    # the rows as Python lists of strings took 12 x the arrays (13.1 GB for 10^7 rows)
+    # rows kept as Python lists of strings take about 12 x the arrays
     assert peak < 2 * arrays + 16 * 2**20, (peak, arrays)
 
 

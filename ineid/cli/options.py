@@ -130,7 +130,7 @@ class PlotFile(click.Path):
     """A file a figure is written to (``--plot``): its suffix a format matplotlib writes here, PNG without one.
 
     Checked as the option is parsed, before any work: ``solve --plot r.xyz`` stops at once (exit 2) naming
-    the formats, instead of after the results were written.
+    the formats, not after solving.
     """
 
     name = "plot file"

@@ -107,8 +107,8 @@ gear_ratio_option = click.option(
 
 DRIVE_RANGE = (1e-6, 1e6)
 """``--torque-constant`` and ``--gear-ratio`` (N*m/A, motor turns per joint turn) are within it in magnitude:
-wider than any drive, and far from the products that underflow or overflow (1e-308 made the solver's
-eigenvalues fail)."""
+wider than any drive, and far from the products that underflow or overflow (at 1e-308 the solver's
+eigenvalue decomposition fails)."""
 
 
 def _numbers(value: str | None, hint: str) -> tuple[float, ...] | None:

@@ -1,8 +1,8 @@
 """What an import's settings and a recording's values may be, checked before the work they would spoil.
 
 A rate that leaves a handful of frames, or a cut-off whose filter edges are longer than the recording,
-made the filter's start-up singular (a ``LinAlgError`` from SciPy at ``--cutoff 1e-9``); a value of
-``1e308`` overflowed the filter's and the solver's squares. Each is one :class:`ineid.errors.DatasetError`
+makes the filter's start-up singular (a ``LinAlgError`` from SciPy at ``--cutoff 1e-9``); a value of
+``1e308`` overflows the filter's and the solver's squares. Each is one :class:`ineid.errors.DatasetError`
 line here, naming the allowed range.
 """
 
