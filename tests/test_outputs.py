@@ -65,8 +65,8 @@ def test_solve_refuses_to_replace_its_dataset(run, data, tmp_path):
     line = last_line(run("solve", data, "--out", link, "--overwrite"), 1)
     assert line == f"Error: --out {link} is the input dataset; choose another file"
     assert data.read_bytes() == before
-    line = last_line(run("solve", data, "--out", tmp_path / "r.h5", "--plot", tmp_path / "r.h5"), 1)
-    assert line == f"Error: --plot {tmp_path / 'r.h5'} is the results file (--out); choose another file"
+    line = last_line(run("solve", data, "--out", tmp_path / "r.png", "--plot", tmp_path / "r.png"), 1)
+    assert line == f"Error: --plot {tmp_path / 'r.png'} is the results file (--out); choose another file"
 
 
 @pytest.mark.parametrize("case", ["import", "trajectory", "export", "evaluate", "excite", "train"])

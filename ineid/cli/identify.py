@@ -16,6 +16,7 @@ from ineid.cli.options import (
     FiniteFloatRange,
     LibraryChoice,
     LibraryOption,
+    PlotFile,
     deprecated_alias,
     names_in,
     numbers,
@@ -200,7 +201,7 @@ def _print_bias_cost(con, model, q, qd, qdd, channels=None) -> None:
                    "FRACTION of max(|CAD value|, the link's scale) (0.05: 5 %); LINK=FRACTION for one link "
                    "(repeatable; overrides a plain FRACTION). Default: the CAD taken as exact.")
 @channel_options(two_step=True)
-@click.option("--plot", "plot_path", type=click.Path(path_type=Path), default=None, metavar="FILE",
+@click.option("--plot", "plot_path", type=PlotFile(), default=None, metavar="FILE",
               help="Write measured vs predicted wrench of the held-out frames (first solved configuration), "
                    "per axis with the residual and its RMS (.png, .pdf, .svg).")
 @plot_span_option

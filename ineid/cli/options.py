@@ -126,6 +126,42 @@ WORKERS = click.IntRange(1, MAX_WORKERS)
 CPU only costs memory (a million would exhaust it)."""
 
 
+class PlotFile(click.Path):
+    """A file a figure is written to (``--plot``): its suffix a format matplotlib writes here, PNG without one.
+
+    Checked as the option is parsed, before any work: ``solve --plot r.xyz`` stops at once (exit 2) naming
+    the formats, not after solving.
+    """
+
+    name = "plot file"
+
+    def __init__(self) -> None:
+        super().__init__(dir_okay=False, path_type=Path)
+
+    def convert(self, value, param, ctx):
+        path = super().convert(value, param, ctx)
+        suffix = Path(path).suffix.lower().lstrip(".")
+        formats = plot_formats()
+        if suffix and suffix not in formats:
+            self.fail(f"{str(value)!r}: matplotlib writes no .{suffix} files here; end the name with one of "
+                      f".{', .'.join(formats)} (none: PNG)", param, ctx)
+        return path
+
+
+def plot_formats() -> tuple[str, ...]:
+    """The suffixes (lower case, no dot) of the formats matplotlib writes figures in here (``pgf`` only where its
+    TeX system is on the PATH)."""
+    import shutil
+
+    import matplotlib
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    formats = sorted(FigureCanvasBase.get_supported_filetypes())
+    if "pgf" in formats and shutil.which(str(matplotlib.rcParams["pgf.texsystem"])) is None:
+        formats.remove("pgf")
+    return tuple(formats)
+
+
 def names_in(ref: str, hint: str):
     """Callback: comma-separated names, each one of the library constant ``ref`` -> tuple."""
 

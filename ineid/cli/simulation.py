@@ -105,16 +105,23 @@ gear_ratio_option = click.option(
 )  # fmt: skip
 
 
+DRIVE_RANGE = (1e-6, 1e6)
+"""``--torque-constant`` and ``--gear-ratio`` (N*m/A, motor turns per joint turn) are within it in magnitude:
+wider than any drive, and far from the products that underflow or overflow (at 1e-308 the solver's
+eigenvalue decomposition fails)."""
+
+
 def _numbers(value: str | None, hint: str) -> tuple[float, ...] | None:
-    """Comma-separated finite non-zero numbers."""
+    """Comma-separated numbers of magnitude within :data:`DRIVE_RANGE` (signed)."""
     if value is None:
         return None
+    lo, hi = DRIVE_RANGE
     try:
         out = tuple(float(v) for v in value.split(",") if v.strip())
-        if not out or not all(math.isfinite(v) and v != 0 for v in out):
+        if not out or not all(lo <= abs(v) <= hi for v in out):
             raise ValueError
     except ValueError:
-        raise click.BadParameter(f"expected comma-separated finite, non-zero numbers, got {value!r}",
+        raise click.BadParameter(f"expected comma-separated numbers of magnitude {lo:g} to {hi:g}, got {value!r}",
                                  param_hint=hint) from None
     return out
 

@@ -7,7 +7,16 @@ from pathlib import Path
 
 import click
 
-from ineid.cli.options import SEED, names_in, overwrite_option, prepare_output, quiet, robot_inputs, robot_options
+from ineid.cli.options import (
+    SEED,
+    PlotFile,
+    names_in,
+    overwrite_option,
+    prepare_output,
+    quiet,
+    robot_inputs,
+    robot_options,
+)
 from ineid.cli.output import ProgressBar, console, table
 
 _STUDY = "ineid.identify.study_formulations"
@@ -29,7 +38,7 @@ def _fmt(x: float, percent: bool = True) -> str:
 @click.option("--formulations", default=None, callback=names_in(f"{_STUDY}:FORMULATIONS", "--formulations"),
               help="Comma-separated, default all: wrench, torque, torque+friction, both, two-step.")
 @click.option("--seed", type=SEED, default=0, show_default=True)
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--plot", "plot_path", type=PlotFile(), default=None,
               help="Write the plot (PNG, or the format of the suffix).")
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the table as CSV.")

@@ -16,6 +16,7 @@ from ineid.cli.options import (
     SEED,
     WORKERS,
     LibraryChoice,
+    PlotFile,
     names_in,
     numbers,
     overwrite_option,
@@ -90,7 +91,7 @@ SECTIONS = ("classical", "claims", "networks")
 @click.option("--workers", type=WORKERS, default=1, show_default=True, help="Processes for consistent's IPOPT.")
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the rows (method, frames, parameter) as CSV.")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--plot", "plot_path", type=PlotFile(), default=None,
               help="Write the share within 5 % per parameter (PNG, or the format of the suffix).")
 @click.option("--networks", "networks_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               metavar="DIR", help="Then the paper's network exploration too (ineid study networks --plan decisive, "

@@ -8,6 +8,7 @@ import click
 
 from ineid.cli.options import (
     SEED,
+    PlotFile,
     names_in,
     numbers,
     overwrite_option,
@@ -31,7 +32,7 @@ from ineid.cli.output import ProgressBar, console, table
               help="Configurations (parameter sets and trajectories) per cell (default 5; --quick: 1).")
 @click.option("--quick", is_flag=True, help="The test suite's size: one rate, one bandwidth, one configuration.")
 @click.option("--seed", type=SEED, default=0, show_default=True)
-@click.option("--plot", "plot_path", type=click.Path(path_type=Path, dir_okay=False), default=None, metavar="FILE",
+@click.option("--plot", "plot_path", type=PlotFile(), default=None, metavar="FILE",
               help="Write the errors as bars (.png, .pdf, .svg).")
 @click.option("--csv", "csv_path", type=click.Path(path_type=Path, dir_okay=False), default=None, metavar="FILE",
               help="Write the table as CSV.")

@@ -36,7 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid.data.streams import Streams
+from ineid._faults import require_memory
+from ineid.data.bag_metadata import check_bag_files
+from ineid.data.streams import VALUE_LIMIT, Streams, first_beyond
 from ineid.errors import DatasetError
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
@@ -45,12 +47,15 @@ IMU = "sensor_msgs/msg/Imu"
 VECTOR3_STAMPED = "geometry_msgs/msg/Vector3Stamped"
 ANGULAR_ACCELERATION = "/angular_acceleration"
 """The suffix of an IMU topic's angular-acceleration topic (``geometry_msgs/Vector3Stamped``, rad/s^2)."""
+MAX_MESSAGES = 100_000_000
+"""The most messages ineid reads from a bag's topics (joint states, wrench, IMUs together), as many as the
+rows of a CSV (:data:`ineid.data.csv_rows.MAX_ROWS`); the memory they need is checked too, before reading."""
 
 
 def bag_kind(path: Path) -> str:
     """``"ros1"``, ``"ros2"`` (a folder with ``metadata.yaml``) or ``"mcap"`` (a bare MCAP file)."""
     if path.is_dir():
-        if not (path / "metadata.yaml").is_file():
+        if not (path / "metadata.yaml").exists():
             raise DatasetError(f"{path} is a folder without metadata.yaml, not a ROS 2 bag; give the bag folder, "
                                "a ROS 1 .bag file, a .mcap file or a CSV file")
         return "ros2"
@@ -58,7 +63,7 @@ def bag_kind(path: Path) -> str:
     if suffix == ".bag":
         return "ros1"
     if suffix in (".mcap", ".db3"):
-        if (path.parent / "metadata.yaml").is_file():
+        if (path.parent / "metadata.yaml").exists():
             return "ros2"
         if suffix == ".mcap":
             return "mcap"
@@ -77,6 +82,7 @@ def _open_bag(path: Path):
 
     errors = (AnyReaderError, Reader1Error, Reader2Error, SerdeError, TypesysError, OSError, KeyError, ValueError)
     kind = bag_kind(path)
+    check_bag_files(path, kind)
     try:
         if kind == "mcap":
             reader = _McapFile(path)
@@ -92,7 +98,9 @@ def _open_bag(path: Path):
     except DatasetError:
         raise
     except errors as e:
-        raise DatasetError(f"{path}: cannot be read as a ROS bag ({type(e).__name__}: {e})") from None
+        text = " ".join(str(e).split())  # one line: a reader's message may quote the file over several
+        raise DatasetError(f"{path}: cannot be read as a ROS bag ({type(e).__name__}: "
+                           f"{text if len(text) <= 300 else text[:297] + '...'})") from None
 
 
 class _McapFile:
@@ -192,14 +200,12 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
             raise DatasetError(f"{path}: topic {wrench_topic!r} holds {wconns[0].msgtype}, not {WRENCH_STAMPED}")
         iconns, imu_of = _imu_connections(path, by_topic, imu_topics, available)
         total = sum(c.msgcount for c in jconns + wconns + iconns)
+        _check_messages(path, total, len(joint_names))
         joint_ids = {c.id for c in jconns}
-        tq: list[int] = []
-        q: list[np.ndarray] = []
-        effort: list[np.ndarray] = []
-        tw: list[int] = []
-        w: list[tuple] = []
+        joints = _JointStates(path, joint_topic, joint_names, sum(c.msgcount for c in jconns))
+        n_w = sum(c.msgcount for c in wconns)
+        tw, w = _Rows(1, n_w, np.int64), _Rows(6, n_w)
         frame_ids: set[str] = set()
-        order_cache: dict[tuple, np.ndarray] = {}
         done = 0
         imu_data: dict[str, tuple[list, list, set]] = {c.topic: ([], [], set()) for c in iconns}
         for conn, log_ns, raw in messages(jconns + wconns + iconns):
@@ -210,34 +216,7 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
                 frames.add(str(msg.header.frame_id))
                 values.append(_imu_values(msg))
             elif conn.id in joint_ids:
-                names = tuple(msg.name)
-                idx = order_cache.get(names)
-                if idx is None:
-                    missing = [j for j in joint_names if j not in names]
-                    if missing:
-                        raise DatasetError(
-                            f"{path}: joint state message {len(tq)} on {joint_topic} lacks joint"
-                            f"{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))} "
-                            f"(it names {', '.join(map(repr, names)) or 'none'}); "
-                            "the recording is of another arm, or the URDF's joint names differ"
-                        )
-                    idx = order_cache[names] = np.array([names.index(j) for j in joint_names])
-                pos = np.asarray(msg.position, dtype=np.float64)
-                if len(pos) != len(names):
-                    raise DatasetError(f"{path}: joint state message {len(tq)} on {joint_topic} has {len(names)} names "
-                                       f"but {len(pos)} positions")
-                eff = np.asarray(msg.effort, dtype=np.float64)
-                if len(eff) not in (0, len(names)) or (tq and bool(len(eff)) != bool(effort)):
-                    raise DatasetError(
-                        f"{path}: joint state message {len(tq)} on {joint_topic} has {len(eff)} efforts for "
-                        f"{len(names)} names" + ("" if len(eff) not in (0, len(names)) else
-                                                 f" where message 0 had {len(names) if effort else 0}")
-                        + "; the joint torques (effort) must come with every joint state, one per name, or never"
-                    )
-                tq.append(_stamp_ns(msg, log_ns))
-                q.append(pos[idx])
-                if len(eff):
-                    effort.append(eff[idx])
+                joints.add(msg, log_ns)
             else:
                 f, m = msg.wrench.force, msg.wrench.torque
                 tw.append(_stamp_ns(msg, log_ns))
@@ -248,36 +227,126 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
                 progress(done, total)
         if progress is not None:
             progress(done, total)
-    if not tq or (wrench_topic is not None and not w):
-        raise DatasetError(f"{path}: no messages on {joint_topic if not tq else wrench_topic}")
-    if wrench_topic is None and not effort:
+    tq, q, effort = joints.stamps.array()[:, 0], joints.q.array(), joints.effort.array() if joints.effort.n else None
+    tw, w = tw.array()[:, 0], w.array()
+    if not len(tq) or (wrench_topic is not None and not len(w)):
+        raise DatasetError(f"{path}: no messages on {joint_topic if not len(tq) else wrench_topic}")
+    if wrench_topic is None and effort is None:
         raise DatasetError(f"{path}: the bag has no {WRENCH_STAMPED} topic and its joint states carry no effort "
                            f"(joint torques): nothing to identify from (topics: {available})")
     if len(frame_ids) > 1:
         raise DatasetError(f"{path}: the wrench messages on {wrench_topic} name several frames "
                            f"({', '.join(map(repr, sorted(frame_ids)))}); a recording needs one sensor frame")
-    t0 = min(tq + tw + [v[0][0] for v in imu_data.values() if v[0]])
+    for topic, what, values in ((joint_topic, "positions", q), (joint_topic, "efforts", effort),
+                                (wrench_topic, "wrench values", w)):
+        _check_values(path, topic, what, values)
+    t0 = min([int(tq.min()), *([int(tw.min())] if len(tw) else []), *(v[0][0] for v in imu_data.values() if v[0])])
     frame_id = (frame_ids.pop() or None) if frame_ids else None
     origin = {"format": bag_kind(path), "file": path.name, "joint_topic": joint_topic, "wrench_topic": wrench_topic,
               "joint_messages": len(tq), "wrench_messages": len(w), "start_ns": int(t0), "frame_id": frame_id}
-    if effort:
+    if effort is not None:
         origin["effort"] = True
     imus = _imu_streams(path, imu_data, imu_of, t0)
     if imus:
         origin["imu_topics"] = {s.where: len(s.time) for s in imus}
     return Streams(
-        joint_time=(np.asarray(tq, dtype=np.int64) - t0) * 1e-9,
-        q=np.asarray(q, dtype=np.float64).reshape(len(tq), len(joint_names)),
+        joint_time=(tq - t0) * 1e-9,
+        q=q,
         qd=None,
         qdd=None,
-        wrench_time=(np.asarray(tw, dtype=np.int64) - t0) * 1e-9 if w else None,
-        wrench=np.asarray(w, dtype=np.float64) if w else None,
+        wrench_time=(tw - t0) * 1e-9 if len(w) else None,
+        wrench=w if len(w) else None,
         source=str(path),
         frame_id=frame_id,
         origin=origin,
-        tau=np.asarray(effort, dtype=np.float64).reshape(len(tq), len(joint_names)) if effort else None,
+        tau=effort,
         imus=imus,
-    )  # fmt: skip
+    )
+
+
+def _check_messages(path: Path, total: int, n_joints: int) -> None:
+    """At most :data:`MAX_MESSAGES` messages, and memory for them, before any is read."""
+    if total > MAX_MESSAGES:
+        raise DatasetError(f"{path}: the topics to read hold {total:,} messages, more than the {MAX_MESSAGES:,} ineid "
+                           "reads (ineid.data.bags.MAX_MESSAGES); import a shorter part of the recording")
+    # a joint state's stamp, positions and efforts (a wrench's are fewer), then the arrays of the streams
+    require_memory(2 * total * 8 * (1 + 2 * n_joints), f"reading {total:,} messages of {path}",
+                   "import a shorter part of the recording")
+
+
+def _check_values(path: Path, topic: str | None, what: str, values: np.ndarray | None) -> None:
+    """No value beyond :data:`ineid.data.streams.VALUE_LIMIT` (NaN and infinity are the import's to name)."""
+    k = None if values is None else first_beyond(values, VALUE_LIMIT)
+    if k is not None:
+        row = values.reshape(len(values), -1)[k]
+        v = row[np.isfinite(row) & (np.abs(row) > VALUE_LIMIT)][0]
+        raise DatasetError(f"{path}: message {k} on {topic}: its {what} hold {v:g}, beyond {VALUE_LIMIT:g} in "
+                           "magnitude (ineid.data.streams.VALUE_LIMIT), more than any sensor gives; a corrupt message: "
+                           "cut it from the recording")
+
+
+class _Rows:
+    """Rows appended a message at a time into one array that doubles when full: no Python object per message."""
+
+    def __init__(self, width: int, capacity: int, dtype=np.float64) -> None:
+        self._a = np.empty((max(1, min(int(capacity), MAX_MESSAGES)), width), dtype=dtype)
+        self.n = 0
+
+    def append(self, row) -> None:
+        if self.n == len(self._a):  # the metadata's message count was low
+            self._a = np.concatenate([self._a, np.empty_like(self._a)])
+        self._a[self.n] = row
+        self.n += 1
+
+    def array(self) -> np.ndarray:
+        return self._a[: self.n]
+
+
+class _JointStates:
+    """The joint states of a bag, matched to the model's joints by name, message by message."""
+
+    def __init__(self, path: Path, topic: str, joint_names: list[str], capacity: int) -> None:
+        self.path, self.topic, self.joint_names = path, topic, joint_names
+        self.stamps = _Rows(1, capacity, np.int64)
+        self.q = _Rows(len(joint_names), capacity)
+        self.effort = _Rows(len(joint_names), 0)  # grows when the messages carry efforts
+        self._order: dict[tuple, np.ndarray] = {}
+
+    def add(self, msg, log_ns: int) -> None:
+        """Append one ``sensor_msgs/JointState``.
+
+        Raises:
+            DatasetError: a model joint missing, positions or efforts not matching the names, efforts in
+                some messages only.
+        """
+        k, names = self.stamps.n, tuple(msg.name)
+        idx = self._order.get(names)
+        if idx is None:
+            missing = [j for j in self.joint_names if j not in names]
+            if missing:
+                raise DatasetError(
+                    f"{self.path}: joint state message {k} on {self.topic} lacks joint"
+                    f"{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))} "
+                    f"(it names {', '.join(map(repr, names)) or 'none'}); "
+                    "the recording is of another arm, or the URDF's joint names differ"
+                )
+            idx = self._order[names] = np.array([names.index(j) for j in self.joint_names])
+        pos = np.asarray(msg.position, dtype=np.float64)
+        if len(pos) != len(names):
+            raise DatasetError(f"{self.path}: joint state message {k} on {self.topic} has {len(names)} names "
+                               f"but {len(pos)} positions")
+        eff = np.asarray(msg.effort, dtype=np.float64)
+        if len(eff) not in (0, len(names)) or (k and bool(len(eff)) != bool(self.effort.n)):
+            raise DatasetError(
+                f"{self.path}: joint state message {k} on {self.topic} has {len(eff)} efforts for "
+                f"{len(names)} names" + ("" if len(eff) not in (0, len(names)) else
+                                         f" where message 0 had {len(names) if self.effort.n else 0}")
+                + "; the joint torques (effort) must come with every joint state, one per name, or never"
+            )
+        self.stamps.append(_stamp_ns(msg, log_ns))
+        self.q.append(pos[idx])
+        if len(eff):
+            self.effort.append(eff[idx])
 
 
 def _imu_connections(path: Path, by_topic: dict, imu_topics: Sequence[str], available: str) -> tuple[list, dict]:
@@ -353,5 +422,8 @@ def _imu_streams(path: Path, imu_data: dict, imu_of: dict, t0: int) -> tuple:
             if not readings:
                 raise DatasetError(f"{path}: the messages on {topic} mark both the angular velocity and the linear "
                                    "acceleration as not measured (covariance[0] = -1)")
+        for kind, values in readings.items():
+            _check_values(path, topic, {"gyro": "angular velocities", "accel": "linear accelerations",
+                                        "alpha": "angular accelerations"}[kind], values)
         out.append(ImuStream(frame, t, readings, topic))
     return tuple(out)

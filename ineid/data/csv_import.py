@@ -26,6 +26,10 @@ two clocks); each IMU (all its columns) is a stream of its own the same way. The
 robot (the opposite sign) is imported with ``flip_wrench=True``. The truth is unknown, so
 the file has no ``theta_unknown``; ``theta_known`` holds the model's CAD values of the
 known links.
+
+The file is read within stated limits and streamed (:mod:`ineid.data.csv_rows`: a regular file of at most
+64 GiB, 10,000 columns, 10^8 rows, lines of 2^20 characters, values within
+:data:`ineid.data.streams.VALUE_LIMIT`); memory holds the numbers of the columns read, not the text.
 """
 
 from __future__ import annotations
@@ -36,6 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from ineid._atomic import atomic_output
+from ineid._inputs import regular_file
+from ineid.data.csv_rows import MAX_CSV_BYTES, Layout, Table, csv_lines, parse_header, read_rows
 from ineid.data.schema import Dataset
 from ineid.data.streams import ImuStream, Streams
 from ineid.errors import DatasetError
@@ -46,23 +52,23 @@ WRENCH_COLUMNS = ("fx", "fy", "fz", "mx", "my", "mz")
 def read_csv_rows(path: str | Path) -> list[tuple[int, list[str]]]:
     """``(physical line number, cells)`` of every row of a CSV file; blank and ``#`` comment lines skipped.
 
+    Within the limits of a recording CSV (:mod:`ineid.data.csv_rows`: a regular file of at most
+    :data:`MAX_CSV_BYTES`, lines of at most ``MAX_LINE_CHARS``).
+
     Raises:
-        DatasetError: the file does not exist or is not CSV text.
+        InputFileError: the file does not exist, is not a regular file (a FIFO, a device) or is too large.
+        DatasetError: it is not CSV text, or a line is too long.
     """
-    path = Path(path)
-    try:
-        # utf-8-sig: a byte-order mark (spreadsheet exports write one) is not part of the first column's name.
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            return [
-                (k, cells)
-                for k, line in enumerate(fh, start=1)
-                if line.strip() and not line.lstrip().startswith("#")
-                for cells in csv.reader([line])
-            ]
-    except FileNotFoundError:
-        raise DatasetError(f"{path} does not exist") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as e:
-        raise DatasetError(f"{path}: cannot be read as CSV text ({e})") from None
+    path = regular_file(path, "the CSV file", max_bytes=MAX_CSV_BYTES, limit_name="ineid.data.csv_rows.MAX_CSV_BYTES")
+    rows = []
+    with csv_lines(path) as blocks:
+        for numbers, lines in blocks:
+            for k, line in zip(numbers, lines):
+                try:
+                    rows.append((k, next(csv.reader([line]))))
+                except csv.Error as e:
+                    raise DatasetError(f"{path}: line {k} cannot be read as CSV ({e})") from None
+    return rows
 
 
 def csv_columns(n_dof: int, derivatives: bool = True) -> list[str]:
@@ -117,25 +123,63 @@ def _channel_columns(header: list[str], prefix: str, what: str, model, path: Pat
 def read_csv_streams(path: str | Path, model, progress=None):
     """Read a recording CSV into :class:`ineid.data.streams.Streams` (no processing yet).
 
+    The file is read within the limits of :mod:`ineid.data.csv_rows` (size, columns, rows, line
+    length; values within :data:`ineid.data.streams.VALUE_LIMIT`), streamed: memory holds the
+    numbers of the columns read, not the text.
+
     Raises:
-        DatasetError: the file missing, unreadable or empty; a repeated column; joint
-            columns for another number of joints; torque columns for another number of
-            joints or naming another joint; missing columns (all named); ``qd`` without
-            ``qdd`` or the reverse; neither a wrench nor torques; no data rows; a ragged row;
-            a cell that is not a number; a row with only some of a stream's cells; NaN or
-            infinite values; time not increasing within a stream. Cell errors name the line.
+        InputFileError: the file does not exist, is not a regular file (a FIFO, a device, a folder),
+            or is larger than :data:`ineid.data.csv_rows.MAX_CSV_BYTES`.
+        DatasetError: the file not UTF-8 text or empty; more columns or rows than the limits, a line
+            too long; a repeated column; joint columns for another number of joints; torque columns for
+            another number of joints or naming another joint; missing columns (all named); ``qd``
+            without ``qdd`` or the reverse; neither a wrench nor torques; no data rows; a ragged row;
+            a cell that is not a number; a row with only some of a stream's cells; NaN or infinite
+            values, or values beyond the limit; time not increasing within a stream. Cell errors
+            name the line.
+        ResourceError: the rows would not fit in the memory available.
     """
-    path = Path(path)
+    path = regular_file(path, "the CSV recording", max_bytes=MAX_CSV_BYTES,
+                        limit_name="ineid.data.csv_rows.MAX_CSV_BYTES")
+    with csv_lines(path) as blocks:
+        first = next((b for b in blocks if b[1]), None)
+        if first is None:
+            raise DatasetError(f"{path}: the file is empty; expected a header row "
+                               f"{','.join(csv_columns(model.n_dof, False))}")
+        numbers, lines = first
+        header = parse_header(lines[0], numbers[0], path)
+        columns = _recording_columns(header, model, path)
+        index = {h: k for k, h in enumerate(header)}
+        layout = Layout(path, len(header), tuple(index[c] for c in columns.names), tuple(columns.names),
+                        columns.streams)
+        rest = [(numbers[1:], lines[1:])]
+        table = read_rows((b for part in (rest, blocks) for b in part), layout, path.stat().st_size, progress)
+    if not len(table.values):
+        raise DatasetError(f"{path}: the header has no data rows below it")
+    return _streams(table, columns, model, path)
+
+
+class _Columns:
+    """The columns a recording CSV's header holds, in the order they are read (:func:`_recording_columns`)."""
+
+    def __init__(self, joint_names: list[str], measured: bool, tau: list[str], current: list[str], wrench: bool,
+                 imu_kinds: dict[str, dict[str, list[str]]]) -> None:
+        self.joint_names, self.measured, self.tau, self.current = joint_names, measured, tau, current
+        self.wrench, self.imu_kinds = wrench, imu_kinds
+        self.imu_cols = {name: [c for cols in kinds.values() for c in cols] for name, kinds in imu_kinds.items()}
+        self.names = ["time", *joint_names, *(WRENCH_COLUMNS if wrench else ()),
+                      *(c for cols in self.imu_cols.values() for c in cols)]
+        k0 = 1 + len(joint_names) + (6 if wrench else 0)
+        spans = [(1, 1 + len(joint_names))] + ([(1 + len(joint_names), k0)] if wrench else [])
+        for cols in self.imu_cols.values():
+            spans.append((k0, k0 + len(cols)))
+            k0 += len(cols)
+        self.streams = tuple(spans)
+
+
+def _recording_columns(header: list[str], model, path: Path) -> _Columns:
+    """Which of the header's columns a recording of ``model`` reads; the header's mistakes, named."""
     n = model.n_dof
-    numbered = read_csv_rows(path)
-    rows = [cells for _, cells in numbered]
-    line_of = [k for k, _ in numbered]
-    if not rows:
-        raise DatasetError(f"{path}: the file is empty; expected a header row {','.join(csv_columns(n, False))}")
-    header = [h.strip().lower() for h in rows[0]]
-    dup = sorted({h for h in header if header.count(h) > 1 and h})
-    if dup:
-        raise DatasetError(f"{path}: column {dup[0]!r} appears more than once in the header")
     joint_index = [j[1] for h in header if (j := _joint_column(h)) is not None]
     if joint_index and (max(joint_index) != n or min(joint_index) < 1):
         found = max(joint_index)
@@ -146,11 +190,12 @@ def read_csv_streams(path: str | Path, model, progress=None):
             if min(joint_index) >= 1
             else f"{path}: joint columns count from 1 (q1, qd1, qdd1), found index 0"
         )
+    names = set(header)
     tau_cols = _channel_columns(header, "tau", "joint torque", model, path)
     current_cols = _channel_columns(header, "i", "motor current", model, path)
-    has_wrench_cols = any(c in header for c in WRENCH_COLUMNS) or not (tau_cols or current_cols)
+    has_wrench_cols = any(c in names for c in WRENCH_COLUMNS) or not (tau_cols or current_cols)
     required = ["time", *(f"q{i}" for i in range(1, n + 1)), *(WRENCH_COLUMNS if has_wrench_cols else ())]
-    missing = [c for c in required if c not in header]
+    missing = [c for c in required if c not in names]
     if missing:
         raise DatasetError(
             f"{path}: missing column{'s' if len(missing) > 1 else ''} {', '.join(missing)}; "
@@ -161,97 +206,61 @@ def read_csv_streams(path: str | Path, model, progress=None):
 
     imu_kinds = imu_column_kinds(header, path)
     deriv = [f"{p}{i}" for p in ("qd", "qdd") for i in range(1, n + 1)]
-    present = [c for c in deriv if c in header]
+    present = [c for c in deriv if c in names]
     if present and len(present) != len(deriv):
-        absent = [c for c in deriv if c not in header]
+        absent = [c for c in deriv if c not in names]
         raise DatasetError(
             f"{path}: missing column{'s' if len(absent) > 1 else ''} {', '.join(absent)}; give all of "
             f"qd1..qd{n} and qdd1..qdd{n}, or none (then they are derived from the joint angles)"
         )
     joint_names = csv_columns(n, derivatives=bool(present))[1:-6] + tau_cols + current_cols
-    names = ["time", *joint_names, *(WRENCH_COLUMNS if has_wrench_cols else ())]
-    imu_cols = {name: [c for cols in kinds.values() for c in cols] for name, kinds in imu_kinds.items()}
-    names += [c for cols in imu_cols.values() for c in cols]
-    col = [header.index(c) for c in names]
-    body = rows[1:]
-    if not body:
-        raise DatasetError(f"{path}: the header has no data rows below it")
-    n_joint = len(joint_names)  # q (and qd, qdd, tau, i) columns: the joints' stream
-    data = np.full((len(body), len(names)), np.nan)
-    has_joint = np.ones(len(body), dtype=bool)
-    has_wrench = np.full(len(body), has_wrench_cols)
-    k0 = 1 + n_joint + (6 if has_wrench_cols else 0)
-    streams = [(1, 1 + n_joint, has_joint)] + ([(1 + n_joint, k0, has_wrench)] if has_wrench_cols else [])
-    has_imu = {}
-    for name, cols in imu_cols.items():
-        has_imu[name] = np.ones(len(body), dtype=bool)
-        streams.append((k0, k0 + len(cols), has_imu[name]))
-        k0 += len(cols)
-    for i, row in enumerate(body):
-        line = line_of[i + 1]
-        if len(row) != len(header):
-            raise DatasetError(f"{path}: line {line} has {len(row)} cells, the header has {len(header)}")
-        cells = [row[c].strip() for c in col]
-        empty = [not c for c in cells]
-        for lo, hi, flag in streams:
-            if all(empty[lo:hi]):
-                flag[i] = False
-            elif any(empty[lo:hi]):
-                k = lo + empty[lo:hi].index(True)
-                raise DatasetError(
-                    f"{path}: line {line}, column {names[k]!r} is empty while others of its stream are not; "
-                    "a row holds all the cells of each of its streams (the joints, the wrench, an IMU) or none"
-                )
-        if empty[0]:
-            raise DatasetError(f"{path}: line {line}, column 'time' is empty")
-        if not (has_joint[i] or has_wrench[i] or any(f[i] for f in has_imu.values())):
-            raise DatasetError(f"{path}: line {line} holds a time but no joint, wrench or IMU values")
-        for k, cell in enumerate(cells):
-            if cell:
-                try:
-                    data[i, k] = float(cell)
-                except ValueError:
-                    raise DatasetError(f"{path}: line {line}, column {names[k]!r}: {cell!r} is not a number") from None
-                if not np.isfinite(data[i, k]):
-                    raise DatasetError(
-                        f"{path}: line {line}, column {names[k]!r} is {cell}; values must be finite: drop or "
-                        "repair those rows"
-                    )
-        if progress is not None and (i + 1) % 10000 == 0:
-            progress(i + 1, len(body))
-    checked = [("joint", has_joint), ("wrench", has_wrench)][: 1 + has_wrench_cols]
-    for name, mask in [*checked, *((f"IMU {k!r}", f) for k, f in has_imu.items())]:
-        rows_k = np.flatnonzero(mask)
-        t = data[rows_k, 0]
-        if len(rows_k) < 2:
-            raise DatasetError(f"{path}: {len(rows_k)} {name} sample{'s' if len(rows_k) != 1 else ''}; a recording needs many more")
+    return _Columns(joint_names, bool(present), tau_cols, current_cols, has_wrench_cols, imu_kinds)
+
+
+def _streams(table: Table, columns: _Columns, model, path: Path) -> Streams:
+    """The rows read, split into the streams (each on its own rows) and checked for increasing time."""
+    n, data, names = model.n_dof, table.values, columns.names
+    flags = {"joint": table.present[:, 0]}
+    if columns.wrench:
+        flags["wrench"] = table.present[:, 1]
+    for k, name in enumerate(columns.imu_cols, start=len(flags)):
+        flags[f"IMU {name!r}"] = table.present[:, k]
+    rows = {}
+    for name, mask in flags.items():
+        rows[name] = data if mask.all() else data[mask]  # one clock (the usual file): views, no copies
+        t = rows[name][:, 0]
+        if len(t) < 2:
+            raise DatasetError(f"{path}: {len(t)} {name} sample{'s' if len(t) != 1 else ''}; a recording needs many "
+                               "more")
         bad = np.flatnonzero(np.diff(t) <= 0)
         if bad.size:
-            raise DatasetError(
-                f"{path}: time does not increase at line {line_of[rows_k[bad[0] + 1] + 1]} ({name} samples); "
-                "sort the rows or fix the time column"
-            )
-    jr, wr = data[has_joint], data[has_wrench]
-    q = jr[:, 1 : 1 + n]
-    qd = jr[:, 1 + n : 1 + 2 * n] if present else None
-    qdd = jr[:, 1 + 2 * n : 1 + 3 * n] if present else None
-    k0 = 1 + (3 * n if present else n)
-    tau = jr[:, k0 : k0 + n] if tau_cols else None
-    k0 += n if tau_cols else 0
-    current = jr[:, k0 : k0 + n] if current_cols else None
-    if progress is not None:
-        progress(len(body), len(body))
+            line = table.lines[np.flatnonzero(mask)[bad[0] + 1]]
+            raise DatasetError(f"{path}: time does not increase at line {line} ({name} samples); sort the rows or "
+                               "fix the time column")
+    jr = rows["joint"]
+    k0 = 1 + (3 * n if columns.measured else n)
+    tau = jr[:, k0 : k0 + n] if columns.tau else None
+    k0 += n if columns.tau else 0
     imus = []
-    for name, kinds in imu_kinds.items():
-        rows_k = data[has_imu[name]]
-        imus.append(ImuStream(name, rows_k[:, 0], {k: rows_k[:, [names.index(c) for c in cols]]
-                                                   for k, cols in kinds.items()}, f"columns imu_{name}_*"))
+    for name, kinds in columns.imu_kinds.items():
+        r = rows[f"IMU {name!r}"]
+        imus.append(ImuStream(name, r[:, 0], {k: r[:, [names.index(c) for c in cols]] for k, cols in kinds.items()},
+                              f"columns imu_{name}_*"))
+    n_joint = len(columns.joint_names)
+    wr = rows.get("wrench")
     return Streams(
-        joint_time=jr[:, 0], q=q, qd=qd, qdd=qdd, wrench_time=wr[:, 0] if has_wrench_cols else None,
-        wrench=wr[:, 1 + n_joint : 7 + n_joint] if has_wrench_cols else None, tau=tau, current=current,
+        joint_time=jr[:, 0],
+        q=jr[:, 1 : 1 + n],
+        qd=jr[:, 1 + n : 1 + 2 * n] if columns.measured else None,
+        qdd=jr[:, 1 + 2 * n : 1 + 3 * n] if columns.measured else None,
+        wrench_time=None if wr is None else wr[:, 0],
+        wrench=None if wr is None else wr[:, 1 + n_joint : 7 + n_joint],
+        tau=tau,
+        current=jr[:, k0 : k0 + n] if columns.current else None,
         imus=tuple(imus),
-        source=str(path), origin={"format": "csv", "file": path.name, "rows": int(len(body))},
-    )  # fmt: skip
+        source=str(path),
+        origin={"format": "csv", "file": path.name, "rows": int(len(data))},
+    )
 
 
 def _joint_column(name: str) -> tuple[str, int] | None:

@@ -45,7 +45,15 @@ from ineid.data.recording_channels import (  # noqa: F401  (resolve_sensor re-ex
     rider_channels,
 )
 from ineid.data.schema import Dataset, DatasetMeta
-from ineid.data.streams import ANGLE_UNITS, SI_UNITS, Streams, check_units, in_si_units, units_note
+from ineid.data.recording_limits import check_cutoff, check_import_settings, check_magnitudes, check_min_rate
+from ineid.data.streams import (
+    SI_UNITS,
+    TIME_LIMIT,
+    VALUE_LIMIT,
+    Streams,
+    in_si_units,
+    units_note,
+)
 from ineid.errors import DatasetError
 from ineid.progress import Progress
 
@@ -107,18 +115,7 @@ class ImportSettings:
     estimation: object | None = None
 
     def __post_init__(self) -> None:
-        check_units(self.time_unit, self.force_unit, self.moment_unit)
-        if self.angle_unit not in ANGLE_UNITS:
-            raise DatasetError(f"angle_unit must be one of {', '.join(ANGLE_UNITS)}, got {self.angle_unit!r}")
-        if not (math.isfinite(self.wrench_scale) and self.wrench_scale > 0):
-            raise DatasetError(f"wrench_scale must be a positive finite factor, got {self.wrench_scale}; "
-                               "to negate the wrench use flip_wrench (--flip-wrench)")
-        for name in ("cutoff", "rate"):
-            v = getattr(self, name)
-            if v is not None and not (v > 0 and math.isfinite(v)):
-                raise DatasetError(f"{name} must be a positive number of Hz, got {v}")
-        if not math.isfinite(self.delay):
-            raise DatasetError(f"delay must be a finite number of seconds, got {self.delay}")
+        check_import_settings(self)
 
 
 DelayEstimator = Callable[[Streams, object, ImportSettings, float], DelayEstimate]
@@ -151,6 +148,7 @@ def _check_stream(name: str, t: np.ndarray, arrays: dict[str, np.ndarray], sourc
                 f"{source}: the {name} stream's {label} holds {what} at sample {k}{when} ({len(rows)} sample"
                 f"{'s' if len(rows) != 1 else ''} in all); values must be finite: drop or repair those samples"
             )
+        check_magnitudes(a, f"{source}: the {name} stream's {label}", TIME_LIMIT if label == "time" else VALUE_LIMIT)
     return signals.median_interval(t, f"{source}: the {name} stream")
 
 
@@ -175,6 +173,7 @@ def _check_rate(rate: float | None, joint_rate: float, wrench_rate: float, overl
     if rate is None:
         return
     fastest = max(joint_rate, wrench_rate)
+    check_min_rate(rate, overlap, MAX_UPSAMPLING * fastest)
     if rate > MAX_UPSAMPLING * fastest * (1 + 1e-9):  # the median interval of printed time stamps is inexact
         raise DatasetError(
             f"--rate {rate:g} Hz is more than {MAX_UPSAMPLING:g} x the faster stream's rate ({fastest:g} Hz): "
@@ -293,6 +292,8 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
             f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold (Nyquist {rate / 2:g} Hz); "
             f"use --cutoff below {0.45 * rate:g} Hz or a higher --rate"
         )
+    if settings.cutoff is not None:
+        check_cutoff(settings.cutoff, min(tq[-1], tw[-1]) - max(tq[0], tw[0]), rate)
     prepared = _prepare_imus(streams, model, settings, cutoff, tq, priors_cutoff)
     joint_parts = {**joint_arrays, **riders}
     if cutoff is not None:

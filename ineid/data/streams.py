@@ -15,6 +15,28 @@ import numpy as np
 
 from ineid.errors import DatasetError
 
+VALUE_LIMIT = 1e9
+"""The largest magnitude ineid reads for a recorded value (angles, velocities, torques, currents, forces,
+moments, IMU readings) in the file's own units: beyond anything a sensor reports in any unit a lab logs
+in (a 10 kN force in mN is 1e7; an hour of a joint turning at 10 rad/s, in degrees, is 2e6), so a larger
+value is a corrupt cell or a wrong column, and it would overflow the filter's and the solver's squares."""
+TIME_LIMIT = 1e19
+"""The largest magnitude of a recorded time stamp: nanoseconds since 1970 fit (1.8e18 in 2027)."""
+
+
+def first_beyond(a: np.ndarray, limit: float) -> int | None:
+    """The first row of ``a`` (N, ...) holding a finite value of magnitude above ``limit``, or None.
+
+    NaN and infinite values are left to the finiteness checks, which name them as such.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    if not a.size:
+        return None
+    a = a.reshape(len(a), -1)
+    with np.errstate(invalid="ignore"):
+        rows = np.flatnonzero(((np.abs(a) > limit) & np.isfinite(a)).any(axis=1))
+    return int(rows[0]) if rows.size else None
+
 
 @dataclass
 class Streams:
