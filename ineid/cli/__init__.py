@@ -23,8 +23,8 @@ import warnings
 
 import click
 
-from ineid._interrupts import Terminated, terminate_on_sigterm
 from ineid._faults import describe_fault
+from ineid._interrupts import Terminated, terminate_on_sigterm
 from ineid.errors import IneidError
 
 
@@ -62,7 +62,7 @@ class IneidGroup(click.Group):
 
 
 def _left_behind(e: BaseException) -> str:
-    """What an interrupted command left on purpose (``options.on_interrupt``), else the usual promise."""
+    """What an interrupted command left on purpose (``output_files.on_interrupt``), else the usual promise."""
     return getattr(e, "ineid_left_behind", None) or "no partial output file was left"
 
 

@@ -8,23 +8,20 @@ from pathlib import Path
 
 import click
 
+from ineid.cli.imu_options import check_imu_generate, imu_generate, imu_import, imu_rehearsal
 from ineid.cli.options import (
     SEED,
     FiniteFloatRange,
     LibraryChoice,
     LibraryOption,
     deprecated_alias,
-    folder_inputs,
     noise_model,
     noise_option,
-    overwrite_option,
-    prepare_output,
     quiet,
-    robot_inputs,
     robot_options,
 )
-from ineid.cli.imu_options import check_imu_generate, imu_generate, imu_import, imu_rehearsal
 from ineid.cli.output import ProgressBar, console, plain, print_findings, shown, table
+from ineid.cli.output_files import folder_inputs, overwrite_option, prepare_output, robot_inputs
 from ineid.cli.simulation import (
     channels_option,
     drives,

@@ -17,13 +17,11 @@ from ineid.cli.options import (
     LibraryOption,
     noise_model,
     noise_option,
-    overwrite_option,
-    prepare_output,
     quiet,
-    robot_inputs,
     robot_options,
 )
 from ineid.cli.output import ProgressBar, console, shown, table
+from ineid.cli.output_files import overwrite_option, prepare_output, robot_inputs
 from ineid.cli.simulation import IMU_NOISE_KEYS
 
 _SETTINGS = "ineid.identify.excite:ExcitationSettings"

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import click
 
-from ineid.cli.options import overwrite_option, prepare_output, results_inputs
 from ineid.cli.output import plain
+from ineid.cli.output_files import overwrite_option, prepare_output, results_inputs
 
 
 @click.command("export-mjcf")

@@ -20,18 +20,14 @@ from ineid.cli.options import (
     deprecated_alias,
     names_in,
     numbers,
-    overwrite_option,
     parse_selection,
-    prepare_output,
     quiet,
-    results_inputs,
-    robot_inputs,
     robot_options,
-    run_inputs,
     select_alias,
     select_option,
 )
 from ineid.cli.output import ProgressBar, console, plain, print_findings, print_results, shown, table
+from ineid.cli.output_files import overwrite_option, prepare_output, results_inputs, robot_inputs, run_inputs
 from ineid.cli.report import check_solve_outputs, plot_span_option, report_option, write_solve_outputs
 
 _SOLVE = "ineid.identify.solve"

@@ -14,13 +14,13 @@ from ineid.cli.options import (
     deprecated_alias,
     names_in,
     numbers,
-    overwrite_option,
     parse_selection,
     quiet,
     select_alias,
     select_option,
 )
 from ineid.cli.output import ProgressBar, console, print_evaluation, table
+from ineid.cli.output_files import overwrite_option
 
 _CFG = "ineid.learn.train:TrainConfig"
 _MODEL = "ineid.learn.models:ModelSpec"
@@ -111,7 +111,7 @@ def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, arch, ac
     import json  # noqa: PLC0415
 
     from ineid._atomic import atomic_write  # noqa: PLC0415
-    from ineid.cli.options import on_interrupt, prepare_output  # noqa: PLC0415
+    from ineid.cli.output_files import on_interrupt, prepare_output  # noqa: PLC0415
     from ineid.data import load_dataset  # noqa: PLC0415
     from ineid.learn import evaluate, load_run, train  # noqa: PLC0415
     from ineid.learn.runs import CHECKPOINT, EVALUATION, RUN_FILES, holds_run  # noqa: PLC0415
@@ -178,7 +178,7 @@ def evaluate_cmd(run_dir, data_path, selection, no_linear, out, overwrite) -> No
     import json  # noqa: PLC0415
 
     from ineid._atomic import atomic_write  # noqa: PLC0415
-    from ineid.cli.options import prepare_output, run_inputs  # noqa: PLC0415
+    from ineid.cli.output_files import prepare_output, run_inputs  # noqa: PLC0415
     from ineid.data import load_dataset  # noqa: PLC0415
     from ineid.learn import evaluate, load_run  # noqa: PLC0415
     from ineid.learn.runs import EVALUATION  # noqa: PLC0415
@@ -235,7 +235,7 @@ def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, s
     continue it with the same command and --resume.
     """
     from ineid._atomic import check_output  # noqa: PLC0415
-    from ineid.cli.options import on_interrupt, prepare_output  # noqa: PLC0415
+    from ineid.cli.output_files import on_interrupt, prepare_output  # noqa: PLC0415
     from ineid.data import load_dataset  # noqa: PLC0415
     from ineid.learn import Grid, sweep  # noqa: PLC0415
     from ineid.learn.sweep import SWEEP_RECORD, check_sweep_folder, run_name, trial_state  # noqa: PLC0415

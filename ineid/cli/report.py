@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from ineid.cli.options import overwrite_option, prepare_output, results_inputs
 from ineid.cli.output import console, plain, shown
+from ineid.cli.output_files import overwrite_option, prepare_output, results_inputs
 
 plot_span_option = click.option(
     "--plot-span", "plot_span", default=None, metavar="START:STOP",

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import click
 
-from ineid.cli.options import lock_option, overwrite_option, robot_options
+from ineid.cli.options import lock_option, robot_options
 from ineid.cli.output import console, plain, shown, table
+from ineid.cli.output_files import overwrite_option
 
 
 @click.group()
@@ -86,7 +87,7 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
     """
     from ineid._atomic import check_output  # noqa: PLC0415
     from ineid._trust import MANIFEST, is_manifest  # noqa: PLC0415
-    from ineid.cli.options import check_not_input
+    from ineid.cli.output_files import check_not_input
     from ineid.codegen import default_codegen_dir, generate_code  # noqa: PLC0415
     from ineid.generated import BUILTIN_DIR, file_names  # noqa: PLC0415
     from ineid.robots import BUILTIN_ROBOTS  # noqa: PLC0415

@@ -7,17 +7,9 @@ from pathlib import Path
 
 import click
 
-from ineid.cli.options import (
-    SEED,
-    PlotFile,
-    names_in,
-    overwrite_option,
-    prepare_output,
-    quiet,
-    robot_inputs,
-    robot_options,
-)
+from ineid.cli.options import SEED, PlotFile, names_in, quiet, robot_options
 from ineid.cli.output import ProgressBar, console, table
+from ineid.cli.output_files import overwrite_option, prepare_output, robot_inputs
 
 _STUDY = "ineid.identify.study_formulations"
 

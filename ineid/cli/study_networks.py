@@ -8,8 +8,9 @@ from pathlib import Path
 
 import click
 
-from ineid.cli.options import FiniteFloatRange, LibraryChoice, numbers, overwrite_option, quiet
+from ineid.cli.options import FiniteFloatRange, LibraryChoice, numbers, quiet
 from ineid.cli.output import ProgressBar, console, table
+from ineid.cli.output_files import overwrite_option
 
 _NETS = "ineid.learn.paper_networks"
 
@@ -53,7 +54,7 @@ def study_networks(ctx, plan_name, quick, data_path, epochs, siamese_epochs, n_t
     robust scaler, SGD; the Siamese Network 6) judged beyond the seed-to-seed spread."""
     from dataclasses import replace  # noqa: PLC0415
 
-    from ineid.cli.options import on_interrupt, prepare_output  # noqa: PLC0415
+    from ineid.cli.output_files import on_interrupt, prepare_output  # noqa: PLC0415
     from ineid.learn.paper_claims import check_claims, write_claims  # noqa: PLC0415
     from ineid.learn.paper_networks import (  # noqa: PLC0415
         FILE,

@@ -12,20 +12,9 @@ from pathlib import Path
 
 import click
 
-from ineid.cli.options import (
-    SEED,
-    WORKERS,
-    LibraryChoice,
-    PlotFile,
-    names_in,
-    numbers,
-    overwrite_option,
-    prepare_output,
-    quiet,
-    robot_inputs,
-    robot_options,
-)
+from ineid.cli.options import SEED, WORKERS, LibraryChoice, PlotFile, names_in, numbers, quiet, robot_options
 from ineid.cli.output import ProgressBar, console, shown, table
+from ineid.cli.output_files import overwrite_option, prepare_output, robot_inputs
 
 _STUDY = "ineid.identify.study_paper"
 
