@@ -149,3 +149,21 @@ def test_stacked_wrench_and_torques(model, frames):
     assert rel_err(rows[:, 6:], model.joint_torque_regressor(q, qd, qdd)) < 1e-15
     assert dataclasses.replace(FULL, friction=()).extra_names(model) == tuple(
         f"{j}.{t}" for j in model.joint_names for t in ("offset", "Ia"))
+
+
+def test_a_dataset_whose_wrist_sensor_sees_nothing_is_one_line(run, tmp_path):
+    """A dataset measuring the wrench on the last link (zero at every frame) is refused by solve in one line, not a
+    stack error deep in the fused kernels; data generate refuses to write one."""
+    import h5py
+
+    good = tmp_path / "upper.h5"
+    assert run("-q", "data", "generate", "sweaty-arm", "--factorial", "2", "--n-frames", "10",
+               "--sensor-pose", "upper_arm", "--out", good).exit_code == 0
+    r = run("-q", "data", "generate", "sweaty-arm", "--factorial", "2", "--n-frames", "10",
+            "--sensor-pose", "forearm", "--out", tmp_path / "x.h5")
+    assert r.exit_code == 1 and "a sensor on 'forearm' reads nothing" in r.output and not (tmp_path / "x.h5").exists()
+    with h5py.File(good, "r+") as f:  # the same dataset, its channel moved to the last link
+        f.attrs["channels"] = f.attrs["channels"].replace('"link": "upper_arm"', '"link": "forearm"')
+    r = run("-q", "solve", good, "--out", tmp_path / "r.h5")
+    assert r.exit_code == 1 and "a sensor on 'forearm' reads nothing" in r.output, r.output
+    assert "Traceback" not in r.output and not (tmp_path / "r.h5").exists()

@@ -157,6 +157,19 @@ def sensor_channel(text: str | None, model, key: str | None = None, offsets: boo
     return BaseWrench(key=key or "wrench", offsets=offsets, sensor=None if base.is_identity else base)
 
 
+def refuse_nothing_beyond(model, link: str) -> None:
+    """One line when nothing the model moves is beyond ``link``: a sensor there would read zero at every frame."""
+    if any(model.link_wrench_nonzero(link)):
+        return
+    moving = [j.link for j in model.chain.joints]
+    earlier = [name for name in moving[: moving.index(link)] if any(model.link_wrench_nonzero(name))]
+    raise DatasetError(
+        f"a sensor on {link!r} reads nothing: no moving link or payload of {model.name} is beyond it; mount it on "
+        f"{'an earlier link (' + ', '.join(earlier) + ')' if earlier else 'an earlier link'}, or name a payload "
+        f"welded to {link} in --unknown-links"
+    )
+
+
 def _refuse_known_beyond(model, frame: str) -> None:
     """One line when a known link with mass is welded beyond ``frame`` (the model folds it into the body)."""
     beyond, grew = {frame}, True

@@ -17,7 +17,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ineid.channels import ChannelSet
+from ineid.channels import ChannelSet, LinkWrench
+from ineid.channels.link_wrench import refuse_nothing_beyond
 from ineid.data.imu_rehearsal import ImuRehearsal
 from ineid.data.noise import NoiseModel
 from ineid.data.sampling import (
@@ -143,6 +144,9 @@ class GenerationPlan:
             extra_truth=dict(spec.extra_truth) if spec.extra_truth else None,
         )
         self.channels = self.meta.channels
+        for channel in self.channels:  # a sensor with nothing beyond it would read zeros
+            if isinstance(channel, LinkWrench):
+                refuse_nothing_beyond(model, channel.link)
         if self.noise is not None:
             self._check_noise()
         self.actuation = actuation_plan(model, self.channels, self.meta.extra_truth)

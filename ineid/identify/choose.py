@@ -24,7 +24,8 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
-from ineid.channels import BaseWrench, ChannelSet
+from ineid.channels import BaseWrench, ChannelSet, LinkWrench
+from ineid.channels.link_wrench import refuse_nothing_beyond
 from ineid.errors import IdentificationError
 from ineid.identify.fused import check_no_extra_columns
 
@@ -137,9 +138,13 @@ def solve_channels(ds, settings, model) -> ChannelSet:
     Raises:
         IdentificationError: an unknown ``use`` name, actuation models without joint torques, or channels
             ``casadi-c`` cannot fit (extra kept columns, anything but one base wrench in the base frame).
+        DatasetError: a wrist sensor with nothing the model moves beyond it (it reads zeros).
     """
     channels = with_actuation(select_channels(ds.meta.channels, settings.use), settings)
     channels = channels.with_offsets(settings.bias == "estimate")
+    for channel in channels:
+        if isinstance(channel, LinkWrench):
+            refuse_nothing_beyond(model, channel.link)
     if settings.backend == "casadi-c":
         check_no_extra_columns(channels, model)
         (first, *rest) = channels
