@@ -112,7 +112,10 @@ def parse_json(text: str | bytes, *, max_depth: int = JSON_MAX_DEPTH, max_bytes:
         ValueError: ``json.JSONDecodeError`` (not JSON), ``UnicodeDecodeError`` (bytes that are not
             UTF-8), :class:`JsonDepthError` (nested too deep), or a plain ``ValueError`` (too long);
             the caller words it as a damaged file of its own kind.
+        TypeError: ``text`` is neither text nor bytes.
     """
+    if not isinstance(text, (str, bytes, bytearray)):
+        raise TypeError(f"JSON must be text, not {type(text).__name__}")
     data = text.encode("utf-8", "surrogatepass") if isinstance(text, str) else bytes(text)
     if len(data) > max_bytes:
         raise ValueError(f"{len(data):,} bytes, over the {max_bytes:,} bytes ineid reads as JSON (JSON_MAX_BYTES)")
