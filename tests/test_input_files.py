@@ -156,6 +156,22 @@ def test_a_fifo_is_never_opened(tmp_path, what, args):
     assert sorted(p.name for p in tmp_path.iterdir()) == [fifo.name]
 
 
+def test_generate_never_reads_a_fifo_or_binary_file_in_its_output_folder(tmp_path):
+    """`generate --out` looks at an existing module to tell ineid's from the user's: a FIFO is not
+    opened, bytes that are not UTF-8 are not a traceback; both are the user's (--overwrite to replace)."""
+    out = tmp_path / "gen"
+    out.mkdir()
+    os.mkfifo(out / "mixed_chain_jax.py")
+    (out / "mixed_chain_casadi.py").write_bytes(b"\xff\xfe\x00 not text")
+    urdf = FIXTURES / "mixed_chain.urdf"
+    with _Unblock(out / "mixed_chain_jax.py"):
+        line = one_line(run("generate", urdf, "--out", out))
+    assert line == f"Error: {out / 'mixed_chain_jax.py'} exists; pass --overwrite to replace it"
+    (out / "mixed_chain_jax.py").unlink()
+    line = one_line(run("generate", urdf, "--out", out))
+    assert line == f"Error: {out / 'mixed_chain_casadi.py'} exists; pass --overwrite to replace it"
+
+
 # -- JSON -----------------------------------------------------------------------------------------------
 
 DEEP = "[" * 100_000 + "]" * 100_000
