@@ -261,9 +261,8 @@ def test_cache_clear_refuses_a_folder_that_is_not_ineids(tmp_path, monkeypatch):
         r = runner.invoke(main, args)
         assert r.exit_code == 1 and "Traceback" not in r.output
         assert r.output.strip() == (
-            f"Error: {home} is not an ineid cache folder (no CACHEDIR.TAG from ineid, and it holds generated, notes.txt, "
-            "xla); "
-            "nothing removed; set INEID_CACHE_DIR to ineid's own cache folder (or unset it) and clear again")
+            f"Error: {home} is not an ineid cache folder (no CACHEDIR.TAG from ineid, and it holds generated, "
+            "notes.txt, xla); nothing removed; set INEID_CACHE_DIR to ineid's own cache folder (or unset it) and clear again")
     assert sorted(str(p.relative_to(home)) for p in home.rglob("*") if p.is_file()) == [
         "generated/mine.py", "notes.txt", "xla/mine.txt"]
     info = runner.invoke(main, ["cache", "info"])
@@ -300,7 +299,7 @@ def test_a_project_folder_is_never_adopted_or_cleared(tmp_path, monkeypatch, log
             "nothing removed; set INEID_CACHE_DIR to ineid's own cache folder (or unset it) and clear again")
     assert {p.relative_to(project).as_posix(): p.read_text() for p in project.rglob("*") if p.is_file()} == mine
     info = runner.invoke(main, ["cache", "info"])
-    assert f"trust: NOT TRUSTED: the folder is not empty and has no CACHEDIR.TAG from ineid" in info.output
+    assert "trust: NOT TRUSTED: the folder is not empty and has no CACHEDIR.TAG from ineid" in info.output
 
 
 def test_an_empty_folder_is_marked_and_a_planted_marker_fifo_does_not_hang(tmp_path, monkeypatch, logged):
@@ -360,7 +359,7 @@ def test_cache_clear_removes_only_what_ineid_wrote(template, cache_root, tmp_pat
     left = {p.relative_to(cache_root).as_posix() for p in cache_root.rglob("*") if p.is_file() and not p.is_symlink()}
     assert left == {*user, cache.MARKER}
     assert (cache_root / "generated" / "link").is_symlink() and (theirs / "keep.txt").read_text() == "mine"
-    assert not any(p.exists() for p in chain_entries) and not (cache_root / "generated" / generated.name / _trust.MANIFEST).exists()
+    assert not any(p.exists() for p in chain_entries) and not (generated / _trust.MANIFEST).exists()
     for rel in user:
         (cache_root / rel).unlink()
     (cache_root / "generated" / "link").unlink()
