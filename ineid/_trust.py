@@ -30,6 +30,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ineid._atomic import atomic_write
+from ineid._inputs import parse_json, read_json
+from ineid.errors import InputFileError
 
 MANIFEST = "MANIFEST.json"
 """The manifest of the generated modules in a folder: ``{"format": ..., "sha256": {file: hex}}``."""
@@ -158,7 +160,7 @@ def recorded_hashes(directory: Path, *, private: bool, manifest: str = MANIFEST)
         Untrusted: no manifest, an unreadable or damaged one, or (``private``) one that fails the ownership check.
     """
     try:
-        doc = json.loads(read_checked(directory / manifest, private=private))
+        doc = parse_json(read_checked(directory / manifest, private=private))
     except FileNotFoundError:
         raise Untrusted(f"has no {manifest} (written by an older ineid, or not by ineid)") from None
     except (ValueError, UnicodeDecodeError):
@@ -181,8 +183,8 @@ def is_manifest_doc(doc: object) -> bool:
 def is_manifest(path: Path) -> bool:
     """True when ``path`` is a manifest ineid wrote (so ineid may replace it)."""
     try:
-        return is_manifest_doc(json.loads(Path(path).read_bytes()))
-    except (OSError, ValueError, UnicodeDecodeError):
+        return is_manifest_doc(read_json(path, "the manifest"))
+    except (InputFileError, OSError, ValueError):
         return False
 
 

@@ -9,8 +9,11 @@ every folder ineid makes in it (created 0700) belong to the current user and are
 writable by group or others (:mod:`ineid._trust` has the checks, and the content hashes
 checked before code is loaded). A cache folder that fails this is not used at all: one
 warning line, and the process works in a private temporary folder instead.
-A folder ineid creates is marked with a ``CACHEDIR.TAG`` (backup tools skip it; ``ineid
-cache clear`` removes only ineid's own entries of a marked folder).
+ineid's cache is marked with a ``CACHEDIR.TAG`` (backup tools skip it), written when ineid
+creates the folder or finds it empty. A folder that holds anything but has no marker (a project
+folder named by mistake) is never adopted: ineid then works in a private temporary folder, after
+one warning line. ``ineid cache clear`` (:mod:`ineid.cache_clear`) removes only ineid's own
+entries of a marked folder.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import atexit
 import logging
 import os
 import shutil
+import stat
 import sys
 import tempfile
 from dataclasses import dataclass
@@ -71,7 +75,8 @@ class CacheState:
     marked: bool
     """It holds ineid's ``CACHEDIR.TAG``."""
     problem: str | None
-    """Why ineid does not trust it (owned by another user, writable by others), or None."""
+    """Why ineid does not use it (owned by another user, writable by others, not empty and not
+    marked), or None."""
     foreign: tuple[str, ...]
     """Entries that are not ineid's (anything but :data:`SUBDIRS` and the marker)."""
 
@@ -86,29 +91,58 @@ def cache_state() -> CacheState:
     root = cache_dir()
     if not root.exists():
         return CacheState(root, False, False, None, ())
-    problem = root_problem(root)
     try:
         entries = os.listdir(root)
     except OSError:
         entries = []
+    marked = _is_marked(root)
+    problem = root_problem(root) or (None if marked else _unmarked_problem(root))
     foreign = tuple(sorted(set(entries) - {*SUBDIRS, MARKER}))
-    return CacheState(root, True, _is_marked(root), problem, foreign)
+    return CacheState(root, True, marked, problem, foreign)
 
 
 def _is_marked(root: Path) -> bool:
+    """``root`` holds ineid's ``CACHEDIR.TAG``: a regular file, not a link (opened without blocking,
+    so a FIFO planted under the marker's name is not waited on)."""
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0)
     try:
-        with open(root / MARKER, "rb") as f:
-            head = f.read(512).decode("utf-8", "replace")
+        fd = os.open(root / MARKER, flags)
     except OSError:
         return False
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return False
+        head = os.read(fd, 512).decode("utf-8", "replace")
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
     return head.startswith(SIGNATURE) and "created by ineid" in head
+
+
+def _is_marker_temporary(name: str) -> bool:
+    """The temporary file of another process writing the marker (``.CACHEDIR.TAG.<pid>.tmp.TAG``)."""
+    return name.startswith(f".{MARKER}.") and ".tmp" in name
+
+
+def _unmarked_problem(root: Path) -> str | None:
+    """Why the unmarked folder ``root`` is not ineid's to use: it holds something; None when empty."""
+    try:
+        entries = sorted(e for e in os.listdir(root) if not _is_marker_temporary(e))
+    except OSError as e:
+        return f"cannot be read ({e.strerror or e})"
+    if not entries:
+        return None
+    shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
+    return f"is not empty and has no CACHEDIR.TAG from ineid (it holds {shown})"
 
 
 def _prepare_root(root: Path) -> str | None:
     """Create the cache folder (0700, marked) if missing; why it cannot be trusted, or None.
 
-    An existing folder is marked when it holds nothing but ineid's entries (empty, or a
-    cache of an older ineid); a marked folder readable by others is tightened to 0700.
+    An existing folder without the marker is marked only when it is empty; one that holds
+    anything is not ineid's (the reason is returned, nothing is written in it). A marked
+    folder readable by others is tightened to 0700.
     """
     if not root.exists():
         try:
@@ -124,14 +158,17 @@ def _prepare_root(root: Path) -> str | None:
     problem = root_problem(root)
     if problem:
         return problem
+    marked = _is_marked(root)
+    if not marked:
+        problem = _unmarked_problem(root)
+        if problem:
+            return problem
     try:
-        marked = _is_marked(root)
-        if not marked and set(os.listdir(root)) <= set(SUBDIRS):
+        if not marked:
             from ineid._atomic import atomic_write  # noqa: PLC0415
 
             atomic_write(root / MARKER, _MARKER_TEXT)
-            marked = True
-        if marked and os.stat(root).st_mode & 0o077:
+        if os.stat(root).st_mode & 0o077:
             os.chmod(root, PRIVATE_MODE)
     except OSError:
         pass  # a read-only cache can still be read
@@ -164,10 +201,13 @@ def trusted_root() -> Path | None:
     problem = _prepare_root(root)
     if problem is None:
         return root
-    fix = f"chmod 700 {root}, or set" if "writable" in problem else "set"
+    if MARKER in problem:
+        fix = "set INEID_CACHE_DIR to a new or empty folder (ineid marks it as its cache), or unset it"
+    else:
+        fix = f"{f'chmod 700 {root}, or ' if 'writable' in problem else ''}set INEID_CACHE_DIR to a folder of your own"
     _warn_once(
         f"the cache folder {root} {problem}, so ineid loads no code from it and works without a cache "
-        f"this time (in a private temporary folder); fix: {fix} INEID_CACHE_DIR to a folder of your own"
+        f"this time (in a private temporary folder); fix: {fix}"
     )
     return None
 
@@ -255,70 +295,6 @@ def enable_compilation_cache() -> Path | None:
 
 _checked_xla: dict[str, Path | None] = {}
 """Per cache folder, the verdict of :func:`_private_xla_dir` (this runs before every kernel call)."""
-
-
-@dataclass(frozen=True)
-class Cleared:
-    """What :func:`clear_cache` removed."""
-
-    path: Path
-    files: int
-    bytes: int
-    adopted: bool
-    """The folder had no marker (a cache of an older ineid) and held only ineid's entries."""
-    kept: tuple[str, ...]
-    """Entries of a marked folder that are not ineid's, left in place."""
-
-
-def _count(path: Path) -> tuple[int, int]:
-    if path.is_symlink() or path.is_file():
-        return 1, path.lstat().st_size
-    files = [p for p in path.rglob("*") if p.is_file() and not p.is_symlink()] if path.is_dir() else []
-    return len(files), sum(p.lstat().st_size for p in files)
-
-
-def clear_cache(xla_only: bool = False) -> Cleared:
-    """Remove what ineid put in :func:`cache_dir`: its :data:`SUBDIRS` (with ``xla_only`` only the
-    XLA folder), then, when nothing else is in it, the marker and the folder itself.
-
-    A folder without ineid's ``CACHEDIR.TAG`` is cleared only when it holds nothing but
-    ineid's entries (a cache made by an older ineid); anything else is refused, nothing removed.
-
-    Raises:
-        CacheError: the folder is not ineid's (no marker and other entries), or not a folder.
-    """
-    from ineid.errors import CacheError  # noqa: PLC0415
-
-    state = cache_state()
-    root = state.path
-    if not state.exists:
-        return Cleared(root, 0, 0, False, ())
-    if not root.is_dir():
-        raise CacheError(f"the cache folder {root} is not a folder; set INEID_CACHE_DIR to a folder of ineid's own")
-    if not state.marked and state.foreign:
-        shown = ", ".join(state.foreign[:3]) + (", ..." if len(state.foreign) > 3 else "")
-        raise CacheError(
-            f"{root} is not an ineid cache folder (no CACHEDIR.TAG from ineid, and it holds {shown}); nothing "
-            f"removed; set INEID_CACHE_DIR to ineid's own cache folder (or unset it) and clear again"
-        )
-    targets = [root / XLA_SUBDIR] if xla_only else [root / name for name in SUBDIRS]
-    files = size = 0
-    for target in targets:
-        if not (target.exists() or target.is_symlink()):
-            continue
-        n, b = _count(target)
-        files, size = files + n, size + b
-        if target.is_dir() and not target.is_symlink():
-            shutil.rmtree(target)
-        else:
-            target.unlink()
-    if not xla_only and not state.foreign:
-        (root / MARKER).unlink(missing_ok=True)
-        try:
-            root.rmdir()
-        except OSError:
-            pass  # something appeared meanwhile: it stays
-    return Cleared(root / XLA_SUBDIR if xla_only else root, files, size, not state.marked, state.foreign)
 
 
 def _listen() -> None:

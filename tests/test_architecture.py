@@ -34,6 +34,7 @@ TOP_LEVEL = {
     "ineid._interrupts": "foundation",
     "ineid._version": "foundation",
     "ineid.cache": "foundation",
+    "ineid.cache_clear": "foundation",
     "ineid.progress": "foundation",
     "ineid.params": "params",
     "ineid.codegen": "symbolic",  # finds or derives generated code: it may call SymPy (lazily)

@@ -261,8 +261,8 @@ def test_cache_clear_refuses_a_folder_that_is_not_ineids(tmp_path, monkeypatch):
         r = runner.invoke(main, args)
         assert r.exit_code == 1 and "Traceback" not in r.output
         assert r.output.strip() == (
-            f"Error: {home} is not an ineid cache folder (no CACHEDIR.TAG from ineid, and it holds notes.txt); "
-            "nothing removed; set INEID_CACHE_DIR to ineid's own cache folder (or unset it) and clear again")
+            f"Error: {home} is not an ineid cache folder (no CACHEDIR.TAG from ineid, and it holds generated, "
+            "notes.txt, xla); nothing removed; set INEID_CACHE_DIR to ineid's own cache folder (or unset it) and clear again")
     assert sorted(str(p.relative_to(home)) for p in home.rglob("*") if p.is_file()) == [
         "generated/mine.py", "notes.txt", "xla/mine.txt"]
     info = runner.invoke(main, ["cache", "info"])
@@ -270,28 +270,98 @@ def test_cache_clear_refuses_a_folder_that_is_not_ineids(tmp_path, monkeypatch):
     assert "other entries (not ineid's, never removed): notes.txt" in info.output
 
 
-def test_cache_clear_removes_ineids_entries_of_a_marked_folder(cache_root):
-    cache.private_folder("generated", "abc").joinpath("m.py").write_text("# code\n")
-    cache.private_folder("chains").joinpath("c.json").write_text("{}")
+@pytest.mark.parametrize("layout", ["generated and chains", "generated only"])
+def test_a_project_folder_is_never_adopted_or_cleared(tmp_path, monkeypatch, logged, layout):
+    """INEID_CACHE_DIR names a project folder holding ineid's subfolder names with the user's files
+    and no marker: `robot show` works in a private temporary folder (one warning naming the folder and
+    the fix) and writes nothing there; `cache clear` refuses in one line; nothing of the user's is lost."""
+    project = tmp_path / "project"
+    mine = {"generated/my_model.py": "# mine\n", "chains/robots.json": "{}"}
+    if layout == "generated only":
+        mine.pop("chains/robots.json")
+    for rel, text in mine.items():
+        (project / rel).parent.mkdir(parents=True, exist_ok=True)
+        (project / rel).write_text(text)
+    monkeypatch.setenv("INEID_CACHE_DIR", str(project))
+    monkeypatch.setattr(cache, "_warned", set())
     runner = CliRunner()
+    r = runner.invoke(main, ["robot", "show", str(URDF)])
+    assert r.exit_code == 0, r.output
+    shown = "chains, generated" if len(mine) == 2 else "generated"
+    assert logged == [
+        f"the cache folder {project} is not empty and has no CACHEDIR.TAG from ineid (it holds {shown}), so ineid "
+        "loads no code from it and works without a cache this time (in a private temporary folder); fix: set "
+        "INEID_CACHE_DIR to a new or empty folder (ineid marks it as its cache), or unset it"]
+    for args in (["cache", "clear"], ["cache", "clear", "--xla-only"]):
+        r = runner.invoke(main, args)
+        assert r.exit_code == 1 and r.output.strip() == (
+            f"Error: {project} is not an ineid cache folder (no CACHEDIR.TAG from ineid, and it holds {shown}); "
+            "nothing removed; set INEID_CACHE_DIR to ineid's own cache folder (or unset it) and clear again")
+    assert {p.relative_to(project).as_posix(): p.read_text() for p in project.rglob("*") if p.is_file()} == mine
     info = runner.invoke(main, ["cache", "info"])
+    assert "trust: NOT TRUSTED: the folder is not empty and has no CACHEDIR.TAG from ineid" in info.output
+
+
+def test_an_empty_folder_is_marked_and_a_planted_marker_fifo_does_not_hang(tmp_path, monkeypatch, logged):
+    """An existing empty folder becomes ineid's cache (marked), even while another process's marker
+    temporary is there; a FIFO under the marker's name is not a marker (and is never waited on)."""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / f".{cache.MARKER}.99999.tmp.TAG").write_text("")  # another process marking it right now
+    monkeypatch.setenv("INEID_CACHE_DIR", str(empty))
+    assert cache.private_folder("chains") == empty / "chains" and cache.cache_state().marked
+    fifo = tmp_path / "fifo"
+    fifo.mkdir()
+    os.mkfifo(fifo / cache.MARKER)
+    monkeypatch.setenv("INEID_CACHE_DIR", str(fifo))
+    assert not cache.private_folder("chains").is_relative_to(fifo)
+    assert "is not empty and has no CACHEDIR.TAG from ineid (it holds CACHEDIR.TAG)" in logged[-1]
+
+
+def _jax_name(kind: str) -> str:
+    return f"jit_f-{'ab' * 32}-{kind}"
+
+
+def test_cache_clear_removes_only_what_ineid_wrote(template, cache_root, tmp_path):
+    """A marked cache holding ineid's entries (generated code and its manifest, a parsed URDF, a
+    compiled library and its record, JAX's kernels, a killed run's temporaries) and the user's files
+    in every part (unlisted, misnamed, a foreign manifest, a symbolic link to a folder of theirs):
+    clear removes the first kind, names and keeps the second, and follows no link."""
+    from ineid.robots.urdf import CHAIN_SUBDIR, parse_chain
+
+    generated = _fill(default_codegen_dir(load_chain(URDF)), template)
+    parse_chain(URDF.read_bytes(), source="a.urdf")
+    chain_entries = sorted((cache_root / CHAIN_SUBDIR).glob("*.json"))  # this one and load_chain's
+    libs = cache.private_folder("casadi-c")
+    (libs / f"probe_{'0' * 16}.so").write_bytes(b"\x7fELF")
+    _trust.write_manifest(libs, {f"probe_{'0' * 16}.so": b"\x7fELF"}, private=True, manifest=f"probe_{'0' * 16}.json")
+    xla = cache.private_folder("xla")
+    for name in (_jax_name("cache"), _jax_name("atime"), ".lockfile"):
+        (xla / name).write_bytes(b"kernel")
+    (generated / f".mixed_chain_jax.py.{2**22 + 1}.tmp.py").write_text("partial")  # a killed write
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "keep.txt").write_text("mine")
+    user = {"generated/my_model.py": "mine", f"generated/{generated.name}/notes.txt": "mine",
+            f"chains/{'f' * 32}.json": '{"mine": 1}', "chains/mine.json": "{}", "casadi-c/mine.so": "mine",
+            "casadi-c/other.json": '{"format": "x"}', "xla/mine.txt": "mine", "notes.txt": "mine"}
+    for rel, text in user.items():
+        (cache_root / rel).write_text(text)
+    (cache_root / "generated" / "link").symlink_to(theirs)
+    info = CliRunner().invoke(main, ["cache", "info"])
     assert "trust: private" in info.output and "marker: CACHEDIR.TAG present" in info.output
-    (cache_root / "notes.txt").write_text("mine")  # someone else's file in ineid's folder
-    r = runner.invoke(main, ["cache", "clear"])
-    assert r.exit_code == 0 and r.output.splitlines() == [
-        f"removed {cache_root} (2 files, 0.0 MB)", "kept 1 entries that are not ineid's: notes.txt"]
-    assert sorted(p.name for p in cache_root.iterdir()) == [cache.MARKER, "notes.txt"]
-    (cache_root / "notes.txt").unlink()
-    cache.private_folder("chains")
-    assert runner.invoke(main, ["cache", "clear"]).exit_code == 0 and not cache_root.exists()
-
-
-def test_cache_clear_adopts_an_older_ineid_cache(tmp_path, monkeypatch):
-    """No marker, but nothing besides ineid's subfolders: a cache of an older ineid."""
-    (tmp_path / "old" / "generated" / "abc").mkdir(parents=True)
-    (tmp_path / "old" / "generated" / "abc" / "m.py").write_text("# code\n")
-    monkeypatch.setenv("INEID_CACHE_DIR", str(tmp_path / "old"))
     r = CliRunner().invoke(main, ["cache", "clear"])
-    assert r.exit_code == 0 and r.output.strip() == (
-        f"removed {tmp_path / 'old'} (1 files, 0.0 MB) (a cache folder of an older ineid, without the CACHEDIR.TAG marker)")
-    assert not (tmp_path / "old").exists()
+    assert r.exit_code == 0, r.output
+    assert r.output.splitlines() == [
+        f"removed {cache_root} ({9 + len(chain_entries)} files, 0.0 MB)",
+        f"kept 9 entries that are not ineid's: casadi-c/mine.so, casadi-c/other.json, chains/{'f' * 32}.json, "
+        f"chains/mine.json, generated/{generated.name}/notes.txt, ..."]
+    left = {p.relative_to(cache_root).as_posix() for p in cache_root.rglob("*") if p.is_file() and not p.is_symlink()}
+    assert left == {*user, cache.MARKER}
+    assert (cache_root / "generated" / "link").is_symlink() and (theirs / "keep.txt").read_text() == "mine"
+    assert not any(p.exists() for p in chain_entries) and not (generated / _trust.MANIFEST).exists()
+    for rel in user:
+        (cache_root / rel).unlink()
+    (cache_root / "generated" / "link").unlink()
+    r = CliRunner().invoke(main, ["cache", "clear"])
+    assert r.output.strip() == f"removed {cache_root} (0 files, 0.0 MB)" and not cache_root.exists()

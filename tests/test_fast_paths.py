@@ -327,11 +327,14 @@ def test_cache_command_shows_and_clears(tmp_path, monkeypatch):
 
     from ineid.cli import main
 
+    from ineid._trust import write_manifest
+    from ineid.cache import private_folder
+
     monkeypatch.setenv("INEID_CACHE_DIR", str(tmp_path))
-    (tmp_path / "xla").mkdir()
-    (tmp_path / "xla" / "kernel").write_bytes(b"x" * 1000)
-    (tmp_path / "generated" / "abc").mkdir(parents=True)
-    (tmp_path / "generated" / "abc" / "m.py").write_text("# code\n")
+    (private_folder("xla") / f"jit_f-{'0' * 64}-cache").write_bytes(b"x" * 1000)  # named as JAX names its kernels
+    generated = private_folder("generated", "abc")
+    (generated / "m.py").write_text("# code\n")
+    write_manifest(generated, {"m.py": b"# code\n"}, private=True)  # ineid's code: listed in its manifest
     runner = CliRunner()
     info = runner.invoke(main, ["cache", "info"])
     assert info.exit_code == 0 and "compiled XLA kernels" in info.output and "generated" in info.output

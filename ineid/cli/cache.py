@@ -58,8 +58,8 @@ def cache_info() -> None:
     if state.marked:
         click.echo("marker: CACHEDIR.TAG present (ineid's folder; `ineid cache clear` removes ineid's entries)")
     else:
-        click.echo("marker: no CACHEDIR.TAG from ineid (`ineid cache clear` adopts the folder only if it holds "
-                   "nothing but ineid's subfolders)")
+        click.echo("marker: no CACHEDIR.TAG from ineid (ineid marks the folder when it is empty; it never uses "
+                   "or clears a folder that holds anything without the marker)")
     for sub in _PARTS:
         problem = _part_problem(state.path / sub)
         if problem:
@@ -74,14 +74,14 @@ def cache_info() -> None:
 def cache_clear(xla_only: bool) -> None:
     """Delete what ineid put in the cache; whatever is needed is derived or compiled again on the next run.
 
-    Only a folder ineid created (marked with a CACHEDIR.TAG) is cleared, and only ineid's
-    entries in it; any other folder is refused.
+    Only a folder marked with ineid's CACHEDIR.TAG is cleared, entry by entry: the files ineid
+    listed in its manifests, parsed URDFs, JAX's kernels; anything else stays and is named.
+    A folder without the marker is refused.
     """
-    from ineid.cache import clear_cache  # noqa: PLC0415
+    from ineid.cache_clear import clear_cache
 
     done = clear_cache(xla_only)
-    note = " (a cache folder of an older ineid, without the CACHEDIR.TAG marker)" if done.adopted else ""
-    click.echo(f"removed {done.path} ({done.files} files, {done.bytes / 1e6:.1f} MB){note}")
+    click.echo(f"removed {done.path} ({done.files} files, {done.bytes / 1e6:.1f} MB)")
     if done.kept:
         click.echo(f"kept {len(done.kept)} entries that are not ineid's: {', '.join(done.kept[:5])}"
                    + (", ..." if len(done.kept) > 5 else ""))

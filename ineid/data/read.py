@@ -5,7 +5,6 @@ The schema is :mod:`ineid.data.schema`; files from older format versions are rea
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import zlib
@@ -15,7 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from ineid._faults import fault_errno, require_memory
+from ineid._inputs import JsonDepthError, parse_json, regular_file
 from ineid.channels import ChannelSet, SensorPose
+from ineid.data.hdf5_audit import audit_hdf5
 from ineid.data.meta import check_extra_truth
 from ineid.data.schema import (
     FORMAT,
@@ -33,14 +34,21 @@ log = logging.getLogger(__name__)
 
 
 def _open(path: Path):
+    """The dataset file ``path`` open for reading, checked by :func:`~ineid.data.hdf5_audit.audit_hdf5`.
+
+    Raises:
+        DatasetError: missing, a folder, or not HDF5 (a recording says how to import it).
+        InputFileError: not a regular file (a FIFO is never opened), or a file that reaches outside itself.
+    """
     import h5py  # noqa: PLC0415
 
     if not path.exists():
         raise DatasetError(f"{path} does not exist")
     if path.is_dir():
         raise DatasetError(foreign_file(path) or f"{path} is a folder, not a dataset file")
+    regular_file(path, "the dataset")
     try:
-        return h5py.File(path, "r")
+        f = h5py.File(path, "r")
     except OSError as e:
         if fault_errno(e) is not None:
             raise  # permission denied, an I/O error: the CLI names the file and the fix
@@ -49,6 +57,12 @@ def _open(path: Path):
             or f"{path} is not a readable HDF5 file ({_first_line(e)}); it may be truncated or corrupt: "
             "regenerate it or copy it again"
         ) from None
+    try:
+        audit_hdf5(f, path)
+    except BaseException:
+        f.close()
+        raise
+    return f
 
 
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
@@ -119,8 +133,10 @@ def _str_tuple(value) -> tuple[str, ...]:
 
 def _json_attr(attrs, key: str, where: str):
     try:
-        return json.loads(_as_str(attrs[key]))
-    except (KeyError, json.JSONDecodeError):
+        return parse_json(_as_str(attrs[key]))
+    except JsonDepthError as e:
+        raise DatasetError(f"{where}: attribute {key!r} is JSON {e}; the file is damaged") from None
+    except (KeyError, ValueError):
         raise DatasetError(f"{where}: attribute {key!r} is missing or not JSON; the file is damaged") from None
 
 

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ineid._atomic import atomic_write, check_output
+from ineid._inputs import parse_json, read_json, regular_file
 from ineid.errors import DatasetError, OutputExistsError
 
 FORMAT = "ineid-fourier-trajectory"
@@ -274,13 +275,13 @@ def read_trajectory_json(path: str | Path) -> tuple[FourierTrajectory, dict]:
     """
     path = Path(path)
     try:
-        record = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise DatasetError(f"{path} does not exist") from None
+        record = read_json(path, "the trajectory file")
     except (OSError, UnicodeDecodeError) as e:
         raise DatasetError(f"{path}: cannot be read ({e})") from None
     except json.JSONDecodeError as e:
         raise DatasetError(f"{path}: not valid JSON ({e.msg} at line {e.lineno})") from None
+    except ValueError as e:  # nested too deep
+        raise DatasetError(f"{path}: not a trajectory record (JSON {e})") from None
     return FourierTrajectory.from_dict(record, str(path)), record
 
 
@@ -384,8 +385,9 @@ def load_trajectory(path: str | Path, rate: float | None = None, n_frames: int |
 
     Raises:
         DatasetError: an unreadable file, or ``n_frames`` with a CSV file.
+        InputFileError: ``path`` is not a regular file (a FIFO, a device: never opened).
     """
-    path = Path(path)
+    path = regular_file(path, "the trajectory file")
     if path.suffix.lower() == ".json":
         traj, record = read_trajectory_json(path)
         if n_frames is not None:
@@ -420,7 +422,7 @@ def _csv_joint_names(path: Path) -> tuple[str, ...]:
                     rest = text[len("joints:"):].strip()
                     if not rest.startswith("["):
                         return tuple(n.strip() for n in rest.split(",") if n.strip())
-                    names = json.loads(rest)
+                    names = parse_json(rest)
                     ok = isinstance(names, list) and all(isinstance(n, str) for n in names)
                     return tuple(names) if ok else ()
     except (OSError, UnicodeDecodeError, ValueError):

@@ -7,12 +7,13 @@ so the template holds no arithmetic.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
+from ineid._inputs import read_json
+from ineid.errors import IneidError
 from ineid.params import PARAM_NAMES, inertial_from_theta, physical_violations, pseudo_inertia
 
 
@@ -227,9 +228,9 @@ def _design(res, ds, source) -> dict | None:
         return None
     path = Path(ds.path).parent / Path(str(source)).with_suffix(".json").name
     try:
-        design = json.loads(path.read_text())["design"]
+        design = read_json(path, "the design record")["design"]
         names, std = design["base_parameters"], design["optimized"]["std"]
-    except (OSError, ValueError, KeyError, TypeError):
+    except (IneidError, OSError, ValueError, KeyError, TypeError):  # a FIFO there is not waited on
         return None
     std_of = dict(zip(names, std, strict=False))
     i = solved_index(res, None)

@@ -11,6 +11,8 @@ import numpy as np
 
 from ineid._atomic import atomic_write, check_output_file
 from ineid._faults import require_disk
+from ineid._inputs import parse_json, regular_file
+from ineid.data.hdf5_audit import audit_hdf5
 from ineid.channels import WRENCH_AXES
 from ineid.errors import DatasetError
 from ineid.identify.identifiability import BaseParameters
@@ -121,8 +123,9 @@ def load_results(path: str | Path) -> SolveResults:
     from ineid._faults import fault_errno  # noqa: PLC0415
 
     path = Path(path)
-    if not path.is_file():
-        raise DatasetError(f"{path} does not exist" if not path.exists() else f"{path} is not a file")
+    if not path.exists():
+        raise DatasetError(f"{path} does not exist")
+    regular_file(path, "the results file")  # a FIFO is never opened
     try:
         f = h5py.File(path, "r")
     except OSError as e:
@@ -134,6 +137,7 @@ def load_results(path: str | Path) -> SolveResults:
                            or f"{path} is not a readable HDF5 file ({str(e).splitlines()[0]}); truncated or corrupt"
                            ) from None  # fmt: skip
     with f:
+        audit_hdf5(f, path)
         fmt = _attr_text(f.attrs.get("format", ""))
         if fmt != FORMAT:
             hint = " (it is a dataset: run `ineid solve` on it)" if fmt == "ineid-dataset" else ""
@@ -193,9 +197,11 @@ class _Reader:
 
     def json(self, key: str):
         try:
-            return json.loads(self.text(key))
+            return parse_json(self.text(key))
         except json.JSONDecodeError as e:
             raise self.damaged(f"attribute {key!r} is not JSON ({e.msg})") from None
+        except ValueError as e:  # nested too deep, too long
+            raise self.damaged(f"attribute {key!r} is JSON {e}") from None
 
     def array(self, key: str, shape: tuple, kind: str = "f", required: bool = True):
         """Dataset ``key`` of ``shape`` (None: any length), numbers of ``kind`` ("f": float64 of any real)."""
@@ -321,7 +327,7 @@ def _warnings(path: Path, attrs) -> list[dict] | None:
     if "warnings" not in attrs:
         return None
     try:
-        found = json.loads(attrs["warnings"])
+        found = parse_json(attrs["warnings"])
         return [{"code": str(w["code"]), "message": str(w["message"])} for w in found]
     except (TypeError, ValueError, KeyError) as e:
         raise DatasetError(f"{path}: its 'warnings' attribute is damaged ({e}); solve again to rewrite it") from None

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ineid import _inputs
 from ineid.errors import TrainingError
 from ineid.learn.config import TrainConfig
 from ineid.learn.data import Split
@@ -32,16 +33,21 @@ def damaged(path: Path, what: str) -> TrainingError:
 
 
 def read_json(path: Path):
-    """The JSON value in ``path``; :class:`TrainingError` if it is not UTF-8 JSON."""
+    """The JSON value in ``path`` (a regular file, bounded as :func:`ineid._inputs.read_json` bounds it).
+
+    Raises:
+        TrainingError: it is not UTF-8 JSON, or is too large or nested too deep for ineid.
+        InputFileError: it is not a regular file (a FIFO, a folder).
+    """
     try:
-        text = path.read_text()
+        return _inputs.read_json(path, "the run file")
     except UnicodeDecodeError:
         raise damaged(path, "not text") from None
-    try:
-        return json.loads(text)
     except json.JSONDecodeError as e:
-        what = "empty" if not text.strip() else f"not JSON: {e.msg} at line {e.lineno}, column {e.colno}"
+        what = "empty" if not e.doc.strip() else f"not JSON: {e.msg} at line {e.lineno}, column {e.colno}"
         raise damaged(path, what) from None
+    except ValueError as e:  # nested too deep
+        raise damaged(path, f"JSON {e}") from None
 
 
 def _int_array(value, path: Path, key: str) -> np.ndarray:
@@ -129,7 +135,7 @@ def read_msgpack(path: Path, template):
     """
     from flax import serialization  # noqa: PLC0415
 
-    data = path.read_bytes()
+    data = _inputs.regular_file(path, "the run file").read_bytes()
     if not data:
         raise damaged(path, "empty")
     try:
@@ -155,14 +161,14 @@ def read_metrics(path: Path, keep_through_epoch: int) -> list[str]:
     """The lines of ``metrics.jsonl`` up to ``keep_through_epoch``; each must be a JSON record with an epoch."""
     lines = []
     try:
-        text = path.read_text()
+        text = _inputs.regular_file(path, "the run file").read_text()
     except UnicodeDecodeError:
         raise damaged(path, "not text") from None
     for k, line in enumerate(text.splitlines(), 1):
         if not line:
             continue
         try:
-            record = json.loads(line)
+            record = _inputs.parse_json(line)
             epoch = int(record["epoch"])
         except (json.JSONDecodeError, *DECODE_ERRORS):
             raise damaged(path, f"line {k} is not a JSON record with an epoch") from None

@@ -18,7 +18,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ineid._atomic import atomic_write, save_figure, write_csv
-from ineid.errors import TrainingError
+from ineid._inputs import read_json
+from ineid.errors import IneidError, TrainingError
 from ineid.learn.models import SIZED
 from ineid.learn.train import TrainConfig
 from ineid.learn.trials import TRIAL_STATES, SweepRow, run_name, run_trial, trial_state  # noqa: F401  (re-exported)
@@ -85,8 +86,8 @@ def check_sweep_folder(ds: Dataset, grid: Grid, base: TrainConfig, out_dir: str 
     record = sweep_record(grid, base, ds)
     if resume:
         try:
-            saved = json.loads((out_dir / SWEEP_RECORD).read_text())
-        except (OSError, ValueError):
+            saved = read_json(out_dir / SWEEP_RECORD, "the sweep record")
+        except (IneidError, OSError, ValueError):
             raise TrainingError(f"{out_dir} holds no sweep to resume (no readable {SWEEP_RECORD}); start it without "
                                 "--resume") from None  # fmt: skip
         differs = {"grid": "a different grid", "run settings": "different run settings",

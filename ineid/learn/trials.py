@@ -7,11 +7,16 @@ Shared by the engines that run a sweep's trials: one after another in this proce
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 from ineid._atomic import atomic_write
+from ineid._inputs import parse_json, read_json
+from ineid.errors import IneidError
 from ineid.learn.evaluate import evaluate
+from ineid.learn.run_checks import damaged, read_metrics
+from ineid.learn.run_checks import read_json as read_run_json
 from ineid.learn.runs import CHECKPOINT, CONFIG, EVALUATION, METRICS, MODEL, load_run
 from ineid.learn.train import TrainConfig, train
 
@@ -88,9 +93,9 @@ def trial_state(run_dir: Path, cfg: TrainConfig, fingerprint: str) -> str:
     unreadable, or a run of other settings or data: trained afresh, replacing it).
     """
     try:
-        saved = json.loads((run_dir / CONFIG).read_text())
+        saved = read_json(run_dir / CONFIG, "the run file")
         same = saved["train"] == cfg.to_dict() and saved["dataset"]["fingerprint"] == fingerprint
-    except (OSError, ValueError, KeyError, TypeError):
+    except (IneidError, OSError, ValueError, KeyError, TypeError):
         return "new"
     if not same:
         return "new"
@@ -101,8 +106,12 @@ def trial_state(run_dir: Path, cfg: TrainConfig, fingerprint: str) -> str:
 
 def _trained(run_dir: Path) -> tuple[int, float]:
     """Epochs run and training seconds of a run, from its ``metrics.jsonl``."""
-    records = [json.loads(line) for line in (run_dir / METRICS).read_text().splitlines() if line.strip()]
-    return (int(records[-1]["epoch"]) if records else 0), float(sum(r["seconds"] for r in records))
+    path = run_dir / METRICS
+    records = [parse_json(line) for line in read_metrics(path, sys.maxsize)]  # each a record with an epoch
+    try:
+        return (int(records[-1]["epoch"]) if records else 0), float(sum(r["seconds"] for r in records))
+    except (KeyError, TypeError, ValueError):
+        raise damaged(path, "a record lacks its seconds") from None
 
 
 def run_trial(ds, cfg: TrainConfig, run_dir: Path, dataset_path: str | None = None, model=None,
@@ -119,7 +128,7 @@ def run_trial(ds, cfg: TrainConfig, run_dir: Path, dataset_path: str | None = No
         result = train(ds, cfg, run_dir, dataset_path=dataset_path, resume=state == "checkpoint", overwrite=True,
                        model=model, physics_mode=physics_mode)  # fmt: skip
     if state == "finished":
-        ev = json.loads((run_dir / EVALUATION).read_text())
+        ev = read_run_json(run_dir / EVALUATION)
     else:
         ev = evaluate(load_run(run_dir), ds, model=model).to_dict()
         atomic_write(run_dir / EVALUATION, json.dumps(ev, indent=1))

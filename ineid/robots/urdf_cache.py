@@ -54,11 +54,12 @@ def cached_chain(key: str) -> Chain | None:
     """
     import logging  # noqa: PLC0415
 
+    from ineid._inputs import parse_json
     from ineid._trust import Untrusted, read_checked  # noqa: PLC0415
 
     path = _chain_file(key)
     try:
-        doc = json.loads(read_checked(path, private=True))
+        doc = parse_json(read_checked(path, private=True))  # nested too deep: a ValueError, parsed again
         joints = tuple(
             JointSpec(**{**j, **{k: np.asarray(j[k], dtype=np.float64) for k in _ARRAY_FIELDS}}) for j in doc["joints"]
         )
