@@ -29,7 +29,11 @@ from pathlib import Path
 
 from ineid._interrupts import (  # the signals' names, also importable from here
     Terminated as Terminated,
+)
+from ineid._interrupts import (
     redeliver_ignored_interrupt as redeliver_ignored_interrupt,
+)
+from ineid._interrupts import (
     terminate_on_sigterm as terminate_on_sigterm,
 )
 from ineid._temporary import (

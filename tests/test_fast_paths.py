@@ -23,8 +23,7 @@ import numpy as np
 import pytest
 
 from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
-from ineid.identify import SolveSettings, fit_base, solve_dataset, stack
-from ineid.identify import casadi_c, fused
+from ineid.identify import SolveSettings, casadi_c, fit_base, fused, solve_dataset, stack
 from ineid.identify.linear import NORMAL_MAX_COND, fit_base_blocks, standard_std
 from ineid.identify.systems import stack_casadi
 from ineid.robots import model as model_module
@@ -325,10 +324,9 @@ def test_compiled_ipopt_problems_give_the_same_estimates(arm, noisy):
 def test_cache_command_shows_and_clears(tmp_path, monkeypatch):
     from click.testing import CliRunner
 
-    from ineid.cli import main
-
     from ineid._trust import write_manifest
     from ineid.cache import private_folder
+    from ineid.cli import main
 
     monkeypatch.setenv("INEID_CACHE_DIR", str(tmp_path))
     (private_folder("xla") / f"jit_f-{'0' * 64}-cache").write_bytes(b"x" * 1000)  # named as JAX names its kernels

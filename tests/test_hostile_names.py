@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from ineid.cli import main
 from ineid._trust import MANIFEST
+from ineid.cli import main
 from ineid.generated import file_names, load_from_directory, module_slug
 from ineid.robots.program import casadi_functions, jax_functions
 from ineid.robots.urdf import parse_chain

@@ -29,8 +29,8 @@ from ineid.data.plausibility import (
     moving_mass,
 )
 from ineid.data.recording import ImportSettings, Streams, in_si_units
-from ineid.data.streams import ImuStream, units_note
 from ineid.data.sampling import FrameSampling
+from ineid.data.streams import ImuStream, units_note
 from ineid.identify import SolveSettings, load_results, solve_dataset
 from ineid.identify.plausibility import check_solve, estimated_total_mass
 

@@ -12,8 +12,8 @@ import pytest
 import ineid
 from ineid import DatasetError, RobotModelError
 from ineid.data import load_dataset
-from ineid.data.recording import ImportSettings, Streams, import_recording, recording_dataset
 from ineid.data.meta import VERSION
+from ineid.data.recording import ImportSettings, Streams, import_recording, recording_dataset
 from ineid.data.signals import LowPass, choose_cutoff
 from ineid.identify import SolveSettings, bias_cost, generic_frames, load_results, save_results, solve_dataset
 from ineid.sensor import SensorPose, matrix_rpy, parse_sensor_pose, rpy_matrix, wrench_in_sensor, wrench_transform

@@ -44,8 +44,8 @@ from ineid.data.recording_channels import (  # noqa: F401  (resolve_sensor re-ex
     resolve_wrench_channel,
     rider_channels,
 )
-from ineid.data.schema import Dataset, DatasetMeta
 from ineid.data.recording_limits import check_cutoff, check_import_settings, check_magnitudes, check_min_rate
+from ineid.data.schema import Dataset, DatasetMeta
 from ineid.data.streams import (
     SI_UNITS,
     TIME_LIMIT,

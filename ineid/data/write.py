@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from ineid._atomic import check_output
-from ineid._temporary import create_temporary
 from ineid._faults import format_bytes, free_disk
+from ineid._temporary import create_temporary
 from ineid.data.meta import FORMAT, VERSION, DatasetMeta, expected_shapes
 from ineid.errors import DatasetError, StorageError
 from ineid.params import PARAM_NAMES

@@ -13,6 +13,7 @@ from ineid.identify.delay import estimate_delay  # importing it registers the es
 from ineid.identify.export import export_urdf, urdf_with_inertials
 from ineid.identify.export_mjcf import export_mjcf, mjcf_with_inertials
 from ineid.identify.frame_minimum import FrameMinimum
+from ineid.identify.frames import identify_frames
 from ineid.identify.identifiability import (
     BaseParameters,
     BiasCost,
@@ -27,7 +28,6 @@ from ineid.identify.identifiability import (
 from ineid.identify.linear import BaseFit, Estimate, fit_base, linear_estimate, standard_from_base
 from ineid.identify.nlp import NlpSolver, nlp_estimate
 from ineid.identify.results import error_summary, load_results, relative_error, save_results
-from ineid.identify.frames import identify_frames
 from ineid.identify.solve import METHODS, SolveResults, SolveSettings, solve_dataset
 from ineid.identify.systems import parameter_scales, stack, stack_casadi
 

@@ -80,6 +80,7 @@ from ineid.data.imu_rehearsal import ImuRehearsal
 from ineid.data.noise import NoiseModel
 from ineid.data.trajectory import FourierTrajectory, whole_count
 from ineid.errors import ExcitationError
+from ineid.identify.excite_collision import CollisionPairs
 from ineid.identify.excite_criterion import (  # noqa: F401  (re-exported: they were defined here)
     CRITERIA,
     DEFAULT_CHUNK,
@@ -95,7 +96,6 @@ from ineid.identify.excite_criterion import (  # noqa: F401  (re-exported: they 
     regressor_and_derivatives,
     scaled_regressor,
 )
-from ineid.identify.excite_collision import CollisionPairs
 from ineid.identify.excite_safety import (
     SafetyConstraints,
     SafetyLimits,

@@ -18,7 +18,6 @@ import numpy as np
 
 from ineid.data.trajectory import FourierTrajectory, state_matrices
 from ineid.errors import ExcitationError
-from ineid.identify.excite_safety import casadi_constraint
 from ineid.identify.excite_criterion import (
     DesignBase,
     centred,
@@ -26,6 +25,7 @@ from ineid.identify.excite_criterion import (
     regressor_and_derivatives,
     scaled_regressor,
 )
+from ineid.identify.excite_safety import casadi_constraint
 from ineid.identify.ipopt import nlpsol
 
 

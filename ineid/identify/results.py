@@ -12,8 +12,8 @@ import numpy as np
 from ineid._atomic import atomic_write, check_output_file
 from ineid._faults import require_disk
 from ineid._inputs import parse_json, regular_file
-from ineid.data.hdf5_audit import audit_hdf5
 from ineid.channels import WRENCH_AXES
+from ineid.data.hdf5_audit import audit_hdf5
 from ineid.errors import DatasetError
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.solve import SolveResults, SolveSettings

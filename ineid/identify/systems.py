@@ -27,7 +27,6 @@ from ineid.channels import BASE_WRENCH, ChannelSet
 from ineid.errors import IdentificationError
 from ineid.params import N_PARAMS_PER_LINK
 
-
 MASSLESS_KG = 1e-6
 """kg: a CAD mass at or below this is none (:data:`ineid.robots.inertial.FRAME_MASS`)."""
 

@@ -232,8 +232,7 @@ def writing_run(run_dir: str | Path, *, resume: bool, overwrite: bool) -> Iterat
     """
     import shutil  # noqa: PLC0415
 
-    from ineid._atomic import Terminated
-    from ineid._atomic import output_lock, remove_stale_temporaries, replace_folder, staging_folder  # noqa: PLC0415
+    from ineid._atomic import Terminated, output_lock, remove_stale_temporaries, replace_folder, staging_folder  # noqa: PLC0415
 
     run_dir = Path(run_dir)
     run_dir.parent.mkdir(parents=True, exist_ok=True)

@@ -46,8 +46,8 @@ from ineid.robots.cad_rounding import snap_joint_angles
 from ineid.robots.chain import BodyLink, Chain, JointSpec
 from ineid.robots.inertial import link_inertial
 from ineid.robots.robot_files import URDF_MAX_BYTES, check_urdf_size
-from ineid.robots.urdf_checks import check_lxml, check_urdf_tree
 from ineid.robots.urdf_cache import CHAIN_SUBDIR, _chain_file, _chain_key, _store_chain, cached_chain  # noqa: F401
+from ineid.robots.urdf_checks import check_lxml, check_urdf_tree
 
 DEFAULT_QD_MAX = 3.0
 """rad/s (m/s for prismatic): velocity bound for sampling where the URDF gives none."""

@@ -26,8 +26,10 @@ from ineid.symbolic.newton_euler import (
     STEPS_AFTER_JOINTS,
     SymbolicRegressor,
     check_derivable,
-    derivation_step as _step,
     derive_base_wrench_regressor,
+)
+from ineid.symbolic.newton_euler import (
+    derivation_step as _step,
 )
 
 GENERATOR = "ineid.symbolic.emit from ineid.symbolic.newton_euler.derive_base_wrench_regressor"
