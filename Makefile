@@ -6,7 +6,7 @@ INEID := $(VENV)/bin/ineid
 STAMP := $(VENV)/.ineid-installed
 DEV_STAMP := $(VENV)/.ineid-dev-installed
 
-.PHONY: setup setup-dev demo test test-slow generate bench clean
+.PHONY: setup setup-dev demo test lint test-slow generate bench clean
 
 # `setup`: what the main job needs; `setup-dev`: plus the test-only reference engines
 # (Pinocchio, MuJoCo, example-robot-data: several hundred MB the demo does not need).
@@ -37,8 +37,13 @@ demo: setup
 	$(INEID) -q train $(VENV)/demo-data.h5 --arch net2 --sample-frames 10 --siamese --loss physics --beta 10 \
 		--epochs 30 --batch 32 --lr 3e-3 --out $(VENV)/demo-run --overwrite
 
-test: setup-dev
+test: setup-dev lint
 	$(PY) -m pytest -q -n 2 --durations=25
+
+# The linter and the formatter (ruff; the rules in pyproject.toml): part of `make test`.
+lint: setup-dev
+	$(VENV)/bin/ruff check ineid tests benchmarks
+	$(VENV)/bin/ruff format --check ineid tests benchmarks
 
 test-slow: setup-dev
 	$(PY) -m pytest -q -m slow

@@ -37,10 +37,10 @@ from pathlib import Path
 
 os.environ["INEID_XLA_CACHE"] = "0"  # every compile a real one: no executable from a previous run
 
-import numpy as np  # noqa: E402
-from machine import cpu_description  # noqa: E402
+import numpy as np
+from machine import cpu_description
 
-import ineid  # noqa: E402  (turns on JAX's float64 mode before jax is used)
+import ineid  # turns on JAX's float64 mode before jax is used
 
 CHUNK = 2048
 JOINTS = (4, 5, 6, 7, 12)
@@ -67,11 +67,13 @@ def synthetic_urdf(n: int, folder: Path, seed: int = 7) -> Path:
         parts.append(
             f'<link name="l{i}"><inertial><origin xyz="{c[0]} {c[1]} {c[2]}" rpy="0.1 0.2 0.3"/>'
             f'<mass value="{m}"/><inertia ixx="{ixx}" ixy="0.0001" ixz="-0.0002" iyy="{iyy}" iyz="0.0003" '
-            f'izz="{izz}"/></inertial></link>')
+            f'izz="{izz}"/></inertial></link>'
+        )
         parts.append(
             f'<joint name="j{i}" type="revolute"><parent link="{prev}"/><child link="l{i}"/>'
             f'<origin xyz="{xyz[0]} {xyz[1]} {xyz[2]}" rpy="{rpy[0]} {rpy[1]} {rpy[2]}"/>'
-            f'<axis xyz="{axes[i % 4]}"/><limit lower="-2.5" upper="2.5" velocity="2" effort="10"/></joint>')
+            f'<axis xyz="{axes[i % 4]}"/><limit lower="-2.5" upper="2.5" velocity="2" effort="10"/></joint>'
+        )
         prev = f"l{i}"
     parts.append("</robot>")
     path = folder / f"chain{n}.urdf"
@@ -82,7 +84,7 @@ def synthetic_urdf(n: int, folder: Path, seed: int = 7) -> Path:
 def aot(fn, args) -> tuple[float, float, float, float, float, object]:
     """(trace + lower s, compile s, compile CPU s, first call s, warm s per call) of ``jax.jit(fn)``
     on ``args``, and the result."""
-    import jax  # noqa: PLC0415
+    import jax
 
     t0 = time.perf_counter()
     lowered = jax.jit(fn).trace(*args).lower()
@@ -113,9 +115,9 @@ def per_frame(fn, n: int, passes: int = 3) -> float:
 
 def pinocchio_row(path: Path, q, qd, qdd, check) -> tuple[float, float, float]:
     """Pinocchio's seconds per frame (joint-torque regressor, rnea, base regressor), after checking ``check``."""
-    import pinocchio as pin  # noqa: PLC0415
+    import pinocchio as pin
 
-    from ineid.reference import pinocchio_base_regressor, pinocchio_model, pinocchio_q  # noqa: PLC0415
+    from ineid.reference import pinocchio_base_regressor, pinocchio_model, pinocchio_q
 
     model = pinocchio_model(path, (0.0, 0.0, -9.81))
     data = model.createData()
@@ -141,12 +143,12 @@ def pinocchio_row(path: Path, q, qd, qdd, check) -> tuple[float, float, float]:
 
 def measure(n: int, folder: Path) -> dict:
     """One row of the table for the ``n``-joint chain."""
-    import casadi as ca  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
+    import casadi as ca
+    import jax.numpy as jnp
 
-    from ineid.robots.urdf import load_chain  # noqa: PLC0415
-    from ineid.symbolic.emit import emit_modules  # noqa: PLC0415
-    from ineid.symbolic.newton_euler import derive_base_wrench_regressor  # noqa: PLC0415
+    from ineid.robots.urdf import load_chain
+    from ineid.symbolic.emit import emit_modules
+    from ineid.symbolic.newton_euler import derive_base_wrench_regressor
 
     path = synthetic_urdf(n, folder)
     chain = load_chain(path)
@@ -183,41 +185,65 @@ def measure(n: int, folder: Path) -> dict:
     del ca
 
     pin_jtr, pin_rnea, pin_base = pinocchio_row(path, q, qd, qdd, y[:20])
-    return {"n": n, "derive": t1 - t0, "print": t2 - t1, "ops": emitted.op_count, "cpu": cpu, "load": t3 - t2,
-            "reg": reg[:5], "wrench": wrench[:5], "ca_build": t5 - t4, "ca_frame": ca_frame,
-            "pin_jtr": pin_jtr, "pin_rnea": pin_rnea, "pin_base": pin_base}
+    return {
+        "n": n,
+        "derive": t1 - t0,
+        "print": t2 - t1,
+        "ops": emitted.op_count,
+        "cpu": cpu,
+        "load": t3 - t2,
+        "reg": reg[:5],
+        "wrench": wrench[:5],
+        "ca_build": t5 - t4,
+        "ca_frame": ca_frame,
+        "pin_jtr": pin_jtr,
+        "pin_rnea": pin_rnea,
+        "pin_base": pin_base,
+    }
 
 
 def main(argv=None) -> None:
     """Parse options, measure every chain, print the table."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--joints", default=",".join(map(str, JOINTS)),
-                    help=f"comma-separated chain lengths (default {','.join(map(str, JOINTS))})")
+    ap.add_argument(
+        "--joints",
+        default=",".join(map(str, JOINTS)),
+        help=f"comma-separated chain lengths (default {','.join(map(str, JOINTS))})",
+    )
     args = ap.parse_args(argv)
     joints = [int(x) for x in args.joints.split(",")]
     versions = ", ".join(f"{d} {md.version(d)}" for d in ("jax", "casadi", "sympy", "pin"))
     print(f"CPU: {cpu_description()}; {versions}; Python {platform.python_version()}")
     print("load average before: " + " ".join(f"{x:.2f}" for x in os.getloadavg()))
     us = 1e6
-    print(f"\nfirst run of a new chain: seconds, except the per-frame times (us); JAX on {CHUNK}-frame chunks, "
-          "compile = XLA, first = first call of the compiled executable")
-    print("(derive+print and compile also as CPU seconds, 'wall/cpu': the compiler uses one core, so on a shared "
-          "machine its CPU seconds are the steadier figure; contention still inflates them)")
-    head = (f"{'joints':>6} {'derive':>7} {'print':>6} {'cpu':>5} {'ops':>6} {'load':>6} | {'reg lower':>9} "
-            f"{'compile wall/cpu':>16} {'first':>6} {'us/fr':>6} | {'wrench compile':>14} {'us/fr':>6} | "
-            f"{'CasADi build':>12} {'us/fr':>6} | "
-            f"{'Pinocchio JTR':>13} {'rnea':>5} {'base':>5}")
+    print(
+        f"\nfirst run of a new chain: seconds, except the per-frame times (us); JAX on {CHUNK}-frame chunks, "
+        "compile = XLA, first = first call of the compiled executable"
+    )
+    print(
+        "(derive+print and compile also as CPU seconds, 'wall/cpu': the compiler uses one core, so on a shared "
+        "machine its CPU seconds are the steadier figure; contention still inflates them)"
+    )
+    head = (
+        f"{'joints':>6} {'derive':>7} {'print':>6} {'cpu':>5} {'ops':>6} {'load':>6} | {'reg lower':>9} "
+        f"{'compile wall/cpu':>16} {'first':>6} {'us/fr':>6} | {'wrench compile':>14} {'us/fr':>6} | "
+        f"{'CasADi build':>12} {'us/fr':>6} | "
+        f"{'Pinocchio JTR':>13} {'rnea':>5} {'base':>5}"
+    )
     print(head)
     with tempfile.TemporaryDirectory(prefix="ineid-bench-compile-") as tmp:
         for n in joints:
             r = measure(n, Path(tmp))
             lower, comp, comp_cpu, first, warm = r["reg"]
             _, w_comp, w_cpu, _, w_warm = r["wrench"]
-            print(f"{n:>6} {r['derive']:>7.2f} {r['print']:>6.2f} {r['cpu']:>5.2f} {r['ops']:>6,} {r['load']:>6.2f} | "
-                  f"{lower:>9.2f} {f'{comp:.2f}/{comp_cpu:.2f}':>16} {first:>6.3f} {warm / CHUNK * us:>6.2f} | "
-                  f"{f'{w_comp:.2f}/{w_cpu:.2f}':>14} {w_warm / CHUNK * us:>6.2f} | "
-                  f"{r['ca_build']:>12.2f} {r['ca_frame'] * us:>6.2f} | {r['pin_jtr'] * us:>13.2f} "
-                  f"{r['pin_rnea'] * us:>5.2f} {r['pin_base'] * us:>5.2f}", flush=True)
+            print(
+                f"{n:>6} {r['derive']:>7.2f} {r['print']:>6.2f} {r['cpu']:>5.2f} {r['ops']:>6,} {r['load']:>6.2f} | "
+                f"{lower:>9.2f} {f'{comp:.2f}/{comp_cpu:.2f}':>16} {first:>6.3f} {warm / CHUNK * us:>6.2f} | "
+                f"{f'{w_comp:.2f}/{w_cpu:.2f}':>14} {w_warm / CHUNK * us:>6.2f} | "
+                f"{r['ca_build']:>12.2f} {r['ca_frame'] * us:>6.2f} | {r['pin_jtr'] * us:>13.2f} "
+                f"{r['pin_rnea'] * us:>5.2f} {r['pin_base'] * us:>5.2f}",
+                flush=True,
+            )
     print("load average after: " + " ".join(f"{x:.2f}" for x in os.getloadavg()))
 
 

@@ -83,8 +83,13 @@ def timed(fn) -> float:
 def main(argv=None) -> None:
     """Parse options, time each case, print the table."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--configs-per-link", type=int, default=100, metavar="N",
-                    help="parameter sets per unknown link, full factorial (default 100: the paper's 10,000 configs)")
+    ap.add_argument(
+        "--configs-per-link",
+        type=int,
+        default=100,
+        metavar="N",
+        help="parameter sets per unknown link, full factorial (default 100: the paper's 10,000 configs)",
+    )
     ap.add_argument("--frames", type=int, default=100, metavar="F", help="frames per configuration (default 100)")
     ap.add_argument("--repeats", type=int, default=3, metavar="R", help="timed runs; the best is reported (default 3)")
     args = ap.parse_args(argv)
@@ -122,9 +127,11 @@ def main(argv=None) -> None:
         rows.append(("write_dataset, first run in the process (JAX compile incl.)", cold, size_mb()))
         write_dataset(model, warmup_spec(model, clean), scratch)  # noise and Fourier frames: same shapes
 
-        for key, label in (("clean", "write_dataset, clean (the paper's settings)"),
-                           ("noise", "write_dataset + noise (clean arrays kept too)"),
-                           ("fourier", "write_dataset, Fourier-trajectory frames")):
+        for key, label in (
+            ("clean", "write_dataset, clean (the paper's settings)"),
+            ("noise", "write_dataset + noise (clean arrays kept too)"),
+            ("fourier", "write_dataset, Fourier-trajectory frames"),
+        ):
             best = min(write(variants[key]) for _ in range(args.repeats))
             rows.append((label, best, size_mb()))
         best_write = rows[1][1]

@@ -27,7 +27,6 @@ import argparse
 import time
 
 import numpy as np
-
 from machine import cpu_description  # benchmarks/machine.py
 
 import ineid
@@ -54,8 +53,10 @@ def robots() -> dict[str, object]:
     root = importlib.metadata.distribution("example-robot-data").locate_file(EXAMPLES)
     return {
         "sweaty-arm": lambda: ineid.load_robot("sweaty-arm"),
-        "panda": lambda: ineid.load_robot(str(root / "panda_description/urdf/panda.urdf"),
-                                          locked_joints={"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}),
+        "panda": lambda: ineid.load_robot(
+            str(root / "panda_description/urdf/panda.urdf"),
+            locked_joints={"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0},
+        ),
         "z1": lambda: ineid.load_robot(str(root / "z1_description/urdf/z1.urdf")),
     }
 
@@ -64,8 +65,13 @@ def identification_error(model, time_s, q, qd, qdd, seed: int, n_configs: int) -
     """Median relative error of the base parameters, linear LS on noisy simulated data along the frames."""
     traj = SampledTrajectory(time_s, q, qd, qdd, source="benchmark")
     noise = NoiseModel.create(model.n_dof, **REFERENCE_NOISE)
-    spec = DatasetSpec(Combination("random", n_configs=n_configs), n_frames=len(q), seed=seed, noise=noise,
-                       frames=FrameSampling("trajectory", trajectory=traj))
+    spec = DatasetSpec(
+        Combination("random", n_configs=n_configs),
+        n_frames=len(q),
+        seed=seed,
+        noise=noise,
+        frames=FrameSampling("trajectory", trajectory=traj),
+    )
     ds = generate_dataset(model, spec)
     res = solve_dataset(ds, SolveSettings(frames=len(q)), model=model)
     ok = res.success
@@ -81,8 +87,10 @@ def main() -> None:
     ap.add_argument("--configs", type=int, default=20, help="parameter configurations per identification")
     args = ap.parse_args()
     print(f"machine: {cpu_description()}")
-    print(f"ineid excite defaults: {args.duration:g} s, 5 harmonics of {1 / args.duration:g} Hz, d-opt, "
-          f"{args.starts} starts, 100 Hz; medians over {args.seeds} seeds\n")
+    print(
+        f"ineid excite defaults: {args.duration:g} s, 5 harmonics of {1 / args.duration:g} Hz, d-opt, "
+        f"{args.starts} starts, 100 Hz; medians over {args.seeds} seeds\n"
+    )
     makers = robots()
     for name in args.robots.split(","):
         model = makers[name]()
@@ -97,8 +105,10 @@ def main() -> None:
         for seed in range(args.seeds):
             res = design_excitation(model, ExcitationSettings(args.duration, starts=args.starts, seed=seed))
             seconds.append(res.seconds)
-            for label, traj, ev in (("designed", res.trajectory, res.optimized),
-                                    ("random Fourier", res.random_trajectory, res.random)):
+            for label, traj, ev in (
+                ("designed", res.trajectory, res.optimized),
+                ("random Fourier", res.random_trajectory, res.random),
+            ):
                 t, q, qd, qdd = traj.sample(res.rate)
                 err = identification_error(model, t, q, qd, qdd, seed, args.configs)
                 rows[label].append((ev.condition_number, np.median(ev.rel_std), err))
@@ -107,14 +117,16 @@ def main() -> None:
             ev = evaluate_design(model, q, qd, qdd, base, sigma)
             err = identification_error(model, np.arange(n) / res.rate, q, qd, qdd, seed, args.configs)
             rows["uniform states"].append((ev.condition_number, np.median(ev.rel_std), err))
-        print(f"{name}: {model.n_dof} joints, {len(model.unknown_links)} unknown links, {base.rank} base parameters; "
-              f"compilation {compile_s:.1f} s; design {np.median(seconds):.1f} s (median; min {min(seconds):.1f}, "
-              f"max {max(seconds):.1f})")
+        print(
+            f"{name}: {model.n_dof} joints, {len(model.unknown_links)} unknown links, {base.rank} base parameters; "
+            f"compilation {compile_s:.1f} s; design {np.median(seconds):.1f} s (median; min {min(seconds):.1f}, "
+            f"max {max(seconds):.1f})"
+        )
         print(f"  {'frames':<16} {'scaled cond':>12} {'med rel std':>12} {'ident. error':>13}")
         for label, vals in rows.items():
             v = np.median(np.asarray(vals), axis=0)
             print(f"  {label:<16} {v[0]:>12.4g} {v[1]:>12.3g} {v[2]:>13.3g}")
-        ratio = np.median([r[0] / d[0] for d, r in zip(rows["designed"], rows["random Fourier"])])
+        ratio = np.median([r[0] / d[0] for d, r in zip(rows["designed"], rows["random Fourier"], strict=True)])
         print(f"  random / designed condition number, median of the seeds' ratios: {ratio:.2f}x\n", flush=True)
 
 

@@ -36,12 +36,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from machine import cpu_description  # benchmarks/machine.py
 
 import ineid
-from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
-from ineid.data import save_dataset
+from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset, save_dataset
 from ineid.identify import SolveSettings, relative_error, solve_dataset
 from ineid.identify.casadi_c import c_compiler
 
@@ -52,8 +50,19 @@ def whole_command(ds, runs: int = 2) -> list[float]:
     with tempfile.TemporaryDirectory(prefix="ineid-bench-") as tmp:
         data = save_dataset(ds, Path(tmp) / "paper.h5")
         env = dict(os.environ, INEID_CACHE_DIR=str(Path(tmp) / "cache"))
-        cli = [sys.executable, "-m", "ineid.cli", "-q", "solve", str(data), "--method", "linear",
-               "--out", str(Path(tmp) / "results.h5"), "--overwrite"]
+        cli = [
+            sys.executable,
+            "-m",
+            "ineid.cli",
+            "-q",
+            "solve",
+            str(data),
+            "--method",
+            "linear",
+            "--out",
+            str(Path(tmp) / "results.h5"),
+            "--overwrite",
+        ]
         for _ in range(runs):
             t0 = time.perf_counter()
             subprocess.run(cli, check=True, env=env, stdout=subprocess.DEVNULL)
@@ -102,16 +111,21 @@ def paper_rows(model, ds, sub, n_fit: int, row) -> None:
     for method in ("lsqlin", "lsqnonlin"):  # the paper's solvers (ineid.identify.classical), all configurations
         t0 = time.perf_counter()
         res = solve_dataset(ds, SolveSettings(method=method, weights="none"), model=model)
-        row(f"{method} (the paper's; batched), all configurations, {res.success.mean():.0%} ok", ds.n_configs,
-            time.perf_counter() - t0, np.nanmedian(relative_error(res.base_hat, res.base_true)))
-    from ineid.identify import base_parameters  # noqa: PLC0415
-    from ineid.identify.classical import lsqnonlin_theta  # noqa: PLC0415
-    from ineid.identify.fused import information_blocks  # noqa: PLC0415
-    from ineid.identify.linear import fit_base_blocks  # noqa: PLC0415
+        row(
+            f"{method} (the paper's; batched), all configurations, {res.success.mean():.0%} ok",
+            ds.n_configs,
+            time.perf_counter() - t0,
+            np.nanmedian(relative_error(res.base_hat, res.base_true)),
+        )
+    from ineid.identify import base_parameters
+    from ineid.identify.classical import lsqnonlin_theta
+    from ineid.identify.fused import information_blocks
+    from ineid.identify.linear import fit_base_blocks
 
     base = base_parameters(model)
-    blocks = information_blocks(model, base, sub.q[:, :n_fit], sub.qd[:, :n_fit], sub.qdd[:, :n_fit],
-                                sub.wrench[:, :n_fit], sub.theta_known)
+    blocks = information_blocks(
+        model, base, sub.q[:, :n_fit], sub.qd[:, :n_fit], sub.qdd[:, :n_fit], sub.wrench[:, :n_fit], sub.theta_known
+    )
     fit, _ = fit_base_blocks(blocks, base, "none", None, None)
     for engine in ("batched", "scipy"):
         t0 = time.perf_counter()
@@ -130,7 +144,9 @@ def main() -> None:
 
     model = ineid.load_robot("sweaty-arm")
     noise = NoiseModel.create(model.n_dof, force=0.5, moment=0.05)
-    spec = DatasetSpec(Combination("factorial", per_link=args.configs_per_link), n_frames=args.frames, seed=0, noise=noise)
+    spec = DatasetSpec(
+        Combination("factorial", per_link=args.configs_per_link), n_frames=args.frames, seed=0, noise=noise
+    )
     ds = generate_dataset(model, spec)
     n_fit = args.frames - int(0.2 * args.frames)
     sub = ds.select(slice(0, min(args.subset, ds.n_configs)))
@@ -154,49 +170,82 @@ def main() -> None:
     t0 = time.perf_counter()
     res = solve_dataset(ds, SolveSettings(), model=model)
     linear_seconds = time.perf_counter() - t0
-    row("linear, batched (JAX + NumPy QR), all configurations", ds.n_configs, linear_seconds,
-        np.median(relative_error(res.base_hat, res.base_true)))
+    row(
+        "linear, batched (JAX + NumPy QR), all configurations",
+        ds.n_configs,
+        linear_seconds,
+        np.median(relative_error(res.base_hat, res.base_true)),
+    )
     t0 = time.perf_counter()
     res = solve_dataset(ds, SolveSettings(weights="estimate"), model=model)
-    row("linear, weighted (noise per axis estimated, 3 rounds)", ds.n_configs, time.perf_counter() - t0,
-        np.median(relative_error(res.base_hat, res.base_true)))
+    row(
+        "linear, weighted (noise per axis estimated, 3 rounds)",
+        ds.n_configs,
+        time.perf_counter() - t0,
+        np.median(relative_error(res.base_hat, res.base_true)),
+    )
     t0 = time.perf_counter()
     res = solve_dataset(sub, SolveSettings(backend="casadi"), model=model)
-    row("linear through CasADi, per configuration", sub.n_configs, time.perf_counter() - t0,
-        np.median(relative_error(res.base_hat, res.base_true)))
+    row(
+        "linear through CasADi, per configuration",
+        sub.n_configs,
+        time.perf_counter() - t0,
+        np.median(relative_error(res.base_hat, res.base_true)),
+    )
     beta, seconds = pinocchio_peer(model, sub, n_fit)
     peer_rate = sub.n_configs / seconds
-    row("peer: Pinocchio regressor per frame + numpy lstsq", sub.n_configs, seconds,
-        np.median(relative_error(beta, res.base_true)))
+    row(
+        "peer: Pinocchio regressor per frame + numpy lstsq",
+        sub.n_configs,
+        seconds,
+        np.median(relative_error(beta, res.base_true)),
+    )
     ratio = ds.n_configs / linear_seconds / peer_rate
-    print(f"{'  -> linear, batched against the peer: ' + f'{ratio:.1f}x':58s} (target 10x: {'MET' if ratio >= 10 else 'MISSED'})")
+    print(
+        f"{'  -> linear, batched against the peer: ' + f'{ratio:.1f}x':58s} (target 10x: "
+        f"{'MET' if ratio >= 10 else 'MISSED'})"
+    )
     compiled = c_compiler() is not None
     if compiled:
         t0 = time.perf_counter()
         res = solve_dataset(ds, SolveSettings(backend="casadi-c"), model=model)
-        row("linear, casadi-c (compiled C blocks), all configurations", ds.n_configs, time.perf_counter() - t0,
-            np.median(relative_error(res.base_hat, res.base_true)))
+        row(
+            "linear, casadi-c (compiled C blocks), all configurations",
+            ds.n_configs,
+            time.perf_counter() - t0,
+            np.median(relative_error(res.base_hat, res.base_true)),
+        )
     paper_rows(model, ds, sub, n_fit, row)
     for method in ("nonlinear", "consistent"):
         for workers in sorted({1, os.cpu_count() or 1}):
             t0 = time.perf_counter()
             res = solve_dataset(sub, SolveSettings(method=method, workers=workers), model=model)
             ok = f"{res.success.mean():.0%} ok"
-            row(f"{method} (IPOPT), {workers} process{'es' if workers > 1 else ''}, {ok}", sub.n_configs,
-                time.perf_counter() - t0, np.nanmedian(relative_error(res.base_hat, res.base_true)))
+            row(
+                f"{method} (IPOPT), {workers} process{'es' if workers > 1 else ''}, {ok}",
+                sub.n_configs,
+                time.perf_counter() - t0,
+                np.nanmedian(relative_error(res.base_hat, res.base_true)),
+            )
         if compiled:
             t0 = time.perf_counter()
             res = solve_dataset(sub, SolveSettings(method=method, backend="casadi-c"), model=model)
             ok = f"{res.success.mean():.0%} ok"
-            row(f"{method}, casadi-c (IPOPT jit, compile incl.), 1 process, {ok}", sub.n_configs,
-                time.perf_counter() - t0, np.nanmedian(relative_error(res.base_hat, res.base_true)))
+            row(
+                f"{method}, casadi-c (IPOPT jit, compile incl.), 1 process, {ok}",
+                sub.n_configs,
+                time.perf_counter() - t0,
+                np.nanmedian(relative_error(res.base_hat, res.base_true)),
+            )
     if args.cli:
         first, second = whole_command(ds)
         print()
         print(f"ineid solve DATA.h5 --method linear, {ds.n_configs:,} configurations, whole command (fresh process):")
         print(f"  first run (empty cache, compiles): {first:6.2f} s")
-        print(f"  second run (compilation cache):     {second:6.2f} s  -> {ds.n_configs / second:,.0f} configs/s, "
-              f"{ds.n_configs / second / peer_rate:,.0f}x the Pinocchio peer")
+        print(
+            f"  second run (compilation cache):     {second:6.2f} s  -> {ds.n_configs / second:,.0f} configs/s, "
+            f"{ds.n_configs / second / peer_rate:,.0f}x the Pinocchio peer"
+        )
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ from ineid.reference import (
 
 def robots():
     yield "sweaty-arm", ineid.load_robot("sweaty-arm"), pinocchio_model(ineid.load_robot("sweaty-arm").urdf_path)
-    import importlib.metadata as md  # noqa: PLC0415
+    import importlib.metadata as md
 
     root = md.distribution("example-robot-data").locate_file("cmeel.prefix/share/example-robot-data/robots")
     path = root / "panda_description/urdf/panda.urdf"
@@ -50,15 +50,17 @@ def main() -> None:
     head = f"{'robot':18s} {'call':52s} {'frames':>9s} {'seconds':>8s} {'M frames/s':>11s} {'vs Pinocchio':>13s}"
     print(head)
     print("-" * len(head))
-    import pinocchio as pin  # noqa: PLC0415
+    import pinocchio as pin
 
     for name, model, pm in robots():
         n, m = args.frames, min(args.peer_frames, args.frames)
         q, qd, qdd = sample(model, n)
         y_ref = pinocchio_joint_torque_regressor(pm, q[:50], qd[:50], qdd[:50])
         tau_ref = pinocchio_joint_torques(pm, q[:50], qd[:50], qdd[:50])
-        for label, got, ref in (("regressor", model.joint_torque_regressor(q[:50], qd[:50], qdd[:50]), y_ref),
-                                ("torques", model.joint_torques(q[:50], qd[:50], qdd[:50]), tau_ref)):
+        for label, got, ref in (
+            ("regressor", model.joint_torque_regressor(q[:50], qd[:50], qdd[:50]), y_ref),
+            ("torques", model.joint_torques(q[:50], qd[:50], qdd[:50]), tau_ref),
+        ):
             err = float(np.max(np.abs(got - ref)) / np.max(np.abs(ref)))
             if not err <= 1e-10:
                 raise AssertionError(f"{name}: joint {label} differ from Pinocchio by {err:.3g}")
@@ -81,12 +83,24 @@ def main() -> None:
         peer_y = m / best(pin_regressor, args.repeats)
         peer_tau = m / best(pin_rnea, args.repeats)
         rows = [
-            ("model.joint_torque_regressor(q, qd, qdd)", n,
-             best(lambda: model.joint_torque_regressor(q, qd, qdd), args.repeats), peer_y),
-            ("model.joint_torques(q, qd, qdd) (CAD theta)", n,
-             best(lambda: model.joint_torques(q, qd, qdd), args.repeats), peer_tau),
-            (f"model.link_wrench_regressor(..., {link!r})"[:52], n,
-             best(lambda: model.link_wrench_regressor(q, qd, qdd, link), args.repeats), peer_y),
+            (
+                "model.joint_torque_regressor(q, qd, qdd)",
+                n,
+                best(lambda: model.joint_torque_regressor(q, qd, qdd), args.repeats),
+                peer_y,
+            ),
+            (
+                "model.joint_torques(q, qd, qdd) (CAD theta)",
+                n,
+                best(lambda: model.joint_torques(q, qd, qdd), args.repeats),
+                peer_tau,
+            ),
+            (
+                f"model.link_wrench_regressor(..., {link!r})"[:52],
+                n,
+                best(lambda: model.link_wrench_regressor(q, qd, qdd, link), args.repeats),
+                peer_y,
+            ),
             ("peer: Pinocchio computeJointTorqueRegressor/frame", m, m / peer_y, peer_y),
             ("peer: Pinocchio rnea per frame", m, m / peer_tau, peer_tau),
         ]

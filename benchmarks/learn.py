@@ -24,7 +24,6 @@ from pathlib import Path
 
 import jax
 import numpy as np
-
 from machine import cpu_description  # benchmarks/machine.py
 
 import ineid
@@ -108,12 +107,15 @@ def main() -> None:
             if loss == "physics" and mode == "cached":
                 worst = max(worst, ratio)
             name = "MSE" if loss == "mse" else f"physics ({mode})"
-            print(f"{label:48s} {name:16s} {1 / sec:9,.0f} {batch / sec:10,.0f} {batch * spec.frames / sec:10,.0f} "
-                  f"{ratio:6.2f}x")
+            print(
+                f"{label:48s} {name:16s} {1 / sec:9,.0f} {batch / sec:10,.0f} {batch * spec.frames / sec:10,.0f} "
+                f"{ratio:6.2f}x"
+            )
     verdict = "MET" if worst <= 2.0 else "MISSED"
     aim = "met" if worst <= 1.3 else "not met"
-    print(f"floor: physics step <= 2x the MSE step (cached, the default): worst {worst:.2f}x -> {verdict}; "
-          f"aim 1.3x {aim}")
+    print(
+        f"floor: physics step <= 2x the MSE step (cached, the default): worst {worst:.2f}x -> {verdict}; aim 1.3x {aim}"
+    )
 
     print()
     print(f"whole runs: ineid.learn.train, {args.epochs} epochs (no early stop), best of 3 after a warm-up run")

@@ -69,30 +69,59 @@ def paper_networks(out: Path, m) -> None:
         ("funnel", ModelSpec("funnel"), "mse", dict(epochs=30, patience=8, **s)),
         ("multi net2 K10", ModelSpec("net2", frames=10), "mse", dict(epochs=100, patience=15, batch=64, lr=1e-3)),
         ("multi net5 K10", ModelSpec("net5", frames=10), "mse", dict(epochs=100, patience=15, batch=64, lr=1e-3)),
-        ("multi net2 K10", ModelSpec("net2", frames=10), "physics",
-         dict(epochs=100, patience=15, batch=64, lr=1e-3, beta=50.0)),
-        ("siamese net2 K10", ModelSpec("net2", frames=10, siamese=True), "mse",
-         dict(epochs=100, patience=15, batch=64, lr=1e-3)),
-        ("siamese net2 K10", ModelSpec("net2", frames=10, siamese=True), "physics",
-         dict(epochs=100, patience=15, batch=64, lr=1e-3, beta=50.0)),
+        (
+            "multi net2 K10",
+            ModelSpec("net2", frames=10),
+            "physics",
+            dict(epochs=100, patience=15, batch=64, lr=1e-3, beta=50.0),
+        ),
+        (
+            "siamese net2 K10",
+            ModelSpec("net2", frames=10, siamese=True),
+            "mse",
+            dict(epochs=100, patience=15, batch=64, lr=1e-3),
+        ),
+        (
+            "siamese net2 K10",
+            ModelSpec("net2", frames=10, siamese=True),
+            "physics",
+            dict(epochs=100, patience=15, batch=64, lr=1e-3, beta=50.0),
+        ),
         ("net6", ModelSpec("net6"), "mse", dict(epochs=10, patience=5, **s)),
-        ("siamese net6 K10", ModelSpec("net6", frames=10, siamese=True), "mse",
-         dict(epochs=40, patience=10, batch=64, lr=1e-3)),
+        (
+            "siamese net6 K10",
+            ModelSpec("net6", frames=10, siamese=True),
+            "mse",
+            dict(epochs=40, patience=10, batch=64, lr=1e-3),
+        ),
         ("net7", ModelSpec("net7"), "mse", dict(epochs=5, patience=5, **s)),
-    ]  # fmt: skip
+    ]
     for name, spec, loss, kw in runs:
-        cfg = TrainConfig(model=spec, loss=loss, scaler="robust", optimizer="adam", n_train=3000, n_val=500,
-                          n_test=500, seed=0, **kw)  # fmt: skip
+        cfg = TrainConfig(
+            model=spec, loss=loss, scaler="robust", optimizer="adam", n_train=3000, n_val=500, n_test=500, seed=0, **kw
+        )
         t = time.perf_counter()
         d = str(out / f"{name.replace(' ', '_')}_{loss}")
         r = train(ds, cfg, d, overwrite=True, model=m)
         ev = evaluate(load_run(d), ds, model=m)
-        rec = dict(name=name, loss=loss, epochs=r.epochs_run, best_epoch=r.best_epoch, stopped=r.stopped_early,
-                   seconds=time.perf_counter() - t, standard=ev.network["overall_median"],
-                   base=ev.network_base["overall_median"], floor=ev.floor["overall_median"],
-                   linear_standard=ev.linear["overall_median"], linear_base=ev.linear_base["overall_median"],
-                   physical=ev.physical_share, linear_physical=ev.linear_physical_share,
-                   per_sample=ev.per_sample_median, mass_r2=ev.network_base["r2"][0], frames=ev.frames_used)  # fmt: skip
+        rec = dict(
+            name=name,
+            loss=loss,
+            epochs=r.epochs_run,
+            best_epoch=r.best_epoch,
+            stopped=r.stopped_early,
+            seconds=time.perf_counter() - t,
+            standard=ev.network["overall_median"],
+            base=ev.network_base["overall_median"],
+            floor=ev.floor["overall_median"],
+            linear_standard=ev.linear["overall_median"],
+            linear_base=ev.linear_base["overall_median"],
+            physical=ev.physical_share,
+            linear_physical=ev.linear_physical_share,
+            per_sample=ev.per_sample_median,
+            mass_r2=ev.network_base["r2"][0],
+            frames=ev.frames_used,
+        )
         results.write(json.dumps(rec) + "\n")
         results.flush()
         print(rec, flush=True)
@@ -101,8 +130,12 @@ def paper_networks(out: Path, m) -> None:
 def _errors(est_theta, truth, base) -> tuple[float, float, float, float]:
     """Median standard error, median / 95th percentile / max base error (relative)."""
     eb = relative_error(est_theta @ base.B.T, truth @ base.B.T)
-    return (float(np.nanmedian(relative_error(est_theta, truth))), float(np.nanmedian(eb)),
-            float(np.nanpercentile(eb, 95)), float(np.nanmax(eb)))  # fmt: skip
+    return (
+        float(np.nanmedian(relative_error(est_theta, truth))),
+        float(np.nanmedian(eb)),
+        float(np.nanpercentile(eb, 95)),
+        float(np.nanmax(eb)),
+    )
 
 
 def wls_rows(out: Path, m, quick: bool) -> list[dict]:
@@ -112,16 +145,35 @@ def wls_rows(out: Path, m, quick: bool) -> list[dict]:
     glitch = NoiseModel.create(m.n_dof, **LEVEL1, glitch_rate=0.02, glitch_scale=20.0)
     cases = [  # name, dataset spec, split (train, val, test), epochs, lr
         ("paper", DatasetSpec(seed=0), (3000, 500, 500), 3 if quick else 20, 1e-3),
-        ("noisy", DatasetSpec(Combination("random", n_configs=n_noisy), n_frames=10, seed=1, noise=noise),
-         (int(0.7 * n_noisy), n_noisy // 10, n_noisy // 5), 30 if quick else 100, 3e-3),
-        ("glitch", DatasetSpec(Combination("random", n_configs=n_noisy), n_frames=10, seed=2, noise=glitch),
-         (int(0.7 * n_noisy), n_noisy // 10, n_noisy // 5), 30 if quick else 100, 3e-3),
-    ]  # fmt: skip
+        (
+            "noisy",
+            DatasetSpec(Combination("random", n_configs=n_noisy), n_frames=10, seed=1, noise=noise),
+            (int(0.7 * n_noisy), n_noisy // 10, n_noisy // 5),
+            30 if quick else 100,
+            3e-3,
+        ),
+        (
+            "glitch",
+            DatasetSpec(Combination("random", n_configs=n_noisy), n_frames=10, seed=2, noise=glitch),
+            (int(0.7 * n_noisy), n_noisy // 10, n_noisy // 5),
+            30 if quick else 100,
+            3e-3,
+        ),
+    ]
     rows = []
     for name, spec, (n_train, n_val, n_test), epochs, lr in cases:
         ds = generate_dataset(m, spec)
-        cfg = TrainConfig(model=ModelSpec("wls", frames=10), epochs=epochs, batch=256, lr=lr,
-                          patience=max(10, epochs // 5), n_train=n_train, n_val=n_val, n_test=n_test, seed=0)  # fmt: skip
+        cfg = TrainConfig(
+            model=ModelSpec("wls", frames=10),
+            epochs=epochs,
+            batch=256,
+            lr=lr,
+            patience=max(10, epochs // 5),
+            n_train=n_train,
+            n_val=n_val,
+            n_test=n_test,
+            seed=0,
+        )
         run_dir = out / f"wls_{name}"
         t = time.perf_counter()
         result = train(ds, cfg, run_dir, overwrite=True, model=m)
@@ -136,13 +188,28 @@ def wls_rows(out: Path, m, quick: bool) -> list[dict]:
         wls = solve_dataset(sub, SolveSettings(frames=frames, weights="estimate"), model=m)
         gp_theta, _ = gaussian_prior_estimates(run, ds, test, frames, m, True)
         floor = ev.floor["overall_median"]
-        for label, est, secs in (("least squares", ls.theta_hat, None),
-                                 ("least squares, weights estimated", wls.theta_hat, None),
-                                 ("Gaussian prior (training truth)", gp_theta, None),
-                                 (f"wls network ({result.epochs_run} epochs)", theta_net, seconds)):  # fmt: skip
+        for label, est, secs in (
+            ("least squares", ls.theta_hat, None),
+            ("least squares, weights estimated", wls.theta_hat, None),
+            ("Gaussian prior (training truth)", gp_theta, None),
+            (f"wls network ({result.epochs_run} epochs)", theta_net, seconds),
+        ):
             std, b_med, b_p95, b_max = _errors(est, truth, base)
-            rows.append(dict(data=name, estimator=label, standard=std, base=b_med, base_p95=b_p95, base_max=b_max,
-                             floor=floor, seconds=secs, configs=ds.n_configs, frames=frames, test=len(test)))  # fmt: skip
+            rows.append(
+                dict(
+                    data=name,
+                    estimator=label,
+                    standard=std,
+                    base=b_med,
+                    base_p95=b_p95,
+                    base_max=b_max,
+                    floor=floor,
+                    seconds=secs,
+                    configs=ds.n_configs,
+                    frames=frames,
+                    test=len(test),
+                )
+            )
     with open(out / "wls.jsonl", "a") as fh:
         for r in rows:
             fh.write(json.dumps(r) + "\n")
@@ -160,19 +227,27 @@ def main() -> None:
     m = ineid.load_robot("sweaty-arm")
     if not args.wls:
         paper_networks(out, m)
-    print(f"machine: {cpu_description()}; ineid {ineid.__version__}; float64; "
-          f"{'--quick: 4,000 noisy configurations' if args.quick else '12,000 noisy configurations'}")  # fmt: skip
+    print(
+        f"machine: {cpu_description()}; ineid {ineid.__version__}; float64; "
+        f"{'--quick: 4,000 noisy configurations' if args.quick else '12,000 noisy configurations'}"
+    )
     rows = wls_rows(out, m, args.quick)
-    head = (f"{'data':7s} {'estimator':34s} {'standard':>9s} {'base':>9s} {'base p95':>9s} {'base max':>9s} "
-            f"{'floor':>7s} {'train s':>8s}")  # fmt: skip
+    head = (
+        f"{'data':7s} {'estimator':34s} {'standard':>9s} {'base':>9s} {'base p95':>9s} {'base max':>9s} "
+        f"{'floor':>7s} {'train s':>8s}"
+    )
     print(head)
     print("-" * len(head))
     for r in rows:
         secs = "-" if r["seconds"] is None else f"{r['seconds']:.0f}"
-        print(f"{r['data']:7s} {r['estimator']:34s} {r['standard']:9.3g} {r['base']:9.3g} {r['base_p95']:9.3g} "
-              f"{r['base_max']:9.2g} {r['floor']:7.3g} {secs:>8s}")  # fmt: skip
-    print("data: paper = 10,000 x 100 clean frames (3,000 / 500 / 500); noisy, glitch = level-1 noise, 10 frames "
-          "(glitch: 2 % of frames with 20x force noise); errors on the test configurations, K = 10 frames per sample")
+        print(
+            f"{r['data']:7s} {r['estimator']:34s} {r['standard']:9.3g} {r['base']:9.3g} {r['base_p95']:9.3g} "
+            f"{r['base_max']:9.2g} {r['floor']:7.3g} {secs:>8s}"
+        )
+    print(
+        "data: paper = 10,000 x 100 clean frames (3,000 / 500 / 500); noisy, glitch = level-1 noise, 10 frames "
+        "(glitch: 2 % of frames with 20x force noise); errors on the test configurations, K = 10 frames per sample"
+    )
 
 
 if __name__ == "__main__":

@@ -54,20 +54,31 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args()
     model = ineid.load_robot("sweaty-arm", unknown_links=["hand"])
-    sensors = (("wrist F/T (forearm)", sensor_channel("forearm", model)), ("base F/T", BaseWrench()),
-               ("joint torques", JointTorque()))
+    sensors = (
+        ("wrist F/T (forearm)", sensor_channel("forearm", model)),
+        ("base F/T", BaseWrench()),
+        ("joint torques", JointTorque()),
+    )
     print(header())
-    print(f"sweaty-arm, payload 'hand' unknown, {args.configs} configurations x {args.frames} frames "
-          f"(half fitted, half held out), linear, noise F/T {NOISE['wrench'][0]} N / {NOISE['wrench'][1]} N*m, "
-          f"torques {NOISE['tau']} N*m")
-    head = (f"{'sensor':22s} {'mass err':>10s} {'mass std':>10s} {'com err mm':>11s} {'com std mm':>11s} "
-            f"{'I_C err':>10s} {'I_C std':>10s} {'seconds':>8s}")
+    print(
+        f"sweaty-arm, payload 'hand' unknown, {args.configs} configurations x {args.frames} frames "
+        f"(half fitted, half held out), linear, noise F/T {NOISE['wrench'][0]} N / {NOISE['wrench'][1]} N*m, "
+        f"torques {NOISE['tau']} N*m"
+    )
+    head = (
+        f"{'sensor':22s} {'mass err':>10s} {'mass std':>10s} {'com err mm':>11s} {'com std mm':>11s} "
+        f"{'I_C err':>10s} {'I_C std':>10s} {'seconds':>8s}"
+    )
     print(head)
     print("-" * len(head))
     for label, channel in sensors:
         rng = np.random.default_rng(args.seed)
-        spec = DatasetSpec(Combination("random", n_configs=args.configs), n_frames=args.frames, seed=args.seed,
-                           channels=ChannelSet.of(channel))
+        spec = DatasetSpec(
+            Combination("random", n_configs=args.configs),
+            n_frames=args.frames,
+            seed=args.seed,
+            channels=ChannelSet.of(channel),
+        )
         ds = noisy(generate_dataset(model, spec), channel, rng)
         t0 = time.perf_counter()
         res = solve_dataset(ds, SolveSettings(method="linear", frames=args.frames // 2), model=model)
@@ -78,9 +89,11 @@ def main() -> None:
         est = np.stack([physical_quantities(t)[0] for t in res.theta_hat[:, col]])
         pay = res.payload["hand"]
         err = np.abs(est - truth)
-        print(f"{label:22s} {np.median(err[:, 0]):10.2e} {np.median(pay['mass_std']):10.2e} "
-              f"{1e3 * np.median(err[:, 1:4]):11.3f} {1e3 * np.median(pay['com_std']):11.3f} "
-              f"{np.median(err[:, 4:]):10.2e} {np.median(pay['inertia_std']):10.2e} {seconds:8.2f}")
+        print(
+            f"{label:22s} {np.median(err[:, 0]):10.2e} {np.median(pay['mass_std']):10.2e} "
+            f"{1e3 * np.median(err[:, 1:4]):11.3f} {1e3 * np.median(pay['com_std']):11.3f} "
+            f"{np.median(err[:, 4:]):10.2e} {np.median(pay['inertia_std']):10.2e} {seconds:8.2f}"
+        )
 
 
 if __name__ == "__main__":

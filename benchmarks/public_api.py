@@ -60,27 +60,46 @@ def main() -> None:
     # warm: compile (or load) the chunk kernels, check the numbers
     check("model.regressor", model.regressor(q[:100], qd[:100], qdd[:100]))
     y_u, w_k = model.regressor_split(q[:100], qd[:100], qdd[:100])
-    check("model.regressor_split", np.concatenate([y_u, ref[..., model.known_index]], axis=-1)[..., np.argsort(
-        np.concatenate([model.unknown_index, model.known_index]))])
-    np.testing.assert_allclose(model.base_wrench(q[:100], qd[:100], qdd[:100]), ref @ model.theta_cad, rtol=1e-10,
-                               atol=1e-10 * np.max(np.abs(ref @ model.theta_cad)))
+    check(
+        "model.regressor_split",
+        np.concatenate([y_u, ref[..., model.known_index]], axis=-1)[
+            ..., np.argsort(np.concatenate([model.unknown_index, model.known_index]))
+        ],
+    )
+    np.testing.assert_allclose(
+        model.base_wrench(q[:100], qd[:100], qdd[:100]),
+        ref @ model.theta_cad,
+        rtol=1e-10,
+        atol=1e-10 * np.max(np.abs(ref @ model.theta_cad)),
+    )
     model.base_wrench(q[:5000], qd[:5000], qdd[:5000], theta[:5000])
 
     rows = []
-    rows.append(("model.regressor(q, qd, qdd) -> (N, 6, 40)", n,
-                 best(lambda: model.regressor(q, qd, qdd), args.repeats)))
-    rows.append(("model.regressor_split(q, qd, qdd)", n,
-                 best(lambda: model.regressor_split(q, qd, qdd), args.repeats)))
-    rows.append(("model.base_wrench(q, qd, qdd) (CAD theta)", n,
-                 best(lambda: model.base_wrench(q, qd, qdd), args.repeats)))
-    rows.append(("model.base_wrench(q, qd, qdd, theta), theta per frame", n,
-                 best(lambda: model.base_wrench(q, qd, qdd, theta), args.repeats)))
+    rows.append(
+        ("model.regressor(q, qd, qdd) -> (N, 6, 40)", n, best(lambda: model.regressor(q, qd, qdd), args.repeats))
+    )
+    rows.append(("model.regressor_split(q, qd, qdd)", n, best(lambda: model.regressor_split(q, qd, qdd), args.repeats)))
+    rows.append(
+        ("model.base_wrench(q, qd, qdd) (CAD theta)", n, best(lambda: model.base_wrench(q, qd, qdd), args.repeats))
+    )
+    rows.append(
+        (
+            "model.base_wrench(q, qd, qdd, theta), theta per frame",
+            n,
+            best(lambda: model.base_wrench(q, qd, qdd, theta), args.repeats),
+        )
+    )
     m = min(args.peer_frames, n)
     g = model.gravity
     f = model.jax_regressor
     f(q[:m], qd[:m], qdd[:m], g)  # op-by-op dispatch warms its per-op caches
-    rows.append(("before: generated JAX function without jit (0.1)", m,
-                 best(lambda: np.asarray(f(q[:m], qd[:m], qdd[:m], g)), args.repeats)))
+    rows.append(
+        (
+            "before: generated JAX function without jit (0.1)",
+            m,
+            best(lambda: np.asarray(f(q[:m], qd[:m], qdd[:m], g)), args.repeats),
+        )
+    )
     step = pinocchio_steps(model, (q, qd, qdd), "free-flyer")(m)
     check("Pinocchio", step(0, 100).copy())
     rows.append(("peer: Pinocchio per frame (free-flyer regressor)", m, best(lambda: step(0, m), args.repeats)))
@@ -94,8 +113,10 @@ def main() -> None:
     for label, k, sec in rows:
         print(f"{label:58s} {k:10,d} {sec:9.3f} {k / sec / 1e6:11.3f} {k / sec / peer:12.1f}x")
     ratio = rows[0][1] / rows[0][2] / peer
-    print(f"floor: model.regressor >= 5x Pinocchio per frame: {ratio:.1f}x -> {'MET' if ratio >= 5 else 'MISSED'}"
-          f"; aim 10x {'met' if ratio >= 10 else 'not met'}")
+    print(
+        f"floor: model.regressor >= 5x Pinocchio per frame: {ratio:.1f}x -> {'MET' if ratio >= 5 else 'MISSED'}"
+        f"; aim 10x {'met' if ratio >= 10 else 'not met'}"
+    )
 
 
 if __name__ == "__main__":

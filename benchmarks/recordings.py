@@ -32,7 +32,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from machine import cpu_description  # benchmarks/machine.py
 
 from ineid.data.recording import ImportSettings, Streams, import_recording, recording_dataset
@@ -59,8 +58,9 @@ def paths_table(lab) -> None:
     cases = [(k, "estimate") for k in ("csv", "ros1", "sqlite3", "mcap", "bare-mcap")] + [("csv-tared", "none")]
     for kind, _ in cases:  # the files are written before the timings, and JAX compiles once, untimed
         lab.file(kind)
-    solve_dataset(import_recording(lab.file("csv"), lab.model, settings)[0], SolveSettings(bias="estimate"),
-                  model=lab.model)
+    solve_dataset(
+        import_recording(lab.file("csv"), lab.model, settings)[0], SolveSettings(bias="estimate"), model=lab.model
+    )
     for kind, bias in cases:
         path = lab.file(kind)
         t0 = time.perf_counter()
@@ -71,8 +71,10 @@ def paths_table(lab) -> None:
             res = solve_dataset(ds, SolveSettings(method=method, bias=bias), model=lab.model)
             t_solve = time.perf_counter() - t0
             err = base_error(res, lab.theta_unknown)
-            print(f"{kind:<12} {bias:<9} {method:<11} {t_import:>9.2f} {t_solve:>8.2f} {err.max():>9.2e} "
-                  f"{np.median(err):>11.2e}")
+            print(
+                f"{kind:<12} {bias:<9} {method:<11} {t_import:>9.2f} {t_solve:>8.2f} {err.max():>9.2e} "
+                f"{np.median(err):>11.2e}"
+            )
     print(f"(import: {summary.lines()[1]})")
 
 
@@ -89,8 +91,12 @@ def savgol(t, q, w, window):
 
     h = t[1] - t[0]
     kw = {"window_length": window, "polyorder": 3, "axis": 0, "mode": "interp"}
-    return (savgol_filter(q, **kw), savgol_filter(q, deriv=1, delta=h, **kw), savgol_filter(q, deriv=2, delta=h, **kw),
-            savgol_filter(w, **kw))
+    return (
+        savgol_filter(q, **kw),
+        savgol_filter(q, deriv=1, delta=h, **kw),
+        savgol_filter(q, deriv=2, delta=h, **kw),
+        savgol_filter(w, **kw),
+    )
 
 
 def spline(t, q, w, lam):
@@ -167,26 +173,42 @@ def filters_table(lab, encoders: bool, wrench_noise: bool, rng) -> None:
     for fc in fcs:
         t0 = time.perf_counter()
         sm = butterworth(t, q, w, fc)
-        rows.append((f"Butterworth fc={fc:g} Hz" + (" (default)" if fc == round(choice.cutoff, 3) else ""),
-                     evaluate(lab, t, sim.q, sim.qd, sim.qdd, sm, time.perf_counter() - t0)))
+        rows.append(
+            (
+                f"Butterworth fc={fc:g} Hz" + (" (default)" if fc == round(choice.cutoff, 3) else ""),
+                evaluate(lab, t, sim.q, sim.qd, sim.qdd, sm, time.perf_counter() - t0),
+            )
+        )
     for window in (11, 21, 41, 81, 161, 321):
         t0 = time.perf_counter()
         sm = savgol(t, q, w, window)
-        rows.append((f"Savitzky-Golay cubic, {window} samples", evaluate(lab, t, sim.q, sim.qd, sim.qdd, sm,
-                                                                          time.perf_counter() - t0)))
+        rows.append(
+            (
+                f"Savitzky-Golay cubic, {window} samples",
+                evaluate(lab, t, sim.q, sim.qd, sim.qdd, sm, time.perf_counter() - t0),
+            )
+        )
     h = t[1] - t[0]
     for fc in (5.0, 10.0, 20.0, 40.0, 100.0):
         lam = 1.0 / (h * (2 * np.pi * fc) ** 4)  # |H(f)| = 1 / (1 + lam h^-1 (2 pi f)^4): half gain at fc
         t0 = time.perf_counter()
         sm = spline(t, q, w, lam)
-        rows.append((f"smoothing spline, half gain {fc:g} Hz", evaluate(lab, t, sim.q, sim.qd, sim.qdd, sm,
-                                                                          time.perf_counter() - t0)))
+        rows.append(
+            (
+                f"smoothing spline, half gain {fc:g} Hz",
+                evaluate(lab, t, sim.q, sim.qd, sim.qdd, sm, time.perf_counter() - t0),
+            )
+        )
     lam, t_gcv = spline_gcv_lam(t, q)
     t0 = time.perf_counter()
     sm = spline(t, q, w, lam)
     fc_gcv = (1.0 / (lam * h)) ** 0.25 / (2 * np.pi)
-    rows.append((f"smoothing spline, GCV ({fc_gcv:.3g} Hz)", evaluate(lab, t, sim.q, sim.qd, sim.qdd, sm,
-                                                                     t_gcv + time.perf_counter() - t0)))
+    rows.append(
+        (
+            f"smoothing spline, GCV ({fc_gcv:.3g} Hz)",
+            evaluate(lab, t, sim.q, sim.qd, sim.qdd, sm, t_gcv + time.perf_counter() - t0),
+        )
+    )
     for name, (e_qd, e_qdd, e_base, sec) in rows:
         print(f"{name:<34} {e_qd:>9.2e} {e_qdd:>9.2e} {e_base:>9.2e} {sec:>9.3f}")
 
@@ -195,8 +217,10 @@ def delay_table(lab) -> None:
     sim = lab.sim
     t, q, w = sim.time, sim.q, lab.reading
     print("\n3. Delay estimated from the model: joints at 500 Hz, wrench at 500 Hz half a sample later, stamped late")
-    print(f"{'true delay ms':>13} {'estimate ms':>12} {'error us':>9} {'residual':>9} {'at 0':>9} {'seconds':>8} "
-          f"{'base err':>9}")
+    print(
+        f"{'true delay ms':>13} {'estimate ms':>12} {'error us':>9} {'residual':>9} {'at 0':>9} {'seconds':>8} "
+        f"{'base err':>9}"
+    )
     for true in (0.003, -0.0123, 0.0):
         streams = Streams(t[0::2], q[0::2], None, None, t[1::2] + true, w[1::2], "benchmark")
         t0 = time.perf_counter()
@@ -204,8 +228,10 @@ def delay_table(lab) -> None:
         seconds = time.perf_counter() - t0
         ds, _ = recording_dataset(streams, lab.model, ImportSettings(sensor_pose=POSE, delay=est.delay))
         err = base_error(solve_dataset(ds, SolveSettings(bias="estimate"), model=lab.model), lab.theta_unknown).max()
-        print(f"{1e3 * true:>13.4g} {1e3 * est.delay:>12.5g} {1e6 * abs(est.delay - true):>9.2f} "
-              f"{est.residual:>9.2e} {est.residual_at_zero:>9.2e} {seconds:>8.2f} {err:>9.2e}")
+        print(
+            f"{1e3 * true:>13.4g} {1e3 * est.delay:>12.5g} {1e6 * abs(est.delay - true):>9.2f} "
+            f"{est.residual:>9.2e} {est.residual_at_zero:>9.2e} {seconds:>8.2f} {err:>9.2e}"
+        )
 
 
 def main() -> None:
@@ -221,8 +247,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         lab = LabRecording(Path(tmp), duration=args.duration)
-        print(f"MuJoCo: {args.duration:g} s at 1 kHz simulated in {time.perf_counter() - t0:.1f} s; "
-              f"max |qd| {np.abs(lab.sim.qd).max():.2f} rad/s, max |qdd| {np.abs(lab.sim.qdd).max():.1f} rad/s^2")
+        print(
+            f"MuJoCo: {args.duration:g} s at 1 kHz simulated in {time.perf_counter() - t0:.1f} s; "
+            f"max |qd| {np.abs(lab.sim.qd).max():.2f} rad/s, max |qdd| {np.abs(lab.sim.qdd).max():.1f} rad/s^2"
+        )
         paths_table(lab)
         rng = np.random.default_rng(0)
         filters_table(lab, encoders=False, wrench_noise=False, rng=rng)

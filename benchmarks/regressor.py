@@ -40,11 +40,14 @@ PANDA_LOCKED = {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}
 
 def header() -> str:
     """CPU model, core count, library versions."""
-    versions = ", ".join(f"{p} {md.version(d)}" for p, d in (("jax", "jax"), ("casadi", "casadi"),
-                                                              ("sympy", "sympy"), ("pinocchio", "pin")))
+    versions = ", ".join(
+        f"{p} {md.version(d)}"
+        for p, d in (("jax", "jax"), ("casadi", "casadi"), ("sympy", "sympy"), ("pinocchio", "pin"))
+    )
     flags = os.environ.get("XLA_FLAGS", "")
     return f"CPU: {cpu_description()}; {versions}; Python {platform.python_version()}" + (
-        f"; XLA_FLAGS={flags!r}" if flags else "")
+        f"; XLA_FLAGS={flags!r}" if flags else ""
+    )
 
 
 def sample(model, n: int, seed: int = 0):
@@ -73,18 +76,18 @@ def check(label: str, y, ref: np.ndarray) -> None:
 
 def jax_steps(model, data, fusion: bool):
     """Step factory: the generated JAX function, jit-compiled (optionally with XLA fusion off)."""
-    import jax  # noqa: PLC0415
+    import jax
 
     opts = None if fusion else {"xla_disable_hlo_passes": "fusion"}
     f = jax.jit(model.jax_regressor, compiler_options=opts)
     g = jax.numpy.asarray(model.gravity)
     q, qd, qdd = data
-    return lambda chunk: (lambda s, e: f(q[s:e], qd[s:e], qdd[s:e], g).block_until_ready())
+    return lambda chunk: lambda s, e: f(q[s:e], qd[s:e], qdd[s:e], g).block_until_ready()
 
 
 def jax_wrench_row(model, data, n: int, repeats: int, chunk: int = 10_000) -> tuple[str, int, float]:
     """The generated ``base_wrench`` (Psi @ theta contracted inside the fused loops, Psi never formed)."""
-    import jax  # noqa: PLC0415
+    import jax
 
     f = jax.jit(model.jax_base_wrench)
     g, theta, (q, qd, qdd) = jax.numpy.asarray(model.gravity), jax.numpy.asarray(model.theta_cad), data
@@ -100,12 +103,16 @@ def jax_wrench_row(model, data, n: int, repeats: int, chunk: int = 10_000) -> tu
     step(0, chunk)
     if n % chunk:
         step(n - n % chunk, n)
-    return f"JAX jit, chunk {chunk:,}: wrench Psi@theta fused (no Psi)", n, min(run(step, n, chunk) for _ in range(repeats))
+    return (
+        f"JAX jit, chunk {chunk:,}: wrench Psi@theta fused (no Psi)",
+        n,
+        min(run(step, n, chunk) for _ in range(repeats)),
+    )
 
 
 def casadi_steps(model, data, mode: str):
     """Step factory: ``casadi_regressor.map(chunk, mode)``; returns frames as (k, 6, 10n) when checked."""
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     F, q, qd, qdd, maps = model.casadi_regressor, *data, {}
 
@@ -120,8 +127,9 @@ def casadi_steps(model, data, mode: str):
 
 def lambdify_steps(model, data):
     """Step factory: SymPy lambdify (NumPy, cse=True) on the flattened expressions."""
-    import sympy as sp  # noqa: PLC0415
-    from ineid.symbolic.newton_euler import derive_base_wrench_regressor  # noqa: PLC0415
+    import sympy as sp
+
+    from ineid.symbolic.newton_euler import derive_base_wrench_regressor
 
     sym = derive_base_wrench_regressor(model.chain)
     flat = [e for row in sym.Y for e in row]
@@ -145,8 +153,9 @@ def lambdify_steps(model, data):
 
 def pinocchio_steps(model, data, route: str):
     """Step factory: Pinocchio frame by frame, by ``route`` "free-flyer" or "body-regressor"."""
-    import pinocchio as pin  # noqa: PLC0415
-    from ineid.reference import pinocchio_base_regressor, pinocchio_model  # noqa: PLC0415
+    import pinocchio as pin
+
+    from ineid.reference import pinocchio_base_regressor, pinocchio_model
 
     (q, qd, qdd), n = data, model.n_dof
     if route == "free-flyer":  # root body on a free flyer held at identity, zero velocity/acceleration
@@ -207,13 +216,15 @@ def measure(candidates, n: int, repeats: int, ref: np.ndarray, frames=np.asarray
 
 def codegen_rows() -> list[tuple]:
     """(robot, dof, derive s, print s, ops, named values) for sweaty-arm and the Panda."""
-    from ineid.robots.urdf import load_chain  # noqa: PLC0415
-    from ineid.symbolic.emit import emit_modules  # noqa: PLC0415
-    from ineid.symbolic.newton_euler import derive_base_wrench_regressor  # noqa: PLC0415
+    from ineid.robots.urdf import load_chain
+    from ineid.symbolic.emit import emit_modules
+    from ineid.symbolic.newton_euler import derive_base_wrench_regressor
 
     erd = md.distribution("example-robot-data").locate_file("cmeel.prefix/share/example-robot-data/robots")
-    robots = [("sweaty-arm", ineid.BUILTIN_ROBOTS["sweaty-arm"].urdf_path, None),
-              ("panda", erd / "panda_description/urdf/panda.urdf", PANDA_LOCKED)]
+    robots = [
+        ("sweaty-arm", ineid.BUILTIN_ROBOTS["sweaty-arm"].urdf_path, None),
+        ("panda", erd / "panda_description/urdf/panda.urdf", PANDA_LOCKED),
+    ]
     rows = []
     for name, path, locked in robots:
         chain = load_chain(path, locked_joints=locked)
@@ -245,21 +256,52 @@ def main(argv=None) -> None:
     jax_default, jax_nofusion = jax_steps(model, data, fusion=True), jax_steps(model, data, fusion=False)
     methods = [
         ("jax", [("JAX jit, chunk {chunk:,}, XLA defaults", jax_default, c) for c in few([2_000, 10_000, 100_000])]),
-        ("jax-nofusion", [("JAX jit, chunk {chunk:,}, XLA fusion pass off", jax_nofusion, c)
-                          for c in few([2_000, 1_000, 5_000, 10_000])]),
-        ("casadi", [(f"CasADi map {mode}{', 2 threads' if mode == 'thread' else ''}, chunk {{chunk:,}}",
-                     casadi_steps(model, data, mode), c)
-                    for mode in ("serial", "thread") for c in few([1_000, 10_000])]),
-        ("lambdify", [("SymPy lambdify NumPy cse=True, chunk {chunk:,}", lambdify_steps(model, data), c)
-                      for c in few([1_000, 10_000])]),
-        ("pinocchio", [("Pinocchio per frame, free-flyer computeJointTorqueRegressor",
-                        pinocchio_steps(model, data, "free-flyer"), 10_000),
-                       ("Pinocchio per frame, jointBodyRegressor (ineid.reference)",
-                        pinocchio_steps(model, data, "body-regressor"), 10_000)]),
+        (
+            "jax-nofusion",
+            [
+                ("JAX jit, chunk {chunk:,}, XLA fusion pass off", jax_nofusion, c)
+                for c in few([2_000, 1_000, 5_000, 10_000])
+            ],
+        ),
+        (
+            "casadi",
+            [
+                (
+                    f"CasADi map {mode}{', 2 threads' if mode == 'thread' else ''}, chunk {{chunk:,}}",
+                    casadi_steps(model, data, mode),
+                    c,
+                )
+                for mode in ("serial", "thread")
+                for c in few([1_000, 10_000])
+            ],
+        ),
+        (
+            "lambdify",
+            [
+                ("SymPy lambdify NumPy cse=True, chunk {chunk:,}", lambdify_steps(model, data), c)
+                for c in few([1_000, 10_000])
+            ],
+        ),
+        (
+            "pinocchio",
+            [
+                (
+                    "Pinocchio per frame, free-flyer computeJointTorqueRegressor",
+                    pinocchio_steps(model, data, "free-flyer"),
+                    10_000,
+                ),
+                (
+                    "Pinocchio per frame, jointBodyRegressor (ineid.reference)",
+                    pinocchio_steps(model, data, "body-regressor"),
+                    10_000,
+                ),
+            ],
+        ),
     ]
     casadi_frames = lambda y: y.full().reshape(6, -1, cols).transpose(1, 0, 2)  # noqa: E731
-    results = {key: measure(cands, n, repeats, ref, casadi_frames if key == "casadi" else np.asarray)
-               for key, cands in methods}
+    results = {
+        key: measure(cands, n, repeats, ref, casadi_frames if key == "casadi" else np.asarray) for key, cands in methods
+    }
 
     pin_fps = results["pinocchio"][1] / results["pinocchio"][2]
     print(f"{'method':<62} {'frames timed':>13} {'seconds':>9} {'frames/s':>12} {'vs Pinocchio':>13}")

@@ -15,8 +15,8 @@ os.environ.setdefault("JAX_ENABLE_X64", "1")
 if "jax" in sys.modules:  # imported before ineid: the variable came too late
     sys.modules["jax"].config.update("jax_enable_x64", True)
 
-from ineid._version import __version__  # noqa: E402
-from ineid.errors import (  # noqa: E402
+from ineid._version import __version__
+from ineid.errors import (
     CodegenError,
     DatasetError,
     IdentificationError,
@@ -27,7 +27,7 @@ from ineid.errors import (  # noqa: E402
     RobotModelError,
     TrainingError,
 )
-from ineid.params import (  # noqa: E402
+from ineid.params import (
     PARAM_NAMES,
     check_physical,
     inertial_from_theta,
@@ -48,7 +48,7 @@ _LAZY = {
 def __getattr__(name: str):
     """Import the robot-model entry points on first use (they pull in yourdfpy)."""
     if name in _LAZY:
-        import importlib  # noqa: PLC0415
+        import importlib
 
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'ineid' has no attribute {name!r}")

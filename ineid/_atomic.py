@@ -108,8 +108,8 @@ def atomic_write(path: str | Path, data: str | bytes) -> Path:
 
 def write_csv(path: str | Path, fieldnames: list[str], rows: list[dict] | list[list]) -> Path:
     """Write a CSV with a header atomically; ``rows`` are dicts (by field name) or sequences."""
-    import csv  # noqa: PLC0415
-    import io  # noqa: PLC0415
+    import csv
+    import io
 
     buf = io.StringIO(newline="")
     if rows and isinstance(rows[0], dict):
@@ -261,7 +261,7 @@ def output_lock(path: str | Path, option: str = "--out") -> Iterator[Path]:
             _held[key] -= 1
         return
     try:
-        import fcntl  # noqa: PLC0415  (POSIX; elsewhere outputs are not locked)
+        import fcntl  # POSIX; elsewhere outputs are not locked
     except ImportError:
         yield path
         return

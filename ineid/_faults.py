@@ -25,8 +25,16 @@ from pathlib import Path
 from ineid._temporary import target_name
 from ineid.errors import ResourceError, StorageError
 
-FAULT_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENAMETOOLONG,
-                errno.EIO)
+FAULT_ERRNOS = (
+    errno.ENOSPC,
+    errno.EDQUOT,
+    errno.EFBIG,
+    errno.EROFS,
+    errno.EACCES,
+    errno.EPERM,
+    errno.ENAMETOOLONG,
+    errno.EIO,
+)
 """The ``errno`` values :func:`describe_fault` words for the user."""
 
 _ERRNO = re.compile(r"\berrno\s*=\s*(\d+)")
@@ -66,7 +74,7 @@ def _in_cache(path: str | None) -> bool:
     if path is None:
         return False
     try:
-        from ineid.cache import cache_dir  # noqa: PLC0415  (standard library only)
+        from ineid.cache import cache_dir  # standard library only
 
         return Path(path).resolve().is_relative_to(cache_dir().resolve())
     except (OSError, ValueError):
@@ -87,8 +95,7 @@ def describe_fault(exc: BaseException) -> str | None:
     """
     if isinstance(exc, MemoryError) or (type(exc).__name__ == "JaxRuntimeError" and "RESOURCE_EXHAUSTED" in str(exc)):
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        return (f"out of memory ({first}); use fewer configurations (--select) or frames, "
-                "or a machine with more memory")  # fmt: skip
+        return f"out of memory ({first}); use fewer configurations (--select) or frames, or a machine with more memory"
     code = fault_errno(exc)
     if code is None:
         return None
@@ -99,16 +106,23 @@ def describe_fault(exc: BaseException) -> str | None:
         what = "no space left on device" if code == errno.ENOSPC else "disk quota exceeded"
         return f"{what}{f' writing {shown}' if path else ''}; free some space or {where}"
     if code == errno.EFBIG:
-        return (f"file too large for the file system (or the limit of `ulimit -f`){f' writing {shown}' if path else ''}"
-                f"; make a smaller output or {where}")  # fmt: skip
+        return (
+            f"file too large for the file system (or the limit of `ulimit -f`){f' writing {shown}' if path else ''}"
+            f"; make a smaller output or {where}"
+        )
     if code == errno.EROFS:
         return f"{shown or 'the output'} is on a read-only file system; {where}"
     if code in (errno.EACCES, errno.EPERM):
-        return (f"permission denied: {shown or 'a file or folder'}; check the permissions of the file and its "
-                f"folder, or {where}")  # fmt: skip
+        return (
+            f"permission denied: {shown or 'a file or folder'}; check the permissions of the file and its "
+            f"folder, or {where}"
+        )
     if code == errno.ENAMETOOLONG:
         return f"file name too long for the file system: {shown}; choose a shorter name"
-    return f"input/output error{f' on {shown}' if path else ''}: the disk or network file system failed; check it and retry"
+    return (
+        f"input/output error{f' on {shown}' if path else ''}: the disk or network file system failed; check it and "
+        "retry"
+    )
 
 
 def format_bytes(n: float) -> str:

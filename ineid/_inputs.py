@@ -39,8 +39,9 @@ def file_kind(mode: int) -> str:
     return "a regular file" if stat.S_ISREG(mode) else "not a regular file"
 
 
-def regular_file(path: str | os.PathLike, what: str = "the input", *, max_bytes: int | None = None,
-                 limit_name: str = "") -> Path:
+def regular_file(
+    path: str | os.PathLike, what: str = "the input", *, max_bytes: int | None = None, limit_name: str = ""
+) -> Path:
     """``path`` if it names an existing regular file (symbolic links followed) of at most ``max_bytes``.
 
     Nothing is opened: ``os.stat`` tells a FIFO or a device from a file without blocking.
@@ -126,8 +127,13 @@ def parse_json(text: str | bytes, *, max_depth: int = JSON_MAX_DEPTH, max_bytes:
         raise JsonDepthError(f"nested deeper than Python's parser goes ({max_depth} levels is ineid's limit)") from None
 
 
-def read_json(path: str | os.PathLike, what: str = "the JSON file", *, max_bytes: int = JSON_MAX_BYTES,
-              max_depth: int = JSON_MAX_DEPTH) -> object:
+def read_json(
+    path: str | os.PathLike,
+    what: str = "the JSON file",
+    *,
+    max_bytes: int = JSON_MAX_BYTES,
+    max_depth: int = JSON_MAX_DEPTH,
+) -> object:
     """The JSON value in the regular file ``path`` (:func:`regular_file`), bounded as :func:`parse_json` bounds it.
 
     Raises:

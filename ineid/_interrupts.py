@@ -114,8 +114,9 @@ def redeliver_ignored_interrupt(unraisable) -> None:
     goes to the previous hook.
     """
     exc = getattr(unraisable, "exc_value", None)
-    signum = signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT if isinstance(
-        exc, KeyboardInterrupt) else None
+    signum = (
+        signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT if isinstance(exc, KeyboardInterrupt) else None
+    )
     if signum is None:
         _PREVIOUS_UNRAISABLEHOOK(unraisable)
         return

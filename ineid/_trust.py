@@ -39,7 +39,7 @@ _FORMAT = "ineid-manifest-1"
 PRIVATE_MODE = 0o700
 
 
-class Untrusted(Exception):  # noqa: N818 - a verdict, caught by every caller
+class Untrusted(Exception):  # a verdict, caught by every caller
     """A folder or file failed a check; ``reason`` completes "the code in DIR ..."."""
 
     def __init__(self, reason: str) -> None:

@@ -165,7 +165,7 @@ def _prepare_root(root: Path) -> str | None:
             return problem
     try:
         if not marked:
-            from ineid._atomic import atomic_write  # noqa: PLC0415
+            from ineid._atomic import atomic_write
 
             atomic_write(root / MARKER, _MARKER_TEXT)
         if os.stat(root).st_mode & 0o077:
@@ -278,7 +278,7 @@ def enable_compilation_cache() -> Path | None:
             os.environ["JAX_COMPILATION_CACHE_DIR"] = str(path)
         os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
         return Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
-    import jax  # noqa: PLC0415
+    import jax
 
     if jax.config.jax_compilation_cache_dir is None:
         path = _checked_xla.get(str(cache_dir()), ...)
@@ -299,11 +299,11 @@ _checked_xla: dict[str, Path | None] = {}
 
 def _listen() -> None:
     """Log JAX's persistent-cache hits (and, at DEBUG, misses) on ``ineid.cache``."""
-    global _listening  # noqa: PLW0603 - one listener per process
+    global _listening  # one listener per process
     if _listening:
         return
     _listening = True
-    from jax import monitoring  # noqa: PLC0415
+    from jax import monitoring
 
     def on_duration(event: str, duration: float, **_: object) -> None:
         if event == "/jax/compilation_cache/compile_time_saved_sec":

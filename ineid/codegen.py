@@ -42,7 +42,7 @@ def generated_modules_for(
     and their ``KINEMATIC_FINGERPRINT`` equals the chain's. Files that fail a check are
     never run: they are regenerated, with one warning line saying why.
     """
-    from ineid.generated import file_names, load_from_directory, load_sources  # noqa: PLC0415
+    from ineid.generated import file_names, load_from_directory, load_sources
 
     cached = codegen_dir is None
     directory = default_codegen_dir(chain) if cached else Path(codegen_dir)
@@ -73,8 +73,8 @@ def generate_code(chain: Chain, robot_name: str, directory: str | Path, regenera
     Raises:
         CodegenError: a chain longer than ``MAX_DERIVED_JOINTS`` (lock joints), or emitted code that fails its check.
     """
-    from ineid.generated import BUILTIN_DIR  # noqa: PLC0415
-    from ineid.symbolic.emit import derive_and_emit, write_files  # noqa: PLC0415
+    from ineid.generated import BUILTIN_DIR
+    from ineid.symbolic.emit import derive_and_emit, write_files
 
     emitted = derive_and_emit(chain, robot_name, regenerate or "ineid generate ROBOT")
     write_files(emitted.files, directory, manifest=Path(directory).resolve() != BUILTIN_DIR)
@@ -107,8 +107,8 @@ def load_robot(
         RobotModelError: unknown name, unreadable or unusable URDF or MJCF, or bad link choice.
         OptionalDependencyError: an MJCF without MuJoCo installed.
     """
-    from ineid.generated import load_builtin  # noqa: PLC0415
-    from ineid.robots.mjcf import robot_file_chain  # noqa: PLC0415
+    from ineid.generated import load_builtin
+    from ineid.robots.mjcf import robot_file_chain
 
     key = str(robot)
     if key in BUILTIN_ROBOTS and not Path(key).is_file():
@@ -128,5 +128,15 @@ def load_robot(
     jax_mod, ca_mod = generated_modules_for(chain, chain.name, codegen_dir)
     links = [j.link for j in chain.joints] if unknown_links is None else unknown_links
     urdf_path = path.resolve() if urdf_text is None else None
-    return RobotModel(chain, urdf_path, chain.name, gravity, links, jax_mod, ca_mod, locked_joints,
-                      urdf_text=urdf_text, model_path=path.resolve())
+    return RobotModel(
+        chain,
+        urdf_path,
+        chain.name,
+        gravity,
+        links,
+        jax_mod,
+        ca_mod,
+        locked_joints,
+        urdf_text=urdf_text,
+        model_path=path.resolve(),
+    )

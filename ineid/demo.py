@@ -15,10 +15,10 @@ import numpy as np
 
 
 def main(n_frames: int = 100_000, seed: int = 0) -> None:
-    import jax  # noqa: PLC0415
+    import jax
 
-    from ineid.codegen import load_robot  # noqa: PLC0415
-    from ineid.data.sampling import model_uniform_states  # noqa: PLC0415
+    from ineid.codegen import load_robot
+    from ineid.data.sampling import model_uniform_states
 
     model = load_robot("sweaty-arm")
     q, qd, qdd = model_uniform_states(model, n_frames, np.random.default_rng(seed))
@@ -59,9 +59,9 @@ def main(n_frames: int = 100_000, seed: int = 0) -> None:
 
 def identification(model, seed: int = 0, per_link: int = 12, n_frames: int = 100) -> None:
     """A noisy ground truth (per_link^2 configurations), identified three ways."""
-    from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset  # noqa: PLC0415
-    from ineid.identify import SolveSettings, base_parameters, relative_error, solve_dataset  # noqa: PLC0415
-    from ineid.params import all_links_physical  # noqa: PLC0415
+    from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
+    from ineid.identify import SolveSettings, base_parameters, relative_error, solve_dataset
+    from ineid.params import all_links_physical
 
     noise = NoiseModel.create(model.n_dof, force=0.5, moment=0.05, qd=0.01, qdd=0.1)
     t0 = time.perf_counter()
@@ -87,7 +87,9 @@ def identification(model, seed: int = 0, per_link: int = 12, n_frames: int = 100
         ok = res.success
         base_err = np.median(relative_error(res.base_hat[ok], res.base_true[ok]))
         std_err = np.median(relative_error(res.theta_hat[ok], res.theta_true[ok]))
-        ident_err = np.median(relative_error(res.theta_hat[ok][:, base.identifiable], res.theta_true[ok][:, base.identifiable]))
+        ident_err = np.median(
+            relative_error(res.theta_hat[ok][:, base.identifiable], res.theta_true[ok][:, base.identifiable])
+        )
         physical = all_links_physical(res.theta_hat[ok]).mean()
         print(f"{label:28s} {base_err:9.4f} {std_err:9.4f} {ident_err:13.4f} {physical:9.0%} {seconds:8.2f}")
     print("(median relative errors over configurations and parameters; identifiable = the 6 standard parameters")

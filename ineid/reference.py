@@ -12,9 +12,11 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 
-def pinocchio_model(urdf_path, gravity: Sequence[float] = (0.0, 0.0, -9.81), locked_joints: Mapping[str, float] | None = None):
+def pinocchio_model(
+    urdf_path, gravity: Sequence[float] = (0.0, 0.0, -9.81), locked_joints: Mapping[str, float] | None = None
+):
     """Pinocchio model of a URDF (fixed joints merged), with ``locked_joints`` removed."""
-    import pinocchio as pin  # noqa: PLC0415
+    import pinocchio as pin
 
     model = pin.buildModelFromUrdf(str(urdf_path))
     if locked_joints:
@@ -31,7 +33,7 @@ def pinocchio_model(urdf_path, gravity: Sequence[float] = (0.0, 0.0, -9.81), loc
 
 def pinocchio_q(model, angles: np.ndarray) -> np.ndarray:
     """Pinocchio configuration of joint angles/positions (maps continuous joints to cos/sin)."""
-    import pinocchio as pin  # noqa: PLC0415
+    import pinocchio as pin
 
     return pin.integrate(model, pin.neutral(model), np.asarray(angles, dtype=np.float64))
 
@@ -48,7 +50,7 @@ def pinocchio_base_wrench(model, q, qd, qdd, data=None) -> np.ndarray:
     joint ``i`` (its frame); for joints on the root, ``liMi[i]`` carries it into the base
     frame. The fixture receives the opposite.
     """
-    import pinocchio as pin  # noqa: PLC0415
+    import pinocchio as pin
 
     data = data or model.createData()
     roots = [i for i in range(1, model.njoints) if model.parents[i] == 0]
@@ -69,7 +71,7 @@ def pinocchio_base_regressor(model, q, qd, qdd, data=None) -> np.ndarray:
     Blocks ``-oMi[i].toDualActionMatrix() @ jointBodyRegressor(model, data, i)`` after
     RNEA (which leaves the gravity-including accelerations ``jointBodyRegressor`` needs).
     """
-    import pinocchio as pin  # noqa: PLC0415
+    import pinocchio as pin
 
     data = data or model.createData()
     q, qd, qdd = (np.atleast_2d(np.asarray(x, dtype=np.float64)) for x in (q, qd, qdd))
@@ -86,7 +88,7 @@ def pinocchio_base_regressor(model, q, qd, qdd, data=None) -> np.ndarray:
 
 def pinocchio_joint_torques(model, q, qd, qdd, data=None) -> np.ndarray:
     """Pinocchio's ``rnea`` for each frame; (n_frames, n_dof) x3 -> (n_frames, n_dof)."""
-    import pinocchio as pin  # noqa: PLC0415
+    import pinocchio as pin
 
     data = data or model.createData()
     q, qd, qdd = (np.atleast_2d(np.asarray(x, dtype=np.float64)) for x in (q, qd, qdd))
@@ -95,12 +97,16 @@ def pinocchio_joint_torques(model, q, qd, qdd, data=None) -> np.ndarray:
 
 def pinocchio_joint_torque_regressor(model, q, qd, qdd, data=None) -> np.ndarray:
     """Pinocchio's ``computeJointTorqueRegressor`` for each frame; -> (n_frames, n_dof, 10 * n_bodies)."""
-    import pinocchio as pin  # noqa: PLC0415
+    import pinocchio as pin
 
     data = data or model.createData()
     q, qd, qdd = (np.atleast_2d(np.asarray(x, dtype=np.float64)) for x in (q, qd, qdd))
-    return np.stack([pin.computeJointTorqueRegressor(model, data, pinocchio_q(model, q[k]), qd[k], qdd[k]).copy()
-                     for k in range(len(q))])
+    return np.stack(
+        [
+            pin.computeJointTorqueRegressor(model, data, pinocchio_q(model, q[k]), qd[k], qdd[k]).copy()
+            for k in range(len(q))
+        ]
+    )
 
 
 def pinocchio_link_wrench(model, q, qd, qdd, link_joint: int, data=None) -> np.ndarray:
@@ -110,7 +116,7 @@ def pinocchio_link_wrench(model, q, qd, qdd, link_joint: int, data=None) -> np.n
     After RNEA, ``data.f[c]`` is the force body ``link_joint`` applies to the subtree of each child
     joint ``c`` (in ``c``'s frame); ``liMi[c]`` carries it into the link's frame; the link receives the opposite.
     """
-    import pinocchio as pin  # noqa: PLC0415
+    import pinocchio as pin
 
     data = data or model.createData()
     children = [c for c in range(1, model.njoints) if model.parents[c] == link_joint]

@@ -18,8 +18,12 @@ from ineid.channels.pose import (
     wrench_transform,
 )
 
-warnings.warn("ineid.sensor moved to ineid.channels.pose (import its names from ineid.channels); "
-              "ineid.sensor is removed in ineid 0.3", DeprecationWarning, stacklevel=2)
+warnings.warn(
+    "ineid.sensor moved to ineid.channels.pose (import its names from ineid.channels); "
+    "ineid.sensor is removed in ineid 0.3",
+    DeprecationWarning,
+    stacklevel=2,
+)
 
 __all__ = [
     "SensorPose",

@@ -12,10 +12,21 @@ def _time(typestore, ns: int):
     return typestore.types["builtin_interfaces/msg/Time"](sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
 
 
-def write_bag(path: Path, kind: str, joint_names: Sequence[str], joint_time: np.ndarray, q: np.ndarray,
-              wrench_time: np.ndarray | None, wrench: np.ndarray | None, frame_id: str = "ft_sensor",
-              joint_topic: str = "/joint_states", wrench_topic: str = "/ft_sensor/wrench", start_ns: int = 1_700_000_000 * 10**9,
-              extra_topics: Sequence[str] = (), effort: Sequence[np.ndarray] | np.ndarray | None = None) -> Path:
+def write_bag(
+    path: Path,
+    kind: str,
+    joint_names: Sequence[str],
+    joint_time: np.ndarray,
+    q: np.ndarray,
+    wrench_time: np.ndarray | None,
+    wrench: np.ndarray | None,
+    frame_id: str = "ft_sensor",
+    joint_topic: str = "/joint_states",
+    wrench_topic: str = "/ft_sensor/wrench",
+    start_ns: int = 1_700_000_000 * 10**9,
+    extra_topics: Sequence[str] = (),
+    effort: Sequence[np.ndarray] | np.ndarray | None = None,
+) -> Path:
     """Write a bag with JointState and WrenchStamped messages.
 
     Args:
@@ -49,21 +60,35 @@ def write_bag(path: Path, kind: str, joint_names: Sequence[str], joint_time: np.
     empty = np.zeros(0)
     with writer:
         cj = writer.add_connection(joint_topic, js, typestore=store)
-        cw = [] if wrench is None else [writer.add_connection(topic, ws, typestore=store)
-                                        for topic in (wrench_topic, *extra_topics)]
+        cw = (
+            []
+            if wrench is None
+            else [writer.add_connection(topic, ws, typestore=store) for topic in (wrench_topic, *extra_topics)]
+        )
         for ns, which, k in events:
             if which == 0:
                 header = t["std_msgs/msg/Header"](stamp=_time(store, ns), frame_id="", **({"seq": k} if ros1 else {}))
                 eff = empty if effort is None else np.ascontiguousarray(effort[k], dtype=np.float64)
-                msg = t[js](header=header, name=list(joint_names), position=np.ascontiguousarray(q[k], dtype=np.float64),
-                            velocity=empty, effort=eff)
+                msg = t[js](
+                    header=header,
+                    name=list(joint_names),
+                    position=np.ascontiguousarray(q[k], dtype=np.float64),
+                    velocity=empty,
+                    effort=eff,
+                )
                 writer.write(cj, ns, serialize(msg, js))
             else:
-                header = t["std_msgs/msg/Header"](stamp=_time(store, ns), frame_id=frame_id, **({"seq": k} if ros1 else {}))
+                header = t["std_msgs/msg/Header"](
+                    stamp=_time(store, ns), frame_id=frame_id, **({"seq": k} if ros1 else {})
+                )
                 v = t["geometry_msgs/msg/Vector3"]
                 f, m = wrench[k, :3], wrench[k, 3:]
-                msg = t[ws](header=header, wrench=t["geometry_msgs/msg/Wrench"](force=v(x=f[0], y=f[1], z=f[2]),
-                                                                              torque=v(x=m[0], y=m[1], z=m[2])))
+                msg = t[ws](
+                    header=header,
+                    wrench=t["geometry_msgs/msg/Wrench"](
+                        force=v(x=f[0], y=f[1], z=f[2]), torque=v(x=m[0], y=m[1], z=m[2])
+                    ),
+                )
                 data = serialize(msg, ws)
                 for c in cw:
                     writer.write(c, ns, data)

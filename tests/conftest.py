@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import ineid  # noqa: F401  (turns on jax x64)
+import ineid  # turns on jax x64
 
 SEED = 20261121
 

@@ -11,7 +11,7 @@ from ineid.channels.pose import SensorPose
 
 
 def _quat(r: np.ndarray) -> np.ndarray:
-    import mujoco  # noqa: PLC0415
+    import mujoco
 
     out = np.empty(4)
     mujoco.mju_mat2Quat(out, np.ascontiguousarray(r, dtype=np.float64).ravel())
@@ -21,11 +21,11 @@ def _quat(r: np.ndarray) -> np.ndarray:
 def _arm_mjcf(model, theta, root_theta, timestep: float) -> str:
     """The arm's MJCF as the other MuJoCo tests build it (``ineid.data.mujoco_sim`` once issue 21 lands)."""
     try:
-        from ineid.data.mujoco_sim import arm_mjcf  # noqa: PLC0415
+        from ineid.data.mujoco_sim import arm_mjcf
 
         return arm_mjcf(model.chain, theta, root_theta, SensorPose(), timestep)
     except ImportError:
-        from tests.mujoco_arm import arm_mjcf  # noqa: PLC0415
+        from tests.mujoco_arm import arm_mjcf
 
         return arm_mjcf(model.chain, theta, root_theta, SensorPose(), timestep, 0.0, 0.0)
 
@@ -33,11 +33,11 @@ def _arm_mjcf(model, theta, root_theta, timestep: float) -> str:
 def _sim_parts():
     """``(Reference, root_theta(model))`` from ``ineid.data.mujoco_sim`` (issue 21) or the tests' old home."""
     try:
-        from ineid.data.mujoco_sim import Reference, root_link_theta  # noqa: PLC0415
+        from ineid.data.mujoco_sim import Reference, root_link_theta
 
         return Reference, root_link_theta
     except ImportError:
-        from tests.mujoco_arm import Reference, _root_theta  # noqa: PLC0415
+        from tests.mujoco_arm import Reference, _root_theta
 
         return Reference, _root_theta
 
@@ -53,8 +53,10 @@ def imu_mjcf(model, mounts, theta, root_theta, timestep: float = 1e-3) -> str:
     xml = _arm_mjcf(model, theta, root_theta, timestep)
     sensors = ""
     for m in mounts:
-        site = (f'<site name="imu_{m.name}" pos="{" ".join(repr(float(v)) for v in m.link_p_sensor)}" '
-                f'quat="{" ".join(repr(float(v)) for v in _quat(m.link_R_sensor))}"/>')
+        site = (
+            f'<site name="imu_{m.name}" pos="{" ".join(repr(float(v)) for v in m.link_p_sensor)}" '
+            f'quat="{" ".join(repr(float(v)) for v in _quat(m.link_R_sensor))}"/>'
+        )
         body = rf'(<body name="{re.escape(m.link)}"[^>]*>)'
         xml, n = re.subn(body, lambda mt, site=site: mt.group(1) + site, xml, count=1)
         assert n == 1, m.link
@@ -64,7 +66,7 @@ def imu_mjcf(model, mounts, theta, root_theta, timestep: float = 1e-3) -> str:
 
 def mujoco_imu(m, d, mounts) -> dict[str, dict[str, np.ndarray]]:
     """MuJoCo's readings now: its gyro and accelerometer, and the site's angular acceleration."""
-    import mujoco  # noqa: PLC0415
+    import mujoco
 
     mujoco.mj_rnePostConstraint(m, d)
     out = {}
@@ -72,17 +74,29 @@ def mujoco_imu(m, d, mounts) -> dict[str, dict[str, np.ndarray]]:
     for k, mount in enumerate(mounts):
         site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, f"imu_{mount.name}")
         mujoco.mj_objectAcceleration(m, d, mujoco.mjtObj.mjOBJ_SITE, site, acc, 1)
-        out[mount.name] = {"gyro": d.sensordata[6 + 6 * k: 9 + 6 * k].copy(),
-                           "accel": d.sensordata[9 + 6 * k: 12 + 6 * k].copy(), "alpha": acc[:3].copy()}
+        out[mount.name] = {
+            "gyro": d.sensordata[6 + 6 * k : 9 + 6 * k].copy(),
+            "accel": d.sensordata[9 + 6 * k : 12 + 6 * k].copy(),
+            "alpha": acc[:3].copy(),
+        }
     return out
 
 
-def simulate_imus(model, mounts, theta, root_theta, duration: float, rate: float, seed: int = 0,
-                  speed: float = 1.0, steps_per_sample: int = 2):
+def simulate_imus(
+    model,
+    mounts,
+    theta,
+    root_theta,
+    duration: float,
+    rate: float,
+    seed: int = 0,
+    speed: float = 1.0,
+    steps_per_sample: int = 2,
+):
     """MuJoCo's forward dynamics (RK4) of the arm tracking a smooth reference (computed torque), no
     friction: per recorded sample the exact ``q, qd, qdd``, the wrench at the root (base frame, about the
     base origin, the load on the fixture: the root's weight included) and every IMU's readings."""
-    import mujoco  # noqa: PLC0415
+    import mujoco
 
     reference_class, _ = _sim_parts()
     rng = np.random.default_rng(seed)
@@ -100,8 +114,13 @@ def simulate_imus(model, mounts, theta, root_theta, duration: float, rate: float
         dd.ctrl[:] = mass @ (qdd_ref + wn**2 * (q_ref - dd.qpos) + 2 * wn * (qd_ref - dd.qvel)) + dd.qfrc_bias
 
     n = round(duration * rate) + 1
-    q, qd, qdd, wrench, time = (np.empty((n, m.nv)), np.empty((n, m.nv)), np.empty((n, m.nv)), np.empty((n, 6)),
-                                np.empty(n))
+    q, qd, qdd, wrench, time = (
+        np.empty((n, m.nv)),
+        np.empty((n, m.nv)),
+        np.empty((n, m.nv)),
+        np.empty((n, 6)),
+        np.empty(n),
+    )
     readings = {mt.name: {k: np.empty((n, 3)) for k in ("gyro", "accel", "alpha")} for mt in mounts}
     mujoco.set_mjcb_control(control)
     try:

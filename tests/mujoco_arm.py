@@ -37,8 +37,8 @@ class LabRecording:
     """
 
     def __init__(self, folder, duration: float = 10.0, seed: int = 11) -> None:
-        import ineid  # noqa: PLC0415
-        from ineid.data.sampling import sample_link_parameters  # noqa: PLC0415
+        import ineid
+        from ineid.data.sampling import sample_link_parameters
 
         self.folder = folder
         self.model = ineid.load_robot("sweaty-arm")
@@ -65,13 +65,13 @@ class LabRecording:
         extra joint ``head_pan``; the wrench's ``frame_id`` is ``ft_sensor``."""
         if kind in self._files:
             return self._files[kind]
-        from tests.bag_files import write_angles_csv, write_bag  # noqa: PLC0415
+        from tests.bag_files import write_angles_csv, write_bag
 
         t, q = self.sim.time, self.sim.q
         if kind in ("csv", "csv-tared"):
             path = write_angles_csv(self.folder / f"{kind}.csv", t, q, self.reading if kind == "csv" else self.tared)
         elif kind == "bare-mcap":
-            import shutil  # noqa: PLC0415
+            import shutil
 
             folder = self.file("mcap")
             path = self.folder / "bare.mcap"

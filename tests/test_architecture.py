@@ -1,7 +1,8 @@
 """The house's shape, from the code's own imports: one direction of layers, no cycles, small modules.
 
 Every ``import`` and ``from ... import`` in the package counts, those inside functions and
-under ``if TYPE_CHECKING:`` too (a lazy import is still an arrow), and so does ``importlib.import_module("ineid....")`` with
+under ``if TYPE_CHECKING:`` too (a lazy import is still an arrow), and so does
+``importlib.import_module("ineid....")`` with
 a literal name. A submodule that imports its own package (``from ineid.data import X`` inside
 ``ineid/data/``) depends on the package ``__init__`` and, through its re-exports, on every
 sibling: that is an arrow too. See ``docs/architecture.md``.
@@ -205,8 +206,12 @@ def test_imports_flow_one_way():
 def test_submodules_import_their_siblings_directly():
     """Inside a package, ``from ineid.data.schema import Dataset``, never ``from ineid.data import Dataset``:
     the package's ``__init__`` re-exports its submodules, so importing it from one is a cycle in waiting."""
-    wrong = [f"{m} imports its package {t}" for m, targets in sorted(package_graph().items()) for t in sorted(targets)
-             if m.startswith(t + ".") and not m.endswith(".__main__")]  # __main__ runs the package's own main()
+    wrong = [
+        f"{m} imports its package {t}"
+        for m, targets in sorted(package_graph().items())
+        for t in sorted(targets)
+        if m.startswith(t + ".") and not m.endswith(".__main__")
+    ]  # __main__ runs the package's own main()
     assert not wrong, "\n".join(wrong)
 
 
@@ -221,7 +226,9 @@ def test_shims_only_point_to_the_new_home():
 
 def test_the_graph_sees_every_kind_of_import():
     """The checker is not blind: lazy, relative, package and importlib imports are all arrows."""
-    modules = {name: Path(f"/x/{name.replace('.', '/')}.py") for name in ("ineid.data.a", "ineid.data.b", "ineid.learn.c")}
+    modules = {
+        name: Path(f"/x/{name.replace('.', '/')}.py") for name in ("ineid.data.a", "ineid.data.b", "ineid.learn.c")
+    }
     modules["ineid.data"] = Path("/x/ineid/data/__init__.py")
     source = (
         "def f():\n    from ineid.learn.c import g\n"

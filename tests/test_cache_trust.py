@@ -85,6 +85,7 @@ def _mode(path: Path) -> int:
 
 # -- generated modules -------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("manifest", ["kept", "deleted"])
 def test_planted_code_in_a_cached_module_never_runs(template, cache_root, tmp_path, logged, manifest):
     """A line prepended to the cached JAX module (the manifest left, or deleted too) is not run:
@@ -98,7 +99,7 @@ def test_planted_code_in_a_cached_module_never_runs(template, cache_root, tmp_pa
     model = ineid.load_robot(URDF)
     assert not canary.exists()
     reason = "does not match its manifest (mixed_chain_jax.py was modified" if manifest == "kept" else "has no MANIFEST"
-    assert logged == [l for l in logged if "the cached generated code of mixed-chain" in l] and len(logged) == 1
+    assert logged == [m for m in logged if "the cached generated code of mixed-chain" in m] and len(logged) == 1
     assert f"in {folder} {reason}" in logged[0] and logged[0].endswith("; regenerating")
     assert jax_file.read_bytes() == (template / jax_file.name).read_bytes()  # regenerated in place
     assert _trust.verified(folder, file_names("mixed-chain"), private=True)
@@ -131,8 +132,12 @@ def test_foreign_cache_folders_are_not_used(cache_root, monkeypatch, logged):
     (cache_root / "generated").chmod(0o775)
     elsewhere = cache.private_folder("generated", "abc")
     assert not elsewhere.is_relative_to(cache_root) and _mode(elsewhere.parent.parent) == 0o700
-    assert logged == [(f"the cache folder {cache_root / 'generated'} is writable by group or others, so ineid "
-                       "loads no code from it and works in a private temporary folder this time; fix: ineid cache clear")]
+    assert logged == [
+        (
+            f"the cache folder {cache_root / 'generated'} is writable by group or others, so ineid "
+            "loads no code from it and works in a private temporary folder this time; fix: ineid cache clear"
+        )
+    ]
 
     def as_if_foreign(path):  # the cache folder's owner seen as another user; nothing else
         with monkeypatch.context() as m:
@@ -187,8 +192,12 @@ def test_user_folder_gets_a_manifest_and_is_checked(tmp_path, logged):
     _plant(out / "mixed_chain_casadi.py", canary)
     ineid.load_robot(URDF, codegen_dir=out)
     assert not canary.exists()
-    assert logged == [(f"the generated code of mixed-chain in {out} does not match its manifest "
-                       "(mixed_chain_casadi.py was modified after ineid wrote it); regenerating")]
+    assert logged == [
+        (
+            f"the generated code of mixed-chain in {out} does not match its manifest "
+            "(mixed_chain_casadi.py was modified after ineid wrote it); regenerating"
+        )
+    ]
     assert not (BUILTIN_DIR / "MANIFEST.json").exists()  # package code: not checked, no manifest
 
 
@@ -197,11 +206,15 @@ def test_a_foreign_manifest_in_the_way_needs_overwrite(tmp_path):
     out.mkdir()
     (out / "MANIFEST.json").write_text('{"mine": 1}')
     r = CliRunner().invoke(main, ["generate", str(URDF), "--out", str(out)])
-    assert r.exit_code == 1 and r.output.strip() == f"Error: {out / 'MANIFEST.json'} exists; pass --overwrite to replace it"
+    assert (
+        r.exit_code == 1
+        and r.output.strip() == f"Error: {out / 'MANIFEST.json'} exists; pass --overwrite to replace it"
+    )
     assert (out / "MANIFEST.json").read_text() == '{"mine": 1}'
 
 
 # -- parsed URDFs ------------------------------------------------------------------------------
+
 
 def test_parsed_urdf_entries_are_trusted_like_code(cache_root, logged):
     from ineid.robots.urdf import CHAIN_SUBDIR, parse_chain
@@ -214,12 +227,17 @@ def test_parsed_urdf_entries_are_trusted_like_code(cache_root, logged):
     assert logged == []
     entry.chmod(0o666)
     assert parse_chain(text, source="a.urdf").kinematic_fingerprint() == chain.kinematic_fingerprint()
-    assert logged == [(f"the cache of parsed URDFs in {entry.parent} has a file that is writable by group or "
-                       f"others ({entry.name}); parsing the URDF again")]
+    assert logged == [
+        (
+            f"the cache of parsed URDFs in {entry.parent} has a file that is writable by group or "
+            f"others ({entry.name}); parsing the URDF again"
+        )
+    ]
     assert _mode(entry) & 0o022 == 0  # replaced by a fresh entry
 
 
 # -- compiled CasADi functions -----------------------------------------------------------------
+
 
 @needs_cc
 def test_planted_library_in_casadi_c_is_not_loaded(cache_root, tmp_path, logged):
@@ -250,6 +268,7 @@ def test_planted_library_in_casadi_c_is_not_loaded(cache_root, tmp_path, logged)
 
 # -- ineid cache clear / info ------------------------------------------------------------------
 
+
 def test_cache_clear_refuses_a_folder_that_is_not_ineids(tmp_path, monkeypatch):
     home = tmp_path / "home"
     for rel in ("notes.txt", "xla/mine.txt", "generated/mine.py"):
@@ -262,9 +281,14 @@ def test_cache_clear_refuses_a_folder_that_is_not_ineids(tmp_path, monkeypatch):
         assert r.exit_code == 1 and "Traceback" not in r.output
         assert r.output.strip() == (
             f"Error: {home} is not an ineid cache folder (no CACHEDIR.TAG from ineid, and it holds generated, "
-            "notes.txt, xla); nothing removed; set INEID_CACHE_DIR to ineid's own cache folder (or unset it) and clear again")
+            "notes.txt, xla); nothing removed; set INEID_CACHE_DIR to ineid's own cache folder (or unset it) and "
+            "clear again"
+        )
     assert sorted(str(p.relative_to(home)) for p in home.rglob("*") if p.is_file()) == [
-        "generated/mine.py", "notes.txt", "xla/mine.txt"]
+        "generated/mine.py",
+        "notes.txt",
+        "xla/mine.txt",
+    ]
     info = runner.invoke(main, ["cache", "info"])
     assert info.exit_code == 0 and "marker: no CACHEDIR.TAG from ineid" in info.output
     assert "other entries (not ineid's, never removed): notes.txt" in info.output
@@ -291,12 +315,14 @@ def test_a_project_folder_is_never_adopted_or_cleared(tmp_path, monkeypatch, log
     assert logged == [
         f"the cache folder {project} is not empty and has no CACHEDIR.TAG from ineid (it holds {shown}), so ineid "
         "loads no code from it and works without a cache this time (in a private temporary folder); fix: set "
-        "INEID_CACHE_DIR to a new or empty folder (ineid marks it as its cache), or unset it"]
+        "INEID_CACHE_DIR to a new or empty folder (ineid marks it as its cache), or unset it"
+    ]
     for args in (["cache", "clear"], ["cache", "clear", "--xla-only"]):
         r = runner.invoke(main, args)
         assert r.exit_code == 1 and r.output.strip() == (
             f"Error: {project} is not an ineid cache folder (no CACHEDIR.TAG from ineid, and it holds {shown}); "
-            "nothing removed; set INEID_CACHE_DIR to ineid's own cache folder (or unset it) and clear again")
+            "nothing removed; set INEID_CACHE_DIR to ineid's own cache folder (or unset it) and clear again"
+        )
     assert {p.relative_to(project).as_posix(): p.read_text() for p in project.rglob("*") if p.is_file()} == mine
     info = runner.invoke(main, ["cache", "info"])
     assert "trust: NOT TRUSTED: the folder is not empty and has no CACHEDIR.TAG from ineid" in info.output
@@ -342,9 +368,16 @@ def test_cache_clear_removes_only_what_ineid_wrote(template, cache_root, tmp_pat
     theirs = tmp_path / "theirs"
     theirs.mkdir()
     (theirs / "keep.txt").write_text("mine")
-    user = {"generated/my_model.py": "mine", f"generated/{generated.name}/notes.txt": "mine",
-            f"chains/{'f' * 32}.json": '{"mine": 1}', "chains/mine.json": "{}", "casadi-c/mine.so": "mine",
-            "casadi-c/other.json": '{"format": "x"}', "xla/mine.txt": "mine", "notes.txt": "mine"}
+    user = {
+        "generated/my_model.py": "mine",
+        f"generated/{generated.name}/notes.txt": "mine",
+        f"chains/{'f' * 32}.json": '{"mine": 1}',
+        "chains/mine.json": "{}",
+        "casadi-c/mine.so": "mine",
+        "casadi-c/other.json": '{"format": "x"}',
+        "xla/mine.txt": "mine",
+        "notes.txt": "mine",
+    }
     for rel, text in user.items():
         (cache_root / rel).write_text(text)
     (cache_root / "generated" / "link").symlink_to(theirs)
@@ -355,7 +388,8 @@ def test_cache_clear_removes_only_what_ineid_wrote(template, cache_root, tmp_pat
     assert r.output.splitlines() == [
         f"removed {cache_root} ({9 + len(chain_entries)} files, 0.0 MB)",
         f"kept 9 entries that are not ineid's: casadi-c/mine.so, casadi-c/other.json, chains/{'f' * 32}.json, "
-        f"chains/mine.json, generated/{generated.name}/notes.txt, ..."]
+        f"chains/mine.json, generated/{generated.name}/notes.txt, ...",
+    ]
     left = {p.relative_to(cache_root).as_posix() for p in cache_root.rglob("*") if p.is_file() and not p.is_symlink()}
     assert left == {*user, cache.MARKER}
     assert (cache_root / "generated" / "link").is_symlink() and (theirs / "keep.txt").read_text() == "mine"

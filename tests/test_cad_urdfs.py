@@ -59,23 +59,39 @@ def test_identifiability_rank_of_kinova_equals_pinocchios():
 
 # -- inertials as exporters write them --------------------------------------------------------
 
-LINK = '<link name="{n}"><inertial><origin xyz="0 0 0.1"/><mass value="{m}"/>' \
-       '<inertia ixx="{i}" ixy="0" ixz="0" iyy="{i}" iyz="0" izz="{i}"/></inertial></link>'
-JOINT = '<joint name="{n}" type="{t}"><parent link="{p}"/><child link="{c}"/><origin xyz="0 0 0.2"/>' \
-        '<axis xyz="0 1 0"/><limit lower="-1" upper="1" velocity="2" effort="1"/></joint>'
+LINK = (
+    '<link name="{n}"><inertial><origin xyz="0 0 0.1"/><mass value="{m}"/>'
+    '<inertia ixx="{i}" ixy="0" ixz="0" iyy="{i}" iyz="0" izz="{i}"/></inertial></link>'
+)
+JOINT = (
+    '<joint name="{n}" type="{t}"><parent link="{p}"/><child link="{c}"/><origin xyz="0 0 0.2"/>'
+    '<axis xyz="0 1 0"/><limit lower="-1" upper="1" velocity="2" effort="1"/></joint>'
+)
 
 
 def arm(links: dict[str, str], joints: list[tuple[str, str, str, str]]) -> str:
-    return "<robot name='cad'><link name='base'/>" + "".join(links.values()) + "".join(
-        JOINT.format(n=n, t=t, p=p, c=c) for n, t, p, c in joints) + "</robot>"
+    return (
+        "<robot name='cad'><link name='base'/>"
+        + "".join(links.values())
+        + "".join(JOINT.format(n=n, t=t, p=p, c=c) for n, t, p, c in joints)
+        + "</robot>"
+    )
 
 
 def test_frames_point_masses_and_massless_moving_links_are_accepted():
     text = arm(
-        {"a": LINK.format(n="a", m="1", i="0.01"), "b": LINK.format(n="b", m="0.3", i="0"),  # b: a point mass
-         "dummy": LINK.format(n="dummy", m="1e-9", i="0"), "c": "<link name='c'/>"},  # a 1e-9 kg frame, a bare one
-        [("j1", "revolute", "base", "a"), ("j2", "revolute", "a", "b"), ("jd", "fixed", "b", "dummy"),
-         ("j3", "revolute", "b", "c")],  # c: a massless moving link (a joint frame)
+        {
+            "a": LINK.format(n="a", m="1", i="0.01"),
+            "b": LINK.format(n="b", m="0.3", i="0"),  # b: a point mass
+            "dummy": LINK.format(n="dummy", m="1e-9", i="0"),
+            "c": "<link name='c'/>",
+        },  # a 1e-9 kg frame, a bare one
+        [
+            ("j1", "revolute", "base", "a"),
+            ("j2", "revolute", "a", "b"),
+            ("jd", "fixed", "b", "dummy"),
+            ("j3", "revolute", "b", "c"),
+        ],  # c: a massless moving link (a joint frame)
     )
     chain = parse_chain(text)
     assert [j.link for j in chain.joints] == ["a", "b", "c"]
@@ -89,17 +105,25 @@ def test_frames_point_masses_and_massless_moving_links_are_accepted():
 @pytest.mark.parametrize(
     ("links", "message"),
     [
-        ({"b": LINK.format(n="b", m="1e-9", i="0.01")},
-         "link 'b': a mass of 1e-09 kg \\(none to speak of\\) with a non-zero inertia is not a rigid body"),
-        ({"b": LINK.format(n="b", m="1", i="0.01").replace('izz="0.01"', 'izz="0.05"')},
-         "link 'b': non-physical <inertial>: principal moments .* violate the triangle inequality"),
-        ({"a": "<link name='a'/>", "b": "<link name='b'/>"},
-         "no moving link carries mass \\(a, b\\).*give the moving links <inertial> elements"),
+        (
+            {"b": LINK.format(n="b", m="1e-9", i="0.01")},
+            "link 'b': a mass of 1e-09 kg \\(none to speak of\\) with a non-zero inertia is not a rigid body",
+        ),
+        (
+            {"b": LINK.format(n="b", m="1", i="0.01").replace('izz="0.01"', 'izz="0.05"')},
+            "link 'b': non-physical <inertial>: principal moments .* violate the triangle inequality",
+        ),
+        (
+            {"a": "<link name='a'/>", "b": "<link name='b'/>"},
+            "no moving link carries mass \\(a, b\\).*give the moving links <inertial> elements",
+        ),
     ],
 )
 def test_non_physical_or_massless_chains_are_refused_in_one_line(links, message):
-    text = arm({"a": LINK.format(n="a", m="1", i="0.01"), "b": LINK.format(n="b", m="1", i="0.01"), **links},
-               [("j1", "revolute", "base", "a"), ("j2", "revolute", "a", "b")])
+    text = arm(
+        {"a": LINK.format(n="a", m="1", i="0.01"), "b": LINK.format(n="b", m="1", i="0.01"), **links},
+        [("j1", "revolute", "base", "a"), ("j2", "revolute", "a", "b")],
+    )
     with pytest.raises(RobotModelError, match=message) as e:
         parse_chain(text)
     assert "\n" not in str(e.value)
@@ -112,9 +136,14 @@ def test_a_chain_without_moving_joints_is_refused():
 
 
 def test_mimic_followers_are_locked_with_their_leader():
-    text = arm({"a": LINK.format(n="a", m="1", i="0.01"), "b": LINK.format(n="b", m="1", i="0.01"),
-                "c": LINK.format(n="c", m="1", i="0.01")},
-               [("j1", "revolute", "base", "a"), ("j2", "revolute", "a", "b"), ("j3", "revolute", "a", "c")])
+    text = arm(
+        {
+            "a": LINK.format(n="a", m="1", i="0.01"),
+            "b": LINK.format(n="b", m="1", i="0.01"),
+            "c": LINK.format(n="c", m="1", i="0.01"),
+        },
+        [("j1", "revolute", "base", "a"), ("j2", "revolute", "a", "b"), ("j3", "revolute", "a", "c")],
+    )
     text = text.replace('<child link="c"/>', '<child link="c"/><mimic joint="j2" multiplier="-1" offset="0.1"/>')
     with pytest.raises(RobotModelError, match="branching tree.*--lock JOINT=POS"):
         parse_chain(text)
@@ -135,15 +164,19 @@ def test_so101_loads_and_its_regressor_equals_pinocchios(run):
     y = np.array(model.casadi_regressor.map(20)(q.T, qd.T, qdd.T)).reshape(6, 20, -1).transpose(1, 0, 2)
     assert rel_err(y, pinocchio_base_regressor(pin, q, qd, qdd)) < 1e-10
     shown = " ".join(run("robot", "show", path, "--lock", "gripper=0").output.split())
-    assert "note: link 'gripper_frame_link': mass 1e-09 kg with inertia of at most 0 kg*m^2 is a frame; dropped" in shown
+    assert (
+        "note: link 'gripper_frame_link': mass 1e-09 kg with inertia of at most 0 kg*m^2 is a frame; dropped" in shown
+    )
 
 
 # -- payloads ---------------------------------------------------------------------------------
 
-PAYLOAD = ('<link name="payload"><inertial><origin xyz="{c}" rpy="0.1 0.2 0.3"/><mass value="{m}"/>'
-           '<inertia ixx="0.004" ixy="0.0001" ixz="0" iyy="0.005" iyz="0" izz="0.003"/></inertial></link>'
-           '<joint name="payload_joint" type="fixed"><parent link="tool0"/><child link="payload"/>'
-           '<origin xyz="0 0 0.02" rpy="0 0.3 0"/></joint></robot>')
+PAYLOAD = (
+    '<link name="payload"><inertial><origin xyz="{c}" rpy="0.1 0.2 0.3"/><mass value="{m}"/>'
+    '<inertia ixx="0.004" ixy="0.0001" ixz="0" iyy="0.005" iyz="0" izz="0.003"/></inertial></link>'
+    '<joint name="payload_joint" type="fixed"><parent link="tool0"/><child link="payload"/>'
+    '<origin xyz="0 0 0.02" rpy="0 0.3 0"/></joint></robot>'
+)
 
 
 def ur5_with_payload(tmp_path, name: str, mass: str = "1.5", com: str = "0.01 -0.02 0.05"):
@@ -206,8 +239,9 @@ def test_payload_is_recovered_exactly_and_exported_in_place(payload_case, tmp_pa
     model, _, truth = payload_case
     pin_truth = pinocchio_model(truth)
     q, qd, qdd = random_states(model, 40, np.random.default_rng(4))
-    w, y = stack_casadi(model, q, qd, qdd, pinocchio_base_wrench(pin_truth, q, qd, qdd),
-                        model.theta_cad[model.known_index])
+    w, y = stack_casadi(
+        model, q, qd, qdd, pinocchio_base_wrench(pin_truth, q, qd, qdd), model.theta_cad[model.known_index]
+    )
     theta_hat = np.linalg.lstsq(w, y, rcond=None)[0]
     assert rel_err(theta_hat, parse_chain(truth.read_bytes()).body_links["payload"].theta) < 1e-8
     text = urdf_with_inertials(model.urdf_text, {"payload": theta_hat})
@@ -237,8 +271,14 @@ def test_a_welded_hand_solves_and_reports_its_payload_section(tmp_path, run):
     assert rel_err(model.base_wrench(q, qd, qdd), plain.base_wrench(q, qd, qdd)) < 1e-12
     truth = model.theta_cad.copy()
     truth[40:] = theta_from_inertial(0.9, np.array([0.01, 0.02, -0.06]), np.diag([2e-3, 1.5e-3, 1e-3]))
-    ds = Dataset(DatasetMeta.for_model(model, source="recording"), q[None], qd[None], qdd[None], (y @ truth)[None],
-                 theta_known=model.theta_cad[model.known_index])
+    ds = Dataset(
+        DatasetMeta.for_model(model, source="recording"),
+        q[None],
+        qd[None],
+        qdd[None],
+        (y @ truth)[None],
+        theta_known=model.theta_cad[model.known_index],
+    )
     res = solve_dataset(ds, SolveSettings(method="linear", frames=60), model=model)
     assert res.success[0] and rel_err(res.theta_hat[0], truth[40:]) < 1e-8
     section = res.payload["hand"]
@@ -284,15 +324,23 @@ def test_payload_std_by_the_delta_method_matches_monte_carlo(payload_case):
 def test_payload_delta_method_jacobian_matches_finite_differences():
     from ineid.identify.payload import physical_quantities
 
-    theta = theta_from_inertial(1.7, np.array([0.02, -0.01, 0.07]), np.array(
-        [[0.004, 1e-4, 2e-5], [1e-4, 0.005, -3e-5], [2e-5, -3e-5, 0.003]]))
+    theta = theta_from_inertial(
+        1.7, np.array([0.02, -0.01, 0.07]), np.array([[0.004, 1e-4, 2e-5], [1e-4, 0.005, -3e-5], [2e-5, -3e-5, 0.003]])
+    )
     q, jac = physical_quantities(theta)
     m, c, ic = ineid.params.inertial_from_theta(theta)
     assert np.allclose(q, [m, *c, ic[0, 0], ic[0, 1], ic[1, 1], ic[0, 2], ic[1, 2], ic[2, 2]], atol=1e-15)
     step = 1e-6 * np.maximum(np.abs(theta), 1e-3)
-    numeric = np.column_stack([(physical_quantities(theta + np.eye(10)[k] * step[k])[0]
-                                - physical_quantities(theta - np.eye(10)[k] * step[k])[0]) / (2 * step[k])
-                               for k in range(10)])
+    numeric = np.column_stack(
+        [
+            (
+                physical_quantities(theta + np.eye(10)[k] * step[k])[0]
+                - physical_quantities(theta - np.eye(10)[k] * step[k])[0]
+            )
+            / (2 * step[k])
+            for k in range(10)
+        ]
+    )
     assert np.allclose(jac, numeric, rtol=1e-6, atol=1e-9)
 
 
@@ -310,8 +358,19 @@ def test_bad_payload_names_are_refused_in_one_line_and_write_nothing(payload_cas
 
     _, cad, _ = payload_case
     out = tmp_path / "g.h5"
-    result = run("data", "generate", str(cad), "--unknown-links", ",".join(links), "--n-configs", "1",
-                 "--n-frames", "10", "--out", str(out))
+    result = run(
+        "data",
+        "generate",
+        str(cad),
+        "--unknown-links",
+        ",".join(links),
+        "--n-configs",
+        "1",
+        "--n-frames",
+        "10",
+        "--out",
+        str(out),
+    )
     assert result.exit_code == 1, result.output
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and re.search(message, lines[0]), result.output

@@ -33,7 +33,7 @@ from tests.conftest import random_states, rel_err
 POSE = SensorPose((0.03, -0.02, -0.05), (3.1, 0.2, 0.7), frame="ft_sensor", frame_id="ft")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _pull_entries(n_dof: int):
     """Row ``j`` of a :class:`Pull`: ``qdd_j`` at link ``j``'s mass, ``qd_j^2 cos q_j`` at its ``mx``."""
 
@@ -214,8 +214,8 @@ def test_a_set_stacks_any_channels(model, states, rng):
     x = POSE.transform()
     rows = channels.rows(model, *states)
     assert rows.shape == (len(states[0]), n, 10 * model.n_links)
-    assert np.array_equal(rows[:, :6], psi) and np.array_equal(rows[:, 6 + nd:], x @ psi)
-    assert rel_err(rows[:, 6:6 + nd], pull_rows(model, *states)) < 1e-15
+    assert np.array_equal(rows[:, :6], psi) and np.array_equal(rows[:, 6 + nd :], x @ psi)
+    assert rel_err(rows[:, 6 : 6 + nd], pull_rows(model, *states)) < 1e-15
     before_t = np.concatenate([psi, pull_rows(model, *states), psi], axis=1)
     assert rel_err(channels.transform(model) @ before_t, rows) < 1e-14
     u, k = channels.rows_split(model, *states)
@@ -230,8 +230,11 @@ def test_a_set_stacks_any_channels(model, states, rng):
         assert np.all(np.delete(rows[:, a], cols, axis=-1) == 0.0)
 
     # values, noise, splitting: per stacked axis
-    measured = {"wrench": rng.normal(size=(2, 6)), "pull": rng.normal(size=(2, nd)),
-                "wrench_sensor": rng.normal(size=(2, 6))}
+    measured = {
+        "wrench": rng.normal(size=(2, 6)),
+        "pull": rng.normal(size=(2, nd)),
+        "wrench_sensor": rng.normal(size=(2, 6)),
+    }
     y = channels.values(measured, model)
     assert y.shape == (2, n) and np.array_equal(channels.split(y, model)["pull"], measured["pull"])
     noise = {"wrench": [0.5, 0.5, 0.5, 0.05, 0.05, 0.05], "pull": 0.2, "wrench_sensor": [1.0] * 6}
@@ -258,7 +261,7 @@ def test_extra_kept_columns_stack_block_diagonally(model, states):
     e = channels.extra_rows(model, *states)
     expected = np.zeros((len(qd), 2 * nd + 6, 2 * nd))
     expected[:, :nd, :nd] = np.eye(nd) * qd[:, None, :]
-    expected[:, nd + 6:, nd:] = np.eye(nd) * qd[:, None, :]
+    expected[:, nd + 6 :, nd:] = np.eye(nd) * qd[:, None, :]
     assert np.array_equal(e, expected)
     assert np.array_equal(np.asarray(channels.jax_extra_rows_function(model)(*states)), expected)
     assert np.array_equal(np.asarray(channels.casadi_extra_rows(model)(*(s[0] for s in states))), expected[0])
@@ -289,11 +292,14 @@ def test_bad_records_are_one_line(record, message):
     assert "\n" not in str(info.value) and str(info.value).startswith("dataset x.h5: channels[1]")
 
 
-@pytest.mark.parametrize(("items", "message"), [
-    ({"kind": "wrench"}, "expected a list"),
-    ([], "no measurement channel"),
-    ([{"kind": "wrench", "key": "wrench"}, {"kind": "wrench", "key": "wrench"}], "distinct keys"),
-])
+@pytest.mark.parametrize(
+    ("items", "message"),
+    [
+        ({"kind": "wrench"}, "expected a list"),
+        ([], "no measurement channel"),
+        ([{"kind": "wrench", "key": "wrench"}, {"kind": "wrench", "key": "wrench"}], "distinct keys"),
+    ],
+)
 def test_bad_sets_are_one_line(items, message):
     with pytest.raises(DatasetError, match=message) as info:
         ChannelSet.from_list(items)
@@ -317,8 +323,9 @@ def two_channels(model, tmp_path_factory):
     from ineid.data import Combination, DatasetSpec, generate_dataset, load_dataset
 
     channels = ChannelSet.of(BaseWrench(), BaseWrench(key="wrench_sensor", sensor=POSE))
-    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=4), n_frames=30, seed=3,
-                                             channels=channels))
+    ds = generate_dataset(
+        model, DatasetSpec(Combination("random", n_configs=4), n_frames=30, seed=3, channels=channels)
+    )
     return load_dataset(ds.save(tmp_path_factory.mktemp("two") / "two.h5"))
 
 
@@ -334,8 +341,10 @@ def test_a_dataset_of_two_channels_solves_like_one(model, two_channels):
     # the one-channel estimate of the same frames by the independent route (CasADi's stacks, QR: no compilation)
     one = dataclasses.replace(ds, meta=ds.meta.with_channels(ChannelSet.of(BaseWrench())), channel_values={})
     fit = slice(0, both.n_frames_fit)
-    stacks = [stack_casadi(model, *(a[i, fit] for a in (one.q, one.qd, one.qdd, one.wrench)), one.theta_known)
-              for i in range(one.n_configs)]
+    stacks = [
+        stack_casadi(model, *(a[i, fit] for a in (one.q, one.qd, one.qdd, one.wrench)), one.theta_known)
+        for i in range(one.n_configs)
+    ]
     single = fit_base(np.stack([w for w, _ in stacks]), np.stack([y for _, y in stacks]), both.base).beta
     scales = both.base.scales[both.base.base_index]
     assert both.base.names == base_parameters(model).names and both.success.all()
@@ -362,11 +371,15 @@ def test_old_layouts_and_bad_records_read_as_one_line(model, two_channels, tmp_p
         f.attrs["version"] = 1
         del f.attrs["sensor"]
     assert load_dataset(path).meta.channels == ChannelSet.of(BaseWrench())
-    bad = [({"channels": json.dumps([{"kind": "imu", "key": "imu"}])}, "channels\\[0\\]: unknown measurement channel"),
-           ({"channels": json.dumps([{"kind": "wrench", "key": "wrench", "offsets": 1}])}, "true or false"),
-           ({"channels": "[]"}, "no measurement channel"),
-           ({"channels": json.dumps([{"kind": "wrench", "key": "wrench"}, {"kind": "wrench", "key": "more"}])},
-            "'more' is missing")]
+    bad = [
+        ({"channels": json.dumps([{"kind": "imu", "key": "imu"}])}, "channels\\[0\\]: unknown measurement channel"),
+        ({"channels": json.dumps([{"kind": "wrench", "key": "wrench", "offsets": 1}])}, "true or false"),
+        ({"channels": "[]"}, "no measurement channel"),
+        (
+            {"channels": json.dumps([{"kind": "wrench", "key": "wrench"}, {"kind": "wrench", "key": "more"}])},
+            "'more' is missing",
+        ),
+    ]
     for attrs, message in bad:
         with h5py.File(path, "r+") as f:
             f.attrs["version"] = 3

@@ -31,8 +31,12 @@ def test_robot_list_and_show(run):
         assert word in r.output
     cells = [[c.strip() for c in line.split("│")[1:-1]] for line in r.output.splitlines() if line.startswith("│")]
     roles = {row[0]: row[1] for row in cells if row[1] in ("known", "unknown")}
-    assert roles == {"shoulder_pitch_link": "known", "shoulder_roll_link": "known", "upper_arm": "unknown",
-                     "forearm": "unknown"}
+    assert roles == {
+        "shoulder_pitch_link": "known",
+        "shoulder_roll_link": "known",
+        "upper_arm": "unknown",
+        "forearm": "unknown",
+    }
     r = run("robot", "show", "sweaty-arm", "--unknown-links", "forearm", "--gravity", "0", "0", "-1.62")
     assert r.exit_code == 0 and "-1.62" in r.output
 
@@ -62,8 +66,10 @@ def test_non_finite_joint_origin_is_one_line_and_leaves_no_code(run, tmp_path, m
     bad = tmp_path / "nan.urdf"
     bad.write_text(text.replace('xyz="0 0.1 0.25"', 'xyz="0 nan 0.25"'))
     line = one_line_error(run("robot", "show", bad))
-    assert line == (f"Error: {bad}: joint 'j3': <origin xyz='0 nan 0.25'> holds a non-finite value (nan or inf); "
-                    "give finite numbers")
+    assert line == (
+        f"Error: {bad}: joint 'j3': <origin xyz='0 nan 0.25'> holds a non-finite value (nan or inf); "
+        "give finite numbers"
+    )
     assert not (tmp_path / "cache" / "generated").exists()
 
 
@@ -107,8 +113,22 @@ def test_data_generate_info_import(run, tmp_path):
     from ineid.data import load_dataset, write_recording_csv
 
     out = tmp_path / "d.h5"
-    r = run("data", "generate", "--factorial", 3, "--n-frames", 5, "--seed", 4, "--frame-mode", "fourier",
-            "--noise", "force=0.5,mz=0.01,qd=0.02", "--out", out)
+    r = run(
+        "data",
+        "generate",
+        "--factorial",
+        3,
+        "--n-frames",
+        5,
+        "--seed",
+        4,
+        "--frame-mode",
+        "fourier",
+        "--noise",
+        "force=0.5,mz=0.01,qd=0.02",
+        "--out",
+        out,
+    )
     assert r.exit_code == 0, r.output
     assert "9 configurations x 5 frames" in r.output and out.is_file()
     ds = load_dataset(out)
@@ -123,8 +143,9 @@ def test_data_generate_info_import(run, tmp_path):
     before = out.read_bytes()
     line = one_line_error(run("data", "generate", "--factorial", 3, "--n-frames", 5, "--out", out))
     assert line == f"Error: {out} exists; pass --overwrite to replace it" and out.read_bytes() == before
-    r = run("data", "generate", "sweaty-arm", "--n-configs", 4, "--pool", 2, "--n-frames", 3, "--out", out,
-            "--overwrite")
+    r = run(
+        "data", "generate", "sweaty-arm", "--n-configs", 4, "--pool", 2, "--n-frames", 3, "--out", out, "--overwrite"
+    )
     assert r.exit_code == 0 and "4 configurations x 3 frames" in r.output
 
     csv = write_recording_csv(tmp_path / "rec.csv", ds, config=2)
@@ -171,8 +192,14 @@ def small_data(tmp_path_factory):
 def test_identifiability_command(run, tmp_path, small_data):
     r = run("identifiability", "sweaty-arm")
     assert r.exit_code == 0, r.output
-    for text in ("structural rank 17", "17 identifiable combinations", "upper_arm.m + forearm.m",
-                 "forearm.Ixx - forearm.Izz", "individually identifiable (6)", "Null directions"):
+    for text in (
+        "structural rank 17",
+        "17 identifiable combinations",
+        "upper_arm.m + forearm.m",
+        "forearm.Ixx - forearm.Izz",
+        "individually identifiable (6)",
+        "Null directions",
+    ):
         assert text in r.output, text
     r = run("identifiability", "sweaty-arm", "--unknown-links", "forearm", "--n-frames", 1)
     assert r.exit_code == 0 and "these frames are not enough" in r.output and "use at least 2 frames" in r.output
@@ -184,20 +211,44 @@ def test_solve_and_export(run, tmp_path, small_data):
     out = tmp_path / "r.h5"
     r = run("solve", small_data, "--method", "linear", "--weights", "estimate", "--select", "0:6", "--out", out)
     assert r.exit_code == 0, r.output
-    for text in ("6/6 configurations identified", "fitted 24 frames each, validated on 6", "held-out wrench error",
-                 "Relative error, standard parameters", "base parameters (what the data determine)",
-                 "no (prior)", "physically valid estimates"):
+    for text in (
+        "6/6 configurations identified",
+        "fitted 24 frames each, validated on 6",
+        "held-out wrench error",
+        "Relative error, standard parameters",
+        "base parameters (what the data determine)",
+        "no (prior)",
+        "physically valid estimates",
+    ):
         assert text in r.output, text
     before = out.read_bytes()
-    assert one_line_error(run("solve", small_data, "--out", out)) == f"Error: {out} exists; pass --overwrite to replace it"
+    assert (
+        one_line_error(run("solve", small_data, "--out", out)) == f"Error: {out} exists; pass --overwrite to replace it"
+    )
     assert out.read_bytes() == before
     r = run("results", "info", out)
     assert r.exit_code == 0, r.output
     assert f"dataset: {small_data}; fingerprint " in r.output and "6/6 configurations identified" in r.output
     out_c = tmp_path / "c.h5"
-    r = run("solve", small_data, "--method", "consistent", "--select", "2,5", "--fit-frames", 30, "--workers", 1,
-            "--out", out_c)
-    assert r.exit_code == 0 and "2/2 configurations identified" in r.output and "physically valid estimates: 100.0%" in r.output
+    r = run(
+        "solve",
+        small_data,
+        "--method",
+        "consistent",
+        "--select",
+        "2,5",
+        "--fit-frames",
+        30,
+        "--workers",
+        1,
+        "--out",
+        out_c,
+    )
+    assert (
+        r.exit_code == 0
+        and "2/2 configurations identified" in r.output
+        and "physically valid estimates: 100.0%" in r.output
+    )
     urdf = tmp_path / "arm.urdf"
     r = run("export-urdf", out_c, "--config", 5, "--out", urdf)
     assert r.exit_code == 0 and urdf.is_file(), r.output
@@ -206,7 +257,9 @@ def test_solve_and_export(run, tmp_path, small_data):
     assert line == f"Error: {urdf} exists; pass --overwrite to replace it" and urdf.read_bytes() == before
     r = run("robot", "show", urdf)
     assert r.exit_code == 0
-    assert "not in the results" in one_line_error(run("export-urdf", out_c, "--config", 4, "--out", tmp_path / "x.urdf"))
+    assert "not in the results" in one_line_error(
+        run("export-urdf", out_c, "--config", 4, "--out", tmp_path / "x.urdf")
+    )
     r = run("solve", small_data, "--select", "0:zz", "--out", tmp_path / "bad.h5")
     assert r.exit_code == 2 and "A:B[:STEP]" in r.output
     line = one_line_error(run("solve", small_data, "--fit-frames", 2, "--out", tmp_path / "few.h5"))
@@ -231,8 +284,22 @@ def test_solve_recording_prints_estimates(run, tmp_path, small_data):
 
 
 def test_study_noise_command(run, tmp_path):
-    r = run("study", "noise", "--levels", "0,1", "--fit-frames", "10", "--n-configs", 6, "--methods",
-            "linear,consistent", "--workers", 1, "--out", tmp_path / "study")
+    r = run(
+        "study",
+        "noise",
+        "--levels",
+        "0,1",
+        "--fit-frames",
+        "10",
+        "--n-configs",
+        6,
+        "--methods",
+        "linear,consistent",
+        "--workers",
+        1,
+        "--out",
+        tmp_path / "study",
+    )
     assert r.exit_code == 0, r.output
     assert (tmp_path / "study" / "noise_study.csv").is_file() and (tmp_path / "study" / "noise_study.png").is_file()
     assert "consistent" in r.output and "invalid" in r.output
@@ -252,17 +319,51 @@ def test_train_evaluate_sweep(run, tmp_path):
     from ineid.data import Combination, DatasetSpec, write_dataset
 
     data = tmp_path / "d.h5"
-    write_dataset(ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=40), n_frames=6, seed=1),
-                  data)
+    write_dataset(
+        ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=40), n_frames=6, seed=1), data
+    )
     out = tmp_path / "run"
-    r = run("train", data, "--arch", "net1", "--sample-frames", 3, "--siamese", "--loss", "physics", "--beta", 2,
-            "--epochs", 3, "--batch", 16, "--train-configs", 24, "--val-configs", 8, "--out", out)
+    r = run(
+        "train",
+        data,
+        "--arch",
+        "net1",
+        "--sample-frames",
+        3,
+        "--siamese",
+        "--loss",
+        "physics",
+        "--beta",
+        2,
+        "--epochs",
+        3,
+        "--batch",
+        16,
+        "--train-configs",
+        24,
+        "--val-configs",
+        8,
+        "--out",
+        out,
+    )
     assert r.exit_code == 0, r.output
-    for text in ("3 epochs in", "evaluated on 8 configurations (test split)", "floor (null space)", "linear LS",
-                 "upper_arm.m + forearm.m", "wrench residual of the predictions"):
+    for text in (
+        "3 epochs in",
+        "evaluated on 8 configurations (test split)",
+        "floor (null space)",
+        "linear LS",
+        "upper_arm.m + forearm.m",
+        "wrench residual of the predictions",
+    ):
         assert text in r.output, text
-    for name in ("config.json", "scalers.json", "model.msgpack", "checkpoint.msgpack", "metrics.jsonl",
-                 "evaluation.json"):
+    for name in (
+        "config.json",
+        "scalers.json",
+        "model.msgpack",
+        "checkpoint.msgpack",
+        "metrics.jsonl",
+        "evaluation.json",
+    ):
         assert (out / name).is_file(), name
     assert "not empty; pass --overwrite" in one_line_error(run("train", data, "--epochs", 1, "--out", out))
     before = (out / "evaluation.json").read_bytes()
@@ -274,8 +375,22 @@ def test_train_evaluate_sweep(run, tmp_path):
     r = run("train", data, "--arch", "mlp", "--out", tmp_path / "x")
     assert r.exit_code == 2 and "depth >= 1 and width >= 1" in r.output
     sw = tmp_path / "sweep"
-    r = run("sweep", data, "--archs", "simple,funnel", "--sample-frames", "2", "--siamese", "both", "--epochs", 2,
-            "--batch", 16, "--out", sw)
+    r = run(
+        "sweep",
+        data,
+        "--archs",
+        "simple,funnel",
+        "--sample-frames",
+        "2",
+        "--siamese",
+        "both",
+        "--epochs",
+        2,
+        "--batch",
+        16,
+        "--out",
+        sw,
+    )
     assert r.exit_code == 0, r.output
     assert (sw / "sweep.csv").is_file() and (sw / "sweep.png").is_file()
     assert len((sw / "sweep.csv").read_text().splitlines()) == 1 + 4
@@ -307,9 +422,11 @@ def test_help_does_not_import_jax():
     import subprocess
     import sys
 
-    code = ("import sys; from click.testing import CliRunner; from ineid.cli import main; "
-            "r = CliRunner().invoke(main, ['--help']); assert r.exit_code == 0, r.output; "
-            "print(sorted(m for m in ('jax', 'casadi', 'h5py', 'yourdfpy', 'sympy') if m in sys.modules))")
+    code = (
+        "import sys; from click.testing import CliRunner; from ineid.cli import main; "
+        "r = CliRunner().invoke(main, ['--help']); assert r.exit_code == 0, r.output; "
+        "print(sorted(m for m in ('jax', 'casadi', 'h5py', 'yourdfpy', 'sympy') if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 
@@ -334,8 +451,24 @@ def test_sigterm_leaves_no_file(tmp_path):
 
     out = tmp_path / "big.h5"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ineid.cli", "-q", "data", "generate", "--n-configs", "200000", "--n-frames", "100",
-         "--out", out], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-m",
+            "ineid.cli",
+            "-q",
+            "data",
+            "generate",
+            "--n-configs",
+            "200000",
+            "--n-frames",
+            "100",
+            "--out",
+            out,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.time() + 120
     while time.time() < deadline and not any(p.name.endswith(".tmp") for p in tmp_path.iterdir()):
         time.sleep(0.1)

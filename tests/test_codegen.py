@@ -104,11 +104,15 @@ def chain_urdf(n_joints: int) -> str:
     axes = ("0 0 1", "0 1 0", "1 0 0")
     parts = [f'<robot name="chain{n_joints}">', '<link name="base"/>']
     for i in range(n_joints):
-        parts.append(f'<link name="l{i}"><inertial><mass value="1"/><origin xyz="0.05 0.01 0.02"/>'
-                     '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>')
-        parts.append(f'<joint name="j{i}" type="revolute"><parent link="{"base" if i == 0 else f"l{i - 1}"}"/>'
-                     f'<child link="l{i}"/><origin xyz="0.1 0.02 0.05" rpy="0.1 0.2 0.3"/><axis xyz="{axes[i % 3]}"/>'
-                     '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>')
+        parts.append(
+            f'<link name="l{i}"><inertial><mass value="1"/><origin xyz="0.05 0.01 0.02"/>'
+            '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+        )
+        parts.append(
+            f'<joint name="j{i}" type="revolute"><parent link="{"base" if i == 0 else f"l{i - 1}"}"/>'
+            f'<child link="l{i}"/><origin xyz="0.1 0.02 0.05" rpy="0.1 0.2 0.3"/><axis xyz="{axes[i % 3]}"/>'
+            '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
+        )
     return "\n".join([*parts, "</robot>"])
 
 
@@ -152,10 +156,13 @@ def test_derivation_progress_on_stderr(tmp_path, monkeypatch):
     r = CliRunner().invoke(main, ["generate", str(urdf), "--out", str(tmp_path)])
     assert r.exit_code == 0, r.output
     lines = r.stderr.splitlines()
-    assert lines[:2] == ["ineid: deriving the regressor, step 1 of 5: Newton-Euler terms of joint 1 of 2, 'j0'",
-                         "ineid: deriving the regressor, step 2 of 5: Newton-Euler terms of joint 2 of 2, 'j1'"]
-    assert re.fullmatch(r"ineid: deriving the regressor, step 3 of 5: printing the JAX module \(\d+ named values\)",
-                        lines[2])
+    assert lines[:2] == [
+        "ineid: deriving the regressor, step 1 of 5: Newton-Euler terms of joint 1 of 2, 'j0'",
+        "ineid: deriving the regressor, step 2 of 5: Newton-Euler terms of joint 2 of 2, 'j1'",
+    ]
+    assert re.fullmatch(
+        r"ineid: deriving the regressor, step 3 of 5: printing the JAX module \(\d+ named values\)", lines[2]
+    )
     assert re.fullmatch(r"ineid: deriving the regressor: finished for 'chain2' after [0-9.]+ s", lines[-1])
     assert len(lines) == 5 and "wrote" not in r.stderr  # results stay on stdout
     r = CliRunner().invoke(main, ["-q", "generate", str(urdf), "--out", str(tmp_path)])

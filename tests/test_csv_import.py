@@ -137,8 +137,10 @@ def test_long_lines_and_many_rows_are_refused_before_they_are_read(tmp_path, mod
     assert "about 2,000 rows, more than the 1,500 ineid reads" in imported(tmp_path, rec)
     # long first rows make the estimate low: the rows are counted too (and the arrays grow past it)
     monkeypatch.setattr(csv_rows, "BLOCK_CHARS", 8192)
-    padded = write(tmp_path / "padded.csv", [lines[0] + ",note"] + [r + "," + "x" * 3000 * (k < 3)
-                                                                    for k, r in enumerate(lines[1:])])
+    padded = write(
+        tmp_path / "padded.csv",
+        [lines[0] + ",note"] + [r + "," + "x" * 3000 * (k < 3) for k, r in enumerate(lines[1:])],
+    )
     with pytest.raises(DatasetError, match="1,501 rows, more than the 1,500"):
         read_csv_streams(padded, model)
     monkeypatch.setattr(csv_rows, "MAX_ROWS", 10**8)
@@ -208,8 +210,11 @@ def test_numpy_and_row_by_row_parsing_agree(tmp_path, model, monkeypatch):
 @pytest.mark.parametrize(
     "cell, message",
     [
-        ("1e308", "line 100, column 'fz' is 1e308, beyond 1e+09 in magnitude, more than any sensor or clock gives "
-                  "(ineid.data.streams.VALUE_LIMIT)"),
+        (
+            "1e308",
+            "line 100, column 'fz' is 1e308, beyond 1e+09 in magnitude, more than any sensor or clock gives "
+            "(ineid.data.streams.VALUE_LIMIT)",
+        ),
         ("-1e309", "line 100, column 'fz' is -1e309, beyond the range of a float64"),
         ("inf", "line 100, column 'fz' is inf; values must be finite"),
     ],
@@ -245,14 +250,19 @@ def test_bag_metadata_faults_are_one_line_naming_the_line(tmp_path, bag2):
     good = qos.read_text()
     nested = good.replace("offered_qos_profiles: []", 'offered_qos_profiles: "- history: [\\n  a: {"', 1)
     cases = [
-        (f'rosbag2_bagfile_information: !!python/object/apply:os.system ["touch {pwned}"]\n'.encode(),
-         "line 1: could not determine a constructor for the tag"),
+        (
+            f'rosbag2_bagfile_information: !!python/object/apply:os.system ["touch {pwned}"]\n'.encode(),
+            "line 1: could not determine a constructor for the tag",
+        ),
         (b"rosbag2_bagfile_information:\n  version: [\n    a: {\n", "line 4: expected the node content"),
         (b"rosbag2_bagfile_information:\n  version: 9\x00\n", "line 2: unacceptable character #x0000"),
         (b"rosbag2_bagfile_information:\n  \xff\xfe\n", "line 2: not UTF-8 text"),
         (b"just words\n", "line 1: no rosbag2_bagfile_information mapping"),
-        (nested.encode(), f"line {nested[:nested.index('- history')].count(chr(10)) + 1}: the offered_qos_profiles of "
-                          "topic 0 are not YAML (their line 2: expected the node content"),
+        (
+            nested.encode(),
+            f"line {nested[: nested.index('- history')].count(chr(10)) + 1}: the offered_qos_profiles of "
+            "topic 0 are not YAML (their line 2: expected the node content",
+        ),
     ]
     for k, (text, message) in enumerate(cases):
         bag = shutil.copytree(bag2, tmp_path / f"bag{k}")
@@ -267,7 +277,8 @@ def test_bag_metadata_faults_are_one_line_naming_the_line(tmp_path, bag2):
 
 def test_rate_cutoff_and_factors_that_leave_nothing_are_one_line(tmp_path, rec):
     assert "--rate 1e-09 Hz gives 4e-09 frames over the 3.998 s both streams cover; use from 2.5 to 50000 Hz" in (
-        imported(tmp_path, rec, "--rate", "1e-9"))
+        imported(tmp_path, rec, "--rate", "1e-9")
+    )
     line = imported(tmp_path, rec, "--cutoff", "1e-9")
     assert "--cutoff 1e-09 Hz drops 3e+09 s at each end" in line
     assert "use --cutoff above 1.5 Hz (and below 225 Hz)" in line

@@ -371,8 +371,10 @@ def test_csv_import_round_trip(model, small, tmp_path):
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
-        (lambda h, r: (h.replace(",fz", ""), [",".join(x.split(",")[:-4] + x.split(",")[-3:]) for x in r]),
-         "missing column fz"),
+        (
+            lambda h, r: (h.replace(",fz", ""), [",".join(x.split(",")[:-4] + x.split(",")[-3:]) for x in r]),
+            "missing column fz",
+        ),
         (lambda h, r: (h, [r[0].replace(r[0].split(",")[2], "abc", 1)] + r[1:]), "line 2, column 'q2': 'abc' is not"),
         (lambda h, r: (h, [r[0].replace(r[0].split(",")[3], "nan", 1)] + r[1:]), "values must be finite"),
         (lambda h, r: (h, r[1:2] + r[0:1] + r[2:]), "time does not increase at line 3"),
@@ -448,7 +450,9 @@ def test_parallel_chunk_reads_equal_h5py(small, tmp_path):
         assert not read._own_chunks(dst["wrench"])
     back, mine = load_dataset(plain, configs=slice(3, 30)), load_dataset(path, configs=slice(3, 30))
     for k in ("q", "qd", "qdd", "wrench", "theta_unknown"):
-        assert np.array_equal(getattr(back, k), getattr(mine, k)) and np.array_equal(getattr(mine, k), getattr(small, k)[3:30])
+        assert np.array_equal(getattr(back, k), getattr(mine, k)) and np.array_equal(
+            getattr(mine, k), getattr(small, k)[3:30]
+        )
 
 
 def test_clean_copies_are_read_on_request(model, tmp_path):

@@ -45,8 +45,12 @@ def test_design_keeps_every_bound_on_a_dense_grid(arm, design):
     assert np.all(np.abs(qd) <= arm.qd_max) and np.all(np.abs(qdd) <= arm.qdd_max)
     # the design uses its room: some bound is nearly active (else the criterion could still improve)
     span = design.bounds.q_upper - design.bounds.q_lower
-    slack = min(np.min((design.bounds.q_upper - q) / span), np.min((q - design.bounds.q_lower) / span),
-                np.min(1 - np.abs(qd) / design.bounds.qd_max), np.min(1 - np.abs(qdd) / design.bounds.qdd_max))
+    slack = min(
+        np.min((design.bounds.q_upper - q) / span),
+        np.min((q - design.bounds.q_lower) / span),
+        np.min(1 - np.abs(qd) / design.bounds.qd_max),
+        np.min(1 - np.abs(qdd) / design.bounds.qdd_max),
+    )
     assert slack < 0.05
 
 
@@ -78,8 +82,9 @@ def test_expected_std_is_the_spread_of_least_squares_estimates(arm, design):
     wb = psi[..., base.columns - 6].reshape(-1, base.rank)  # no bias columns in this design
     rng = np.random.default_rng(SEED)
     sigma = np.tile(design.sigma, len(q))
-    beta = np.linalg.lstsq(wb / sigma[:, None], (rng.standard_normal((len(sigma), 400)) * sigma[:, None]) / sigma[:, None],
-                           rcond=None)[0]
+    beta = np.linalg.lstsq(
+        wb / sigma[:, None], (rng.standard_normal((len(sigma), 400)) * sigma[:, None]) / sigma[:, None], rcond=None
+    )[0]
     np.testing.assert_allclose(beta.std(axis=1), design.optimized.std, rtol=0.2)
 
 
@@ -153,8 +158,9 @@ def test_failures_are_clear(arm):
 def test_barely_moving_design_is_rank_deficient(arm):
     """A trajectory that cannot move (bounds 1e-9 of the model's) leaves base parameters undetermined."""
     with pytest.raises(ExcitationError, match="undetermined|determines only") as e:
-        design_excitation(arm, ExcitationSettings(DURATION, starts=1, velocity_scale=1e-9, acceleration_scale=1e-9,
-                                                  max_iter=5))
+        design_excitation(
+            arm, ExcitationSettings(DURATION, starts=1, velocity_scale=1e-9, acceleration_scale=1e-9, max_iter=5)
+        )
     assert e.value.reason == "rank_deficient"
 
 
@@ -176,8 +182,9 @@ def _run(*args):
 
 def test_cli_excite_writes_csv_json_and_summary(tmp_path):
     out = tmp_path / "traj.csv"
-    r = _run("-q", "excite", "sweaty-arm", "--duration", 5, "--harmonics", 3, "--starts", 1, "--rate", 200,
-             "--out", out)  # fmt: skip
+    r = _run(
+        "-q", "excite", "sweaty-arm", "--duration", 5, "--harmonics", 3, "--starts", 1, "--rate", 200, "--out", out
+    )
     assert r.exit_code == 0, r.output
     for text in ("scaled condition number", "random Fourier", "median expected relative std", "white Gaussian wrench"):
         assert text in r.output
@@ -196,15 +203,41 @@ def test_cli_excite_writes_csv_json_and_summary(tmp_path):
     r = _run("excite", "sweaty-arm", "--duration", 5, "--out", out)
     assert r.exit_code == 1 and "exists; pass --overwrite" in r.output and "Traceback" not in r.output
 
-    r = _run("-q", "excite", "sweaty-arm", "--duration", 5, "--harmonics", 3, "--starts", 1, "--bias", "estimate",
-             "--out", tmp_path / "b.csv")  # fmt: skip
+    r = _run(
+        "-q",
+        "excite",
+        "sweaty-arm",
+        "--duration",
+        5,
+        "--harmonics",
+        3,
+        "--starts",
+        1,
+        "--bias",
+        "estimate",
+        "--out",
+        tmp_path / "b.csv",
+    )
     assert r.exit_code == 0 and "sensor offsets estimated" in r.output, r.output
     assert json.loads((tmp_path / "b.json").read_text())["design"]["bias"] is True
 
     # the designed trajectory drives a simulated dataset
     h5 = tmp_path / "d.h5"
-    r = _run("-q", "data", "generate", "--n-configs", 3, "--frame-mode", "trajectory", "--trajectory", out,
-             "--noise", "force=0.5,moment=0.05", "--out", h5)  # fmt: skip
+    r = _run(
+        "-q",
+        "data",
+        "generate",
+        "--n-configs",
+        3,
+        "--frame-mode",
+        "trajectory",
+        "--trajectory",
+        out,
+        "--noise",
+        "force=0.5,moment=0.05",
+        "--out",
+        h5,
+    )
     assert r.exit_code == 0, r.output
     ds = ineid.data.load_dataset(h5)
     assert ds.q.shape == (3, 1001, 4)
@@ -212,8 +245,20 @@ def test_cli_excite_writes_csv_json_and_summary(tmp_path):
         np.testing.assert_array_equal(ds.q[c], sampled.q)
         np.testing.assert_array_equal(ds.time[c], sampled.time)
     assert ds.meta.sampling["frames"]["trajectory"]["source"] == "traj.csv"
-    r = _run("data", "generate", "--n-configs", 3, "--n-frames", 50, "--frame-mode", "trajectory", "--trajectory", out,
-             "--out", tmp_path / "e.h5")  # fmt: skip
+    r = _run(
+        "data",
+        "generate",
+        "--n-configs",
+        3,
+        "--n-frames",
+        50,
+        "--frame-mode",
+        "trajectory",
+        "--trajectory",
+        out,
+        "--out",
+        tmp_path / "e.h5",
+    )
     assert r.exit_code == 2 and "rows of a trajectory CSV are the frames" in r.output
 
 

@@ -51,8 +51,24 @@ def test_torque_design_beats_random_and_predicts_its_spread(model):
 
 def test_cli_excite_use_torque(run, tmp_path):
     out = tmp_path / "t.csv"
-    r = run("excite", "sweaty-arm", "--duration", 5, "--harmonics", 3, "--starts", 1, "--use", "torque",
-            "--friction", "viscous", "--noise", "tau=0.02", "--out", out)
+    r = run(
+        "excite",
+        "sweaty-arm",
+        "--duration",
+        5,
+        "--harmonics",
+        3,
+        "--starts",
+        1,
+        "--use",
+        "torque",
+        "--friction",
+        "viscous",
+        "--noise",
+        "tau=0.02",
+        "--out",
+        out,
+    )
     assert r.exit_code == 0, r.output
     assert "joint torques 'tau' (viscous friction): std 0.02 N*m" in r.output
     assert "shoulder_pitch.fv" in r.output and out.exists()

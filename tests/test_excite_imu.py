@@ -68,15 +68,19 @@ def test_coarse_encoders_inflate_the_expected_std_and_gyros_bring_it_down(run, t
     states = fused["joint_state_errors"]
     assert fused["settings"]["sensors"]["encoder_bits"] == 8 and len(states["sensors"]["mounts"]) == 3
     # the random comparison is the same trajectory in all three (same seed): only the sensors differ
-    med = {k: np.median(d["random_fourier"]["std"]) for k, d in (("exact", exact), ("coarse", coarse),
-                                                                  ("fused", fused))}
+    med = {
+        k: np.median(d["random_fourier"]["std"]) for k, d in (("exact", exact), ("coarse", coarse), ("fused", fused))
+    }
     assert med["coarse"] > 1.2 * med["exact"], med
     assert med["fused"] < 0.95 * med["coarse"], med
-    designed = {k: np.median(d["optimized"]["std"]) for k, d in (("exact", exact), ("coarse", coarse),
-                                                                  ("fused", fused))}
+    designed = {
+        k: np.median(d["optimized"]["std"]) for k, d in (("exact", exact), ("coarse", coarse), ("fused", fused))
+    }
     assert designed["coarse"] > designed["exact"] and designed["fused"] < designed["coarse"], designed
-    rms = {k: np.array(d["joint_state_errors"]["random_fourier"]["rms_qd"]) for k, d in (("coarse", coarse),
-                                                                                           ("fused", fused))}
+    rms = {
+        k: np.array(d["joint_state_errors"]["random_fourier"]["rms_qd"])
+        for k, d in (("coarse", coarse), ("fused", fused))
+    }
     assert np.all(rms["fused"] < rms["coarse"]), rms
     noise = np.array(coarse["joint_state_errors"]["optimized"]["noise_std"])
     assert np.all(noise >= np.array(coarse["wrench_noise_std"]))  # inflated, never below the sensor's own
@@ -102,5 +106,24 @@ def test_bad_sensor_input_is_one_line_and_writes_nothing(run, tmp_path):
     _refused(run(*DESIGN, "--noise", "gyro=0.01", "--out", out), out, 2, "gyro", "--imu")
     _refused(run(*DESIGN, "--encoder-bits", 12, "--noise", "qd=0.01", "--out", out), out, 2, "drop the q, qd, qdd")
     _refused(run(*DESIGN, "--imu", "forearm", "--imu", "forearm", "--out", out), out, 2, "given twice")
-    _refused(run("-q", "excite", "sweaty-arm", "--duration", 1, "--rate", 7, "--harmonics", 2, "--encoder-bits", 12,
-                 "--out", out), out, 1, "too few to rehearse", "--rate")
+    _refused(
+        run(
+            "-q",
+            "excite",
+            "sweaty-arm",
+            "--duration",
+            1,
+            "--rate",
+            7,
+            "--harmonics",
+            2,
+            "--encoder-bits",
+            12,
+            "--out",
+            out,
+        ),
+        out,
+        1,
+        "too few to rehearse",
+        "--rate",
+    )

@@ -59,8 +59,9 @@ def test_kinematics_match_pinocchio(robot):
             np.testing.assert_allclose(pos[k, i], placement.translation, atol=1e-12)
             np.testing.assert_allclose(rot[k, i], placement.rotation, atol=1e-12)
         for i, name in enumerate(welded.names):
-            np.testing.assert_allclose(pts[k, chain.n_dof + i], data.oMf[pmodel.getFrameId(name)].translation,
-                                       atol=1e-12)
+            np.testing.assert_allclose(
+                pts[k, chain.n_dof + i], data.oMf[pmodel.getFrameId(name)].translation, atol=1e-12
+            )
     # the point Jacobians are the derivatives of the points
     link = np.r_[np.arange(chain.n_dof), welded.link]
     jac = point_jacobians(chain, q, link, pts)
@@ -102,13 +103,16 @@ def test_floor_and_box_hold_at_every_instant_where_the_free_design_breaks_them(a
     assert np.all(start[:, 0] >= box[0]) and np.all(start[:, 0] <= box[1])
 
 
-@pytest.mark.parametrize(("limits", "text"), [
-    ({"floor": 0.5}, "lower --floor"),
-    ({"workspace": (0.0, -1.0, -1, 1, -1, 1)}, "XMIN 0 is not below XMAX -1"),
-    ({"workspace": (1.0, 2.0, -1, 1, -1, 1)}, "widen the --workspace box"),
-    ({"floor": 1.2}, "lower --floor"),
-    ({"floor": 0.38}, "IPOPT found no design that keeps every bound"),
-])
+@pytest.mark.parametrize(
+    ("limits", "text"),
+    [
+        ({"floor": 0.5}, "lower --floor"),
+        ({"workspace": (0.0, -1.0, -1, 1, -1, 1)}, "XMIN 0 is not below XMAX -1"),
+        ({"workspace": (1.0, 2.0, -1, 1, -1, 1)}, "widen the --workspace box"),
+        ({"floor": 1.2}, "lower --floor"),
+        ({"floor": 0.38}, "IPOPT found no design that keeps every bound"),
+    ],
+)
 def test_limits_no_motion_can_keep_are_refused_at_once(arm, limits, text):
     with pytest.raises(ExcitationError, match=text.replace("-", r"\-")):
         design_excitation(arm, ExcitationSettings(**FAST, **limits))
@@ -122,12 +126,31 @@ def _run(*args):
 
 def test_cli_floor_summary_record_and_one_line_errors(tmp_path):
     out = tmp_path / "t.csv"
-    r = _run("excite", "sweaty-arm", "--duration", 3, "--harmonics", 2, "--starts", 1, "--floor", 0.25,
-             "--acceleration-scale", 1.2, "--out", out)  # fmt: skip
+    r = _run(
+        "excite",
+        "sweaty-arm",
+        "--duration",
+        3,
+        "--harmonics",
+        2,
+        "--starts",
+        1,
+        "--floor",
+        0.25,
+        "--acceleration-scale",
+        1.2,
+        "--out",
+        out,
+    )
     assert r.exit_code == 0, r.output
     assert "warning: --acceleration-scale 1.2 goes beyond" in r.output
-    for text in ("floor: z >= 0.25 m", "smallest clearance on the written samples", "self-collision: not checked",
-                 "|qdd| max", "URDF"):
+    for text in (
+        "floor: z >= 0.25 m",
+        "smallest clearance on the written samples",
+        "self-collision: not checked",
+        "|qdd| max",
+        "URDF",
+    ):
         assert text in r.output, text
     record = json.loads(out.with_suffix(".json").read_text())["design"]
     assert record["workspace"]["floor"] == 0.25 and record["settings"]["floor"] == 0.25
@@ -135,8 +158,10 @@ def test_cli_floor_summary_record_and_one_line_errors(tmp_path):
     sampled = ineid.data.trajectory.read_trajectory_csv(out)
     arm = ineid.load_robot("sweaty-arm")
     assert frame_points(arm.chain, sampled.q, welded_frames(arm.urdf_text, arm.chain))[..., 2].min() >= 0.25
-    for args, text in ((("--floor", 0.5), "lower --floor"),
-                       (("--workspace", "-1,1,-1,1,0.45,1"), "widen the --workspace box")):
+    for args, text in (
+        (("--floor", 0.5), "lower --floor"),
+        (("--workspace", "-1,1,-1,1,0.45,1"), "widen the --workspace box"),
+    ):
         bad = tmp_path / "bad.csv"
         r = _run("-q", "excite", "sweaty-arm", "--duration", 5, "--harmonics", 3, "--starts", 1, *args, "--out", bad)
         lines = r.output.strip().splitlines()
@@ -164,8 +189,16 @@ def collision_arm(arm):
     text = arm.urdf_text
     for link, xml in _COLLISION.items():
         text = text.replace(f'<link name="{link}">', f'<link name="{link}">\n    <collision>{xml}</collision>', 1)
-    return RobotModel(parse_chain(text), None, "sweaty-arm-collision", arm.gravity, arm.unknown_links, arm._jax,
-                      arm._casadi, urdf_text=text)
+    return RobotModel(
+        parse_chain(text),
+        None,
+        "sweaty-arm-collision",
+        arm.gravity,
+        arm.unknown_links,
+        arm._jax,
+        arm._casadi,
+        urdf_text=text,
+    )
 
 
 def test_bounding_capsules_contain_the_shapes(collision_arm):
@@ -213,8 +246,7 @@ def test_mesh_geometry_gives_bounding_capsules():
     found = body_capsules(path.read_text(), load_chain(path), path)
     assert not found.notes and [c.shape for c in found.capsules].count("mesh") == 7
     assert all(0.03 < c.radius < 0.1 for c in found.capsules if c.shape == "mesh")
-    moved = body_capsules(path.read_text().replace("meshes/ur5/collision/", "meshes/nowhere/"),
-                          load_chain(path), path)
+    moved = body_capsules(path.read_text().replace("meshes/ur5/collision/", "meshes/nowhere/"), load_chain(path), path)
     assert any("not readable, skipped" in n for n in moved.notes)
 
 
@@ -225,9 +257,19 @@ def test_constraint_jacobian_matches_finite_differences(collision_arm):
 
     bounds = design_bounds(collision_arm)
     prob = _Problem(collision_arm, design_base(collision_arm), design_noise(None), "d-opt", bounds, 0.2, 3, 160, 96)
-    safety = SafetyConstraints(collision_arm, SafetyLimits(floor=0.1, workspace=(-0.5, 0.5, -0.5, 0.6, -0.5, 1.0)),
-                               bounds.qd_max, bounds.qdd_max, 0.2, 3, prob.rest, prob.mid, prob.half, prob.v_scale,
-                               CollisionPairs(collision_arm, bounds.qd_max))
+    safety = SafetyConstraints(
+        collision_arm,
+        SafetyLimits(floor=0.1, workspace=(-0.5, 0.5, -0.5, 0.6, -0.5, 1.0)),
+        bounds.qd_max,
+        bounds.qdd_max,
+        0.2,
+        3,
+        prob.rest,
+        prob.mid,
+        prob.half,
+        prob.v_scale,
+        CollisionPairs(collision_arm, bounds.qd_max),
+    )
     assert safety.n_constraints == 5 * 7 + 6
     x = prob.random_start(np.random.default_rng(0))
     eps = 1e-6

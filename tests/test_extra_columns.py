@@ -27,7 +27,7 @@ from tests.conftest import SEED, rel_err
 # -- a test-only joint-torque channel --------------------------------------------------------
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _entries(n_dof: int):
     """Row ``j``: ``qdd_j`` at link ``j``'s mass, ``qd_j^2 cos q_j`` at its ``mx``, ``sin q_j`` at its ``my``."""
 
@@ -56,13 +56,19 @@ def _terms(channel) -> tuple[str, ...]:
 
 def _term(term: str, q, qd, qdd, zone: float, xp):
     s = xp.tanh(qd / zone) if zone > 0 else xp.sign(qd)
-    return {"fv": qd, "fv+": xp.maximum(qd, 0), "fv-": xp.minimum(qd, 0), "fc": s,
-            "fc+": xp.maximum(s, 0) if zone > 0 else (qd > 0) * 1.0,
-            "fc-": xp.minimum(s, 0) if zone > 0 else (qd < 0) * -1.0,
-            "offset": qd * 0 + 1.0, "Ia": qdd}[term]
+    return {
+        "fv": qd,
+        "fv+": xp.maximum(qd, 0),
+        "fv-": xp.minimum(qd, 0),
+        "fc": s,
+        "fc+": xp.maximum(s, 0) if zone > 0 else (qd > 0) * 1.0,
+        "fc-": xp.minimum(s, 0) if zone > 0 else (qd < 0) * -1.0,
+        "offset": qd * 0 + 1.0,
+        "Ia": qdd,
+    }[term]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _extra_fn(terms: tuple[str, ...], zone: float, n_dof: int):
     def extra(q, qd, qdd):
         import jax.numpy as jnp
@@ -169,8 +175,10 @@ ACTUATION = dict(friction=("viscous", "coulomb"), torque_offset=True)
 
 @pytest.fixture(scope="module")
 def torque_only(model):
-    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=6), n_frames=40, seed=SEED,
-                                             channels=ChannelSet.of(FakeTorque())))
+    ds = generate_dataset(
+        model,
+        DatasetSpec(Combination("random", n_configs=6), n_frames=40, seed=SEED, channels=ChannelSet.of(FakeTorque())),
+    )
     channel = FakeTorque(**ACTUATION)
     x = truth_x(model, channel)
     return with_extras(ds, model, channel, x), x
@@ -178,8 +186,15 @@ def torque_only(model):
 
 @pytest.fixture(scope="module")
 def both(model):
-    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=5), n_frames=40, seed=SEED,
-                                             channels=ChannelSet.of(BaseWrench(), FakeTorque())))
+    ds = generate_dataset(
+        model,
+        DatasetSpec(
+            Combination("random", n_configs=5),
+            n_frames=40,
+            seed=SEED,
+            channels=ChannelSet.of(BaseWrench(), FakeTorque()),
+        ),
+    )
     channel = FakeTorque(**ACTUATION)
     x = truth_x(model, channel, 2)
     return with_extras(ds, model, channel, x), x
@@ -196,7 +211,7 @@ def test_base_parameters_over_links_and_extras(model):
     assert base.n_extra == len(names) == 3 * model.n_dof
     assert base.param_names == (*plain.param_names, *names) and base.n_link_params == plain.n_params
     assert base.rank == plain.rank + len(names)  # friction and offsets are independent of these rows
-    assert np.all(base.identifiable[base.n_link_params:])
+    assert np.all(base.identifiable[base.n_link_params :])
     assert np.all(base.scales > 0) and np.all(np.isfinite(base.scales))
     # the scale of an extra: the typical reading of its axis over its column's RMS (N*m / (rad/s) for fv)
     assert base.scales[base.param_names.index("elbow.fv")] != base.scales[base.param_names.index("elbow.offset")]
@@ -229,12 +244,12 @@ def test_linear_exact_and_fused_equals_qr(model, torque_only):
     qr = solve_dataset(ds, dataclasses.replace(settings, backend="casadi"), model=model)
     base = fused.base
     assert fused.success.all() and fused.n_extra == len(x)
-    assert fused.param_names[-len(x):] == FakeTorque(**ACTUATION).extra_names(model)
-    assert rel_err(fused.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-10
+    assert fused.param_names[-len(x) :] == FakeTorque(**ACTUATION).extra_names(model)
+    assert rel_err(fused.theta_hat[:, -len(x) :], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-10
     truth = np.concatenate([ds.theta_unknown, np.broadcast_to(x, (ds.n_configs, len(x)))], axis=1)
     assert rel_err(fused.base_hat, truth @ base.B.T) < 1e-10
     assert rel_err(qr.theta_hat, fused.theta_hat) < 1e-10
-    assert np.all(np.isfinite(fused.theta_std[:, -len(x):]))
+    assert np.all(np.isfinite(fused.theta_std[:, -len(x) :]))
     assert fused.theta_links.shape == ds.theta_unknown.shape
     # the residuals and the prediction carry E x: clean data fit to round-off
     assert np.nanmax(fused.fit_rms) < 1e-9 * np.abs(ds.channel_values["tau"]).max()
@@ -244,33 +259,44 @@ def test_linear_exact_and_fused_equals_qr(model, torque_only):
 
 def test_weighted_and_offsets(model, torque_only):
     ds, x = torque_only
-    res = solve_dataset(ds, SolveSettings(weights="estimate", bias="estimate", friction=("viscous", "coulomb")),
-                        model=model)
+    res = solve_dataset(
+        ds, SolveSettings(weights="estimate", bias="estimate", friction=("viscous", "coulomb")), model=model
+    )
     assert res.success.all()
     n = len(FakeTorque(friction=("viscous", "coulomb")).extra_names(model))
     keep = [i for i, name in enumerate(FakeTorque(**ACTUATION).extra_names(model)) if not name.endswith("offset")]
     assert rel_err(res.theta_hat[:, -n:], np.broadcast_to(x[keep], (ds.n_configs, n))) < 1e-8
     assert rel_err(res.bias_hat, np.broadcast_to(x[2::3], res.bias_hat.shape)) < 1e-8  # the offsets, as b
     # the centred stacks (QR) agree with the centred blocks, extra columns among them
-    qr = solve_dataset(ds, SolveSettings(weights="estimate", bias="estimate", friction=("viscous", "coulomb"),
-                                         backend="casadi"), model=model)
+    qr = solve_dataset(
+        ds,
+        SolveSettings(weights="estimate", bias="estimate", friction=("viscous", "coulomb"), backend="casadi"),
+        model=model,
+    )
     assert rel_err(qr.theta_hat, res.theta_hat) < 1e-9 and rel_err(qr.bias_hat, res.bias_hat) < 1e-9
     # the known links' CAD uncertainty gives std on clean data (the round-off's otherwise), estimates unchanged
-    wide = solve_dataset(ds, SolveSettings(weights="estimate", bias="estimate", friction=("viscous", "coulomb"),
-                                           known_uncertainty=(("*", 0.05),)), model=model)
+    wide = solve_dataset(
+        ds,
+        SolveSettings(
+            weights="estimate", bias="estimate", friction=("viscous", "coulomb"), known_uncertainty=(("*", 0.05),)
+        ),
+        model=model,
+    )
     np.testing.assert_array_equal(wide.theta_hat, res.theta_hat)
     assert np.nanmax(res.base_std) < 1e-10 < np.nanmax(wide.base_std)
 
 
 def test_large_job_residual_kernel(model):
     """More than SMALL_JOB_FRAMES frames: the compiled residual kernel adds E x too."""
-    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=45), n_frames=240, seed=3,
-                                             channels=ChannelSet.of(FakeTorque())))
+    ds = generate_dataset(
+        model,
+        DatasetSpec(Combination("random", n_configs=45), n_frames=240, seed=3, channels=ChannelSet.of(FakeTorque())),
+    )
     channel = FakeTorque(friction=("viscous",))
     x = truth_x(model, channel, 4)
     ds = with_extras(ds, model, channel, x)
     res = solve_dataset(ds, SolveSettings(weights="none", friction=("viscous",)), model=model)
-    assert rel_err(res.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-10
+    assert rel_err(res.theta_hat[:, -len(x) :], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-10
     assert np.nanmax(res.fit_rms) < 1e-9 * np.abs(ds.channel_values["tau"]).max()
 
 
@@ -286,10 +312,10 @@ def test_ipopt_methods_recover_extras(model, torque_only, method, tmp_path):
     # consistent: the noise-free floor (1e-3 of the data) and the entropic barrier leave ~1e-4 (as for the links)
     tol = 1e-6 if method == "nonlinear" else 1e-3
     x_all = np.broadcast_to(x, (sub.n_configs, len(x)))
-    assert rel_err(res.theta_hat[:, -len(x):], x_all) < tol
+    assert rel_err(res.theta_hat[:, -len(x) :], x_all) < tol
     truth = np.concatenate([sub.theta_unknown, x_all], axis=1)
     assert rel_err(res.base_hat, truth @ res.base.B.T) < tol
-    assert np.median(np.abs(res.theta_hat[:, -len(x):] / x_all - 1)) < tol / 10
+    assert np.median(np.abs(res.theta_hat[:, -len(x) :] / x_all - 1)) < tol / 10
     if method == "consistent":  # a URDF of the links only
         export_urdf(res, int(res.config_index[0]), tmp_path / "r.urdf")
         assert "Ia" not in (tmp_path / "r.urdf").read_text()
@@ -300,11 +326,13 @@ def test_consistent_bounds_dissipative_extras(model, torque_only):
     ds, _ = torque_only
     channel = FakeTorque(**ACTUATION)
     x = -truth_x(model, channel)
-    base_ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=2), n_frames=40, seed=SEED,
-                                                  channels=ChannelSet.of(FakeTorque())))
+    base_ds = generate_dataset(
+        model,
+        DatasetSpec(Combination("random", n_configs=2), n_frames=40, seed=SEED, channels=ChannelSet.of(FakeTorque())),
+    )
     neg = with_extras(base_ds, model, channel, x)
     res = solve_dataset(neg, SolveSettings(method="consistent", **_flags(ACTUATION)), model=model)
-    extras = res.theta_hat[:, -len(x):]
+    extras = res.theta_hat[:, -len(x) :]
     names = channel.extra_names(model)
     friction = [i for i, n in enumerate(names) if not n.endswith("offset")]
     assert np.all(extras[:, friction] >= -1e-9)
@@ -322,12 +350,15 @@ def test_wrench_and_torque_together(model, both, monkeypatch):
     truth = np.concatenate([ds.theta_unknown, np.broadcast_to(x, (ds.n_configs, len(x)))], axis=1)
     assert joint.success.all()
     assert rel_err(joint.base_hat, truth @ joint.base.B.T) < 1e-10
-    assert joint.axes == (*(f"wrench.{a}" for a in ("fx", "fy", "fz", "mx", "my", "mz")),
-                          *(f"tau.{j}" for j in model.joint_names))
+    assert joint.axes == (
+        *(f"wrench.{a}" for a in ("fx", "fy", "fz", "mx", "my", "mz")),
+        *(f"tau.{j}" for j in model.joint_names),
+    )
     # the two steps: the links from the wrench alone (the same as --use wrench) ...
     # (the QR route: no second kernel to compile)
-    two = solve_dataset(ds, SolveSettings(weights="none", two_step=True, backend="casadi", **_flags(ACTUATION)),
-                        model=model)
+    two = solve_dataset(
+        ds, SolveSettings(weights="none", two_step=True, backend="casadi", **_flags(ACTUATION)), model=model
+    )
     assert two.success.all() and two.param_names == joint.param_names
     wrench = solve_dataset(ds, SolveSettings(weights="none", use=("wrench",), backend="casadi"), model=model)
     assert wrench.n_extra == 0 and wrench.axes == ("fx", "fy", "fz", "mx", "my", "mz")
@@ -341,11 +372,11 @@ def test_wrench_and_torque_together(model, both, monkeypatch):
     resid = ds.channel_values["tau"][:, :n_fit] - np.einsum("cfap,cp->cfa", rows, theta)
     for c in range(ds.n_configs):
         ls = np.linalg.lstsq(e[c].reshape(-1, len(x)), resid[c].ravel(), rcond=None)[0]
-        assert rel_err(two.theta_hat[c, -len(x):], ls) < 1e-9
+        assert rel_err(two.theta_hat[c, -len(x) :], ls) < 1e-9
     # exact where the wrench determines all the torques see: the joints of the known links
     names = channel.extra_names(model)
     known = [i for i, n in enumerate(names) if n.split(".")[0] in model.joint_names[:2]]
-    assert rel_err(two.theta_hat[:, -len(x):][:, known], np.broadcast_to(x[known], (ds.n_configs, len(known)))) < 1e-9
+    assert rel_err(two.theta_hat[:, -len(x) :][:, known], np.broadcast_to(x[known], (ds.n_configs, len(known)))) < 1e-9
 
 
 def test_several_recordings_fitted_jointly(model, torque_only):
@@ -355,7 +386,7 @@ def test_several_recordings_fitted_jointly(model, torque_only):
     a, b = ds.select(frames=slice(0, 20)), ds.select(frames=slice(20, 40))
     res = solve_recordings([a, b], SolveSettings(weights="none", **_flags(ACTUATION)), model=model)
     assert res.success.all()
-    assert rel_err(res.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-10
+    assert rel_err(res.theta_hat[:, -len(x) :], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-10
 
 
 def test_results_round_trip(model, torque_only, tmp_path):
@@ -407,16 +438,42 @@ def test_cli_solve_with_friction(run, model, both, tmp_path):
     ds, x = both
     data = ds.select(slice(0, 2)).save(tmp_path / "both.h5")
     out = tmp_path / "r.h5"
-    r = run("solve", data, "--use", "wrench,tau", "--friction", "viscous,coulomb", "--torque-offset",
-            "--weights", "none", "--backend", "casadi", "--out", out)
+    r = run(
+        "solve",
+        data,
+        "--use",
+        "wrench,tau",
+        "--friction",
+        "viscous,coulomb",
+        "--torque-offset",
+        "--weights",
+        "none",
+        "--backend",
+        "casadi",
+        "--out",
+        out,
+    )
     assert r.exit_code == 0, r.output
     res = load_results(out)
-    assert res.param_names[-len(x):] == FakeTorque(**ACTUATION).extra_names(model)
+    assert res.param_names[-len(x) :] == FakeTorque(**ACTUATION).extra_names(model)
     assert res.settings.friction == ("viscous", "coulomb") and res.settings.use == ("wrench", "tau")
     info = run("results", "info", out)
     assert info.exit_code == 0 and "extra parameters (after the links'): shoulder_pitch.fv" in info.output
-    r = run("solve", data, "--use", "wrench,tau", "--friction", "viscous", "--two-step", "--backend", "casadi",
-            "--weights", "none", "--out", tmp_path / "two.h5")
+    r = run(
+        "solve",
+        data,
+        "--use",
+        "wrench,tau",
+        "--friction",
+        "viscous",
+        "--two-step",
+        "--backend",
+        "casadi",
+        "--weights",
+        "none",
+        "--out",
+        tmp_path / "two.h5",
+    )
     assert r.exit_code == 0, r.output
     two = load_results(tmp_path / "two.h5")
     assert two.settings.two_step and two.success.all() and two.n_extra == model.n_dof
@@ -467,15 +524,22 @@ def pin_both(model):
     pin = pytest.importorskip("pinocchio")
     from ineid.reference import pinocchio_model, pinocchio_q
 
-    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=4), n_frames=40, seed=SEED,
-                                             channels=ChannelSet.of(BaseWrench(), torque.JointTorque())))
+    ds = generate_dataset(
+        model,
+        DatasetSpec(
+            Combination("random", n_configs=4),
+            n_frames=40,
+            seed=SEED,
+            channels=ChannelSet.of(BaseWrench(), torque.JointTorque()),
+        ),
+    )
     pm = pinocchio_model(model.urdf_path, gravity=model.gravity)
     data = pm.createData()
     tau = np.empty_like(ds.channel_values["tau"])
     for c in range(ds.n_configs):
         theta = model.full_theta(ds.theta_unknown[c], ds.theta_known)
         for i in range(1, pm.njoints):
-            pm.inertias[i] = pin.Inertia.FromDynamicParameters(theta[10 * (i - 1): 10 * i])
+            pm.inertias[i] = pin.Inertia.FromDynamicParameters(theta[10 * (i - 1) : 10 * i])
         for k in range(ds.n_frames):
             tau[c, k] = pin.rnea(pm, data, pinocchio_q(pm, ds.q[c, k]), ds.qd[c, k], ds.qdd[c, k])
     assert rel_err(ds.channel_values["tau"], tau) < 1e-10  # the channel's rows are Pinocchio's torques
@@ -495,11 +559,11 @@ def test_joint_torques_every_combination_exact(model, pin_both, use):
     if len(use) == 2:
         fused = solve_dataset(ds, SolveSettings(weights="none", use=use, friction=friction), model=model)
         assert rel_err(fused.theta_hat, res.theta_hat) < 1e-10
-    x = np.array([truth[n] for n in res.param_names[res.base.n_link_params:]])
+    x = np.array([truth[n] for n in res.param_names[res.base.n_link_params :]])
     full = np.concatenate([ds.theta_unknown, np.broadcast_to(x, (ds.n_configs, len(x)))], axis=1)
     assert rel_err(res.base_hat, full @ res.base.B.T) < 1e-9
     if friction:  # the friction coefficients themselves
-        assert rel_err(res.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-9
+        assert rel_err(res.theta_hat[:, -len(x) :], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-9
     assert np.nanmax(res.fit_rms) < 1e-8 * np.abs(ds.measured(ds.meta.channels)).max()
 
 
@@ -507,8 +571,12 @@ def test_cli_identifiability_with_joint_torques(run):
     pytest.importorskip("ineid.channels.torque", reason="the JointTorque channel is not on this branch yet")
     r = run("identifiability", "sweaty-arm", "--use", "torque", "--armature", "--friction", "viscous")
     assert r.exit_code == 0, r.output
-    for text in ("(20 standard parameters, 8 extra)", "structural rank 24", "shoulder_pitch.fv, shoulder_pitch.Ia",
-                 "invisible in the measurements"):
+    for text in (
+        "(20 standard parameters, 8 extra)",
+        "structural rank 24",
+        "shoulder_pitch.fv, shoulder_pitch.Ia",
+        "invisible in the measurements",
+    ):
         assert text in r.output.replace("\n", " "), text
     r = run("identifiability", "sweaty-arm", "--use", "wrench,torque")
     assert r.exit_code == 0 and "structural rank 17" in r.output  # the torques add no direction (docs)
@@ -524,11 +592,11 @@ def test_truth_of_extra_parameters(model, torque_only):
 
     ds, x = torque_only
     res = solve_dataset(ds, SolveSettings(weights="none", armature=True, friction=("viscous",)), model=model)
-    names = res.param_names[res.base.n_link_params:]
+    names = res.param_names[res.base.n_link_params :]
     given = {n: 1.0 for n in names if not n.startswith("elbow.")}  # the elbow's truth unknown
     fake = SimpleNamespace(theta_unknown=ds.theta_unknown, meta=SimpleNamespace(extra_truth=given))
     res.theta_true = truth_with_extras(fake, res.base)
-    extras = res.theta_true[:, res.base.n_link_params:]
+    extras = res.theta_true[:, res.base.n_link_params :]
     assert np.all(np.isnan(extras[:, [n.startswith("elbow.") for n in names]]))
     assert np.all(extras[:, [not n.startswith("elbow.") for n in names]] == 1.0)
     unknown = [("elbow." in b) for b in res.base.names]  # forearm.m + elbow.Ia among them
@@ -539,8 +607,12 @@ def test_truth_of_extra_parameters(model, torque_only):
 def test_asymmetric_and_smooth_friction_with_joint_torques(model):
     """The joint-torque channel's asymmetric viscous and smooth Coulomb columns (the contract's), recovered."""
     torque = pytest.importorskip("ineid.channels.torque", reason="the JointTorque channel is not on this branch yet")
-    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=3), n_frames=60, seed=SEED,
-                                             channels=ChannelSet.of(torque.JointTorque())))
+    ds = generate_dataset(
+        model,
+        DatasetSpec(
+            Combination("random", n_configs=3), n_frames=60, seed=SEED, channels=ChannelSet.of(torque.JointTorque())
+        ),
+    )
     zone = 0.2
     rng = np.random.default_rng(9)
     truth = {f"{j}.{t}": float(rng.uniform(0.1, 1.0)) for j in model.joint_names for t in ("fv+", "fv-", "fc+", "fc-")}
@@ -548,43 +620,74 @@ def test_asymmetric_and_smooth_friction_with_joint_torques(model):
     for j, name in enumerate(model.joint_names):
         qd = ds.qd[..., j]
         s = np.tanh(qd / zone)
-        tau[..., j] += (truth[f"{name}.fv+"] * np.maximum(qd, 0) + truth[f"{name}.fv-"] * np.minimum(qd, 0)
-                        + truth[f"{name}.fc+"] * np.maximum(s, 0) + truth[f"{name}.fc-"] * np.minimum(s, 0))
+        tau[..., j] += (
+            truth[f"{name}.fv+"] * np.maximum(qd, 0)
+            + truth[f"{name}.fv-"] * np.minimum(qd, 0)
+            + truth[f"{name}.fc+"] * np.maximum(s, 0)
+            + truth[f"{name}.fc-"] * np.minimum(s, 0)
+        )
     ds = dataclasses.replace(ds, channel_values={"tau": tau})
-    res = solve_dataset(ds, SolveSettings(weights="none", friction=("viscous", "coulomb"), coulomb_zone=zone,
-                                          asymmetric_friction=True, backend="casadi"), model=model)
-    names = res.param_names[res.base.n_link_params:]
+    res = solve_dataset(
+        ds,
+        SolveSettings(
+            weights="none",
+            friction=("viscous", "coulomb"),
+            coulomb_zone=zone,
+            asymmetric_friction=True,
+            backend="casadi",
+        ),
+        model=model,
+    )
+    names = res.param_names[res.base.n_link_params :]
     assert set(names) == set(truth)
     x = np.array([truth[n] for n in names])
-    assert rel_err(res.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-9
+    assert rel_err(res.theta_hat[:, -len(x) :], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-9
 
 
 def test_motor_currents_with_friction(model):
     """Currents read through the drives (T = diag(1 / (k G))): friction in torque units, recovered."""
     torque = pytest.importorskip("ineid.channels.torque", reason="the MotorCurrent channel is not on this branch yet")
     drives = dict(torque_constant=(0.1, 0.12, 0.08, 0.05), gear_ratio=(100.0, -80.0, 50.0, 30.0))
-    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=2), n_frames=50, seed=SEED,
-                                             channels=ChannelSet.of(torque.MotorCurrent(**drives))))
+    ds = generate_dataset(
+        model,
+        DatasetSpec(
+            Combination("random", n_configs=2),
+            n_frames=50,
+            seed=SEED,
+            channels=ChannelSet.of(torque.MotorCurrent(**drives)),
+        ),
+    )
     channel = torque.MotorCurrent(**drives, friction=("viscous", "coulomb"))
     x = truth_x(model, channel, 6)
     current = ds.channel_values["current"] + channel.extra_rows(model, ds.q, ds.qd, ds.qdd) @ x
     ds = dataclasses.replace(ds, channel_values={"current": current})
-    res = solve_dataset(ds, SolveSettings(weights="none", use=("current",), friction=("viscous", "coulomb"),
-                                          backend="casadi"), model=model)
-    assert res.param_names[-len(x):] == channel.extra_names(model)
-    assert rel_err(res.theta_hat[:, -len(x):], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-9
+    res = solve_dataset(
+        ds,
+        SolveSettings(weights="none", use=("current",), friction=("viscous", "coulomb"), backend="casadi"),
+        model=model,
+    )
+    assert res.param_names[-len(x) :] == channel.extra_names(model)
+    assert rel_err(res.theta_hat[:, -len(x) :], np.broadcast_to(x, (ds.n_configs, len(x)))) < 1e-9
 
 
 def test_two_steps_with_offsets(model, both):
     ds, x = both  # x holds torque offsets (every third): the channel's offsets take them, and the shift
     shift = np.linspace(0.5, 1.0, model.n_dof)
     shifted = dataclasses.replace(ds, channel_values={"tau": ds.channel_values["tau"] + shift})
-    res = solve_dataset(shifted, SolveSettings(weights="none", two_step=True, bias="estimate", backend="casadi",
-                                               friction=("viscous", "coulomb")), model=model)
+    res = solve_dataset(
+        shifted,
+        SolveSettings(
+            weights="none", two_step=True, bias="estimate", backend="casadi", friction=("viscous", "coulomb")
+        ),
+        model=model,
+    )
     assert res.success.all() and res.bias_hat.shape == (ds.n_configs, 6 + model.n_dof)
     assert np.all(np.isfinite(res.bias_std))
-    direct = solve_dataset(shifted, SolveSettings(weights="none", bias="estimate", backend="casadi",
-                                                  friction=("viscous", "coulomb")), model=model)
+    direct = solve_dataset(
+        shifted,
+        SolveSettings(weights="none", bias="estimate", backend="casadi", friction=("viscous", "coulomb")),
+        model=model,
+    )
     # the torque axes' offsets: what the joint fit finds where the wrench determines what the torques see
     assert rel_err(res.bias_hat[:, 6:8], direct.bias_hat[:, 6:8]) < 1e-8
     assert rel_err(direct.bias_hat[:, 6:], np.broadcast_to(shift + x[2::3], (ds.n_configs, model.n_dof))) < 1e-8

@@ -103,6 +103,7 @@ def test_public_evaluators_refuse_tracers_and_bad_shapes(arm):
 
 # -- fused linear identification ------------------------------------------------------------
 
+
 def test_fused_linear_equals_lstsq_per_configuration(arm, base, noisy):
     res = solve_dataset(noisy, SolveSettings(weights="none"), model=arm)
     n_fit = res.n_frames_fit
@@ -129,8 +130,9 @@ def test_fused_linear_equals_lstsq_per_configuration(arm, base, noisy):
 def test_fused_fit_equals_qr_of_the_stacks(arm, base, noisy, weights):
     """Estimates, covariance and weights of the fused route against QR on the stacks."""
     sigma = NOISE.wrench if weights == "noise" else None
-    res = solve_dataset(noisy, SolveSettings(weights=weights, axis_sigma=None if sigma is None else tuple(sigma)),
-                        model=arm)
+    res = solve_dataset(
+        noisy, SolveSettings(weights=weights, axis_sigma=None if sigma is None else tuple(sigma)), model=arm
+    )
     n_fit = res.n_frames_fit
     w, y = stack(arm, *(a[:, :n_fit] for a in (noisy.q, noisy.qd, noisy.qdd, noisy.wrench)), noisy.theta_known)
     ref = fit_base(w, y, base, weights, axis_sigma=sigma)
@@ -140,8 +142,9 @@ def test_fused_fit_equals_qr_of_the_stacks(arm, base, noisy, weights):
     assert rel_err(res.theta_std[:, ident], standard_std(ref.cov_beta, base)[:, ident]) < 1e-9
     assert rel_err(res.base_std, np.sqrt(np.diagonal(ref.cov_beta, axis1=1, axis2=2))) < 1e-9
     # the blocks alone give the same weights and factor (R^T R = A)
-    blocks = fused.information_blocks(arm, base, *(a[:, :n_fit] for a in (noisy.q, noisy.qd, noisy.qdd, noisy.wrench)),
-                                      noisy.theta_known)
+    blocks = fused.information_blocks(
+        arm, base, *(a[:, :n_fit] for a in (noisy.q, noisy.qd, noisy.qdd, noisy.wrench)), noisy.theta_known
+    )
     fit, refit = fit_base_blocks(blocks, base, weights, sigma)
     assert not refit.any()
     assert rel_err(fit.axis_weights, ref.axis_weights) < 1e-9
@@ -169,8 +172,9 @@ def test_ill_conditioned_configurations_take_the_qr_route(arm, base):
     slow = 3  # this configuration's frames: small velocities and accelerations, rank kept
     ds.qd[slow] *= 1e-3
     ds.qdd[slow] *= 1e-3
-    ds.wrench[slow] = arm.base_wrench(ds.q[slow], ds.qd[slow], ds.qdd[slow],
-                                      arm.full_theta(ds.theta_unknown[slow], ds.theta_known))
+    ds.wrench[slow] = arm.base_wrench(
+        ds.q[slow], ds.qd[slow], ds.qdd[slow], arm.full_theta(ds.theta_unknown[slow], ds.theta_known)
+    )
     fitted = [a[:, :32] for a in (ds.q, ds.qd, ds.qdd, ds.wrench)]
     blocks = fused.information_blocks(arm, base, *fitted, ds.theta_known)
     fit, refit = fit_base_blocks(blocks, base, "none")  # unweighted: the slow frames' scale shows
@@ -238,13 +242,14 @@ def test_second_solve_command_logs_its_cache_hits(arm, noisy, tmp_path):
     data = noisy.select(slice(0, 12)).save(tmp_path / "d.h5")
     env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_COMPILATION", "JAX_PERSISTENT", "INEID_XLA"))}
     env["INEID_CACHE_DIR"] = str(tmp_path / "cache")
-    code = ("import sys; from ineid.cli import main\ntry:\n    main()\nfinally:\n"
-            "    print('YOURDFPY', 'yourdfpy' in sys.modules)")
+    code = (
+        "import sys; from ineid.cli import main\ntry:\n    main()\nfinally:\n"
+        "    print('YOURDFPY', 'yourdfpy' in sys.modules)"
+    )
 
     def solve() -> str:
         argv = ["-v", "solve", str(data), "--out", str(tmp_path / "r.h5"), "--overwrite"]
-        out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, env=env,
-                             timeout=300)
+        out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, env=env, timeout=300)
         assert out.returncode == 0, out.stderr
         return out.stdout + out.stderr
 
@@ -304,8 +309,11 @@ def test_casadi_c_without_a_compiler_says_so(arm, noisy, tmp_path, monkeypatch):
     out = tmp_path / "r.h5"
     r = CliRunner().invoke(main, ["solve", str(path), "--backend", "casadi-c", "--out", str(out)])
     assert r.exit_code == 1 and "Traceback" not in r.output
-    assert r.output.strip().splitlines()[-1].startswith(
-        f"Error: the C compiler {str(tmp_path / 'no-such-cc')!r} cannot run (No such file or directory)")
+    assert (
+        r.output.strip()
+        .splitlines()[-1]
+        .startswith(f"Error: the C compiler {str(tmp_path / 'no-such-cc')!r} cannot run (No such file or directory)")
+    )
     assert not out.exists() and not list((tmp_path / "cache").rglob("*.so"))
 
 

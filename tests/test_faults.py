@@ -47,9 +47,11 @@ def leftovers(folder: Path) -> list[str]:
 
 def h5py_error(code: int, path: Path, cls=OSError):
     """An error as h5py raises it when HDF5 fails to write (errno and file name only in the text)."""
-    text = (f"Can't write unprocessed chunk data (file write failed: time = Wed Nov 25 00:59:28 2026\n, filename = "
-            f"'{path}', file descriptor = 3, errno = {code}, error message = '{os.strerror(code)}', buf = 0x1, "
-            "total write size = 14400, bytes this sub-write = 14400, offset = 65536)")
+    text = (
+        f"Can't write unprocessed chunk data (file write failed: time = Wed Nov 25 00:59:28 2026\n, filename = "
+        f"'{path}', file descriptor = 3, errno = {code}, error message = '{os.strerror(code)}', buf = 0x1, "
+        "total write size = 14400, bytes this sub-write = 14400, offset = 65536)"
+    )
     return cls(code, text) if cls is OSError else cls(text)
 
 
@@ -59,8 +61,9 @@ def data(tmp_path_factory) -> Path:
     from ineid.data import Combination, DatasetSpec, write_dataset
 
     path = tmp_path_factory.mktemp("faults") / "d.h5"
-    write_dataset(ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=40), n_frames=6, seed=1),
-                  path)  # fmt: skip
+    write_dataset(
+        ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=40), n_frames=6, seed=1), path
+    )
     return path
 
 
@@ -75,8 +78,11 @@ def small(tmp_path_factory) -> Path:
 
     path = tmp_path_factory.mktemp("small") / "d.h5"
     noise = NoiseModel.create(4, force=0.3, moment=0.03)
-    write_dataset(ineid.load_robot("sweaty-arm"),
-                  DatasetSpec(Combination("random", n_configs=12), n_frames=30, seed=2, noise=noise), path)
+    write_dataset(
+        ineid.load_robot("sweaty-arm"),
+        DatasetSpec(Combination("random", n_configs=12), n_frames=30, seed=2, noise=noise),
+        path,
+    )
     return path
 
 
@@ -84,15 +90,45 @@ def small(tmp_path_factory) -> Path:
 def results(small) -> Path:
     """Physically consistent estimates of configurations 2 and 5 (as test_cli makes them): exportable."""
     out = small.parent / "r.h5"
-    r = run("-q", "solve", small, "--method", "consistent", "--select", "2,5", "--fit-frames", 30, "--workers", 1,
-            "--out", out)  # fmt: skip
+    r = run(
+        "-q",
+        "solve",
+        small,
+        "--method",
+        "consistent",
+        "--select",
+        "2,5",
+        "--fit-frames",
+        30,
+        "--workers",
+        1,
+        "--out",
+        out,
+    )
     assert r.exit_code == 0, r.output
     return out
 
 
 # test_cli's training run (same data and settings: its compiled kernels are reused)
-TRAIN = ("--arch", "net1", "--sample-frames", 3, "--siamese", "--loss", "physics", "--beta", 2, "--epochs", 3,
-         "--batch", 16, "--train-configs", 24, "--val-configs", 8)
+TRAIN = (
+    "--arch",
+    "net1",
+    "--sample-frames",
+    3,
+    "--siamese",
+    "--loss",
+    "physics",
+    "--beta",
+    2,
+    "--epochs",
+    3,
+    "--batch",
+    16,
+    "--train-configs",
+    24,
+    "--val-configs",
+    8,
+)
 
 
 @pytest.fixture(scope="module")
@@ -110,9 +146,12 @@ def test_faults_are_recognised_in_python_and_h5py_forms(tmp_path):
     out = tmp_path / "r.h5"
     tmp = temporary_path(out, ".h5")
     assert describe_fault(OSError(errno.ENOSPC, "No space left on device", str(tmp))) == (
-        f"no space left on device writing {out}; free some space or choose another --out")
+        f"no space left on device writing {out}; free some space or choose another --out"
+    )
     # h5py's RuntimeError from a dataset's dealloc carries the errno only in its text
-    assert describe_fault(h5py_error(errno.ENOSPC, tmp, RuntimeError)).startswith(f"no space left on device writing {out}")
+    assert describe_fault(h5py_error(errno.ENOSPC, tmp, RuntimeError)).startswith(
+        f"no space left on device writing {out}"
+    )
     assert fault_path(h5py_error(errno.EROFS, tmp)) == str(out)
     assert "read-only file system; choose another --out" in describe_fault(h5py_error(errno.EROFS, tmp))
     assert "permission denied" in describe_fault(PermissionError(errno.EACCES, "Permission denied", str(out)))
@@ -210,8 +249,10 @@ def test_file_size_limit_in_hdf5_is_one_line(tmp_path):
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env, check=False)
     assert p.returncode == 1, p.stderr
-    expected = (f"Error: file too large for the file system (or the limit of `ulimit -f`) writing {out}; make a "
-                "smaller output or choose another --out")
+    expected = (
+        f"Error: file too large for the file system (or the limit of `ulimit -f`) writing {out}; make a "
+        "smaller output or choose another --out"
+    )
     assert p.stderr.strip().splitlines() == [expected], p.stderr
     assert leftovers(tmp_path) == []
 
@@ -234,8 +275,23 @@ def test_real_full_and_read_only_disks(tmp_path, small):
         try:
             (full / "fill").write_bytes(b"\0" * 240_000)
             disk_full = ("no space left on device writing", "needs about", "would be about")
-            p = subprocess.run([sys.executable, "-m", "ineid.cli", "-q", "solve", str(small), *map(str, SOLVE), "--out",
-                                str(full / "r.h5")], capture_output=True, text=True, timeout=120, check=False)
+            p = subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "ineid.cli",
+                    "-q",
+                    "solve",
+                    str(small),
+                    *map(str, SOLVE),
+                    "--out",
+                    str(full / "r.h5"),
+                ],
+                capture_output=True,
+                text=True,
+                timeout=120,
+                check=False,
+            )
             lines = p.stderr.strip().splitlines()
             assert p.returncode == 1 and len(lines) == 1 and any(w in lines[0] for w in disk_full), p.stderr
             line = one_line(run("-q", "data", "generate", "--n-configs", 400, "--n-frames", 20, "--out", full / "d.h5"))
@@ -269,8 +325,11 @@ def test_read_only_output_folder(monkeypatch, tmp_path, results):
     monkeypatch.undo()
 
     def h5_refuse(name, *a, **k):
-        raise OSError(errno.EROFS, f"Unable to synchronously create file (unable to open file: name = '{name}', "
-                                   "errno = 30, error message = 'Read-only file system', flags = 13, o_flags = 242)")
+        raise OSError(
+            errno.EROFS,
+            f"Unable to synchronously create file (unable to open file: name = '{name}', "
+            "errno = 30, error message = 'Read-only file system', flags = 13, o_flags = 242)",
+        )
 
     monkeypatch.setattr(h5py, "File", h5_refuse)
     out = tmp_path / "d.h5"
@@ -285,6 +344,7 @@ def test_permission_denied_output_folder(monkeypatch, tmp_path, results):
     folder.chmod(0o500)
     try:
         if os.geteuid() == 0:  # root ignores the mode: inject what a user would get
+
             def refuse(self, *a, **k):
                 raise PermissionError(errno.EACCES, "Permission denied", str(self))
 
@@ -298,8 +358,11 @@ def test_permission_denied_output_folder(monkeypatch, tmp_path, results):
 
 def test_unreadable_input_names_the_file(monkeypatch, tmp_path, data):
     def refuse(name, *a, **k):
-        raise PermissionError(errno.EACCES, f"Unable to synchronously open file (unable to open file: name = "
-                                            f"'{name}', errno = 13, error message = 'Permission denied')")
+        raise PermissionError(
+            errno.EACCES,
+            f"Unable to synchronously open file (unable to open file: name = "
+            f"'{name}', errno = 13, error message = 'Permission denied')",
+        )
 
     monkeypatch.setattr(h5py, "File", refuse)
     line = one_line(run("data", "info", data))
@@ -313,8 +376,9 @@ def test_noise_is_bounded_and_a_dataset_never_holds_inf(tmp_path, model):
     from ineid.data import Combination, DatasetSpec, NoiseModel, write_dataset
     from ineid.errors import DatasetError
 
-    line = one_line(run("data", "generate", "--n-configs", 2, "--noise", "force=1e308", "--out", tmp_path / "d.h5"),
-                    code=2)  # fmt: skip
+    line = one_line(
+        run("data", "generate", "--n-configs", 2, "--noise", "force=1e308", "--out", tmp_path / "d.h5"), code=2
+    )
     assert "STD <= 1e+06" in line
     out = tmp_path / "lib.h5"  # the library, asked directly: refuses at the first chunk, writes nothing
     # about 7 % of the draws exceed 1.8 sigma (1.8e308 overflows): certain among 720
@@ -329,8 +393,9 @@ def recording(tmp_path) -> Path:
     t = np.arange(0, 3, 0.01)
     q = 0.3 * np.sin(np.outer(t, [1.0, 1.3, 0.7, 2.0]))
     w = np.column_stack([np.sin(k * t) for k in range(1, 7)])
-    rows = ["time,q1,q2,q3,q4,fx,fy,fz,mx,my,mz"] + [",".join(f"{v:.6g}" for v in (t[i], *q[i], *w[i]))
-                                                       for i in range(len(t))]  # fmt: skip
+    rows = ["time,q1,q2,q3,q4,fx,fy,fz,mx,my,mz"] + [
+        ",".join(f"{v:.6g}" for v in (t[i], *q[i], *w[i])) for i in range(len(t))
+    ]
     path = tmp_path / "rec.csv"
     path.write_text("\n".join(rows) + "\n")
     return path
@@ -348,8 +413,22 @@ def test_import_rate_and_delay_are_bounded(tmp_path, recording):
 @pytest.mark.parametrize(
     ("args", "code", "words"),
     [
-        (("data", "generate", "--n-configs", 2, "--frame-mode", "fourier", "--base-frequency", "inf", "--out", "OUT"),
-         2, "finite"),
+        (
+            (
+                "data",
+                "generate",
+                "--n-configs",
+                2,
+                "--frame-mode",
+                "fourier",
+                "--base-frequency",
+                "inf",
+                "--out",
+                "OUT",
+            ),
+            2,
+            "finite",
+        ),
         (("data", "generate", "--n-configs", 2, "--com-box", "nan", "--out", "OUT"), 2, "finite"),
         (("data", "generate", "--n-configs", 2, "--harmonics", 10**6, "--out", "OUT"), 2, "1<=x<=1000"),
         (("data", "generate", "--n-configs", 10**12, "--out", "OUT"), 1, "configurations needs about"),
@@ -361,10 +440,14 @@ def test_import_rate_and_delay_are_bounded(tmp_path, recording):
         (("train", "DATA", "--arch", "mlp", "--depth", 2, "--width", 10**9, "--out", "OUT"), 2, "too large"),
         (("train", "DATA", "--lr", "inf", "--out", "OUT"), 2, "finite"),
         (("solve", "DATA", "--workers", 10**6, "--out", "OUT"), 2, "--workers"),
-        *[(("solve", "DATA", "--weights", "noise", "--sigma", v, 1, 1, 1, 1, 1, "--out", "OUT"), 2, "'--sigma'")
-          for v in ("0", "-1", "nan", "inf")],
-        *[(("robot", "show", FIXTURES / "mixed_chain.urdf", "--lock", f"j2={v}"), 2, f"finite position, got 'j2={v}'")
-          for v in ("nan", "inf", "-inf")],
+        *[
+            (("solve", "DATA", "--weights", "noise", "--sigma", v, 1, 1, 1, 1, 1, "--out", "OUT"), 2, "'--sigma'")
+            for v in ("0", "-1", "nan", "inf")
+        ],
+        *[
+            (("robot", "show", FIXTURES / "mixed_chain.urdf", "--lock", f"j2={v}"), 2, f"finite position, got 'j2={v}'")
+            for v in ("nan", "inf", "-inf")
+        ],
         (("train", "DATA", "--seed", 10**27, "--out", "OUT"), 2, "--seed"),
     ],
 )
@@ -414,7 +497,8 @@ def test_damaged_model_scalers_and_metrics(tmp_path, data, trained):
     shutil.copy(trained / "model.msgpack", run_dir / "model.msgpack")
     (run_dir / "scalers.json").write_text('{"x": 1}')
     assert "scalers.json is damaged (it needs the objects x and y)" in one_line(
-        run("-q", "evaluate", run_dir, data, "--overwrite"))
+        run("-q", "evaluate", run_dir, data, "--overwrite")
+    )
     shutil.copy(trained / "scalers.json", run_dir / "scalers.json")
     with (run_dir / "metrics.jsonl").open("a") as fh:
         fh.write('{"epoch": \n')
@@ -436,10 +520,17 @@ def _damage(src: Path, dst: Path, fn) -> Path:
         (lambda f: f.attrs.__delitem__("settings"), "attribute 'settings' is missing"),
         (lambda f: f.attrs.__setitem__("settings", "{nope"), "attribute 'settings' is not JSON"),
         (lambda f: f.attrs.__setitem__("version", "x"), "attribute 'version' is not an integer"),
-        (lambda f: (f.__delitem__("theta_std"), f.__setitem__("theta_std", np.zeros((3, 5)))),
-         "dataset 'theta_std' is float64 of shape (3, 5), expected numbers of shape (2 x 20)"),
-        (lambda f: (f.__delitem__("base_hat"), f.__setitem__("base_hat", np.full((2, 17), "a", h5py.string_dtype()))),
-         "dataset 'base_hat' is text"),
+        (
+            lambda f: (f.__delitem__("theta_std"), f.__setitem__("theta_std", np.zeros((3, 5)))),
+            "dataset 'theta_std' is float64 of shape (3, 5), expected numbers of shape (2 x 20)",
+        ),
+        (
+            lambda f: (
+                f.__delitem__("base_hat"),
+                f.__setitem__("base_hat", np.full((2, 17), "a", h5py.string_dtype())),
+            ),
+            "dataset 'base_hat' is text",
+        ),
     ],
 )
 def test_damaged_results_file(tmp_path, results, damage, words):

@@ -32,7 +32,7 @@ CODE = f"import pathlib;pathlib.Path({str(CANARY)!r}).write_text('ran')"
 HOSTILE = {
     "newline-code": f"x\n{CODE}\n#",
     "cr-tab": f"a\r\tb\r\n{CODE}",
-    "quotes": "it's a \"quoted\" name",
+    "quotes": 'it\'s a "quoted" name',
     "triple-quotes": f'a"""\n{CODE}\n"""b\'\'\'c',
     "backslashes": "back\\slash\\n\\",
     "xml-comment": "x --> <link name='evil'/> <!-- y",
@@ -51,8 +51,16 @@ def hostile_urdf(name: str | None) -> str:
     """A 2-DOF arm named ``name`` whose root link, links and joints carry ``name`` too (None: clean names)."""
     n = {"robot": "clean", "root": "base", "l1": "l1", "l2": "l2", "tool": "tool", "j1": "j1", "j2": "j2", "jt": "jt"}
     if name is not None:
-        n = {"robot": name, "root": name + " 0", "l1": name, "l2": name + " 2", "tool": name + " tool",
-             "j1": name, "j2": name + " 2", "jt": name + " tool"}
+        n = {
+            "robot": name,
+            "root": name + " 0",
+            "l1": name,
+            "l2": name + " 2",
+            "tool": name + " tool",
+            "j1": name,
+            "j2": name + " 2",
+            "jt": name + " tool",
+        }
     robot = ET.Element("robot", name=n["robot"])
     ET.SubElement(robot, "link", name=n["root"])
     for link, com in ((n["l1"], "0.1 0.02 0.05"), (n["l2"], "0.15 -0.01 0.02"), (n["tool"], "0 0 0.03")):
@@ -60,8 +68,10 @@ def hostile_urdf(name: str | None) -> str:
         ET.SubElement(el, "origin", xyz=com, rpy="0 0 0")
         ET.SubElement(el, "mass", value="1.5")
         ET.SubElement(el, "inertia", ixx="0.02", ixy="0.001", ixz="0", iyy="0.03", iyz="0", izz="0.025")
-    for joint, parent, child, xyz, axis in ((n["j1"], n["root"], n["l1"], "0 0 0.1", "0 0 1"),
-                                            (n["j2"], n["l1"], n["l2"], "0.3 0 0", "0 1 0")):
+    for joint, parent, child, xyz, axis in (
+        (n["j1"], n["root"], n["l1"], "0 0 0.1", "0 0 1"),
+        (n["j2"], n["l1"], n["l2"], "0.3 0 0", "0 1 0"),
+    ):
         el = ET.SubElement(robot, "joint", name=joint, type="revolute")
         ET.SubElement(el, "parent", link=parent)
         ET.SubElement(el, "child", link=child)
@@ -97,7 +107,8 @@ def clean(tmp_path_factory):
     q, qd, qdd = (rng.uniform(-1, 1, (5, 2)) for _ in range(3))
     g = np.array([0.0, 0.3, -9.81])
     return dataclasses.make_dataclass("Clean", ["chain", "sym", "states", "Y"])(
-        chain, sym, (q, qd, qdd, g), np.asarray(jax_functions(jax_mod).regressor(q, qd, qdd, g)))
+        chain, sym, (q, qd, qdd, g), np.asarray(jax_functions(jax_mod).regressor(q, qd, qdd, g))
+    )
 
 
 @pytest.mark.parametrize("name", list(HOSTILE.values()), ids=list(HOSTILE))
@@ -132,8 +143,10 @@ def test_exported_urdf_reads_back(name):
     from ineid.identify.export import urdf_with_inertials
     from ineid.params import theta_from_inertial
 
-    theta = {name: theta_from_inertial(2.0, np.array([0.1, 0.0, 0.03]), np.diag([0.02, 0.03, 0.04])),
-             name + " 2": theta_from_inertial(0.7, np.array([0.05, 0.01, 0.0]), np.diag([0.01, 0.01, 0.015]))}
+    theta = {
+        name: theta_from_inertial(2.0, np.array([0.1, 0.0, 0.03]), np.diag([0.02, 0.03, 0.04])),
+        name + " 2": theta_from_inertial(0.7, np.array([0.05, 0.01, 0.0]), np.diag([0.01, 0.01, 0.015])),
+    }
     text = urdf_with_inertials(hostile_urdf(name), theta)
     root = ET.fromstring(text)
     assert [el.get("name") for el in root.findall("link")] == [name + " 0", name, name + " 2", name + " tool"]
@@ -166,9 +179,16 @@ def test_a_module_with_an_injected_statement_is_refused():
     assert check_module_source(jax_text, "jax")["ROBOT"] == "sweaty-arm"
     assert check_module_source(ca_text, "casadi")["N_DOF"] == 4
     at_import = "\nimport jax.numpy as jnp\n"
-    for evil in (f"\n{CODE}\n", "\nimport os\n", "\nX = __import__('os').getcwd()\n",
-                 "\ndef f(a=print('x')):\n    pass\n", "\n@print\ndef program(q, qd, qdd, gravity):\n    pass\n",
-                 "\nROBOT = open('/etc/passwd').read()\n", "\nclass A:\n    print('x')\n", "\nprint('x')\n"):
+    for evil in (
+        f"\n{CODE}\n",
+        "\nimport os\n",
+        "\nX = __import__('os').getcwd()\n",
+        "\ndef f(a=print('x')):\n    pass\n",
+        "\n@print\ndef program(q, qd, qdd, gravity):\n    pass\n",
+        "\nROBOT = open('/etc/passwd').read()\n",
+        "\nclass A:\n    print('x')\n",
+        "\nprint('x')\n",
+    ):
         with pytest.raises(CodegenError, match="unexpected statement|defined twice"):
             check_module_source(jax_text.replace(at_import, at_import + evil, 1), "jax")
     with pytest.raises(CodegenError, match="unexpected statement"):  # no call runs on import, not even ours
@@ -192,8 +212,13 @@ def nasty(tmp_path_factory):
     urdf = folder / "nasty.urdf"
     urdf.write_text(hostile_urdf(NASTY))
     data = folder / "d.h5"
-    ok(CliRunner().invoke(main, ["data", "generate", str(urdf), "--n-configs", "2", "--n-frames", "40", "--seed", "3",
-                                 "--out", str(data)], catch_exceptions=False))
+    ok(
+        CliRunner().invoke(
+            main,
+            ["data", "generate", str(urdf), "--n-configs", "2", "--n-frames", "40", "--seed", "3", "--out", str(data)],
+            catch_exceptions=False,
+        )
+    )
     assert not CANARY.exists()
     return urdf, data
 
@@ -203,8 +228,10 @@ def test_commands_on_a_hostile_urdf(run, nasty, tmp_path):
     out = ok(run("robot", "show", urdf))
     assert "[bold]x[/bold] [/]" in out and "$\\badcmd{$" in out  # shown, not interpreted
     ok(run("generate", urdf, "--out", tmp_path / "gen"))
-    (jax_file, _), = [file_names(NASTY)]
-    assert sorted(os.listdir(tmp_path / "gen")) == sorted([jax_file, jax_file.replace("_jax.py", "_casadi.py"), MANIFEST])
+    ((jax_file, _),) = [file_names(NASTY)]
+    assert sorted(os.listdir(tmp_path / "gen")) == sorted(
+        [jax_file, jax_file.replace("_jax.py", "_casadi.py"), MANIFEST]
+    )
     assert load_from_directory(tmp_path / "gen", NASTY)[0].ROBOT == NASTY
     assert "d.h5" in ok(run("data", "info", data))
 
@@ -241,8 +268,9 @@ def test_recordings_of_a_hostile_robot(run, nasty, tmp_path):
     t = np.arange(800) * 0.01  # longer than the derivative filter's edges
     q = np.stack([0.3 * np.sin(t), 0.2 * np.cos(0.7 * t)], axis=1)
     wrench = np.tile([0.1, 0.0, 30.0, 0.5, -0.2, 0.0], (len(t), 1))
-    bag = write_bag(tmp_path / "rec.bag", "ros1", [NASTY + " 2", NASTY], t, q[:, ::-1], t, wrench,
-                    frame_id=NASTY + " 0")  # the root link: the sensor sits under the base
+    bag = write_bag(
+        tmp_path / "rec.bag", "ros1", [NASTY + " 2", NASTY], t, q[:, ::-1], t, wrench, frame_id=NASTY + " 0"
+    )  # the root link: the sensor sits under the base
     ok(run("data", "import", bag, "--robot", urdf, "--delay", 0, "--out", tmp_path / "bag.h5"))
     out = ok(run("data", "info", tmp_path / "bag.h5"))
     assert "[bold]x[/bold]" in out

@@ -45,7 +45,9 @@ def clean(model):
 
 @pytest.fixture(scope="module")
 def noisy(model):
-    return generate_dataset(model, DatasetSpec(Combination("random", n_configs=300), n_frames=40, seed=SEED, noise=NOISE))
+    return generate_dataset(
+        model, DatasetSpec(Combination("random", n_configs=300), n_frames=40, seed=SEED, noise=NOISE)
+    )
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +80,7 @@ def test_structural_groupings_are_named(base):
     assert base.names[0] == "upper_arm.m + forearm.m"
     assert "upper_arm.mz - 0.22*forearm.m" in base.names
     assert "forearm.Ixx - forearm.Izz" in base.names
-    ident = [p for p, ok in zip(base.param_names, base.identifiable) if ok]
+    ident = [p for p, ok in zip(base.param_names, base.identifiable, strict=True) if ok]
     assert ident == ["forearm.mx", "forearm.mz", "forearm.Ixy", "forearm.Iyy", "forearm.Ixz", "forearm.Iyz"]
     assert all("+1 forearm" in d for d in base.null_directions())
 
@@ -99,7 +101,10 @@ def test_frame_analysis(model, base):
     few = analyze_frames(model, q[:2], qd[:2], qdd[:2])
     assert "2 frames give 12 equations for 17 identifiable parameters; use at least 4 frames" in few.problem()
     three = analyze_frames(model, q[:3], qd[:3], qdd[:3])  # 18 equations, but the force rows give only 6
-    assert three.rank == 15 and three.problem().startswith("use at least 4 frames (more with noise): 3 generic frames give rank 15 of 17, since the fx, fy, fz rows span only 6 of the 17")
+    assert three.rank == 15 and three.problem().startswith(
+        "use at least 4 frames (more with noise): 3 generic frames give rank 15 of 17, since the fx, fy, fz rows "
+        "span only 6 of the 17"
+    )
 
 
 # -- linear -------------------------------------------------------------------------------

@@ -27,8 +27,10 @@ BIAS = np.array([0.02, -0.01, 0.03])
 
 def _mounts(model, rng) -> list[ImuMount]:
     """One IMU on every moving link, a few cm off its origin, turned arbitrarily."""
-    return [ImuMount(link, SensorPose(tuple(rng.normal(0, 0.04, 3)), tuple(rng.uniform(-3, 3, 3))))
-            for link in model.link_names]
+    return [
+        ImuMount(link, SensorPose(tuple(rng.normal(0, 0.04, 3)), tuple(rng.uniform(-3, 3, 3))))
+        for link in model.link_names
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -51,14 +53,22 @@ def simulated_recording(arm) -> dict:
     theta = arm.theta_cad.copy()
     for link in arm.unknown_links:
         i = arm.link_names.index(link)
-        theta[10 * i: 10 * i + 10] = sample_link_parameters(arm.theta_cad[10 * i: 10 * i + 10], 1, rng)[0]
+        theta[10 * i : 10 * i + 10] = sample_link_parameters(arm.theta_cad[10 * i : 10 * i + 10], 1, rng)[0]
     mounts = _mounts(arm, rng)
     root = root_theta(arm)
     t, q, qd, qdd, wrench, readings = simulate_imus(arm, mounts, theta, root, 6.0, RATE, seed=3, speed=3.0)
     g = arm.gravity
     tared = wrench - np.concatenate([root[0] * g, np.cross(root[1:4], g)])  # the root's weight off
-    return {"t": t, "q": q, "qd": qd, "qdd": qdd, "wrench": tared, "readings": readings, "mounts": mounts,
-            "theta": theta}
+    return {
+        "t": t,
+        "q": q,
+        "qd": qd,
+        "qdd": qdd,
+        "wrench": tared,
+        "readings": readings,
+        "mounts": mounts,
+        "theta": theta,
+    }
 
 
 def _encoders(rec, bits: int, cutoff: float, offset=0.0):
@@ -146,8 +156,9 @@ def test_noise_free_imus_give_the_true_states_and_exact_identification(arm, reco
     assert _rel(qd_enc, recording["qd"][EDGE:-EDGE]) > 0.01  # the prior is poor
     exact = EstimationSettings(noise=ImuNoise(1e-9, 1e-9, 1e-9), gyro_bias=False)
     truth = {k: recording[k][EDGE:-EDGE] for k in ("q", "qd", "qdd", "t", "wrench")}
-    qd, qdd, summary = estimate_joint_states(arm, truth["q"], qd_enc, qdd_enc, recording["mounts"],
-                                             _cut(recording["readings"]), exact)
+    qd, qdd, summary = estimate_joint_states(
+        arm, truth["q"], qd_enc, qdd_enc, recording["mounts"], _cut(recording["readings"]), exact
+    )
     assert np.abs(qd - truth["qd"]).max() < 1e-10 * np.abs(truth["qd"]).max()
     assert np.abs(qdd - truth["qdd"]).max() < 1e-10 * np.abs(truth["qdd"]).max()
     assert all(v < 1e-6 for r in summary.residual_rms.values() for v in r.values())  # in units of 1e-9 noise
@@ -156,10 +167,14 @@ def test_noise_free_imus_give_the_true_states_and_exact_identification(arm, reco
 
 def _noisy(recording, rng, noise: ImuNoise):
     n = len(recording["t"])
-    return {name: {"gyro": r["gyro"] + BIAS + rng.normal(0, noise.gyro, (n, 3)),
-                   "accel": r["accel"] + rng.normal(0, noise.accel, (n, 3)),
-                   "alpha": r["alpha"] + rng.normal(0, noise.alpha, (n, 3))}
-            for name, r in recording["readings"].items()}
+    return {
+        name: {
+            "gyro": r["gyro"] + BIAS + rng.normal(0, noise.gyro, (n, 3)),
+            "accel": r["accel"] + rng.normal(0, noise.accel, (n, 3)),
+            "alpha": r["alpha"] + rng.normal(0, noise.alpha, (n, 3)),
+        }
+        for name, r in recording["readings"].items()
+    }
 
 
 def test_fusion_beats_coarse_encoders_and_never_loses_to_fine_ones(arm, recording):
@@ -183,8 +198,16 @@ def test_fusion_beats_coarse_encoders_and_never_loses_to_fine_ones(arm, recordin
         qd_g, qdd_g, _ = estimate_joint_states(arm, q, qd_enc, qdd_enc, gyros, readings)
         assert _rel(qd_g, qd_true) < gain * _rel(qd_enc, qd_true) and np.array_equal(qdd_g, qdd_enc)
         if bits == 10:  # ... unless the low-passed gyros' derivative is qdd's prior
-            _, qdd_g, _ = estimate_joint_states(arm, q, qd_enc, qdd_enc, gyros, low_passed,
-                                                EstimationSettings(qdd_prior="gyros"), time=recording["t"][EDGE:-EDGE])
+            _, qdd_g, _ = estimate_joint_states(
+                arm,
+                q,
+                qd_enc,
+                qdd_enc,
+                gyros,
+                low_passed,
+                EstimationSettings(qdd_prior="gyros"),
+                time=recording["t"][EDGE:-EDGE],
+            )
             assert _rel(qdd_g, qdd_true) < 0.5 * _rel(qdd_enc, qdd_true)
         for name, rms in summary.residual_rms.items():  # residuals at the noise
             # at the noise, a little below it where an IMU fixes the fit (the last link's)
@@ -211,7 +234,8 @@ def _bias_z(summary) -> list[float]:
 def test_gyro_bias_std_is_honest_for_fine_and_coarse_encoders(arm, recording):
     """Over noise draws (gyro noise, and the encoders' quantization grid shifted at random), the gyro biases'
     z-scores along every identifiable direction have RMS near 1 with 16-, 12- and 10-bit encoders (the white-noise
-    std gave RMS 2.3 and 3.1, |z| up to 6.4 and 8.9, with 12- and 10-bit ones), and the last link's IMU's bias along the last
+    std gave RMS 2.3 and 3.1, |z| up to 6.4 and 8.9, with 12- and 10-bit ones), and the last link's IMU's bias
+    along the last
     joint's axis is reported as not identified: no std on the axes leaning on it."""
     gyros = [replace(m, kinds=("gyro",)) for m in recording["mounts"]]
     last = gyros[-1]
@@ -222,8 +246,9 @@ def test_gyro_bias_std_is_honest_for_fine_and_coarse_encoders(arm, recording):
         z = []
         for _ in range(8):
             q, qd_enc, qdd_enc = _encoders(recording, bits, cutoff, rng.uniform(0, 2 * np.pi / 2**bits, 4))
-            noisy = {k: {"gyro": r["gyro"] + BIAS + rng.normal(0, 0.005, (n, 3))}
-                     for k, r in recording["readings"].items()}
+            noisy = {
+                k: {"gyro": r["gyro"] + BIAS + rng.normal(0, 0.005, (n, 3))} for k, r in recording["readings"].items()
+            }
             _, _, summary = estimate_joint_states(arm, q, qd_enc, qdd_enc, gyros, _cut(noisy))
             z.extend(_bias_z(summary))
             assert list(summary.gyro_bias_unidentified) == [last.name]
@@ -237,12 +262,18 @@ def test_gyro_bias_std_is_honest_for_fine_and_coarse_encoders(arm, recording):
     text = "\n".join(summary.lines())
     assert "not identified" in text and "angle error" in text
     record = summary.to_dict()
-    assert record["gyro_bias_std"][last.name] == [None, None, None] and len(record["gyro_bias_unidentified"][last.name]) == 1
+    assert (
+        record["gyro_bias_std"][last.name] == [None, None, None]
+        and len(record["gyro_bias_unidentified"][last.name]) == 1
+    )
     # the angle error given (raw 10-bit quantization, an upper bound once low-passed) instead of from the residuals
     step = 2 * np.pi / 2**10 / np.sqrt(12)
-    _, _, given = estimate_joint_states(arm, q, qd_enc, qdd_enc, gyros, _cut(noisy), EstimationSettings(encoder_q_std=step))
+    _, _, given = estimate_joint_states(
+        arm, q, qd_enc, qdd_enc, gyros, _cut(noisy), EstimationSettings(encoder_q_std=step)
+    )
     assert np.allclose(given.q_error_std, step) and all(
-        np.all(given.gyro_bias_std[m.name] >= summary.gyro_bias_std[m.name]) for m in gyros[:-1])
+        np.all(given.gyro_bias_std[m.name] >= summary.gyro_bias_std[m.name]) for m in gyros[:-1]
+    )
     with pytest.raises(DatasetError) as e:
         estimate_joint_states(arm, q, qd_enc, qdd_enc, gyros, _cut(noisy), EstimationSettings(encoder_q_std=-1.0))
     _one_line(e, "encoder_q_std")
@@ -307,8 +338,9 @@ def _imported(arm, recording, readings, mounts, bits: int = 10):
     q = np.round(recording["q"] / step) * step
     imus = tuple(ImuStream(m.name, t, {k: readings[m.name][k] for k in m.kinds}) for m in mounts)
     texts = tuple(f"{m.link}:{','.join(repr(float(v)) for v in (*m.sensor.xyz, *m.sensor.rpy))}" for m in mounts)
-    ds, _ = recording_dataset(Streams(t, q, None, None, t, recording["wrench"], "imu test", imus=imus), arm,
-                              ImportSettings(imus=texts))
+    ds, _ = recording_dataset(
+        Streams(t, q, None, None, t, recording["wrench"], "imu test", imus=imus), arm, ImportSettings(imus=texts)
+    )
     at = np.searchsorted(t, ds.time[0])
     assert np.allclose(t[at], ds.time[0])
     res = solve_dataset(ds, SolveSettings())

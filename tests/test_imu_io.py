@@ -47,15 +47,26 @@ def write_csv(path: Path, rec, columns=None, shift: float = 0.0) -> Path:
     from ineid.data.recording_imu import IMU_AXES
 
     n = rec["q"].shape[1]
-    imu_cols = [(name, kind, f"imu_{name}_{a}") for name, (_, r) in rec["imus"].items() for kind in r
-                for a in IMU_AXES[kind]]
-    header = ["time", *(f"q{i}" for i in range(1, n + 1)), "fx", "fy", "fz", "mx", "my", "mz",
-              *(c for _, _, c in imu_cols)]
+    imu_cols = [
+        (name, kind, f"imu_{name}_{a}") for name, (_, r) in rec["imus"].items() for kind in r for a in IMU_AXES[kind]
+    ]
+    header = [
+        "time",
+        *(f"q{i}" for i in range(1, n + 1)),
+        "fx",
+        "fy",
+        "fz",
+        "mx",
+        "my",
+        "mz",
+        *(c for _, _, c in imu_cols),
+    ]
     rows = [(t, [*q, *w, *[""] * len(imu_cols)]) for t, q, w in zip(rec["tq"], rec["q"], rec["wrench"], strict=True)]
     for name, (ti, r) in rec["imus"].items():
         for k, t in enumerate(ti):
-            cells = [r[kind][k, IMU_AXES[kind].index(c.rsplit("_", 1)[1])] if nm == name else ""
-                     for nm, kind, c in imu_cols]
+            cells = [
+                r[kind][k, IMU_AXES[kind].index(c.rsplit("_", 1)[1])] if nm == name else "" for nm, kind, c in imu_cols
+            ]
             rows.append((t + shift, [""] * (n + 6) + cells))
     rows.sort(key=lambda r: r[0])
     keep = [i for i, h in enumerate(header) if columns is None or h in columns or not h.startswith("imu_")]
@@ -96,14 +107,34 @@ def write_imu_bag(path: Path, kind: str, model, rec, frame_ids=None) -> Path:
     events = []  # (ns, topic, msgtype, message factory)
     for k, s in enumerate(rec["tq"]):
         ns = start + round(s * 1e9)
-        events.append((ns, "/joint_states", "sensor_msgs/msg/JointState", lambda ns=ns, k=k: t[
-            "sensor_msgs/msg/JointState"](header=header(ns, "", k), name=list(model.joint_names),
-                                          position=np.ascontiguousarray(rec["q"][k]), velocity=np.zeros(0),
-                                          effort=np.zeros(0))))
+        events.append(
+            (
+                ns,
+                "/joint_states",
+                "sensor_msgs/msg/JointState",
+                lambda ns=ns, k=k: t["sensor_msgs/msg/JointState"](
+                    header=header(ns, "", k),
+                    name=list(model.joint_names),
+                    position=np.ascontiguousarray(rec["q"][k]),
+                    velocity=np.zeros(0),
+                    effort=np.zeros(0),
+                ),
+            )
+        )
         f, m = rec["wrench"][k, :3], rec["wrench"][k, 3:]
-        events.append((ns, "/ft/wrench", "geometry_msgs/msg/WrenchStamped", lambda ns=ns, k=k, f=f, m=m: t[
-            "geometry_msgs/msg/WrenchStamped"](header=header(ns, "", k), wrench=t["geometry_msgs/msg/Wrench"](
-                force=v3(x=f[0], y=f[1], z=f[2]), torque=v3(x=m[0], y=m[1], z=m[2])))))
+        events.append(
+            (
+                ns,
+                "/ft/wrench",
+                "geometry_msgs/msg/WrenchStamped",
+                lambda ns=ns, k=k, f=f, m=m: t["geometry_msgs/msg/WrenchStamped"](
+                    header=header(ns, "", k),
+                    wrench=t["geometry_msgs/msg/Wrench"](
+                        force=v3(x=f[0], y=f[1], z=f[2]), torque=v3(x=m[0], y=m[1], z=m[2])
+                    ),
+                ),
+            )
+        )
     cov_none = np.r_[-1.0, np.zeros(8)]
     for name, (ti, r) in rec["imus"].items():
         frame = (frame_ids or {}).get(name, name)
@@ -111,19 +142,35 @@ def write_imu_bag(path: Path, kind: str, model, rec, frame_ids=None) -> Path:
             ns = start + round(s * 1e9)
             gyro = r.get("gyro", np.zeros((len(ti), 3)))[k]
             acc = r.get("accel", np.zeros((len(ti), 3)))[k]
-            events.append((ns, f"/imu/{name}", "sensor_msgs/msg/Imu", lambda ns=ns, k=k, g=gyro, a=acc, fr=frame, r=r: t[
-                "sensor_msgs/msg/Imu"](header=header(ns, fr, k), orientation=t["geometry_msgs/msg/Quaternion"](
-                    x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=cov_none,
-                    angular_velocity=v3(x=g[0], y=g[1], z=g[2]),
-                    angular_velocity_covariance=np.zeros(9) if "gyro" in r else cov_none,
-                    linear_acceleration=v3(x=a[0], y=a[1], z=a[2]),
-                    linear_acceleration_covariance=np.zeros(9) if "accel" in r else cov_none)))
+            events.append(
+                (
+                    ns,
+                    f"/imu/{name}",
+                    "sensor_msgs/msg/Imu",
+                    lambda ns=ns, k=k, g=gyro, a=acc, fr=frame, r=r: t["sensor_msgs/msg/Imu"](
+                        header=header(ns, fr, k),
+                        orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                        orientation_covariance=cov_none,
+                        angular_velocity=v3(x=g[0], y=g[1], z=g[2]),
+                        angular_velocity_covariance=np.zeros(9) if "gyro" in r else cov_none,
+                        linear_acceleration=v3(x=a[0], y=a[1], z=a[2]),
+                        linear_acceleration_covariance=np.zeros(9) if "accel" in r else cov_none,
+                    ),
+                )
+            )
             if "alpha" in r:
                 al = r["alpha"][k]
                 ns2 = ns + 400_000  # the angular-acceleration sensor on a clock of its own
-                events.append((ns2, f"/imu/{name}/angular_acceleration", "geometry_msgs/msg/Vector3Stamped",
-                               lambda ns=ns2, k=k, al=al, fr=frame: t["geometry_msgs/msg/Vector3Stamped"](
-                                   header=header(ns, fr, k), vector=v3(x=al[0], y=al[1], z=al[2]))))
+                events.append(
+                    (
+                        ns2,
+                        f"/imu/{name}/angular_acceleration",
+                        "geometry_msgs/msg/Vector3Stamped",
+                        lambda ns=ns2, k=k, al=al, fr=frame: t["geometry_msgs/msg/Vector3Stamped"](
+                            header=header(ns, fr, k), vector=v3(x=al[0], y=al[1], z=al[2])
+                        ),
+                    )
+                )
     events.sort(key=lambda e: e[0])
     with writer:
         conns = {}
@@ -149,15 +196,28 @@ def test_csv_round_trip_three_clocks(model, rec, run, tmp_path):
 
     path = write_csv(tmp_path / "rec.csv", rec)
     out = tmp_path / "rec.h5"
-    r = run("data", "import", path, "--robot", "sweaty-arm", "--cutoff", "20", "--imu", f"forearm:{FOREARM_POSE}",
-            "--out", out)
+    r = run(
+        "data",
+        "import",
+        path,
+        "--robot",
+        "sweaty-arm",
+        "--cutoff",
+        "20",
+        "--imu",
+        f"forearm:{FOREARM_POSE}",
+        "--out",
+        out,
+    )
     assert r.exit_code == 0, r.output
     assert "IMU 'forearm' on 'forearm'" in r.output and "IMU 'upper_arm' on 'upper_arm'" in r.output
     assert "fused" in r.output and "gyro bias" in r.output
     ds = load_dataset(out)
     imu = ds.meta.origin["imu"]
-    assert {m["name"]: m["kinds"] for m in imu["mounts"]} == {"forearm": ["gyro", "accel", "alpha"],
-                                                              "upper_arm": ["gyro"]}
+    assert {m["name"]: m["kinds"] for m in imu["mounts"]} == {
+        "forearm": ["gyro", "accel", "alpha"],
+        "upper_arm": ["gyro"],
+    }
     assert np.allclose(imu["mounts"][0]["sensor"]["xyz"], [0.05, 0.01, -0.1])
     assert "estimation" in imu and not any("imu" in k for k in ds.meta.channels.keys)
     check_fused(ds)
@@ -167,11 +227,25 @@ def test_csv_round_trip_three_clocks(model, rec, run, tmp_path):
 def test_bag_round_trip_imu_topics(model, rec, run, tmp_path, kind):
     from ineid.data.read import load_dataset
 
-    bag = write_imu_bag(tmp_path / ("rec.bag" if kind == "ros1" else "rec"), kind, model, rec,
-                        frame_ids={"forearm": "forearm_imu"})
+    bag = write_imu_bag(
+        tmp_path / ("rec.bag" if kind == "ros1" else "rec"), kind, model, rec, frame_ids={"forearm": "forearm_imu"}
+    )
     out = tmp_path / "rec.h5"
-    r = run("data", "import", bag, "--robot", "sweaty-arm", "--imu-topic", "/imu/forearm",
-            "--imu-topic", "/imu/upper_arm", "--imu", f"forearm_imu=forearm:{FOREARM_POSE}", "--out", out)
+    r = run(
+        "data",
+        "import",
+        bag,
+        "--robot",
+        "sweaty-arm",
+        "--imu-topic",
+        "/imu/forearm",
+        "--imu-topic",
+        "/imu/upper_arm",
+        "--imu",
+        f"forearm_imu=forearm:{FOREARM_POSE}",
+        "--out",
+        out,
+    )
     assert r.exit_code == 0, r.output
     assert "low-pass at 20 Hz (the upper bound, 0.1 x the rate: angular-acceleration sensors measure qdd" in r.output
     ds = load_dataset(out)
@@ -186,9 +260,30 @@ def test_generate_imu_rehearsal_round_trip(model, run, tmp_path):
     from ineid.data.read import load_dataset
 
     out = tmp_path / "g.h5"
-    r = run("data", "generate", "--n-configs", "1", "--n-frames", "400", "--frame-mode", "fourier",
-            "--base-frequency", "0.25", "--imu", "upper_arm", "--imu", f"forearm:{FOREARM_POSE}",
-            "--encoder-bits", "16", "--noise", "gyro=0.002,alpha=0.05,force=0.01", "--gyro-bias", "0.01", "--out", out)
+    r = run(
+        "data",
+        "generate",
+        "--n-configs",
+        "1",
+        "--n-frames",
+        "400",
+        "--frame-mode",
+        "fourier",
+        "--base-frequency",
+        "0.25",
+        "--imu",
+        "upper_arm",
+        "--imu",
+        f"forearm:{FOREARM_POSE}",
+        "--encoder-bits",
+        "16",
+        "--noise",
+        "gyro=0.002,alpha=0.05,force=0.01",
+        "--gyro-bias",
+        "0.01",
+        "--out",
+        out,
+    )
     assert r.exit_code == 0, r.output
     ds = load_dataset(out)
     assert set(ds.clean) >= {"q", "qd", "qdd", "wrench"}
@@ -227,17 +322,24 @@ def test_bad_imu_inputs_are_one_line_and_write_nothing(model, rec, run, tmp_path
     # an IMU on a link not in the model (named by --imu, or by the columns)
     _one_line_no_file(run(*imp, good, "--robot", "sweaty-arm", "--imu", "gripper", "--out", out), out, "gripper")
     only = dict(rec, imus={"gripper": rec["imus"]["upper_arm"]})
-    _one_line_no_file(run(*imp, write_csv(tmp_path / "g.csv", only), "--robot", "sweaty-arm", "--out", out), out,
-                      "gripper", "--imu")
+    _one_line_no_file(
+        run(*imp, write_csv(tmp_path / "g.csv", only), "--robot", "sweaty-arm", "--out", out), out, "gripper", "--imu"
+    )
     # a missing axis column: _wy without _wx
     cols = {"imu_upper_arm_wy", "imu_upper_arm_wz"}
-    _one_line_no_file(run(*imp, write_csv(tmp_path / "m.csv", rec, columns=cols), "--robot", "sweaty-arm", "--out",
-                          out), out, "imu_upper_arm_wx")
+    _one_line_no_file(
+        run(*imp, write_csv(tmp_path / "m.csv", rec, columns=cols), "--robot", "sweaty-arm", "--out", out),
+        out,
+        "imu_upper_arm_wx",
+    )
     # a pose that does not parse
     _one_line_no_file(run(*imp, good, "--robot", "sweaty-arm", "--imu", "forearm:1,2", "--out", out), out, "forearm")
     # an IMU stream that does not overlap the joints in time
-    _one_line_no_file(run(*imp, write_csv(tmp_path / "late.csv", rec, shift=100.0), "--robot", "sweaty-arm",
-                          "--out", out), out, "overlap")
+    _one_line_no_file(
+        run(*imp, write_csv(tmp_path / "late.csv", rec, shift=100.0), "--robot", "sweaty-arm", "--out", out),
+        out,
+        "overlap",
+    )
     # a gyro whose readings contradict the encoders: the forearm IMU declared at the link origin, unturned
     _one_line_no_file(run(*imp, good, "--robot", "sweaty-arm", "--cutoff", "20", "--out", out), out, "forearm")
     # --imu-topic on a CSV, --imu-delay without IMUs

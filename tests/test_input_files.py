@@ -38,8 +38,11 @@ def data(tmp_path_factory) -> Path:
 
     path = tmp_path_factory.mktemp("inputs") / "d.h5"
     noise = NoiseModel.create(4, force=0.3, moment=0.03)
-    write_dataset(ineid.load_robot("sweaty-arm"),
-                  DatasetSpec(Combination("random", n_configs=12), n_frames=30, seed=2, noise=noise), path)
+    write_dataset(
+        ineid.load_robot("sweaty-arm"),
+        DatasetSpec(Combination("random", n_configs=12), n_frames=30, seed=2, noise=noise),
+        path,
+    )
     return path
 
 
@@ -138,13 +141,29 @@ class _Unblock:
         self.child.wait()
 
 
-@pytest.mark.parametrize(("what", "args"), [
-    ("the dataset", ("data", "info", "{fifo}")),
-    ("the dataset", ("solve", "{fifo}", "--out", "{tmp}/r.h5")),
-    ("the results file", ("results", "info", "{fifo}")),
-    ("the trajectory file", ("data", "generate", "--frame-mode", "trajectory", "--trajectory", "{fifo}", "--n-configs",
-                             "2", "--out", "{tmp}/d.h5")),
-])
+@pytest.mark.parametrize(
+    ("what", "args"),
+    [
+        ("the dataset", ("data", "info", "{fifo}")),
+        ("the dataset", ("solve", "{fifo}", "--out", "{tmp}/r.h5")),
+        ("the results file", ("results", "info", "{fifo}")),
+        (
+            "the trajectory file",
+            (
+                "data",
+                "generate",
+                "--frame-mode",
+                "trajectory",
+                "--trajectory",
+                "{fifo}",
+                "--n-configs",
+                "2",
+                "--out",
+                "{tmp}/d.h5",
+            ),
+        ),
+    ],
+)
 def test_a_fifo_is_never_opened(tmp_path, what, args):
     fifo = tmp_path / ("t.json" if "trajectory" in what else "in.h5")
     os.mkfifo(fifo)
@@ -215,12 +234,27 @@ def test_deep_json_in_run_and_trajectory_files(data, tmp_path):
     (run_dir / "scalers.json").write_text("{}")
     (run_dir / "model.msgpack").write_bytes(b"\x80")
     line = one_line(run("-q", "evaluate", run_dir, data, "--out", tmp_path / "ev.json"))
-    assert line == f"Error: {run_dir / 'config.json'} is damaged (JSON {TOO_DEEP}); " \
-                   "train the run again (ineid train ... --overwrite) or restore the file from a copy"
+    assert (
+        line == f"Error: {run_dir / 'config.json'} is damaged (JSON {TOO_DEEP}); "
+        "train the run again (ineid train ... --overwrite) or restore the file from a copy"
+    )
     traj = tmp_path / "t.json"
     traj.write_text(DEEP)
-    line = one_line(run("-q", "data", "generate", "--frame-mode", "trajectory", "--trajectory", traj,
-                        "--n-configs", 2, "--out", tmp_path / "d.h5"))
+    line = one_line(
+        run(
+            "-q",
+            "data",
+            "generate",
+            "--frame-mode",
+            "trajectory",
+            "--trajectory",
+            traj,
+            "--n-configs",
+            2,
+            "--out",
+            tmp_path / "d.h5",
+        )
+    )
     assert line == f"Error: {traj}: not a trajectory record (JSON {TOO_DEEP})"
     assert not (tmp_path / "d.h5").exists() and not (tmp_path / "ev.json").exists()
 

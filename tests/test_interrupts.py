@@ -69,8 +69,13 @@ def callback_problem(n: int = 20, signal_at: int | None = None, signum: int = si
 
     objective = Objective()
     x = ca.MX.sym("x", n)
-    opts = {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes",
-            "ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": 200}
+    opts = {
+        "print_time": False,
+        "ipopt.print_level": 0,
+        "ipopt.sb": "yes",
+        "ipopt.hessian_approximation": "limited-memory",
+        "ipopt.max_iter": 200,
+    }
     return nlpsol("callback", {"x": x, "f": objective(x)}, opts, keep=(objective,)), calls
 
 
@@ -120,9 +125,18 @@ def test_sigterm_while_ipopt_runs_in_c(ineid_handlers, capfd):
     n = 200
     x = ca.SX.sym("x", n)
     f = ca.sum1(100 * (x[1:] - x[:-1] ** 2) ** 2 + (1 - x[:-1]) ** 2)  # Rosenbrock's: L-BFGS takes ~1,000 iterations
-    solver = nlpsol("rosenbrock", {"x": x, "f": f}, {
-        "print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.hessian_approximation": "limited-memory",
-        "ipopt.max_iter": 3000, "ipopt.tol": 1e-14})
+    solver = nlpsol(
+        "rosenbrock",
+        {"x": x, "f": f},
+        {
+            "print_time": False,
+            "ipopt.print_level": 0,
+            "ipopt.sb": "yes",
+            "ipopt.hessian_approximation": "limited-memory",
+            "ipopt.max_iter": 3000,
+            "ipopt.tol": 1e-14,
+        },
+    )
     timer = threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGTERM))
     timer.start()
     t0 = time.perf_counter()
@@ -158,8 +172,15 @@ def test_nested_blocks_raise_once_at_the_outermost_end(ineid_handlers):
 def child(args, cwd):
     """``ineid -v ARGS`` in a process group of its own (the session's cache: compiled kernels are reused)."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    return subprocess.Popen([sys.executable, "-m", "ineid.cli", "-v", *map(str, args)], cwd=cwd, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "ineid.cli", "-v", *map(str, args)],
+        cwd=cwd,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
 
 
 def interrupt_in_ipopt(args, cwd, signum, outputs, after=0.3, group=False):
@@ -184,8 +205,10 @@ def interrupt_in_ipopt(args, cwd, signum, outputs, after=0.3, group=False):
     t0 = time.perf_counter()
     out, err = proc.communicate(timeout=60)
     seconds = time.perf_counter() - t0
-    code, line = {signal.SIGTERM: (143, "ineid: terminated (SIGTERM); no partial output file was left"),
-                  signal.SIGINT: (130, "ineid: interrupted; no partial output file was left")}[signum]
+    code, line = {
+        signal.SIGTERM: (143, "ineid: terminated (SIGTERM); no partial output file was left"),
+        signal.SIGINT: (130, "ineid: interrupted; no partial output file was left"),
+    }[signum]
     assert proc.returncode == code, out + err
     assert err.strip().splitlines()[-1] == line, err
     assert not any(w in err for w in ("Traceback", "CasADi", "WARNING", "Exception ignored")), err
@@ -224,21 +247,34 @@ def many(tmp_path_factory):
     from ineid.data import Combination, DatasetSpec, write_dataset
 
     path = tmp_path_factory.mktemp("interrupts") / "many.h5"
-    write_dataset(ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=200), n_frames=10,
-                                                             seed=3), path)
+    write_dataset(
+        ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=200), n_frames=10, seed=3), path
+    )
     return path
 
 
 def test_solve_sigterm_in_ipopt_keeps_the_previous_results_and_report(many, tmp_path):
-    args = ("solve", many, "--method", "consistent", "--workers", 1, "--out", "o.h5", "--report", "o.html",
-            "--overwrite")
+    args = (
+        "solve",
+        many,
+        "--method",
+        "consistent",
+        "--workers",
+        1,
+        "--out",
+        "o.h5",
+        "--report",
+        "o.html",
+        "--overwrite",
+    )
     seconds = interrupt_in_ipopt(args, tmp_path, signal.SIGTERM, previous(tmp_path, "o.h5", "o.html"), after=0.2)
     assert seconds < 10  # within an iteration (plus the exit), not after every configuration
 
 
 @pytest.mark.slow  # 2,000 configurations and worker processes started (~15 s)
-@pytest.mark.parametrize(("signum", "group"), [(signal.SIGTERM, False), (signal.SIGINT, True)],
-                         ids=["SIGTERM", "SIGINT-to-the-group"])
+@pytest.mark.parametrize(
+    ("signum", "group"), [(signal.SIGTERM, False), (signal.SIGINT, True)], ids=["SIGTERM", "SIGINT-to-the-group"]
+)
 def test_solve_workers_stop_at_once(tmp_path, signum, group):
     """With worker processes the main process stops them: the queued blocks are dropped and the running ones
     end at their next configuration, instead of the pool solving every block first (seconds here); a Ctrl-C
@@ -248,8 +284,9 @@ def test_solve_workers_stop_at_once(tmp_path, signum, group):
 
     data = tmp_path / "data" / "many.h5"
     data.parent.mkdir()
-    write_dataset(ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=2000), n_frames=10,
-                                                             seed=3), data)
+    write_dataset(
+        ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=2000), n_frames=10, seed=3), data
+    )
     args = ("solve", data, "--method", "consistent", "--workers", 2, "--out", "o.h5", "--overwrite")
     seconds = interrupt_in_ipopt(args, tmp_path, signum, previous(tmp_path, "o.h5"), after=1.0, group=group)
     assert seconds < 3
@@ -272,13 +309,19 @@ def test_a_local_ray_cluster_leaves_ineids_sigterm_handler(ineid_handlers, tmp_p
         raise RuntimeError("the trial failed")
 
     task = types.SimpleNamespace(options=lambda **_: task, remote=lambda *args: object())
-    fake = types.SimpleNamespace(is_initialized=lambda: False, init=init, shutdown=lambda: seen.append("shutdown"),
-                                 remote=lambda fn: task, put=lambda x: x, get=get,
-                                 wait=lambda refs, num_returns: (seen.append(signal.getsignal(signal.SIGTERM))
-                                                                 or ([refs[0]], refs[1:])),
-                                 exceptions=types.SimpleNamespace(RayError=RuntimeError))
+    fake = types.SimpleNamespace(
+        is_initialized=lambda: False,
+        init=init,
+        shutdown=lambda: seen.append("shutdown"),
+        remote=lambda fn: task,
+        put=lambda x: x,
+        get=get,
+        wait=lambda refs, num_returns: seen.append(signal.getsignal(signal.SIGTERM)) or ([refs[0]], refs[1:]),
+        exceptions=types.SimpleNamespace(RayError=RuntimeError),
+    )
     monkeypatch.setitem(sys.modules, "ray", fake)
-    rows = ray_engine.ray_trials(None, [TrainConfig(model=ModelSpec("simple"))], tmp_path / "sweep",
-                                 ray_init={"num_cpus": 1})
+    rows = ray_engine.ray_trials(
+        None, [TrainConfig(model=ModelSpec("simple"))], tmp_path / "sweep", ray_init={"num_cpus": 1}
+    )
     assert rows[0].status.startswith("failed")
     assert seen == [ours, "shutdown"]

@@ -37,9 +37,16 @@ def _case(name):
     return robot_and_pinocchio(name, GRAVITY)
 
 
-@pytest.fixture(scope="module", params=["sweaty-arm", "mixed-chain", "ur5",  # 7-joint arms compile for minutes:
-                                        pytest.param("panda", marks=pytest.mark.slow),  # make test-slow
-                                        pytest.param("kinova", marks=pytest.mark.slow)])
+@pytest.fixture(
+    scope="module",
+    params=[
+        "sweaty-arm",
+        "mixed-chain",
+        "ur5",  # 7-joint arms compile for minutes:
+        pytest.param("panda", marks=pytest.mark.slow),  # make test-slow
+        pytest.param("kinova", marks=pytest.mark.slow),
+    ],
+)
 def case(request):
     model, pin_model = _case(request.param)
     rng = np.random.default_rng(zlib.crc32(request.param.encode()))
@@ -126,8 +133,11 @@ def test_payload_is_beyond_a_sensor_on_its_body():
     sensed = model.link_wrench(q, qd, qdd, body, only_tool)
     rot, pos = (np.asarray(x) for x in model.jax_link_poses(q))
     k = model.link_names.index(body)
-    from_base = np.einsum("nij,nj->ni", np.stack([wrench_transform(r, p) for r, p in zip(rot[:, k], pos[:, k])]),
-                          model.base_wrench(q, qd, qdd, only_tool))
+    from_base = np.einsum(
+        "nij,nj->ni",
+        np.stack([wrench_transform(r, p) for r, p in zip(rot[:, k], pos[:, k], strict=True)]),
+        model.base_wrench(q, qd, qdd, only_tool),
+    )
     assert rel_err(sensed, from_base) < 1e-12
     assert np.abs(sensed).max() > 1e-3  # the tool has mass: the check is not vacuous
 

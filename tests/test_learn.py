@@ -225,13 +225,22 @@ def test_floor_is_zero_where_identifiable(model, data):
 
 
 def test_training_learns_below_the_mean(model, quasi_static, tmp_path):
-    cfg = TrainConfig(model=ModelSpec("net2", frames=4, siamese=True), epochs=40, batch=64, lr=3e-3, patience=0,
-                      n_train=350, n_val=50, n_test=100)
+    cfg = TrainConfig(
+        model=ModelSpec("net2", frames=4, siamese=True),
+        epochs=40,
+        batch=64,
+        lr=3e-3,
+        patience=0,
+        n_train=350,
+        n_val=50,
+        n_test=100,
+    )
     train(quasi_static, cfg, tmp_path / "run", model=model)
     ev = evaluate(load_run(tmp_path / "run"), quasi_static, model=model, linear=False)
     test = load_run(tmp_path / "run").split.test
-    mean_guess = np.broadcast_to(quasi_static.theta_unknown[load_run(tmp_path / "run").split.train].mean(axis=0),
-                                 (len(test), 20))
+    mean_guess = np.broadcast_to(
+        quasi_static.theta_unknown[load_run(tmp_path / "run").split.train].mean(axis=0), (len(test), 20)
+    )
     from ineid.identify.results import relative_error
 
     mean_err = np.nanmedian(relative_error(mean_guess, quasi_static.theta_unknown[test]), axis=0)
@@ -239,14 +248,25 @@ def test_training_learns_below_the_mean(model, quasi_static, tmp_path):
     total_mass = ev.network_base["names"].index("upper_arm.m + forearm.m")
     assert ev.network_base["r2"][total_mass] > 0.8
     assert ev.network_base["median"][total_mass] < 0.3 * np.nanmedian(
-        relative_error(mean_guess[:, 0] + mean_guess[:, 10], quasi_static.theta_unknown[test][:, 0] +
-                       quasi_static.theta_unknown[test][:, 10]))
+        relative_error(
+            mean_guess[:, 0] + mean_guess[:, 10],
+            quasi_static.theta_unknown[test][:, 0] + quasi_static.theta_unknown[test][:, 10],
+        )
+    )
     assert ev.network["overall_median"] < 0.8 * float(np.median(mean_err))
 
 
 def test_resume_continues_the_same_run(model, data, tmp_path):
-    cfg = TrainConfig(model=ModelSpec("net1", frames=3, siamese=True), loss="physics", epochs=4, batch=32,
-                      optimizer="sgd", lr=1e-2, schedule="cosine", patience=0)
+    cfg = TrainConfig(
+        model=ModelSpec("net1", frames=3, siamese=True),
+        loss="physics",
+        epochs=4,
+        batch=32,
+        optimizer="sgd",
+        lr=1e-2,
+        schedule="cosine",
+        patience=0,
+    )
     train(data, cfg, tmp_path / "straight", model=model)
 
     def interrupt(epoch, total, rec):

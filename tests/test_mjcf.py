@@ -150,10 +150,13 @@ def test_menagerie_style_model_matches_mujoco_inverse_dynamics(menagerie, rng):
     assert any("gravity in the base frame" in n for n in model.chain.notes)  # the base is turned
     # link2's frame is its body frame moved to the hinge's pos: its centre of mass is the body's minus pos
     j2 = model.link_names.index("link2")
-    mass, mc = model.theta_cad[10 * j2], model.theta_cad[10 * j2 + 1: 10 * j2 + 4]
+    mass, mc = model.theta_cad[10 * j2], model.theta_cad[10 * j2 + 1 : 10 * j2 + 4]
     assert np.allclose(mc / mass, np.array([0.1, 0.0, 0.01]) - (0, 0.01, -0.02), rtol=0, atol=1e-15)
     # colliding geoms: link1's capsule (a cylinder of its segment) and link3's box, for the excitation's capsules
-    assert '<cylinder radius="0.03" length="0.1" />' in model.urdf_text and '<box size="0.2 0.04 0.04" />' in model.urdf_text
+    assert (
+        '<cylinder radius="0.03" length="0.1" />' in model.urdf_text
+        and '<box size="0.2 0.04 0.04" />' in model.urdf_text
+    )
     from ineid.robots.collision import body_capsules
 
     capsules = {c.name: c for c in body_capsules(model.urdf_text, model.chain).capsules}
@@ -171,7 +174,10 @@ def fake_results(model, theta_by_link: dict, success=True):
     """What an export reads of :class:`ineid.identify.solve.SolveResults`, for one configuration (7)."""
     links = list(theta_by_link)
     return SimpleNamespace(
-        config_index=np.array([7]), n=1, success=np.array([success]), status=np.array(["ok"]),
+        config_index=np.array([7]),
+        n=1,
+        success=np.array([success]),
+        status=np.array(["ok"]),
         theta_links=np.concatenate([theta_by_link[k] for k in links])[None],
         meta={"urdf": model.urdf_text, "unknown_links": links, "locked_joints": {}},
     )
@@ -182,7 +188,7 @@ def perturbed(model, link: str, k: int) -> np.ndarray:
     from ineid.params import inertial_from_theta, theta_from_inertial
 
     i = model.link_names.index(link)
-    m, c, ic = inertial_from_theta(model.theta_cad[10 * i: 10 * i + 10])
+    m, c, ic = inertial_from_theta(model.theta_cad[10 * i : 10 * i + 10])
     rot = np.linalg.qr(np.random.default_rng(k).normal(size=(3, 3)))[0]
     return theta_from_inertial(1.3 * m, c + 0.01 * (k + 1), rot @ (1.2 * ic) @ rot.T)
 
@@ -203,7 +209,7 @@ def test_export_mjcf_round_trip(menagerie, folder):
     back = ineid.load_robot(out)
     for link, th in theta.items():
         i = back.link_names.index(link)
-        assert rel_err(back.theta_cad[10 * i: 10 * i + 10], th) < 1e-12, link
+        assert rel_err(back.theta_cad[10 * i : 10 * i + 10], th) < 1e-12, link
     # link2's inertial replaced; link3's (from its geom) inserted; the tool welded to link3 (its mass is in
     # link3's estimate) made massless; nothing else changed
     removed, added = changed_lines(MENAGERIE, out.read_text())
@@ -218,7 +224,7 @@ def test_export_mjcf_round_trip(menagerie, folder):
     assert len(removed) == len(added) == 1 and "<inertial " in added[0]
     back = ineid.load_robot(out2, unknown_links=["tool"])
     i = back.link_names.index("tool")
-    assert rel_err(back.theta_cad[10 * i: 10 * i + 10], tool) < 1e-12
+    assert rel_err(back.theta_cad[10 * i : 10 * i + 10], tool) < 1e-12
 
 
 def test_export_mjcf_refusals_leave_no_file(menagerie, folder, model):
@@ -227,7 +233,7 @@ def test_export_mjcf_refusals_leave_no_file(menagerie, folder, model):
 
     path, mj_model, _ = menagerie
     i = mj_model.link_names.index("link2")
-    bad = mj_model.theta_cad[10 * i: 10 * i + 10].copy()
+    bad = mj_model.theta_cad[10 * i : 10 * i + 10].copy()
     bad[4] = -1.0  # Ixx < 0
     out = folder / "never.xml"
     with pytest.raises(IdentificationError, match="not a rigid body"):
@@ -242,20 +248,36 @@ def test_export_mjcf_refusals_leave_no_file(menagerie, folder, model):
 
 
 BAD = {
-    "free joint": ('childclass="arm">', 'childclass="arm"><freejoint name="float"/>',
-                   "free joint 'float' of body 'base'"),
-    "ball joint": ('<joint name="j1" axis="0 0 1" range="-170 170"/>', '<joint name="j1" type="ball"/>',
-                   "ball joint 'j1' of body 'link1'"),
-    "tendon": ("<actuator>", '<tendon><fixed name="t"><joint joint="j1" coef="1"/><joint joint="j3" coef="1"/></fixed>'
-               "</tendon><actuator>", "<tendon> t"),
-    "branch": ('<body name="tool" pos="0.2 0 0" euler="0 90 0">',
-               '<body name="tool" pos="0.2 0 0" euler="0 90 0"><joint name="jt" axis="0 0 1"/>',
-               "branching tree: body 'link3' has 2 moving child joints"),
-    "equality": ("<actuator>", '<equality><joint name="couple" joint1="j1" joint2="j3"/></equality><actuator>',
-                 "<equality> constraint couple"),
-    "two joints": ('<joint name="j1" axis="0 0 1" range="-170 170"/>',
-                   '<joint name="j1" axis="0 0 1" range="-170 170"/><joint name="j1b" axis="1 0 0"/>',
-                   "body 'link1' has 2 joints"),
+    "free joint": (
+        'childclass="arm">',
+        'childclass="arm"><freejoint name="float"/>',
+        "free joint 'float' of body 'base'",
+    ),
+    "ball joint": (
+        '<joint name="j1" axis="0 0 1" range="-170 170"/>',
+        '<joint name="j1" type="ball"/>',
+        "ball joint 'j1' of body 'link1'",
+    ),
+    "tendon": (
+        "<actuator>",
+        '<tendon><fixed name="t"><joint joint="j1" coef="1"/><joint joint="j3" coef="1"/></fixed></tendon><actuator>',
+        "<tendon> t",
+    ),
+    "branch": (
+        '<body name="tool" pos="0.2 0 0" euler="0 90 0">',
+        '<body name="tool" pos="0.2 0 0" euler="0 90 0"><joint name="jt" axis="0 0 1"/>',
+        "branching tree: body 'link3' has 2 moving child joints",
+    ),
+    "equality": (
+        "<actuator>",
+        '<equality><joint name="couple" joint1="j1" joint2="j3"/></equality><actuator>',
+        "<equality> constraint couple",
+    ),
+    "two joints": (
+        '<joint name="j1" axis="0 0 1" range="-170 170"/>',
+        '<joint name="j1" axis="0 0 1" range="-170 170"/><joint name="j1b" axis="1 0 0"/>',
+        "body 'link1' has 2 joints",
+    ),
 }
 
 
@@ -286,11 +308,29 @@ def test_cli_with_an_mjcf_robot(run, menagerie, folder):
     path, model, _ = menagerie
     r = run("robot", "show", path, "--unknown-links", "link2,link3")
     assert r.exit_code == 0, r.output
-    assert str(path) in r.output and "j4" in r.output and "prismatic" in r.output and "gravity in the base frame" in r.output
+    assert (
+        str(path) in r.output
+        and "j4" in r.output
+        and "prismatic" in r.output
+        and "gravity in the base frame" in r.output
+    )
     data = folder / "d.h5"
     gravity = [repr(float(g)) for g in model.gravity]
-    r = run("data", "generate", path, "--unknown-links", "link2,link3", "--gravity", *gravity, "--n-configs", 2,
-            "--n-frames", 40, "--out", data)
+    r = run(
+        "data",
+        "generate",
+        path,
+        "--unknown-links",
+        "link2,link3",
+        "--gravity",
+        *gravity,
+        "--n-configs",
+        2,
+        "--n-frames",
+        40,
+        "--out",
+        data,
+    )
     assert r.exit_code == 0, r.output
     res = folder / "r.h5"
     r = run("solve", data, "--method", "consistent", "--workers", 1, "--out", res)
@@ -312,9 +352,11 @@ def test_arm_hinged_on_the_world_with_unnamed_bodies(tmp_path):
     from ineid.robots.mjcf import load_mjcf_chain
 
     path = tmp_path / "bare.mjcf"
-    path.write_text('<mujoco><worldbody><geom type="plane" size="1 1 .1"/><body pos="0 0 0.5"><joint axis="0 0 1"/>'
-                    '<geom type="sphere" size="0.1" pos="0.2 0 0"/><body pos="0.3 0 0"><joint name="b" axis="0 1 0" '
-                    'pos="0.05 0 0"/><geom type="box" size=".1 .02 .02" pos=".1 0 0"/></body></body></worldbody></mujoco>')
+    path.write_text(
+        '<mujoco><worldbody><geom type="plane" size="1 1 .1"/><body pos="0 0 0.5"><joint axis="0 0 1"/>'
+        '<geom type="sphere" size="0.1" pos="0.2 0 0"/><body pos="0.3 0 0"><joint name="b" axis="0 1 0" '
+        'pos="0.05 0 0"/><geom type="box" size=".1 .02 .02" pos=".1 0 0"/></body></body></worldbody></mujoco>'
+    )
     chain, _ = load_mjcf_chain(path)
     assert chain.root_link == "world" and [j.name for j in chain.joints] == ["joint0", "b"]
     assert [j.link for j in chain.joints] == ["body1", "body2"] and "body1, body2, joint0" in chain.notes[0]
@@ -331,7 +373,7 @@ def test_export_urdf_results_into_the_mjcf_twin(arm_xml, model, folder):
     export_mjcf(fake_results(model, {"forearm": forearm}), 7, arm_xml, out)
     back = ineid.load_robot(out)
     i = back.link_names.index("forearm")
-    assert rel_err(back.theta_cad[10 * i: 10 * i + 10], forearm) < 1e-12
+    assert rel_err(back.theta_cad[10 * i : 10 * i + 10], forearm) < 1e-12
     removed, added = changed_lines(arm_xml.read_text().replace("><", ">\n<"), out.read_text().replace("><", ">\n<"))
     assert len(removed) == len(added) == 1 and "<inertial " in added[0]
 
@@ -342,7 +384,7 @@ def test_export_mjcf_edits_any_spelling_of_inertial(menagerie, folder):
 
     path, model, _ = menagerie
     old = '<inertial pos="0.1 0 0.01" mass="0.9" fullinertia="0.004 0.02 0.021 0.0001 -0.0002 0.0003"/>'
-    text = MENAGERIE.replace(old, "<!-- a > b, \"it's\" -->\n          " + old[:-2] + ">\n          </inertial>")
+    text = MENAGERIE.replace(old, '<!-- a > b, "it\'s" -->\n          ' + old[:-2] + ">\n          </inertial>")
     spelled = folder / "spelled.xml"
     spelled.write_text(text)
     link2 = perturbed(model, "link2", 9)
@@ -350,9 +392,9 @@ def test_export_mjcf_edits_any_spelling_of_inertial(menagerie, folder):
     export_mjcf(fake_results(model, {"link2": link2}), 7, spelled, out)
     new = out.read_text()
     start, stop = text.index('<inertial pos="0.1'), text.index("</inertial>") + len("</inertial>")
-    written = new[start: new.index("/>", start) + 2]
+    written = new[start : new.index("/>", start) + 2]
     assert written.startswith('<inertial pos="') and "fullinertia=" in written
-    assert new[:start] == text[:start] and new[start + len(written):] == text[stop:]
+    assert new[:start] == text[:start] and new[start + len(written) :] == text[stop:]
     back = ineid.load_robot(out)
     assert rel_err(back.theta_cad[10:20], link2) < 1e-12
 
@@ -374,4 +416,4 @@ def test_export_mjcf_keeps_the_declared_encoding(menagerie, folder):
     assert len(changed) == 1 and all(line.lstrip().startswith(b"<inertial ") for line in changed[0])
     back = ineid.load_robot(out)
     i = back.link_names.index("link2")
-    assert rel_err(back.theta_cad[10 * i: 10 * i + 10], link2) < 1e-12
+    assert rel_err(back.theta_cad[10 * i : 10 * i + 10], link2) < 1e-12

@@ -44,8 +44,9 @@ def data(tmp_path_factory):
     from ineid.data import Combination, DatasetSpec, write_dataset
 
     path = tmp_path_factory.mktemp("outputs") / "d.h5"
-    write_dataset(ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=20), n_frames=4, seed=3),
-                  path)  # fmt: skip
+    write_dataset(
+        ineid.load_robot("sweaty-arm"), DatasetSpec(Combination("random", n_configs=20), n_frames=4, seed=3), path
+    )
     return path
 
 
@@ -82,19 +83,23 @@ def test_other_commands_refuse_an_input_as_output(run, tmp_path, case):
     urdf.write_text(BUILTIN_ROBOTS["sweaty-arm"].urdf_path.read_text())
     args, out, what = {
         "import": (("data", "import", src, "--robot", "sweaty-arm", "--out", src), src, "the input recording"),
-        "trajectory": (("data", "generate", "--frame-mode", "trajectory", "--trajectory", src, "--out", src), src,
-                       "the trajectory file"),
+        "trajectory": (
+            ("data", "generate", "--frame-mode", "trajectory", "--trajectory", src, "--out", src),
+            src,
+            "the trajectory file",
+        ),
         "export": (("export-urdf", src, "--config", 0, "--out", src), src, "the input results file"),
         "evaluate": (("evaluate", tmp_path / "run", src, "--out", model), model, "the input run's model.msgpack"),
         "excite": (("excite", urdf, "--duration", 2, "--out", urdf), urdf, "the robot's URDF"),
         "train": (("train", tmp_path / "run" / "config.json", "--out", tmp_path / "run"), None, None),
-    }[case]  # fmt: skip
+    }[case]
     if case == "train":  # a dataset named like a file of the run folder that --out replaces
         data = tmp_path / "run" / "config.json"
         data.write_text("{}")
         line = last_line(run(*args, "--overwrite"), 1)
-        assert line == (f"Error: --out {tmp_path / 'run'} would replace {data}, the input dataset; "
-                        "choose another folder")  # fmt: skip
+        assert line == (
+            f"Error: --out {tmp_path / 'run'} would replace {data}, the input dataset; choose another folder"
+        )
         return
     before = out.read_bytes()
     line = last_line(run(*args, "--overwrite"), 1)
@@ -128,8 +133,9 @@ def test_a_second_writer_gets_one_line(run, data, tmp_path):
     fd = hold_lock(tmp_path / "run", 77)
     try:
         line = last_line(run("train", data, *TRAIN, "--epochs", 1, "--out", tmp_path / "run"), 1)
-        assert line == (f"Error: another ineid process (pid 77) is writing {tmp_path / 'run'}; wait for it or choose "
-                        "another --out")  # fmt: skip
+        assert line == (
+            f"Error: another ineid process (pid 77) is writing {tmp_path / 'run'}; wait for it or choose another --out"
+        )
     finally:
         os.close(fd)
     assert not (tmp_path / "run").exists()
@@ -144,20 +150,39 @@ def test_a_second_writer_gets_one_line(run, data, tmp_path):
 def test_two_processes_writing_one_file(tmp_path):
     """Real processes: the second stops at once with the line, the first finishes its file."""
     out = tmp_path / "same.h5"
-    code = ("import sys; from ineid._atomic import output_lock, atomic_write\n"
-            "with output_lock(sys.argv[1]):\n    print('locked', flush=True); sys.stdin.readline()\n"
-            "    atomic_write(sys.argv[1], 'first')\n")  # fmt: skip
-    first = subprocess.Popen([sys.executable, "-c", code, out], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                             text=True)  # fmt: skip
+    code = (
+        "import sys; from ineid._atomic import output_lock, atomic_write\n"
+        "with output_lock(sys.argv[1]):\n    print('locked', flush=True); sys.stdin.readline()\n"
+        "    atomic_write(sys.argv[1], 'first')\n"
+    )
+    first = subprocess.Popen(
+        [sys.executable, "-c", code, out], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
     try:
         assert first.stdout.readline().strip() == "locked"
-        second = subprocess.run([sys.executable, "-m", "ineid.cli", "data", "generate", "--n-configs", "2",
-                                 "--n-frames", "2", "--out", out], capture_output=True, text=True)  # fmt: skip
+        second = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "ineid.cli",
+                "data",
+                "generate",
+                "--n-configs",
+                "2",
+                "--n-frames",
+                "2",
+                "--out",
+                out,
+            ],
+            capture_output=True,
+            text=True,
+        )
     finally:
         first.communicate("go\n", timeout=30)
     assert second.returncode == 1
-    assert second.stderr.strip() == (f"Error: another ineid process (pid {first.pid}) is writing {out}; wait for it "
-                                     "or choose another --out")  # fmt: skip
+    assert second.stderr.strip() == (
+        f"Error: another ineid process (pid {first.pid}) is writing {out}; wait for it or choose another --out"
+    )
     assert out.read_text() == "first"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["same.h5"]
 
@@ -182,8 +207,10 @@ def test_stale_temporaries_are_removed_by_the_next_write(run, tmp_path):
         (tmp_path / name).write_bytes(b"mine")
     r = run("data", "generate", "--n-configs", 2, "--n-frames", 2, "--out", out)
     assert r.exit_code == 0, r.output
-    assert (f"ineid: removed a stale temporary file {stale.name} (2.5 MB) left by an interrupted ineid run"
-            in r.output.splitlines())  # fmt: skip
+    assert (
+        f"ineid: removed a stale temporary file {stale.name} (2.5 MB) left by an interrupted ineid run"
+        in r.output.splitlines()
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["x.h5", *kept])
     assert all((tmp_path / name).read_bytes() == b"mine" for name in kept)
     # a folder killed between the two renames of a swap: the old one is moved back
@@ -210,8 +237,14 @@ def test_train_overwrite_interrupted_keeps_the_old_run(run, data, tmp_path, monk
     cfg = TrainConfig(ModelSpec("simple"), batch=16, n_train=12, n_val=4, patience=0, epochs=2)
     train(load_dataset(data), cfg, out, overwrite=True)  # replaces the folder once finished, keeping notes.txt
     before = snapshot(out)
-    assert set(before) == {"notes.txt", "config.json", "scalers.json", "metrics.jsonl", "checkpoint.msgpack",
-                           "model.msgpack"}  # fmt: skip
+    assert set(before) == {
+        "notes.txt",
+        "config.json",
+        "scalers.json",
+        "metrics.jsonl",
+        "checkpoint.msgpack",
+        "model.msgpack",
+    }
     save_state = runs.save_state
 
     def interrupted(run_dir, state, final=False):
@@ -227,8 +260,10 @@ def test_train_overwrite_interrupted_keeps_the_old_run(run, data, tmp_path, monk
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no lock file, no half-trained folder
     # a new run interrupted after its first checkpoint is kept, and the line says how to continue
     line = last_line(run("train", data, *TRAIN, "--epochs", 3, "--out", tmp_path / "new"), 130)
-    assert line == (f"ineid: interrupted; the run in {tmp_path / 'new'} can be continued with `ineid train {data} ... "
-                    f"--out {tmp_path / 'new'} --resume` (the same settings)")  # fmt: skip
+    assert line == (
+        f"ineid: interrupted; the run in {tmp_path / 'new'} can be continued with `ineid train {data} ... "
+        f"--out {tmp_path / 'new'} --resume` (the same settings)"
+    )
     assert (tmp_path / "new" / "checkpoint.msgpack").is_file()
 
 
@@ -258,8 +293,12 @@ def test_train_overwrite_interrupted_during_the_swap_ends_with_the_new_run(run, 
 
 def test_train_sigterm_exits_143(data, tmp_path):
     out = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "ineid.cli", "-q", "train", data, *TRAIN, "--epochs", "100000",
-                             "--out", out], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ineid.cli", "-q", "train", data, *TRAIN, "--epochs", "100000", "--out", out],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.time() + 120
     while time.time() < deadline and not (out / "checkpoint.msgpack").is_file() and proc.poll() is None:
         time.sleep(0.1)
@@ -267,8 +306,10 @@ def test_train_sigterm_exits_143(data, tmp_path):
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 143, err
-    assert err.strip().splitlines()[-1] == (f"ineid: terminated (SIGTERM); the run in {out} can be continued with "
-                                            f"`ineid train {data} ... --out {out} --resume` (the same settings)")
+    assert err.strip().splitlines()[-1] == (
+        f"ineid: terminated (SIGTERM); the run in {out} can be continued with "
+        f"`ineid train {data} ... --out {out} --resume` (the same settings)"
+    )
 
 
 # -- sweeps ------------------------------------------------------------------------------------------------
@@ -279,10 +320,30 @@ def test_sweep_resumes(run, data, tmp_path, monkeypatch):
     train_module = sys.modules["ineid.learn.train"]  # (ineid.learn.train is also the function's name)
 
     out = tmp_path / "sweep"
-    args = ("sweep", data, "--archs", "simple", "--scalers", "robust,standard", "--epochs", 3, "--batch", 16,
-            "--train-configs", 12, "--val-configs", 4, "--patience", 0, "--out", out)  # fmt: skip
+    args = (
+        "sweep",
+        data,
+        "--archs",
+        "simple",
+        "--scalers",
+        "robust,standard",
+        "--epochs",
+        3,
+        "--batch",
+        16,
+        "--train-configs",
+        12,
+        "--val-configs",
+        4,
+        "--patience",
+        0,
+        "--out",
+        out,
+    )
     evaluate = sweep_module.evaluate  # without the least-squares comparisons: what is tested is which trials train
-    monkeypatch.setattr(sweep_module, "evaluate", lambda run, ds, model=None: evaluate(run, ds, model=model, linear=False))
+    monkeypatch.setattr(
+        sweep_module, "evaluate", lambda run, ds, model=None: evaluate(run, ds, model=model, linear=False)
+    )
     save_state = train_module.save_state
 
     def interrupted(run_dir, state, final=False):
@@ -292,8 +353,10 @@ def test_sweep_resumes(run, data, tmp_path, monkeypatch):
 
     monkeypatch.setattr(train_module, "save_state", interrupted)
     line = last_line(run(*args), 130)
-    assert line == (f"ineid: interrupted; 1 of 2 trials in {out} are finished; continue the sweep with `ineid sweep "
-                    f"{data} ... --out {out} --resume` (the same settings)")  # fmt: skip
+    assert line == (
+        f"ineid: interrupted; 1 of 2 trials in {out} are finished; continue the sweep with `ineid sweep "
+        f"{data} ... --out {out} --resume` (the same settings)"
+    )
     monkeypatch.setattr(train_module, "save_state", save_state)
     assert "different run settings" in last_line(run(*args[:-2], "--lr", 0.01, "--out", out, "--resume"), 1)
     calls = []

@@ -37,12 +37,16 @@ def clean(model):
 @pytest.fixture(scope="module")
 def solved(model, clean):
     """``{method: SolveResults}`` of the clean data, every frame fitted, through CasADi (no kernel compiled)."""
-    return {m: solve_dataset(clean, SolveSettings(method=m, frames=FRAMES, weights="none", backend="casadi"),
-                             model=model) for m in ("lsqlin", "lsqnonlin", "linear")}
+    return {
+        m: solve_dataset(clean, SolveSettings(method=m, frames=FRAMES, weights="none", backend="casadi"), model=model)
+        for m in ("lsqlin", "lsqnonlin", "linear")
+    }
 
 
 def _stacks(model, ds):
-    return [stack_casadi(model, ds.q[c], ds.qd[c], ds.qdd[c], ds.wrench[c], ds.theta_known) for c in range(ds.n_configs)]
+    return [
+        stack_casadi(model, ds.q[c], ds.qd[c], ds.qdd[c], ds.wrench[c], ds.theta_known) for c in range(ds.n_configs)
+    ]
 
 
 @pytest.mark.parametrize("method", ["lsqlin", "lsqnonlin"])
@@ -82,8 +86,11 @@ def test_lsqlin_is_the_minimum_norm_least_squares_solution(model, clean, solved)
 def test_lsqlin_bounds_respected(model, clean):
     prior = model.theta_cad[model.unknown_index]
     for fraction in (0.5, 0.02):
-        res = solve_dataset(clean, SolveSettings(method="lsqlin", frames=FRAMES, weights="none", backend="casadi",
-                                                 bounds=fraction), model=model)
+        res = solve_dataset(
+            clean,
+            SolveSettings(method="lsqlin", frames=FRAMES, weights="none", backend="casadi", bounds=fraction),
+            model=model,
+        )
         lb, ub = cad_bounds(prior, res.base.scales, fraction)
         assert res.success.all()
         assert np.all(res.theta_hat >= lb - 1e-12) and np.all(res.theta_hat <= ub + 1e-12)
@@ -117,7 +124,11 @@ def test_parameterization_and_its_jacobian(model, rng):
     x = x_from_theta(theta, 2)
     assert np.allclose(theta_from_x(x, 2), theta, rtol=1e-13, atol=1e-15)
     m, c, i_c = ineid.inertial_from_theta(theta[:10])
-    assert np.isclose(x[0], m) and np.allclose(x[1:4], c) and np.allclose(x[4:10], i_c[[0, 0, 1, 0, 1, 2], [0, 1, 1, 2, 2, 2]])
+    assert (
+        np.isclose(x[0], m)
+        and np.allclose(x[1:4], c)
+        and np.allclose(x[4:10], i_c[[0, 0, 1, 0, 1, 2], [0, 1, 1, 2, 2, 2]])
+    )
     x = x + 0.01 * rng.standard_normal(x.shape)
     jac = theta_jacobian(x, 2)
     h = 1e-6
@@ -133,8 +144,22 @@ def test_results_files_of_the_paper_methods(run, tmp_path, model, clean, solved)
     data = tmp_path / "d.h5"
     write_dataset(model, DatasetSpec(Combination("random", n_configs=3), n_frames=FRAMES, seed=5), data)
     out = tmp_path / "lsqlin.h5"
-    r = run("solve", data, "--method", "lsqlin", "--bounds", 0.5, "--fit-frames", FRAMES, "--backend", "casadi",
-            "--weights", "none", "--out", out)
+    r = run(
+        "solve",
+        data,
+        "--method",
+        "lsqlin",
+        "--bounds",
+        0.5,
+        "--fit-frames",
+        FRAMES,
+        "--backend",
+        "casadi",
+        "--weights",
+        "none",
+        "--out",
+        out,
+    )
     assert r.exit_code == 0 and "3/3 configurations identified" in r.output, r.output
     assert "no (solver)" in r.output and "no (prior)" not in r.output  # the data do not decide them, nor a prior
     r = run("results", "info", out)
@@ -154,7 +179,10 @@ def test_fewest_frames_found_from_the_structure(model, clean):
         q, qd, qdd = generic_frames(model, 4, seed=seed)
         w, _ = stack_casadi(model, q, qd, qdd, np.zeros((4, 6)), model.theta_cad[model.known_index])
         scaled = w * fm_scales(model)
-        assert [np.linalg.matrix_rank(scaled[: 6 * f], tol=1e-9 * np.linalg.norm(scaled, 2)) for f in (3, 4)] == [15, 17]
+        assert [np.linalg.matrix_rank(scaled[: 6 * f], tol=1e-9 * np.linalg.norm(scaled, 2)) for f in (3, 4)] == [
+            15,
+            17,
+        ]
     with pytest.raises(IdentificationError, match="use at least 4 frames .*3 generic frames give rank 15 of 17") as e:
         solve_dataset(clean.select(frames=slice(0, 3)), SolveSettings(frames=3, backend="casadi"), model=model)
     assert e.value.status == "too_few_frames"
@@ -176,8 +204,13 @@ def test_study_paper_quick(run, tmp_path):
     out = tmp_path / "paper.csv"
     r = run("study", "paper", "--quick", "--frames", "4,10", "--csv", out, "--plot", tmp_path / "paper.png")
     assert r.exit_code == 0 and (tmp_path / "paper.png").stat().st_size > 10_000, r.output
-    for text in ("The paper's classical experiments, sweaty-arm: 20 configurations", "forearm.Icxx",
-                 "The paper's claims (section 4), checked", "holds, for another reason", "does not hold"):
+    for text in (
+        "The paper's classical experiments, sweaty-arm: 20 configurations",
+        "forearm.Icxx",
+        "The paper's claims (section 4), checked",
+        "holds, for another reason",
+        "does not hold",
+    ):
         assert text in r.output, text
     rows = list(csv.DictReader(out.open()))
     assert len(rows) == 2 * 4 * 20 and {r["method"] for r in rows} == {"lsqlin", "lsqnonlin", "linear", "consistent"}
@@ -197,16 +230,28 @@ def test_study_paper_networks_section(run, tmp_path, monkeypatch):
     from ineid.cli import study_networks
 
     calls = []
-    monkeypatch.setattr(study_networks.study_networks, "callback",
-                        lambda **kw: calls.append(kw) or print("networks section ran"))
+    monkeypatch.setattr(
+        study_networks.study_networks, "callback", lambda **kw: calls.append(kw) or print("networks section ran")
+    )
     out = tmp_path / "nets"
     r = run("study", "paper", "--quick", "--frames", "4", "--methods", "lsqlin", "--networks", out)
     assert r.exit_code == 0 and r.output.index("The paper's claims") < r.output.index("networks section ran"), r.output
     assert len(calls) == 1 and calls[0]["quick"] and calls[0]["plan_name"] == "decisive" and calls[0]["out_dir"] == out
     out.mkdir()
     (out / "x").write_text("")
-    line = one_line_error(run("study", "paper", "--quick", "--frames", "4", "--methods", "lsqlin", "--networks", out), 2)
+    line = one_line_error(
+        run("study", "paper", "--quick", "--frames", "4", "--methods", "lsqlin", "--networks", out), 2
+    )
     assert "holds files" in line and len(calls) == 1
-    line = one_line_error(run("study", "paper", str(Path(ineid.__file__).parent / "robots" / "sweaty_arm.urdf"),
-                              "--quick", "--networks", tmp_path / "n2"), 2)
+    line = one_line_error(
+        run(
+            "study",
+            "paper",
+            str(Path(ineid.__file__).parent / "robots" / "sweaty_arm.urdf"),
+            "--quick",
+            "--networks",
+            tmp_path / "n2",
+        ),
+        2,
+    )
     assert "sweaty-arm" in line and len(calls) == 1

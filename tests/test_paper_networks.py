@@ -68,8 +68,12 @@ def test_decisive_plan_varies_one_factor_around_the_papers_best():
     cfgs = [c for p, c in _configs(plan("decisive"), size) if not p.siamese_size]
     best = (PAPER_BEST["activation"], PAPER_BEST["scaler"], PAPER_BEST["optimizer"])
     got = {(c.model.activation, c.scaler, c.optimizer) for c in cfgs}
-    want = {best} | {(a, best[1], best[2]) for a in ACTIVATIONS} | {(best[0], s, best[2]) for s in SCALERS} \
-        | {(best[0], best[1], o) for o in OPTIMIZERS}  # fmt: skip
+    want = (
+        {best}
+        | {(a, best[1], best[2]) for a in ACTIVATIONS}
+        | {(best[0], s, best[2]) for s in SCALERS}
+        | {(best[0], best[1], o) for o in OPTIMIZERS}
+    )
     assert got == want and len(cfgs) == len(want)  # the centre once, no cell twice
     assert all((c.n_train, c.epochs, c.model.arch) == (3000, 100, "net1") for c in cfgs)
     claim = [c for p, c in _configs(plan("decisive"), size) if p.siamese_size]
@@ -86,12 +90,35 @@ def test_grid_scalers_are_the_libraries():
 # -- the claim checker ------------------------------------------------------------------------
 
 
-def _row(value, seed, arch="net1", activation="tanh", scaler="robust", optimizer="sgd", siamese=False, linear=0.05,
-         status="ok"):
-    return dict(arch=arch, frames=10 if siamese else 1, siamese=siamese, activation=activation, scaler=scaler,
-                optimizer=optimizer, loss="mse", epochs=100, n_train=3000, seed=seed, status=status,
-                name=f"{arch}-{activation}-{scaler}-{optimizer}-{seed}", test_standard_median=value,
-                test_base_median=value, linear_standard_median=linear, linear_base_median=linear)  # fmt: skip
+def _row(
+    value,
+    seed,
+    arch="net1",
+    activation="tanh",
+    scaler="robust",
+    optimizer="sgd",
+    siamese=False,
+    linear=0.05,
+    status="ok",
+):
+    return dict(
+        arch=arch,
+        frames=10 if siamese else 1,
+        siamese=siamese,
+        activation=activation,
+        scaler=scaler,
+        optimizer=optimizer,
+        loss="mse",
+        epochs=100,
+        n_train=3000,
+        seed=seed,
+        status=status,
+        name=f"{arch}-{activation}-{scaler}-{optimizer}-{seed}",
+        test_standard_median=value,
+        test_base_median=value,
+        linear_standard_median=linear,
+        linear_base_median=linear,
+    )
 
 
 def _activation_verdict(rows):
@@ -106,8 +133,14 @@ def test_compare_counts_a_difference_only_beyond_the_seed_spread():
 
 
 def test_factor_claim_held_not_held_and_not_decidable():
-    held = [_row(0.30, 0), _row(0.31, 1), _row(0.36, 0, activation="relu"), _row(0.37, 1, activation="relu"),
-            _row(0.40, 0, activation="sigmoid"), _row(0.41, 1, activation="sigmoid")]  # fmt: skip
+    held = [
+        _row(0.30, 0),
+        _row(0.31, 1),
+        _row(0.36, 0, activation="relu"),
+        _row(0.37, 1, activation="relu"),
+        _row(0.40, 0, activation="sigmoid"),
+        _row(0.41, 1, activation="sigmoid"),
+    ]
     v = _activation_verdict(held)
     assert v.verdict == HELD and "relu" in v.why and "sigmoid" in v.why
     beaten = [*held[:2], _row(0.25, 0, activation="relu"), _row(0.26, 1, activation="relu")]
@@ -130,8 +163,9 @@ def test_factor_claim_held_not_held_and_not_decidable():
 def test_factor_claim_over_contexts():
     """Held in one context and contradicted in another: not held; cells differing in two factors never compared."""
     good = [_row(0.30, 0), _row(0.31, 1), _row(0.36, 0, activation="relu"), _row(0.37, 1, activation="relu")]
-    bad = [_row(0.40, s, scaler="minmax") for s in (0, 1)] + \
-          [_row(0.20 + s / 100, s, activation="relu", scaler="minmax") for s in (0, 1)]  # fmt: skip
+    bad = [_row(0.40, s, scaler="minmax") for s in (0, 1)] + [
+        _row(0.20 + s / 100, s, activation="relu", scaler="minmax") for s in (0, 1)
+    ]
     v = _activation_verdict(good + bad)
     assert v.verdict == NOT_HELD and "1 held, 1 not held" in v.why
     # relu with minmax beats tanh with robust, but they differ in the scaler too: no context, not decidable
@@ -140,8 +174,12 @@ def test_factor_claim_over_contexts():
 
 
 def test_siamese_claim():
-    cell = {"net6s": dict(arch="net6", siamese=True), "net1s": dict(arch="net1", siamese=True),
-            "net6": dict(arch="net6"), "net1": dict(arch="net1")}  # fmt: skip
+    cell = {
+        "net6s": dict(arch="net6", siamese=True),
+        "net1s": dict(arch="net1", siamese=True),
+        "net6": dict(arch="net6"),
+        "net1": dict(arch="net1"),
+    }
 
     def rows(values):
         return [_row(values[k] + s / 1000, s, **cell[k]) for k in values for s in (0, 1)]
@@ -159,8 +197,10 @@ def test_classical_claim_and_all_claims():
     assert classical_claim([*rows, _row(0.04, 2, linear=0.05)]).verdict == NOT_HELD
     assert classical_claim([]).verdict == UNDECIDABLE
     verdicts = check_claims(rows)
-    assert len(verdicts) == 10 and {v.claim.rsplit("[", 1)[1] for v in verdicts} == {"standard parameters]",
-                                                                                     "base parameters]"}
+    assert len(verdicts) == 10 and {v.claim.rsplit("[", 1)[1] for v in verdicts} == {
+        "standard parameters]",
+        "base parameters]",
+    }
 
 
 # -- the study end to end ---------------------------------------------------------------------
@@ -182,8 +222,9 @@ def test_quick_study_through_the_cli(quick_study):
     assert r.exit_code == 0, r.output
     rows = read_rows(out / "networks.csv")
     assert len(rows) == 8 and all(r.status == "ok" for r in rows)
-    assert {(r.activation, r.scaler, r.optimizer) for r in rows} == \
-        {(a, s, o) for a in ACTIVATIONS[:2] for s in SCALERS[:2] for o in OPTIMIZERS}  # fmt: skip
+    assert {(r.activation, r.scaler, r.optimizer) for r in rows} == {
+        (a, s, o) for a in ACTIVATIONS[:2] for s in SCALERS[:2] for o in OPTIMIZERS
+    }
     assert all(r.epochs == 2 and r.epochs_run == 2 and r.n_train == 12 and r.seed == 0 for r in rows)
     assert all(0 < r.test_standard_median < 10 and r.linear_base_median < 1e-6 for r in rows)
     assert all((out / "grid" / "seed-0" / r.name / "evaluation.json").is_file() for r in rows)
@@ -200,8 +241,11 @@ def test_quick_study_through_the_cli(quick_study):
 
 def test_quick_study_refuses_then_resumes(quick_study, run):
     out, first = quick_study
+
     def errors():
-        return {r.name: (r.test_standard_median, r.test_base_median, r.epochs_run) for r in read_rows(out / "networks.csv")}
+        return {
+            r.name: (r.test_standard_median, r.test_base_median, r.epochs_run) for r in read_rows(out / "networks.csv")
+        }
 
     before = errors()
     r = run("study", "networks", "--quick", "--out", out)

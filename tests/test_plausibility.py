@@ -88,13 +88,26 @@ def _altered(src, dst, kind: str):
 MISTAKES = {
     "clean": (None, None),
     "degrees": ("angles_in_degrees", "data import --angle-unit deg"),
-    "x1000": ("total_mass_scale", "the wrench looks like forces in mN and moments in N*mm (mN*m) "
-                                  "(data import --force-unit mN --moment-unit Nmm)"),
-    "kN": ("wrench_unit", ("the wrench looks like forces in kN and moments in kN*m: with the wrench x 1000 the "
-                           "model explains the wrench over 1000x better",
-                           "): data import --force-unit kN --moment-unit kNm")),
-    "Nmm": ("wrench_unit", ("the wrench looks like forces in N and moments in N*mm (mN*m): with the moments x 0.001 "
-                            "the model explains the wrench over 1000x better", "): data import --moment-unit Nmm")),
+    "x1000": (
+        "total_mass_scale",
+        "the wrench looks like forces in mN and moments in N*mm (mN*m) (data import --force-unit mN --moment-unit Nmm)",
+    ),
+    "kN": (
+        "wrench_unit",
+        (
+            "the wrench looks like forces in kN and moments in kN*m: with the wrench x 1000 the "
+            "model explains the wrench over 1000x better",
+            "): data import --force-unit kN --moment-unit kNm",
+        ),
+    ),
+    "Nmm": (
+        "wrench_unit",
+        (
+            "the wrench looks like forces in N and moments in N*mm (mN*m): with the moments x 0.001 "
+            "the model explains the wrench over 1000x better",
+            "): data import --moment-unit Nmm",
+        ),
+    ),
     "flipped": ("total_mass_negative", "the wrench's sign looks flipped (data import --flip-wrench)"),
     "zero": ("held_out_error", "the held-out wrench is zero"),
     "random": ("held_out_error", "whether the wrench channel holds the sensor at all"),
@@ -124,8 +137,10 @@ def test_total_mass_message_names_the_numbers(generated, model, tmp_path):
     (line,) = warnings_of(r)
     mass = float(np.median(estimated_total_mass(load_results(tmp_path / "r.h5"), model)))
     assert 900 < mass / 3.0 < 1100
-    assert line.startswith(f"the estimated total mass of the moving links {mass:.4g} kg (median over 5 configurations) "
-                           f"is {mass / 3.0:.0f}x the URDF's 3 kg")
+    assert line.startswith(
+        f"the estimated total mass of the moving links {mass:.4g} kg (median over 5 configurations) "
+        f"is {mass / 3.0:.0f}x the URDF's 3 kg"
+    )
 
 
 def test_results_without_warnings_still_read(generated, tmp_path):
@@ -150,8 +165,9 @@ def test_clean_and_noisy_generated_data_stay_silent(model, mode):
     and estimated weights on such data, measured: no warning either, see docs/recordings.md.)"""
     noisy = NoiseModel.create(model.n_dof, force=2.0, moment=0.2, q=0.002, qd=0.05, qdd=0.5, glitch_rate=0.02)
     for seed, noise in ((0, NoiseModel()), (1, noisy)):
-        ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=5), 30, seed,
-                                                 frames=FrameSampling(mode), noise=noise))
+        ds = generate_dataset(
+            model, DatasetSpec(Combination("random", n_configs=5), 30, seed, frames=FrameSampling(mode), noise=noise)
+        )
         assert check_dataset(ds, model) == []
         for settings in (SolveSettings(), SolveSettings(frames=30), SolveSettings(method="consistent")):
             res = solve_dataset(ds, settings, model=model)
@@ -161,8 +177,22 @@ def test_clean_and_noisy_generated_data_stay_silent(model, mode):
 def test_the_demo_stays_silent(tmp_path):
     """``make demo``'s data and solve commands, smaller (40 frames: test_identify's noisy data compile those)."""
     data, out = tmp_path / "demo.h5", tmp_path / "r.h5"
-    r = invoke("-q", "data", "generate", "sweaty-arm", "--factorial", "3", "--n-frames", "40", "--seed", "1",
-               "--noise", "force=0.5,moment=0.05", "--out", data)
+    r = invoke(
+        "-q",
+        "data",
+        "generate",
+        "sweaty-arm",
+        "--factorial",
+        "3",
+        "--n-frames",
+        "40",
+        "--seed",
+        "1",
+        "--noise",
+        "force=0.5,moment=0.05",
+        "--out",
+        data,
+    )
     assert r.exit_code == 0 and not r.stderr
     r = invoke("-q", "solve", data, "--method", "consistent", "--weights", "estimate", "--select", "0:5", "--out", out)
     assert r.exit_code == 0 and warnings_of(r) == []
@@ -181,16 +211,22 @@ def lab_files(lab, tmp_path_factory):
     t, q = lab.sim.time[:LAB_SAMPLES], lab.sim.q[:LAB_SAMPLES]
     tared, reading = lab.tared[:LAB_SAMPLES], lab.reading[:LAB_SAMPLES]
     files = {
-        "untared": (t, q, reading), "tared": (t, q, tared), "degrees": (t, np.degrees(q), tared),
-        "x1000": (t, q, 1000 * tared), "kN": (t, q, tared / 1000), "Nmm": (t, q, tared * np.repeat([1, 1000], 3)),
-        "flipped": (t, q, -tared), "ms": (1000 * t, q, tared),
-    }  # fmt: skip
+        "untared": (t, q, reading),
+        "tared": (t, q, tared),
+        "degrees": (t, np.degrees(q), tared),
+        "x1000": (t, q, 1000 * tared),
+        "kN": (t, q, tared / 1000),
+        "Nmm": (t, q, tared * np.repeat([1, 1000], 3)),
+        "flipped": (t, q, -tared),
+        "ms": (1000 * t, q, tared),
+    }
     return {k: write_angles_csv(folder / f"{k}.csv", *v) for k, v in files.items()}
 
 
 def _import(path, out, *extra):
-    return invoke("-q", "data", "import", path, "--robot", "sweaty-arm", "--sensor-pose", POSE_TEXT, *extra,
-                  "--out", out)
+    return invoke(
+        "-q", "data", "import", path, "--robot", "sweaty-arm", "--sensor-pose", POSE_TEXT, *extra, "--out", out
+    )
 
 
 def test_lab_recording_stays_silent(lab_files, tmp_path):
@@ -203,14 +239,26 @@ def test_lab_recording_stays_silent(lab_files, tmp_path):
         assert r.exit_code == 0 and warnings_of(r) == [], r.output
 
 
-@pytest.mark.parametrize(("kind", "at_import", "at_solve", "fix"), [
-    ("degrees", "data import --angle-unit deg", "data import --angle-unit deg", ("--angle-unit", "deg")),
-    ("x1000", None, "data import --force-unit mN --moment-unit Nmm", ("--force-unit", "mN", "--moment-unit", "Nmm")),
-    ("kN", None, "data import --force-unit kN --moment-unit kNm", ("--force-unit", "kN", "--moment-unit", "kNm")),
-    ("Nmm", None, "moments in N*mm (mN*m): with the moments x 0.001", ("--moment-unit", "Nmm")),
-    ("flipped", "points against gravity", "the wrench's sign looks flipped (data import --flip-wrench)",
-     ("--flip-wrench",)),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("kind", "at_import", "at_solve", "fix"),
+    [
+        ("degrees", "data import --angle-unit deg", "data import --angle-unit deg", ("--angle-unit", "deg")),
+        (
+            "x1000",
+            None,
+            "data import --force-unit mN --moment-unit Nmm",
+            ("--force-unit", "mN", "--moment-unit", "Nmm"),
+        ),
+        ("kN", None, "data import --force-unit kN --moment-unit kNm", ("--force-unit", "kN", "--moment-unit", "kNm")),
+        ("Nmm", None, "moments in N*mm (mN*m): with the moments x 0.001", ("--moment-unit", "Nmm")),
+        (
+            "flipped",
+            "points against gravity",
+            "the wrench's sign looks flipped (data import --flip-wrench)",
+            ("--flip-wrench",),
+        ),
+    ],
+)
 def test_lab_mistake_warns_and_its_fix_gives_the_right_mass(lab, lab_files, tmp_path, kind, at_import, at_solve, fix):
     rec, out = tmp_path / "rec.h5", tmp_path / "r.h5"
     r = _import(lab_files[kind], rec)
@@ -235,8 +283,10 @@ def test_flipped_recording_under_the_consistent_method(lab_files, tmp_path):
     masses; the linear fit's mass (with offsets) or the data's mean force (without) still says so."""
     rec = tmp_path / "rec.h5"
     assert _import(lab_files["flipped"], rec).exit_code == 0
-    for bias, expected in (("estimate", "the wrench's sign looks flipped (data import --flip-wrench)"),
-                           ("none", "the mean force over the fitted frames points against gravity")):
+    for bias, expected in (
+        ("estimate", "the wrench's sign looks flipped (data import --flip-wrench)"),
+        ("none", "the mean force over the fitted frames points against gravity"),
+    ):
         r = invoke("-q", "solve", rec, "--method", "consistent", "--bias", bias, "--out", tmp_path / f"{bias}.h5")
         assert r.exit_code == 0, r.output
         (line,) = warnings_of(r)
@@ -257,8 +307,7 @@ def test_checks_never_stop_a_solve_the_linear_fit_cannot_repeat(model):
 
     ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=5), 30, 0))
     res = solve_dataset(ds, SolveSettings(), model=model)
-    short = dataclasses.replace(res, settings=SolveSettings(method="nonlinear"), n_frames_fit=2,
-                                n_frames_validation=28)  # fmt: skip
+    short = dataclasses.replace(res, settings=SolveSettings(method="nonlinear"), n_frames_fit=2, n_frames_validation=28)
     assert check_solve(ds, short, model) == []
     res.theta_hat[:, 0::10] *= -1  # negative masses: the linear fit (res itself) says so
     assert [f.code for f in check_solve(ds, res, model)] == ["total_mass_negative"]
@@ -269,8 +318,10 @@ def test_time_column_in_milliseconds(lab, lab_files, tmp_path):
     with the warning (and the solve repeats it); ``--time-unit ms`` is silent and gives the right mass."""
     rec, out = tmp_path / "rec.h5", tmp_path / "r.h5"
     line = one_line(_import(lab_files["ms"], rec))
-    assert line.startswith("Error: the time stamps are 1 s apart (1 Hz), slower than a robot recording's "
-                           "10 Hz..100 kHz: the time column looks like milliseconds (1 kHz")
+    assert line.startswith(
+        "Error: the time stamps are 1 s apart (1 Hz), slower than a robot recording's "
+        "10 Hz..100 kHz: the time column looks like milliseconds (1 kHz"
+    )
     assert "data import --time-unit ms (the import stopped at: cut-off 1 Hz is too close to the Nyquist" in line
     assert not rec.exists()
     r = _import(lab_files["ms"], rec, "--cutoff", "0.4")
@@ -301,8 +352,10 @@ def small_motion(model, tmp_path_factory):
     q = q0 + amplitude * np.sin(phase)
     states = (q.T, (amplitude * w * np.cos(phase)).T, (-amplitude * w**2 * np.sin(phase)).T, model.theta_cad)
     wrench = np.array(model.casadi_base_wrench.map(len(t))(*states)).T  # CasADi: nothing to compile
-    return {"rad": write_angles_csv(folder / "rad.csv", t, q, wrench),
-            "deg": write_angles_csv(folder / "deg.csv", t, np.degrees(q), wrench)}
+    return {
+        "rad": write_angles_csv(folder / "rad.csv", t, q, wrench),
+        "deg": write_angles_csv(folder / "deg.csv", t, np.degrees(q), wrench),
+    }
 
 
 def _import_solve(path, tmp_path, *extra):
@@ -319,8 +372,9 @@ def test_small_motion_in_degrees(model, small_motion, tmp_path):
     """+-4 degrees read as +-4 rad: the refit under degrees explains the wrench, the stored radians do not."""
     at_import, (line,), res = _import_solve(small_motion["deg"], tmp_path)
     assert at_import == [] and res.meta["warnings"][0]["code"] == "angles_in_degrees"
-    assert line.startswith("the joint angles look like degrees: read as degrees the model explains the wrench over "
-                           "1000x better")
+    assert line.startswith(
+        "the joint angles look like degrees: read as degrees the model explains the wrench over 1000x better"
+    )
     assert line.endswith("import the recording with data import --angle-unit deg")
     for path, extra in ((small_motion["deg"], ("--angle-unit", "deg")), (small_motion["rad"], ())):
         at_import, at_solve, res = _import_solve(path, tmp_path, *extra)
@@ -339,10 +393,27 @@ def test_gravity_in_millimetres(generated, tmp_path):
     """Warned where --gravity is parsed (any command that takes it), and by the solve instead of the total mass
     it spoils; zero gravity and the Moon's pass silently."""
     data = tmp_path / "g.h5"
-    r = invoke("-q", "data", "generate", "--n-configs", "5", "--n-frames", "30", "--seed", "4",
-               "--gravity", "0", "0", "-9810", "--out", data)
-    expected = ("--gravity 0 0 -9810 has |g| = 9810, 1000x Earth's 9.807 m/s^2: it looks like mm/s^2; gravity is in "
-                "m/s^2: --gravity 0 0 -9.81")
+    r = invoke(
+        "-q",
+        "data",
+        "generate",
+        "--n-configs",
+        "5",
+        "--n-frames",
+        "30",
+        "--seed",
+        "4",
+        "--gravity",
+        "0",
+        "0",
+        "-9810",
+        "--out",
+        data,
+    )
+    expected = (
+        "--gravity 0 0 -9810 has |g| = 9810, 1000x Earth's 9.807 m/s^2: it looks like mm/s^2; gravity is in "
+        "m/s^2: --gravity 0 0 -9.81"
+    )
     assert r.exit_code == 0 and warnings_of(r) == [expected]
     r = invoke("-q", "solve", data, "--out", tmp_path / "r.h5")
     (line,) = warnings_of(r)
@@ -371,9 +442,13 @@ def _mixed_chain():
     from ineid.robots.urdf import parse_chain
 
     chain = parse_chain((FIXTURES / "mixed_chain.urdf").read_text(), source="mixed_chain.urdf")
-    return SimpleNamespace(chain=chain, n_dof=len(chain.joints), joint_types=tuple(j.type for j in chain.joints),
-                           q_lower=np.array([j.q_lower for j in chain.joints]),
-                           q_upper=np.array([j.q_upper for j in chain.joints]))
+    return SimpleNamespace(
+        chain=chain,
+        n_dof=len(chain.joints),
+        joint_types=tuple(j.type for j in chain.joints),
+        q_lower=np.array([j.q_lower for j in chain.joints]),
+        q_upper=np.array([j.q_upper for j in chain.joints]),
+    )
 
 
 def test_degrees_convert_revolute_joints_only():
@@ -384,8 +459,13 @@ def test_degrees_convert_revolute_joints_only():
     si = in_si_units(streams, m, "deg", 0.001)
     for a in (si.q, si.qd, si.qdd):
         assert np.allclose(a[0], [math.pi / 2, 0.1] + [math.pi / 4] * (m.n_dof - 2))
-    assert np.allclose(si.wrench, 0.001) and si.origin == {"angle_unit": "deg", "wrench_scale": 0.001,
-                                                           "time_unit": "s", "force_unit": "N", "moment_unit": "Nm"}
+    assert np.allclose(si.wrench, 0.001) and si.origin == {
+        "angle_unit": "deg",
+        "wrench_scale": 0.001,
+        "time_unit": "s",
+        "force_unit": "N",
+        "moment_unit": "Nm",
+    }
 
 
 def test_degree_rule_skips_continuous_and_prismatic_joints():
@@ -422,8 +502,17 @@ def test_bad_wrench_scale_is_refused(tmp_path):
     with pytest.raises(DatasetError, match="angle_unit"):
         ImportSettings(angle_unit="grad")
     for bad in ("0", "-2", "inf", "nan"):
-        r = invoke("data", "import", tmp_path / "x.csv", "--robot", "sweaty-arm", "--wrench-scale", bad,
-                   "--out", tmp_path / "x.h5")
+        r = invoke(
+            "data",
+            "import",
+            tmp_path / "x.csv",
+            "--robot",
+            "sweaty-arm",
+            "--wrench-scale",
+            bad,
+            "--out",
+            tmp_path / "x.h5",
+        )
         assert r.exit_code == 2 and "--wrench-scale" in r.output, r.output
 
 
@@ -447,8 +536,11 @@ def test_time_unit_rule():
 def test_gravity_rule():
     assert check_gravity([0, 0, -9.81]) is None and check_gravity([0, 0, 0]) is None
     assert check_gravity([0, 0, -1.62]) is None and check_gravity([0, 0, -24.8]) is None  # the Moon, Jupiter
-    for g, unit, fixed in (([0, 0, -981], "cm/s^2", "0 0 -9.81"), ([0, 0, -0.00981], "km/s^2", "0 0 -9.81"),
-                           ([0, -1, 0], "standard gravities (g)", "0 -9.807 0")):
+    for g, unit, fixed in (
+        ([0, 0, -981], "cm/s^2", "0 0 -9.81"),
+        ([0, 0, -0.00981], "km/s^2", "0 0 -9.81"),
+        ([0, -1, 0], "standard gravities (g)", "0 -9.807 0"),
+    ):
         found = check_gravity(g)
         assert found.code == "gravity_unit" and f"it looks like {unit}" in found.message
         assert found.message.endswith(f"--gravity {fixed}")
@@ -464,8 +556,13 @@ def test_time_force_and_moment_units_convert():
     assert np.allclose(si.joint_time, np.arange(4) / 1000) and np.allclose(si.wrench_time, si.joint_time)
     assert np.allclose(si.imus[0].time, si.joint_time) and np.allclose(si.imus[0].readings["gyro"], 1)
     assert np.allclose(si.wrench, [1000, 1000, 1000, 0.001, 0.001, 0.001]) and np.allclose(si.q, 1)
-    assert si.origin == {"angle_unit": "rad", "wrench_scale": 1.0, "time_unit": "ms", "force_unit": "kN",
-                         "moment_unit": "Nmm"}
+    assert si.origin == {
+        "angle_unit": "rad",
+        "wrench_scale": 1.0,
+        "time_unit": "ms",
+        "force_unit": "kN",
+        "moment_unit": "Nmm",
+    }
     assert units_note(si.origin) == "time stamps converted from ms; forces from kN and moments from Nmm converted"
     for name, bad in (("time_unit", "min"), ("force_unit", "lbf"), ("moment_unit", "Nmmm")):
         with pytest.raises(DatasetError, match=name):

@@ -71,10 +71,13 @@ SENSOR_URDF = """<robot name="arm-on-sensor">
   <link name="ft_sensor"/>
   <joint name="plate" type="fixed"><parent link="ft_sensor"/><child link="base_link"/>
     <origin xyz="0 0 -0.02" rpy="0 0.1 0"/></joint>
-  <link name="base_link"><inertial><mass value="1"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial></link>
+  <link name="base_link">
+    <inertial><mass value="1"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial></link>
   <joint name="j1" type="revolute"><parent link="base_link"/><child link="l1"/><origin xyz="0 0 0.1"/>
     <axis xyz="0 0 1"/><limit lower="-1" upper="1" velocity="1" effort="1"/></joint>
-  <link name="l1"><inertial><origin xyz="0.1 0 0"/><mass value="1"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial></link>
+  <link name="l1">
+    <inertial><origin xyz="0.1 0 0"/>
+      <mass value="1"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial></link>
 </robot>"""
 
 
@@ -138,8 +141,9 @@ def test_derivatives_from_angles_match_mujoco(lab):
     assert rel(ds.qd[0], sim.qd[k]) < 5e-5
     assert rel(ds.qdd[0], sim.qdd[k]) < 1e-2
     # the same filter on the wrench keeps the model consistent: far better than qdd's own error
-    predicted = wrench_in_sensor(lab.pose.transform(), np.asarray(lab.model.base_wrench(ds.q[0], ds.qd[0], ds.qdd[0],
-                                                                                        lab.theta)))
+    predicted = wrench_in_sensor(
+        lab.pose.transform(), np.asarray(lab.model.base_wrench(ds.q[0], ds.qd[0], ds.qdd[0], lab.theta))
+    )
     resid = ds.wrench[0] - predicted
     resid -= resid.mean(axis=0)  # the offsets
     assert np.sqrt(np.mean(resid**2)) < 2e-4 * np.sqrt(np.mean((ds.wrench[0] - ds.wrench[0].mean(0)) ** 2))
@@ -232,8 +236,10 @@ def test_identified_base_parameters_match_the_simulation(lab, recordings, method
     # includes the weight of mass at the shoulder centre (never moving, so seen as an offset)
     fit = slice(0, res.n_frames_fit)
     theta_hat = lab.model.full_theta(res.theta_hat[0], ds.theta_known)
-    moved = wrench_in_sensor(lab.pose.transform(), np.asarray(
-        lab.model.base_wrench(ds.q[0, fit], ds.qd[0, fit], ds.qdd[0, fit], lab.theta - theta_hat)))
+    moved = wrench_in_sensor(
+        lab.pose.transform(),
+        np.asarray(lab.model.base_wrench(ds.q[0, fit], ds.qd[0, fit], ds.qdd[0, fit], lab.theta - theta_hat)),
+    )
     assert np.allclose(res.bias_hat[0], lab.bias + moved.mean(axis=0), atol=2e-4 * np.abs(lab.bias).max())
     assert np.all(res.bias_std[0] > 0)
 
@@ -242,7 +248,8 @@ def test_identified_base_parameters_match_the_simulation(lab, recordings, method
 def test_fused_blocks_in_the_sensor_frame_match_casadis_stacks(lab, recordings, weights):
     """The fused kernel (sensor transform, frame sums, the first-frame shift) against CasADi's stacks and QR.
 
-    Measured with 0.05 noise on every axis: base parameters 8e-11 (scaled), offsets 2e-12 N, their std 7e-13 relative."""
+    Measured with 0.05 noise on every axis: base parameters 8e-11 (scaled), offsets 2e-12 N, their std 7e-13
+    relative."""
     ds = recordings["estimate"].select(frames=slice(0, 4000))
     ds.wrench = ds.wrench + np.random.default_rng(1).normal(size=ds.wrench.shape) * 0.05
     fused = solve_dataset(ds, SolveSettings(bias="estimate", weights=weights), model=lab.model)
@@ -323,7 +330,9 @@ def _small_bag(lab, path, joint_names=None, **kw):
     n = 300
     names = list(joint_names or lab.model.joint_names)
     q = lab.sim.q[:n, [lab.model.joint_names.index(j) for j in names]]
-    return write_bag(path, "ros1", names, lab.sim.time[:n], q, lab.sim.time[:n], kw.pop("wrench", lab.reading[:n]), **kw)
+    return write_bag(
+        path, "ros1", names, lab.sim.time[:n], q, lab.sim.time[:n], kw.pop("wrench", lab.reading[:n]), **kw
+    )
 
 
 def test_cli_bad_recordings_are_one_line_and_leave_no_file(lab, run, tmp_path):
@@ -334,11 +343,14 @@ def test_cli_bad_recordings_are_one_line_and_leave_no_file(lab, run, tmp_path):
     nan_bag = _small_bag(lab, tmp_path / "nan.bag", wrench=nan_wrench)
     twice = _small_bag(lab, tmp_path / "twice.bag", extra_topics=["/ft_sensor/raw"])
     csv_text = lab.file("csv").read_text().splitlines()
-    (tmp_path / "swapped.csv").write_text("\n".join([csv_text[0], *csv_text[1:50], csv_text[51], csv_text[50],
-                                                      *csv_text[52:400]]) + "\n")
+    (tmp_path / "swapped.csv").write_text(
+        "\n".join([csv_text[0], *csv_text[1:50], csv_text[51], csv_text[50], *csv_text[52:400]]) + "\n"
+    )
     cases = [
-        ((good, "--joint-topic", "/arm/joint_states"),
-         "the bag has no topic '/arm/joint_states'; its JointState topics: /joint_states: pass --joint-topic"),
+        (
+            (good, "--joint-topic", "/arm/joint_states"),
+            "the bag has no topic '/arm/joint_states'; its JointState topics: /joint_states: pass --joint-topic",
+        ),
         ((three,), "lacks joint 'upper_arm_yaw'"),
         ((tmp_path / "swapped.csv",), "time does not increase at line 52"),
         ((nan_bag,), "the wrench stream's wrench holds NaN at sample 120"),
@@ -353,6 +365,18 @@ def test_cli_bad_recordings_are_one_line_and_leave_no_file(lab, run, tmp_path):
         text = [line for line in r.output.splitlines() if line.strip()]
         assert len(text) == 1 and text[0].startswith("Error: ") and message in text[0], (message, r.output)
         assert not out.exists() and not list(tmp_path.glob(".out.h5*"))
-    r = run("-q", "data", "import", twice, "--robot", "sweaty-arm", "--wrench-topic", "/ft_sensor/raw",
-            "--sensor-pose", POSE_TEXT, "--out", tmp_path / "ok.h5")
+    r = run(
+        "-q",
+        "data",
+        "import",
+        twice,
+        "--robot",
+        "sweaty-arm",
+        "--wrench-topic",
+        "/ft_sensor/raw",
+        "--sensor-pose",
+        POSE_TEXT,
+        "--out",
+        tmp_path / "ok.h5",
+    )
     assert r.exit_code == 0, r.output

@@ -54,8 +54,13 @@ def codes(page: str) -> set[str]:
 def solved(tmp_path_factory, model):
     """``{name: (dataset, results, report)}`` for the clean and the delayed wrench, solved by the CLI."""
     folder = tmp_path_factory.mktemp("report")
-    spec = DatasetSpec(Combination("random", n_configs=1), n_frames=400, seed=5, frames=FrameSampling(mode="fourier"),
-                       noise=NoiseModel.create(model.n_dof, force=0.5, moment=0.05))  # fmt: skip
+    spec = DatasetSpec(
+        Combination("random", n_configs=1),
+        n_frames=400,
+        seed=5,
+        frames=FrameSampling(mode="fourier"),
+        noise=NoiseModel.create(model.n_dof, force=0.5, moment=0.05),
+    )
     ds = generate_dataset(model, spec)
     late = ds.wrench.copy()
     late[:, DELAY_FRAMES:] = ds.wrench[:, :-DELAY_FRAMES]  # what a sensor 50 ms late reads
@@ -65,8 +70,22 @@ def solved(tmp_path_factory, model):
         d.save(data)
         extra = ("--plot", folder / f"{name}.png") if name == "clean" else ()
         # the CasADi backend: no JAX compilation for the solve (the tests' time)
-        ok(invoke("-q", "solve", data, "--method", "linear", "--backend", "casadi", "--out", results, "--report", page,
-                  *extra))  # fmt: skip
+        ok(
+            invoke(
+                "-q",
+                "solve",
+                data,
+                "--method",
+                "linear",
+                "--backend",
+                "casadi",
+                "--out",
+                results,
+                "--report",
+                page,
+                *extra,
+            )
+        )
         out[name] = (data, results, page)
     return out
 
@@ -84,8 +103,11 @@ def test_report_shows_the_results(solved):
         assert html.escape(direction) in text
     # every standard parameter with its CAD value (the prior), estimate and std, formatted as the page does
     for k, name in enumerate(res.param_names):
-        row = re.search(rf'<td class="name">{re.escape(name)}</td><td class="num">([^<]*)</td><td class="num">'
-                        rf'([^<]*)</td>\s*<td class="num">([^<]*)</td>', text)  # fmt: skip
+        row = re.search(
+            rf'<td class="name">{re.escape(name)}</td><td class="num">([^<]*)</td><td class="num">'
+            rf'([^<]*)</td>\s*<td class="num">([^<]*)</td>',
+            text,
+        )
         assert row, name
         cad, est, std = row.groups()
         assert float(cad) == pytest.approx(np.atleast_2d(res.theta_prior)[0, k], rel=1e-3)
@@ -125,18 +147,44 @@ def test_report_of_data_on_an_excite_trajectory(solved, tmp_path, model):
     w, _ = stack_casadi(model, q, qd, qdd, np.zeros((len(q), 6)), ds.theta_known)
     w_b = (w.reshape(len(q), 6, -1) / sigma[:, None]).reshape(6 * len(q), -1)[:, base.base_index]
     std = np.sqrt(np.diag(np.linalg.inv(w_b.T @ w_b)))
-    record = {"criterion": "d-opt", "base_parameters": list(base.names), "wrench_noise_std": sigma.tolist(),
-              "optimized": {"condition_number": 123.4, "std": std.tolist()}, "random_fourier": {"condition_number": 567.8}}
+    record = {
+        "criterion": "d-opt",
+        "base_parameters": list(base.names),
+        "wrench_noise_std": sigma.tolist(),
+        "optimized": {"condition_number": 123.4, "std": std.tolist()},
+        "random_fourier": {"condition_number": 567.8},
+    }
     (tmp_path / "traj.json").write_text(json.dumps({"design": record}))
     data, results, page = tmp_path / "d.h5", tmp_path / "r.h5", tmp_path / "r.html"
-    ok(invoke("-q", "data", "generate", "sweaty-arm", "--frame-mode", "trajectory", "--trajectory",
-              tmp_path / "traj.csv", "--n-configs", 1, "--noise", "force=0.5,moment=0.05", "--seed", 2, "--out", data))
+    ok(
+        invoke(
+            "-q",
+            "data",
+            "generate",
+            "sweaty-arm",
+            "--frame-mode",
+            "trajectory",
+            "--trajectory",
+            tmp_path / "traj.csv",
+            "--n-configs",
+            1,
+            "--noise",
+            "force=0.5,moment=0.05",
+            "--seed",
+            2,
+            "--out",
+            data,
+        )
+    )
     ok(invoke("-q", "solve", data, "--backend", "casadi", "--out", results, "--report", page))
     text = page.read_text()
     assert "Trajectory of <code>ineid excite</code>" in text and "traj.json" in text
     assert "condition number 123.4 (a random Fourier trajectory of the same bounds: 567.8)" in " ".join(text.split())
-    rows = re.findall(r'<tr><td class="name">([^<]*)</td><td class="num">([^<]*)</td><td class="num">([^<]*)</td>'
-                      r"</tr>", text.split("Its design")[1])  # fmt: skip
+    rows = re.findall(
+        r'<tr><td class="name">([^<]*)</td><td class="num">([^<]*)</td><td class="num">([^<]*)</td>'
+        r"</tr>",
+        text.split("Its design")[1],
+    )
     res = load_results(results)
     assert [html.unescape(n) for n, _, _ in rows] == list(res.base.names)
     expected, estimated = (np.array([float(r[k]) for r in rows]) for k in (1, 2))
@@ -178,8 +226,30 @@ def test_residual_tests_find_the_delay(solved):
 def test_residual_tests_find_friction_in_joint_torques(tmp_path):
     """Joint torques with Coulomb friction that the solve does not model warn friction, not delay."""
     data, results, page = tmp_path / "f.h5", tmp_path / "f_r.h5", tmp_path / "f.html"
-    ok(invoke("-q", "data", "generate", "sweaty-arm", "--n-configs", 1, "--n-frames", 400, "--frame-mode", "fourier",
-              "--seed", 1, "--channels", "torque", "--friction-truth", "fc=0.5", "--noise", "tau=0.05", "--out", data))
+    ok(
+        invoke(
+            "-q",
+            "data",
+            "generate",
+            "sweaty-arm",
+            "--n-configs",
+            1,
+            "--n-frames",
+            400,
+            "--frame-mode",
+            "fourier",
+            "--seed",
+            1,
+            "--channels",
+            "torque",
+            "--friction-truth",
+            "fc=0.5",
+            "--noise",
+            "tau=0.05",
+            "--out",
+            data,
+        )
+    )
     ok(invoke("-q", "solve", data, "--method", "linear", "--out", results, "--report", page))
     found = codes(page.read_text())
     assert {"friction", "model_error"} <= found and "delay" not in found
@@ -201,8 +271,16 @@ def test_friction_test_on_joint_torques():
     assert "j1 follows the joint's velocity" in next(w.message for w in torques.warnings if w.code == "friction")
     wrench = check_residual(t, meas, pred, ("fx", "fy"), ("N", "N"), (("wrench", 0, 2, "wrench"),), qd, noise)
     assert {w.code for w in wrench.warnings} == {"model_error"} and np.isnan(wrench.axes[0].friction_share)
-    clean = check_residual(t, pred + 0.05 * rng.standard_normal(pred.shape), pred, ("j1", "j2"), ("N*m", "N*m"),
-                           (("tau", 0, 2, "joint_torque"),), qd, noise)  # fmt: skip
+    clean = check_residual(
+        t,
+        pred + 0.05 * rng.standard_normal(pred.shape),
+        pred,
+        ("j1", "j2"),
+        ("N*m", "N*m"),
+        (("tau", 0, 2, "joint_torque"),),
+        qd,
+        noise,
+    )
     assert not clean.warnings
 
 
@@ -213,8 +291,9 @@ def test_residual_tests_on_white_noise_and_a_periodic_error():
     t = np.arange(500) / 100.0
     pred = np.column_stack([np.sin(0.4 * t), np.cos(0.3 * t)])
     blocks = (("wrench", 0, 2, "wrench"),)
-    white = check_residual(t, pred + 0.01 * rng.standard_normal(pred.shape), pred, ("a", "b"), ("N", "N"), blocks,
-                           noise=np.full(2, 0.01))  # fmt: skip
+    white = check_residual(
+        t, pred + 0.01 * rng.standard_normal(pred.shape), pred, ("a", "b"), ("N", "N"), blocks, noise=np.full(2, 0.01)
+    )
     assert not white.warnings and all(abs(c.ratio - 1) < 0.15 for c in white.axes)
     hum = pred + 0.01 * rng.standard_normal(pred.shape) + 0.05 * np.sin(2 * np.pi * 7.0 * t)[:, None]
     found = check_residual(t, hum, pred, ("a", "b"), ("N", "N"), blocks)  # noise estimated from the signal
@@ -231,8 +310,7 @@ def test_hostile_names_are_escaped(solved):
     res.meta["robot"] = evil
     res.meta["unknown_links"] = [evil + " 1", evil + " 2"]
     res.param_names = tuple(evil + n for n in res.param_names)
-    res.base = dataclasses.replace(res.base, names=tuple(evil + n for n in res.base.names),
-                                   param_names=res.param_names)  # fmt: skip
+    res.base = dataclasses.replace(res.base, names=tuple(evil + n for n in res.base.names), param_names=res.param_names)
     page = build_report(inputs)
     assert "<script" not in page and "<b>bold" not in page and "alert(&#39;x&#39;)" in page
     assert str(escape(evil)) in page and str(escape(res.base.names[0])) in page
@@ -278,7 +356,11 @@ def test_bad_inputs_are_one_line(solved, tmp_path):
     data, results, _ = solved["clean"]
     text = tmp_path / "notes.txt"
     text.write_text("not hdf5")
-    for bad, expect in ((data, "not an ineid results file"), (text, "notes.txt"), (tmp_path / "nope.h5", "does not exist")):
+    for bad, expect in (
+        (data, "not an ineid results file"),
+        (text, "notes.txt"),
+        (tmp_path / "nope.h5", "does not exist"),
+    ):
         out = invoke("report", bad, "--out", tmp_path / "x.html")
         assert out.exit_code != 0 and expect in out.output and len(out.output.strip().splitlines()) == 1, out.output
         assert not (tmp_path / "x.html").exists()
@@ -310,8 +392,15 @@ def test_plot_has_a_residual_panel_per_axis_and_a_readable_span(solved):
 # -- a real browser ------------------------------------------------------------------------------------
 
 CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run"]  # fmt: skip
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
 
 
 def _browser_or_skip():
@@ -381,8 +470,24 @@ def test_report_of_a_hostile_robot_end_to_end(tmp_path):
     urdf = tmp_path / "n.urdf"
     urdf.write_text(hostile_urdf(name))
     data, page = tmp_path / "n.h5", tmp_path / "n.html"
-    ok(invoke("-q", "data", "generate", urdf, "--n-configs", 1, "--n-frames", 80, "--frame-mode", "fourier", "--seed",
-              3, "--out", data))  # fmt: skip
+    ok(
+        invoke(
+            "-q",
+            "data",
+            "generate",
+            urdf,
+            "--n-configs",
+            1,
+            "--n-frames",
+            80,
+            "--frame-mode",
+            "fourier",
+            "--seed",
+            3,
+            "--out",
+            data,
+        )
+    )
     ok(invoke("-q", "solve", data, "--method", "linear", "--out", tmp_path / "r.h5", "--report", page))
     text = page.read_bytes().decode()  # not read_text: it would turn the names' "\r" into "\n"
     robot = load_results(tmp_path / "r.h5").meta["robot"]  # as the URDF parser read it (XML normalizes whitespace)

@@ -43,8 +43,10 @@ def test_urdf_with_a_huge_comment_is_one_line(run, tmp_path):
     path = tmp_path / "comment.urdf"
     path.write_text(arm_with("<!--" + "x" * 12_000_000 + "-->"))
     size = path.stat().st_size
-    expected = (f"Error: the URDF {path} is {size:,} bytes, over the {URDF_MAX_BYTES:,} bytes ineid reads for it "
-                "(URDF_MAX_BYTES); give a smaller file")
+    expected = (
+        f"Error: the URDF {path} is {size:,} bytes, over the {URDF_MAX_BYTES:,} bytes ineid reads for it "
+        "(URDF_MAX_BYTES); give a smaller file"
+    )
     assert one_line(run("robot", "show", path)) == expected
     assert one_line(run("generate", path, "--out", tmp_path / "code")) == expected
     assert not (tmp_path / "code").exists()
@@ -57,17 +59,25 @@ def test_urdf_with_a_huge_comment_is_one_line(run, tmp_path):
 def test_urdf_that_lxml_refuses_is_one_line():
     """Elements nested deeper than lxml's default 256: lxml's reason in one line, not yourdfpy's TypeError."""
     text = arm_with("<a>" * 300 + "</a>" * 300)
-    with pytest.raises(RobotModelError, match="^deep: lxml, yourdfpy's XML parser, cannot read the URDF "
-                                              r"\(Excessive depth in document: 256"):
+    with pytest.raises(
+        RobotModelError,
+        match="^deep: lxml, yourdfpy's XML parser, cannot read the URDF "
+        r"\(Excessive depth in document: 256",
+    ):
         parse_chain(text, source="deep")
 
 
 def test_urdf_over_the_link_limit_is_refused_before_yourdfpy():
-    links = "".join(f'<link name="s{i}"/><joint name="f{i}" type="fixed"><parent link="base_link"/>'
-                    f'<child link="s{i}"/></joint>' for i in range(MAX_BODIES))
+    links = "".join(
+        f'<link name="s{i}"/><joint name="f{i}" type="fixed"><parent link="base_link"/><child link="s{i}"/></joint>'
+        for i in range(MAX_BODIES)
+    )
     t0 = time.perf_counter()
-    with pytest.raises(InputFileError, match=f"^many: the model has {MAX_BODIES + ARM.read_text().count('<link '):,} "
-                                             "links, over the 10,000 ineid reads \\(MAX_BODIES\\); give the model"):
+    with pytest.raises(
+        InputFileError,
+        match=f"^many: the model has {MAX_BODIES + ARM.read_text().count('<link '):,} "
+        "links, over the 10,000 ineid reads \\(MAX_BODIES\\); give the model",
+    ):
         parse_chain(arm_with(links), source="many")
     assert time.perf_counter() - t0 < 5  # yourdfpy would take seconds more
 
@@ -103,8 +113,10 @@ def test_robot_file_that_is_not_a_regular_file(run, tmp_path, kind):
 
 # -- MJCF --------------------------------------------------------------------------------------------
 
-ARM_BODY = ('<body name="b0"><joint name="j0" axis="0 0 1"/>'
-            '<inertial pos="0.1 0 0" mass="1" diaginertia="0.01 0.01 0.01"/></body>')
+ARM_BODY = (
+    '<body name="b0"><joint name="j0" axis="0 0 1"/>'
+    '<inertial pos="0.1 0 0" mass="1" diaginertia="0.01 0.01 0.01"/></body>'
+)
 
 
 def mjcf(inside_worldbody: str = "", head: str = "", after: str = "") -> str:
@@ -113,14 +125,25 @@ def mjcf(inside_worldbody: str = "", head: str = "", after: str = "") -> str:
 
 OVER = {
     "flat bodies": (mjcf("<body/>" * 1_000_000), "more bodies than the 10,000 ineid reads (MAX_BODIES)"),
-    "replicate": (mjcf('<replicate count="1000" offset="0 0 1"><replicate count="1000" offset="1 0 0"><body>'
-                       '<geom size=".1"/></body></replicate></replicate>'), "(MAX_BODIES)"),
-    "flexcomp": (mjcf('<flexcomp name="f" type="grid" count="100 100 2" spacing=".1 .1 .1" radius=".01" dim="3"/>'),
-                 "(MAX_BODIES)"),
-    "joints": (mjcf('<body name="m"><geom size=".1"/>' + "<joint/>" * 10_001 + "</body>"),
-               "more joints than the 10,000 ineid reads (MAX_JOINTS)"),
-    "geoms": (mjcf('<body name="g">' + '<geom size=".1"/>' * 50_001 + "</body>"),
-              "more elements than the 50,000 ineid reads (MJCF_MAX_ELEMENTS)"),
+    "replicate": (
+        mjcf(
+            '<replicate count="1000" offset="0 0 1"><replicate count="1000" offset="1 0 0"><body>'
+            '<geom size=".1"/></body></replicate></replicate>'
+        ),
+        "(MAX_BODIES)",
+    ),
+    "flexcomp": (
+        mjcf('<flexcomp name="f" type="grid" count="100 100 2" spacing=".1 .1 .1" radius=".01" dim="3"/>'),
+        "(MAX_BODIES)",
+    ),
+    "joints": (
+        mjcf('<body name="m"><geom size=".1"/>' + "<joint/>" * 10_001 + "</body>"),
+        "more joints than the 10,000 ineid reads (MAX_JOINTS)",
+    ),
+    "geoms": (
+        mjcf('<body name="g">' + '<geom size=".1"/>' * 50_001 + "</body>"),
+        "more elements than the 50,000 ineid reads (MJCF_MAX_ELEMENTS)",
+    ),
     "included bodies": (mjcf('<include file="parts/many.xml"/>'), "(MAX_BODIES)"),
 }
 
@@ -160,8 +183,9 @@ def test_mjcf_naming_a_fifo_is_one_line(run, tmp_path, where):
     else:
         path.write_text(mjcf(after='<asset><mesh name="m" file="part.stl"/></asset>'))
     verb = "includes" if where == "include" else "names"
-    assert one_line(run("robot", "show", path)) == (f"Error: {path}: the MJCF {verb} {fifo}, which is a FIFO (named "
-                                                    "pipe), not a regular file; give a file")
+    assert one_line(run("robot", "show", path)) == (
+        f"Error: {path}: the MJCF {verb} {fifo}, which is a FIFO (named pipe), not a regular file; give a file"
+    )
 
 
 @needs_mujoco
@@ -173,29 +197,47 @@ def test_mjcf_with_nan_inertia_writes_no_mujoco_log(run, tmp_path, monkeypatch, 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "nan.xml").write_text(mjcf().replace('diaginertia="0.01 0.01 0.01"', 'diaginertia="nan 0.01 0.01"'))
     line = one_line(run("robot", "show", "nan.xml"))
-    assert line == ("Error: nan.xml: MuJoCo reads a NaN in the model (XML contains a 'NaN'. Please check it "
-                    "carefully.); give finite numbers")
+    assert line == (
+        "Error: nan.xml: MuJoCo reads a NaN in the model (XML contains a 'NaN'. Please check it "
+        "carefully.); give finite numbers"
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["nan.xml"]
     assert "WARNING" not in capfd.readouterr().err
     assert mujoco.get_mju_user_warning() is None  # MuJoCo's own handler is back
 
 
 MJCF_BAD = {
-    "inf pos": (mjcf().replace('<body name="b0">', '<body name="b0" pos="inf 0 0">'),
-                "body 'b0': pos inf 0.0 0.0 is not finite; give finite numbers"),
-    "inf ref": (mjcf().replace('axis="0 0 1"', 'axis="0 0 1" ref="inf"'),
-                "joint 'j0': ref inf is not finite; give a finite number"),
-    "latin-1 name": (mjcf(head='<?xml version="1.0" encoding="ISO-8859-1"?>').replace('"b0"', '"b\xe9"'),
-                     "the name of body #1 is not UTF-8 (MuJoCo reads a file's bytes as UTF-8, whatever its XML "
-                     "declaration says); save the MJCF as UTF-8"),
-    "not its encoding": (mjcf("<!-- caf\xe9 -->"), "(0xe9) of the MJCF is not valid UTF-8, the encoding of "
-                         "XML without a declaration; save the file in that encoding, or declare the one it is in"),
-    "utf-16": (mjcf(head='<?xml version="1.0" encoding="UTF-16"?>'), "the MJCF is UTF-16 or UTF-32 (a byte-order "
-               "mark), which MuJoCo does not read; save the file as UTF-8 (MuJoCo reads a file's bytes as UTF-8)"),
-    "unknown encoding": (mjcf(head='<?xml version="1.0" encoding="klingon"?>'), "the MJCF declares encoding "
-                         "'klingon', which ineid does not know; save the file as UTF-8"),
-    "ebcdic": (mjcf(head='<?xml version="1.0" encoding="cp500"?>'), "the MJCF declares encoding 'cp500', which is "
-               "not a superset of ASCII and which MuJoCo does not read"),
+    "inf pos": (
+        mjcf().replace('<body name="b0">', '<body name="b0" pos="inf 0 0">'),
+        "body 'b0': pos inf 0.0 0.0 is not finite; give finite numbers",
+    ),
+    "inf ref": (
+        mjcf().replace('axis="0 0 1"', 'axis="0 0 1" ref="inf"'),
+        "joint 'j0': ref inf is not finite; give a finite number",
+    ),
+    "latin-1 name": (
+        mjcf(head='<?xml version="1.0" encoding="ISO-8859-1"?>').replace('"b0"', '"b\xe9"'),
+        "the name of body #1 is not UTF-8 (MuJoCo reads a file's bytes as UTF-8, whatever its XML "
+        "declaration says); save the MJCF as UTF-8",
+    ),
+    "not its encoding": (
+        mjcf("<!-- caf\xe9 -->"),
+        "(0xe9) of the MJCF is not valid UTF-8, the encoding of "
+        "XML without a declaration; save the file in that encoding, or declare the one it is in",
+    ),
+    "utf-16": (
+        mjcf(head='<?xml version="1.0" encoding="UTF-16"?>'),
+        "the MJCF is UTF-16 or UTF-32 (a byte-order "
+        "mark), which MuJoCo does not read; save the file as UTF-8 (MuJoCo reads a file's bytes as UTF-8)",
+    ),
+    "unknown encoding": (
+        mjcf(head='<?xml version="1.0" encoding="klingon"?>'),
+        "the MJCF declares encoding 'klingon', which ineid does not know; save the file as UTF-8",
+    ),
+    "ebcdic": (
+        mjcf(head='<?xml version="1.0" encoding="cp500"?>'),
+        "the MJCF declares encoding 'cp500', which is not a superset of ASCII and which MuJoCo does not read",
+    ),
 }
 
 
@@ -217,7 +259,9 @@ def test_mujoco_warnings_while_stepping_stay_out_of_the_working_folder(tmp_path,
     from ineid.robots.mjcf import mujoco_warnings
 
     monkeypatch.chdir(tmp_path)
-    m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><body><joint/><geom size="0.1"/></body></worldbody></mujoco>')
+    m = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body><joint/><geom size="0.1"/></body></worldbody></mujoco>'
+    )
     d = mujoco.MjData(m)
     d.qvel[:] = 1e300
     with mujoco_warnings(mujoco) as warnings:

@@ -14,8 +14,10 @@ from ineid.robots.urdf import parse_chain
 
 from .conftest import FIXTURES
 
-LINK = '<link name="{name}"><inertial><origin xyz="0 0 0.1" rpy="0 0 0"/><mass value="{m}"/>' \
+LINK = (
+    '<link name="{name}"><inertial><origin xyz="0 0 0.1" rpy="0 0 0"/><mass value="{m}"/>'
     '<inertia ixx="{ixx}" ixy="0" ixz="0" iyy="{iyy}" iyz="0" izz="{izz}"/></inertial></link>'
+)
 
 
 def urdf(*, joint_type="revolute", axis="0 0 1", m1="1", inertia=("0.01", "0.01", "0.01"), extra=""):
@@ -37,7 +39,10 @@ def test_builtin_arm():
     assert m.name == "sweaty-arm"
     assert m.joint_names == ("shoulder_pitch", "shoulder_roll", "upper_arm_yaw", "elbow")
     assert m.link_names == ("shoulder_pitch_link", "shoulder_roll_link", "upper_arm", "forearm")
-    assert m.unknown_links == ("upper_arm", "forearm") and m.known_links == ("shoulder_pitch_link", "shoulder_roll_link")
+    assert m.unknown_links == ("upper_arm", "forearm") and m.known_links == (
+        "shoulder_pitch_link",
+        "shoulder_roll_link",
+    )
     assert len(m.unknown_index) == 20
     assert m.theta_cad.shape == (40,)
     assert m.urdf_path.is_file() and "REPRESENTATIVE" in m.urdf_path.read_text()
@@ -72,14 +77,18 @@ def test_fixed_joints_fold_like_pinocchio():
     assert chain.merged_links["world"] == ("world", "base")
     assert chain.merged_links["l2"] == ("l2", "bracket")
     assert chain.merged_links["l3"] == ("l3", "tool", "tcp")
-    assert np.allclose(np.concatenate([j.theta for j in chain.joints]), pinocchio_theta(pinocchio_model(path)), atol=1e-14)
+    assert np.allclose(
+        np.concatenate([j.theta for j in chain.joints]), pinocchio_theta(pinocchio_model(path)), atol=1e-14
+    )
 
 
 def test_locked_joints_turn_a_tree_into_a_chain():
     from .conftest import real_robot
 
     path, locked = real_robot("panda")
-    with pytest.raises(RobotModelError, match="branching tree.*panda_finger_joint1, panda_finger_joint2.*--lock JOINT=POS"):
+    with pytest.raises(
+        RobotModelError, match="branching tree.*panda_finger_joint1, panda_finger_joint2.*--lock JOINT=POS"
+    ):
         load_chain(path)
     assert load_chain(path, locked_joints=locked).n_dof == 7
     with pytest.raises(RobotModelError, match="locked joint 'nope' is not in the URDF"):
@@ -95,16 +104,31 @@ def test_locked_joints_turn_a_tree_into_a_chain():
         (urdf(axis="0 0 0"), "joint 'j2' has an axis of zero length"),
         (urdf(m1="-1"), "link 'a': mass -1 kg is negative"),
         (urdf(m1="0"), "link 'a': zero mass with a non-zero inertia"),
-        (urdf(inertia=("0.01", "-0.01", "0.01")), "link 'a': non-physical <inertial>: inertia about the centre of mass has a negative principal moment"),
-        (urdf(inertia=("0.01", "0.01", "0.05")), "link 'a': non-physical <inertial>: principal moments .* violate the triangle inequality"),
-        (urdf(m1="0", inertia=("0", "0", "0")).replace(LINK.format(name="b", m="1", ixx="0.01", iyy="0.01", izz="0.01"),
-                                                      '<link name="b"/>'),
-         "no moving link carries mass \\(a, b\\).* give the moving links <inertial> elements"),
-        (urdf(extra='<link name="c"/><joint name="j3" type="revolute"><parent link="a"/><child link="c"/>'
-                    '<axis xyz="1 0 0"/><limit lower="-1" upper="1" velocity="1" effort="1"/></joint>'),
-         "branching tree: body 'a' has 2 moving child joints \\(j2, j3\\)"),
-        (urdf(extra='<joint name="j9" type="fixed"><parent link="b"/><child link="ghost"/></joint>'),
-         "joint 'j9' refers to link 'ghost', which is not defined"),
+        (
+            urdf(inertia=("0.01", "-0.01", "0.01")),
+            "link 'a': non-physical <inertial>: inertia about the centre of mass has a negative principal moment",
+        ),
+        (
+            urdf(inertia=("0.01", "0.01", "0.05")),
+            "link 'a': non-physical <inertial>: principal moments .* violate the triangle inequality",
+        ),
+        (
+            urdf(m1="0", inertia=("0", "0", "0")).replace(
+                LINK.format(name="b", m="1", ixx="0.01", iyy="0.01", izz="0.01"), '<link name="b"/>'
+            ),
+            "no moving link carries mass \\(a, b\\).* give the moving links <inertial> elements",
+        ),
+        (
+            urdf(
+                extra='<link name="c"/><joint name="j3" type="revolute"><parent link="a"/><child link="c"/>'
+                '<axis xyz="1 0 0"/><limit lower="-1" upper="1" velocity="1" effort="1"/></joint>'
+            ),
+            "branching tree: body 'a' has 2 moving child joints \\(j2, j3\\)",
+        ),
+        (
+            urdf(extra='<joint name="j9" type="fixed"><parent link="b"/><child link="ghost"/></joint>'),
+            "joint 'j9' refers to link 'ghost', which is not defined",
+        ),
         (urdf(extra='<link name="island"/>'), "exactly one root link, found 2"),
         (urdf(joint_type="fixed"), ""),  # legal: one moving joint left
         (urdf().replace('xyz="0 0 0.2"', 'xyz="0 nan 0.2"'), "joint 'j2': <origin xyz='0 nan 0.2'> holds a non-finite"),
@@ -112,32 +136,54 @@ def test_locked_joints_turn_a_tree_into_a_chain():
         (urdf().replace('xyz="0 0 0.2"', 'xyz="-inf 0 0.2"'), "joint 'j2': <origin xyz='-inf 0 0.2'> holds"),
         (urdf(axis="0 nan 1"), "joint 'j2': <axis xyz='0 nan 1'> holds a non-finite value"),
         (urdf(axis="0 0 inf"), "joint 'j2': <axis xyz='0 0 inf'> holds a non-finite value"),
-        (urdf(extra='<joint name="j9" type="fixed"><parent link="b"/><child link="c"/><origin rpy="0 nan 0"/></joint>'
-                    '<link name="c"/>'), "joint 'j9': <origin"),
-        (urdf().replace('<origin xyz="0 0 0.1" rpy="0 0 0"/>', '<origin xyz="0 0 nan" rpy="0 0 0"/>', 1),
-         "link 'a': <inertial><origin xyz='0 0 nan'> holds a non-finite value"),
+        (
+            urdf(
+                extra='<joint name="j9" type="fixed"><parent link="b"/><child link="c"/><origin rpy="0 nan 0"/></joint>'
+                '<link name="c"/>'
+            ),
+            "joint 'j9': <origin",
+        ),
+        (
+            urdf().replace('<origin xyz="0 0 0.1" rpy="0 0 0"/>', '<origin xyz="0 0 nan" rpy="0 0 0"/>', 1),
+            "link 'a': <inertial><origin xyz='0 0 nan'> holds a non-finite value",
+        ),
         (urdf().replace('name="j2"', 'name="j1"'), "two <joint> elements are named 'j1'; give every joint its own"),
-        (urdf(extra=LINK.format(name="b", m="2", ixx="0.01", iyy="0.01", izz="0.01")),
-         "two <link> elements are named 'b'; give every link its own name"),
+        (
+            urdf(extra=LINK.format(name="b", m="2", ixx="0.01", iyy="0.01", izz="0.01")),
+            "two <link> elements are named 'b'; give every link its own name",
+        ),
         ("<robot name='t'><link name='a'/></robot>", "no moving joint"),
         # every number ineid reads: finite, limits not negative (0 is URDF writers' "not given")
         (urdf().replace('velocity="2"', 'velocity="nan"', 1), "joint 'j1': <limit velocity='nan'> holds a non-finite"),
-        (urdf().replace('velocity="2"', 'velocity="-3"', 1),
-         "joint 'j1': <limit velocity='-3'> is negative; give the joint's speed limit \\(a positive number\\), or "
-         "leave the attribute out for ineid's default$"),
+        (
+            urdf().replace('velocity="2"', 'velocity="-3"', 1),
+            "joint 'j1': <limit velocity='-3'> is negative; give the joint's speed limit \\(a positive number\\), or "
+            "leave the attribute out for ineid's default$",
+        ),
         (urdf().replace('effort="1"', 'effort="-1"', 1), "joint 'j1': <limit effort='-1'> is negative"),
         (urdf().replace('lower="-1"', 'lower="-inf"', 1), "joint 'j1': <limit lower='-inf'> holds a non-finite"),
-        (urdf().replace('upper="1"', 'upper="fast"', 1),
-         "joint 'j1': <limit upper='fast'> is not a number; give a number"),
+        (
+            urdf().replace('upper="1"', 'upper="fast"', 1),
+            "joint 'j1': <limit upper='fast'> is not a number; give a number",
+        ),
         (urdf().replace('lower="-1"', 'lower="2"', 1), "joint 'j1': lower limit 2.0 is not below upper limit 1.0"),
         (urdf(axis="0 1"), "joint 'j2': <axis xyz='0 1'> holds 2 numbers; give 3"),
         (urdf(m1="nan"), "link 'a': <inertial><mass value='nan'> holds a non-finite value"),
         (urdf(inertia=("0.01", "inf", "0.01")), "link 'a': <inertial><inertia iyy='inf'> holds a non-finite value"),
-        (urdf(extra='<joint name="j9" type="fixed"><parent link="b"/><child link="c"/><mimic joint="j1" '
-                    'multiplier="nan"/></joint><link name="c"/>'), "joint 'j9': <mimic multiplier='nan'> holds"),
-        (urdf(extra='<link name="c"><collision><geometry><sphere radius="nan"/></geometry></collision></link>'
-                    '<joint name="j9" type="fixed"><parent link="b"/><child link="c"/></joint>'),
-         "link 'c': <collision><geometry><sphere radius='nan'> holds a non-finite value"),
+        (
+            urdf(
+                extra='<joint name="j9" type="fixed"><parent link="b"/><child link="c"/><mimic joint="j1" '
+                'multiplier="nan"/></joint><link name="c"/>'
+            ),
+            "joint 'j9': <mimic multiplier='nan'> holds",
+        ),
+        (
+            urdf(
+                extra='<link name="c"><collision><geometry><sphere radius="nan"/></geometry></collision></link>'
+                '<joint name="j9" type="fixed"><parent link="b"/><child link="c"/></joint>'
+            ),
+            "link 'c': <collision><geometry><sphere radius='nan'> holds a non-finite value",
+        ),
     ],
 )
 def test_bad_models_raise_robot_model_error(text, message):
@@ -180,7 +226,11 @@ def test_a_parsed_urdf_is_remembered_exactly(tmp_path, monkeypatch):
     assert len(list((tmp_path / "chains").glob("*.json"))) == 1
     monkeypatch.setitem(sys.modules, "yourdfpy", None)  # any parse now fails with ImportError
     second = parse_chain(text, source="panda", locked_joints=locked)
-    assert (second.name, second.root_link, dict(second.merged_links)) == (first.name, first.root_link, dict(first.merged_links))
+    assert (second.name, second.root_link, dict(second.merged_links)) == (
+        first.name,
+        first.root_link,
+        dict(first.merged_links),
+    )
     for a, b in zip(first.joints, second.joints, strict=True):
         for f in ("name", "type", "continuous", "link", "q_lower", "q_upper", "qd_max", "qdd_max"):
             assert getattr(a, f) == getattr(b, f), f

@@ -69,15 +69,21 @@ def test_program_outputs_equal_pinocchio_kinematics(chain12):
         pq = pinocchio_q(pin_model, q[k])
         pin.rnea(pin_model, data, pq, qd[k], qdd[k])  # v, a_gf (a minus gravity), link frames
         pin.forwardKinematics(pin_model, data, pq)  # oMi (after rnea: v, a would be overwritten otherwise)
-        out = {key: np.asarray(v).ravel() for key, v in program.call(
-            {"q": q[k], "qd": qd[k], "qdd": qdd[k], "g": np.asarray(GRAVITY)}).items()}
+        out = {
+            key: np.asarray(v).ravel()
+            for key, v in program.call({"q": q[k], "qd": qd[k], "qdd": qdd[k], "g": np.asarray(GRAVITY)}).items()
+        }
         for i in range(N_JOINTS):
             placement, v, a_gf = data.oMi[i + 1], data.v[i + 1], data.a_gf[i + 1]
             z = placement.rotation @ model.chain.joints[i].axis
             want = {
-                "R": placement.rotation.ravel(), "p": placement.translation, "w": v.angular, "wd": a_gf.angular,
+                "R": placement.rotation.ravel(),
+                "p": placement.translation,
+                "w": v.angular,
+                "wd": a_gf.angular,
                 "a": a_gf.linear + np.cross(v.angular, v.linear),  # the origin's, from the spatial one
-                "axis": z, "moment": np.cross(placement.translation, z),
+                "axis": z,
+                "moment": np.cross(placement.translation, z),
             }
             for key, ref in want.items():
                 got = out[key][i * len(ref) : (i + 1) * len(ref)]
@@ -98,8 +104,10 @@ def test_composed_regressor_and_wrench_equal_pinocchio(chain12):
 
 def test_xla_log_lines_are_silenced_below_vv(monkeypatch):
     """XLA's C++ log (slow_operation_alarm and the like) is set to FATAL before JAX is imported; -vv leaves it."""
-    code = ("import os; from ineid.cli import configure_logging; configure_logging(0); import jax; "
-            "jax.jit(lambda x: x + 1)(1.0); print(os.environ['TF_CPP_MIN_LOG_LEVEL'])")
+    code = (
+        "import os; from ineid.cli import configure_logging; configure_logging(0); import jax; "
+        "jax.jit(lambda x: x + 1)(1.0); print(os.environ['TF_CPP_MIN_LOG_LEVEL'])"
+    )
     env = {k: v for k, v in os.environ.items() if k != "TF_CPP_MIN_LOG_LEVEL"}
     r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and r.stdout.strip() == "3" and r.stderr == "", r.stderr

@@ -36,7 +36,7 @@ def _theta(model, seed):
     rng, theta = np.random.default_rng(seed), model.theta_cad.copy()
     for link in model.unknown_links:
         i = model.link_names.index(link)
-        theta[10 * i:10 * i + 10] = sample_link_parameters(theta[10 * i:10 * i + 10], 1, rng)[0]
+        theta[10 * i : 10 * i + 10] = sample_link_parameters(theta[10 * i : 10 * i + 10], 1, rng)[0]
     return theta
 
 
@@ -44,8 +44,9 @@ def _simulate(model, friction, seed=3, duration=1.5):
     from ineid.data.mujoco_sim import simulate
 
     theta = _theta(model, seed)
-    return theta, simulate(model, theta, None, duration, rate=200.0, steps_per_sample=5, friction=friction,
-                           seed=seed, root_theta=ROOT)
+    return theta, simulate(
+        model, theta, None, duration, rate=200.0, steps_per_sample=5, friction=friction, seed=seed, root_theta=ROOT
+    )
 
 
 def test_mujoco_joint_torques_are_ineids_without_friction(arm):
@@ -65,8 +66,13 @@ def test_mujoco_joint_torques_with_friction_are_ineids_plus_the_drive(arm):
     from ineid.data.mujoco_sim import JointFriction, root_wrench
 
     n = arm.n_dof
-    drive = JointFriction(viscous=np.linspace(0.1, 0.3, n), coulomb=np.linspace(0.2, 0.1, n),
-                          armature=np.linspace(0.02, 0.01, n), stribeck=0.1, stribeck_velocity=0.05)
+    drive = JointFriction(
+        viscous=np.linspace(0.1, 0.3, n),
+        coulomb=np.linspace(0.2, 0.1, n),
+        armature=np.linspace(0.02, 0.01, n),
+        stribeck=0.1,
+        stribeck_velocity=0.05,
+    )
     theta, sim = _simulate(arm, drive)
     ia = drive.per_joint(n)["armature"]
     tau = arm.joint_torques(sim.q, sim.qd, sim.qdd, theta) + ia * sim.qdd + sim.friction
@@ -98,19 +104,30 @@ def test_joint_torque_channel_fits_mujoco_drives_exactly(model):
     assert np.abs(w @ x - target).max() < 1e-8 * np.abs(target).max()
     names = channel.extra_names(model)
     per = drive.per_joint(model.n_dof)
-    truth = [per["viscous" if n.endswith(".fv") else "armature"][model.joint_names.index(n.rsplit(".", 1)[0])]
-             for n in names]
+    truth = [
+        per["viscous" if n.endswith(".fv") else "armature"][model.joint_names.index(n.rsplit(".", 1)[0])] for n in names
+    ]
     # the first joint's armature is collinear with the links' inertia about its axis; the others are seen
     seen = [i for i, n in enumerate(names) if n.endswith(".fv")]
-    assert np.allclose(x[len(u):][seen], np.asarray(truth)[seen], rtol=1e-6)
+    assert np.allclose(x[len(u) :][seen], np.asarray(truth)[seen], rtol=1e-6)
 
 
 def test_study_quick_through_the_cli(run, tmp_path):
     """The quick size (2 configurations of 6 s) with three formulations: each compiles its own kernels, and
     ``both`` and ``two-step`` run the same code with other settings (the docs' table has them all)."""
     plot, table = tmp_path / "formulations.png", tmp_path / "formulations.csv"
-    r = run("-q", "study", "formulations", "--quick", "--formulations", "wrench,torque,torque+friction",
-            "--plot", plot, "--csv", table)
+    r = run(
+        "-q",
+        "study",
+        "formulations",
+        "--quick",
+        "--formulations",
+        "wrench,torque,torque+friction",
+        "--plot",
+        plot,
+        "--csv",
+        table,
+    )
     assert r.exit_code == 0, r.output
     assert "Formulations study, sweaty-arm" in r.output and "simulated drives per joint" in r.output
     assert plot.stat().st_size > 10_000
@@ -144,12 +161,16 @@ def test_study_refuses_a_payload_in_one_line(run, tmp_path):
     plot = tmp_path / "f.png"
     r = run("study", "formulations", "--quick", "--unknown-links", "hand", "--plot", plot)
     assert r.exit_code == 1
-    assert r.output.strip() == ("Error: ineid study formulations simulates moving links, and hand is a payload: "
-                                "choose --unknown-links among the moving links")
+    assert r.output.strip() == (
+        "Error: ineid study formulations simulates moving links, and hand is a payload: "
+        "choose --unknown-links among the moving links"
+    )
     assert not plot.exists()
 
 
 def test_the_main_job_never_imports_mujoco():
-    code = ("import sys, ineid, ineid.data, ineid.identify, ineid.cli, ineid.identify.study_formulations; "
-            "assert 'mujoco' not in sys.modules, 'mujoco imported'")
+    code = (
+        "import sys, ineid, ineid.data, ineid.identify, ineid.cli, ineid.identify.study_formulations; "
+        "assert 'mujoco' not in sys.modules, 'mujoco imported'"
+    )
     subprocess.run([sys.executable, "-c", code], check=True)

@@ -112,12 +112,12 @@ def test_recordings_and_text_given_to_solve_point_to_data_import(run, tmp_path):
     out = tmp_path / "r.h5"
     cases = {
         csv: f"{csv} is a CSV recording, not an ineid dataset (HDF5); import it first: ineid data import {csv} "
-             "--robot ROBOT --out rec.h5",
+        "--robot ROBOT --out rec.h5",
         bag: f"{bag} is a ROS 1 bag, not an ineid dataset (HDF5); import it first",
         mcap: f"{mcap} is an MCAP recording, not an ineid dataset (HDF5); import it first",
         ros2: f"{ros2} is a ROS 2 bag folder, not an ineid dataset (HDF5); import it first",
         bom: f"{bom} is a text file, not an ineid dataset (HDF5); a recording is imported with `ineid data import`",
-    }  # fmt: skip
+    }
     for path, message in cases.items():
         line = one_line_error(run("solve", path, "--out", out))
         assert line.startswith(f"Error: {message}"), line

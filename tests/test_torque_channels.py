@@ -58,12 +58,17 @@ def test_actuation_columns(model, frames):
 def test_asymmetric_and_smooth_friction(model, frames):
     q, qd, qdd = frames
     ch = JointTorque().with_actuation(friction=("viscous", "coulomb"), asymmetric=True, coulomb_zone=0.05)
-    assert ch.extra_names(model)[:4] == ("shoulder_pitch.fv+", "shoulder_pitch.fv-", "shoulder_pitch.fc+",
-                                         "shoulder_pitch.fc-")
+    assert ch.extra_names(model)[:4] == (
+        "shoulder_pitch.fv+",
+        "shoulder_pitch.fv-",
+        "shoulder_pitch.fc+",
+        "shoulder_pitch.fc-",
+    )
     e = ch.extra_rows(model, q, qd, qdd)[:, 0, :4]
     v, c = qd[:, 0], np.tanh(qd[:, 0] / 0.05)
-    assert np.allclose(e, np.stack([np.maximum(v, 0), np.minimum(v, 0), np.maximum(c, 0), np.minimum(c, 0)], -1),
-                       rtol=0, atol=1e-15)
+    assert np.allclose(
+        e, np.stack([np.maximum(v, 0), np.minimum(v, 0), np.maximum(c, 0), np.minimum(c, 0)], -1), rtol=0, atol=1e-15
+    )
     # a symmetric coefficient is the asymmetric pair with equal values
     assert np.allclose(e[:, 0] + e[:, 1], v) and np.allclose(e[:, 2] + e[:, 3], c)
 
@@ -82,24 +87,33 @@ def test_motor_current_reads_torques_through_the_drive(model, frames):
         MotorCurrent(torque_constant=(0, 1), gear_ratio=(1, 1))
 
 
-@pytest.mark.parametrize("channel", [
-    FULL,
-    JointTorque(key="tau_motor", friction=("coulomb",), coulomb_zone=0.1, asymmetric=True, offsets=True),
-    MotorCurrent(torque_constant=(0.1, 0.2), gear_ratio=(50, 60), armature=True),
-    LinkWrench(link="upper_arm", offsets=True),
-])
+@pytest.mark.parametrize(
+    "channel",
+    [
+        FULL,
+        JointTorque(key="tau_motor", friction=("coulomb",), coulomb_zone=0.1, asymmetric=True, offsets=True),
+        MotorCurrent(torque_constant=(0.1, 0.2), gear_ratio=(50, 60), armature=True),
+        LinkWrench(link="upper_arm", offsets=True),
+    ],
+)
 def test_records_round_trip(channel):
     assert channel_from_dict(channel.to_dict()) == channel
 
 
-@pytest.mark.parametrize("record, message", [
-    ({"kind": "joint_torque", "key": "tau", "friction": ["stiction"]}, "friction must be a list of viscous, coulomb"),
-    ({"kind": "joint_torque", "key": "tau", "friction": "viscous"}, "friction must be a list"),
-    ({"kind": "joint_torque", "key": "tau", "coulomb_zone": -1}, "Coulomb zone must be a finite number >= 0"),
-    ({"kind": "joint_torque", "key": "tau", "armature": "yes"}, "armature must be true or false"),
-    ({"kind": "link_wrench", "key": "w"}, "must name its link"),
-    ({"kind": "motor_current", "key": "i", "torque_constant": [1], "gear_ratio": [1, 2]}, "1 torque constants"),
-])
+@pytest.mark.parametrize(
+    "record, message",
+    [
+        (
+            {"kind": "joint_torque", "key": "tau", "friction": ["stiction"]},
+            "friction must be a list of viscous, coulomb",
+        ),
+        ({"kind": "joint_torque", "key": "tau", "friction": "viscous"}, "friction must be a list"),
+        ({"kind": "joint_torque", "key": "tau", "coulomb_zone": -1}, "Coulomb zone must be a finite number >= 0"),
+        ({"kind": "joint_torque", "key": "tau", "armature": "yes"}, "armature must be true or false"),
+        ({"kind": "link_wrench", "key": "w"}, "must name its link"),
+        ({"kind": "motor_current", "key": "i", "torque_constant": [1], "gear_ratio": [1, 2]}, "1 torque constants"),
+    ],
+)
 def test_bad_records_are_one_line(record, message):
     with pytest.raises(DatasetError, match=message) as info:
         channel_from_dict(record)
@@ -122,10 +136,15 @@ def test_sensor_pose_on_a_link(model, frames):
 
 def test_sensor_frame_welded_to_a_link(tmp_path):
     """A URDF frame welded to a moving link places the sensor on it; a massive known link beyond is refused."""
-    text = (FIXTURES / "mixed_chain.urdf").read_text().replace(
-        '<parent link="l3"/><child link="tool"/>',
-        '<parent link="l3"/><child link="ft"/></joint><link name="ft"/>'
-        '<joint name="ft_fixed" type="fixed"><parent link="ft"/><child link="tool"/>')
+    text = (
+        (FIXTURES / "mixed_chain.urdf")
+        .read_text()
+        .replace(
+            '<parent link="l3"/><child link="tool"/>',
+            '<parent link="l3"/><child link="ft"/></joint><link name="ft"/>'
+            '<joint name="ft_fixed" type="fixed"><parent link="ft"/><child link="tool"/>',
+        )
+    )
     path = tmp_path / "wrist.urdf"
     path.write_text(text)
     model = ineid.load_robot(path)
@@ -148,7 +167,8 @@ def test_stacked_wrench_and_torques(model, frames):
     rows = cs.rows(model, q, qd, qdd)
     assert rel_err(rows[:, 6:], model.joint_torque_regressor(q, qd, qdd)) < 1e-15
     assert dataclasses.replace(FULL, friction=()).extra_names(model) == tuple(
-        f"{j}.{t}" for j in model.joint_names for t in ("offset", "Ia"))
+        f"{j}.{t}" for j in model.joint_names for t in ("offset", "Ia")
+    )
 
 
 def test_a_dataset_whose_wrist_sensor_sees_nothing_is_one_line(run, tmp_path):
@@ -157,10 +177,37 @@ def test_a_dataset_whose_wrist_sensor_sees_nothing_is_one_line(run, tmp_path):
     import h5py
 
     good = tmp_path / "upper.h5"
-    assert run("-q", "data", "generate", "sweaty-arm", "--factorial", "2", "--n-frames", "10",
-               "--sensor-pose", "upper_arm", "--out", good).exit_code == 0
-    r = run("-q", "data", "generate", "sweaty-arm", "--factorial", "2", "--n-frames", "10",
-            "--sensor-pose", "forearm", "--out", tmp_path / "x.h5")
+    assert (
+        run(
+            "-q",
+            "data",
+            "generate",
+            "sweaty-arm",
+            "--factorial",
+            "2",
+            "--n-frames",
+            "10",
+            "--sensor-pose",
+            "upper_arm",
+            "--out",
+            good,
+        ).exit_code
+        == 0
+    )
+    r = run(
+        "-q",
+        "data",
+        "generate",
+        "sweaty-arm",
+        "--factorial",
+        "2",
+        "--n-frames",
+        "10",
+        "--sensor-pose",
+        "forearm",
+        "--out",
+        tmp_path / "x.h5",
+    )
     assert r.exit_code == 1 and "a sensor on 'forearm' reads nothing" in r.output and not (tmp_path / "x.h5").exists()
     with h5py.File(good, "r+") as f:  # the same dataset, its channel moved to the last link
         f.attrs["channels"] = f.attrs["channels"].replace('"link": "upper_arm"', '"link": "forearm"')

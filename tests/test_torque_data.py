@@ -30,8 +30,7 @@ def _torque_csv(lab, path, wrench: bool = True, spelling: str = "tau{i}", rows: 
     if wrench:
         header += ["fx", "fy", "fz", "mx", "my", "mz"]
         columns.append(lab.reading[rows])
-    np.savetxt(path, np.concatenate(columns, axis=1), delimiter=",", header=",".join(header), comments="",
-               fmt="%.17g")
+    np.savetxt(path, np.concatenate(columns, axis=1), delimiter=",", header=",".join(header), comments="", fmt="%.17g")
     return path
 
 
@@ -47,8 +46,11 @@ def _at_grid(lab, ds) -> np.ndarray:
 
 def _truth(model) -> dict[str, float]:
     """Different actuation on every joint: viscous, Coulomb, offset, armature."""
-    return {f"{j}.{t}": v for k, j in enumerate(model.joint_names)
-            for t, v in (("fv", 0.05 * (k + 1)), ("fc", 0.2 + 0.1 * k), ("offset", 0.2 * k - 0.3), ("Ia", 0.01 * (k + 1)))}
+    return {
+        f"{j}.{t}": v
+        for k, j in enumerate(model.joint_names)
+        for t, v in (("fv", 0.05 * (k + 1)), ("fc", 0.2 + 0.1 * k), ("offset", 0.2 * k - 0.3), ("Ia", 0.01 * (k + 1)))
+    }
 
 
 def _pinocchio_torques(model, theta, q, qd, qdd) -> np.ndarray:
@@ -121,13 +123,30 @@ def test_asymmetric_friction_and_torque_noise(model):
     with pytest.raises(DatasetError, match=r"no simulated extra parameter 'elbow\.fv'; the channels take"):
         generate_dataset(model, dataclasses.replace(base, extra_truth={"elbow.fv+": 0.3, "elbow.fv": 0.1}))
     with pytest.raises(DatasetError, match="actuation values .* are for joint torques"):
-        generate_dataset(model, DatasetSpec(Combination("random", n_configs=2), n_frames=3, extra_truth={"elbow.fv": 1}))
+        generate_dataset(
+            model, DatasetSpec(Combination("random", n_configs=2), n_frames=3, extra_truth={"elbow.fv": 1})
+        )
 
 
 def test_cli_generate_torques_and_info(run, tmp_path):
     out = tmp_path / "both.h5"
-    r = run("-q", "data", "generate", "--n-configs", "2", "--n-frames", "10", "--channels", "wrench,torque",
-            "--friction-truth", "fv=0.05,fc=0.2,elbow.Ia=0.01", "--noise", "force=0.5,tau=0.02", "--out", out)
+    r = run(
+        "-q",
+        "data",
+        "generate",
+        "--n-configs",
+        "2",
+        "--n-frames",
+        "10",
+        "--channels",
+        "wrench,torque",
+        "--friction-truth",
+        "fv=0.05,fc=0.2,elbow.Ia=0.01",
+        "--noise",
+        "force=0.5,tau=0.02",
+        "--out",
+        out,
+    )
     assert r.exit_code == 0, r.output
     ds = load_dataset(out)
     assert ds.meta.channels.keys == ("wrench", "tau") and ds.meta.noise["tau"] == [0.02]
@@ -157,8 +176,23 @@ def test_cli_generate_a_wrist_sensor(run, tmp_path, model):
     from ineid.channels import BaseWrench, LinkWrench, SensorPose, sensor_channel
 
     out = tmp_path / "wrist.h5"
-    r = run("-q", "data", "generate", "--n-configs", "2", "--n-frames", "8", "--channels", "wrench,torque",
-            "--sensor-pose", "upper_arm:0.01,0,0.05,0,0,0.3", "--noise", "force=0.5,moment=0.05,tau=0.01", "--out", out)
+    r = run(
+        "-q",
+        "data",
+        "generate",
+        "--n-configs",
+        "2",
+        "--n-frames",
+        "8",
+        "--channels",
+        "wrench,torque",
+        "--sensor-pose",
+        "upper_arm:0.01,0,0.05,0,0,0.3",
+        "--noise",
+        "force=0.5,moment=0.05,tau=0.01",
+        "--out",
+        out,
+    )
     assert r.exit_code == 0, r.output
     ds = load_dataset(out)
     wrist = ds.meta.channels["wrench_upper_arm"]  # what the forearm exerts on the upper arm, at the sensor
@@ -198,8 +232,11 @@ def test_csv_torques_are_filtered_like_the_wrench_and_read_back(lab, tmp_path):
     assert err.max() < TOL_FILTER * scale and np.median(err) < 1e-7 * scale
     # the same filter as the angles: the torques keep their instants (a zero-phase filter)
     plain, _ = import_recording(lab.file("csv"), lab.model, ImportSettings(sensor_pose=POSE_TEXT))
-    assert np.array_equal(plain.time, ds.time) and np.array_equal(plain.q, ds.q) and np.array_equal(plain.wrench,
-                                                                                                     ds.wrench)
+    assert (
+        np.array_equal(plain.time, ds.time)
+        and np.array_equal(plain.q, ds.q)
+        and np.array_equal(plain.wrench, ds.wrench)
+    )
     back = load_dataset(ds.save(tmp_path / "rec.h5"))
     assert back.meta.channels == ds.meta.channels
     assert np.array_equal(back.channel_values["tau"], ds.channel_values["tau"])
@@ -216,8 +253,13 @@ def test_imported_torques_are_the_model_at_the_filtered_states(model, tmp_path, 
     from ineid.data.generate import actuated
 
     truth = {"elbow.fc": 0.3} if coulomb else {"elbow.fv": 0.1, "shoulder_roll.Ia": 0.02, "elbow.offset": 0.5}
-    spec = DatasetSpec(Combination("random", n_configs=1), n_frames=4000, frames=FrameSampling("fourier",
-                       base_frequency=0.25), channels=ChannelSet.of(BaseWrench(), JointTorque()), extra_truth=truth)
+    spec = DatasetSpec(
+        Combination("random", n_configs=1),
+        n_frames=4000,
+        frames=FrameSampling("fourier", base_frequency=0.25),
+        channels=ChannelSet.of(BaseWrench(), JointTorque()),
+        extra_truth=truth,
+    )
     ds = generate_dataset(model, spec)  # 1 kHz, 4 s, one period
     rec, _ = import_recording(write_recording_csv(tmp_path / "t.csv", ds, derivatives=False), model, ImportSettings())
     full = actuated(JointTorque())
@@ -248,7 +290,9 @@ def test_torques_without_a_wrench(lab, tmp_path):
     from ineid.data import write_recording_csv
 
     again, _ = import_recording(write_recording_csv(tmp_path / "again.csv", ds), lab.model, ImportSettings())
-    assert again.meta.channels.keys == ("tau",) and np.array_equal(again.channel_values["tau"], ds.channel_values["tau"])
+    assert again.meta.channels.keys == ("tau",) and np.array_equal(
+        again.channel_values["tau"], ds.channel_values["tau"]
+    )
 
 
 def test_bag_efforts_are_the_joint_torques_matched_by_name(lab, tmp_path):
@@ -333,8 +377,11 @@ def test_version_4_is_refused_by_an_older_reader_with_one_line(lab, tmp_path, mo
     with h5py.File(path, "r") as f:
         assert int(f.attrs["version"]) == 4 and json.loads(f.attrs["extra_truth"]) is None
     monkeypatch.setattr(read, "VERSION", 3)  # what ineid before issue 21 says
-    with pytest.raises(DatasetError, match=r"format version 4 is not supported \(this ineid reads versions 1\.\.3\); "
-                                           "upgrade ineid"):
+    with pytest.raises(
+        DatasetError,
+        match=r"format version 4 is not supported \(this ineid reads versions 1\.\.3\); "
+        "upgrade ineid",
+    ):
         load_dataset(path)
 
 
@@ -347,7 +394,9 @@ def test_extra_truth_is_stored_and_checked(lab, tmp_path):
     assert back.meta.extra_truth == truth
     with h5py.File(path, "r+") as f:
         f.attrs["extra_truth"] = json.dumps({"elbow.fv": "fast"})
-    with pytest.raises(DatasetError, match=r"truth\.h5: extra_truth: 'elbow\.fv' = 'fast' is not a named finite number"):
+    with pytest.raises(
+        DatasetError, match=r"truth\.h5: extra_truth: 'elbow\.fv' = 'fast' is not a named finite number"
+    ):
         load_dataset(path)
     with h5py.File(path, "r+") as f:  # version 3 had none: the attribute is not read
         f.attrs["version"] = 3
@@ -356,8 +405,13 @@ def test_extra_truth_is_stored_and_checked(lab, tmp_path):
 
 def test_channel_noise_is_recorded_and_drawn_after_the_others():
     rng = np.random.default_rng
-    arrays = {"q": np.zeros((2, 5, 4)), "qd": np.zeros((2, 5, 4)), "qdd": np.zeros((2, 5, 4)),
-              "wrench": np.zeros((2, 5, 6)), "tau": np.ones((2, 5, 4))}
+    arrays = {
+        "q": np.zeros((2, 5, 4)),
+        "qd": np.zeros((2, 5, 4)),
+        "qdd": np.zeros((2, 5, 4)),
+        "wrench": np.zeros((2, 5, 6)),
+        "tau": np.ones((2, 5, 4)),
+    }
     plain = NoiseModel.create(4, force=0.5, q=0.01)
     noisy = NoiseModel.create(4, force=0.5, q=0.01, channels={"tau": [0.1, 0.2, 0.3, 0.4]})
     a, b = plain.apply(arrays, rng(3)), noisy.apply(arrays, rng(3))
@@ -383,8 +437,14 @@ def test_bad_torque_recordings_are_one_line_and_leave_no_file(lab, run, tmp_path
     rows = slice(0, n)
     three = tmp_path / "three.csv"
     header = ["time", *(f"q{i}" for i in range(1, 5)), "tau1", "tau2", "tau3", "fx", "fy", "fz", "mx", "my", "mz"]
-    np.savetxt(three, np.concatenate([sim.time[rows, None], sim.q[rows], sim.tau[rows, :3], lab.reading[rows]], axis=1),
-               delimiter=",", header=",".join(header), comments="", fmt="%.17g")
+    np.savetxt(
+        three,
+        np.concatenate([sim.time[rows, None], sim.q[rows], sim.tau[rows, :3], lab.reading[rows]], axis=1),
+        delimiter=",",
+        header=",".join(header),
+        comments="",
+        fmt="%.17g",
+    )
     nan = _torque_csv(lab, tmp_path / "nan.csv", rows=rows)
     lines = nan.read_text().splitlines()
     cells = lines[101].split(",")
@@ -393,15 +453,25 @@ def test_bad_torque_recordings_are_one_line_and_leave_no_file(lab, run, tmp_path
     nan.write_text("\n".join(lines) + "\n")
     other = _torque_csv(lab, tmp_path / "other.csv", rows=rows, spelling="tau_{joint}")
     other.write_text(other.read_text().replace("tau_elbow", "tau_wrist", 1))
-    short = write_bag(tmp_path / "short.bag", "ros1", model.joint_names, sim.time[rows], sim.q[rows], sim.time[rows],
-                      lab.reading[rows], effort=[sim.tau[k, :3] for k in range(n)])
+    short = write_bag(
+        tmp_path / "short.bag",
+        "ros1",
+        model.joint_names,
+        sim.time[rows],
+        sim.q[rows],
+        sim.time[rows],
+        lab.reading[rows],
+        effort=[sim.tau[k, :3] for k in range(n)],
+    )
     currents = tmp_path / "currents.csv"
     currents.write_text(_torque_csv(lab, tmp_path / "c.csv", rows=rows).read_text().replace("tau", "i"))
     only = _torque_csv(lab, tmp_path / "only.csv", wrench=False, rows=rows)
     cases = [
         ((lab.file("csv"), "--sensor-pose", "wrist:0,0,0.1,0,0,0"), "'wrist' is not a moving link of sweaty-arm"),
-        ((only, "--flip-wrench", "--sensor-pose", "hand"), "--sensor-pose, --flip-wrench set up the F/T sensor, and "
-                                                           "the recording has no wrench"),
+        (
+            (only, "--flip-wrench", "--sensor-pose", "hand"),
+            "--sensor-pose, --flip-wrench set up the F/T sensor, and the recording has no wrench",
+        ),
         ((only, "--gear-ratio", "100"), "--torque-constant and --gear-ratio are the motor currents' drives"),
         (three, "the joint torque columns are for 3 joints (up to tau3), but sweaty-arm has 4"),
         (nan, "line 102, column 'tau2' is nan; values must be finite"),
@@ -411,8 +481,16 @@ def test_bad_torque_recordings_are_one_line_and_leave_no_file(lab, run, tmp_path
     ]
     for args, message in cases:
         out = tmp_path / "out.h5"
-        r = run("-q", "data", "import", *(args if isinstance(args, tuple) else (args,)), "--robot", "sweaty-arm",
-                "--out", out)
+        r = run(
+            "-q",
+            "data",
+            "import",
+            *(args if isinstance(args, tuple) else (args,)),
+            "--robot",
+            "sweaty-arm",
+            "--out",
+            out,
+        )
         assert r.exit_code == 1 and "Traceback" not in r.output, r.output
         text = [line for line in r.output.splitlines() if line.strip()]
         assert len(text) == 1 and text[0].startswith("Error: ") and message in text[0], (message, r.output)

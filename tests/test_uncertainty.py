@@ -15,8 +15,9 @@ AXIS_NOISE = NoiseModel.create(4, force=[0.2, 0.5, 1.5], moment=[0.02, 0.05, 0.1
 
 @pytest.fixture(scope="module")
 def axis_noisy(model):
-    return generate_dataset(model, DatasetSpec(Combination("random", n_configs=200), n_frames=30, seed=7,
-                                               noise=AXIS_NOISE))
+    return generate_dataset(
+        model, DatasetSpec(Combination("random", n_configs=200), n_frames=30, seed=7, noise=AXIS_NOISE)
+    )
 
 
 def _z_spread(res, ds, base) -> np.ndarray:
@@ -44,8 +45,15 @@ def test_known_uncertainty_covers_cad_errors_of_the_known_links(model, base):
     """Monte Carlo over CAD errors drawn as the model states: z-scores near 1 with the option, far above without."""
     from ineid.identify.known import known_std
 
-    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=200), n_frames=30, seed=11,
-                                             noise=NoiseModel.create(4, force=0.05, moment=0.005)))
+    ds = generate_dataset(
+        model,
+        DatasetSpec(
+            Combination("random", n_configs=200),
+            n_frames=30,
+            seed=11,
+            noise=NoiseModel.create(4, force=0.05, moment=0.005),
+        ),
+    )
     frac = 0.05
     std_k = known_std(model, [("*", frac)])
     err_k = np.random.default_rng(3).standard_normal((ds.n_configs, len(std_k))) * std_k  # each its own CAD error
@@ -83,8 +91,12 @@ def test_known_uncertainty_per_link_and_bad_links(model):
 @pytest.fixture(scope="module")
 def sessions(model):
     """Three 'recordings' of the same configurations (the same links), 30 frames each, offsets of their own."""
-    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=3), n_frames=90, seed=5,
-                                             noise=NoiseModel.create(4, force=0.3, moment=0.03)))
+    ds = generate_dataset(
+        model,
+        DatasetSpec(
+            Combination("random", n_configs=3), n_frames=90, seed=5, noise=NoiseModel.create(4, force=0.3, moment=0.03)
+        ),
+    )
     parts = [ds.select(frames=slice(30 * k, 30 * (k + 1))) for k in range(3)]
     offsets = np.random.default_rng(2).normal(0.0, [2, 2, 2, 0.2, 0.2, 0.2], size=(3, 6))
     for p, b in zip(parts, offsets, strict=True):
@@ -102,15 +114,22 @@ def test_joint_fit_has_its_own_offsets_per_recording_and_validates_on_another(mo
     assert res.n_frames_fit == 60 and res.n_frames_validation == 30 and res.success.all()
 
     def rows(d):  # through CasADi: an independent route, nothing to compile
-        w, y = zip(*(stack_casadi(model, d.q[i], d.qd[i], d.qdd[i], d.wrench[i], d.theta_known)
-                     for i in range(d.n_configs)), strict=True)
+        w, y = zip(
+            *(stack_casadi(model, d.q[i], d.qd[i], d.qdd[i], d.wrench[i], d.theta_known) for i in range(d.n_configs)),
+            strict=True,
+        )
         return np.array(w), np.array(y)
 
     # the reference: each recording centred on its own, stacked, one QR
     parts = [remove_offsets(*rows(d), 6)[:2] for d in (a, b)]
     bias_base = base_parameters(model, bias=True)
-    ref = fit_base(np.concatenate([w for w, _ in parts], 1), np.concatenate([y for _, y in parts], 1), bias_base,
-                   "none", axis_offsets=np.full(6, 2.0))
+    ref = fit_base(
+        np.concatenate([w for w, _ in parts], 1),
+        np.concatenate([y for _, y in parts], 1),
+        bias_base,
+        "none",
+        axis_offsets=np.full(6, 2.0),
+    )
     np.testing.assert_allclose(res.base_hat, ref.beta, rtol=1e-8, atol=1e-10)
     # each recording's offsets: up to what a constant wrench cannot be told from (the weight of mass at the
     # shoulder, the same in both), so their difference is the difference of the true offsets
@@ -134,8 +153,21 @@ def test_solve_several_recordings_cli(run, tmp_path, sessions):
     (a, b, c), _ = sessions
     paths = [save_dataset(d, tmp_path / f"{n}.h5") for n, d in zip("abc", (a, b, c), strict=True)]
     out = tmp_path / "r.h5"
-    r = run("solve", paths[0], paths[1], "--validate", paths[2], "--bias", "estimate", "--known-uncertainty", "0.03",
-            "--known-uncertainty", "shoulder_roll_link=0.1", "--out", out)
+    r = run(
+        "solve",
+        paths[0],
+        paths[1],
+        "--validate",
+        paths[2],
+        "--bias",
+        "estimate",
+        "--known-uncertainty",
+        "0.03",
+        "--known-uncertainty",
+        "shoulder_roll_link=0.1",
+        "--out",
+        out,
+    )
     assert r.exit_code == 0, r.output
     assert "validation on" in r.output and "relative error" in r.output
     res = load_results(out)
@@ -150,8 +182,12 @@ def test_solve_several_recordings_cli(run, tmp_path, sessions):
     info = " ".join(run("results", "info", out).output.split())  # rich wraps at the path's length
     assert "recording 2:" in info and "validation:" in info and "fitted alone" in info
     # another robot's recording: one line naming both, no file
-    other = dataclasses.replace(c, meta=dataclasses.replace(
-        c.meta, robot="other-arm", urdf=c.meta.urdf.replace('name="sweaty-arm"', 'name="other-arm"')))
+    other = dataclasses.replace(
+        c,
+        meta=dataclasses.replace(
+            c.meta, robot="other-arm", urdf=c.meta.urdf.replace('name="sweaty-arm"', 'name="other-arm"')
+        ),
+    )
     bad = save_dataset(other, tmp_path / "other.h5")
     for args in ((paths[0], "--validate", bad), (paths[0], bad)):
         r = run("solve", *args, "--out", tmp_path / "x.h5")

@@ -28,8 +28,9 @@ LEVEL1 = {"force": 0.5, "moment": 0.05, "qd": 0.01, "qdd": 0.1}
 
 def _data(model, n_configs, n_frames, seed, glitch=0.0, noise=True):
     nm = NoiseModel.create(model.n_dof, **LEVEL1, glitch_rate=glitch) if noise else None
-    return generate_dataset(model, DatasetSpec(Combination("random", n_configs=n_configs), n_frames=n_frames, seed=seed,
-                                               noise=nm))  # fmt: skip
+    return generate_dataset(
+        model, DatasetSpec(Combination("random", n_configs=n_configs), n_frames=n_frames, seed=seed, noise=nm)
+    )
 
 
 def _layer_inputs(model, ds, base):
@@ -55,8 +56,12 @@ def test_layer_is_weighted_least_squares_with_the_noise_weights_and_no_prior(mod
     scale = base.scales[base.base_index]
     np.testing.assert_allclose(theta @ base.B.T / scale, ref.beta / scale, rtol=0, atol=1e-9)
     # the null-space rule is the floor's: B theta = beta exactly, the rest from the training correlation
-    np.testing.assert_allclose(theta, ctx.identifiable_part(np.asarray(ref.beta) @ np.linalg.pinv(base.B).T),
-                               rtol=0, atol=1e-9 * np.abs(theta).max())  # fmt: skip
+    np.testing.assert_allclose(
+        theta,
+        ctx.identifiable_part(np.asarray(ref.beta) @ np.linalg.pinv(base.B).T),
+        rtol=0,
+        atol=1e-9 * np.abs(theta).max(),
+    )
     if not noise:  # clean data: the identifiable combinations exactly
         truth = ds.theta_unknown @ base.B.T
         assert np.max(np.abs(theta @ base.B.T - truth) / scale) < 1e-10
@@ -71,8 +76,9 @@ def _perturbed(params, std, key):
     """Every weight moved off its start by N(0, std^2) (the last layers start at zero)."""
     leaves, tree = jax.tree_util.tree_flatten(params)
     keys = jax.random.split(key, len(leaves))
-    return jax.tree_util.tree_unflatten(tree, [w + std * jax.random.normal(k, w.shape, w.dtype)
-                                               for w, k in zip(leaves, keys, strict=True)])  # fmt: skip
+    return jax.tree_util.tree_unflatten(
+        tree, [w + std * jax.random.normal(k, w.shape, w.dtype) for w, k in zip(leaves, keys, strict=True)]
+    )
 
 
 def test_untrained_layer_is_the_gaussian_prior_estimate(model, base):
@@ -114,8 +120,9 @@ def test_model_gradients_match_finite_differences(model, base):
     params = net.init(jax.random.key(2), *(a[:1] for a in inputs))
     params = _perturbed(params, 0.05, jax.random.key(3))  # so that every path carries a gradient
     x, psi, y = (jnp.asarray(a[:2]) for a in inputs)
-    check_grads(jax.jit(lambda prm: jnp.sum(net.apply(prm, x, psi, y) ** 2)), (params,), order=1, modes=("rev",),
-                eps=1e-6)  # fmt: skip
+    check_grads(
+        jax.jit(lambda prm: jnp.sum(net.apply(prm, x, psi, y) ** 2)), (params,), order=1, modes=("rev",), eps=1e-6
+    )
 
 
 # -- glitches -------------------------------------------------------------------------------------
@@ -146,8 +153,9 @@ def test_glitches_scale_the_force_noise_of_some_frames(model):
 @pytest.fixture(scope="module")
 def glitch_run(model, tmp_path_factory):
     ds = _data(model, 1000, 10, SEED + 3, glitch=0.02)
-    cfg = TrainConfig(model=ModelSpec("wls", frames=10), epochs=8, batch=128, lr=3e-3, patience=0,
-                      n_train=600, n_val=150, n_test=250)  # fmt: skip
+    cfg = TrainConfig(
+        model=ModelSpec("wls", frames=10), epochs=8, batch=128, lr=3e-3, patience=0, n_train=600, n_val=150, n_test=250
+    )
     run_dir = tmp_path_factory.mktemp("wls") / "run"
     train(ds, cfg, run_dir, model=model)
     return ds, run_dir
@@ -157,8 +165,11 @@ def test_short_training_beats_least_squares_on_glitchy_data(model, glitch_run):
     ds, run_dir = glitch_run
     run = load_run(run_dir)
     ev = evaluate(run, ds, model=model)
-    net, ls, gp = (ev.network_base["overall_median"], ev.linear_base["overall_median"],
-                   ev.gaussian_base["overall_median"])  # fmt: skip
+    net, ls, gp = (
+        ev.network_base["overall_median"],
+        ev.linear_base["overall_median"],
+        ev.gaussian_base["overall_median"],
+    )
     assert net < ls / 1.5
     assert net <= gp * 1.02  # it starts as the Gaussian-prior estimate and training keeps it there or better
     metrics = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
@@ -187,7 +198,9 @@ def test_solve_with_a_run_dataset_and_recording(model, glitch_run, tmp_path):
     assert one.theta_true is None
     np.testing.assert_allclose(one.theta_hat[0], expected[0], rtol=1e-9)
     np.testing.assert_allclose(one.fit_rms[0], res.fit_rms[0], rtol=1e-9)
-    tilted = dataclasses.replace(rec, meta=dataclasses.replace(rec.meta, sensor=SensorPose(rpy=(np.pi, 0.0, 0.0)).to_dict()))
+    tilted = dataclasses.replace(
+        rec, meta=dataclasses.replace(rec.meta, sensor=SensorPose(rpy=(np.pi, 0.0, 0.0)).to_dict())
+    )
     with pytest.raises(ineid.IneidError, match="this recording's wrench is in a sensor frame"):
         solve_dataset(tilted, SolveSettings(method="network", run=str(run_dir)), model=model)
     with pytest.raises(ValueError, match="needs run"):
@@ -237,8 +250,16 @@ def test_ray_engine_runs_a_sweep_and_reports_a_failed_trial(model, tmp_path):
     ds = _data(model, 60, 4, SEED + 4, noise=False)
     base = TrainConfig(epochs=1, batch=16, n_train=30, n_val=10, n_test=20)
     # two trials: K = 2 trains; K = 8 fails in its worker (the dataset has 4 frames per configuration)
-    rows = sweep(ds, Grid(archs=("simple",), frames=(2, 8)), base, tmp_path / "sw", model=model,
-                 engine="ray", cpus_per_trial=1, ray_init={"num_cpus": 2})  # fmt: skip
+    rows = sweep(
+        ds,
+        Grid(archs=("simple",), frames=(2, 8)),
+        base,
+        tmp_path / "sw",
+        model=model,
+        engine="ray",
+        cpus_per_trial=1,
+        ray_init={"num_cpus": 2},
+    )
     assert [r.frames for r in rows] == [2, 8]
     assert rows[0].status == "ok" and np.isfinite(rows[0].test_base_median) and rows[0].epochs_run == 1
     assert rows[1].status == "failed: DatasetError: 8 frames per sample but the dataset has 4 frames per configuration"
@@ -263,8 +284,14 @@ def test_ray_engine_writes_only_run_files_a_worker_sends(tmp_path, monkeypatch):
     from ineid.learn.sweep import SweepRow, run_name
 
     cfgs = [TrainConfig(model=ModelSpec("simple", frames=k)) for k in (1, 2, 3, 4)]
-    sent = iter([{MODEL: b"weights", "config.json": b"{}"}, {"../../escaped": b"x"}, {MODEL + "/../../x": b"y"},
-                 {MODEL: "not bytes"}])
+    sent = iter(
+        [
+            {MODEL: b"weights", "config.json": b"{}"},
+            {"../../escaped": b"x"},
+            {MODEL + "/../../x": b"y"},
+            {MODEL: "not bytes"},
+        ]
+    )
 
     class Ref:
         def __init__(self, cfg):
@@ -277,19 +304,25 @@ def test_ray_engine_writes_only_run_files_a_worker_sends(tmp_path, monkeypatch):
         def remote(self, ds, cfg, *_):
             return Ref(cfg)
 
-    fake = types.SimpleNamespace(is_initialized=lambda: True, remote=lambda fn: Task(), put=lambda x: x,
-                                 wait=lambda refs, num_returns: ([refs[0]], refs[1:]), get=lambda ref: ref.value,
-                                 exceptions=types.SimpleNamespace(RayError=RuntimeError))
+    fake = types.SimpleNamespace(
+        is_initialized=lambda: True,
+        remote=lambda fn: Task(),
+        put=lambda x: x,
+        wait=lambda refs, num_returns: ([refs[0]], refs[1:]),
+        get=lambda ref: ref.value,
+        exceptions=types.SimpleNamespace(RayError=RuntimeError),
+    )
     monkeypatch.setitem(sys.modules, "ray", fake)
     out = tmp_path / "a" / "b" / "sweep"
     rows = ray_engine.ray_trials(None, cfgs, out)
     assert rows[0].status == "ok"
     assert sorted(p.name for p in (out / run_name(cfgs[0])).iterdir()) == ["config.json", MODEL]
-    for row, bad in zip(rows[1:], ("'../../escaped'", f"'{MODEL}/../../x'", "str instead of the bytes")):
+    for row, bad in zip(rows[1:], ("'../../escaped'", f"'{MODEL}/../../x'", "str instead of the bytes"), strict=True):
         assert row.status.startswith("failed: the worker sent back") and bad in row.status, row.status
         assert "nothing of this trial was written" in row.status and not (out / row.name).exists()
-    assert sorted(p.name for p in tmp_path.rglob("*")) == sorted(["a", "b", "sweep", run_name(cfgs[0]), "config.json",
-                                                                  MODEL])
+    assert sorted(p.name for p in tmp_path.rglob("*")) == sorted(
+        ["a", "b", "sweep", run_name(cfgs[0]), "config.json", MODEL]
+    )
     with pytest.raises(ineid.errors.TrainingError, match="refusing to write a file named '../x'"):
         ray_engine._write_run(tmp_path / "run", {"../x": b""})
     assert ray_engine.files_problem(dict.fromkeys(RUN_FILES, b"")) is None

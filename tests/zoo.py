@@ -40,9 +40,12 @@ class ZooArm:
 
 # TALOS is a humanoid: its left arm is the chain base_link -> torso -> arm_left_1..7 once every
 # other branch (legs, right arm, head, grippers) and the torso joints are locked.
-_TALOS_OTHERS = (["torso_1_joint", "torso_2_joint", "head_1_joint", "head_2_joint", "gripper_left_joint",
-                  "gripper_right_joint"] + [f"arm_right_{i}_joint" for i in range(1, 8)]
-                 + [f"leg_left_{i}_joint" for i in range(1, 7)] + [f"leg_right_{i}_joint" for i in range(1, 7)])  # fmt: skip
+_TALOS_OTHERS = (
+    ["torso_1_joint", "torso_2_joint", "head_1_joint", "head_2_joint", "gripper_left_joint", "gripper_right_joint"]
+    + [f"arm_right_{i}_joint" for i in range(1, 8)]
+    + [f"leg_left_{i}_joint" for i in range(1, 7)]
+    + [f"leg_right_{i}_joint" for i in range(1, 7)]
+)
 
 ZOO: dict[str, ZooArm] = {
     "double-pendulum": ZooArm("double_pendulum_description/urdf/double_pendulum.urdf"),
@@ -109,8 +112,9 @@ def check_export(arm: ZooArm, folder: Path, n_states: int = 50, tol: float = 1e-
     def identified(results: str) -> tuple[object, np.ndarray]:
         res = load_results(folder / results)
         row = int(np.flatnonzero(np.asarray(res.config_index) == 0)[0])
-        model = ineid.load_robot(arm.path, locked_joints=arm.locked or None,
-                                 unknown_links=list(res.meta["unknown_links"]))  # fmt: skip
+        model = ineid.load_robot(
+            arm.path, locked_joints=arm.locked or None, unknown_links=list(res.meta["unknown_links"])
+        )
         theta = model.theta_cad.copy()
         theta[model.unknown_index] = res.theta_hat[row]
         return model, theta
@@ -127,12 +131,13 @@ def check_export(arm: ZooArm, folder: Path, n_states: int = 50, tol: float = 1e-
 
     errors = {
         "random states": rel(pinocchio_base_wrench(pin, q, qd, qdd), np.asarray(model.regressor(q, qd, qdd)) @ theta),
-        "dataset frames": rel(pinocchio_base_wrench(pin, ds.q[0], ds.qd[0], ds.qdd[0]),
-                              np.asarray(model.regressor(ds.q[0], ds.qd[0], ds.qdd[0])) @ theta),
+        "dataset frames": rel(
+            pinocchio_base_wrench(pin, ds.q[0], ds.qd[0], ds.qdd[0]),
+            np.asarray(model.regressor(ds.q[0], ds.qd[0], ds.qdd[0])) @ theta,
+        ),
         "measured, consistent": rel(np.asarray(model.regressor(ds.q[0], ds.qd[0], ds.qdd[0])) @ theta, ds.wrench[0]),
-        "measured, linear": rel(np.asarray(model.regressor(ds.q[0], ds.qd[0], ds.qdd[0])) @ theta_linear,
-                                ds.wrench[0]),
-    }  # fmt: skip
+        "measured, linear": rel(np.asarray(model.regressor(ds.q[0], ds.qd[0], ds.qdd[0])) @ theta_linear, ds.wrench[0]),
+    }
     assert errors["random states"] < tol and errors["dataset frames"] < tol, errors
     assert errors["measured, linear"] < 1e-8 and errors["measured, consistent"] < 1e-3, errors
     return errors

@@ -77,8 +77,10 @@ def channel_from_dict(d: Mapping, where: str = "channel") -> Channel:
         raise DatasetError(f"{where}: a measurement channel must be a record with a kind, got {d!r}")
     kind = d.get("kind")
     if kind not in _KINDS:
-        raise DatasetError(f"{where}: unknown measurement channel kind {kind!r} (this ineid reads "
-                           f"{', '.join(sorted(_KINDS))}); a newer ineid wrote it: upgrade ineid")
+        raise DatasetError(
+            f"{where}: unknown measurement channel kind {kind!r} (this ineid reads "
+            f"{', '.join(sorted(_KINDS))}); a newer ineid wrote it: upgrade ineid"
+        )
     return _KINDS[kind].from_dict(d, where)
 
 
@@ -267,9 +269,14 @@ class Channel(ABC):
     def structure(self, model) -> ChannelStructure:
         """What a compiled kernel of this channel depends on (hashable). ``T``'s values are not in it:
         kernels take them as arguments, so a new sensor pose does not recompile."""
-        return ChannelStructure(self.entries_function(model), self.phi_theta_function(model), self.n_axes(model),
-                                self.transform() is not None, self.extra_rows_function(model),
-                                len(self.extra_names(model)))
+        return ChannelStructure(
+            self.entries_function(model),
+            self.phi_theta_function(model),
+            self.n_axes(model),
+            self.transform() is not None,
+            self.extra_rows_function(model),
+            len(self.extra_names(model)),
+        )
 
     def to_dict(self) -> dict:
         """The JSON-able record: ``kind``, ``key``, ``offsets``, :attr:`RECORD_FIELDS` (:func:`channel_from_dict`)."""
@@ -296,8 +303,10 @@ class Channel(ABC):
             raise DatasetError(f"{where}: expected a {cls.kind!r} channel record, got {d!r}")
         unknown = sorted(set(d) - {"kind", "key", "offsets", *cls.RECORD_FIELDS})
         if unknown:
-            raise DatasetError(f"{where}: the {cls.kind} channel has fields this ineid does not know "
-                               f"({', '.join(map(str, unknown))}); a newer ineid wrote it: upgrade ineid")
+            raise DatasetError(
+                f"{where}: the {cls.kind} channel has fields this ineid does not know "
+                f"({', '.join(map(str, unknown))}); a newer ineid wrote it: upgrade ineid"
+            )
         if "key" not in d:
             raise DatasetError(f"{where}: the {cls.kind} channel record has no key (the name of its values)")
         kwargs = {"key": check_key(d["key"], where), **cls._parse_record(d, where)}
@@ -327,9 +336,9 @@ def _matrix_key(t: np.ndarray | None) -> tuple | None:
     return None if t is None else tuple(map(tuple, np.asarray(t, dtype=np.float64).tolist()))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _rows_from_entries(entries_fn: Callable, n_axes: int, n_cols: int, transform: tuple | None) -> Callable:
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax.numpy as jnp
 
     def rows(q, qd, qdd, gravity):
         values = entries_fn(q, qd, qdd, gravity)
@@ -341,7 +350,7 @@ def _rows_from_entries(entries_fn: Callable, n_axes: int, n_cols: int, transform
     return rows
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _predict_from_rows(rows_fn: Callable) -> Callable:
     def predict(q, qd, qdd, gravity, theta):
         return (rows_fn(q, qd, qdd, gravity) @ theta[..., None])[..., 0]
@@ -349,14 +358,14 @@ def _predict_from_rows(rows_fn: Callable) -> Callable:
     return predict
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def transformed_predict(predict_fn: Callable, transform: tuple | None) -> Callable:
     """``f(...) @ T^T``: a prediction in the model's frame turned into the sensor's axes (``T`` as nested tuples)."""
     if transform is None:
         return predict_fn
 
     def predict(q, qd, qdd, gravity, theta):
-        import jax.numpy as jnp  # noqa: PLC0415
+        import jax.numpy as jnp
 
         w = predict_fn(q, qd, qdd, gravity, theta)
         return w @ jnp.asarray(transform, dtype=w.dtype).T
@@ -364,14 +373,14 @@ def transformed_predict(predict_fn: Callable, transform: tuple | None) -> Callab
     return predict
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def transformed_rows(rows_fn: Callable, transform: tuple | None) -> Callable:
     """``T @ f(...)``: rows in the model's frame turned into the sensor's axes (``T`` as nested tuples)."""
     if transform is None:
         return rows_fn
 
     def rows(q, qd, qdd, gravity):
-        import jax.numpy as jnp  # noqa: PLC0415
+        import jax.numpy as jnp
 
         phi = rows_fn(q, qd, qdd, gravity)
         return jnp.asarray(transform, dtype=phi.dtype) @ phi
@@ -379,32 +388,32 @@ def transformed_rows(rows_fn: Callable, transform: tuple | None) -> Callable:
     return rows
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _jitted_rows(fn: Callable) -> Callable:
     """``(q, qd, qdd, gravity) -> (N, n_a * p)`` jitted (the chunked evaluator's row layout)."""
-    import jax  # noqa: PLC0415
+    import jax
 
     return jax.jit(lambda q, qd, qdd, gravity: fn(q, qd, qdd, gravity).reshape(q.shape[0], -1))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _jitted_predict(fn: Callable) -> Callable:
-    import jax  # noqa: PLC0415
+    import jax
 
     return jax.jit(fn)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _per_frame_theta(fn: Callable) -> Callable:
     """``(q, qd, qdd, theta, gravity) -> fn(q, qd, qdd, gravity, theta)``: theta one row per frame."""
-    import jax  # noqa: PLC0415
+    import jax
 
     return jax.jit(lambda q, qd, qdd, theta, gravity: fn(q, qd, qdd, gravity, theta))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _jitted_extra(fn: Callable) -> Callable:
-    import jax  # noqa: PLC0415
+    import jax
 
     return jax.jit(lambda q, qd, qdd: fn(q, qd, qdd).reshape(q.shape[0], -1))
 
@@ -426,12 +435,14 @@ def _batch_shape(model, arrays) -> tuple[int, ...]:
 def _evaluate(model, kernel: Callable, per_frame: tuple, consts: tuple, shape: tuple[int, ...]) -> np.ndarray:
     """``kernel(*per_frame_rows, *consts)`` over chunks of frames (the robot model's chunked evaluator),
     reshaped to the broadcast batch shape + ``shape``."""
-    from ineid.robots.chunked import run_chunked  # noqa: PLC0415  (one chunked evaluator for every kernel)
+    from ineid.robots.chunked import run_chunked  # one chunked evaluator for every kernel
 
     batch = _batch_shape(model, per_frame)
     n = int(np.prod(batch, dtype=np.int64))
-    flat = [np.broadcast_to(np.asarray(x, dtype=np.float64), batch + np.shape(x)[-1:]).reshape(n, np.shape(x)[-1])
-            for x in per_frame]
+    flat = [
+        np.broadcast_to(np.asarray(x, dtype=np.float64), batch + np.shape(x)[-1:]).reshape(n, np.shape(x)[-1])
+        for x in per_frame
+    ]
     width = int(np.prod(shape, dtype=np.int64))
     out = np.empty((n, width))
 

@@ -94,8 +94,10 @@ class ChannelSet:
         keys = list(keys)
         missing = [k for k in keys if self.get(k) is None]
         if missing or not keys:
-            raise DatasetError(f"no {', '.join(missing) or 'channel'} measurements here (the data hold "
-                               f"{', '.join(self.keys)}); choose among {', '.join(self.keys)}")
+            raise DatasetError(
+                f"no {', '.join(missing) or 'channel'} measurements here (the data hold "
+                f"{', '.join(self.keys)}); choose among {', '.join(self.keys)}"
+            )
         return ChannelSet(tuple(c for c in self.channels if c.key in keys))
 
     def replace(self, channel: Channel) -> ChannelSet:
@@ -198,8 +200,10 @@ class ChannelSet:
             try:
                 parts.append(np.broadcast_to(np.asarray(std, dtype=np.float64), (c.n_axes(model),)))
             except ValueError:
-                raise DatasetError(f"the noise record of channel {c.key!r} holds {np.size(std)} numbers for "
-                                   f"{c.n_axes(model)} axes; regenerate the file") from None
+                raise DatasetError(
+                    f"the noise record of channel {c.key!r} holds {np.size(std)} numbers for "
+                    f"{c.n_axes(model)} axes; regenerate the file"
+                ) from None
         out = np.concatenate(parts)
         return out if np.all(out > 0) and np.all(np.isfinite(out)) else None
 
@@ -219,12 +223,16 @@ class ChannelSet:
         parts = []
         for c in self.channels:
             if c.key not in measurements:
-                raise DatasetError(f"no values for measurement channel {c.key!r} (there are "
-                                   f"{', '.join(map(str, measurements)) or 'none'}); the file is incomplete")
+                raise DatasetError(
+                    f"no values for measurement channel {c.key!r} (there are "
+                    f"{', '.join(map(str, measurements)) or 'none'}); the file is incomplete"
+                )
             v = np.asarray(measurements[c.key])
             if v.shape[-1:] != (c.n_axes(model),):
-                raise DatasetError(f"measurement channel {c.key!r} has shape {v.shape}; expected "
-                                   f"{c.n_axes(model)} axes last ({', '.join(c.axes(model))})")
+                raise DatasetError(
+                    f"measurement channel {c.key!r} has shape {v.shape}; expected "
+                    f"{c.n_axes(model)} axes last ({', '.join(c.axes(model))})"
+                )
             parts.append(v)
         return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=-1)
 
@@ -266,8 +274,12 @@ class ChannelSet:
         and null spaces are those of ``Phi``)."""
         if len(self.channels) == 1 and (self.channels[0].transform() is None or not transformed):
             return self.channels[0].casadi_function(model)
-        return _casadi_cached(self, model, "rows" if transformed else "phi",
-                              functools.partial(_build_casadi_rows, transformed=transformed))
+        return _casadi_cached(
+            self,
+            model,
+            "rows" if transformed else "phi",
+            functools.partial(_build_casadi_rows, transformed=transformed),
+        )
 
     # -- extra kept columns ------------------------------------------------------------------
     def extra_names(self, model) -> tuple[str, ...]:
@@ -275,8 +287,9 @@ class ChannelSet:
         names = tuple(n for c in self.channels for n in c.extra_names(model))
         if len(set(names)) != len(names):
             seen = [n for i, n in enumerate(names) if n in names[:i]]
-            raise DatasetError(f"two measurement channels name the extra parameter {seen[0]!r}; "
-                               "give them distinct names")
+            raise DatasetError(
+                f"two measurement channels name the extra parameter {seen[0]!r}; give them distinct names"
+            )
         return names
 
     def n_extra(self, model) -> int:
@@ -288,9 +301,15 @@ class ChannelSet:
         blocks = self.blocks(model)
         if self.n_extra(model) == 0:
             return None
-        return _extra_block_function(tuple((b.channel.extra_rows_function(model), b.start, b.stop, b.extra.start,
-                                            b.extra.stop) for b in blocks if b.extra.stop > b.extra.start),
-                                     self.n_axes(model), self.n_extra(model))
+        return _extra_block_function(
+            tuple(
+                (b.channel.extra_rows_function(model), b.start, b.stop, b.extra.start, b.extra.stop)
+                for b in blocks
+                if b.extra.stop > b.extra.start
+            ),
+            self.n_axes(model),
+            self.n_extra(model),
+        )
 
     def extra_rows(self, model, q, qd, qdd) -> np.ndarray:
         """``blockdiag(E_1, ..., E_m)`` (..., n_axes, n_extra), float64 NumPy; n_extra may be 0."""
@@ -310,9 +329,9 @@ class ChannelSet:
         return _casadi_cached(self, model, "extra", _build_casadi_extra)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _concatenated(fns: tuple, axis: int) -> Callable:
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax.numpy as jnp
 
     def stacked(*args):
         return jnp.concatenate([f(*args) for f in fns], axis=axis)
@@ -320,9 +339,9 @@ def _concatenated(fns: tuple, axis: int) -> Callable:
     return stacked
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _extra_block_function(parts: tuple, n_axes: int, n_extra: int) -> Callable:
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax.numpy as jnp
 
     def extra(q, qd, qdd):
         batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1])
@@ -347,7 +366,7 @@ def _casadi_cached(channels: ChannelSet, model, what: str, build: Callable):
 
 
 def _build_casadi_rows(channels: ChannelSet, model, transformed: bool = True):
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     q, qd, qdd = (ca.SX.sym(s, model.n_dof) for s in ("q", "qd", "qdd"))
     blocks = []
@@ -359,12 +378,12 @@ def _build_casadi_rows(channels: ChannelSet, model, transformed: bool = True):
 
 
 def _build_casadi_extra(channels: ChannelSet, model):
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     q, qd, qdd = (ca.SX.sym(s, model.n_dof) for s in ("q", "qd", "qdd"))
     out = ca.SX.zeros(channels.n_axes(model), channels.n_extra(model))
     for b in channels.blocks(model):
         fn = b.channel.casadi_extra_function(model)
         if fn is not None and b.extra.stop > b.extra.start:
-            out[b.start:b.stop, b.extra.start:b.extra.stop] = fn(q, qd, qdd)
+            out[b.start : b.stop, b.extra.start : b.extra.stop] = fn(q, qd, qdd)
     return ca.Function("channel_extra_rows", [q, qd, qdd], [out], ["q", "qd", "qdd"], ["E"])

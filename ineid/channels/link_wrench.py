@@ -54,8 +54,9 @@ class LinkWrench(WrenchSensor):
             raise DatasetError(f"link-wrench channel {self.key!r}: name the link the sensor is mounted on")
 
     def describe(self) -> str:
-        return (f"wrench at link {self.link!r} '{self.key}' ({self.frame_text('link frame')})"
-                + (", six offsets identified" if self.offsets else ""))
+        return f"wrench at link {self.link!r} '{self.key}' ({self.frame_text('link frame')})" + (
+            ", six offsets identified" if self.offsets else ""
+        )
 
     # -- the model ------------------------------------------------------------------------
     def entries_function(self, model):
@@ -96,15 +97,16 @@ LINK_KEY_PREFIX = "wrench_"
 
 def link_key(link: str) -> str:
     """A dataset key for the wrench at ``link``: ``wrench_<link>`` lower-cased, other characters as ``_``."""
-    import re  # noqa: PLC0415
-    import zlib  # noqa: PLC0415
+    import re
+    import zlib
 
     key = LINK_KEY_PREFIX + re.sub(r"[^a-z0-9_]", "_", link.lower())
     return key if len(key) <= 32 else key[:23] + f"_{zlib.crc32(link.encode()) % 10**8:08d}"
 
 
-def link_frame(text: str, model, what: str = "sensor pose",
-               otherwise: str = ", or six numbers for a sensor under the base") -> tuple[str, SensorPose, bool] | None:
+def link_frame(
+    text: str, model, what: str = "sensor pose", otherwise: str = ", or six numbers for a sensor under the base"
+) -> tuple[str, SensorPose, bool] | None:
     """``(moving link, pose in its frame, from a URDF frame)`` that ``text`` names, or None when it names no link.
 
     ``text``: ``LINK`` or ``LINK:x,y,z,roll,pitch,yaw`` with a moving link of ``model`` (the pose in its
@@ -125,11 +127,15 @@ def link_frame(text: str, model, what: str = "sensor pose",
         return name, parse_sensor_pose(pose) if pose.strip() else SensorPose(), False
     link = model.chain.body_links.get(name)
     if link is not None and pose.strip():  # a URDF frame welded to a moving link, given a pose
-        raise DatasetError(f"{what} {text.strip()!r}: {name!r} is a URDF frame on {link.body!r} and takes no pose; "
-                           f"give {name} alone, or {link.body}:x,y,z,roll,pitch,yaw (the pose in {link.body}'s frame)")
+        raise DatasetError(
+            f"{what} {text.strip()!r}: {name!r} is a URDF frame on {link.body!r} and takes no pose; "
+            f"give {name} alone, or {link.body}:x,y,z,roll,pitch,yaw (the pose in {link.body}'s frame)"
+        )
     if link is None:
-        raise DatasetError(f"{what} {text.strip()!r}: {name!r} is not a moving link of {model.name} (choose from "
-                           f"{', '.join(moving)}, or give a URDF frame welded to one{otherwise})")
+        raise DatasetError(
+            f"{what} {text.strip()!r}: {name!r} is not a moving link of {model.name} (choose from "
+            f"{', '.join(moving)}, or give a URDF frame welded to one{otherwise})"
+        )
     return link.body, SensorPose.from_matrix(link.body_R_link, link.body_p_link, frame=name), True
 
 
@@ -151,8 +157,12 @@ def sensor_channel(text: str | None, model, key: str | None = None, offsets: boo
         link, sensor, from_frame = on_link
         if from_frame:
             _refuse_known_beyond(model, sensor.frame)
-        return LinkWrench(key=check_key(key or link_key(link)), link=link, offsets=offsets,
-                          sensor=None if sensor.is_identity else sensor)
+        return LinkWrench(
+            key=check_key(key or link_key(link)),
+            link=link,
+            offsets=offsets,
+            sensor=None if sensor.is_identity else sensor,
+        )
     base = parse_sensor_pose(text or None, model.urdf_text, model.locked_joints, source=f"{model.name}'s URDF")
     return BaseWrench(key=key or "wrench", offsets=offsets, sensor=None if base.is_identity else base)
 
@@ -182,6 +192,8 @@ def _refuse_known_beyond(model, frame: str) -> None:
                 grew = True
     massive = [n for n in sorted(beyond - {frame}) if n not in model.unknown_links and links[n].theta[0] > 0]
     if massive:
-        raise DatasetError(f"sensor frame {frame!r}: link {massive[0]!r} (mass {links[massive[0]].theta[0]:g} kg) is "
-                           f"welded beyond it but is part of {links[frame].body!r}'s CAD in the model; name it in "
-                           "--unknown-links to identify it as a payload beyond the sensor")
+        raise DatasetError(
+            f"sensor frame {frame!r}: link {massive[0]!r} (mass {links[massive[0]].theta[0]:g} kg) is "
+            f"welded beyond it but is part of {links[frame].body!r}'s CAD in the model; name it in "
+            "--unknown-links to identify it as a payload beyond the sensor"
+        )

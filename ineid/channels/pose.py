@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.errors import DatasetError
-from ineid.robots.cad_rounding import matrix_rpy  # noqa: F401  (public here: ineid.channels.matrix_rpy)
+from ineid.robots.cad_rounding import matrix_rpy  # public here: ineid.channels.matrix_rpy
 
 
 def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -56,7 +56,7 @@ def wrench_transform(base_R_sensor: np.ndarray, base_p_sensor: np.ndarray) -> np
         base_R_sensor: (3, 3) the sensor axes in the base frame.
         base_p_sensor: (3,) m, the sensor origin in the base frame.
     """
-    from ineid.params import skew  # noqa: PLC0415
+    from ineid.params import skew
 
     rt = np.asarray(base_R_sensor, dtype=np.float64).T
     x = np.zeros((6, 6))
@@ -134,8 +134,12 @@ class SensorPose:
         return cls(p, matrix_rpy(base_R_sensor), frame)  # type: ignore[arg-type]
 
 
-def parse_sensor_pose(text: str | None, urdf: str | None = None, locked_joints: Mapping[str, float] | None = None,
-                      source: str = "the robot's URDF") -> SensorPose:
+def parse_sensor_pose(
+    text: str | None,
+    urdf: str | None = None,
+    locked_joints: Mapping[str, float] | None = None,
+    source: str = "the robot's URDF",
+) -> SensorPose:
     """A pose from ``"x,y,z,roll,pitch,yaw"`` (m, rad) or from a URDF frame name.
 
     A name must be a link welded to the root link (by fixed joints, or joints in
@@ -165,7 +169,7 @@ def parse_sensor_pose(text: str | None, urdf: str | None = None, locked_joints: 
             f"sensor pose {text!r} does not parse: expected six numbers x,y,z,roll,pitch,yaw (m, rad, URDF rpy) "
             "or the name of one URDF frame"
         )
-    from ineid.robots.urdf import fixed_frame_pose  # noqa: PLC0415
+    from ineid.robots.urdf import fixed_frame_pose
 
     r, p = fixed_frame_pose(urdf, parts[0], source=source, locked_joints=locked_joints)
     return SensorPose.from_matrix(r, p, frame=parts[0])

@@ -113,20 +113,28 @@ class JointTorque(Channel):
     def __post_init__(self) -> None:
         super().__post_init__()
         friction = tuple(self.friction) if isinstance(self.friction, (list, tuple)) else self.friction
-        if not isinstance(friction, tuple) or any(f not in FRICTION_TERMS for f in friction) or \
-                len(set(friction)) != len(friction):
-            raise DatasetError(f"joint-torque channel {self.key!r}: friction must be a list of "
-                               f"{', '.join(FRICTION_TERMS)}, got {self.friction!r}")
+        if (
+            not isinstance(friction, tuple)
+            or any(f not in FRICTION_TERMS for f in friction)
+            or len(set(friction)) != len(friction)
+        ):
+            raise DatasetError(
+                f"joint-torque channel {self.key!r}: friction must be a list of "
+                f"{', '.join(FRICTION_TERMS)}, got {self.friction!r}"
+            )
         object.__setattr__(self, "friction", tuple(f for f in FRICTION_TERMS if f in friction))
         zone = self.coulomb_zone
         if isinstance(zone, bool) or not isinstance(zone, (int, float)) or not math.isfinite(zone) or zone < 0:
-            raise DatasetError(f"joint-torque channel {self.key!r}: the Coulomb zone must be a finite number >= 0 "
-                               f"(rad/s; 0 for sign(qd)), got {zone!r}")
+            raise DatasetError(
+                f"joint-torque channel {self.key!r}: the Coulomb zone must be a finite number >= 0 "
+                f"(rad/s; 0 for sign(qd)), got {zone!r}"
+            )
         object.__setattr__(self, "coulomb_zone", float(zone))
         for name in ("asymmetric", "armature", "torque_offset"):
             if not isinstance(getattr(self, name), bool):
-                raise DatasetError(f"joint-torque channel {self.key!r}: {name} must be true or false, "
-                                   f"got {getattr(self, name)!r}")
+                raise DatasetError(
+                    f"joint-torque channel {self.key!r}: {name} must be true or false, got {getattr(self, name)!r}"
+                )
 
     # -- what it measures ------------------------------------------------------------------
     def axes(self, model) -> tuple[str, ...]:
@@ -138,8 +146,9 @@ class JointTorque(Channel):
     def describe(self) -> str:
         parts = []
         if self.friction:
-            zone = f", smooth zone {self.coulomb_zone:g} rad/s" if self.coulomb_zone and "coulomb" in self.friction \
-                else ""
+            zone = (
+                f", smooth zone {self.coulomb_zone:g} rad/s" if self.coulomb_zone and "coulomb" in self.friction else ""
+            )
             parts.append(("asymmetric " if self.asymmetric else "") + " + ".join(self.friction) + " friction" + zone)
         if self.armature:
             parts.append("armature")
@@ -154,13 +163,25 @@ class JointTorque(Channel):
         """The actuation columns of each joint, in order (``"fv"``, ``"fc"``, ``"offset"``, ``"Ia"``, ...)."""
         return _terms(self.friction, self.asymmetric, self.torque_offset, self.armature)
 
-    def with_actuation(self, friction=(), coulomb_zone: float = 0.0, asymmetric: bool = False,
-                       armature: bool = False, torque_offset: bool = False) -> JointTorque:
+    def with_actuation(
+        self,
+        friction=(),
+        coulomb_zone: float = 0.0,
+        asymmetric: bool = False,
+        armature: bool = False,
+        torque_offset: bool = False,
+    ) -> JointTorque:
         """The same measurement identified with another actuation model."""
-        from dataclasses import replace  # noqa: PLC0415
+        from dataclasses import replace
 
-        return replace(self, friction=tuple(friction), coulomb_zone=coulomb_zone, asymmetric=asymmetric,
-                       armature=armature, torque_offset=torque_offset)
+        return replace(
+            self,
+            friction=tuple(friction),
+            coulomb_zone=coulomb_zone,
+            asymmetric=asymmetric,
+            armature=armature,
+            torque_offset=torque_offset,
+        )
 
     # -- the model ------------------------------------------------------------------------
     def entries_function(self, model):
@@ -209,7 +230,7 @@ class JointTorque(Channel):
     def casadi_extra_function(self, model):
         if not self.terms:
             return None
-        import casadi as ca  # noqa: PLC0415
+        import casadi as ca
 
         n, terms = model.n_dof, self.terms
         q, qd, qdd = (ca.SX.sym(s, n) for s in ("q", "qd", "qdd"))
@@ -223,16 +244,22 @@ class JointTorque(Channel):
 
     # -- record ---------------------------------------------------------------------------
     def _record(self) -> dict:
-        return {"friction": list(self.friction), "coulomb_zone": self.coulomb_zone, "asymmetric": self.asymmetric,
-                "armature": self.armature, "torque_offset": self.torque_offset}
+        return {
+            "friction": list(self.friction),
+            "coulomb_zone": self.coulomb_zone,
+            "asymmetric": self.asymmetric,
+            "armature": self.armature,
+            "torque_offset": self.torque_offset,
+        }
 
     @classmethod
     def _parse_record(cls, d: Mapping, where: str) -> dict:
         out = {name: d[name] for name in cls.RECORD_FIELDS if name in d}
         if "friction" in out:
             if not isinstance(out["friction"], list):
-                raise DatasetError(f"{where}: the joint-torque channel's friction must be a list, "
-                                   f"got {out['friction']!r}")
+                raise DatasetError(
+                    f"{where}: the joint-torque channel's friction must be a list, got {out['friction']!r}"
+                )
             out["friction"] = tuple(out["friction"])
         return out
 
@@ -265,18 +292,25 @@ class MotorCurrent(JointTorque):
             try:
                 values = tuple(float(v) for v in values)
             except (TypeError, ValueError):
-                raise DatasetError(f"motor-current channel {self.key!r}: {name} must be one number per joint, "
-                                   f"got {getattr(self, name)!r}") from None
+                raise DatasetError(
+                    f"motor-current channel {self.key!r}: {name} must be one number per joint, "
+                    f"got {getattr(self, name)!r}"
+                ) from None
             if not values or not all(math.isfinite(v) and v != 0 for v in values):
-                raise DatasetError(f"motor-current channel {self.key!r}: {name} must be finite, non-zero numbers, "
-                                   f"one per joint, got {getattr(self, name)!r}")
+                raise DatasetError(
+                    f"motor-current channel {self.key!r}: {name} must be finite, non-zero numbers, "
+                    f"one per joint, got {getattr(self, name)!r}"
+                )
             object.__setattr__(self, name, values)
         if len(self.torque_constant) != len(self.gear_ratio):
-            raise DatasetError(f"motor-current channel {self.key!r}: {len(self.torque_constant)} torque constants "
-                               f"but {len(self.gear_ratio)} gear ratios; give one of each per joint")
+            raise DatasetError(
+                f"motor-current channel {self.key!r}: {len(self.torque_constant)} torque constants "
+                f"but {len(self.gear_ratio)} gear ratios; give one of each per joint"
+            )
         if not isinstance(self.identify_k, bool):
-            raise DatasetError(f"motor-current channel {self.key!r}: identify_k must be true or false, "
-                               f"got {self.identify_k!r}")
+            raise DatasetError(
+                f"motor-current channel {self.key!r}: identify_k must be true or false, got {self.identify_k!r}"
+            )
 
     def units(self, model) -> tuple[str, ...]:
         self._check_joints(model)
@@ -284,8 +318,11 @@ class MotorCurrent(JointTorque):
 
     def describe(self) -> str:
         k = ", torque constants identified" if self.identify_k else ""
-        return super().describe().replace(f"joint torques '{self.key}'",
-                                          f"motor currents '{self.key}' (tau = k G i{k})", 1)
+        return (
+            super()
+            .describe()
+            .replace(f"joint torques '{self.key}'", f"motor currents '{self.key}' (tau = k G i{k})", 1)
+        )
 
     def k_names(self, model) -> tuple[str, ...]:
         """The names of the identified torque constants, ``<joint>.k`` (none without ``identify_k``)."""
@@ -293,8 +330,10 @@ class MotorCurrent(JointTorque):
 
     def _check_joints(self, model) -> None:
         if len(self.gear_ratio) != model.n_dof:
-            raise DatasetError(f"motor-current channel {self.key!r} gives {len(self.gear_ratio)} gear ratios for "
-                               f"{model.n_dof} joints ({', '.join(model.joint_names)}); give one per joint")
+            raise DatasetError(
+                f"motor-current channel {self.key!r} gives {len(self.gear_ratio)} gear ratios for "
+                f"{model.n_dof} joints ({', '.join(model.joint_names)}); give one per joint"
+            )
 
     def _extra_scale(self) -> np.ndarray:
         return 1.0 / (np.asarray(self.torque_constant) * np.asarray(self.gear_ratio))
@@ -308,8 +347,12 @@ class MotorCurrent(JointTorque):
         return super().rows(model, q, qd, qdd)
 
     def _record(self) -> dict:
-        return {**super()._record(), "torque_constant": list(self.torque_constant), "gear_ratio": list(self.gear_ratio),
-                **({"identify_k": True} if self.identify_k else {})}  # written only when set (older records unchanged)
+        return {
+            **super()._record(),
+            "torque_constant": list(self.torque_constant),
+            "gear_ratio": list(self.gear_ratio),
+            **({"identify_k": True} if self.identify_k else {}),
+        }  # written only when set (older records unchanged)
 
 
 def _joint_types(model) -> tuple[str, ...]:
@@ -321,16 +364,17 @@ def _tuple_or_none(x):
     return None if x is None else tuple(float(v) for v in x)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _jax_extra(terms: tuple[str, ...], zone: float, n_dof: int, scale: tuple | None):
     """``E(q, qd, qdd)`` (..., n_dof, n_dof * len(terms)), jit-safe: row ``j`` holds joint ``j``'s columns."""
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax.numpy as jnp
 
     def extra(q, qd, qdd):
         batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1])
         qd, qdd = jnp.broadcast_to(qd, batch + (n_dof,)), jnp.broadcast_to(qdd, batch + (n_dof,))
-        cols = jnp.stack([jnp.broadcast_to(_column(jnp, t, qd, qdd, zone), batch + (n_dof,)) for t in terms],
-                         -1)  # (..., n_dof, n_terms)
+        cols = jnp.stack(
+            [jnp.broadcast_to(_column(jnp, t, qd, qdd, zone), batch + (n_dof,)) for t in terms], -1
+        )  # (..., n_dof, n_terms)
         if scale is not None:
             cols = cols * jnp.asarray(scale, dtype=cols.dtype)[:, None]
         eye = jnp.eye(n_dof, dtype=cols.dtype)

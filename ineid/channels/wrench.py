@@ -74,8 +74,9 @@ class WrenchSensor(Channel):
     def _parse_record(cls, d: Mapping, where: str) -> dict:
         sensor = d.get("sensor")
         if sensor is not None and not isinstance(sensor, Mapping):
-            raise DatasetError(f"{where}: the {cls.kind} channel's sensor must be a pose record or null, "
-                               f"got {sensor!r}")
+            raise DatasetError(
+                f"{where}: the {cls.kind} channel's sensor must be a pose record or null, got {sensor!r}"
+            )
         return {"sensor": None if sensor is None else SensorPose.from_dict(sensor, f"{where}: sensor")}
 
 
@@ -97,8 +98,9 @@ class BaseWrench(WrenchSensor):
     RECORD_FIELDS = ("sensor",)
 
     def describe(self) -> str:
-        return (f"base wrench '{self.key}' ({self.frame_text('base frame')})"
-                + (", six offsets identified" if self.offsets else ""))
+        return f"base wrench '{self.key}' ({self.frame_text('base frame')})" + (
+            ", six offsets identified" if self.offsets else ""
+        )
 
     # -- the model ------------------------------------------------------------------------
     def entries_function(self, model):

@@ -9,7 +9,8 @@ of them. Any :class:`ineid.IneidError` becomes a one-line message and exit statu
 does a fault the user can fix (a full disk, a read-only or forbidden folder, a name too
 long, memory run out: :func:`ineid._faults.describe_fault`); any other exception is a bug
 and keeps its traceback. Bad arguments exit with status 2 (click's usage error); Ctrl-C
-(130) and SIGTERM (143) leave no partial output file and say so in one line (or say what they left on purpose, such as a run
+(130) and SIGTERM (143) leave no partial output file and say so in one line (or say what they left on purpose, such
+as a run
 to continue with ``--resume``). The table of
 exit statuses is in ``README.md`` (The command line).
 """
@@ -67,7 +68,7 @@ def _left_behind(e: BaseException) -> str:
 
 
 def _version() -> str:
-    from ineid._version import __version__  # noqa: PLC0415  (package metadata; imports no JAX)
+    from ineid._version import __version__  # package metadata; imports no JAX
 
     return __version__
 
@@ -75,7 +76,7 @@ def _version() -> str:
 def configure_logging(verbosity: int) -> None:
     """``-v`` INFO (files read, cache hits, code generation), ``-vv`` DEBUG, JAX's compile log and
     XLA's own C++ log lines (silenced below ``-vv``)."""
-    from ineid.cli.output import show_derivation_progress  # noqa: PLC0415
+    from ineid.cli.output import show_derivation_progress
 
     level = max(logging.DEBUG, min(logging.CRITICAL, logging.WARNING - 10 * verbosity))
     handler = logging.StreamHandler(sys.stderr)
@@ -113,7 +114,7 @@ def main(ctx: click.Context, verbose: int, quiet: int) -> None:
         # (the kernel still runs, only the next run compiles it again); -v shows them
         warnings.filterwarnings("ignore", message="Error writing persistent compilation cache entry")
     terminate_on_sigterm()
-    from ineid.cache import enable_compilation_cache  # noqa: PLC0415
+    from ineid.cache import enable_compilation_cache
 
     if ctx.invoked_subcommand != "cache":  # `cache info|clear` inspect the folder: never create it
         enable_compilation_cache()  # JAX not imported yet: sets the environment variables JAX reads

@@ -23,7 +23,7 @@ def _size(path: Path) -> tuple[int, int]:
 
 
 def _part_problem(path: Path) -> str | None:
-    from ineid._trust import stat_problem  # noqa: PLC0415
+    from ineid._trust import stat_problem
 
     try:
         return stat_problem(path.lstat())
@@ -39,7 +39,7 @@ def cache() -> None:
 @cache.command("info")
 def cache_info() -> None:
     """Where the cache is, what it holds, and whether ineid trusts it."""
-    from ineid.cache import cache_state  # noqa: PLC0415
+    from ineid.cache import cache_state
 
     state = cache_state()
     t = table(f"cache {state.path}", ["part", "folder", "files", "MB"], left=(0, 1))
@@ -51,22 +51,28 @@ def cache_info() -> None:
         click.echo("trust: the folder does not exist yet (ineid creates it with mode 700 and a CACHEDIR.TAG)")
         return
     if state.private:
-        click.echo("trust: private (owned by you, not writable by others): ineid loads code from it "
-                   "after checking each file against the hash it recorded")
+        click.echo(
+            "trust: private (owned by you, not writable by others): ineid loads code from it "
+            "after checking each file against the hash it recorded"
+        )
     else:
         click.echo(f"trust: NOT TRUSTED: the folder {state.problem}; ineid loads no code from it")
     if state.marked:
         click.echo("marker: CACHEDIR.TAG present (ineid's folder; `ineid cache clear` removes ineid's entries)")
     else:
-        click.echo("marker: no CACHEDIR.TAG from ineid (ineid marks the folder when it is empty; it never uses "
-                   "or clears a folder that holds anything without the marker)")
+        click.echo(
+            "marker: no CACHEDIR.TAG from ineid (ineid marks the folder when it is empty; it never uses "
+            "or clears a folder that holds anything without the marker)"
+        )
     for sub in _PARTS:
         problem = _part_problem(state.path / sub)
         if problem:
             click.echo(f"NOT TRUSTED: {state.path / sub} {problem}; ineid works without it (fix: ineid cache clear)")
     if state.foreign:
-        click.echo(f"other entries (not ineid's, never removed): {', '.join(state.foreign[:5])}"
-                   + (", ..." if len(state.foreign) > 5 else ""))
+        click.echo(
+            f"other entries (not ineid's, never removed): {', '.join(state.foreign[:5])}"
+            + (", ..." if len(state.foreign) > 5 else "")
+        )
 
 
 @cache.command("clear")
@@ -83,8 +89,10 @@ def cache_clear(xla_only: bool) -> None:
     done = clear_cache(xla_only)
     click.echo(f"removed {done.path} ({done.files} files, {done.bytes / 1e6:.1f} MB)")
     if done.kept:
-        click.echo(f"kept {len(done.kept)} entries that are not ineid's: {', '.join(done.kept[:5])}"
-                   + (", ..." if len(done.kept) > 5 else ""))
+        click.echo(
+            f"kept {len(done.kept)} entries that are not ineid's: {', '.join(done.kept[:5])}"
+            + (", ..." if len(done.kept) > 5 else "")
+        )
 
 
 def register(main: click.Group) -> None:

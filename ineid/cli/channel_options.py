@@ -52,29 +52,64 @@ def channel_options(two_step: bool = False) -> Callable:
 
     def decorate(f: Callable) -> Callable:
         if two_step:
-            f = click.option("--two-step", "two_step", is_flag=True,
-                             help="FloBaRoID's two steps: the links from the wrench alone, then the friction "
-                                  "(and armature, offsets) from the joint torques' residual; needs both.")(f)
-            f = click.option("--torque-constant-unknown", "torque_constant_unknown", is_flag=True,
-                             help="Identify the motor currents' torque constants (<joint>.k, around the channel's "
-                                  "nominal ones) in step 2 of --two-step.")(f)
-        for option in reversed((
-            click.option("--use", "use", default=None, metavar="NAMES", callback=_names,
-                         help="Channels to fit, comma-separated: wrench, torque (or a channel's key). "
-                              "Default: every channel the file has."),
-            click.option("--friction", "friction", default="none", show_default=True, metavar="MODEL",
-                         callback=_friction,
-                         help="Joint friction of the joint torques: none, viscous, coulomb or viscous,coulomb "
-                              "(<joint>.fv, <joint>.fc identified with the links)."),
-            click.option("--coulomb-zone", "coulomb_zone", type=click.FloatRange(min=0), default=0.0,
-                         metavar="RAD_PER_S",
-                         help="Smooth Coulomb friction: tanh(qd / zone) instead of sign(qd) (0: sign)."),
-            click.option("--asymmetric-friction", "asymmetric_friction", is_flag=True,
-                         help="One friction coefficient per direction of motion (<joint>.fv+, <joint>.fv-, ...)."),
-            click.option("--armature", is_flag=True, help="Rotor inertia Ia * qdd per joint (<joint>.Ia)."),
-            click.option("--torque-offset", "torque_offset", is_flag=True,
-                         help="A constant torque per joint (<joint>.offset), identified with its std."),
-        )):
+            f = click.option(
+                "--two-step",
+                "two_step",
+                is_flag=True,
+                help="FloBaRoID's two steps: the links from the wrench alone, then the friction "
+                "(and armature, offsets) from the joint torques' residual; needs both.",
+            )(f)
+            f = click.option(
+                "--torque-constant-unknown",
+                "torque_constant_unknown",
+                is_flag=True,
+                help="Identify the motor currents' torque constants (<joint>.k, around the channel's "
+                "nominal ones) in step 2 of --two-step.",
+            )(f)
+        for option in reversed(
+            (
+                click.option(
+                    "--use",
+                    "use",
+                    default=None,
+                    metavar="NAMES",
+                    callback=_names,
+                    help="Channels to fit, comma-separated: wrench, torque (or a channel's key). "
+                    "Default: every channel the file has.",
+                ),
+                click.option(
+                    "--friction",
+                    "friction",
+                    default="none",
+                    show_default=True,
+                    metavar="MODEL",
+                    callback=_friction,
+                    help="Joint friction of the joint torques: none, viscous, coulomb or viscous,coulomb "
+                    "(<joint>.fv, <joint>.fc identified with the links).",
+                ),
+                click.option(
+                    "--coulomb-zone",
+                    "coulomb_zone",
+                    type=click.FloatRange(min=0),
+                    default=0.0,
+                    metavar="RAD_PER_S",
+                    help="Smooth Coulomb friction: tanh(qd / zone) instead of sign(qd) (0: sign).",
+                ),
+                click.option(
+                    "--asymmetric-friction",
+                    "asymmetric_friction",
+                    is_flag=True,
+                    help="One friction coefficient per direction of motion (<joint>.fv+, <joint>.fv-, ...).",
+                ),
+                click.option("--armature", is_flag=True, help="Rotor inertia Ia * qdd per joint (<joint>.Ia)."),
+                click.option(
+                    "--torque-offset",
+                    "torque_offset",
+                    is_flag=True,
+                    help="A constant torque per joint (<joint>.offset), identified with its std.",
+                ),
+            )
+        ):
             f = option(f)
         return f
 
@@ -83,22 +118,33 @@ def channel_options(two_step: bool = False) -> Callable:
 
 def settings_flags(flags: dict) -> dict:
     """The :class:`ineid.identify.solve.SolveSettings` arguments of the options' values (by the option names)."""
-    keys = ("use", "friction", "coulomb_zone", "asymmetric_friction", "armature", "torque_offset", "two_step",
-            "torque_constant_unknown")
+    keys = (
+        "use",
+        "friction",
+        "coulomb_zone",
+        "asymmetric_friction",
+        "armature",
+        "torque_offset",
+        "two_step",
+        "torque_constant_unknown",
+    )
     return {k: flags[k] for k in keys if k in flags}
 
 
 def given_flags(ctx: click.Context, flags: dict) -> list[str]:
     """The actuation options given on the command line (``--friction``, ...), as typed."""
-    return [f"--{k.replace('_', '-')}" for k in flags if k != "use"
-            and ctx.get_parameter_source(k) is click.core.ParameterSource.COMMANDLINE]
+    return [
+        f"--{k.replace('_', '-')}"
+        for k in flags
+        if k != "use" and ctx.get_parameter_source(k) is click.core.ParameterSource.COMMANDLINE
+    ]
 
 
 def chosen_channels(channels, flags: dict):
     """The channels ``identifiability`` analyses and ``excite`` designs for: ``channels`` (a dataset's, or None:
     those named by --use) with the actuation options; None (the base wrench, as always) when no option is given."""
-    from ineid.identify import SolveSettings  # noqa: PLC0415
-    from ineid.identify.choose import channels_named, select_channels, with_actuation  # noqa: PLC0415
+    from ineid.identify import SolveSettings
+    from ineid.identify.choose import channels_named, select_channels, with_actuation
 
     try:
         settings = SolveSettings(**settings_flags(flags))

@@ -42,47 +42,111 @@ def data() -> None:
 
 @data.command("generate")
 @robot_options(positional="optional")
-@click.option("--factorial", type=click.IntRange(min=1), default=None, metavar="N",
-              help="N parameter sets per unknown link, all combinations (N^k configurations). Default 100.")
-@click.option("--n-configs", type=click.IntRange(min=1), default=None, metavar="N",
-              help="N configurations pairing the links' sets at random (instead of --factorial).")
+@click.option(
+    "--factorial",
+    type=click.IntRange(min=1),
+    default=None,
+    metavar="N",
+    help="N parameter sets per unknown link, all combinations (N^k configurations). Default 100.",
+)
+@click.option(
+    "--n-configs",
+    type=click.IntRange(min=1),
+    default=None,
+    metavar="N",
+    help="N configurations pairing the links' sets at random (instead of --factorial).",
+)
 @deprecated_alias("--configs", "n_configs", "--n-configs", type=click.IntRange(min=1))
-@click.option("--pool", type=click.IntRange(min=1), default=None, metavar="N",
-              help="With --n-configs: draw each link's set from a pool of N (default: a fresh set per configuration).")
-@click.option("--n-frames", type=click.IntRange(min=1), cls=LibraryOption,
-              default_from="ineid.data.generate:DatasetSpec.n_frames", help="Frames per configuration.")
+@click.option(
+    "--pool",
+    type=click.IntRange(min=1),
+    default=None,
+    metavar="N",
+    help="With --n-configs: draw each link's set from a pool of N (default: a fresh set per configuration).",
+)
+@click.option(
+    "--n-frames",
+    type=click.IntRange(min=1),
+    cls=LibraryOption,
+    default_from="ineid.data.generate:DatasetSpec.n_frames",
+    help="Frames per configuration.",
+)
 @deprecated_alias("--frames", "n_frames", "--n-frames", type=click.IntRange(min=1))
-@click.option("--seed", type=SEED, cls=LibraryOption, default_from="ineid.data.generate:DatasetSpec.seed",
-              help="Seed of every random draw.")
-@click.option("--frame-mode", type=LibraryChoice(f"{_SAMPLING}:FRAME_MODES"), cls=LibraryOption,
-              default_from=f"{_SAMPLING}:FrameSampling.mode",
-              help="Independent uniform frames (the paper), samples of random Fourier excitation trajectories, "
-                   "or the samples of one designed trajectory (--trajectory).")
-@click.option("--trajectory", type=click.Path(path_type=Path, exists=True, dir_okay=False), default=None,
-              metavar="FILE",
-              help="With --frame-mode trajectory: ineid excite's CSV (its rows are the frames) or JSON "
-                   "(--n-frames samples over its duration, default its CSV's rows).")
-@click.option("--harmonics", type=click.IntRange(1, 1000), cls=LibraryOption,
-              default_from=f"{_SAMPLING}:FrameSampling.harmonics", help="Fourier harmonics per joint (at most 1000).")
-@click.option("--base-frequency", type=FiniteFloatRange(0, 1000, min_open=True), cls=LibraryOption,
-              default_from=f"{_SAMPLING}:FrameSampling.base_frequency",
-              help="Fourier base frequency, Hz (at most 1000); one period is sampled.")
-@click.option("--mass-band", type=FiniteFloatRange(0, 1, max_open=True), cls=LibraryOption,
-              default_from=f"{_SAMPLING}:ParameterSampling.mass_rel", help="Mass within CAD * (1 +- band).")
-@click.option("--com-box", type=FiniteFloatRange(min=0), cls=LibraryOption,
-              default_from=f"{_SAMPLING}:ParameterSampling.com_box", help="Centre of mass within CAD +- box per axis, m.")
-@click.option("--inertia-band", type=FiniteFloatRange(0, 1, max_open=True), cls=LibraryOption,
-              default_from=f"{_SAMPLING}:ParameterSampling.inertia_rel",
-              help="Second moments within CAD * (1 +- band), scaled with the mass.")
-@click.option("--rotation", type=FiniteFloatRange(min=0), cls=LibraryOption,
-              default_from=f"{_SAMPLING}:ParameterSampling.orientation_deg",
-              help="Largest turn of the principal axes from CAD, degrees (180: uniform).")
+@click.option(
+    "--seed",
+    type=SEED,
+    cls=LibraryOption,
+    default_from="ineid.data.generate:DatasetSpec.seed",
+    help="Seed of every random draw.",
+)
+@click.option(
+    "--frame-mode",
+    type=LibraryChoice(f"{_SAMPLING}:FRAME_MODES"),
+    cls=LibraryOption,
+    default_from=f"{_SAMPLING}:FrameSampling.mode",
+    help="Independent uniform frames (the paper), samples of random Fourier excitation trajectories, "
+    "or the samples of one designed trajectory (--trajectory).",
+)
+@click.option(
+    "--trajectory",
+    type=click.Path(path_type=Path, exists=True, dir_okay=False),
+    default=None,
+    metavar="FILE",
+    help="With --frame-mode trajectory: ineid excite's CSV (its rows are the frames) or JSON "
+    "(--n-frames samples over its duration, default its CSV's rows).",
+)
+@click.option(
+    "--harmonics",
+    type=click.IntRange(1, 1000),
+    cls=LibraryOption,
+    default_from=f"{_SAMPLING}:FrameSampling.harmonics",
+    help="Fourier harmonics per joint (at most 1000).",
+)
+@click.option(
+    "--base-frequency",
+    type=FiniteFloatRange(0, 1000, min_open=True),
+    cls=LibraryOption,
+    default_from=f"{_SAMPLING}:FrameSampling.base_frequency",
+    help="Fourier base frequency, Hz (at most 1000); one period is sampled.",
+)
+@click.option(
+    "--mass-band",
+    type=FiniteFloatRange(0, 1, max_open=True),
+    cls=LibraryOption,
+    default_from=f"{_SAMPLING}:ParameterSampling.mass_rel",
+    help="Mass within CAD * (1 +- band).",
+)
+@click.option(
+    "--com-box",
+    type=FiniteFloatRange(min=0),
+    cls=LibraryOption,
+    default_from=f"{_SAMPLING}:ParameterSampling.com_box",
+    help="Centre of mass within CAD +- box per axis, m.",
+)
+@click.option(
+    "--inertia-band",
+    type=FiniteFloatRange(0, 1, max_open=True),
+    cls=LibraryOption,
+    default_from=f"{_SAMPLING}:ParameterSampling.inertia_rel",
+    help="Second moments within CAD * (1 +- band), scaled with the mass.",
+)
+@click.option(
+    "--rotation",
+    type=FiniteFloatRange(min=0),
+    cls=LibraryOption,
+    default_from=f"{_SAMPLING}:ParameterSampling.orientation_deg",
+    help="Largest turn of the principal axes from CAD, degrees (180: uniform).",
+)
 @channels_option
-@click.option("--sensor-pose", default=None, metavar="X,Y,Z,R,P,Y|FRAME|LINK[:X,Y,Z,R,P,Y]",
-              help="Where the F/T sensor of the wrench channel sits: under the base at a pose in the base frame "
-                   "(m, rad, URDF rpy) or a URDF frame welded to the base (its reading is in its frame), or on a "
-                   "moving link (LINK:pose in the link's frame, or a URDF frame welded to one): the wrench at that "
-                   "link, stored under wrench_<link>. Default: the base wrench in the base frame.")
+@click.option(
+    "--sensor-pose",
+    default=None,
+    metavar="X,Y,Z,R,P,Y|FRAME|LINK[:X,Y,Z,R,P,Y]",
+    help="Where the F/T sensor of the wrench channel sits: under the base at a pose in the base frame "
+    "(m, rad, URDF rpy) or a URDF frame welded to the base (its reading is in its frame), or on a "
+    "moving link (LINK:pose in the link's frame, or a URDF frame welded to one): the wrench at that "
+    "link, stored under wrench_<link>. Default: the base wrench in the base frame.",
+)
 @friction_truth_option
 @torque_constant_option
 @gear_ratio_option
@@ -91,11 +155,36 @@ def data() -> None:
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
 @click.pass_context
-def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_mode, trajectory, harmonics,
-                  base_frequency, mass_band, com_box, inertia_band, rotation, channels, sensor_pose, friction_truth,
-                  torque_constant, gear_ratio, noise, imus, gyro_bias, encoder_bits, out, overwrite) -> None:
+def data_generate(
+    ctx,
+    robot,
+    factorial,
+    n_configs,
+    pool,
+    n_frames,
+    seed,
+    frame_mode,
+    trajectory,
+    harmonics,
+    base_frequency,
+    mass_band,
+    com_box,
+    inertia_band,
+    rotation,
+    channels,
+    sensor_pose,
+    friction_truth,
+    torque_constant,
+    gear_ratio,
+    noise,
+    imus,
+    gyro_bias,
+    encoder_bits,
+    out,
+    overwrite,
+) -> None:
     """Sample a synthetic ground-truth dataset of ROBOT (default sweaty-arm; the paper's: --factorial 100)."""
-    from ineid.data import Combination, DatasetSpec, FrameSampling, ParameterSampling, write_dataset  # noqa: PLC0415
+    from ineid.data import Combination, DatasetSpec, FrameSampling, ParameterSampling, write_dataset
 
     if factorial is not None and n_configs is not None:
         raise click.UsageError("give --factorial N or --n-configs N, not both")
@@ -105,18 +194,25 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
         raise click.UsageError("--frame-mode trajectory and --trajectory FILE go together")
     frames_given = ctx.get_parameter_source("n_frames") is click.core.ParameterSource.COMMANDLINE
     if trajectory is not None and frames_given and trajectory.suffix.lower() != ".json":
-        raise click.BadParameter("the rows of a trajectory CSV are the frames; drop --n-frames (or give its .json)",
-                                 param_hint="--n-frames")
+        raise click.BadParameter(
+            "the rows of a trajectory CSV are the frames; drop --n-frames (or give its .json)", param_hint="--n-frames"
+        )
     torque = channels is not None and "torque" in channels
     if friction_truth and not (torque or (channels is not None and "current" in channels)):
-        raise click.UsageError("--friction-truth is what joint torques add: simulate them with --channels "
-                               "wrench,torque (or torque)")
+        raise click.UsageError(
+            "--friction-truth is what joint torques add: simulate them with --channels wrench,torque (or torque)"
+        )
     if noise and "tau" in noise and not torque:
-        raise click.UsageError("tau noise is the joint torques': simulate them with --channels wrench,torque (or torque)")
+        raise click.UsageError(
+            "tau noise is the joint torques': simulate them with --channels wrench,torque (or torque)"
+        )
     if noise and "current" in noise and not (channels is not None and "current" in channels):
         raise click.UsageError("current noise is the motor currents': simulate them with --channels ...,current")
-    if noise and not (channels is None or "wrench" in channels) and any(
-            k in noise for k in ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "glitch")):
+    if (
+        noise
+        and not (channels is None or "wrench" in channels)
+        and any(k in noise for k in ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "glitch"))
+    ):
         raise click.UsageError("force and moment noise is the base wrench's: add it with --channels wrench,torque")
     if sensor_pose is not None and not (channels is None or "wrench" in channels):
         raise click.UsageError("--sensor-pose places the F/T sensor of the wrench channel: add wrench to --channels")
@@ -126,12 +222,12 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
     drive_values = drives(channels, torque_constant, gear_ratio, model.n_dof)
     sensor = None
     if sensor_pose is not None:
-        from ineid.channels import sensor_channel  # noqa: PLC0415
+        from ineid.channels import sensor_channel
 
         sensor = sensor_channel(sensor_pose, model)
     sampled = None
     if trajectory is not None:
-        from ineid.data.trajectory import check_trajectory_fits, load_trajectory  # noqa: PLC0415
+        from ineid.data.trajectory import check_trajectory_fits, load_trajectory
 
         sampled = load_trajectory(trajectory, n_frames=n_frames if frames_given else None)
         check_trajectory_fits(sampled, model)
@@ -169,7 +265,8 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
     seconds = time.perf_counter() - t0
     click.echo(
         f"wrote {out}: {total:,} configurations x {n_frames} frames of {plain(model.name)} "
-        f"({plain(', '.join(model.unknown_links))} unknown{'; ' + plain(spec.channels.describe()) if spec.channels else ''}) "
+        f"({plain(', '.join(model.unknown_links))} "
+        f"unknown{'; ' + plain(spec.channels.describe()) if spec.channels else ''}) "
         f"in {seconds:.1f} s "
         f"({total * n_frames / seconds:,.0f} frames/s)"
     )
@@ -177,7 +274,7 @@ def data_generate(ctx, robot, factorial, n_configs, pool, n_frames, seed, frame_
 
 def _finite(ctx, param, value: float) -> float:
     """A finite number (click's FloatRange lets inf through)."""
-    import math  # noqa: PLC0415
+    import math
 
     if not math.isfinite(value):
         raise click.BadParameter(f"{value} is not a finite number")
@@ -197,71 +294,155 @@ def _delay(ctx, param, value: str) -> float | None:
 @data.command("import")
 @click.argument("path", metavar="PATH", type=click.Path(path_type=Path))
 @robot_options(positional="option")
-@click.option("--sensor-pose", default=None, metavar="X,Y,Z,R,P,Y|FRAME|LINK:X,Y,Z,R,P,Y",
-              help="The sensor frame in the base frame (m, rad, URDF rpy), a URDF link (welded to the base, or to "
-                   "a moving link: a wrist sensor), or LINK:x,y,z,r,p,y in URDF link LINK's frame (default: the "
-                   "bag's wrench frame_id if the URDF has that link, else the base frame).")
-@click.option("--cutoff", type=FiniteFloatRange(min=0, min_open=True), default=None, metavar="HZ",
-              help="Low-pass cut-off of angles and wrench (default: chosen from the joint angles when qd, qdd "
-                   "are derived; no filter when they are measured).")
-@click.option("--rate", type=FiniteFloatRange(min=0, min_open=True), default=None, metavar="HZ",
-              help="Rate of the frames (default: the slower stream's).")
-@click.option("--delay", default="0", show_default=True, metavar="S|auto", callback=_delay,
-              help="How late the wrench time stamps are against the joints' (s), or auto: estimated from the "
-                   "model within +-50 ms.")
+@click.option(
+    "--sensor-pose",
+    default=None,
+    metavar="X,Y,Z,R,P,Y|FRAME|LINK:X,Y,Z,R,P,Y",
+    help="The sensor frame in the base frame (m, rad, URDF rpy), a URDF link (welded to the base, or to "
+    "a moving link: a wrist sensor), or LINK:x,y,z,r,p,y in URDF link LINK's frame (default: the "
+    "bag's wrench frame_id if the URDF has that link, else the base frame).",
+)
+@click.option(
+    "--cutoff",
+    type=FiniteFloatRange(min=0, min_open=True),
+    default=None,
+    metavar="HZ",
+    help="Low-pass cut-off of angles and wrench (default: chosen from the joint angles when qd, qdd "
+    "are derived; no filter when they are measured).",
+)
+@click.option(
+    "--rate",
+    type=FiniteFloatRange(min=0, min_open=True),
+    default=None,
+    metavar="HZ",
+    help="Rate of the frames (default: the slower stream's).",
+)
+@click.option(
+    "--delay",
+    default="0",
+    show_default=True,
+    metavar="S|auto",
+    callback=_delay,
+    help="How late the wrench time stamps are against the joints' (s), or auto: estimated from the "
+    "model within +-50 ms.",
+)
 @click.option("--joint-topic", default="/joint_states", show_default=True, help="Bags: the JointState topic.")
 @click.option("--wrench-topic", default=None, help="Bags: the WrenchStamped topic (needed when there are several).")
-@click.option("--flip-wrench", is_flag=True,
-              help="The sensor reports the wrench on the robot (the opposite of ineid's convention); negate it.")
-@click.option("--wrench-scale", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
-              metavar="FACTOR", callback=_finite,
-              help="Multiply every force and moment by FACTOR (0.001 for a wrench in mN and N*mm).")
-@click.option("--angle-unit", type=click.Choice(["rad", "deg"]), default="rad", show_default=True,
-              help="Unit of the revolute joints' angles (and of measured qd, qdd); deg converts them to rad.")
-@click.option("--time-unit", type=click.Choice(["s", "ms", "us", "ns"]), default="s", show_default=True,
-              help="Unit of the time stamps (of every stream); converted to s.")
-@click.option("--force-unit", type=click.Choice(["N", "mN", "kN"]), default="N", show_default=True,
-              help="Unit of the wrench's forces; converted to N (before --wrench-scale).")
-@click.option("--moment-unit", type=click.Choice(["Nm", "Nmm", "kNm"]), default="Nm", show_default=True,
-              help="Unit of the wrench's moments (Nmm: N*mm, also mN*m); converted to N*m (before --wrench-scale).")
+@click.option(
+    "--flip-wrench",
+    is_flag=True,
+    help="The sensor reports the wrench on the robot (the opposite of ineid's convention); negate it.",
+)
+@click.option(
+    "--wrench-scale",
+    type=click.FloatRange(min=0, min_open=True),
+    default=1.0,
+    show_default=True,
+    metavar="FACTOR",
+    callback=_finite,
+    help="Multiply every force and moment by FACTOR (0.001 for a wrench in mN and N*mm).",
+)
+@click.option(
+    "--angle-unit",
+    type=click.Choice(["rad", "deg"]),
+    default="rad",
+    show_default=True,
+    help="Unit of the revolute joints' angles (and of measured qd, qdd); deg converts them to rad.",
+)
+@click.option(
+    "--time-unit",
+    type=click.Choice(["s", "ms", "us", "ns"]),
+    default="s",
+    show_default=True,
+    help="Unit of the time stamps (of every stream); converted to s.",
+)
+@click.option(
+    "--force-unit",
+    type=click.Choice(["N", "mN", "kN"]),
+    default="N",
+    show_default=True,
+    help="Unit of the wrench's forces; converted to N (before --wrench-scale).",
+)
+@click.option(
+    "--moment-unit",
+    type=click.Choice(["Nm", "Nmm", "kNm"]),
+    default="Nm",
+    show_default=True,
+    help="Unit of the wrench's moments (Nmm: N*mm, also mN*m); converted to N*m (before --wrench-scale).",
+)
 @torque_constant_option
 @gear_ratio_option
 @imu_import
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
 @click.pass_context
-def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic, wrench_topic, flip_wrench,
-                wrench_scale, angle_unit, time_unit, force_unit, moment_unit, torque_constant, gear_ratio, imus,
-                imu_topics, imu_delay, imu_noise, out, overwrite) -> None:
+def data_import(
+    ctx,
+    path,
+    robot,
+    sensor_pose,
+    cutoff,
+    rate,
+    delay,
+    joint_topic,
+    wrench_topic,
+    flip_wrench,
+    wrench_scale,
+    angle_unit,
+    time_unit,
+    force_unit,
+    moment_unit,
+    torque_constant,
+    gear_ratio,
+    imus,
+    imu_topics,
+    imu_delay,
+    imu_noise,
+    out,
+    overwrite,
+) -> None:
     """Import a recording: a CSV (time, q1..qn, [qd1..qn, qdd1..qn,] [tau1..taun,] fx fy fz mx my mz; the wrench
     optional with torques), a ROS 1 .bag, or a ROS 2 bag folder or .mcap (sensor_msgs/JointState with its
     effort as joint torques, geometry_msgs/WrenchStamped). Link IMUs (imu_<NAME>_wx.. columns, sensor_msgs/Imu
     topics): qd, qdd fused from the encoders and the IMUs (docs/recordings.md)."""
-    from ineid.data.recording import ImportSettings, import_recording  # noqa: PLC0415
+    from ineid.data.recording import ImportSettings, import_recording
 
     if delay is None:  # --delay auto: the estimate fits the model; importing it registers it with the import
-        import ineid.identify.delay  # noqa: F401, PLC0415
+        import ineid.identify.delay  # noqa: F401
 
     prepare_output(out, overwrite, inputs=[*folder_inputs(path, "the input recording"), *robot_inputs(robot)])
     model = robot.load()
-    from ineid.data.recording_imu import parse_imu_text  # noqa: PLC0415
+    from ineid.data.recording_imu import parse_imu_text
 
     for text in imus:  # a mount that does not parse is said before the file is read
         parse_imu_text(text, model)
-    settings = ImportSettings(sensor_pose=sensor_pose, cutoff=cutoff, rate=rate, delay=delay or 0.0,
-                              estimate_delay=delay is None, flip_wrench=flip_wrench, angle_unit=angle_unit,
-                              wrench_scale=wrench_scale, time_unit=time_unit, force_unit=force_unit,
-                              moment_unit=moment_unit, torque_constant=torque_constant,
-                              gear_ratio=gear_ratio, imus=tuple(imus), imu_delay=imu_delay,
-                              imu_noise=imu_noise)  # fmt: skip
+    settings = ImportSettings(
+        sensor_pose=sensor_pose,
+        cutoff=cutoff,
+        rate=rate,
+        delay=delay or 0.0,
+        estimate_delay=delay is None,
+        flip_wrench=flip_wrench,
+        angle_unit=angle_unit,
+        wrench_scale=wrench_scale,
+        time_unit=time_unit,
+        force_unit=force_unit,
+        moment_unit=moment_unit,
+        torque_constant=torque_constant,
+        gear_ratio=gear_ratio,
+        imus=tuple(imus),
+        imu_delay=imu_delay,
+        imu_noise=imu_noise,
+    )
     with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
-        ds, summary = import_recording(path, model, settings, joint_topic, wrench_topic, progress=bar,
-                                       imu_topics=tuple(imu_topics))
+        ds, summary = import_recording(
+            path, model, settings, joint_topic, wrench_topic, progress=bar, imu_topics=tuple(imu_topics)
+        )
     ds.save(out, overwrite=overwrite)
     click.echo(f"wrote {out}: one recording of {plain(model.name)}")
     for line in summary.lines():
         click.echo(f"  {plain(line)}")
-    from ineid.data.plausibility import check_dataset  # noqa: PLC0415
+    from ineid.data.plausibility import check_dataset
 
     print_findings(check_dataset(ds, model))
 
@@ -270,23 +451,29 @@ def data_import(ctx, path, robot, sensor_pose, cutoff, rate, delay, joint_topic,
 @click.argument("path", metavar="FILE", type=click.Path(path_type=Path))
 def data_info(path: Path) -> None:
     """Summarize a dataset: sizes, robot, settings, parameter and wrench ranges."""
-    import numpy as np  # noqa: PLC0415
+    import numpy as np
 
-    from ineid.data import iter_dataset, read_meta  # noqa: PLC0415
-    from ineid.params import param_names  # noqa: PLC0415
+    from ineid.data import iter_dataset, read_meta
+    from ineid.params import param_names
 
     meta, shapes = read_meta(path)
     n_configs, n_frames, n_dof = shapes["q"]
     con = console()
-    con.print(f"[bold]{shown(path)}[/bold]  ineid dataset v{shown(meta.version)} ({shown(meta.source)}), "
-              f"written by ineid {shown(meta.ineid_version)}")
+    con.print(
+        f"[bold]{shown(path)}[/bold]  ineid dataset v{shown(meta.version)} ({shown(meta.source)}), "
+        f"written by ineid {shown(meta.ineid_version)}"
+    )
     con.print(
         f"{n_configs:,} configuration{'s' if n_configs != 1 else ''} x {n_frames:,} frames = {n_configs * n_frames:,} "
         f"frames; robot {shown(meta.robot)}, {n_dof} joints ({shown(', '.join(meta.joint_names))})"
     )
-    con.print(f"unknown links: {shown(', '.join(meta.unknown_links))}; "
-              f"known links: {shown(', '.join(meta.known_links) or '-')}")
-    con.print(f"gravity {np.asarray(meta.gravity).tolist()} m/s^2" + (f"; seed {meta.seed}" if meta.seed is not None else ""))
+    con.print(
+        f"unknown links: {shown(', '.join(meta.unknown_links))}; "
+        f"known links: {shown(', '.join(meta.known_links) or '-')}"
+    )
+    con.print(
+        f"gravity {np.asarray(meta.gravity).tolist()} m/s^2" + (f"; seed {meta.seed}" if meta.seed is not None else "")
+    )
     if meta.locked_joints:
         con.print(f"locked joints: {shown(meta.locked_joints)}")
     if meta.sampling:
@@ -294,7 +481,7 @@ def data_info(path: Path) -> None:
     con.print(f"noise (std): {shown(json.dumps(meta.noise)) if meta.noise else 'none (clean data)'}")
     if meta.origin:
         con.print(f"origin: {shown(json.dumps(meta.origin, sort_keys=True))}")
-    from ineid.channels import BaseWrench  # noqa: PLC0415
+    from ineid.channels import BaseWrench
 
     several = len(meta.channels) > 1
     if several:
@@ -303,8 +490,10 @@ def data_info(path: Path) -> None:
         pose = getattr(c, "sensor", None)  # an F/T sensor's pose: under the base, or on a link (its frame)
         if pose is not None:
             where = f"link {c.link!r}'s frame" if getattr(c, "link", None) else "the base frame"
-            con.print(f"sensor frame{f' of {c.key}' if several else ''} in {shown(where)}: {shown(pose.describe())}"
-                      + (f"; wrench messages in frame {shown(repr(pose.frame_id))}" if pose.frame_id else ""))
+            con.print(
+                f"sensor frame{f' of {c.key}' if several else ''} in {shown(where)}: {shown(pose.describe())}"
+                + (f"; wrench messages in frame {shown(repr(pose.frame_id))}" if pose.frame_id else "")
+            )
     if meta.extra_truth:
         con.print(f"simulated actuation (extra_truth): {shown(json.dumps(meta.extra_truth))}")
     arrays = table("Arrays", ("name", "shape"), left=("name", "shape"))
@@ -323,14 +512,17 @@ def data_info(path: Path) -> None:
         return lo, hi, total / max(count, 1)
 
     if "theta_unknown" in shapes:
-        from ineid.robots.urdf import parse_chain  # noqa: PLC0415
+        from ineid.robots.urdf import parse_chain
 
         chain = parse_chain(meta.urdf, source=f"{path} (its URDF)", locked_joints=meta.locked_joints or None)
         cad = {j.link: j.theta for j in chain.joints}
         names = param_names(meta.unknown_links)
         lo, hi, mean = ranges("theta_unknown", len(names))
-        t = table("Unknown parameters over the configurations (SI, about each link origin)",
-                  ("parameter", "CAD", "min", "mean", "max"), left=("parameter",))  # fmt: skip
+        t = table(
+            "Unknown parameters over the configurations (SI, about each link origin)",
+            ("parameter", "CAD", "min", "mean", "max"),
+            left=("parameter",),
+        )
         for k, name in enumerate(names):
             link = name.rpartition(".")[0]
             t.add_row(name, f"{cad[link][k % 10]:.5g}", f"{lo[k]:.5g}", f"{mean[k]:.5g}", f"{hi[k]:.5g}")
@@ -340,8 +532,7 @@ def data_info(path: Path) -> None:
         lo, hi, mean = ranges(c.key, len(axes))
         units = ", ".join(dict.fromkeys(c.units(meta)))
         if isinstance(c, BaseWrench):
-            frame = ("base frame, about the base origin" if c.sensor is None
-                     else "sensor frame, about the sensor origin")
+            frame = "base frame, about the base origin" if c.sensor is None else "sensor frame, about the sensor origin"
             title = f"{'Wrench' if c.key == 'wrench' else shown(c.key)} ({units}; {frame})"
         else:
             title = f"{shown(c.key)}: {shown(c.describe())} ({units})"

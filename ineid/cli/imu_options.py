@@ -10,11 +10,14 @@ import click
 from ineid.cli.simulation import IMU_NOISE_KEYS
 
 imu_option = click.option(
-    "--imu", "imus", multiple=True, metavar="[NAME=]LINK[:X,Y,Z,R,P,Y]|FRAME",
+    "--imu",
+    "imus",
+    multiple=True,
+    metavar="[NAME=]LINK[:X,Y,Z,R,P,Y]|FRAME",
     help="A link IMU (repeatable): on moving link LINK at a pose in its frame (m, rad, URDF rpy; default its "
-         "origin), or at a URDF frame welded to a moving link. NAME: the <NAME> of its columns imu_<NAME>_wx... "
-         "or its bag messages' frame_id, when neither the link's nor the frame's name.",
-)  # fmt: skip
+    "origin), or at a URDF frame welded to a moving link. NAME: the <NAME> of its columns imu_<NAME>_wx... "
+    "or its bag messages' frame_id, when neither the link's nor the frame's name.",
+)
 
 
 def _seconds(ctx, param, value: float) -> float:
@@ -25,16 +28,32 @@ def _seconds(ctx, param, value: float) -> float:
 
 imu_import_options = [
     imu_option,
-    click.option("--imu-topic", "imu_topics", multiple=True, metavar="TOPIC",
-                 help="Bags: a sensor_msgs/Imu topic of a link IMU (repeatable); its frame_id names the link, a URDF "
-                      "frame on it or an --imu NAME; angular acceleration on TOPIC/angular_acceleration "
-                      "(geometry_msgs/Vector3Stamped, rad/s^2)."),
-    click.option("--imu-delay", type=float, default=0.0, show_default=True, metavar="S", callback=_seconds,
-                 help="How late the IMU time stamps are against the joints' (s)."),
-    click.option("--imu-noise", default=None, metavar="KEY=STD,...",
-                 callback=lambda ctx, p, v: parse_imu_noise(v, "--imu-noise"),
-                 help="The fusion's weights: white-noise std of gyro (rad/s), accel (m/s^2), alpha (rad/s^2) at the "
-                      "frames' rate (default: gyro=0.005,accel=0.05,alpha=0.17)."),
+    click.option(
+        "--imu-topic",
+        "imu_topics",
+        multiple=True,
+        metavar="TOPIC",
+        help="Bags: a sensor_msgs/Imu topic of a link IMU (repeatable); its frame_id names the link, a URDF "
+        "frame on it or an --imu NAME; angular acceleration on TOPIC/angular_acceleration "
+        "(geometry_msgs/Vector3Stamped, rad/s^2).",
+    ),
+    click.option(
+        "--imu-delay",
+        type=float,
+        default=0.0,
+        show_default=True,
+        metavar="S",
+        callback=_seconds,
+        help="How late the IMU time stamps are against the joints' (s).",
+    ),
+    click.option(
+        "--imu-noise",
+        default=None,
+        metavar="KEY=STD,...",
+        callback=lambda ctx, p, v: parse_imu_noise(v, "--imu-noise"),
+        help="The fusion's weights: white-noise std of gyro (rad/s), accel (m/s^2), alpha (rad/s^2) at the "
+        "frames' rate (default: gyro=0.005,accel=0.05,alpha=0.17).",
+    ),
 ]
 
 
@@ -59,18 +78,31 @@ def parse_imu_noise(value: str | None, hint: str) -> dict[str, float] | None:
             if not 0 < out[key.strip().lower()] < 1e6:
                 raise ValueError
         except ValueError:
-            raise click.BadParameter(f"expected KEY=STD with KEY in {', '.join(IMU_NOISE_KEYS)} and 0 < STD < 1e6, got "
-                                     f"{item.strip()!r}", param_hint=hint) from None
+            raise click.BadParameter(
+                f"expected KEY=STD with KEY in {', '.join(IMU_NOISE_KEYS)} and 0 < STD < 1e6, got {item.strip()!r}",
+                param_hint=hint,
+            ) from None
     return out
 
 
 imu_generate_options = [
     imu_option,
-    click.option("--gyro-bias", type=click.FloatRange(min=0, max=1e6), default=0.0, show_default=True, metavar="STD",
-                 help="With --imu: the std of each gyro axis's constant bias (rad/s), drawn per configuration."),
-    click.option("--encoder-bits", type=click.IntRange(1, 64), default=None, metavar="N",
-                 help="Rehearse the import (fourier, trajectory frame modes): encoders of N bits (steps of 2 pi / 2^N "
-                      "rad), filtered and differentiated as the import does, fused with any --imu."),
+    click.option(
+        "--gyro-bias",
+        type=click.FloatRange(min=0, max=1e6),
+        default=0.0,
+        show_default=True,
+        metavar="STD",
+        help="With --imu: the std of each gyro axis's constant bias (rad/s), drawn per configuration.",
+    ),
+    click.option(
+        "--encoder-bits",
+        type=click.IntRange(1, 64),
+        default=None,
+        metavar="N",
+        help="Rehearse the import (fourier, trajectory frame modes): encoders of N bits (steps of 2 pi / 2^N "
+        "rad), filtered and differentiated as the import does, fused with any --imu.",
+    ),
 ]
 
 
@@ -85,48 +117,68 @@ def check_imu_generate(imus, gyro_bias: float, encoder_bits: int | None, noise: 
     """The rehearsal's options without ``--imu``, or ``--imu`` with independent frames: one line (exit 2)."""
     imu_noise = sorted(k for k in (noise or {}) if k in IMU_NOISE_KEYS)
     if not imus:
-        given = [flag for flag, on in (("--gyro-bias", gyro_bias > 0),
-                                       (f"--noise {','.join(imu_noise)}", bool(imu_noise))) if on]
+        given = [
+            flag
+            for flag, on in (("--gyro-bias", gyro_bias > 0), (f"--noise {','.join(imu_noise)}", bool(imu_noise)))
+            if on
+        ]
         if given:
             raise click.UsageError(f"{given[0]} is for the link IMUs of a rehearsal: add --imu LINK[:pose]")
         if encoder_bits is None:
             return
     if frame_mode not in ("fourier", "trajectory"):
         flag = "--imu" if imus else "--encoder-bits"
-        raise click.UsageError(f"{flag} rehearses an import, which filters and differentiates time series: use "
-                               f"--frame-mode fourier or trajectory, not {frame_mode} (independent frames)")
+        raise click.UsageError(
+            f"{flag} rehearses an import, which filters and differentiates time series: use "
+            f"--frame-mode fourier or trajectory, not {frame_mode} (independent frames)"
+        )
     if any((noise or {}).get(k, 0.0) > 0 for k in ("q", "qd", "qdd")):
-        raise click.UsageError("with --imu the states are estimated from the encoders and the IMUs: drop the q, qd, "
-                               "qdd noise (--encoder-bits N quantizes the angles)")
+        raise click.UsageError(
+            "with --imu the states are estimated from the encoders and the IMUs: drop the q, qd, "
+            "qdd noise (--encoder-bits N quantizes the angles)"
+        )
 
 
 def imu_rehearsal(imus, gyro_bias: float, encoder_bits: int | None, noise: dict | None, model):
     """The :class:`ineid.data.imu_rehearsal.ImuRehearsal` of the options (None without ``--imu``)."""
     if not imus and encoder_bits is None:
         return None
-    from ineid.data.imu_rehearsal import ImuRehearsal  # noqa: PLC0415
-    from ineid.data.recording_imu import parse_imu_text  # noqa: PLC0415
+    from ineid.data.imu_rehearsal import ImuRehearsal
+    from ineid.data.recording_imu import parse_imu_text
 
     mounts = [parse_imu_text(text, model) for text in imus]
     names = [m.name for m in mounts]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise click.BadParameter(f"IMU {dup[0]!r} is given twice; give each once (NAME=LINK:pose names a second IMU "
-                                 "on one link)", param_hint="--imu")
-    return ImuRehearsal(tuple(mounts), {k: v for k, v in (noise or {}).items() if k in IMU_NOISE_KEYS}, gyro_bias,
-                        encoder_bits)
+        raise click.BadParameter(
+            f"IMU {dup[0]!r} is given twice; give each once (NAME=LINK:pose names a second IMU on one link)",
+            param_hint="--imu",
+        )
+    return ImuRehearsal(
+        tuple(mounts), {k: v for k, v in (noise or {}).items() if k in IMU_NOISE_KEYS}, gyro_bias, encoder_bits
+    )
 
 
 imu_excite_options = [
-    click.option("--imu", "imus", multiple=True, metavar="[NAME=]LINK[:X,Y,Z,R,P,Y]|FRAME",
-                 help="Design for a link IMU (repeatable; gyro, accelerometer and angular acceleration) fused with the "
-                      "encoders as ineid data import does: on moving link LINK at a pose in its frame (m, rad, URDF "
-                      "rpy; default its origin), or at a URDF frame welded to a moving link. Noise: --noise gyro=, "
-                      "accel=, alpha= (default 0.005 rad/s, 0.05 m/s^2, 0.17 rad/s^2)."),
-    click.option("--encoder-bits", type=click.IntRange(1, 64), default=None, metavar="N",
-                 help="Design for encoders of N bits (steps of 2 pi / 2^N rad), filtered and differentiated as the "
-                      "import does: their joint-state errors inflate the noise to first order.  [default: exact]"),
-]  # fmt: skip
+    click.option(
+        "--imu",
+        "imus",
+        multiple=True,
+        metavar="[NAME=]LINK[:X,Y,Z,R,P,Y]|FRAME",
+        help="Design for a link IMU (repeatable; gyro, accelerometer and angular acceleration) fused with the "
+        "encoders as ineid data import does: on moving link LINK at a pose in its frame (m, rad, URDF "
+        "rpy; default its origin), or at a URDF frame welded to a moving link. Noise: --noise gyro=, "
+        "accel=, alpha= (default 0.005 rad/s, 0.05 m/s^2, 0.17 rad/s^2).",
+    ),
+    click.option(
+        "--encoder-bits",
+        type=click.IntRange(1, 64),
+        default=None,
+        metavar="N",
+        help="Design for encoders of N bits (steps of 2 pi / 2^N rad), filtered and differentiated as the "
+        "import does: their joint-state errors inflate the noise to first order.  [default: exact]",
+    ),
+]
 
 
 def imu_excite(f):
@@ -153,9 +205,10 @@ def excite_sensors(imus, encoder_bits: int | None, noise: dict | None, model):
     if not imus and encoder_bits is None:
         return None
     if any(k in noise for k in ("q", "qd", "qdd")):
-        raise click.UsageError("with --encoder-bits or --imu the joint-state errors come from the sensors: drop the q, "
-                               "qd, qdd noise")
-    from ineid.data.state_estimation import ImuNoise  # noqa: PLC0415
+        raise click.UsageError(
+            "with --encoder-bits or --imu the joint-state errors come from the sensors: drop the q, qd, qdd noise"
+        )
+    from ineid.data.state_estimation import ImuNoise
 
     default = ImuNoise()
     sensors = imu_rehearsal(imus, 0.0, encoder_bits, noise, model)

@@ -29,32 +29,84 @@ _MODEL = "ineid.learn.models:ModelSpec"
 def _run_options(f):
     """Options shared by ``ineid train`` and ``ineid sweep`` (the settings of one run; defaults: TrainConfig's)."""
     opts = [
-        click.option("--depth", type=click.IntRange(min=1), default=None,
-                     help="Hidden layers of --arch mlp (or of the wls frame encoder, default 2)."),
-        click.option("--width", type=click.IntRange(min=1), default=None,
-                     help="Neurons per layer of --arch mlp (or of the wls frame encoder, default 32)."),
+        click.option(
+            "--depth",
+            type=click.IntRange(min=1),
+            default=None,
+            help="Hidden layers of --arch mlp (or of the wls frame encoder, default 2).",
+        ),
+        click.option(
+            "--width",
+            type=click.IntRange(min=1),
+            default=None,
+            help="Neurons per layer of --arch mlp (or of the wls frame encoder, default 32).",
+        ),
         click.option("--lr", type=FiniteFloatRange(min=0, min_open=True), cls=LibraryOption, default_from=f"{_CFG}.lr"),
-        click.option("--schedule", type=LibraryChoice("ineid.learn.train:SCHEDULES"), cls=LibraryOption,
-                     default_from=f"{_CFG}.schedule"),
+        click.option(
+            "--schedule",
+            type=LibraryChoice("ineid.learn.train:SCHEDULES"),
+            cls=LibraryOption,
+            default_from=f"{_CFG}.schedule",
+        ),
         click.option("--epochs", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_CFG}.epochs"),
-        click.option("--batch", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_CFG}.batch",
-                     help="Samples per step."),
-        click.option("--alpha", type=FiniteFloatRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.alpha",
-                     help="Weight of the MSE."),
-        click.option("--beta", type=FiniteFloatRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.beta",
-                     help="Weight of the wrench residual (physics loss)."),
-        click.option("--patience", type=click.IntRange(min=0), cls=LibraryOption, default_from=f"{_CFG}.patience",
-                     help="Early stopping: epochs without a better validation MSE (0: off)."),
-        click.option("--train-configs", "n_train", type=click.IntRange(min=1), default=None,
-                     help="Training configurations (default 70 %)."),
-        click.option("--val-configs", "n_val", type=click.IntRange(min=1), default=None,
-                     help="Validation configurations (default 15 %)."),
-        click.option("--test-configs", "n_test", type=click.IntRange(min=1), default=None,
-                     help="Test configurations (default: the rest)."),
+        click.option(
+            "--batch",
+            type=click.IntRange(min=1),
+            cls=LibraryOption,
+            default_from=f"{_CFG}.batch",
+            help="Samples per step.",
+        ),
+        click.option(
+            "--alpha",
+            type=FiniteFloatRange(min=0),
+            cls=LibraryOption,
+            default_from=f"{_CFG}.alpha",
+            help="Weight of the MSE.",
+        ),
+        click.option(
+            "--beta",
+            type=FiniteFloatRange(min=0),
+            cls=LibraryOption,
+            default_from=f"{_CFG}.beta",
+            help="Weight of the wrench residual (physics loss).",
+        ),
+        click.option(
+            "--patience",
+            type=click.IntRange(min=0),
+            cls=LibraryOption,
+            default_from=f"{_CFG}.patience",
+            help="Early stopping: epochs without a better validation MSE (0: off).",
+        ),
+        click.option(
+            "--train-configs",
+            "n_train",
+            type=click.IntRange(min=1),
+            default=None,
+            help="Training configurations (default 70 %).",
+        ),
+        click.option(
+            "--val-configs",
+            "n_val",
+            type=click.IntRange(min=1),
+            default=None,
+            help="Validation configurations (default 15 %).",
+        ),
+        click.option(
+            "--test-configs",
+            "n_test",
+            type=click.IntRange(min=1),
+            default=None,
+            help="Test configurations (default: the rest).",
+        ),
         click.option("--seed", type=SEED, cls=LibraryOption, default_from=f"{_CFG}.seed"),
-        click.option("--physics-mode", type=LibraryChoice("ineid.learn.losses:PHYSICS_MODES"), default="cached",
-                     show_default=True, help="Regressor of the physics loss: computed once per frame, or inside the loss."),
-    ]  # fmt: skip
+        click.option(
+            "--physics-mode",
+            type=LibraryChoice("ineid.learn.losses:PHYSICS_MODES"),
+            default="cached",
+            show_default=True,
+            help="Regressor of the physics loss: computed once per frame, or inside the loss.",
+        ),
+    ]
     for o in reversed(opts):
         f = o(f)
     return f
@@ -72,7 +124,7 @@ def _folder_id(path: Path) -> tuple[int, int] | None:
 
 def _train_config(model_kw: dict, kw: dict):
     """A :class:`TrainConfig` from the options; a bad combination is a usage error."""
-    from ineid.learn import ModelSpec, TrainConfig  # noqa: PLC0415
+    from ineid.learn import ModelSpec, TrainConfig
 
     try:
         return TrainConfig(model=ModelSpec(**model_kw), **kw)
@@ -82,17 +134,35 @@ def _train_config(model_kw: dict, kw: dict):
 
 @click.command("train")
 @click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
-@click.option("--arch", type=LibraryChoice("ineid.learn.models:ARCHITECTURES"), cls=LibraryOption,
-              default_from=f"{_MODEL}.arch",
-              help="Table 1 of the paper, mlp, or wls (a weighted least-squares solve with learned weights and prior).")
-@click.option("--activation", type=LibraryChoice("ineid.learn.models:ACTIVATIONS"), cls=LibraryOption,
-              default_from=f"{_MODEL}.activation")
-@click.option("--scaler", type=LibraryChoice("ineid.learn.scalers:SCALERS"), cls=LibraryOption,
-              default_from=f"{_CFG}.scaler")
-@click.option("--optimizer", type=LibraryChoice("ineid.learn.train:OPTIMIZERS"), cls=LibraryOption,
-              default_from=f"{_CFG}.optimizer")
-@click.option("--sample-frames", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_MODEL}.frames",
-              help="Frames per network sample (K).")
+@click.option(
+    "--arch",
+    type=LibraryChoice("ineid.learn.models:ARCHITECTURES"),
+    cls=LibraryOption,
+    default_from=f"{_MODEL}.arch",
+    help="Table 1 of the paper, mlp, or wls (a weighted least-squares solve with learned weights and prior).",
+)
+@click.option(
+    "--activation",
+    type=LibraryChoice("ineid.learn.models:ACTIVATIONS"),
+    cls=LibraryOption,
+    default_from=f"{_MODEL}.activation",
+)
+@click.option(
+    "--scaler", type=LibraryChoice("ineid.learn.scalers:SCALERS"), cls=LibraryOption, default_from=f"{_CFG}.scaler"
+)
+@click.option(
+    "--optimizer",
+    type=LibraryChoice("ineid.learn.train:OPTIMIZERS"),
+    cls=LibraryOption,
+    default_from=f"{_CFG}.optimizer",
+)
+@click.option(
+    "--sample-frames",
+    type=click.IntRange(min=1),
+    cls=LibraryOption,
+    default_from=f"{_MODEL}.frames",
+    help="Frames per network sample (K).",
+)
 @deprecated_alias("--frames", "sample_frames", "--sample-frames", type=click.IntRange(min=1))
 @click.option("--siamese", is_flag=True, help="One shared encoder per frame, embeddings averaged, then a head.")
 @click.option("--loss", type=LibraryChoice("ineid.learn.losses:LOSSES"), cls=LibraryOption, default_from=f"{_CFG}.loss")
@@ -101,23 +171,37 @@ def _train_config(model_kw: dict, kw: dict):
 @click.option("--resume", is_flag=True, help="Continue the run in --out from its checkpoint (same settings).")
 @overwrite_option
 @click.pass_context
-def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, arch, activation, depth, width, sample_frames,
-              siamese, **kw) -> None:
+def train_cmd(
+    ctx,
+    data_path,
+    run_dir,
+    resume,
+    overwrite,
+    physics_mode,
+    arch,
+    activation,
+    depth,
+    width,
+    sample_frames,
+    siamese,
+    **kw,
+) -> None:
     """Train a network on DATA.h5 into a run folder, then evaluate it on the test split.
 
     With --overwrite, a run already in the folder is replaced only when the new one is
     finished; an interruption leaves it untouched.
     """
-    import json  # noqa: PLC0415
+    import json
 
-    from ineid._atomic import atomic_write  # noqa: PLC0415
-    from ineid.cli.output_files import on_interrupt, prepare_output  # noqa: PLC0415
-    from ineid.data import load_dataset  # noqa: PLC0415
-    from ineid.learn import evaluate, load_run, train  # noqa: PLC0415
-    from ineid.learn.runs import CHECKPOINT, EVALUATION, RUN_FILES, holds_run  # noqa: PLC0415
+    from ineid._atomic import atomic_write
+    from ineid.cli.output_files import on_interrupt, prepare_output
+    from ineid.data import load_dataset
+    from ineid.learn import evaluate, load_run, train
+    from ineid.learn.runs import CHECKPOINT, EVALUATION, RUN_FILES, holds_run
 
-    cfg = _train_config(dict(arch=arch, activation=activation, depth=depth, width=width, siamese=siamese,
-                             frames=sample_frames), kw)  # fmt: skip
+    cfg = _train_config(
+        dict(arch=arch, activation=activation, depth=depth, width=width, siamese=siamese, frames=sample_frames), kw
+    )
     prepare_output(run_dir, overwrite, kind="folder", inputs=[("the input dataset", data_path)], contents=RUN_FILES)
     replacing = overwrite and not resume and holds_run(run_dir)
     previous = _folder_id(run_dir)
@@ -128,8 +212,10 @@ def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, arch, ac
         if replacing:  # the signal came during the swap, held back until the new run was in place
             return f"{run_dir} holds the new run, complete (it had replaced the previous one)"
         if (run_dir / CHECKPOINT).is_file():
-            return (f"the run in {run_dir} can be continued with "
-                    f"`ineid train {data_path} ... --out {run_dir} --resume` (the same settings)")
+            return (
+                f"the run in {run_dir} can be continued with "
+                f"`ineid train {data_path} ... --out {run_dir} --resume` (the same settings)"
+            )
         return None
 
     ds = load_dataset(data_path, clean=False)
@@ -145,11 +231,23 @@ def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, arch, ac
 
         def progress(epoch, total, rec):
             bar(epoch, total)
-            bar.set_description(f"training {cfg.model.name}  loss {rec['train_loss']:.4f}  val mse "
-                                f"{rec['val_mse']:.4f}  val phys {rec['val_phys']:.4f}")  # fmt: skip
+            bar.set_description(
+                f"training {cfg.model.name}  loss {rec['train_loss']:.4f}  val mse "
+                f"{rec['val_mse']:.4f}  val phys {rec['val_phys']:.4f}"
+            )
 
-        result = train(ds, cfg, run_dir, dataset_path=str(data_path), resume=resume, overwrite=overwrite,
-                       progress=progress, model=model, physics_mode=physics_mode, finish=finish)
+        result = train(
+            ds,
+            cfg,
+            run_dir,
+            dataset_path=str(data_path),
+            resume=resume,
+            overwrite=overwrite,
+            progress=progress,
+            model=model,
+            physics_mode=physics_mode,
+            finish=finish,
+        )
     click.echo(
         f"{result.epochs_run} epochs in {result.seconds:.1f} s"
         + (" (stopped early)" if result.stopped_early else "")
@@ -164,9 +262,13 @@ def train_cmd(ctx, data_path, run_dir, resume, overwrite, physics_mode, arch, ac
 @select_option
 @select_alias
 @click.option("--no-linear", is_flag=True, help="Skip the classical comparisons (linear LS, Gaussian prior).")
-@click.option("--out", type=click.Path(path_type=Path), default=None,
-              help="Where to write the evaluation (JSON). Default: the run's own RUN_DIR/evaluation.json, "
-                   "replaced once the new evaluation is complete.")
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Where to write the evaluation (JSON). Default: the run's own RUN_DIR/evaluation.json, "
+    "replaced once the new evaluation is complete.",
+)
 @click.option("--overwrite", is_flag=True, help="Replace --out if it exists.")
 def evaluate_cmd(run_dir, data_path, selection, no_linear, out, overwrite) -> None:
     """Evaluate a trained run on DATA.h5: errors, R^2, floor, wrench residual, linear LS.
@@ -175,19 +277,22 @@ def evaluate_cmd(run_dir, data_path, selection, no_linear, out, overwrite) -> No
     Without --out the evaluation replaces the run's evaluation.json (written by `ineid train`),
     a file derived from the run; an interrupted evaluation leaves the old one in place.
     """
-    import json  # noqa: PLC0415
+    import json
 
-    from ineid._atomic import atomic_write  # noqa: PLC0415
-    from ineid.cli.output_files import prepare_output, run_inputs  # noqa: PLC0415
-    from ineid.data import load_dataset  # noqa: PLC0415
-    from ineid.learn import evaluate, load_run  # noqa: PLC0415
-    from ineid.learn.runs import EVALUATION  # noqa: PLC0415
+    from ineid._atomic import atomic_write
+    from ineid.cli.output_files import prepare_output, run_inputs
+    from ineid.data import load_dataset
+    from ineid.learn import evaluate, load_run
+    from ineid.learn.runs import EVALUATION
 
     # The run's own evaluation.json is derived from the run: re-evaluating replaces it (atomically, so
     # a failed or interrupted evaluation keeps the old one). A file named with --out is the user's.
     own = out is None
-    out = prepare_output(Path(run_dir) / EVALUATION if own else out, overwrite or own,
-                         inputs=[("the input dataset", data_path), *run_inputs(run_dir)])  # fmt: skip
+    out = prepare_output(
+        Path(run_dir) / EVALUATION if own else out,
+        overwrite or own,
+        inputs=[("the input dataset", data_path), *run_inputs(run_dir)],
+    )
     replaced = " (it replaces the run's previous evaluation)" if own and out.is_file() else ""
     run = load_run(run_dir)
     ds = load_dataset(data_path, clean=False)
@@ -200,57 +305,130 @@ def evaluate_cmd(run_dir, data_path, selection, no_linear, out, overwrite) -> No
 
 @click.command("sweep")
 @click.argument("data_path", metavar="DATA.h5", type=click.Path(path_type=Path))
-@click.option("--archs", default=None, callback=names_in("ineid.learn.models:ARCHITECTURES", "--archs"),
-              help="Architectures, comma-separated (default: the paper's Table 1, simple and funnel).")
-@click.option("--activations", default=None, callback=names_in("ineid.learn.models:ACTIVATIONS", "--activations"),
-              help="Default: tanh.")
-@click.option("--scalers", default=None, callback=names_in("ineid.learn.scalers:SCALERS", "--scalers"),
-              help="Default: robust.")
-@click.option("--optimizers", default=None, callback=names_in("ineid.learn.train:OPTIMIZERS", "--optimizers"),
-              help="Default: adam.")
-@click.option("--losses", default=None, callback=names_in("ineid.learn.losses:LOSSES", "--losses"), help="Default: mse.")
-@click.option("--sample-frames", "sample_frames", default=None, callback=numbers(int, "--sample-frames", 1),
-              help="Frames per network sample to try, comma-separated (default 1).")
+@click.option(
+    "--archs",
+    default=None,
+    callback=names_in("ineid.learn.models:ARCHITECTURES", "--archs"),
+    help="Architectures, comma-separated (default: the paper's Table 1, simple and funnel).",
+)
+@click.option(
+    "--activations",
+    default=None,
+    callback=names_in("ineid.learn.models:ACTIVATIONS", "--activations"),
+    help="Default: tanh.",
+)
+@click.option(
+    "--scalers", default=None, callback=names_in("ineid.learn.scalers:SCALERS", "--scalers"), help="Default: robust."
+)
+@click.option(
+    "--optimizers",
+    default=None,
+    callback=names_in("ineid.learn.train:OPTIMIZERS", "--optimizers"),
+    help="Default: adam.",
+)
+@click.option(
+    "--losses", default=None, callback=names_in("ineid.learn.losses:LOSSES", "--losses"), help="Default: mse."
+)
+@click.option(
+    "--sample-frames",
+    "sample_frames",
+    default=None,
+    callback=numbers(int, "--sample-frames", 1),
+    help="Frames per network sample to try, comma-separated (default 1).",
+)
 @deprecated_alias("--frames-list", "sample_frames", "--sample-frames", callback=numbers(int, "--frames-list", 1))
 @click.option("--siamese", type=click.Choice(["off", "on", "both"]), default="off", show_default=True)
 @_run_options
-@click.option("--engine", type=LibraryChoice("ineid.learn.sweep:ENGINES"), default="sequential", show_default=True,
-              help="Run the trials one after another here, or as tasks on a Ray cluster (pip install 'ineid[ray]').")
-@click.option("--address", default=None, metavar="ADDR",
-              help="Ray cluster to join (ray://head:10001, auto); default: a local one started for the sweep.")
-@click.option("--cpus-per-trial", type=FiniteFloatRange(min=0), default=1.0, show_default=True,
-              help="CPUs each trial reserves (--engine ray).")
-@click.option("--gpus-per-trial", type=FiniteFloatRange(min=0), default=0.0, show_default=True,
-              help="GPUs each trial reserves (--engine ray).")
+@click.option(
+    "--engine",
+    type=LibraryChoice("ineid.learn.sweep:ENGINES"),
+    default="sequential",
+    show_default=True,
+    help="Run the trials one after another here, or as tasks on a Ray cluster (pip install 'ineid[ray]').",
+)
+@click.option(
+    "--address",
+    default=None,
+    metavar="ADDR",
+    help="Ray cluster to join (ray://head:10001, auto); default: a local one started for the sweep.",
+)
+@click.option(
+    "--cpus-per-trial",
+    type=FiniteFloatRange(min=0),
+    default=1.0,
+    show_default=True,
+    help="CPUs each trial reserves (--engine ray).",
+)
+@click.option(
+    "--gpus-per-trial",
+    type=FiniteFloatRange(min=0),
+    default=0.0,
+    show_default=True,
+    help="GPUs each trial reserves (--engine ray).",
+)
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
-@click.option("--resume", is_flag=True,
-              help="Continue the sweep in --out (same settings): finished trials are kept, interrupted ones resumed.")
+@click.option(
+    "--resume",
+    is_flag=True,
+    help="Continue the sweep in --out (same settings): finished trials are kept, interrupted ones resumed.",
+)
 @overwrite_option
 @click.pass_context
-def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, sample_frames, siamese, engine, address,
-              cpus_per_trial, gpus_per_trial, out_dir, resume, overwrite, physics_mode, depth, width, **kw) -> None:
+def sweep_cmd(
+    ctx,
+    data_path,
+    archs,
+    activations,
+    scalers,
+    optimizers,
+    losses,
+    sample_frames,
+    siamese,
+    engine,
+    address,
+    cpus_per_trial,
+    gpus_per_trial,
+    out_dir,
+    resume,
+    overwrite,
+    physics_mode,
+    depth,
+    width,
+    **kw,
+) -> None:
     """Train a grid of networks (here, or on a Ray cluster); write sweep.csv and sweep.png ranked by test error.
 
     An interrupted sweep keeps its finished trials (and the interrupted one's checkpoint):
     continue it with the same command and --resume.
     """
-    from ineid._atomic import check_output  # noqa: PLC0415
-    from ineid.cli.output_files import on_interrupt, prepare_output  # noqa: PLC0415
-    from ineid.data import load_dataset  # noqa: PLC0415
-    from ineid.learn import Grid, sweep  # noqa: PLC0415
-    from ineid.learn.sweep import SWEEP_RECORD, check_sweep_folder, run_name, trial_state  # noqa: PLC0415
+    from ineid._atomic import check_output
+    from ineid.cli.output_files import on_interrupt, prepare_output
+    from ineid.data import load_dataset
+    from ineid.learn import Grid, sweep
+    from ineid.learn.sweep import SWEEP_RECORD, check_sweep_folder, run_name, trial_state
 
-    given = dict(archs=archs, activations=activations, scalers=scalers, optimizers=optimizers, losses=losses,
-                 frames=sample_frames)  # fmt: skip
-    grid = Grid(**{k: v for k, v in given.items() if v is not None},
-                siamese={"off": (False,), "on": (True,), "both": (False, True)}[siamese])  # fmt: skip
+    given = dict(
+        archs=archs,
+        activations=activations,
+        scalers=scalers,
+        optimizers=optimizers,
+        losses=losses,
+        frames=sample_frames,
+    )
+    grid = Grid(
+        **{k: v for k, v in given.items() if v is not None},
+        siamese={"off": (False,), "on": (True,), "both": (False, True)}[siamese],
+    )
     base = _train_config(dict(arch="mlp" if depth or width else "simple", depth=depth, width=width), kw)
-    ray_given = [f"--{n.replace('_', '-')}" for n in ("address", "cpus_per_trial", "gpus_per_trial")
-                 if ctx.get_parameter_source(n) is click.core.ParameterSource.COMMANDLINE]  # fmt: skip
+    ray_given = [
+        f"--{n.replace('_', '-')}"
+        for n in ("address", "cpus_per_trial", "gpus_per_trial")
+        if ctx.get_parameter_source(n) is click.core.ParameterSource.COMMANDLINE
+    ]
     if engine != "ray" and ray_given:
         raise click.UsageError(f"{', '.join(ray_given)} go with --engine ray")
     if engine == "ray":
-        from ineid.learn.ray_engine import import_ray  # noqa: PLC0415
+        from ineid.learn.ray_engine import import_ray
 
         import_ray()  # says how to install Ray before anything is loaded
     if resume and overwrite:
@@ -261,8 +439,13 @@ def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, s
             raise ValueError("the grid is empty: a Siamese network needs more than one frame (--sample-frames 10)")
     except ValueError as e:
         raise click.UsageError(str(e)) from None
-    prepare_output(out_dir, overwrite, kind="folder", inputs=[("the input dataset", data_path)],
-                   contents=("sweep.csv", "sweep.png", SWEEP_RECORD, *(run_name(c) for c in cfgs)))  # fmt: skip
+    prepare_output(
+        out_dir,
+        overwrite,
+        kind="folder",
+        inputs=[("the input dataset", data_path)],
+        contents=("sweep.csv", "sweep.png", SWEEP_RECORD, *(run_name(c) for c in cfgs)),
+    )
     if out_dir.is_dir() and not resume:
         check_output(out_dir / "sweep.csv", overwrite)
 
@@ -271,30 +454,68 @@ def sweep_cmd(ctx, data_path, archs, activations, scalers, optimizers, losses, s
             return None
         fingerprint = ds.fingerprint()
         done = sum(trial_state(out_dir / run_name(c), c, fingerprint) == "finished" for c in cfgs)
-        return (f"{done} of {len(cfgs)} trials in {out_dir} are finished; continue the sweep with "
-                f"`ineid sweep {data_path} ... --out {out_dir} --resume` (the same settings)")
+        return (
+            f"{done} of {len(cfgs)} trials in {out_dir} are finished; continue the sweep with "
+            f"`ineid sweep {data_path} ... --out {out_dir} --resume` (the same settings)"
+        )
 
     ds = load_dataset(data_path, clean=False)
     check_sweep_folder(ds, grid, base, out_dir, overwrite=overwrite, resume=resume)
     with on_interrupt(left_behind), ProgressBar("sweep", "runs", quiet(ctx)) as bar:
         bar(0, len(cfgs))
-        rows = sweep(ds, grid, base, out_dir, dataset_path=str(data_path), progress=lambda i, t, r: bar(i, t),
-                     overwrite=overwrite, physics_mode=physics_mode, engine=engine, address=address,
-                     cpus_per_trial=cpus_per_trial, gpus_per_trial=gpus_per_trial, resume=resume)  # fmt: skip
-    t = table(f"Sweep on {data_path}: test median relative error, ranked",
-              ("#", "run", "standard", "base", "floor", "linear LS (std / base)", "Gaussian prior (std / base)",
-               "physical", "epochs", "s"), left=("run",))  # fmt: skip
+        rows = sweep(
+            ds,
+            grid,
+            base,
+            out_dir,
+            dataset_path=str(data_path),
+            progress=lambda i, t, r: bar(i, t),
+            overwrite=overwrite,
+            physics_mode=physics_mode,
+            engine=engine,
+            address=address,
+            cpus_per_trial=cpus_per_trial,
+            gpus_per_trial=gpus_per_trial,
+            resume=resume,
+        )
+    t = table(
+        f"Sweep on {data_path}: test median relative error, ranked",
+        (
+            "#",
+            "run",
+            "standard",
+            "base",
+            "floor",
+            "linear LS (std / base)",
+            "Gaussian prior (std / base)",
+            "physical",
+            "epochs",
+            "s",
+        ),
+        left=("run",),
+    )
     for i, r in enumerate(rows):
         if r.status != "ok":
             t.add_row(str(i + 1), r.name, r.status, *[""] * 7)
             continue
-        t.add_row(str(i + 1), r.name, f"{r.test_standard_median:.4g}", f"{r.test_base_median:.4g}",
-                  f"{r.floor_standard_median:.4g}", f"{r.linear_standard_median:.4g} / {r.linear_base_median:.3g}",
-                  f"{r.gaussian_standard_median:.4g} / {r.gaussian_base_median:.3g}", f"{100 * r.physical_share:.0f}%", str(r.epochs_run), f"{r.seconds:.0f}")
+        t.add_row(
+            str(i + 1),
+            r.name,
+            f"{r.test_standard_median:.4g}",
+            f"{r.test_base_median:.4g}",
+            f"{r.floor_standard_median:.4g}",
+            f"{r.linear_standard_median:.4g} / {r.linear_base_median:.3g}",
+            f"{r.gaussian_standard_median:.4g} / {r.gaussian_base_median:.3g}",
+            f"{100 * r.physical_share:.0f}%",
+            str(r.epochs_run),
+            f"{r.seconds:.0f}",
+        )
     console().print(t)
     failed = [r for r in rows if r.status != "ok"]
     if failed:
-        click.echo(f"{len(failed)} of {len(rows)} trials failed (see the table and sweep.csv's status column)", err=True)
+        click.echo(
+            f"{len(failed)} of {len(rows)} trials failed (see the table and sweep.csv's status column)", err=True
+        )
     click.echo(f"wrote {out_dir / 'sweep.csv'} and {out_dir / 'sweep.png'}")
 
 

@@ -4,7 +4,8 @@ Flag names carry one meaning across commands:
 
 =====================  ====================================================================
 ``ROBOT``              positional where the robot is the command's subject: a built-in name
-                       (sweaty-arm), a URDF path or an MJCF path (``.xml``, ``ineid[mujoco]``); ``data import`` (whose subject is the
+                       (sweaty-arm), a URDF path or an MJCF path (``.xml``, ``ineid[mujoco]``); ``data import``
+                       (whose subject is the
                        recording) takes ``--robot`` (required)
 ``--unknown-links``    comma-separated links to identify
 ``--lock JOINT=POS``   treat a URDF joint as fixed (repeatable)
@@ -142,8 +143,12 @@ class PlotFile(click.Path):
         suffix = Path(path).suffix.lower().lstrip(".")
         formats = plot_formats()
         if suffix and suffix not in formats:
-            self.fail(f"{str(value)!r}: matplotlib writes no .{suffix} files here; end the name with one of "
-                      f".{', .'.join(formats)} (none: PNG)", param, ctx)
+            self.fail(
+                f"{str(value)!r}: matplotlib writes no .{suffix} files here; end the name with one of "
+                f".{', .'.join(formats)} (none: PNG)",
+                param,
+                ctx,
+            )
         return path
 
 
@@ -189,7 +194,9 @@ def numbers(cast: type, hint: str, minimum: float = 0, maximum: float = math.inf
                 raise ValueError
         except ValueError:
             bound = f"in [{minimum:g}, {maximum:g}]" if math.isfinite(maximum) else f">= {minimum:g}"
-            raise click.BadParameter(f"expected comma-separated numbers {bound}, got {value!r}", param_hint=hint) from None
+            raise click.BadParameter(
+                f"expected comma-separated numbers {bound}, got {value!r}", param_hint=hint
+            ) from None
         return vals
 
     return callback
@@ -208,7 +215,7 @@ class RobotChoice:
     gravity: tuple[float, float, float] | None = None
 
     def load(self):
-        from ineid.codegen import load_robot  # noqa: PLC0415
+        from ineid.codegen import load_robot
 
         kwargs = {"unknown_links": self.unknown_links, "locked_joints": self.locked_joints}
         if self.gravity is not None:
@@ -233,20 +240,28 @@ def _parse_locked(ctx, param, values: tuple[str, ...]) -> dict[str, float] | Non
             if not math.isfinite(out[name.strip()]):
                 raise ValueError
         except ValueError:
-            raise click.BadParameter(f"expected JOINT=POSITION with a finite position, got {item!r}",
-                                     param_hint="--lock") from None  # fmt: skip
+            raise click.BadParameter(
+                f"expected JOINT=POSITION with a finite position, got {item!r}", param_hint="--lock"
+            ) from None
     return out or None
 
 
 unknown_links_option = click.option(
-    "--unknown-links", metavar="LINK,LINK", default=None, callback=_split_names,
+    "--unknown-links",
+    metavar="LINK,LINK",
+    default=None,
+    callback=_split_names,
     help="Comma-separated links to identify: moving links, or links welded to one (a payload, identified in its "
-         "own frame; its body keeps its CAD). Default: the built-in's choice, or all moving links.",
-)  # fmt: skip
+    "own frame; its body keeps its CAD). Default: the built-in's choice, or all moving links.",
+)
 lock_option = click.option(
-    "--lock", "locked", multiple=True, metavar="JOINT=POS", callback=_parse_locked,
+    "--lock",
+    "locked",
+    multiple=True,
+    metavar="JOINT=POS",
+    callback=_parse_locked,
     help="Treat a URDF (or MJCF) joint as fixed at POS (repeatable).",
-)  # fmt: skip
+)
 
 
 def _gravity(ctx, param, value: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
@@ -261,9 +276,14 @@ def _gravity(ctx, param, value: tuple[float, float, float] | None) -> tuple[floa
 
 
 gravity_option = click.option(
-    "--gravity", nargs=3, type=FINITE, default=None, metavar="GX GY GZ", callback=_gravity,
+    "--gravity",
+    nargs=3,
+    type=FINITE,
+    default=None,
+    metavar="GX GY GZ",
+    callback=_gravity,
     help="m/s^2, base frame (default 0 0 -9.81).",
-)  # fmt: skip
+)
 
 
 def robot_options(positional: str = "required", with_gravity: bool = True) -> Callable:
@@ -284,9 +304,11 @@ def robot_options(positional: str = "required", with_gravity: bool = True) -> Ca
                 warn_deprecated("--robot", "the ROBOT argument")
                 robot = old
             kw["robot"] = RobotChoice(
-                robot or "sweaty-arm", kw.pop("unknown_links"), kw.pop("locked"),
+                robot or "sweaty-arm",
+                kw.pop("unknown_links"),
+                kw.pop("locked"),
                 kw.pop("gravity", None) if with_gravity else None,
-            )  # fmt: skip
+            )
             return f(*args, **kw)
 
         g = wrapper
@@ -295,12 +317,17 @@ def robot_options(positional: str = "required", with_gravity: bool = True) -> Ca
         g = lock_option(unknown_links_option(g))
         if positional == "option":
             # Required: a silent default (sweaty-arm) imported another arm's recording as the built-in's.
-            return click.option("--robot", required=True, metavar="ROBOT",
-                                help="The recorded robot: a built-in name (sweaty-arm), a URDF or an MJCF path.")(g)  # fmt: skip
+            return click.option(
+                "--robot",
+                required=True,
+                metavar="ROBOT",
+                help="The recorded robot: a built-in name (sweaty-arm), a URDF or an MJCF path.",
+            )(g)
         if positional == "optional":
             g = click.option("--robot", "deprecated_robot", default=None, hidden=True)(g)
-        return click.argument("robot", metavar="[ROBOT]" if positional == "optional" else "ROBOT",
-                              required=positional == "required")(g)  # fmt: skip
+        return click.argument(
+            "robot", metavar="[ROBOT]" if positional == "optional" else "ROBOT", required=positional == "required"
+        )(g)
 
     return deco
 
@@ -338,7 +365,7 @@ def deprecated_alias(old: str, new_param: str, new_flag: str, **option_kwargs) -
 
 def parse_selection(text: str | None, n: int, hint: str = "--select"):
     """``all``, ``A:B[:STEP]``, ``1,5,9`` or mixtures (``0:10,50``) -> sorted unique indices into ``n``."""
-    import numpy as np  # noqa: PLC0415
+    import numpy as np
 
     if text is None or text.strip().lower() == "all":
         return np.arange(n)
@@ -354,8 +381,9 @@ def parse_selection(text: str | None, n: int, hint: str = "--select"):
             else:
                 k = int(part)
                 if not -n <= k < n:
-                    raise click.BadParameter(f"configuration {k} is out of range (the file has {n}: 0..{n - 1})",
-                                             param_hint=hint)  # fmt: skip
+                    raise click.BadParameter(
+                        f"configuration {k} is out of range (the file has {n}: 0..{n - 1})", param_hint=hint
+                    )
                 picked.append(k % n)
         except ValueError:
             raise click.BadParameter(
@@ -368,9 +396,12 @@ def parse_selection(text: str | None, n: int, hint: str = "--select"):
 
 
 select_option = click.option(
-    "--select", "selection", default=None, metavar="SEL",
+    "--select",
+    "selection",
+    default=None,
+    metavar="SEL",
     help="Configurations: all (default), A:B[:STEP], or 1,5,9.",
-)  # fmt: skip
+)
 select_alias = deprecated_alias("--configs", "selection", "--select")
 
 # ``--noise`` (with ``--channels``, ``--friction-truth``) lives in :mod:`ineid.cli.simulation`; re-exported here.

@@ -16,13 +16,13 @@ import click
 
 def console():
     """A stdout console wide enough for ineid's tables."""
-    from rich.console import Console  # noqa: PLC0415
+    from rich.console import Console
 
     return Console(highlight=False, soft_wrap=False, width=max(150, shutil.get_terminal_size((120, 24)).columns))
 
 
 def console_err():
-    from rich.console import Console  # noqa: PLC0415
+    from rich.console import Console
 
     return Console(stderr=True, highlight=False)
 
@@ -42,7 +42,7 @@ def shown(value: object) -> str:
     ``MarkupError``); wrap every such value in this before it goes into a string printed
     with rich markup.
     """
-    from rich.markup import escape  # noqa: PLC0415
+    from rich.markup import escape
 
     return escape(plain(value))
 
@@ -53,7 +53,7 @@ def table(title: str, columns, left=()):
     The title and the string cells are shown literally (:func:`shown`): they may hold names
     from the inputs; no cell is markup.
     """
-    from rich.table import Table  # noqa: PLC0415
+    from rich.table import Table
 
     class _Table(Table):
         def add_row(self, *cells, **kwargs) -> None:
@@ -69,7 +69,7 @@ class ProgressBar:
     """A rich progress bar driven by ``callback(done, total)``; silent with ``-q``."""
 
     def __init__(self, description: str, unit: str, quiet: bool) -> None:
-        from rich.progress import (  # noqa: PLC0415
+        from rich.progress import (
             BarColumn,
             MofNCompleteColumn,
             Progress,
@@ -110,9 +110,9 @@ class ProgressBar:
 
 def print_results(res, out) -> None:
     """The summary of ``ineid solve``: successes, held-out error, error tables or the estimates."""
-    import numpy as np  # noqa: PLC0415
+    import numpy as np
 
-    from ineid.identify import error_summary  # noqa: PLC0415
+    from ineid.identify import error_summary
 
     con = console()
     n_ok = int(res.success.sum())
@@ -124,14 +124,17 @@ def print_results(res, out) -> None:
     )
     if n_ok < res.n:
         statuses, counts = np.unique(res.status[~res.success].astype(str), return_counts=True)
-        con.print("failed: " + "; ".join(f"{c} x {s}" for s, c in zip(statuses, counts)))
+        con.print("failed: " + "; ".join(f"{c} x {s}" for s, c in zip(statuses, counts, strict=True)))
     if res.n_frames_validation and n_ok:
         rel = res.validation_rel[res.success]
         with np.errstate(invalid="ignore"):  # inf (a zero wrench) between two values: nan (solve warns)
             median, p95 = np.median(rel), np.percentile(rel, 95)
         keys = [c.get("key") for c in res.meta.get("channels") or () if isinstance(c, dict)]
-        what = ("wrench error ||w - Psi theta_hat|| / ||w||" if keys in ([], ["wrench"])
-                else f"error of {shown(', '.join(map(str, keys)))} ||y - y_hat|| / ||y||")
+        what = (
+            "wrench error ||w - Psi theta_hat|| / ||w||"
+            if keys in ([], ["wrench"])
+            else f"error of {shown(', '.join(map(str, keys)))} ||y - y_hat|| / ||y||"
+        )
         con.print(f"held-out {what}: median {median:.3g}, 95th percentile {p95:.3g}")
     # what decides the parameters the data do not: the CAD prior, or (the paper's solvers) where the solver stopped
     undecided = "no (solver)" if res.settings.method in ("lsqlin", "lsqnonlin") else "no (prior)"
@@ -142,31 +145,44 @@ def print_results(res, out) -> None:
         ):
             columns = ("parameter", "median", "95th pct", "within 1%", "within 5%")
             columns += ("identifiable",) if ident is not None else ()
-            tab = table(f"Relative error, {title}, over {n_ok} configurations", columns,
-                               left=("parameter", "identifiable"))
+            tab = table(
+                f"Relative error, {title}, over {n_ok} configurations", columns, left=("parameter", "identifiable")
+            )
             no_truth = np.all(np.isnan(truth[res.success]), axis=0)  # extra parameters the file does not simulate
             for k, row in enumerate(error_summary(est, truth, names, res.success, ident)):
                 if no_truth[k]:
                     continue
-                cells = [row.name, f"{row.median:.3g}", f"{row.p95:.3g}", f"{100 * row.within_1:.1f}%",
-                         f"{100 * row.within_5:.1f}%"]
+                cells = [
+                    row.name,
+                    f"{row.median:.3g}",
+                    f"{row.p95:.3g}",
+                    f"{100 * row.within_1:.1f}%",
+                    f"{100 * row.within_5:.1f}%",
+                ]
                 if ident is not None:
                     cells.append("yes" if row.identifiable else undecided)
                 tab.add_row(*cells)
             con.print(tab)
-        from ineid.params import all_links_physical  # noqa: PLC0415
+        from ineid.params import all_links_physical
 
         valid = all_links_physical(np.nan_to_num(res.theta_links[res.success]))
         con.print(f"physically valid estimates: {100 * valid.mean():.1f}%")
     elif n_ok:
         i = int(np.flatnonzero(res.success)[0])
-        tab = table(f"Estimates of configuration {int(res.config_index[i])} (SI, about each link origin)",
-                           ("parameter", "estimate", "std", "prior (CAD)", "identifiable"),
-                           left=("parameter", "identifiable"))
+        tab = table(
+            f"Estimates of configuration {int(res.config_index[i])} (SI, about each link origin)",
+            ("parameter", "estimate", "std", "prior (CAD)", "identifiable"),
+            left=("parameter", "identifiable"),
+        )
         for k, name in enumerate(res.param_names):
             std = res.theta_std[i, k]
-            tab.add_row(name, f"{res.theta_hat[i, k]:.6g}", "-" if not np.isfinite(std) else f"{std:.3g}",
-                          f"{res.theta_prior[k]:.6g}", "yes" if res.base.identifiable[k] else undecided)
+            tab.add_row(
+                name,
+                f"{res.theta_hat[i, k]:.6g}",
+                "-" if not np.isfinite(std) else f"{std:.3g}",
+                f"{res.theta_prior[k]:.6g}",
+                "yes" if res.base.identifiable[k] else undecided,
+            )
         con.print(tab)
         tab = table("Base parameters", ("base parameter", "estimate", "std"), left=("base parameter",))
         for k, name in enumerate(res.base.names):
@@ -177,9 +193,14 @@ def print_results(res, out) -> None:
         # the axes and their units are the fitted channels' (the base wrench: fx..mz in N and N*m)
         units = ", ".join(dict.fromkeys(res.units))
         frame = "the wrench's frame" if len(res.axes) == 6 else "each sensor's frame"
-        con.print(f"sensor offsets of configuration {int(res.config_index[i])} ({units}, {frame}): "
-                  + ", ".join(f"{shown(a)} {b:.5g} +- {s:.2g}" for a, b, s in
-                              zip(res.axes, res.bias_hat[i], res.bias_std[i], strict=True) if np.isfinite(b)))
+        con.print(
+            f"sensor offsets of configuration {int(res.config_index[i])} ({units}, {frame}): "
+            + ", ".join(
+                f"{shown(a)} {b:.5g} +- {s:.2g}"
+                for a, b, s in zip(res.axes, res.bias_hat[i], res.bias_std[i], strict=True)
+                if np.isfinite(b)
+            )
+        )
     con.print(f"wrote {shown(out)}")
 
 
@@ -187,37 +208,61 @@ def print_evaluation(ev) -> None:
     """The report of ``ineid evaluate``: the network beside the floor and least squares."""
 
     con = console()
-    con.print(f"evaluated on {ev.n_configs} configurations ({shown(ev.extra.get('configs'))}), "
-              f"{ev.frames_used} frames each")
-    tab = table("Relative error of the standard parameters (median / 95th percentile) and R^2",
-                       ("parameter", "network", "p95", "R^2", "floor (null space)", "linear LS", "Gaussian prior",
-                        "identifiable"), left=("parameter", "identifiable"))
+    con.print(
+        f"evaluated on {ev.n_configs} configurations ({shown(ev.extra.get('configs'))}), {ev.frames_used} frames each"
+    )
+    tab = table(
+        "Relative error of the standard parameters (median / 95th percentile) and R^2",
+        ("parameter", "network", "p95", "R^2", "floor (null space)", "linear LS", "Gaussian prior", "identifiable"),
+        left=("parameter", "identifiable"),
+    )
     for k, name in enumerate(ev.network["names"]):
         lin = f"{ev.linear['median'][k]:.3g}" if ev.linear else "-"
         gp = f"{ev.gaussian['median'][k]:.3g}" if ev.gaussian else "-"
-        tab.add_row(name, f"{ev.network['median'][k]:.3g}", f"{ev.network['p95'][k]:.3g}",
-                      f"{ev.network['r2'][k]:.3f}", f"{ev.floor['median'][k]:.3g}", lin, gp,
-                      "yes" if ev.identifiable[k] else "no")
+        tab.add_row(
+            name,
+            f"{ev.network['median'][k]:.3g}",
+            f"{ev.network['p95'][k]:.3g}",
+            f"{ev.network['r2'][k]:.3f}",
+            f"{ev.floor['median'][k]:.3g}",
+            lin,
+            gp,
+            "yes" if ev.identifiable[k] else "no",
+        )
     con.print(tab)
-    tab = table("Relative error of the base parameters (median)",
-                       ("base parameter", "network", "R^2", "linear LS", "Gaussian prior"), left=("base parameter",))
+    tab = table(
+        "Relative error of the base parameters (median)",
+        ("base parameter", "network", "R^2", "linear LS", "Gaussian prior"),
+        left=("base parameter",),
+    )
     for k, name in enumerate(ev.network_base["names"]):
         lin = f"{ev.linear_base['median'][k]:.3g}" if ev.linear_base else "-"
         gp = f"{ev.gaussian_base['median'][k]:.3g}" if ev.gaussian_base else "-"
         tab.add_row(name, f"{ev.network_base['median'][k]:.3g}", f"{ev.network_base['r2'][k]:.3f}", lin, gp)
     con.print(tab)
-    lin = (f"; linear LS: standard {ev.linear['overall_median']:.4g}, base {ev.linear_base['overall_median']:.4g}, "
-           f"physical {100 * ev.linear_physical_share:.0f}%") if ev.linear else ""
+    lin = (
+        (
+            f"; linear LS: standard {ev.linear['overall_median']:.4g}, base {ev.linear_base['overall_median']:.4g}, "
+            f"physical {100 * ev.linear_physical_share:.0f}%"
+        )
+        if ev.linear
+        else ""
+    )
     if ev.gaussian:
-        lin += f"; Gaussian prior: standard {ev.gaussian['overall_median']:.4g}, base {ev.gaussian_base['overall_median']:.4g}"
+        lin += (
+            f"; Gaussian prior: standard {ev.gaussian['overall_median']:.4g}, base "
+            f"{ev.gaussian_base['overall_median']:.4g}"
+        )
     con.print(
         f"median over all parameters: network standard {ev.network['overall_median']:.4g}, base "
         f"{ev.network_base['overall_median']:.4g} (per sample, before averaging: {ev.per_sample_median:.4g}); "
         f"null-space floor {ev.floor['overall_median']:.4g}{lin}"
     )
     rms = ", ".join(f"{v:.3g}" for v in ev.wrench_rms)
-    con.print(f"wrench residual of the predictions, RMS per axis (N, N*m): {rms}; normalized {ev.wrench_normalized:.4g}; "
-              f"physically valid predictions {100 * ev.physical_share:.0f}%")
+    con.print(
+        f"wrench residual of the predictions, RMS per axis (N, N*m): {rms}; normalized {ev.wrench_normalized:.4g}; "
+        f"physically valid predictions {100 * ev.physical_share:.0f}%"
+    )
 
 
 class DerivationProgress(logging.Handler):
@@ -275,7 +320,7 @@ class DerivationProgress(logging.Handler):
             self._timer = None
         con = console_err()
         if con.is_terminal:
-            from rich.progress import (  # noqa: PLC0415
+            from rich.progress import (
                 BarColumn,
                 MofNCompleteColumn,
                 Progress,
@@ -284,8 +329,12 @@ class DerivationProgress(logging.Handler):
             )
 
             self._progress = Progress(
-                TextColumn("deriving the regressor:"), TextColumn("{task.description}", markup=False),
-                BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=con,
+                TextColumn("deriving the regressor:"),
+                TextColumn("{task.description}", markup=False),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TimeElapsedColumn(),
+                console=con,
             )
             self._progress.start()
             self._task = self._progress.add_task("", total=self._state[1])
@@ -330,7 +379,7 @@ def print_findings(findings) -> None:
 
     Shown with ``-q`` too: a quiet run is the one whose user would not look at the numbers.
     """
-    import click  # noqa: PLC0415
+    import click
 
     for f in findings:
         click.echo(f"ineid: warning: {plain(f.message)}", err=True)

@@ -14,8 +14,15 @@ from ineid.cli.options import RobotChoice
 overwrite_option = click.option("--overwrite", is_flag=True, help="Replace the output if it exists.")
 
 
-def prepare_output(path: Path, overwrite: bool, kind: str = "file", *, inputs: Iterable[tuple[str, Path | None]] = (),
-                   option: str = "--out", contents: Iterable[str] = ()) -> Path:
+def prepare_output(
+    path: Path,
+    overwrite: bool,
+    kind: str = "file",
+    *,
+    inputs: Iterable[tuple[str, Path | None]] = (),
+    option: str = "--out",
+    contents: Iterable[str] = (),
+) -> Path:
     """Check an output before any work, and lock it for the rest of the command.
 
     A file (``kind="file"``) must be a file name in an existing folder, new unless
@@ -41,7 +48,7 @@ def prepare_output(path: Path, overwrite: bool, kind: str = "file", *, inputs: I
         OutputExistsError: it exists and ``overwrite`` is off (:func:`ineid._atomic.check_output`).
         click.BadParameter: a folder where a file is expected, or a missing parent folder.
     """
-    from ineid._atomic import check_output, output_lock  # noqa: PLC0415
+    from ineid._atomic import check_output, output_lock
 
     path = Path(path)
     if kind == "file" and path.is_dir():
@@ -60,19 +67,25 @@ def prepare_output(path: Path, overwrite: bool, kind: str = "file", *, inputs: I
     return check_output(path, overwrite) if kind == "file" else path
 
 
-def check_not_input(path: Path, inputs: Iterable[tuple[str, Path]], option: str = "--out", kind: str = "file",
-                    folder: Path | None = None) -> None:
+def check_not_input(
+    path: Path,
+    inputs: Iterable[tuple[str, Path]],
+    option: str = "--out",
+    kind: str = "file",
+    folder: Path | None = None,
+) -> None:
     """:class:`OutputIsInputError` if ``path`` is one of ``inputs`` (:func:`ineid._atomic.same_path`).
 
     ``folder``: ``path`` is a file the command writes in this output folder (the message names the folder).
     """
-    from ineid._atomic import same_path  # noqa: PLC0415
-    from ineid.errors import OutputIsInputError  # noqa: PLC0415
+    from ineid._atomic import same_path
+    from ineid.errors import OutputIsInputError
 
     for what, inp in inputs:
         if same_path(path, inp):
-            problem = (f"{option} {path} is {what}" if folder is None
-                       else f"{option} {folder} would replace {path}, {what}")  # fmt: skip
+            problem = (
+                f"{option} {path} is {what}" if folder is None else f"{option} {folder} would replace {path}, {what}"
+            )
             raise OutputIsInputError(f"{problem}; choose another {kind}")
 
 
@@ -95,7 +108,7 @@ def run_inputs(run_dir: Path | None, what: str = "the input run") -> list[tuple[
     """The files of a run folder read as an input, for :func:`prepare_output` (its evaluation may be rewritten)."""
     if run_dir is None:
         return []
-    from ineid.learn.runs import EVALUATION, RUN_FILES  # noqa: PLC0415  (no JAX: runs imports it lazily)
+    from ineid.learn.runs import EVALUATION, RUN_FILES  # no JAX: runs imports it lazily
 
     return [(f"{what}'s {name}", Path(run_dir) / name) for name in RUN_FILES if name != EVALUATION]
 
@@ -121,7 +134,7 @@ def results_inputs(results_path: Path) -> list[tuple[str, Path | None]]:
 def on_interrupt(left_behind: Callable[[], str | None]) -> Iterator[None]:
     """On Ctrl-C or SIGTERM, let the CLI say what the command left on purpose (``left_behind()``, or
     None for nothing) instead of "no partial output file was left"; the exit status stays 130 / 143."""
-    from ineid._interrupts import Terminated  # noqa: PLC0415
+    from ineid._interrupts import Terminated
 
     try:
         yield

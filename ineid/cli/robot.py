@@ -20,7 +20,7 @@ def robot() -> None:
 @robot.command("list")
 def robot_list() -> None:
     """List the built-in robots."""
-    from ineid.robots import BUILTIN_ROBOTS  # noqa: PLC0415
+    from ineid.robots import BUILTIN_ROBOTS
 
     for name, spec in BUILTIN_ROBOTS.items():
         click.echo(f"{name}\t{spec.description}")
@@ -30,7 +30,7 @@ def robot_list() -> None:
 @robot_options()
 def robot_show(robot) -> None:
     """Joints, links (known/unknown) and CAD parameters of ROBOT."""
-    from ineid.params import PARAM_NAMES, inertial_from_theta  # noqa: PLC0415
+    from ineid.params import PARAM_NAMES, inertial_from_theta
 
     model = robot.load()
     con = console()
@@ -40,15 +40,23 @@ def robot_show(robot) -> None:
         f"gravity {model.gravity.tolist()} m/s^2, "
         f"regressor 6 x {10 * model.n_links} ({model.op_count} operations)"
     )
-    joints = table("Joints (chain order)", ("#", "joint", "type", "axis", "q range", "|qd| max", "|qdd| max"),
-                   left=("joint", "type", "axis", "q range"))
+    joints = table(
+        "Joints (chain order)",
+        ("#", "joint", "type", "axis", "q range", "|qd| max", "|qdd| max"),
+        left=("joint", "type", "axis", "q range"),
+    )
     for i, j in enumerate(model.chain.joints):
         kind = "continuous" if j.continuous else j.type
         axis = " ".join(f"{v:g}" for v in j.axis)
-        joints.add_row(str(i + 1), j.name, kind, axis, f"[{j.q_lower:g}, {j.q_upper:g}]", f"{j.qd_max:g}", f"{j.qdd_max:g}")
+        joints.add_row(
+            str(i + 1), j.name, kind, axis, f"[{j.q_lower:g}, {j.q_upper:g}]", f"{j.qd_max:g}", f"{j.qdd_max:g}"
+        )
     con.print(joints)
-    links = table("Links", ("link", "role", "welded in", "mass kg", "com m (link frame)"),
-                  left=("link", "role", "welded in", "mass kg", "com m (link frame)"))
+    links = table(
+        "Links",
+        ("link", "role", "welded in", "mass kg", "com m (link frame)"),
+        left=("link", "role", "welded in", "mass kg", "com m (link frame)"),
+    )
     masses, coms, _ = inertial_from_theta(model.theta_cad.reshape(-1, 10))
     for i, name in enumerate(model.link_names):
         role = "unknown" if name in model.unknown_links else "known"
@@ -58,9 +66,11 @@ def robot_show(robot) -> None:
     con.print(links)
     welded = [b for b in model.chain.body_links.values() if b.parent]
     if welded:
-        extra = table("Links welded to a moving link (name one in --unknown-links to identify it as a payload)",
-                      ("link", "welded to", "role", "mass kg", "origin m (body frame)"),
-                      left=("link", "welded to", "role", "origin m (body frame)"))
+        extra = table(
+            "Links welded to a moving link (name one in --unknown-links to identify it as a payload)",
+            ("link", "welded to", "role", "mass kg", "origin m (body frame)"),
+            left=("link", "welded to", "role", "origin m (body frame)"),
+        )
         for b in welded:
             role = "unknown (payload)" if b.name in model.unknown_links else ("frame" if b.theta[0] <= 0 else "known")
             extra.add_row(b.name, b.body, role, f"{b.theta[0]:.4f}", " ".join(f"{v:.4f}" for v in b.body_p_link))
@@ -75,8 +85,13 @@ def robot_show(robot) -> None:
 
 @click.command()
 @click.argument("robot", metavar="ROBOT", required=False)
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Folder for the generated modules (default: ineid/generated for a built-in, else the cache).")
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Folder for the generated modules (default: ineid/generated for a built-in, else the cache).",
+)
 @click.option("--builtin", "all_builtin", is_flag=True, help="Regenerate every built-in robot in ineid/generated.")
 @lock_option
 @overwrite_option
@@ -85,14 +100,14 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
 
     Files ineid generated are regenerated in place; any other file in the way needs --overwrite.
     """
-    from ineid._atomic import check_output  # noqa: PLC0415
-    from ineid._trust import MANIFEST, is_manifest  # noqa: PLC0415
+    from ineid._atomic import check_output
+    from ineid._trust import MANIFEST, is_manifest
     from ineid.cli.output_files import check_not_input
-    from ineid.codegen import default_codegen_dir, generate_code  # noqa: PLC0415
-    from ineid.generated import BUILTIN_DIR, file_names  # noqa: PLC0415
-    from ineid.robots import BUILTIN_ROBOTS  # noqa: PLC0415
-    from ineid.robots.mjcf import robot_file_chain  # noqa: PLC0415
-    from ineid.symbolic.emit import GENERATOR  # noqa: PLC0415
+    from ineid.codegen import default_codegen_dir, generate_code
+    from ineid.generated import BUILTIN_DIR, file_names
+    from ineid.robots import BUILTIN_ROBOTS
+    from ineid.robots.mjcf import robot_file_chain
+    from ineid.symbolic.emit import GENERATOR
 
     if all_builtin == (robot is not None):
         raise click.UsageError("give either ROBOT or --builtin")
@@ -108,7 +123,8 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
         path = Path(robot)
         if not path.exists():  # a FIFO or a folder is refused by robot_file_chain, naming what it is
             raise click.BadParameter(
-                f"{robot!r} is neither a built-in robot ({', '.join(BUILTIN_ROBOTS)}) nor an existing URDF file (or MJCF)",
+                f"{robot!r} is neither a built-in robot ({', '.join(BUILTIN_ROBOTS)}) nor an existing URDF file (or "
+                "MJCF)",
                 param_hint="ROBOT",
             )
         chain = robot_file_chain(path, locked)[0]
@@ -135,7 +151,9 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
         for fname in sorted(emitted.files):
             click.echo(f"  wrote {plain(Path(target) / fname)}")
         if Path(target).resolve() != BUILTIN_DIR:
-            click.echo(f"  wrote {plain(Path(target) / MANIFEST)} (SHA-256 of each file, checked before ineid loads it)")
+            click.echo(
+                f"  wrote {plain(Path(target) / MANIFEST)} (SHA-256 of each file, checked before ineid loads it)"
+            )
 
 
 def _head(path: Path) -> str:

@@ -17,8 +17,26 @@ import click
 NOISE_MAX = 1e6
 """The largest ``--noise`` value (std in N, N*m, rad, rad/s, rad/s^2, or the glitch scale): far above any
 sensor's, and low enough that noisy values, their squares and sums stay finite in float64."""
-NOISE_KEYS = ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "q", "qd", "qdd", "tau", "current", "glitch",
-              "glitch_scale", "gyro", "accel", "alpha")
+NOISE_KEYS = (
+    "force",
+    "moment",
+    "fx",
+    "fy",
+    "fz",
+    "mx",
+    "my",
+    "mz",
+    "q",
+    "qd",
+    "qdd",
+    "tau",
+    "current",
+    "glitch",
+    "glitch_scale",
+    "gyro",
+    "accel",
+    "alpha",
+)
 IMU_NOISE_KEYS = ("gyro", "accel", "alpha")
 """``--noise`` keys of the link IMUs (``data generate --imu``): rad/s, m/s^2, rad/s^2 at the frames' rate."""
 CHANNEL_NOISE_KEYS = ("tau", "current")
@@ -51,11 +69,15 @@ def _parse_noise(ctx, param, value: str | None) -> dict[str, float] | None:
 
 
 noise_option = click.option(
-    "--noise", default=None, metavar="KEY=STD,...", callback=_parse_noise,
+    "--noise",
+    default=None,
+    metavar="KEY=STD,...",
+    callback=_parse_noise,
     help="Gaussian noise std: force, moment (or fx..mz) in N, N*m; q, qd, qdd in rad, rad/s, rad/s^2; tau (joint "
-         "torques, with --channels ...,torque) in N*m; current (with --channels ...,current) in A; glitch=RATE: that share of frames gets glitch_scale "
-         "(default 20) times the force noise; gyro, accel, alpha (with --imu) in rad/s, m/s^2, rad/s^2. Each at most 1e6.",
-)  # fmt: skip
+    "torques, with --channels ...,torque) in N*m; current (with --channels ...,current) in A; glitch=RATE: that "
+    "share of frames gets glitch_scale "
+    "(default 20) times the force noise; gyro, accel, alpha (with --imu) in rad/s, m/s^2, rad/s^2. Each at most 1e6.",
+)
 
 
 def noise_model(std: dict[str, float] | None, n_dof: int, wrench_key: str = "wrench"):
@@ -70,7 +92,7 @@ def noise_model(std: dict[str, float] | None, n_dof: int, wrench_key: str = "wre
     """
     if not std:
         return None
-    from ineid.data import NoiseModel  # noqa: PLC0415
+    from ineid.data import NoiseModel
 
     force = [std.get(a, std.get("force", 0.0)) for a in ("fx", "fy", "fz")]
     moment = [std.get(a, std.get("moment", 0.0)) for a in ("mx", "my", "mz")]
@@ -80,14 +102,24 @@ def noise_model(std: dict[str, float] | None, n_dof: int, wrench_key: str = "wre
     channels = {k: std[k] for k in CHANNEL_NOISE_KEYS if k in std}
     if wrench_key != "wrench":  # a sensor on a link: its own key, no glitch model
         if glitch["glitch_rate"]:
-            raise click.BadParameter("glitches are modelled for the base wrench only; drop glitch= with a sensor "
-                                     "on a link", param_hint="--noise")
+            raise click.BadParameter(
+                "glitches are modelled for the base wrench only; drop glitch= with a sensor on a link",
+                param_hint="--noise",
+            )
         if any(force + moment):
             channels[wrench_key] = force + moment
         force, moment = 0.0, 0.0
     try:
-        return NoiseModel.create(n_dof, force=force, moment=moment, q=std.get("q", 0.0), qd=std.get("qd", 0.0),
-                                 qdd=std.get("qdd", 0.0), channels=channels, **glitch)  # fmt: skip
+        return NoiseModel.create(
+            n_dof,
+            force=force,
+            moment=moment,
+            q=std.get("q", 0.0),
+            qd=std.get("qd", 0.0),
+            qdd=std.get("qdd", 0.0),
+            channels=channels,
+            **glitch,
+        )
     except ValueError as e:
         raise click.BadParameter(str(e), param_hint="--noise") from None
 
@@ -95,14 +127,20 @@ def noise_model(std: dict[str, float] | None, n_dof: int, wrench_key: str = "wre
 # -- motor currents: the drives (data generate, data import) ---------------------------------------
 
 torque_constant_option = click.option(
-    "--torque-constant", default=None, metavar="K[,K...]", callback=lambda ctx, p, v: _numbers(v, "--torque-constant"),
+    "--torque-constant",
+    default=None,
+    metavar="K[,K...]",
+    callback=lambda ctx, p, v: _numbers(v, "--torque-constant"),
     help="Motor currents (--channels ...,current; i1..in in a recording): the motors' torque constants, N*m/A "
-         "(one, or one per joint).",
-)  # fmt: skip
+    "(one, or one per joint).",
+)
 gear_ratio_option = click.option(
-    "--gear-ratio", default=None, metavar="G[,G...]", callback=lambda ctx, p, v: _numbers(v, "--gear-ratio"),
+    "--gear-ratio",
+    default=None,
+    metavar="G[,G...]",
+    callback=lambda ctx, p, v: _numbers(v, "--gear-ratio"),
     help="Motor currents: the gear ratios, motor turns per joint turn, signed (one, or one per joint).",
-)  # fmt: skip
+)
 
 
 DRIVE_RANGE = (1e-6, 1e6)
@@ -121,8 +159,9 @@ def _numbers(value: str | None, hint: str) -> tuple[float, ...] | None:
         if not out or not all(lo <= abs(v) <= hi for v in out):
             raise ValueError
     except ValueError:
-        raise click.BadParameter(f"expected comma-separated numbers of magnitude {lo:g} to {hi:g}, got {value!r}",
-                                 param_hint=hint) from None
+        raise click.BadParameter(
+            f"expected comma-separated numbers of magnitude {lo:g} to {hi:g}, got {value!r}", param_hint=hint
+        ) from None
     return out
 
 
@@ -139,17 +178,21 @@ def _parse_channels(ctx, param, value: str | None) -> tuple[str, ...] | None:
     names = tuple(dict.fromkeys(n.strip().lower() for n in value.split(",") if n.strip()))
     bad = [n for n in names if n not in CHANNEL_NAMES]
     if bad or not names:
-        raise click.BadParameter(f"expected a comma-separated list of {', '.join(CHANNEL_NAMES)}, got {value!r}",
-                                 param_hint="--channels")
+        raise click.BadParameter(
+            f"expected a comma-separated list of {', '.join(CHANNEL_NAMES)}, got {value!r}", param_hint="--channels"
+        )
     return names
 
 
 channels_option = click.option(
-    "--channels", default=None, metavar="LIST", callback=_parse_channels,
+    "--channels",
+    default=None,
+    metavar="LIST",
+    callback=_parse_channels,
     help="What the synthetic arm measures: wrench (the base wrench, the default), torque (joint torques, "
-         "the actuator's: Phi theta plus --friction-truth), current (motor currents, tau / (k G): with "
-         "--torque-constant, --gear-ratio), or several: wrench,torque.",
-)  # fmt: skip
+    "the actuator's: Phi theta plus --friction-truth), current (motor currents, tau / (k G): with "
+    "--torque-constant, --gear-ratio), or several: wrench,torque.",
+)
 
 
 def simulated_channels(names: tuple[str, ...] | None, drives: tuple | None = None, sensor=None):
@@ -159,8 +202,8 @@ def simulated_channels(names: tuple[str, ...] | None, drives: tuple | None = Non
     default the base wrench in the base frame)."""
     if names is None and sensor is None:
         return None
-    from ineid.channels import BaseWrench, ChannelSet  # noqa: PLC0415
-    from ineid.channels.torque import JointTorque, MotorCurrent  # noqa: PLC0415
+    from ineid.channels import BaseWrench, ChannelSet
+    from ineid.channels.torque import JointTorque, MotorCurrent
 
     made = []
     for name in names or ("wrench",):
@@ -182,8 +225,10 @@ def drives(names: tuple[str, ...] | None, torque_constant, gear_ratio, n_dof: in
     current = names is not None and "current" in names
     if not current:
         if torque_constant or gear_ratio:
-            raise click.UsageError("--torque-constant and --gear-ratio are the motor currents' drives: simulate "
-                                   "currents with --channels ...,current")
+            raise click.UsageError(
+                "--torque-constant and --gear-ratio are the motor currents' drives: simulate "
+                "currents with --channels ...,current"
+            )
         return None
     if not torque_constant or not gear_ratio:
         raise click.UsageError("motor currents are read through the drives: give --torque-constant and --gear-ratio")
@@ -191,14 +236,23 @@ def drives(names: tuple[str, ...] | None, torque_constant, gear_ratio, n_dof: in
     for values, flag in ((torque_constant, "--torque-constant"), (gear_ratio, "--gear-ratio")):
         values = tuple(values) * (n_dof if len(values) == 1 else 1)
         if len(values) != n_dof:
-            raise click.BadParameter(f"{len(values)} numbers for {n_dof} joints; give one, or one per joint",
-                                     param_hint=flag)
+            raise click.BadParameter(
+                f"{len(values)} numbers for {n_dof} joints; give one, or one per joint", param_hint=flag
+            )
         out.append(values)
     return tuple(out)
 
 
-FRICTION_TERMS = {"fv": "fv", "fc": "fc", "offset": "offset", "ia": "Ia", "fv+": "fv+", "fv-": "fv-", "fc+": "fc+",
-                  "fc-": "fc-"}
+FRICTION_TERMS = {
+    "fv": "fv",
+    "fc": "fc",
+    "offset": "offset",
+    "ia": "Ia",
+    "fv+": "fv+",
+    "fv-": "fv-",
+    "fc+": "fc+",
+    "fc-": "fc-",
+}
 """``--friction-truth`` terms (case-insensitive) and their extra-parameter names (``<joint>.<term>``)."""
 
 
@@ -219,18 +273,22 @@ def _parse_friction_truth(ctx, param, value: str | None) -> dict[tuple[str | Non
         except ValueError:
             raise click.BadParameter(
                 f"expected TERM=VALUE or JOINT.TERM=VALUE with TERM in {', '.join(FRICTION_TERMS.values())} and a "
-                f"finite VALUE of at most {NOISE_MAX:g} in size, got {item.strip()!r}", param_hint="--friction-truth"
+                f"finite VALUE of at most {NOISE_MAX:g} in size, got {item.strip()!r}",
+                param_hint="--friction-truth",
             ) from None
         out[(joint or None, term)] = number
     return out
 
 
 friction_truth_option = click.option(
-    "--friction-truth", default=None, metavar="TERM=VALUE,...", callback=_parse_friction_truth,
+    "--friction-truth",
+    default=None,
+    metavar="TERM=VALUE,...",
+    callback=_parse_friction_truth,
     help="The simulated actuation that joint torques add: fv (viscous, N*m*s/rad), fc (Coulomb, N*m), offset "
-         "(N*m), Ia (armature, kg*m^2); fv+, fv-, fc+, fc- per direction. TERM=VALUE sets every joint, "
-         "JOINT.TERM=VALUE one joint (it wins). Needs --channels ...,torque.",
-)  # fmt: skip
+    "(N*m), Ia (armature, kg*m^2); fv+, fv-, fc+, fc- per direction. TERM=VALUE sets every joint, "
+    "JOINT.TERM=VALUE one joint (it wins). Needs --channels ...,torque.",
+)
 
 
 def friction_truth(parsed: dict[tuple[str | None, str], float] | None, joint_names) -> dict[str, float] | None:
@@ -244,8 +302,9 @@ def friction_truth(parsed: dict[tuple[str | None, str], float] | None, joint_nam
     joints = list(joint_names)
     bad = [j for j, _ in parsed if j is not None and j not in joints]
     if bad:
-        raise click.BadParameter(f"the robot has no moving joint {bad[0]!r}; its joints: {', '.join(joints)}",
-                                 param_hint="--friction-truth")
+        raise click.BadParameter(
+            f"the robot has no moving joint {bad[0]!r}; its joints: {', '.join(joints)}", param_hint="--friction-truth"
+        )
     out = {f"{j}.{term}": v for (joint, term), v in parsed.items() if joint is None for j in joints}
     out.update({f"{joint}.{term}": v for (joint, term), v in parsed.items() if joint is not None})
     return {f"{j}.{t}": out[f"{j}.{t}"] for j in joints for t in FRICTION_TERMS.values() if f"{j}.{t}" in out}

@@ -39,21 +39,30 @@ def print_classical(con, rows, title: str) -> None:
             cells = []
             for f in frames:
                 r = by[(p, m, f)]
-                cells += [_pct(r.within_5), _pct(r.band_50_95), "-" if math.isnan(r.median_error) else
-                          f"{r.median_error:.2g}"]
+                cells += [
+                    _pct(r.within_5),
+                    _pct(r.band_50_95),
+                    "-" if math.isnan(r.median_error) else f"{r.median_error:.2g}",
+                ]
             ident = ("yes" if r.identifiable else "no") if i == 0 else ""
             t.add_row(shown(p) if i == 0 else "", ident, m, *cells)
     con.print(t)
-    t = table("Why: the standard parameters each one needs, and the base parameters (what the data fix) they "
-              "appear in", ("parameter", "why"), left=("parameter", "why"))
+    t = table(
+        "Why: the standard parameters each one needs, and the base parameters (what the data fix) they appear in",
+        ("parameter", "why"),
+        left=("parameter", "why"),
+    )
     for p in params:
         t.add_row(shown(p), shown(by[(p, methods[0], frames[0])].reason))
     con.print(t)
 
 
 def print_claims(con, claims) -> None:
-    t = table("The paper's claims (section 4), checked", ("claim", "verdict", "evidence"),
-              left=("claim", "verdict", "evidence"))
+    t = table(
+        "The paper's claims (section 4), checked",
+        ("claim", "verdict", "evidence"),
+        left=("claim", "verdict", "evidence"),
+    )
     for claim, verdict, evidence in claims:
         t.add_row(claim, verdict, shown(evidence))
     con.print(t)
@@ -65,38 +74,89 @@ SECTIONS = ("classical", "claims", "networks")
 
 @click.command("paper")
 @robot_options(positional="optional", with_gravity=False)
-@click.option("--quick", is_flag=True, help="The CI size: 20 random configurations of 100 frames (default: the "
-              "paper's 100 x 100 factorial configurations).")
-@click.option("--n-configs", type=click.IntRange(min=1), default=None,
-              help="Random configurations instead of the paper's 10,000 (overrides --quick).")
-@click.option("--frames", default="4,10,100", show_default=True, callback=numbers(int, "--frames", 1),
-              help="Frames fitted per configuration, comma-separated.")
-@click.option("--methods", default=None, callback=names_in(f"{_STUDY}:METHODS", "--methods"),
-              help="Comma-separated, default all: lsqlin, lsqnonlin, linear, consistent.")
-@click.option("--parameters", type=LibraryChoice(f"{_STUDY}:PARAMETERS"), default="paper", show_default=True,
-              help="paper: mass, centre of mass, inertia about it (the paper's 20); standard: ineid's (first "
-                   "moments, inertia about the link origin).")
+@click.option(
+    "--quick",
+    is_flag=True,
+    help="The CI size: 20 random configurations of 100 frames (default: the "
+    "paper's 100 x 100 factorial configurations).",
+)
+@click.option(
+    "--n-configs",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Random configurations instead of the paper's 10,000 (overrides --quick).",
+)
+@click.option(
+    "--frames",
+    default="4,10,100",
+    show_default=True,
+    callback=numbers(int, "--frames", 1),
+    help="Frames fitted per configuration, comma-separated.",
+)
+@click.option(
+    "--methods",
+    default=None,
+    callback=names_in(f"{_STUDY}:METHODS", "--methods"),
+    help="Comma-separated, default all: lsqlin, lsqnonlin, linear, consistent.",
+)
+@click.option(
+    "--parameters",
+    type=LibraryChoice(f"{_STUDY}:PARAMETERS"),
+    default="paper",
+    show_default=True,
+    help="paper: mass, centre of mass, inertia about it (the paper's 20); standard: ineid's (first "
+    "moments, inertia about the link origin).",
+)
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--workers", type=WORKERS, default=1, show_default=True, help="Processes for consistent's IPOPT.")
-@click.option("--csv", "csv_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Write the rows (method, frames, parameter) as CSV.")
-@click.option("--plot", "plot_path", type=PlotFile(), default=None,
-              help="Write the share within 5 % per parameter (PNG, or the format of the suffix).")
-@click.option("--networks", "networks_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              metavar="DIR", help="Then the paper's network exploration too (ineid study networks --plan decisive, "
-                                  "--quick with --quick), its sweeps and claims written to DIR (sweaty-arm only).")
+@click.option(
+    "--csv",
+    "csv_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Write the rows (method, frames, parameter) as CSV.",
+)
+@click.option(
+    "--plot",
+    "plot_path",
+    type=PlotFile(),
+    default=None,
+    help="Write the share within 5 % per parameter (PNG, or the format of the suffix).",
+)
+@click.option(
+    "--networks",
+    "networks_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    metavar="DIR",
+    help="Then the paper's network exploration too (ineid study networks --plan decisive, "
+    "--quick with --quick), its sweeps and claims written to DIR (sweaty-arm only).",
+)
 @overwrite_option
 @click.pass_context
-def study_paper(ctx, robot, quick, n_configs, frames, methods, parameters, seed, workers, csv_path, plot_path,
-                networks_dir, overwrite):
+def study_paper(
+    ctx,
+    robot,
+    quick,
+    n_configs,
+    frames,
+    methods,
+    parameters,
+    seed,
+    workers,
+    csv_path,
+    plot_path,
+    networks_dir,
+    overwrite,
+):
     """The paper's classical experiments on ROBOT (default sweaty-arm): lsqlin, lsqnonlin, linear and consistent
     on the paper's layout of clean data, per parameter in the paper's terms (share within 5 %, the 50-95 %
     accuracy band), with why each parameter is or is not identifiable, and the paper's claims checked; with
     --networks, then its network exploration (``ineid study networks``)."""
-    from dataclasses import replace  # noqa: PLC0415
+    from dataclasses import replace
 
-    from ineid.identify.identifiability import frame_minimum  # noqa: PLC0415
-    from ineid.identify.study_paper import METHODS, SIZES, check_claims, paper_study, plot, write_rows  # noqa: PLC0415
+    from ineid.identify.identifiability import frame_minimum
+    from ineid.identify.study_paper import METHODS, SIZES, check_claims, paper_study, plot, write_rows
 
     for path, option in ((csv_path, "--csv"), (plot_path, "--plot")):
         if path is not None:
@@ -105,8 +165,10 @@ def study_paper(ctx, robot, quick, n_configs, frames, methods, parameters, seed,
         if robot.robot != "sweaty-arm":
             raise click.UsageError(f"--networks re-runs the paper's networks on sweaty-arm; drop it for {robot.robot}")
         if networks_dir.exists() and any(networks_dir.iterdir()) and not overwrite:
-            raise click.UsageError(f"--networks {networks_dir} holds files; give an empty or new folder, or "
-                                   "--overwrite (or continue it with ineid study networks --resume)")
+            raise click.UsageError(
+                f"--networks {networks_dir} holds files; give an empty or new folder, or "
+                "--overwrite (or continue it with ineid study networks --resume)"
+            )
     size = SIZES["quick" if quick else "full"]
     if n_configs is not None:
         size = replace(size, per_link=None, n_configs=n_configs)
@@ -116,9 +178,13 @@ def study_paper(ctx, robot, quick, n_configs, frames, methods, parameters, seed,
         rows, _ = paper_study(model, size, frames, methods, seed, workers, parameters, progress=bar)
     n = size.combination().count(len(model.unknown_links))
     con = console()
-    print_classical(con, rows, f"The paper's classical experiments, {model.name}: {n:,} configurations, clean data, "
-                               f"{parameters} parameters (share within 5 %, in the 50-95 % accuracy band, median "
-                               "relative error)")
+    print_classical(
+        con,
+        rows,
+        f"The paper's classical experiments, {model.name}: {n:,} configurations, clean data, "
+        f"{parameters} parameters (share within 5 %, in the 50-95 % accuracy band, median "
+        "relative error)",
+    )
     minimum = frame_minimum(model)
     print_claims(con, check_claims(rows, minimum))
     written = []
@@ -131,6 +197,6 @@ def study_paper(ctx, robot, quick, n_configs, frames, methods, parameters, seed,
     if written:
         click.echo(f"wrote {' and '.join(written)}")
     if networks_dir is not None:  # the networks' section: the same command as ineid study networks
-        from ineid.cli.study_networks import study_networks  # noqa: PLC0415
+        from ineid.cli.study_networks import study_networks
 
         ctx.invoke(study_networks, plan_name="decisive", quick=quick, out_dir=networks_dir, overwrite=overwrite)

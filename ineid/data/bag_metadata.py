@@ -34,8 +34,12 @@ def check_bag_files(path: Path, kind: str) -> None:
         regular_file(path, "the ROS bag")
         return
     folder = path if path.is_dir() else path.parent
-    meta = regular_file(folder / "metadata.yaml", "the ROS 2 bag's metadata", max_bytes=METADATA_BYTES,
-                        limit_name="ineid.data.bags.METADATA_BYTES")
+    meta = regular_file(
+        folder / "metadata.yaml",
+        "the ROS 2 bag's metadata",
+        max_bytes=METADATA_BYTES,
+        limit_name="ineid.data.bags.METADATA_BYTES",
+    )
     info = _bag_metadata(meta)
     files = info.get("relative_file_paths")
     for name in files if isinstance(files, list) else []:
@@ -70,10 +74,20 @@ def _bag_metadata(meta: Path) -> dict:
         try:  # rosbag2 before version 9 wrote the QoS profiles as YAML text inside the YAML
             YAML(typ="safe").load(qos)
         except YAMLError as e:
-            line = _node_line(YAML(typ="safe").compose(text), ("rosbag2_bagfile_information",
-                              "topics_with_message_count", k, "topic_metadata", "offered_qos_profiles"))
-            raise DatasetError(f"{meta}, line {line}: the offered_qos_profiles of topic {k} are not YAML (their line "
-                               f"{_yaml_line(e, qos)}: {_yaml_problem(e)}); {fix}") from None
+            line = _node_line(
+                YAML(typ="safe").compose(text),
+                (
+                    "rosbag2_bagfile_information",
+                    "topics_with_message_count",
+                    k,
+                    "topic_metadata",
+                    "offered_qos_profiles",
+                ),
+            )
+            raise DatasetError(
+                f"{meta}, line {line}: the offered_qos_profiles of topic {k} are not YAML (their line "
+                f"{_yaml_line(e, qos)}: {_yaml_problem(e)}); {fix}"
+            ) from None
     return info
 
 

@@ -56,8 +56,10 @@ def bag_kind(path: Path) -> str:
     """``"ros1"``, ``"ros2"`` (a folder with ``metadata.yaml``) or ``"mcap"`` (a bare MCAP file)."""
     if path.is_dir():
         if not (path / "metadata.yaml").exists():
-            raise DatasetError(f"{path} is a folder without metadata.yaml, not a ROS 2 bag; give the bag folder, "
-                               "a ROS 1 .bag file, a .mcap file or a CSV file")
+            raise DatasetError(
+                f"{path} is a folder without metadata.yaml, not a ROS 2 bag; give the bag folder, "
+                "a ROS 1 .bag file, a .mcap file or a CSV file"
+            )
         return "ros2"
     suffix = path.suffix.lower()
     if suffix == ".bag":
@@ -74,11 +76,11 @@ def bag_kind(path: Path) -> str:
 @contextmanager
 def _open_bag(path: Path):
     """Yield ``(connections, messages(conns) -> iterator of (conn, log_ns, raw), deserialize(raw, type))``."""
-    from rosbags.highlevel import AnyReader, AnyReaderError  # noqa: PLC0415
-    from rosbags.rosbag1 import ReaderError as Reader1Error  # noqa: PLC0415
-    from rosbags.rosbag2 import ReaderError as Reader2Error  # noqa: PLC0415
-    from rosbags.serde import SerdeError  # noqa: PLC0415
-    from rosbags.typesys import TypesysError  # noqa: PLC0415
+    from rosbags.highlevel import AnyReader, AnyReaderError
+    from rosbags.rosbag1 import ReaderError as Reader1Error
+    from rosbags.rosbag2 import ReaderError as Reader2Error
+    from rosbags.serde import SerdeError
+    from rosbags.typesys import TypesysError
 
     errors = (AnyReaderError, Reader1Error, Reader2Error, SerdeError, TypesysError, OSError, KeyError, ValueError)
     kind = bag_kind(path)
@@ -99,23 +101,25 @@ def _open_bag(path: Path):
         raise
     except errors as e:
         text = " ".join(str(e).split())  # one line: a reader's message may quote the file over several
-        raise DatasetError(f"{path}: cannot be read as a ROS bag ({type(e).__name__}: "
-                           f"{text if len(text) <= 300 else text[:297] + '...'})") from None
+        raise DatasetError(
+            f"{path}: cannot be read as a ROS bag ({type(e).__name__}: "
+            f"{text if len(text) <= 300 else text[:297] + '...'})"
+        ) from None
 
 
 class _McapFile:
     """A bare ROS 2 ``.mcap`` file (no ``metadata.yaml``), through rosbags' MCAP storage reader."""
 
     def __init__(self, path: Path) -> None:
-        from rosbags.rosbag2.storage_mcap import McapReader  # noqa: PLC0415
+        from rosbags.rosbag2.storage_mcap import McapReader
 
         self._reader = McapReader(path)
         self.connections: list = []
         self._typestore = None
 
     def open(self) -> None:
-        from rosbags.interfaces import MessageDefinitionFormat  # noqa: PLC0415
-        from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore  # noqa: PLC0415
+        from rosbags.interfaces import MessageDefinitionFormat
+        from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 
         self._reader.open()
         self.connections = list(self._reader.connections)
@@ -149,9 +153,14 @@ def _stamp_ns(msg, log_ns: int) -> int:
     return ns if ns > 0 else int(log_ns)
 
 
-def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: str = "/joint_states",
-                     wrench_topic: str | None = None, progress: Callable[[int, int], None] | None = None,
-                     imu_topics: Sequence[str] = ()):
+def read_bag_streams(
+    path: str | Path,
+    joint_names: Sequence[str],
+    joint_topic: str = "/joint_states",
+    wrench_topic: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    imu_topics: Sequence[str] = (),
+):
     """Read joint angles and the sensor wrench from a ROS bag into :class:`ineid.data.streams.Streams`.
 
     Args:
@@ -189,8 +198,10 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
         wrenches = sorted(t for t, cs in by_topic.items() if cs[0].msgtype == WRENCH_STAMPED)
         if wrench_topic is None:
             if len(wrenches) > 1:
-                raise DatasetError(f"{path}: the bag has {len(wrenches)} wrench topics ({', '.join(wrenches)}); "
-                                   "choose one with --wrench-topic")
+                raise DatasetError(
+                    f"{path}: the bag has {len(wrenches)} wrench topics ({', '.join(wrenches)}); "
+                    "choose one with --wrench-topic"
+                )
             wrench_topic = wrenches[0] if wrenches else None  # none: the joint states' efforts must be there
         wconns = by_topic.get(wrench_topic) if wrench_topic is not None else []
         if wrench_topic is not None and not wconns:
@@ -232,18 +243,33 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
     if not len(tq) or (wrench_topic is not None and not len(w)):
         raise DatasetError(f"{path}: no messages on {joint_topic if not len(tq) else wrench_topic}")
     if wrench_topic is None and effort is None:
-        raise DatasetError(f"{path}: the bag has no {WRENCH_STAMPED} topic and its joint states carry no effort "
-                           f"(joint torques): nothing to identify from (topics: {available})")
+        raise DatasetError(
+            f"{path}: the bag has no {WRENCH_STAMPED} topic and its joint states carry no effort "
+            f"(joint torques): nothing to identify from (topics: {available})"
+        )
     if len(frame_ids) > 1:
-        raise DatasetError(f"{path}: the wrench messages on {wrench_topic} name several frames "
-                           f"({', '.join(map(repr, sorted(frame_ids)))}); a recording needs one sensor frame")
-    for topic, what, values in ((joint_topic, "positions", q), (joint_topic, "efforts", effort),
-                                (wrench_topic, "wrench values", w)):
+        raise DatasetError(
+            f"{path}: the wrench messages on {wrench_topic} name several frames "
+            f"({', '.join(map(repr, sorted(frame_ids)))}); a recording needs one sensor frame"
+        )
+    for topic, what, values in (
+        (joint_topic, "positions", q),
+        (joint_topic, "efforts", effort),
+        (wrench_topic, "wrench values", w),
+    ):
         _check_values(path, topic, what, values)
     t0 = min([int(tq.min()), *([int(tw.min())] if len(tw) else []), *(v[0][0] for v in imu_data.values() if v[0])])
     frame_id = (frame_ids.pop() or None) if frame_ids else None
-    origin = {"format": bag_kind(path), "file": path.name, "joint_topic": joint_topic, "wrench_topic": wrench_topic,
-              "joint_messages": len(tq), "wrench_messages": len(w), "start_ns": int(t0), "frame_id": frame_id}
+    origin = {
+        "format": bag_kind(path),
+        "file": path.name,
+        "joint_topic": joint_topic,
+        "wrench_topic": wrench_topic,
+        "joint_messages": len(tq),
+        "wrench_messages": len(w),
+        "start_ns": int(t0),
+        "frame_id": frame_id,
+    }
     if effort is not None:
         origin["effort"] = True
     imus = _imu_streams(path, imu_data, imu_of, t0)
@@ -267,11 +293,16 @@ def read_bag_streams(path: str | Path, joint_names: Sequence[str], joint_topic: 
 def _check_messages(path: Path, total: int, n_joints: int) -> None:
     """At most :data:`MAX_MESSAGES` messages, and memory for them, before any is read."""
     if total > MAX_MESSAGES:
-        raise DatasetError(f"{path}: the topics to read hold {total:,} messages, more than the {MAX_MESSAGES:,} ineid "
-                           "reads (ineid.data.bags.MAX_MESSAGES); import a shorter part of the recording")
+        raise DatasetError(
+            f"{path}: the topics to read hold {total:,} messages, more than the {MAX_MESSAGES:,} ineid "
+            "reads (ineid.data.bags.MAX_MESSAGES); import a shorter part of the recording"
+        )
     # a joint state's stamp, positions and efforts (a wrench's are fewer), then the arrays of the streams
-    require_memory(2 * total * 8 * (1 + 2 * n_joints), f"reading {total:,} messages of {path}",
-                   "import a shorter part of the recording")
+    require_memory(
+        2 * total * 8 * (1 + 2 * n_joints),
+        f"reading {total:,} messages of {path}",
+        "import a shorter part of the recording",
+    )
 
 
 def _check_values(path: Path, topic: str | None, what: str, values: np.ndarray | None) -> None:
@@ -280,9 +311,11 @@ def _check_values(path: Path, topic: str | None, what: str, values: np.ndarray |
     if k is not None:
         row = values.reshape(len(values), -1)[k]
         v = row[np.isfinite(row) & (np.abs(row) > VALUE_LIMIT)][0]
-        raise DatasetError(f"{path}: message {k} on {topic}: its {what} hold {v:g}, beyond {VALUE_LIMIT:g} in "
-                           "magnitude (ineid.data.streams.VALUE_LIMIT), more than any sensor gives; a corrupt message: "
-                           "cut it from the recording")
+        raise DatasetError(
+            f"{path}: message {k} on {topic}: its {what} hold {v:g}, beyond {VALUE_LIMIT:g} in "
+            "magnitude (ineid.data.streams.VALUE_LIMIT), more than any sensor gives; a corrupt message: "
+            "cut it from the recording"
+        )
 
 
 class _Rows:
@@ -333,14 +366,19 @@ class _JointStates:
             idx = self._order[names] = np.array([names.index(j) for j in self.joint_names])
         pos = np.asarray(msg.position, dtype=np.float64)
         if len(pos) != len(names):
-            raise DatasetError(f"{self.path}: joint state message {k} on {self.topic} has {len(names)} names "
-                               f"but {len(pos)} positions")
+            raise DatasetError(
+                f"{self.path}: joint state message {k} on {self.topic} has {len(names)} names but {len(pos)} positions"
+            )
         eff = np.asarray(msg.effort, dtype=np.float64)
         if len(eff) not in (0, len(names)) or (k and bool(len(eff)) != bool(self.effort.n)):
             raise DatasetError(
                 f"{self.path}: joint state message {k} on {self.topic} has {len(eff)} efforts for "
-                f"{len(names)} names" + ("" if len(eff) not in (0, len(names)) else
-                                         f" where message 0 had {len(names) if self.effort.n else 0}")
+                f"{len(names)} names"
+                + (
+                    ""
+                    if len(eff) not in (0, len(names))
+                    else f" where message 0 had {len(names) if self.effort.n else 0}"
+                )
                 + "; the joint torques (effort) must come with every joint state, one per name, or never"
             )
         self.stamps.append(_stamp_ns(msg, log_ns))
@@ -365,8 +403,10 @@ def _imu_connections(path: Path, by_topic: dict, imu_topics: Sequence[str], avai
         alpha = by_topic.get(topic + ANGULAR_ACCELERATION)
         if alpha:
             if alpha[0].msgtype != VECTOR3_STAMPED:
-                raise DatasetError(f"{path}: topic {topic + ANGULAR_ACCELERATION!r} holds {alpha[0].msgtype}; an IMU's "
-                                   f"angular acceleration is a {VECTOR3_STAMPED} (rad/s^2, sensor frame)")
+                raise DatasetError(
+                    f"{path}: topic {topic + ANGULAR_ACCELERATION!r} holds {alpha[0].msgtype}; an IMU's "
+                    f"angular acceleration is a {VECTOR3_STAMPED} (rad/s^2, sensor frame)"
+                )
             conns += alpha
             imu_of[topic + ANGULAR_ACCELERATION] = topic
     return conns, imu_of
@@ -385,7 +425,7 @@ def _imu_values(msg) -> tuple:
 
 def _imu_streams(path: Path, imu_data: dict, imu_of: dict, t0: int) -> tuple:
     """One :class:`ImuStream` per IMU topic and per angular-acceleration topic, named by the ``frame_id``."""
-    from ineid.data.streams import ImuStream  # noqa: PLC0415
+    from ineid.data.streams import ImuStream
 
     names: dict[str, str] = {}
     out = []
@@ -394,18 +434,24 @@ def _imu_streams(path: Path, imu_data: dict, imu_of: dict, t0: int) -> tuple:
         if not stamps:
             raise DatasetError(f"{path}: no messages on {topic}")
         if len(frames) > 1:
-            raise DatasetError(f"{path}: the IMU messages on {topic} name several frames "
-                               f"({', '.join(map(repr, sorted(frames)))}); one topic is one IMU")
+            raise DatasetError(
+                f"{path}: the IMU messages on {topic} name several frames "
+                f"({', '.join(map(repr, sorted(frames)))}); one topic is one IMU"
+            )
         frame = frames.pop()
         owner = imu_of[topic]
         if owner != topic:
             frame = frame or names.get(owner, "")
             if owner in names and frame != names[owner]:
-                raise DatasetError(f"{path}: {topic} names frame {frame!r} and {owner} frame {names[owner]!r}; an "
-                                   "IMU's angular acceleration is in its own frame")
+                raise DatasetError(
+                    f"{path}: {topic} names frame {frame!r} and {owner} frame {names[owner]!r}; an "
+                    "IMU's angular acceleration is in its own frame"
+                )
         if not frame:
-            raise DatasetError(f"{path}: the messages on {topic} have an empty frame_id; it names the IMU's link (or a "
-                               "URDF frame on it, or an --imu NAME=LINK:pose)")
+            raise DatasetError(
+                f"{path}: the messages on {topic} have an empty frame_id; it names the IMU's link (or a "
+                "URDF frame on it, or an --imu NAME=LINK:pose)"
+            )
         names[owner] = frame
         t = (np.asarray(stamps, dtype=np.int64) - t0) * 1e-9
         readings = {}
@@ -415,15 +461,23 @@ def _imu_streams(path: Path, imu_data: dict, imu_of: dict, t0: int) -> tuple:
             for i, kind in enumerate(("gyro", "accel")):
                 present = [v[i] is not None for v in values]
                 if any(present) and not all(present):
-                    raise DatasetError(f"{path}: the {kind} of {topic} is measured in some messages only (its "
-                                       "covariance[0] is -1 in the others); one topic is one IMU, measured alike")
+                    raise DatasetError(
+                        f"{path}: the {kind} of {topic} is measured in some messages only (its "
+                        "covariance[0] is -1 in the others); one topic is one IMU, measured alike"
+                    )
                 if all(present):
                     readings[kind] = np.asarray([v[i] for v in values], dtype=np.float64).reshape(-1, 3)
             if not readings:
-                raise DatasetError(f"{path}: the messages on {topic} mark both the angular velocity and the linear "
-                                   "acceleration as not measured (covariance[0] = -1)")
+                raise DatasetError(
+                    f"{path}: the messages on {topic} mark both the angular velocity and the linear "
+                    "acceleration as not measured (covariance[0] = -1)"
+                )
         for kind, values in readings.items():
-            _check_values(path, topic, {"gyro": "angular velocities", "accel": "linear accelerations",
-                                        "alpha": "angular accelerations"}[kind], values)
+            _check_values(
+                path,
+                topic,
+                {"gyro": "angular velocities", "accel": "linear accelerations", "alpha": "angular accelerations"}[kind],
+                values,
+            )
         out.append(ImuStream(frame, t, readings, topic))
     return tuple(out)

@@ -21,7 +21,8 @@ sample of their row.
 
 Several streams may share the file: a row whose joint cells are all empty holds a wrench
 sample only, a row whose wrench cells are all empty a joint sample only (a merged log of
-two clocks); each IMU (all its columns) is a stream of its own the same way. The processing (filter, derivatives, one time base, the sensor pose) is
+two clocks); each IMU (all its columns) is a stream of its own the same way. The processing (filter, derivatives,
+one time base, the sensor pose) is
 :mod:`ineid.data.recording`'s. A sensor that reports the wrench the fixture exerts on the
 robot (the opposite sign) is imported with ``flip_wrench=True``. The truth is unknown, so
 the file has no ``theta_unknown``; ``theta_known`` holds the model's CAD values of the
@@ -63,7 +64,7 @@ def read_csv_rows(path: str | Path) -> list[tuple[int, list[str]]]:
     rows = []
     with csv_lines(path) as blocks:
         for numbers, lines in blocks:
-            for k, line in zip(numbers, lines):
+            for k, line in zip(numbers, lines, strict=True):
                 try:
                     rows.append((k, next(csv.reader([line]))))
                 except csv.Error as e:
@@ -88,20 +89,22 @@ def _channel_columns(header: list[str], prefix: str, what: str, model, path: Pat
             some joints missing, or both spellings.
     """
     n = model.n_dof
-    numbered = sorted(int(h[len(prefix):]) for h in header if h.startswith(prefix) and h[len(prefix):].isdigit())
+    numbered = sorted(int(h[len(prefix) :]) for h in header if h.startswith(prefix) and h[len(prefix) :].isdigit())
     named = [h for h in header if h.startswith(f"{prefix}_")]
     if not numbered and not named:
         return []
     joints = [j.lower() for j in model.joint_names]
     spelled = f"{prefix}1..{prefix}{n} or {prefix}_<joint> ({', '.join(f'{prefix}_{j}' for j in joints)})"
     if numbered and named:
-        raise DatasetError(f"{path}: the {what} columns mix {prefix}<k> and {prefix}_<joint>; use one spelling: "
-                           f"{spelled}")
+        raise DatasetError(
+            f"{path}: the {what} columns mix {prefix}<k> and {prefix}_<joint>; use one spelling: {spelled}"
+        )
     if named:
-        unknown = [h for h in named if h[len(prefix) + 1:] not in joints]
+        unknown = [h for h in named if h[len(prefix) + 1 :] not in joints]
         if unknown:
-            raise DatasetError(f"{path}: column {unknown[0]!r} names no joint of {model.name}; its {what} columns are "
-                               f"{spelled}")
+            raise DatasetError(
+                f"{path}: column {unknown[0]!r} names no joint of {model.name}; its {what} columns are {spelled}"
+            )
         wanted = [f"{prefix}_{j}" for j in joints]
     else:
         if min(numbered) < 1:
@@ -115,8 +118,10 @@ def _channel_columns(header: list[str], prefix: str, what: str, model, path: Pat
         wanted = [f"{prefix}{i}" for i in range(1, n + 1)]
     missing = [c for c in wanted if c not in header]
     if missing:
-        raise DatasetError(f"{path}: missing {what} column{'s' if len(missing) > 1 else ''} {', '.join(missing)}; "
-                           f"give one per joint: {spelled}")
+        raise DatasetError(
+            f"{path}: missing {what} column{'s' if len(missing) > 1 else ''} {', '.join(missing)}; "
+            f"give one per joint: {spelled}"
+        )
     return wanted
 
 
@@ -139,19 +144,22 @@ def read_csv_streams(path: str | Path, model, progress=None):
             name the line.
         ResourceError: the rows would not fit in the memory available.
     """
-    path = regular_file(path, "the CSV recording", max_bytes=MAX_CSV_BYTES,
-                        limit_name="ineid.data.csv_rows.MAX_CSV_BYTES")
+    path = regular_file(
+        path, "the CSV recording", max_bytes=MAX_CSV_BYTES, limit_name="ineid.data.csv_rows.MAX_CSV_BYTES"
+    )
     with csv_lines(path) as blocks:
         first = next((b for b in blocks if b[1]), None)
         if first is None:
-            raise DatasetError(f"{path}: the file is empty; expected a header row "
-                               f"{','.join(csv_columns(model.n_dof, False))}")
+            raise DatasetError(
+                f"{path}: the file is empty; expected a header row {','.join(csv_columns(model.n_dof, False))}"
+            )
         numbers, lines = first
         header = parse_header(lines[0], numbers[0], path)
         columns = _recording_columns(header, model, path)
         index = {h: k for k, h in enumerate(header)}
-        layout = Layout(path, len(header), tuple(index[c] for c in columns.names), tuple(columns.names),
-                        columns.streams)
+        layout = Layout(
+            path, len(header), tuple(index[c] for c in columns.names), tuple(columns.names), columns.streams
+        )
         rest = [(numbers[1:], lines[1:])]
         table = read_rows((b for part in (rest, blocks) for b in part), layout, path.stat().st_size, progress)
     if not len(table.values):
@@ -162,13 +170,24 @@ def read_csv_streams(path: str | Path, model, progress=None):
 class _Columns:
     """The columns a recording CSV's header holds, in the order they are read (:func:`_recording_columns`)."""
 
-    def __init__(self, joint_names: list[str], measured: bool, tau: list[str], current: list[str], wrench: bool,
-                 imu_kinds: dict[str, dict[str, list[str]]]) -> None:
+    def __init__(
+        self,
+        joint_names: list[str],
+        measured: bool,
+        tau: list[str],
+        current: list[str],
+        wrench: bool,
+        imu_kinds: dict[str, dict[str, list[str]]],
+    ) -> None:
         self.joint_names, self.measured, self.tau, self.current = joint_names, measured, tau, current
         self.wrench, self.imu_kinds = wrench, imu_kinds
         self.imu_cols = {name: [c for cols in kinds.values() for c in cols] for name, kinds in imu_kinds.items()}
-        self.names = ["time", *joint_names, *(WRENCH_COLUMNS if wrench else ()),
-                      *(c for cols in self.imu_cols.values() for c in cols)]
+        self.names = [
+            "time",
+            *joint_names,
+            *(WRENCH_COLUMNS if wrench else ()),
+            *(c for cols in self.imu_cols.values() for c in cols),
+        ]
         k0 = 1 + len(joint_names) + (6 if wrench else 0)
         spans = [(1, 1 + len(joint_names))] + ([(1 + len(joint_names), k0)] if wrench else [])
         for cols in self.imu_cols.values():
@@ -202,7 +221,7 @@ def _recording_columns(header: list[str], model, path: Path) -> _Columns:
             f"a recording of {model.name} needs {','.join(required)} (and optionally qd1..qd{n}, qdd1..qdd{n}; "
             f"the wrench columns may be left out when joint torques tau1..tau{n} are given)"
         )
-    from ineid.data.recording_imu import imu_column_kinds  # noqa: PLC0415
+    from ineid.data.recording_imu import imu_column_kinds
 
     imu_kinds = imu_column_kinds(header, path)
     deriv = [f"{p}{i}" for p in ("qd", "qdd") for i in range(1, n + 1)]
@@ -230,13 +249,15 @@ def _streams(table: Table, columns: _Columns, model, path: Path) -> Streams:
         rows[name] = data if mask.all() else data[mask]  # one clock (the usual file): views, no copies
         t = rows[name][:, 0]
         if len(t) < 2:
-            raise DatasetError(f"{path}: {len(t)} {name} sample{'s' if len(t) != 1 else ''}; a recording needs many "
-                               "more")
+            raise DatasetError(
+                f"{path}: {len(t)} {name} sample{'s' if len(t) != 1 else ''}; a recording needs many more"
+            )
         bad = np.flatnonzero(np.diff(t) <= 0)
         if bad.size:
             line = table.lines[np.flatnonzero(mask)[bad[0] + 1]]
-            raise DatasetError(f"{path}: time does not increase at line {line} ({name} samples); sort the rows or "
-                               "fix the time column")
+            raise DatasetError(
+                f"{path}: time does not increase at line {line} ({name} samples); sort the rows or fix the time column"
+            )
     jr = rows["joint"]
     k0 = 1 + (3 * n if columns.measured else n)
     tau = jr[:, k0 : k0 + n] if columns.tau else None
@@ -244,8 +265,14 @@ def _streams(table: Table, columns: _Columns, model, path: Path) -> Streams:
     imus = []
     for name, kinds in columns.imu_kinds.items():
         r = rows[f"IMU {name!r}"]
-        imus.append(ImuStream(name, r[:, 0], {k: r[:, [names.index(c) for c in cols]] for k, cols in kinds.items()},
-                              f"columns imu_{name}_*"))
+        imus.append(
+            ImuStream(
+                name,
+                r[:, 0],
+                {k: r[:, [names.index(c) for c in cols]] for k, cols in kinds.items()},
+                f"columns imu_{name}_*",
+            )
+        )
     n_joint = len(columns.joint_names)
     wr = rows.get("wrench")
     return Streams(
@@ -271,8 +298,9 @@ def _joint_column(name: str) -> tuple[str, int] | None:
     return None
 
 
-def write_recording_csv(path: str | Path, dataset: Dataset, config: int = 0, flip_wrench: bool = False,
-                        derivatives: bool = True) -> Path:
+def write_recording_csv(
+    path: str | Path, dataset: Dataset, config: int = 0, flip_wrench: bool = False, derivatives: bool = True
+) -> Path:
     """Write one configuration of a dataset as a recording CSV (the inverse of the import).
 
     ``derivatives=False`` leaves out ``qd``/``qdd``, as an encoder-only recording has them.
@@ -281,8 +309,10 @@ def write_recording_csv(path: str | Path, dataset: Dataset, config: int = 0, fli
     """
     tau = dataset.channel_values.get("tau")
     if dataset.wrench is None and tau is None:
-        raise DatasetError(f"a recording CSV holds the wrench or joint torques, and this dataset measures "
-                           f"{dataset.meta.channels.describe()}: write another dataset")
+        raise DatasetError(
+            f"a recording CSV holds the wrench or joint torques, and this dataset measures "
+            f"{dataset.meta.channels.describe()}: write another dataset"
+        )
     n = dataset.n_dof
     t = dataset.time[config] if dataset.time is not None else np.arange(dataset.n_frames) * 0.01
     sign = -1.0 if flip_wrench else 1.0

@@ -61,8 +61,9 @@ def csv_lines(path: Path) -> Iterator[Iterator[tuple[list[int], list[str]]]]:
         with path.open(encoding="utf-8-sig") as fh:
             yield _line_blocks(fh, path)
     except UnicodeDecodeError as e:
-        raise DatasetError(f"{path}: cannot be read as CSV text (not UTF-8: {e.reason}); save it as UTF-8 "
-                           "text") from None
+        raise DatasetError(
+            f"{path}: cannot be read as CSV text (not UTF-8: {e.reason}); save it as UTF-8 text"
+        ) from None
     except OSError as e:
         raise DatasetError(f"{path}: cannot be read ({e.strerror or e}); check the file and its permissions") from None
 
@@ -77,12 +78,15 @@ def _line_blocks(fh, path: Path) -> Iterator[tuple[list[int], list[str]]]:
             carry = buf
         else:
             lines = buf[:cut].split("\n")
-            carry = buf[cut + 1:]
+            carry = buf[cut + 1 :]
             if lines and max(map(len, lines)) > MAX_LINE_CHARS:
                 k = next(k for k, line in enumerate(lines) if len(line) > MAX_LINE_CHARS)
                 _too_long(path, first + k)
-            kept = [(k, line) for k, line in enumerate(lines, start=first) if line.strip()
-                    and not line.lstrip().startswith("#")]
+            kept = [
+                (k, line)
+                for k, line in enumerate(lines, start=first)
+                if line.strip() and not line.lstrip().startswith("#")
+            ]
             first += len(lines)
             yield [k for k, _ in kept], [line for _, line in kept]
         if len(carry) > MAX_LINE_CHARS:
@@ -92,8 +96,10 @@ def _line_blocks(fh, path: Path) -> Iterator[tuple[list[int], list[str]]]:
 
 
 def _too_long(path: Path, line: int) -> NoReturn:
-    raise DatasetError(f"{path}: line {line} is longer than {MAX_LINE_CHARS:,} characters "
-                       "(ineid.data.csv_rows.MAX_LINE_CHARS); a recording CSV has one row per line: check the file")
+    raise DatasetError(
+        f"{path}: line {line} is longer than {MAX_LINE_CHARS:,} characters "
+        "(ineid.data.csv_rows.MAX_LINE_CHARS); a recording CSV has one row per line: check the file"
+    )
 
 
 def parse_header(line: str, number: int, path: Path) -> list[str]:
@@ -107,9 +113,11 @@ def parse_header(line: str, number: int, path: Path) -> list[str]:
     except csv.Error as e:
         raise DatasetError(f"{path}: line {number} (the header) cannot be read as CSV ({e})") from None
     if len(header) > MAX_COLUMNS:
-        raise DatasetError(f"{path}: the header names {len(header):,} columns, more than the {MAX_COLUMNS:,} ineid "
-                           "reads (ineid.data.csv_rows.MAX_COLUMNS); keep the columns of the recording (time, joints, "
-                           "wrench, torques, IMUs)")
+        raise DatasetError(
+            f"{path}: the header names {len(header):,} columns, more than the {MAX_COLUMNS:,} ineid "
+            "reads (ineid.data.csv_rows.MAX_COLUMNS); keep the columns of the recording (time, joints, "
+            "wrench, torques, IMUs)"
+        )
     seen: set[str] = set()
     for h in header:
         if h in seen and h:
@@ -153,8 +161,12 @@ class Table:
     lines: np.ndarray
 
 
-def read_rows(blocks: Iterable[tuple[list[int], list[str]]], layout: Layout, size: int,
-              progress: Callable[[int, int], None] | None = None) -> Table:
+def read_rows(
+    blocks: Iterable[tuple[list[int], list[str]]],
+    layout: Layout,
+    size: int,
+    progress: Callable[[int, int], None] | None = None,
+) -> Table:
     """The data rows of ``blocks`` (the lines below the header) as arrays.
 
     Args:
@@ -176,8 +188,11 @@ def read_rows(blocks: Iterable[tuple[list[int], list[str]]], layout: Layout, siz
             estimate = max(len(lines), int(size * len(lines) / (sum(map(len, lines)) + len(lines))))
             _check_rows(estimate, layout, "about ")
             row_bytes = 8 * len(layout.names) + len(layout.streams) + 8
-            require_memory(estimate * row_bytes, f"reading about {estimate:,} rows of {layout.path}",
-                           "import a shorter part of the recording")
+            require_memory(
+                estimate * row_bytes,
+                f"reading about {estimate:,} rows of {layout.path}",
+                "import a shorter part of the recording",
+            )
             # a quarter more than the estimate: pages never written are never given memory
             table = _empty(layout, int(1.25 * estimate) + len(lines))
         values, present = parse_block(numbers, lines, layout)
@@ -197,13 +212,17 @@ def read_rows(blocks: Iterable[tuple[list[int], list[str]]], layout: Layout, siz
 
 
 def _empty(layout: Layout, n: int) -> Table:
-    return Table(np.empty((n, len(layout.names))), np.empty((n, len(layout.streams)), dtype=bool),
-                 np.empty(n, dtype=np.int64))
+    return Table(
+        np.empty((n, len(layout.names))), np.empty((n, len(layout.streams)), dtype=bool), np.empty(n, dtype=np.int64)
+    )
 
 
 def _grown(table: Table, n: int, done: int) -> Table:
-    out = Table(np.empty((n, table.values.shape[1])), np.empty((n, table.present.shape[1]), dtype=bool),
-                np.empty(n, dtype=np.int64))
+    out = Table(
+        np.empty((n, table.values.shape[1])),
+        np.empty((n, table.present.shape[1]), dtype=bool),
+        np.empty(n, dtype=np.int64),
+    )
     for k in ("values", "present", "lines"):
         getattr(out, k)[:done] = getattr(table, k)[:done]
     return out
@@ -211,8 +230,10 @@ def _grown(table: Table, n: int, done: int) -> Table:
 
 def _check_rows(n: int, layout: Layout, about: str) -> None:
     if n > MAX_ROWS:
-        raise DatasetError(f"{layout.path}: {about}{n:,} rows, more than the {MAX_ROWS:,} ineid reads from a recording "
-                           "(ineid.data.csv_rows.MAX_ROWS); import a shorter part of the recording")
+        raise DatasetError(
+            f"{layout.path}: {about}{n:,} rows, more than the {MAX_ROWS:,} ineid reads from a recording "
+            "(ineid.data.csv_rows.MAX_ROWS); import a shorter part of the recording"
+        )
 
 
 def parse_block(numbers: list[int], lines: list[str], layout: Layout) -> tuple[np.ndarray, np.ndarray]:
@@ -239,8 +260,15 @@ def _parse_fast(lines: list[str], layout: Layout) -> tuple[np.ndarray, np.ndarra
     text = ("\n" + text + "\n").replace(",,", ",nan,").replace(",,", ",nan,")
     text = text.replace("\n,", "\nnan,").replace(",\n", ",nan\n")
     try:
-        values = np.loadtxt(text[1:-1].split("\n"), delimiter=",", usecols=layout.columns, dtype=np.float64,
-                            ndmin=2, comments=None, quotechar=None)
+        values = np.loadtxt(
+            text[1:-1].split("\n"),
+            delimiter=",",
+            usecols=layout.columns,
+            dtype=np.float64,
+            ndmin=2,
+            comments=None,
+            quotechar=None,
+        )
     except ValueError:
         return None
     empty = np.isnan(values)
@@ -262,7 +290,7 @@ def _parse_rows(numbers: list[int], lines: list[str], layout: Layout) -> tuple[n
     path, names, limits = layout.path, layout.names, layout.limits
     values = np.full((len(lines), len(names)), np.nan)
     present = np.ones((len(lines), len(layout.streams)), dtype=bool)
-    for i, (line, text) in enumerate(zip(numbers, lines)):
+    for i, (line, text) in enumerate(zip(numbers, lines, strict=True)):
         try:
             row = next(csv.reader([text]))
         except csv.Error as e:
@@ -297,11 +325,14 @@ def _number(cell: str, line: int, name: str, limit: float, path: Path) -> float:
     except ValueError:
         raise DatasetError(f"{path}: line {line}, column {name!r}: {cell[:40]!r} is not a number") from None
     if v != v or cell.lower().lstrip("+-") in ("inf", "infinity"):
-        raise DatasetError(f"{path}: line {line}, column {name!r} is {cell}; values must be finite: drop or repair "
-                           "those rows")
+        raise DatasetError(
+            f"{path}: line {line}, column {name!r} is {cell}; values must be finite: drop or repair those rows"
+        )
     if abs(v) > limit:
         beyond = "beyond the range of a float64" if abs(v) == float("inf") else f"beyond {limit:g} in magnitude"
         which = "TIME_LIMIT" if name == "time" else "VALUE_LIMIT"
-        raise DatasetError(f"{path}: line {line}, column {name!r} is {cell[:40]}, {beyond}, more than any sensor or "
-                           f"clock gives (ineid.data.streams.{which}); a corrupt cell: repair or drop the row")
+        raise DatasetError(
+            f"{path}: line {line}, column {name!r} is {cell[:40]}, {beyond}, more than any sensor or "
+            f"clock gives (ineid.data.streams.{which}); a corrupt cell: repair or drop the row"
+        )
     return v

@@ -11,7 +11,11 @@ import warnings
 from ineid.data.recording import DelayEstimate
 from ineid.identify.delay import MAX_DELAY, estimate_delay
 
-warnings.warn("ineid.data.delay moved to ineid.identify.delay (DelayEstimate: ineid.data.recording); "
-              "ineid.data.delay is removed in ineid 0.3", DeprecationWarning, stacklevel=2)
+warnings.warn(
+    "ineid.data.delay moved to ineid.identify.delay (DelayEstimate: ineid.data.recording); "
+    "ineid.data.delay is removed in ineid 0.3",
+    DeprecationWarning,
+    stacklevel=2,
+)
 
 __all__ = ["MAX_DELAY", "DelayEstimate", "estimate_delay"]

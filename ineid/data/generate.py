@@ -85,12 +85,20 @@ class DatasetSpec:
         if self.n_frames < 1:
             raise ValueError(f"n_frames must be >= 1, got {self.n_frames}")
         if self.imu is not None and self.frames.mode not in ("fourier", "trajectory"):
-            raise ValueError(f"a rehearsal (IMUs, encoder bits) filters and fuses time series: use --frame-mode fourier or trajectory, not "
-                             f"{self.frames.mode} (independent frames)")
-        if self.imu is not None and self.noise is not None and any(
-                np.any(np.asarray(getattr(self.noise, k)) > 0) for k in ("q", "qd", "qdd")):
-            raise ValueError("with IMUs the states are estimated from the encoders (--encoder-bits) and the IMUs: "
-                             "drop the q, qd, qdd noise")
+            raise ValueError(
+                "a rehearsal (IMUs, encoder bits) filters and fuses time series: use --frame-mode fourier or "
+                "trajectory, not "
+                f"{self.frames.mode} (independent frames)"
+            )
+        if (
+            self.imu is not None
+            and self.noise is not None
+            and any(np.any(np.asarray(getattr(self.noise, k)) > 0) for k in ("q", "qd", "qdd"))
+        ):
+            raise ValueError(
+                "with IMUs the states are estimated from the encoders (--encoder-bits) and the IMUs: "
+                "drop the q, qd, qdd noise"
+            )
         if not 0 <= int(self.seed) < 2**63:
             raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
 
@@ -171,17 +179,23 @@ class GenerationPlan:
         """Noise only for channels there are, with one number or one per axis."""
         keys = self.channels.keys
         if "wrench" not in keys and np.any(self.noise.wrench > 0):
-            raise DatasetError(f"wrench noise is for the channel keyed wrench, and the channels are "
-                               f"{', '.join(keys)}; give no force or moment noise, or add that channel")
+            raise DatasetError(
+                f"wrench noise is for the channel keyed wrench, and the channels are "
+                f"{', '.join(keys)}; give no force or moment noise, or add that channel"
+            )
         for key, std in self.noise.channels.items():
             channel = self.channels.get(key)
             if channel is None and np.any(std > 0):
-                raise DatasetError(f"noise for {key!r}, and the channels are {', '.join(keys)}; give no {key} noise, "
-                                   f"or simulate that channel")
+                raise DatasetError(
+                    f"noise for {key!r}, and the channels are {', '.join(keys)}; give no {key} noise, "
+                    f"or simulate that channel"
+                )
             if channel is not None and std.size not in (1, channel.n_axes(self.model)):
                 n_axes = channel.n_axes(self.model)
-                raise DatasetError(f"{key} noise has {std.size} standard deviations for the {n_axes} axes of "
-                                   f"{channel.describe()}; give one number or one per axis")
+                raise DatasetError(
+                    f"{key} noise has {std.size} standard deviations for the {n_axes} axes of "
+                    f"{channel.describe()}; give one number or one per axis"
+                )
 
     def _check_memory(self) -> None:
         """Refuse sizes whose parameters (all configurations) or one chunk of frames cannot be held.
@@ -190,7 +204,7 @@ class GenerationPlan:
         each; the frames are made a chunk at a time (at least :data:`RNG_BLOCK_CONFIGS`
         configurations), about ten arrays of ``rows x n_frames x max(6, n_dof)`` alive at once.
         """
-        from ineid._faults import format_bytes, require_memory  # noqa: PLC0415
+        from ineid._faults import format_bytes, require_memory
 
         m, spec = self.model, self.spec
         n_u = len(m.unknown_links)
@@ -212,14 +226,14 @@ class GenerationPlan:
     def _values(self, q, qd, qdd, theta) -> np.ndarray:
         """What the channels read, stacked: (n, F, n_axes) (the base wrench alone: the composed ``base_wrench``);
         through CasADi for a dataset of at most :data:`ineid.robots.model.SMALL_JOB_FRAMES` frames."""
-        from ineid.robots.model import SMALL_JOB_FRAMES  # noqa: PLC0415
+        from ineid.robots.model import SMALL_JOB_FRAMES
 
         if self.n_configs * self.spec.n_frames <= SMALL_JOB_FRAMES:  # a small dataset: CasADi, no compilation
             return self._values_casadi(q, qd, qdd, theta)
-        import jax  # noqa: PLC0415
+        import jax
 
         if self._values_fn is None:
-            from ineid.cache import enable_compilation_cache  # noqa: PLC0415
+            from ineid.cache import enable_compilation_cache
 
             enable_compilation_cache()
             self._values_fn = jax.jit(self.channels.jax_predict_function(self.model))
@@ -280,10 +294,9 @@ class GenerationPlan:
             out["link_set_index"] = self.link_set_index[start:stop]
             yield start, out
 
-
     def _rehearse(self, start: int, out: dict[str, np.ndarray]) -> None:
         """Replace the chunk's states and values by what the import would estimate (:mod:`ineid.data.imu_rehearsal`)."""
-        from ineid.data.imu_rehearsal import STREAM_IMU, rehearse  # noqa: PLC0415
+        from ineid.data.imu_rehearsal import STREAM_IMU, rehearse
 
         keys = self.channels.keys
         for k in ("q", "qd", "qdd", *keys):
@@ -292,8 +305,9 @@ class GenerationPlan:
         for c in range(len(out["q"])):
             rng = block_rng(self.spec.seed, STREAM_IMU, start + c)
             truth = [out[f"{k}_clean"][c] for k in ("q", "qd", "qdd")]
-            q, qd, qdd, values, _ = rehearse(self.model, self.spec.imu, out["time"][c], *truth,
-                                             {k: out[k][c] for k in keys}, rng)
+            q, qd, qdd, values, _ = rehearse(
+                self.model, self.spec.imu, out["time"][c], *truth, {k: out[k][c] for k in keys}, rng
+            )
             out["q"][c], out["qd"][c], out["qdd"][c] = q, qd, qdd
             for k in keys:
                 out[k][c] = values[k]
@@ -308,8 +322,9 @@ def actuated(channel, asymmetric: bool = False):
     offset, armature; per direction with ``asymmetric``), or None for a channel without them."""
     if not {f.name for f in dataclasses.fields(channel)} >= set(ACTUATION_FIELDS):
         return None
-    return dataclasses.replace(channel, friction=("viscous", "coulomb"), armature=True, torque_offset=True,
-                               asymmetric=asymmetric)
+    return dataclasses.replace(
+        channel, friction=("viscous", "coulomb"), armature=True, torque_offset=True, asymmetric=asymmetric
+    )
 
 
 def actuation_names(model, channels: ChannelSet, asymmetric: bool = False) -> tuple[str, ...]:
@@ -318,8 +333,9 @@ def actuation_names(model, channels: ChannelSet, asymmetric: bool = False) -> tu
     return tuple(n for c in full if c is not None for n in c.extra_names(model))
 
 
-def actuation_plan(model, channels: ChannelSet,
-                   truth: Mapping[str, float] | None) -> list[tuple[str, object, np.ndarray]]:
+def actuation_plan(
+    model, channels: ChannelSet, truth: Mapping[str, float] | None
+) -> list[tuple[str, object, np.ndarray]]:
     """``[(key, channel with every actuation term, x)]``: what adds ``E x`` to each channel's values.
 
     Raises:
@@ -331,13 +347,17 @@ def actuation_plan(model, channels: ChannelSet,
     asymmetric = any(name.endswith(("+", "-")) for name in truth)
     names = actuation_names(model, channels, asymmetric)
     if not names:
-        raise DatasetError(f"actuation values ({', '.join(truth)}) are for joint torques, and the channels are "
-                           f"{', '.join(channels.keys)}; simulate joint torques (--channels wrench,torque)")
+        raise DatasetError(
+            f"actuation values ({', '.join(truth)}) are for joint torques, and the channels are "
+            f"{', '.join(channels.keys)}; simulate joint torques (--channels wrench,torque)"
+        )
     unknown = [n for n in truth if n not in names]
     if unknown:
-        raise DatasetError(f"no simulated extra parameter {unknown[0]!r}; the channels take {', '.join(names[:8])}"
-                           + (", ..." if len(names) > 8 else "")
-                           + (" (one model per direction: fv+, fv-, fc+, fc- instead of fv, fc)" if asymmetric else ""))
+        raise DatasetError(
+            f"no simulated extra parameter {unknown[0]!r}; the channels take {', '.join(names[:8])}"
+            + (", ..." if len(names) > 8 else "")
+            + (" (one model per direction: fv+, fv-, fc+, fc- instead of fv, fc)" if asymmetric else "")
+        )
     plan = []
     for c in channels:
         full = actuated(c, asymmetric)
@@ -361,13 +381,15 @@ def generate_dataset(model: RobotModel, spec: DatasetSpec = DatasetSpec(), progr
         The :class:`Dataset`; the same ``spec`` gives bit-identical arrays.
     """
     plan = GenerationPlan(model, spec)
-    from ineid._faults import require_memory  # noqa: PLC0415
+    from ineid._faults import require_memory
 
     per_frame = (3 * model.n_dof + plan.channels.n_axes(plan.meta)) * (2 if plan.noise is not None else 1) + 1
     # states, the channels' values, clean copies, time
-    require_memory(2 * plan.n_configs * spec.n_frames * per_frame * 8,  # the chunks, then their concatenation
-                   f"{plan.n_configs:,} configurations x {spec.n_frames:,} frames in memory",
-                   "make fewer configurations or frames")  # fmt: skip
+    require_memory(
+        2 * plan.n_configs * spec.n_frames * per_frame * 8,  # the chunks, then their concatenation
+        f"{plan.n_configs:,} configurations x {spec.n_frames:,} frames in memory",
+        "make fewer configurations or frames",
+    )
     collected: dict[str, list[np.ndarray]] = {}
     for start, arrays in plan.chunks():
         for k, v in arrays.items():

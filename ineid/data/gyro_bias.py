@@ -107,10 +107,10 @@ def leaning_axes(null: np.ndarray) -> np.ndarray:
     out = np.zeros(m, dtype=bool)
     for d in null:
         for i in range(0, m, 3):
-            block = d[i: i + 3]
+            block = d[i : i + 3]
             norm = np.linalg.norm(block)
             if norm > 1e-6:
-                out[i: i + 3] |= np.abs(block / norm) >= LEAN
+                out[i : i + 3] |= np.abs(block / norm) >= LEAN
     return out
 
 
@@ -129,8 +129,9 @@ def angle_sensitivity(gyro_maps, q: np.ndarray, qd: np.ndarray, eps: float = 1e-
     return np.stack(cols, axis=2)
 
 
-def angle_error_variance(e: np.ndarray, m_k: np.ndarray, mk: np.ndarray, bk: np.ndarray,
-                         prior_var: np.ndarray) -> float:
+def angle_error_variance(
+    e: np.ndarray, m_k: np.ndarray, mk: np.ndarray, bk: np.ndarray, prior_var: np.ndarray
+) -> float:
     """The encoders' angle-error variance (rad^2, one for all joints) that the residuals do not rule out.
 
     Per frame ``E|e_k|^2 = tr(M_k M_k) + tr(B_k V B_k^T) + s^2 sum_j |M_k K_kj|^2`` (white unit noise, the
@@ -143,15 +144,14 @@ def angle_error_variance(e: np.ndarray, m_k: np.ndarray, mk: np.ndarray, bk: np.
         e: (F, m) whitened gyro residuals. m_k: (F, m, m) ``I - G_k A_k^-1 G_k^T``. mk: (F, m, n) ``M_k K_k``.
         bk: (F, m, n) ``G_k A_k^-1 P`` (how the prior's errors reach the residuals). prior_var: (n,) ``V``.
     """
-    excess = (np.einsum("fm,fm->f", e, e) - np.einsum("fmk,fkm->f", m_k, m_k)
-              - np.einsum("fmn,n,fmn->f", bk, prior_var, bk))
+    excess = (
+        np.einsum("fm,fm->f", e, e) - np.einsum("fmk,fkm->f", m_k, m_k) - np.einsum("fmn,n,fmn->f", bk, prior_var, bk)
+    )
     d = np.einsum("fmn,fmn->f", mk, mk)
     dd = float(d @ d) + 1e-300
     est = float(d @ excess) / dd
     se = float(np.sqrt(np.sum((d * (excess - d * est)) ** 2))) / dd
     return max(est + UPPER * se, 0.0)
-
-
 
 
 def angle_covariance(s_inv: np.ndarray, mk: np.ndarray, s2: np.ndarray) -> np.ndarray:

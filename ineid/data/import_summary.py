@@ -51,25 +51,37 @@ class ImportSummary:
 
     def lines(self) -> list[str]:
         wrench = self.wrench_rate is not None
-        out = [f"{self.n_frames:,} frames at {self.rate:g} Hz over {self.span:.3f} s "
-               f"(joints at {self.joint_rate:g} Hz" + (f", wrench at {self.wrench_rate:g} Hz" if wrench else "")
-               + (f"; {' and '.join(self.resampled)} resampled" if self.resampled else "") + ")"]
+        out = [
+            f"{self.n_frames:,} frames at {self.rate:g} Hz over {self.span:.3f} s "
+            f"(joints at {self.joint_rate:g} Hz"
+            + (f", wrench at {self.wrench_rate:g} Hz" if wrench else "")
+            + (f"; {' and '.join(self.resampled)} resampled" if self.resampled else "")
+            + ")"
+        ]
         if self.joint_channels:
-            out.append(f"{' and '.join(self.joint_channels)} on the joints' clock"
-                       + ("" if wrench else "; no wrench (the recording measures no F/T sensor)"))
+            out.append(
+                f"{' and '.join(self.joint_channels)} on the joints' clock"
+                + ("" if wrench else "; no wrench (the recording measures no F/T sensor)")
+            )
         filtered = " and ".join([*self.joint_channels, *(["the wrench"] if wrench else [])])
         if self.derived:
             c = self.cutoff_choice
-            how = self.cutoff_note or "given" if c is None or self.cutoff_note else {
-                "noise": f"chosen from the joint angles: noise {_fmt_list(c.noise_rms)} rad RMS keeps "
-                         f"{100 * c.acceleration_noise:.2g} % of the accelerations' RMS",
-                "rate": f"the upper bound, 0.1 x the rate: the joint angles' noise ({_fmt_list(c.noise_rms)} rad "
-                        "RMS) allows more",
-                "floor": "the lower bound: the joint angles are noisy for their motion "
-                         f"({100 * c.acceleration_noise:.2g} % noise in the accelerations even so)",
-            }[c.limited]
-            out.append(f"qd, qdd from the joint angles: zero-phase Butterworth low-pass at {self.cutoff:.3g} Hz "
-                       f"({how}), central differences" + (f"; {filtered} filtered the same" if filtered else ""))
+            how = (
+                self.cutoff_note or "given"
+                if c is None or self.cutoff_note
+                else {
+                    "noise": f"chosen from the joint angles: noise {_fmt_list(c.noise_rms)} rad RMS keeps "
+                    f"{100 * c.acceleration_noise:.2g} % of the accelerations' RMS",
+                    "rate": f"the upper bound, 0.1 x the rate: the joint angles' noise ({_fmt_list(c.noise_rms)} rad "
+                    "RMS) allows more",
+                    "floor": "the lower bound: the joint angles are noisy for their motion "
+                    f"({100 * c.acceleration_noise:.2g} % noise in the accelerations even so)",
+                }[c.limited]
+            )
+            out.append(
+                f"qd, qdd from the joint angles: zero-phase Butterworth low-pass at {self.cutoff:.3g} Hz "
+                f"({how}), central differences" + (f"; {filtered} filtered the same" if filtered else "")
+            )
         elif self.cutoff is not None:
             out.append(f"measured qd, qdd; every channel low-passed at {self.cutoff:.3g} Hz (given)")
         else:
@@ -77,30 +89,44 @@ class ImportSummary:
         if self.units:
             out.append(self.units)
         if wrench:
-            out.append(f"dropped {self.dropped_start:.3f} s at the start and {self.dropped_end:.3f} s at the end "
-                       f"({self.dropped_joint_samples:,} joint and {self.dropped_wrench_samples:,} wrench samples: "
-                       "filter edges and time covered by one stream only)")
+            out.append(
+                f"dropped {self.dropped_start:.3f} s at the start and {self.dropped_end:.3f} s at the end "
+                f"({self.dropped_joint_samples:,} joint and {self.dropped_wrench_samples:,} wrench samples: "
+                "filter edges and time covered by one stream only)"
+            )
         else:
-            out.append(f"dropped {self.dropped_start:.3f} s at the start and {self.dropped_end:.3f} s at the end "
-                       f"({self.dropped_joint_samples:,} joint samples: filter edges)")
+            out.append(
+                f"dropped {self.dropped_start:.3f} s at the start and {self.dropped_end:.3f} s at the end "
+                f"({self.dropped_joint_samples:,} joint samples: filter edges)"
+            )
         if self.sensor is not None:
-            out.append(f"sensor frame in {self.sensor_where}: {self.sensor.describe()}"
-                       + (f"; messages name frame {self.sensor.frame_id!r}" if self.sensor.frame_id else "")
-                       + (f"; wrench delayed by {self.delay:g} s" if self.delay and self.delay_estimate is None else ""))
+            out.append(
+                f"sensor frame in {self.sensor_where}: {self.sensor.describe()}"
+                + (f"; messages name frame {self.sensor.frame_id!r}" if self.sensor.frame_id else "")
+                + (f"; wrench delayed by {self.delay:g} s" if self.delay and self.delay_estimate is None else "")
+            )
         if self.delay_estimate is not None:
             e = self.delay_estimate
-            out.append(f"wrench delay estimated: {1e3 * e.delay:.4g} ms (relative residual of the linear fit with "
-                       f"offsets {e.residual:.3g}, against {e.residual_at_zero:.3g} without a delay)")
+            out.append(
+                f"wrench delay estimated: {1e3 * e.delay:.4g} ms (relative residual of the linear fit with "
+                f"offsets {e.residual:.3g}, against {e.residual_at_zero:.3g} without a delay)"
+            )
         return out + list(self.imu)
 
     def to_dict(self) -> dict:
         return {
-            "frames": self.n_frames, "rate": self.rate, "joint_rate": self.joint_rate,
-            "wrench_rate": self.wrench_rate, "derived": self.derived, "cutoff": self.cutoff,
+            "frames": self.n_frames,
+            "rate": self.rate,
+            "joint_rate": self.joint_rate,
+            "wrench_rate": self.wrench_rate,
+            "derived": self.derived,
+            "cutoff": self.cutoff,
             "cutoff_rule": None if self.cutoff_choice is None else self.cutoff_choice.limited,
-            "dropped_start": self.dropped_start, "dropped_end": self.dropped_end, "delay": self.delay,
+            "dropped_start": self.dropped_start,
+            "dropped_end": self.dropped_end,
+            "delay": self.delay,
             "delay_estimated": self.delay_estimate is not None,
-        }  # fmt: skip
+        }
 
 
 def _fmt_list(values) -> str:

@@ -71,8 +71,9 @@ class ImuMount:
         if not self.name:
             object.__setattr__(self, "name", self.link)
         if not _NAME.match(self.name):
-            raise DatasetError(f"IMU name {self.name!r}: use letters, digits and _ (it prefixes the columns "
-                               "imu_<name>_wx ...)")
+            raise DatasetError(
+                f"IMU name {self.name!r}: use letters, digits and _ (it prefixes the columns imu_<name>_wx ...)"
+            )
         kinds = (self.kinds,) if isinstance(self.kinds, str) else tuple(self.kinds)
         bad = [k for k in kinds if k not in KINDS]
         if bad or not kinds or len(set(kinds)) != len(kinds):
@@ -123,11 +124,15 @@ def parse_imu(text: str, model, name: str | None = None, kinds: Sequence[str] = 
     except DatasetError as e:
         if "does not parse" not in str(e) and "six finite numbers" not in str(e):
             raise
-        raise DatasetError(f"IMU {text!r}: the pose does not parse; give LINK:x,y,z,roll,pitch,yaw, six numbers "
-                           "(m, rad, URDF rpy) in the link's frame") from None
+        raise DatasetError(
+            f"IMU {text!r}: the pose does not parse; give LINK:x,y,z,roll,pitch,yaw, six numbers "
+            "(m, rad, URDF rpy) in the link's frame"
+        ) from None
     if resolved is None:
-        raise DatasetError(f"IMU {text!r}: not a moving link of {model.name}; give LINK or LINK:x,y,z,roll,pitch,yaw "
-                           f"(m, rad) with LINK one of {moving}, or a URDF frame welded to one")
+        raise DatasetError(
+            f"IMU {text!r}: not a moving link of {model.name}; give LINK or LINK:x,y,z,roll,pitch,yaw "
+            f"(m, rad) with LINK one of {moving}, or a URDF frame welded to one"
+        )
     link, sensor, from_frame = resolved
     return ImuMount(link, sensor, name or (sensor.frame if from_frame else link), tuple(kinds))
 
@@ -140,8 +145,10 @@ def moving_index(model, mount: ImuMount) -> int:
     """
     moving = [j.link for j in model.chain.joints]
     if mount.link not in moving:
-        raise DatasetError(f"IMU {mount.name!r}: {mount.link!r} is not a moving link of {model.name} (choose from "
-                           f"{', '.join(moving)}, or a URDF frame welded to one)")
+        raise DatasetError(
+            f"IMU {mount.name!r}: {mount.link!r} is not a moving link of {model.name} (choose from "
+            f"{', '.join(moving)}, or a URDF frame welded to one)"
+        )
     return moving.index(mount.link)
 
 
@@ -159,32 +166,33 @@ def _check_names(mounts: Sequence[ImuMount]) -> None:
 
 # -- the kernels: one compilation per robot (program) and set of links ----------------------------
 def _vec(out, key, i, batch, dtype):
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax.numpy as jnp
 
     return jnp.stack([jnp.broadcast_to(jnp.asarray(v, dtype=dtype), batch) for v in out[key][i]], axis=-1)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _motion_kernel(program, blocks: tuple[int, ...]):
     """Jitted ``(q, qd, qdd, gravity) -> (N, len(blocks), 3, 3)``: per block ``[w, wd, a]`` (link frame)."""
-    import jax  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax
+    import jax.numpy as jnp
 
     def kernel(q, qd, qdd, gravity):
         out = program(q, qd, qdd, gravity)
         batch = q.shape[:-1]
-        return jnp.stack([jnp.stack([_vec(out, k, i, batch, q.dtype) for k in ("w", "wd", "a")], axis=-2)
-                          for i in blocks], axis=-3)
+        return jnp.stack(
+            [jnp.stack([_vec(out, k, i, batch, q.dtype) for k in ("w", "wd", "a")], axis=-2) for i in blocks], axis=-3
+        )
 
     return jax.jit(kernel)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _jacobian_kernel(program, blocks: tuple[int, ...], n_dof: int):
     """Jitted ``q -> (N, len(blocks), 2, 3, n_dof)``: per block ``[J_w, J_o]``, the program's ``wd`` and
     ``a`` at ``qdd = e_j`` (``qd = 0``, no gravity): exact columns, the program being linear in ``qdd``."""
-    import jax  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax
+    import jax.numpy as jnp
 
     def kernel(q):
         n = q.shape[0]

@@ -72,8 +72,13 @@ class ImuRehearsal:
         object.__setattr__(self, "noise", {k: float(v) for k, v in self.noise.items()})
 
     def to_dict(self) -> dict:
-        return {"mounts": [m.to_dict() for m in self.mounts], "noise": dict(self.noise),
-                "gyro_bias": self.gyro_bias, "encoder_bits": self.encoder_bits, "cutoff": self.cutoff}
+        return {
+            "mounts": [m.to_dict() for m in self.mounts],
+            "noise": dict(self.noise),
+            "gyro_bias": self.gyro_bias,
+            "encoder_bits": self.encoder_bits,
+            "cutoff": self.cutoff,
+        }
 
 
 def quantize(q: np.ndarray, bits: int | None, joint_types) -> np.ndarray:
@@ -87,7 +92,7 @@ def quantize(q: np.ndarray, bits: int | None, joint_types) -> np.ndarray:
 def periodic_filter(x: np.ndarray, low: signals.LowPass) -> np.ndarray:
     """``low.apply`` to one period ``x`` (N, ...) of a periodic signal: on three periods, the middle kept."""
     n = len(x)
-    return low.apply(np.concatenate([x, x, x]))[n:2 * n]
+    return low.apply(np.concatenate([x, x, x]))[n : 2 * n]
 
 
 def periodic_derivatives(q: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -96,8 +101,16 @@ def periodic_derivatives(q: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarra
     return (nxt - prv) / (2 * h), (nxt - 2 * q + prv) / h**2
 
 
-def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
-             values: Mapping[str, np.ndarray], rng: np.random.Generator):
+def rehearse(
+    model,
+    rehearsal: ImuRehearsal,
+    time: np.ndarray,
+    q: np.ndarray,
+    qd: np.ndarray,
+    qdd: np.ndarray,
+    values: Mapping[str, np.ndarray],
+    rng: np.random.Generator,
+):
     """One configuration: ``(q, qd, qdd, values, summary)`` as the import would estimate them.
 
     Args:
@@ -112,15 +125,15 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
         The filtered encoder angles, the fused ``qd``, ``qdd`` (the encoders' derivatives without IMUs),
         the filtered values, and the :class:`ineid.data.state_estimation.EstimationSummary` (None without IMUs).
     """
-    from ineid.data.imu import imu_readings  # noqa: PLC0415
-    from ineid.data.recording_imu import (  # noqa: PLC0415
+    from ineid.data.imu import imu_readings
+    from ineid.data.recording_imu import (
         filter_model_error,
         filtered_noise,
         imu_cutoff,
         qdd_prior,
         with_model_error,
     )
-    from ineid.data.state_estimation import EstimationSettings, ImuNoise, estimate_joint_states  # noqa: PLC0415
+    from ineid.data.state_estimation import EstimationSettings, ImuNoise, estimate_joint_states
 
     time = np.asarray(time, dtype=np.float64)
     if len(time) < 8:
@@ -132,11 +145,18 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
     if cutoff is None:  # the import's rules: the angles', or with gyros the upper bound (priors at the angles')
         cutoff = priors_cutoff = min(signals.choose_cutoff(q_enc, rate).cutoff, 0.4 * rate)
         if any("gyro" in m.kinds for m in rehearsal.mounts):
-            cutoff = imu_cutoff(q_enc, rate, cutoff, [m.kinds for m in rehearsal.mounts],
-                                rehearsal.noise.get("gyro", 0.0) or 1e-2 * ImuNoise().gyro)[0]
+            cutoff = imu_cutoff(
+                q_enc,
+                rate,
+                cutoff,
+                [m.kinds for m in rehearsal.mounts],
+                rehearsal.noise.get("gyro", 0.0) or 1e-2 * ImuNoise().gyro,
+            )[0]
     if cutoff >= 0.45 * rate:
-        raise DatasetError(f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold; lower it or give "
-                           "more frames per period")
+        raise DatasetError(
+            f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold; lower it or give "
+            "more frames per period"
+        )
     low = signals.LowPass(cutoff, rate)
     q_f = periodic_filter(q_enc, low)
     qd_e, qdd_e = periodic_derivatives(q_f, h)
@@ -152,14 +172,22 @@ def rehearse(model, rehearsal: ImuRehearsal, time: np.ndarray, q: np.ndarray, qd
     summary = None
     if rehearsal.mounts:  # as the import does: the default settings (biases estimated), the noise as filtered
         # the mounts are exact by construction: no residual check (that is for a lab's mistakes)
-        noise = with_model_error(filtered_noise(rehearsal.noise, cutoff, rate),
-                                 filter_model_error(model, rehearsal.mounts, q_f, h, lambda x: periodic_filter(x, low)))
+        noise = with_model_error(
+            filtered_noise(rehearsal.noise, cutoff, rate),
+            filter_model_error(model, rehearsal.mounts, q_f, h, lambda x: periodic_filter(x, low)),
+        )
         raised = priors_cutoff < cutoff  # the priors: the encoders at their own cut-off (recording_imu.encoder_priors)
         if raised:
             qd_e, qdd_e = periodic_derivatives(periodic_filter(q_enc, signals.LowPass(priors_cutoff, rate)), h)
-        settings = EstimationSettings(noise=noise, cutoff=cutoff if raised else None, max_residual_ratio=1e12,
-                                      max_encoder_misfit=1e12, qdd_prior=qdd_prior(rehearsal.mounts))
-        qd_e, qdd_e, summary = estimate_joint_states(model, q_f, qd_e, qdd_e, rehearsal.mounts, readings, settings,
-                                                     time=time)
+        settings = EstimationSettings(
+            noise=noise,
+            cutoff=cutoff if raised else None,
+            max_residual_ratio=1e12,
+            max_encoder_misfit=1e12,
+            qdd_prior=qdd_prior(rehearsal.mounts),
+        )
+        qd_e, qdd_e, summary = estimate_joint_states(
+            model, q_f, qd_e, qdd_e, rehearsal.mounts, readings, settings, time=time
+        )
     filtered = {k: periodic_filter(np.asarray(v, dtype=np.float64), low) for k, v in values.items()}
     return q_f, qd_e, qdd_e, filtered, summary

@@ -126,7 +126,7 @@ class DatasetMeta:
 
     def with_channels(self, channels: ChannelSet) -> DatasetMeta:
         """A copy measuring ``channels`` (their own poses: the legacy ``sensor`` is not carried over)."""
-        import dataclasses  # noqa: PLC0415
+        import dataclasses
 
         return dataclasses.replace(self, channels=channels, sensor=_UNSET)
 
@@ -151,7 +151,7 @@ class DatasetMeta:
     @classmethod
     def for_model(cls, model: RobotModel, **kwargs) -> DatasetMeta:
         """The metadata of a dataset of ``model`` (a :class:`ineid.RobotModel`)."""
-        from ineid._version import __version__  # noqa: PLC0415
+        from ineid._version import __version__
 
         return cls(
             robot=model.name,
@@ -166,13 +166,15 @@ class DatasetMeta:
             **kwargs,
         )
 
+
 def check_extra_truth(values, where: str) -> dict[str, float] | None:
     """``{name: value}`` of finite numbers (an empty one is None), else :class:`DatasetError` naming ``where``."""
     if values is None:
         return None
     if not isinstance(values, Mapping):
-        raise DatasetError(f"{where}: expected a record {{name: value}} of the simulated extra parameters, "
-                           f"got {values!r:.80}")
+        raise DatasetError(
+            f"{where}: expected a record {{name: value}} of the simulated extra parameters, got {values!r:.80}"
+        )
     out = {}
     for name, value in values.items():
         ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
@@ -198,7 +200,8 @@ DatasetMeta.sensor = property(_sensor_record, doc=_sensor_record.__doc__)  # typ
 
 
 def assemble_theta(meta: DatasetMeta, theta_unknown: np.ndarray, theta_known: np.ndarray) -> np.ndarray:
-    """Stack unknown (..., 10 n_unknown) and known (10 n_known,) parameters in chain order (:func:`ineid.params.full_theta`)."""
+    """Stack unknown (..., 10 n_unknown) and known (10 n_known,) parameters in chain order
+    (:func:`ineid.params.full_theta`)."""
     return full_theta(meta.link_names, meta.unknown_links, theta_unknown, theta_known)
 
 
@@ -209,9 +212,9 @@ def model_from_meta(meta: DatasetMeta, codegen_dir: str | Path | None = None) ->
     parsed from the text; its generated code is looked up by kinematic fingerprint and
     derived into the cache only when missing (nothing else is written).
     """
-    from ineid.codegen import generated_modules_for, load_robot  # noqa: PLC0415
-    from ineid.robots import BUILTIN_ROBOTS, RobotModel  # noqa: PLC0415
-    from ineid.robots.urdf import parse_chain  # noqa: PLC0415
+    from ineid.codegen import generated_modules_for, load_robot
+    from ineid.robots import BUILTIN_ROBOTS, RobotModel
+    from ineid.robots.urdf import parse_chain
 
     gravity = tuple(float(g) for g in meta.gravity)
     spec = BUILTIN_ROBOTS.get(meta.robot)

@@ -104,8 +104,14 @@ NO_FRICTION = JointFriction()
 """A rigid arm with ideal drives."""
 
 
-def arm_mjcf(chain, theta: np.ndarray, root_theta: np.ndarray, sensor: SensorPose | None, timestep: float,
-             friction: JointFriction = NO_FRICTION) -> str:
+def arm_mjcf(
+    chain,
+    theta: np.ndarray,
+    root_theta: np.ndarray,
+    sensor: SensorPose | None,
+    timestep: float,
+    friction: JointFriction = NO_FRICTION,
+) -> str:
     """MJCF of ``chain`` with link parameters ``theta`` (10 n_links) on a sensor at ``sensor`` (None: the root frame).
 
     Body frames are the URDF link frames: body ``i`` sits at the joint origin in its parent
@@ -118,14 +124,18 @@ def arm_mjcf(chain, theta: np.ndarray, root_theta: np.ndarray, sensor: SensorPos
     sensor = sensor or SensorPose((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     f = friction.per_joint(len(chain.joints))
     root = chain.root_link if chain.root_link != "world" else "ineid_root"  # MuJoCo's world body owns "world"
-    body = (f'<body name="{root}">{_inertial(root_theta)}'
-            f'<site name="ft" pos="{_fmt(sensor.base_p_sensor)}" quat="{_fmt(_quat(sensor.base_R_sensor))}"/>')
+    body = (
+        f'<body name="{root}">{_inertial(root_theta)}'
+        f'<site name="ft" pos="{_fmt(sensor.base_p_sensor)}" quat="{_fmt(_quat(sensor.base_R_sensor))}"/>'
+    )
     close = "</body>"
     for i, (j, th) in enumerate(zip(chain.joints, theta, strict=True)):
         kind = "slide" if j.type == "prismatic" else "hinge"
-        body += (f'<body name="{j.link}" pos="{_fmt(j.parent_p_joint)}" quat="{_fmt(_quat(j.parent_R_joint))}">'
-                 f'<joint name="{j.name}" type="{kind}" axis="{_fmt(j.axis)}" damping="{float(f["viscous"][i])!r}" '
-                 f'frictionloss="{float(f["coulomb"][i])!r}" armature="{float(f["armature"][i])!r}"/>{_inertial(th)}')
+        body += (
+            f'<body name="{j.link}" pos="{_fmt(j.parent_p_joint)}" quat="{_fmt(_quat(j.parent_R_joint))}">'
+            f'<joint name="{j.name}" type="{kind}" axis="{_fmt(j.axis)}" damping="{float(f["viscous"][i])!r}" '
+            f'frictionloss="{float(f["coulomb"][i])!r}" armature="{float(f["armature"][i])!r}"/>{_inertial(th)}'
+        )
         close += "</body>"
     motors = "".join(f'<motor joint="{j.name}" gear="1"/>' for j in chain.joints)
     return (
@@ -201,9 +211,18 @@ DEFAULT_FRICTION = JointFriction(viscous=0.05, coulomb=0.02)
 """What :func:`simulate` puts in the joints unless told: a little damping and dry friction."""
 
 
-def simulate(model, theta: np.ndarray, sensor: SensorPose | None, duration: float, rate: float = 1000.0,
-             steps_per_sample: int = 2, friction: JointFriction = DEFAULT_FRICTION,
-             reference: Reference | None = None, seed: int = 0, root_theta: np.ndarray | None = None) -> Simulation:
+def simulate(
+    model,
+    theta: np.ndarray,
+    sensor: SensorPose | None,
+    duration: float,
+    rate: float = 1000.0,
+    steps_per_sample: int = 2,
+    friction: JointFriction = DEFAULT_FRICTION,
+    reference: Reference | None = None,
+    seed: int = 0,
+    root_theta: np.ndarray | None = None,
+) -> Simulation:
     """Simulate ``model`` with parameters ``theta`` following a reference for ``duration`` s.
 
     Forward dynamics by MuJoCo (RK4, ``steps_per_sample`` steps per recorded sample). The
@@ -265,8 +284,17 @@ def simulate(model, theta: np.ndarray, sensor: SensorPose | None, duration: floa
         mujoco.set_mjcb_control(None)
     for message in dict.fromkeys(" ".join(w.split()) for w in warnings):
         logging.getLogger(__name__).warning("MuJoCo: %s", message)
-    return Simulation(time, out["q"], out["qd"], out["qdd"], wrench, np.asarray(theta, dtype=np.float64), root_theta,
-                      out["tau"], out["friction"])
+    return Simulation(
+        time,
+        out["q"],
+        out["qd"],
+        out["qdd"],
+        wrench,
+        np.asarray(theta, dtype=np.float64),
+        root_theta,
+        out["tau"],
+        out["friction"],
+    )
 
 
 def root_link_theta(model) -> np.ndarray:
@@ -275,17 +303,22 @@ def root_link_theta(model) -> np.ndarray:
     Raises:
         ValueError: links are welded to the root (their inertia is not folded here): pass ``root_theta``.
     """
-    import io  # noqa: PLC0415
+    import io
 
-    import yourdfpy  # noqa: PLC0415
+    import yourdfpy
 
-    from ineid.robots.urdf import _link_theta  # noqa: PLC0415
+    from ineid.robots.urdf import _link_theta
 
     root = model.chain.root_link
     if model.chain.merged_links.get(root, (root,)) != (root,):
         raise ValueError(f"links are welded to the root {root!r}; give the root body's parameters (root_theta)")
-    robot = yourdfpy.URDF.load(io.BytesIO(model.urdf_text.encode()), build_scene_graph=False, load_meshes=False,
-                               build_collision_scene_graph=False, load_collision_meshes=False).robot
+    robot = yourdfpy.URDF.load(
+        io.BytesIO(model.urdf_text.encode()),
+        build_scene_graph=False,
+        load_meshes=False,
+        build_collision_scene_graph=False,
+        load_collision_meshes=False,
+    ).robot
     return _link_theta(next(link for link in robot.links if link.name == root), "urdf")
 
 

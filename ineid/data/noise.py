@@ -102,8 +102,15 @@ class NoiseModel:
         """A noise model from per-group standard deviations (a number, or one per axis/joint); ``channels``
         ``{key: std}`` for other measurement channels (``{"tau": 0.02}``)."""
         wrench = np.concatenate([_std(force, 3, "force"), _std(moment, 3, "moment")])
-        return cls(wrench=wrench, q=_std(q, n_dof, "q"), qd=_std(qd, n_dof, "qd"), qdd=_std(qdd, n_dof, "qdd"),
-                   glitch_rate=float(glitch_rate), glitch_scale=float(glitch_scale), channels=dict(channels or {}))
+        return cls(
+            wrench=wrench,
+            q=_std(q, n_dof, "q"),
+            qd=_std(qd, n_dof, "qd"),
+            qdd=_std(qdd, n_dof, "qdd"),
+            glitch_rate=float(glitch_rate),
+            glitch_scale=float(glitch_scale),
+            channels=dict(channels or {}),
+        )
 
     @classmethod
     def from_dict(cls, d: Mapping, n_dof: int) -> NoiseModel:
@@ -165,7 +172,9 @@ class NoiseModel:
                 continue
             values = arrays[key]
             if std.shape not in ((1,), values.shape[-1:]):
-                raise ValueError(f"{key} noise has {std.size} standard deviations for {values.shape[-1]} axes; "
-                                 "give one number or one per axis")
+                raise ValueError(
+                    f"{key} noise has {std.size} standard deviations for {values.shape[-1]} axes; "
+                    "give one number or one per axis"
+                )
             out[key] = values + std * rng.standard_normal(values.shape)
         return out

@@ -291,7 +291,8 @@ def check_gravity(gravity, what: str = "--gravity", fix: str = "--gravity") -> F
     return Finding(
         "gravity_unit",
         f"{what} {shown} has |g| = {norm:.4g}, {times(ratio)} Earth's {STANDARD_GRAVITY:.4g} m/s^2"
-        + (f": it looks like {unit}" if unit else "") + f"; gravity is in m/s^2: {fix} {fixed}"
+        + (f": it looks like {unit}" if unit else "")
+        + f"; gravity is in m/s^2: {fix} {fixed}"
         + ("" if unit else " for Earth's"),
     )
 

@@ -5,7 +5,8 @@ quantity, frame by frame, differ by ``d_k = p_k - x_k ~ N(0, s^2 + v_k)``: ``s^2
 estimate's error, ``v_k`` the sensors' variance in frame ``k`` (known from their noise and maps, and
 varying over the frames: huge where the sensors barely see a joint, as near an alignment of two axes
 for IMUs on some links only). :func:`excess_variance` solves for ``s^2`` robustly;
-:func:`prior_variance` does it for every joint of the fusion at once (expectation-maximisation); :func:`blend` combines two
+:func:`prior_variance` does it for every joint of the fusion at once (expectation-maximisation); :func:`blend`
+combines two
 such estimates frame by frame.
 """
 

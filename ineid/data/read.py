@@ -40,7 +40,7 @@ def _open(path: Path):
         DatasetError: missing, a folder, or not HDF5 (a recording says how to import it).
         InputFileError: not a regular file (a FIFO is never opened), or a file that reaches outside itself.
     """
-    import h5py  # noqa: PLC0415
+    import h5py
 
     if not path.exists():
         raise DatasetError(f"{path} does not exist")
@@ -75,7 +75,8 @@ def foreign_file(path: str | Path, expected: str = "an ineid dataset (HDF5)", th
 
     A recording that ``ineid data import`` reads (a CSV, a ROS 1 ``.bag``, a ``.mcap``, a ROS 2
     bag folder) gives the import command to run; any other text file is named as text, unless
-    its name ends in ``.h5``. A file that starts like HDF5, or binary data of another kind, gives None (the caller's "truncated
+    its name ends in ``.h5``. A file that starts like HDF5, or binary data of another kind, gives None (the
+    caller's "truncated
     or corrupt" stands). Reads at most the first 4 KiB; never raises for an unreadable file.
 
     Args:
@@ -143,14 +144,23 @@ def _json_attr(attrs, key: str, where: str):
 def _number_attr(attrs, key: str, where: str, dtype) -> np.ndarray:
     value = np.asarray(attrs[key])
     if value.dtype.kind not in ("iu" if dtype is np.int64 else "iuf"):
-        raise DatasetError(f"{where}: attribute {key!r} holds {value.dtype} {value.tolist()!r:.60}, not numbers; "
-                           "the file is damaged")  # fmt: skip
+        raise DatasetError(
+            f"{where}: attribute {key!r} holds {value.dtype} {value.tolist()!r:.60}, not numbers; the file is damaged"
+        )
     return value.astype(dtype)
 
 
 def _describe_dtype(dtype) -> str:
-    return {"O": "text (objects)", "S": "text (bytes)", "U": "text", "c": "complex numbers", "V": "records",
-            "b": "booleans", "i": "integers", "u": "integers"}.get(dtype.kind, str(dtype))  # fmt: skip
+    return {
+        "O": "text (objects)",
+        "S": "text (bytes)",
+        "U": "text",
+        "c": "complex numbers",
+        "V": "records",
+        "b": "booleans",
+        "i": "integers",
+        "u": "integers",
+    }.get(dtype.kind, str(dtype))
 
 
 def _array_shapes(f, where: str, meta: DatasetMeta) -> dict[str, tuple[int, ...]]:
@@ -165,8 +175,9 @@ def _array_shapes(f, where: str, meta: DatasetMeta) -> dict[str, tuple[int, ...]
         obj = f[name]
         if not hasattr(obj, "dtype"):
             if name in known:
-                raise DatasetError(f"{where}: {name!r} is a group, not an array; the file is damaged or not an ineid "
-                                   "dataset")  # fmt: skip
+                raise DatasetError(
+                    f"{where}: {name!r} is a group, not an array; the file is damaged or not an ineid dataset"
+                )
             continue
         if name in known:
             want = "iu" if name == "link_set_index" else "f"
@@ -272,8 +283,9 @@ def read_meta(path: str | Path) -> tuple[DatasetMeta, dict[str, tuple[int, ...]]
                 raise DatasetError(f"{path}: dataset {name!r} is missing; the file is damaged")
         if meta.source == "synthetic" and "theta_unknown" not in shapes:
             raise DatasetError(f"{path}: a synthetic dataset without theta_unknown; the file is damaged")
-    log.debug("read the header of %s: %s dataset of %s, %d x %d frames", path, meta.source, meta.robot,
-              *shapes["q"][:2])  # fmt: skip
+    log.debug(
+        "read the header of %s: %s dataset of %s, %d x %d frames", path, meta.source, meta.robot, *shapes["q"][:2]
+    )
     return meta, shapes
 
 
@@ -315,8 +327,9 @@ def load_dataset(path: str | Path, configs=None, frames=None, clean: bool = True
     where = str(path)
     wanted = [k for k in shapes if k in expected_shapes(meta, 1, 1) and (clean or not k.endswith("_clean"))]
     per_config = sum(int(np.prod(shapes[k][1:])) for k in wanted if k != "theta_known")
-    require_memory(per_config * len(cidx) * 8, f"reading {len(cidx):,} configurations of {path}",
-                   "select fewer (--select)")  # fmt: skip
+    require_memory(
+        per_config * len(cidx) * 8, f"reading {len(cidx):,} configurations of {path}", "select fewer (--select)"
+    )
     out: dict[str, np.ndarray] = {}
     with _open(path) as f:
         for name in shapes:
@@ -338,8 +351,15 @@ def load_dataset(path: str | Path, configs=None, frames=None, clean: bool = True
                 check_finite(name, arr, where, None if name == "theta_known" else cidx)
             out[name] = np.asarray(arr, dtype=np.int64 if name == "link_set_index" else np.float64)
     clean_arrays = {k: out.pop(f"{k}_clean") for k in meta.measured_keys() if f"{k}_clean" in out}
-    log.info("read %s: %s dataset of %s, %d x %d frames%s", path, meta.source, meta.robot, n_configs, n_frames,
-             "" if (len(cidx), len(fidx)) == (n_configs, n_frames) else f" ({len(cidx)} x {len(fidx)} selected)")
+    log.info(
+        "read %s: %s dataset of %s, %d x %d frames%s",
+        path,
+        meta.source,
+        meta.robot,
+        n_configs,
+        n_frames,
+        "" if (len(cidx), len(fidx)) == (n_configs, n_frames) else f" ({len(cidx)} x {len(fidx)} selected)",
+    )
     return Dataset(
         meta=meta,
         q=out["q"],
@@ -372,7 +392,7 @@ def _read_rows(dset, idx: np.ndarray) -> np.ndarray:
 
 def _own_chunks(dset) -> bool:
     """Chunked by configurations with shuffle + deflate only (how :mod:`ineid.data.write` stores arrays)."""
-    import h5py  # noqa: PLC0415
+    import h5py
 
     if dset.chunks is None or tuple(dset.chunks[1:]) != tuple(dset.shape[1:]) or dset.dtype.byteorder == ">":
         return False
@@ -428,4 +448,6 @@ def iter_dataset(path: str | Path, name: str, rows: int = 4096):
             try:
                 yield start, dset[start : start + rows]
             except OSError as e:
-                raise DatasetError(f"{path}: dataset {name!r} cannot be read ({_first_line(e)}); truncated or corrupt") from None
+                raise DatasetError(
+                    f"{path}: dataset {name!r} cannot be read ({_first_line(e)}); truncated or corrupt"
+                ) from None

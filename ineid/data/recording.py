@@ -36,7 +36,7 @@ import numpy as np
 
 from ineid.channels import BaseWrench, ChannelSet
 from ineid.data import signals
-from ineid.data.import_summary import DelayEstimate, ImportSummary  # noqa: F401  (re-exported)
+from ineid.data.import_summary import DelayEstimate, ImportSummary  # re-exported
 from ineid.data.recording_channels import (  # noqa: F401  (resolve_sensor re-exported)
     RIDER_NAMES,
     joint_channels,
@@ -131,7 +131,7 @@ def register_delay_estimator(estimator: DelayEstimator) -> None:
     which registers :func:`ineid.identify.delay.estimate_delay` when imported (``import
     ineid.identify`` does): ``data`` never imports ``identify``.
     """
-    global _delay_estimator  # noqa: PLW0603
+    global _delay_estimator
     _delay_estimator = estimator
 
 
@@ -180,15 +180,16 @@ def _check_rate(rate: float | None, joint_rate: float, wrench_rate: float, overl
             f"resampling adds no information; use at most {MAX_UPSAMPLING * fastest:g} Hz (default: the slower "
             "stream's rate)"
         )
-    from ineid._faults import require_memory  # noqa: PLC0415
+    from ineid._faults import require_memory
 
     # frames x (q, qd, qdd, wrench, time) in float64, about four copies alive while resampling
     n_frames = max(overlap, 0.0) * rate
-    require_memory(n_frames * (3 * n_dof + 7) * 8 * 4, f"{n_frames:,.0f} frames at --rate {rate:g} Hz",
-                   "lower --rate")  # fmt: skip
+    require_memory(n_frames * (3 * n_dof + 7) * 8 * 4, f"{n_frames:,.0f} frames at --rate {rate:g} Hz", "lower --rate")
 
 
-def recording_dataset(streams: Streams, model, settings: ImportSettings = ImportSettings()) -> tuple[Dataset, ImportSummary]:
+def recording_dataset(
+    streams: Streams, model, settings: ImportSettings = ImportSettings()
+) -> tuple[Dataset, ImportSummary]:
     """Frames on one time base from a recording's streams (see the module docstring).
 
     Args:
@@ -207,17 +208,25 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
             sampling, a sensor pose that does not parse, torques for another number of
             joints, a recording with neither a wrench nor joint torques.
     """
-    from dataclasses import replace  # noqa: PLC0415
+    from dataclasses import replace
 
     if streams.wrench is None:  # the wrench's settings on a recording without one: a mistake, said once
-        given = [flag for flag, on in (("--sensor-pose", settings.sensor_pose is not None),
-                                       ("--flip-wrench", settings.flip_wrench),
-                                       ("--wrench-scale", settings.wrench_scale != 1.0),
-                                       ("--force-unit", settings.force_unit != "N"),
-                                       ("--moment-unit", settings.moment_unit != "Nm")) if on]
+        given = [
+            flag
+            for flag, on in (
+                ("--sensor-pose", settings.sensor_pose is not None),
+                ("--flip-wrench", settings.flip_wrench),
+                ("--wrench-scale", settings.wrench_scale != 1.0),
+                ("--force-unit", settings.force_unit != "N"),
+                ("--moment-unit", settings.moment_unit != "Nm"),
+            )
+            if on
+        ]
         if given:
-            raise DatasetError(f"{streams.source}: {', '.join(given)} set{'s' if len(given) == 1 else ''} up the "
-                               "F/T sensor, and the recording has no wrench; drop it")
+            raise DatasetError(
+                f"{streams.source}: {', '.join(given)} set{'s' if len(given) == 1 else ''} up the "
+                "F/T sensor, and the recording has no wrench; drop it"
+            )
     units = {k: getattr(settings, k) for k in SI_UNITS}
     if units != SI_UNITS:
         streams = in_si_units(streams, model, **units)
@@ -225,14 +234,22 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     has_wrench = streams.wrench is not None
     if settings.estimate_delay:
         if not has_wrench:
-            raise DatasetError(f"{streams.source}: the recording has no wrench, so there is no wrench delay to "
-                               "estimate; drop --delay auto")
+            raise DatasetError(
+                f"{streams.source}: the recording has no wrench, so there is no wrench delay to "
+                "estimate; drop --delay auto"
+            )
         if _delay_estimator is None:
-            raise DatasetError("estimating the wrench delay fits the model, which ineid.identify does: import "
-                               "ineid.identify first, or give the delay (ImportSettings(delay=...), --delay S)")
+            raise DatasetError(
+                "estimating the wrench delay fits the model, which ineid.identify does: import "
+                "ineid.identify first, or give the delay (ImportSettings(delay=...), --delay S)"
+            )
         # the wrench's own fit: the joints' other channels (torques) are on the joints' clock, not delayed
-        estimate = _delay_estimator(replace(streams, tau=None, current=None, imus=()), model,
-                                    replace(settings, imus=(), imu_delay=0.0), settings.max_delay)
+        estimate = _delay_estimator(
+            replace(streams, tau=None, current=None, imus=()),
+            model,
+            replace(settings, imus=(), imu_delay=0.0),
+            settings.max_delay,
+        )
         ds, summary = recording_dataset(streams, model, replace(settings, delay=estimate.delay, estimate_delay=False))
         summary.delay_estimate = estimate
         ds.meta.origin["import"] = summary.to_dict()
@@ -249,9 +266,11 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
         joint_arrays.update(qd=np.asarray(streams.qd, dtype=np.float64), qdd=np.asarray(streams.qdd, dtype=np.float64))
     riders = joint_channels(streams, model, len(tq), settings)  # {key: (Nq, n_a)}: measured on the joints' clock
     if not has_wrench and not riders:
-        raise DatasetError(f"{src}: the recording has neither a wrench nor joint torques; give the F/T sensor's "
-                           "columns fx..mz (or its WrenchStamped topic) or the joint torques tau1..tauN (or "
-                           "JointState.effort)")
+        raise DatasetError(
+            f"{src}: the recording has neither a wrench nor joint torques; give the F/T sensor's "
+            "columns fx..mz (or its WrenchStamped topic) or the joint torques tau1..tauN (or "
+            "JointState.effort)"
+        )
     if has_wrench:
         tw = np.asarray(streams.wrench_time, dtype=np.float64) - settings.delay
         w = np.asarray(streams.wrench, dtype=np.float64) * (-1.0 if settings.flip_wrench else 1.0)
@@ -267,8 +286,13 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     else:
         tw, w, hw, wrench_channel, where = tq, None, hq, None, "the base frame"
     rate = settings.rate or min(1.0 / hq, 1.0 / hw)
-    _check_rate(settings.rate, 1.0 / hq, 1.0 / hw, min(tq[-1], tw[-1]) - max(tq[0], tw[0]), n + sum(
-        a.shape[1] for a in riders.values()))
+    _check_rate(
+        settings.rate,
+        1.0 / hq,
+        1.0 / hw,
+        min(tq[-1], tw[-1]) - max(tq[0], tw[0]),
+        n + sum(a.shape[1] for a in riders.values()),
+    )
     same_clock = not has_wrench or (len(tq) == len(tw) and np.array_equal(tq, tw))
 
     # 1. filter (and differentiate) each stream on a uniform grid at its own rate: the joints' other
@@ -280,7 +304,7 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
         choice = signals.choose_cutoff(q_u, 1.0 / hq)
         cutoff = min(choice.cutoff, 0.4 * rate)
         if any("gyro" in s.readings for s in streams.imus):  # the gyros measure qd: recording_imu's rule
-            from ineid.data.recording_imu import imu_cutoff  # noqa: PLC0415
+            from ineid.data.recording_imu import imu_cutoff
 
             gyro = (settings.imu_noise or {}).get("gyro", 0.005)
             angles_cutoff = cutoff
@@ -324,12 +348,16 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     if prepared is not None and prepared.stop - prepared.start < stop - start:  # every IMU covers the frames
         start, stop = max(start, prepared.start), min(stop, prepared.stop)
         if not stop > start:
-            raise DatasetError(f"{src}: the IMUs, the joints and the wrench cover no common time beyond the filter's "
-                               "edges; record longer, or check the time stamps, --delay and --imu-delay")
+            raise DatasetError(
+                f"{src}: the IMUs, the joints and the wrench cover no common time beyond the filter's "
+                "edges; record longer, or check the time stamps, --delay and --imu-delay"
+            )
     if not stop > start:
         if not has_wrench:
-            raise DatasetError(f"{src}: the joint stream ({tq[0]:.6g}..{tq[-1]:.6g} s) is shorter than the filter's "
-                               f"edges ({edge:.3g} s at each end); record longer")
+            raise DatasetError(
+                f"{src}: the joint stream ({tq[0]:.6g}..{tq[-1]:.6g} s) is shorter than the filter's "
+                f"edges ({edge:.3g} s at each end); record longer"
+            )
         raise DatasetError(
             f"{src}: the joint stream ({tq[0]:.6g}..{tq[-1]:.6g} s) and the wrench stream ({tw[0]:.6g}..{tw[-1]:.6g} s"
             + (f", delay {settings.delay:g} s applied" if settings.delay else "")
@@ -348,38 +376,58 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
         h = 1.0 / rate
         grid = start + h * np.arange(int(math.floor((stop - start) / h * (1 + 1e-12))) + 1)
     if len(grid) < 2:
-        raise DatasetError(f"{src}: {len(grid)} frame{'s' if len(grid) != 1 else ''} left on the common time base; "
-                           "record longer or raise --rate")
+        raise DatasetError(
+            f"{src}: {len(grid)} frame{'s' if len(grid) != 1 else ''} left on the common time base; "
+            "record longer or raise --rate"
+        )
     joints = np.concatenate([q_s, qd_s, qdd_s, *riders_s.values()], axis=1)
     joints, moved_q = signals.on_grid(tq_u, joints, grid)
     wrench, moved_w = signals.on_grid(tw_u, w_s, grid) if has_wrench else (None, False)
     imu_lines, imu_record = (), None
     if prepared is not None:  # q the encoders', qd and qdd fused with the IMUs
-        from ineid.data.recording_imu import encoder_priors, imu_summary_lines  # noqa: PLC0415
+        from ineid.data.recording_imu import encoder_priors, imu_summary_lines
 
-        priors = joints[:, n:3 * n] if priors_cutoff is None else signals.on_grid(
-            tq_u, np.concatenate(encoder_priors(q_u, 1.0 / hq, priors_cutoff), axis=1), grid)[0]
-        qd_f, qdd_f, estimate, imu_record = prepared.fuse(model, grid, joints[:, :n], priors[:, :n], priors[:, n:],
-                                                          settings.estimation, settings.imu_noise)
-        joints[:, n:2 * n], joints[:, 2 * n:3 * n] = qd_f, qdd_f
+        priors = (
+            joints[:, n : 3 * n]
+            if priors_cutoff is None
+            else signals.on_grid(tq_u, np.concatenate(encoder_priors(q_u, 1.0 / hq, priors_cutoff), axis=1), grid)[0]
+        )
+        qd_f, qdd_f, estimate, imu_record = prepared.fuse(
+            model, grid, joints[:, :n], priors[:, :n], priors[:, n:], settings.estimation, settings.imu_noise
+        )
+        joints[:, n : 2 * n], joints[:, 2 * n : 3 * n] = qd_f, qdd_f
         imu_lines = tuple(imu_summary_lines(prepared, estimate))
     resampled = [name for name, moved in (("joints", moved_q), ("wrench", moved_w)) if moved]
     summary = ImportSummary(
-        n_frames=len(grid), rate=float(rate),
-        span=float(grid[-1] - grid[0]), joint_rate=1.0 / hq, wrench_rate=1.0 / hw if has_wrench else None,
-        derived=not measured, cutoff=cutoff, cutoff_choice=choice if settings.cutoff is None else None,
-        dropped_start=float(grid[0] - min(tq[0], tw[0])), dropped_end=float(max(tq[-1], tw[-1]) - grid[-1]),
+        n_frames=len(grid),
+        rate=float(rate),
+        span=float(grid[-1] - grid[0]),
+        joint_rate=1.0 / hq,
+        wrench_rate=1.0 / hw if has_wrench else None,
+        derived=not measured,
+        cutoff=cutoff,
+        cutoff_choice=choice if settings.cutoff is None else None,
+        dropped_start=float(grid[0] - min(tq[0], tw[0])),
+        dropped_end=float(max(tq[-1], tw[-1]) - grid[-1]),
         dropped_joint_samples=int(np.sum((tq < grid[0] - 1e-9 * hq) | (tq > grid[-1] + 1e-9 * hq))),
-        dropped_wrench_samples=(int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw)))
-                                if has_wrench else 0),
-        cutoff_note=cutoff_note, resampled=tuple(resampled), sensor=None if wrench_channel is None else wrench_channel.sensor,
-        delay=settings.delay, units=units_note(streams.origin),
-        joint_channels=tuple(RIDER_NAMES[k] for k in riders), sensor_where=where, imu=imu_lines,
-    )  # fmt: skip
-    values = _columns(joints[:, 3 * n:], riders)
+        dropped_wrench_samples=(
+            int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw))) if has_wrench else 0
+        ),
+        cutoff_note=cutoff_note,
+        resampled=tuple(resampled),
+        sensor=None if wrench_channel is None else wrench_channel.sensor,
+        delay=settings.delay,
+        units=units_note(streams.origin),
+        joint_channels=tuple(RIDER_NAMES[k] for k in riders),
+        sensor_where=where,
+        imu=imu_lines,
+    )
+    values = _columns(joints[:, 3 * n :], riders)
     origin = {**streams.origin, "import": summary.to_dict(), **({"imu": imu_record} if imu_record else {})}
     if riders or not isinstance(wrench_channel, BaseWrench):  # channels of version 4
-        channels = ChannelSet(tuple(c for c in (wrench_channel, *rider_channels(riders, model, settings)) if c is not None))
+        channels = ChannelSet(
+            tuple(c for c in (wrench_channel, *rider_channels(riders, model, settings)) if c is not None)
+        )
         meta = DatasetMeta.for_model(model, source="recording", origin=origin, channels=channels)
         key = None if wrench_channel is None else wrench_channel.key
         channel_values = {k: v[None] for k, v in values.items()}
@@ -392,8 +440,8 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     ds = Dataset(
         meta=meta,
         q=joints[None, :, :n],
-        qd=joints[None, :, n:2 * n],
-        qdd=joints[None, :, 2 * n:3 * n],
+        qd=joints[None, :, n : 2 * n],
+        qdd=joints[None, :, 2 * n : 3 * n],
         wrench=None if wrench is None else wrench[None],
         channel_values=channel_values,
         theta_known=np.asarray(model.theta_cad[model.known_index], dtype=np.float64),
@@ -402,34 +450,58 @@ def recording_dataset(streams: Streams, model, settings: ImportSettings = Import
     return ds, summary
 
 
-def _prepare_imus(streams: Streams, model, settings: ImportSettings, cutoff: float | None, tq: np.ndarray,
-                  priors_cutoff: float | None = None):
+def _prepare_imus(
+    streams: Streams,
+    model,
+    settings: ImportSettings,
+    cutoff: float | None,
+    tq: np.ndarray,
+    priors_cutoff: float | None = None,
+):
     """The recording's IMU streams matched, delayed and filtered (:func:`ineid.data.recording_imu.prepare_imus`),
     or None without IMUs; ``--imu`` or ``--imu-delay`` without IMU readings is one line."""
     if not streams.imus:
         if settings.imus or settings.imu_delay:
             flag = "--imu" if settings.imus else "--imu-delay"
-            raise DatasetError(f"{streams.source}: {flag} is for the recording's link IMUs, and it has no IMU readings "
-                               "(CSV columns imu_<NAME>_wx..., or bag topics named by --imu-topic); drop it")
+            raise DatasetError(
+                f"{streams.source}: {flag} is for the recording's link IMUs, and it has no IMU readings "
+                "(CSV columns imu_<NAME>_wx..., or bag topics named by --imu-topic); drop it"
+            )
         return None
-    from ineid.data.recording_imu import prepare_imus  # noqa: PLC0415
+    from ineid.data.recording_imu import prepare_imus
 
-    return replace(prepare_imus(streams.imus, settings.imus, model, cutoff, settings.imu_delay,
-                                (float(tq[0]), float(tq[-1])), streams.source), priors_cutoff=priors_cutoff)
+    return replace(
+        prepare_imus(
+            streams.imus,
+            settings.imus,
+            model,
+            cutoff,
+            settings.imu_delay,
+            (float(tq[0]), float(tq[-1])),
+            streams.source,
+        ),
+        priors_cutoff=priors_cutoff,
+    )
 
 
 def _columns(x: np.ndarray, like: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """``x`` (N, sum of widths) cut into ``{key: (N, width of like[key])}``, in ``like``'s order."""
     out, start = {}, 0
     for key, a in like.items():
-        out[key] = x[:, start:start + a.shape[1]]
+        out[key] = x[:, start : start + a.shape[1]]
         start += a.shape[1]
     return out
 
 
-def import_recording(path: str | Path, model, settings: ImportSettings = ImportSettings(), joint_topic: str = "/joint_states",
-                     wrench_topic: str | None = None, progress: Progress | None = None,
-                     imu_topics: tuple[str, ...] = ()) -> tuple[Dataset, ImportSummary]:
+def import_recording(
+    path: str | Path,
+    model,
+    settings: ImportSettings = ImportSettings(),
+    joint_topic: str = "/joint_states",
+    wrench_topic: str | None = None,
+    progress: Progress | None = None,
+    imu_topics: tuple[str, ...] = (),
+) -> tuple[Dataset, ImportSummary]:
     """Read a recording file (CSV, ROS 1 ``.bag``, ROS 2 bag folder or ``.mcap``) into a dataset.
 
     Args:
@@ -450,14 +522,16 @@ def import_recording(path: str | Path, model, settings: ImportSettings = ImportS
     if not path.exists():
         raise DatasetError(f"{path} does not exist")
     if path.is_dir() or path.suffix.lower() in (".bag", ".mcap", ".db3"):
-        from ineid.data.bags import read_bag_streams  # noqa: PLC0415
+        from ineid.data.bags import read_bag_streams
 
         streams = read_bag_streams(path, model.joint_names, joint_topic, wrench_topic, progress, imu_topics)
     else:
         if imu_topics:
-            raise DatasetError(f"{path}: --imu-topic names a bag's IMU topics; a CSV gives its IMUs as columns "
-                               "imu_<NAME>_wx...: drop it")
-        from ineid.data.csv_import import read_csv_streams  # noqa: PLC0415
+            raise DatasetError(
+                f"{path}: --imu-topic names a bag's IMU topics; a CSV gives its IMUs as columns "
+                "imu_<NAME>_wx...: drop it"
+            )
+        from ineid.data.csv_import import read_csv_streams
 
         streams = read_csv_streams(path, model, progress)
     try:
@@ -482,9 +556,9 @@ def read_recording_csv(path: str | Path, model, flip_wrench: bool = False, setti
         DatasetError: see :func:`ineid.data.csv_import.read_csv_streams` and
             :func:`recording_dataset`.
     """
-    from dataclasses import replace  # noqa: PLC0415
+    from dataclasses import replace
 
-    from ineid.data.csv_import import read_csv_streams  # noqa: PLC0415
+    from ineid.data.csv_import import read_csv_streams
 
     settings = replace(settings or ImportSettings(), flip_wrench=flip_wrench)
     return recording_dataset(read_csv_streams(path, model), model, settings)[0]

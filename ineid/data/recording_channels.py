@@ -38,8 +38,10 @@ def joint_channels(streams, model, n_samples: int, settings=None) -> dict[str, n
         out[key] = a
     drives = settings is not None and (settings.torque_constant is not None or settings.gear_ratio is not None)
     if drives and "current" not in out:
-        raise DatasetError(f"{streams.source}: --torque-constant and --gear-ratio are the motor currents' drives, "
-                           "and the recording has no currents (i1..in); drop them")
+        raise DatasetError(
+            f"{streams.source}: --torque-constant and --gear-ratio are the motor currents' drives, "
+            "and the recording has no currents (i1..in); drop them"
+        )
     if "current" in out and (settings is None or settings.torque_constant is None or settings.gear_ratio is None):
         raise DatasetError(
             f"{streams.source}: motor currents are read through the drives: give their torque constants and gear "
@@ -54,25 +56,31 @@ def _per_joint(values, model, what: str) -> tuple[float, ...]:
     if len(values) == 1:
         values *= model.n_dof
     if len(values) != model.n_dof:
-        raise DatasetError(f"{len(values)} {what} for {model.n_dof} joints ({', '.join(model.joint_names)}); give one "
-                           "number, or one per joint")
+        raise DatasetError(
+            f"{len(values)} {what} for {model.n_dof} joints ({', '.join(model.joint_names)}); give one "
+            "number, or one per joint"
+        )
     return values
 
 
 def rider_channels(riders, model=None, settings=None) -> list[Channel]:
     """The channels of :func:`joint_channels`' keys, as measured (no actuation model: that is identification's):
     the joint torques ``tau``, the motor currents ``current`` with ``settings``' drives."""
-    from ineid.channels.torque import JointTorque  # noqa: PLC0415
+    from ineid.channels.torque import JointTorque
 
     out: list[Channel] = []
     for key in riders:
         if key == "tau":
             out.append(JointTorque())
         elif key == "current":
-            from ineid.channels.torque import MotorCurrent  # noqa: PLC0415
+            from ineid.channels.torque import MotorCurrent
 
-            out.append(MotorCurrent(torque_constant=_per_joint(settings.torque_constant, model, "torque constants"),
-                                    gear_ratio=_per_joint(settings.gear_ratio, model, "gear ratios")))
+            out.append(
+                MotorCurrent(
+                    torque_constant=_per_joint(settings.torque_constant, model, "torque constants"),
+                    gear_ratio=_per_joint(settings.gear_ratio, model, "gear ratios"),
+                )
+            )
     return out
 
 
@@ -90,9 +98,9 @@ def resolve_wrench_channel(pose_text: str | None, frame_id: str | None, model) -
         DatasetError: a link that is not in the model, a pose that does not parse (and
             :func:`resolve_sensor`'s errors).
     """
-    from dataclasses import replace  # noqa: PLC0415
+    from dataclasses import replace
 
-    from ineid.channels.link_wrench import LinkWrench, sensor_channel  # noqa: PLC0415
+    from ineid.channels.link_wrench import LinkWrench, sensor_channel
 
     text = None if pose_text is None else pose_text.strip()
     if text:
@@ -116,9 +124,9 @@ def resolve_sensor(pose_text: str | None, frame_id: str | None, model) -> Sensor
         DatasetError, RobotModelError: a pose that does not parse, a frame the URDF does
             not have or that moves with the arm.
     """
-    from dataclasses import replace  # noqa: PLC0415
+    from dataclasses import replace
 
-    from ineid.robots.urdf import fixed_frame_pose  # noqa: PLC0415
+    from ineid.robots.urdf import fixed_frame_pose
 
     source = f"the URDF of {model.name}"
     if pose_text is not None:
@@ -129,7 +137,7 @@ def resolve_sensor(pose_text: str | None, frame_id: str | None, model) -> Sensor
         else:
             try:
                 r, p = fixed_frame_pose(model.urdf_text, frame_id, source, model.locked_joints or None)
-            except Exception as e:  # noqa: BLE001 - re-raised below with the fix
+            except Exception as e:  # re-raised below with the fix
                 raise DatasetError(
                     f"the wrench messages are in frame {frame_id!r}: {e}; give the sensor's pose in the base frame "
                     "with --sensor-pose x,y,z,roll,pitch,yaw (0,0,0,0,0,0 if it is the base frame)"

@@ -49,9 +49,11 @@ def imu_column_kinds(header: Sequence[str], path) -> dict[str, dict[str, list[st
             continue
         name, _, axis = h[4:].rpartition("_")
         if not name or axis not in suffix_kind:
-            raise DatasetError(f"{path}: column {h!r} is no IMU axis; IMU columns are imu_<NAME>_wx,_wy,_wz (gyro, "
-                               "rad/s), imu_<NAME>_ax,_ay,_az (accelerometer, m/s^2), imu_<NAME>_alx,_aly,_alz "
-                               "(angular acceleration, rad/s^2)")
+            raise DatasetError(
+                f"{path}: column {h!r} is no IMU axis; IMU columns are imu_<NAME>_wx,_wy,_wz (gyro, "
+                "rad/s), imu_<NAME>_ax,_ay,_az (accelerometer, m/s^2), imu_<NAME>_alx,_aly,_alz "
+                "(angular acceleration, rad/s^2)"
+            )
         found.setdefault(name, {}).setdefault(suffix_kind[axis], set()).add(axis)
     out: dict[str, dict[str, list[str]]] = {}
     for name, kinds in found.items():
@@ -62,8 +64,10 @@ def imu_column_kinds(header: Sequence[str], path) -> dict[str, dict[str, list[st
             missing = [a for a in IMU_AXES[kind] if a not in kinds[kind]]
             if missing:
                 have = ", ".join(f"imu_{name}_{a}" for a in IMU_AXES[kind] if a in kinds[kind])
-                raise DatasetError(f"{path}: IMU {name!r} has {have} but no {', '.join(f'imu_{name}_{a}' for a in missing)}; "
-                                   f"give all three axes of its {kind} ({IMU_UNITS[kind]}, sensor frame) or none")
+                raise DatasetError(
+                    f"{path}: IMU {name!r} has {have} but no {', '.join(f'imu_{name}_{a}' for a in missing)}; "
+                    f"give all three axes of its {kind} ({IMU_UNITS[kind]}, sensor frame) or none"
+                )
             out[name][kind] = [f"imu_{name}_{a}" for a in IMU_AXES[kind]]
     return out
 
@@ -74,14 +78,16 @@ def parse_imu_text(text: str, model):
     Raises:
         DatasetError: a link or frame the model does not have, a pose that does not parse.
     """
-    from ineid.data.imu import parse_imu  # noqa: PLC0415
+    from ineid.data.imu import parse_imu
 
     name, eq, rest = text.partition("=")
     if eq:
         name = name.strip()
         if not name or any(c in name for c in ",: "):
-            raise DatasetError(f"--imu {text!r}: the name before '=' must be a word (the <NAME> of imu_<NAME>_wx, or "
-                               "the bag's frame_id); write NAME=LINK[:x,y,z,roll,pitch,yaw]")
+            raise DatasetError(
+                f"--imu {text!r}: the name before '=' must be a word (the <NAME> of imu_<NAME>_wx, or "
+                "the bag's frame_id); write NAME=LINK[:x,y,z,roll,pitch,yaw]"
+            )
     try:
         return parse_imu(rest.strip(), model, name=name) if eq else parse_imu(text.strip(), model)
     except DatasetError as e:
@@ -97,14 +103,16 @@ def resolve_mounts(imus: Sequence[ImuStream], texts: Sequence[str], model, src: 
         DatasetError: an ``--imu`` that does not parse or names no link of the model; a stream whose name is
             neither an ``--imu`` nor a link or URDF frame on a moving link; an ``--imu`` with no stream.
     """
-    from ineid.data.imu import parse_imu  # noqa: PLC0415
+    from ineid.data.imu import parse_imu
 
     given = {}
     for text in texts:
         mount = parse_imu_text(text, model)
         if mount.name in given:
-            raise DatasetError(f"--imu {text!r}: IMU {mount.name!r} is given twice; give each IMU once (NAME=LINK:pose "
-                               "names a second IMU on one link)")
+            raise DatasetError(
+                f"--imu {text!r}: IMU {mount.name!r} is given twice; give each IMU once (NAME=LINK:pose "
+                "names a second IMU on one link)"
+            )
         given[mount.name] = mount
     kinds: dict[str, list[str]] = {}
     for s in imus:
@@ -112,9 +120,11 @@ def resolve_mounts(imus: Sequence[ImuStream], texts: Sequence[str], model, src: 
         kinds[s.name] += [k for k in s.readings if k not in kinds[s.name]]
     unused = [n for n in given if n not in kinds]
     if unused:
-        raise DatasetError(f"{src}: --imu {unused[0]!r} has no readings in the recording (its IMUs: "
-                           f"{', '.join(kinds) or 'none'}); name its columns imu_{unused[0]}_wx... or its bag topic's "
-                           "frame_id after it, or drop the --imu")
+        raise DatasetError(
+            f"{src}: --imu {unused[0]!r} has no readings in the recording (its IMUs: "
+            f"{', '.join(kinds) or 'none'}); name its columns imu_{unused[0]}_wx... or its bag topic's "
+            "frame_id after it, or drop the --imu"
+        )
     mounts = []
     for name, ks in kinds.items():
         mount = given.get(name)
@@ -123,8 +133,10 @@ def resolve_mounts(imus: Sequence[ImuStream], texts: Sequence[str], model, src: 
                 mount = parse_imu(name, model)
             except DatasetError as e:
                 moving = ", ".join(j.link for j in model.chain.joints)
-                raise DatasetError(f"{src}: IMU {name!r} names no moving link of {model.name} ({moving}) nor a URDF "
-                                   f"frame on one; give its mount: --imu {name}=LINK[:x,y,z,roll,pitch,yaw]") from e
+                raise DatasetError(
+                    f"{src}: IMU {name!r} names no moving link of {model.name} ({moving}) nor a URDF "
+                    f"frame on one; give its mount: --imu {name}=LINK[:x,y,z,roll,pitch,yaw]"
+                ) from e
         mounts.append(replace(mount, kinds=tuple(k for k in IMU_AXES if k in ks)))
     return mounts
 
@@ -142,15 +154,23 @@ class PreparedImus:
     cutoff: float | None = None
     priors_cutoff: float | None = None  # Hz: the priors' cut-off (:func:`encoder_priors`), below ``cutoff``
 
-    def fuse(self, model, grid: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, settings=None,
-             imu_noise: dict | None = None):
+    def fuse(
+        self,
+        model,
+        grid: np.ndarray,
+        q: np.ndarray,
+        qd: np.ndarray,
+        qdd: np.ndarray,
+        settings=None,
+        imu_noise: dict | None = None,
+    ):
         """``(qd, qdd, summary, record)``: the joint states fused with the IMUs at the frames ``grid``.
 
         ``settings.noise`` is the sensors' white noise at their own rates; the low-pass leaves
         ``sqrt(NOISE_BANDWIDTH cutoff / (rate / 2))`` of it (:func:`filtered_noise`, the
         slowest IMU's rate), which is what the estimate weighs and checks the residuals against.
         """
-        from ineid.data.state_estimation import EstimationSettings, ImuNoise, estimate_joint_states  # noqa: PLC0415
+        from ineid.data.state_estimation import EstimationSettings, ImuNoise, estimate_joint_states
 
         if settings is None:
             settings = EstimationSettings(noise=ImuNoise(**(imu_noise or {})), qdd_prior=qdd_prior(self.mounts))
@@ -166,10 +186,14 @@ class PreparedImus:
         readings: dict[str, dict[str, np.ndarray]] = {}
         for name, t, parts in self.streams:
             x = signals.interpolate(t, np.concatenate(list(parts.values()), axis=1), grid)
-            readings.setdefault(name, {}).update({k: x[:, 3 * i:3 * i + 3] for i, k in enumerate(parts)})
+            readings.setdefault(name, {}).update({k: x[:, 3 * i : 3 * i + 3] for i, k in enumerate(parts)})
         qd_f, qdd_f, summary = estimate_joint_states(model, q, qd, qdd, self.mounts, readings, settings, time=grid)
-        record = {"mounts": [_mount_dict(m) for m in self.mounts], "rates": self.rates, "delay": self.delay,
-                  "estimation": summary.to_dict()}
+        record = {
+            "mounts": [_mount_dict(m) for m in self.mounts],
+            "rates": self.rates,
+            "delay": self.delay,
+            "estimation": summary.to_dict(),
+        }
         return qd_f, qdd_f, summary, record
 
 
@@ -212,15 +236,17 @@ def imu_cutoff(q: np.ndarray, rate: float, angles_cutoff: float, mounts_kinds, g
     upper = 0.1 * rate
     if any("alpha" in kinds for kinds in mounts_kinds):
         return max(upper, angles_cutoff), "the upper bound, 0.1 x the rate: angular-acceleration sensors measure qdd"
-    from ineid.data import signals  # noqa: PLC0415
+    from ineid.data import signals
 
     h = 1.0 / rate
     _, qdd = signals.derivatives(signals.LowPass(angles_cutoff, rate).apply(q), h)
-    rms = float(np.sqrt(np.mean(qdd[len(qdd) // 10: -len(qdd) // 10 or None] ** 2)))
+    rms = float(np.sqrt(np.mean(qdd[len(qdd) // 10 : -len(qdd) // 10 or None] ** 2)))
     fc = ((0.01 * rms / (2 * math.pi * gyro_noise)) ** 2 * (rate / 2) / DERIVATIVE_BANDWIDTH) ** (1 / 3)
     fc = float(min(max(fc, 1.0, angles_cutoff), max(upper, angles_cutoff)))
-    return fc, (f"from the gyros' noise ({gyro_noise:g} rad/s): their fused qd differentiated once keeps 1 % of the "
-                "accelerations' RMS")
+    return fc, (
+        f"from the gyros' noise ({gyro_noise:g} rad/s): their fused qd differentiated once keeps 1 % of the "
+        "accelerations' RMS"
+    )
 
 
 def encoder_priors(q: np.ndarray, rate: float, angles_cutoff: float) -> tuple[np.ndarray, np.ndarray]:
@@ -250,7 +276,7 @@ def filter_model_error(model, mounts, q: np.ndarray, h: float, low) -> dict[str,
         q: (F, n_dof) the filtered encoders' angles on a uniform grid of step ``h`` s.
         low: the filter (``x -> filtered x``, along axis 0).
     """
-    from ineid.data.imu import imu_readings  # noqa: PLC0415
+    from ineid.data.imu import imu_readings
 
     q = np.asarray(q, dtype=np.float64)
     if len(q) < 8:
@@ -277,12 +303,13 @@ def filtered_noise(noise: Mapping[str, float], cutoff: float | None, rate: float
     """The :class:`ineid.data.state_estimation.ImuNoise` of white noise ``noise`` at ``rate`` Hz after the
     low-pass at ``cutoff`` (None: unfiltered); a kind without noise gets a floor of 1 % of the default's (its
     readings are trusted, not infinitely)."""
-    from ineid.data.state_estimation import ImuNoise  # noqa: PLC0415
+    from ineid.data.state_estimation import ImuNoise
 
     factor = 1.0 if cutoff is None else math.sqrt(min(1.0, NOISE_BANDWIDTH * cutoff / (rate / 2)))
     default = ImuNoise()
-    return ImuNoise(**{k: max(float(noise.get(k, 0.0)) * factor, 1e-2 * getattr(default, k))
-                       for k in ("gyro", "accel", "alpha")})
+    return ImuNoise(
+        **{k: max(float(noise.get(k, 0.0)) * factor, 1e-2 * getattr(default, k)) for k in ("gyro", "accel", "alpha")}
+    )
 
 
 def _mount_dict(mount) -> dict:
@@ -291,8 +318,15 @@ def _mount_dict(mount) -> dict:
     return {"link": mount.link, "name": mount.name, "kinds": list(mount.kinds), "sensor": mount.sensor.to_dict()}
 
 
-def prepare_imus(imus: Sequence[ImuStream], texts: Sequence[str], model, cutoff: float | None, delay: float,
-                 joint_span: tuple[float, float], src: str) -> PreparedImus:
+def prepare_imus(
+    imus: Sequence[ImuStream],
+    texts: Sequence[str],
+    model,
+    cutoff: float | None,
+    delay: float,
+    joint_span: tuple[float, float],
+    src: str,
+) -> PreparedImus:
     """Match, check, delay and filter the IMU streams (see the module docstring).
 
     Args:
@@ -319,31 +353,38 @@ def prepare_imus(imus: Sequence[ImuStream], texts: Sequence[str], model, cutoff:
         label = f"IMU {s.name!r}" + (f" ({s.where})" if s.where else "")
         for k, v in parts.items():
             if v.shape != (len(t), 3):
-                raise DatasetError(f"{src}: {label}'s {k} readings have shape {v.shape} for {len(t)} time stamps; "
-                                   "expected 3 axes")
+                raise DatasetError(
+                    f"{src}: {label}'s {k} readings have shape {v.shape} for {len(t)} time stamps; expected 3 axes"
+                )
         if len(t) < 4:
-            raise DatasetError(f"{src}: {label} has {len(t)} sample{'s' if len(t) != 1 else ''}; a recording needs "
-                               "many more")
+            raise DatasetError(
+                f"{src}: {label} has {len(t)} sample{'s' if len(t) != 1 else ''}; a recording needs many more"
+            )
         bad = ~np.isfinite(np.concatenate([t[:, None], *parts.values()], axis=1)).all(axis=1)
         if bad.any():
-            raise DatasetError(f"{src}: {label} holds NaN or an infinite value at sample {int(np.flatnonzero(bad)[0])} "
-                               f"({int(bad.sum())} in all); values must be finite: drop or repair those samples")
+            raise DatasetError(
+                f"{src}: {label} holds NaN or an infinite value at sample {int(np.flatnonzero(bad)[0])} "
+                f"({int(bad.sum())} in all); values must be finite: drop or repair those samples"
+            )
         h = signals.median_interval(t, f"{src}: {label}")
         lo, hi = max(t[0], joint_span[0]), min(t[-1], joint_span[1])
         if not hi - lo > 2 * edge + h:
             raise DatasetError(
-                f"{src}: {label} ({t[0]:.6g}..{t[-1]:.6g} s" + (f", IMU delay {delay:g} s applied" if delay else "")
+                f"{src}: {label} ({t[0]:.6g}..{t[-1]:.6g} s"
+                + (f", IMU delay {delay:g} s applied" if delay else "")
                 + f") does not overlap the joints ({joint_span[0]:.6g}..{joint_span[1]:.6g} s)"
                 + (f" beyond the filter's edges ({edge:.3g} s at each end)" if edge else "")
                 + "; check its time stamps (the same clock origin as the joints') and --imu-delay"
             )
         if cutoff is not None:
             if cutoff >= 0.45 / h:
-                raise DatasetError(f"{src}: {label} at {1 / h:g} Hz cannot hold the cut-off {cutoff:g} Hz; log it "
-                                   "faster or lower --cutoff")
+                raise DatasetError(
+                    f"{src}: {label} at {1 / h:g} Hz cannot hold the cut-off {cutoff:g} Hz; log it "
+                    "faster or lower --cutoff"
+                )
             tu, x = signals.to_uniform(t, np.concatenate(list(parts.values()), axis=1), h)
             x = signals.LowPass(cutoff, 1.0 / h).apply(x)
-            parts = {k: x[:, 3 * i:3 * i + 3] for i, k in enumerate(parts)}
+            parts = {k: x[:, 3 * i : 3 * i + 3] for i, k in enumerate(parts)}
             t = tu
         start, stop = max(start, t[0] + edge), min(stop, t[-1] - edge)
         out.append((s.name, t, parts))
@@ -354,6 +395,9 @@ def prepare_imus(imus: Sequence[ImuStream], texts: Sequence[str], model, cutoff:
 def imu_summary_lines(prepared: PreparedImus, summary) -> list[str]:
     """The import summary's IMU lines: each IMU's streams and rates, then the estimate's own lines."""
     rates = "; ".join(f"IMU {k.split('.', 1)[0]!r} {k.split('.', 1)[1]} at {r:g} Hz" for k, r in prepared.rates.items())
-    out = [f"{rates}: resampled onto the frames" + (f", stamps {prepared.delay:g} s late" if prepared.delay else "")
-           + "; qd, qdd fused from the encoders and the IMUs"]
+    out = [
+        f"{rates}: resampled onto the frames"
+        + (f", stamps {prepared.delay:g} s late" if prepared.delay else "")
+        + "; qd, qdd fused from the encoders and the IMUs"
+    ]
     return out + list(summary.lines())

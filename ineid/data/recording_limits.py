@@ -30,8 +30,10 @@ def check_import_settings(settings) -> None:
         raise DatasetError(f"angle_unit must be one of {', '.join(ANGLE_UNITS)}, got {settings.angle_unit!r}")
     lo, hi = WRENCH_SCALE_RANGE
     if not lo <= settings.wrench_scale <= hi:
-        raise DatasetError(f"wrench_scale must be a factor from {lo:g} to {hi:g}, got {settings.wrench_scale}; "
-                           "to negate the wrench use flip_wrench (--flip-wrench)")
+        raise DatasetError(
+            f"wrench_scale must be a factor from {lo:g} to {hi:g}, got {settings.wrench_scale}; "
+            "to negate the wrench use flip_wrench (--flip-wrench)"
+        )
     for name in ("cutoff", "rate"):
         v = getattr(settings, name)
         if v is not None and not (v > 0 and math.isfinite(v)):
@@ -73,5 +75,7 @@ def check_magnitudes(a: np.ndarray, what: str, limit: float) -> None:
     if k is not None:
         row = np.asarray(a, dtype=np.float64).reshape(len(a), -1)[k]
         v = row[np.isfinite(row) & (np.abs(row) > limit)][0]
-        raise DatasetError(f"{what} holds {v:g} at sample {k}, beyond {limit:g} in magnitude, more than any sensor "
-                           "or clock gives (ineid.data.streams.VALUE_LIMIT, TIME_LIMIT): drop or repair that sample")
+        raise DatasetError(
+            f"{what} holds {v:g} at sample {k}, beyond {limit:g} in magnitude, more than any sensor "
+            "or clock gives (ineid.data.streams.VALUE_LIMIT, TIME_LIMIT): drop or repair that sample"
+        )

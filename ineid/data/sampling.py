@@ -361,8 +361,9 @@ def sample_frames(
     if spec.mode == "trajectory":
         tr = spec.trajectory
         if tr.n_dof != n_dof or tr.n_frames != n_frames:
-            raise ValueError(f"the trajectory has {tr.n_frames} frames of {tr.n_dof} joints; asked for "
-                             f"{n_frames} frames of {n_dof}")
+            raise ValueError(
+                f"the trajectory has {tr.n_frames} frames of {tr.n_dof} joints; asked for {n_frames} frames of {n_dof}"
+            )
         return tuple(np.broadcast_to(a, (n_configs, *a.shape)).copy() for a in (tr.q, tr.qd, tr.qdd, tr.time))
     if spec.mode == "uniform":
         return (*uniform_states(lo, hi, vmax, amax, rng, (n_configs, n_frames)), None)
@@ -372,19 +373,19 @@ def sample_frames(
     t = np.arange(n_frames) * (duration / n_frames)
     u = rng.random((n_configs, n_dof, 2 * n_h + 1))
     a, b = 2.0 * u[..., :n_h] - 1.0, 2.0 * u[..., n_h : 2 * n_h] - 1.0
-    l = np.arange(1, n_h + 1)
+    ell = np.arange(1, n_h + 1)
     amp = np.hypot(a, b)  # (C, n_dof, n_h)
-    bound_q = (amp / (omega * l)).sum(-1)
+    bound_q = (amp / (omega * ell)).sum(-1)
     bound_qd = amp.sum(-1)
-    bound_qdd = (amp * omega * l).sum(-1)
+    bound_qdd = (amp * omega * ell).sum(-1)
     half_range = 0.5 * (hi - lo)
     scale = np.minimum.reduce([vmax / bound_qd, amax / bound_qdd, half_range / bound_q])
     a, b = a * scale[..., None], b * scale[..., None]
     reach = bound_q * scale  # <= half_range
     q0 = lo + reach + (hi - lo - 2.0 * reach) * u[..., 2 * n_h]
-    wt = omega * l[:, None] * t[None, :]  # (n_h, F)
+    wt = omega * ell[:, None] * t[None, :]  # (n_h, F)
     sin, cos = np.sin(wt), np.cos(wt)
-    wl = (omega * l)[:, None]
+    wl = (omega * ell)[:, None]
     q = q0[..., None] + np.einsum("cjh,hf->cjf", a, sin / wl) - np.einsum("cjh,hf->cjf", b, cos / wl)
     qd = np.einsum("cjh,hf->cjf", a, cos) + np.einsum("cjh,hf->cjf", b, sin)
     qdd = np.einsum("cjh,hf->cjf", a, -wl * sin) + np.einsum("cjh,hf->cjf", b, wl * cos)

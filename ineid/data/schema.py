@@ -50,6 +50,7 @@ from ineid.errors import DatasetError
 if TYPE_CHECKING:
     from ineid.robots import RobotModel
 
+
 @dataclass
 class Dataset:
     """A dataset in memory: NumPy arrays, shapes as in the module table.
@@ -88,8 +89,10 @@ class Dataset:
             raise DatasetError("dataset: the base wrench's values are Dataset.wrench, not channel_values['wrench']")
         if have != keys:
             missing, extra = sorted(keys - have), sorted(have - keys)
-            raise DatasetError(f"dataset: the channels {', '.join(self.meta.channels.keys)} need values for each; "
-                               + (f"missing {', '.join(missing)}" if missing else f"no channel {', '.join(extra)}"))
+            raise DatasetError(
+                f"dataset: the channels {', '.join(self.meta.channels.keys)} need values for each; "
+                + (f"missing {', '.join(missing)}" if missing else f"no channel {', '.join(extra)}")
+            )
         check_shapes(self.meta, {k: v.shape for k, v in self.arrays().items()}, "dataset")
 
     @property
@@ -151,8 +154,16 @@ class Dataset:
 
     def select(self, configs=None, frames=None) -> Dataset:
         """A copy of some configurations and frames: slices, index arrays, integers or ``None`` (all)."""
-        c = slice(None) if configs is None else ([configs] if np.ndim(configs) == 0 and not isinstance(configs, slice) else configs)
-        f = slice(None) if frames is None else ([frames] if np.ndim(frames) == 0 and not isinstance(frames, slice) else frames)
+        c = (
+            slice(None)
+            if configs is None
+            else ([configs] if np.ndim(configs) == 0 and not isinstance(configs, slice) else configs)
+        )
+        f = (
+            slice(None)
+            if frames is None
+            else ([frames] if np.ndim(frames) == 0 and not isinstance(frames, slice) else frames)
+        )
 
         def pick(a, per_frame=True):
             # always a copy: editing a selection must not change the dataset it came from
@@ -185,12 +196,26 @@ class Dataset:
         channels count where they are not the single base wrench of versions 1 and 2 (so
         those files keep their fingerprints).
         """
-        import hashlib  # noqa: PLC0415
-        import json  # noqa: PLC0415
+        import hashlib
+        import json
 
         m = self.meta
-        key = json.dumps([m.robot, m.urdf, list(m.unknown_links), np.asarray(m.gravity).tolist(), self.n_configs,
-                          self.n_frames, m.seed, m.sampling, m.noise, m.source], sort_keys=True, default=str)
+        key = json.dumps(
+            [
+                m.robot,
+                m.urdf,
+                list(m.unknown_links),
+                np.asarray(m.gravity).tolist(),
+                self.n_configs,
+                self.n_frames,
+                m.seed,
+                m.sampling,
+                m.noise,
+                m.source,
+            ],
+            sort_keys=True,
+            default=str,
+        )
         legacy = m.channels == ChannelSet.of(BaseWrench(sensor=m.sensor_pose()))
         if m.seed is None:
             for k, v in self.measurements.items():
@@ -209,6 +234,6 @@ class Dataset:
 
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
         """Write the dataset to ``path`` atomically; see :func:`ineid.data.write.save_dataset`."""
-        from ineid.data.write import save_dataset  # noqa: PLC0415
+        from ineid.data.write import save_dataset
 
         return save_dataset(self, path, overwrite=overwrite)

@@ -75,7 +75,7 @@ def to_uniform(t: np.ndarray, x: np.ndarray, dt: float) -> tuple[np.ndarray, np.
 
     A stream that is already uniform at ``dt`` is returned as it is (no interpolation).
     """
-    from scipy.interpolate import make_interp_spline  # noqa: PLC0415
+    from scipy.interpolate import make_interp_spline
 
     t = np.asarray(t, dtype=np.float64)
     if is_uniform(t) and abs(np.median(np.diff(t)) - dt) <= JITTER_RTOL * dt:
@@ -87,22 +87,23 @@ def to_uniform(t: np.ndarray, x: np.ndarray, dt: float) -> tuple[np.ndarray, np.
 def interpolate(t: np.ndarray, x: np.ndarray, t_new: np.ndarray, _spline=None) -> np.ndarray:
     """Cubic-spline (not-a-knot) values of samples ``x(t)`` (N, ...) at ``t_new`` (inside ``[t[0], t[-1]]``)."""
     if _spline is None:
-        from scipy.interpolate import make_interp_spline as _spline  # noqa: PLC0415
+        from scipy.interpolate import make_interp_spline as _spline
 
     t = np.asarray(t, dtype=np.float64)
     if len(t) < 4:
         return np.stack([np.interp(t_new, t, col) for col in np.asarray(x).reshape(len(t), -1).T], -1).reshape(
-            (len(t_new),) + np.shape(x)[1:])
+            (len(t_new),) + np.shape(x)[1:]
+        )
     return _spline(t, np.asarray(x, dtype=np.float64), k=3, axis=0)(t_new)
 
 
 def on_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, bool]:
     """``x`` at ``grid``: the samples themselves where the stream's stamps are the grid, else a cubic spline."""
     i0 = int(np.searchsorted(t, grid[0] - 1e-9 * abs(grid[0]) - 1e-12))
-    part = t[i0:i0 + len(grid)]
+    part = t[i0 : i0 + len(grid)]
     h = (grid[-1] - grid[0]) / max(len(grid) - 1, 1)
     if len(part) == len(grid) and np.all(np.abs(part - grid) <= 1e-6 * h):
-        return np.array(x[i0:i0 + len(grid)]), False
+        return np.array(x[i0 : i0 + len(grid)]), False
     return interpolate(t, x, grid), True
 
 
@@ -130,13 +131,13 @@ class LowPass:
             )
 
     def sos(self) -> np.ndarray:
-        from scipy.signal import butter  # noqa: PLC0415
+        from scipy.signal import butter
 
         return butter(self.order, self.cutoff, fs=self.rate, output="sos")
 
     def apply(self, x: np.ndarray) -> np.ndarray:
         """Filter ``x`` (N, ...) along its first axis, zero phase."""
-        from scipy.signal import sosfiltfilt  # noqa: PLC0415
+        from scipy.signal import sosfiltfilt
 
         x = np.asarray(x, dtype=np.float64)
         pad = min(len(x) - 1, 3 * self.edge_samples)
@@ -217,7 +218,7 @@ def choose_cutoff(q: np.ndarray, rate: float) -> CutoffChoice:
     cut-offs tried (``benchmarks/recordings.py``, ``docs/recordings.md``), and on noise-free
     data it gives the upper bound, where the error is smallest.
     """
-    from scipy.signal import welch  # noqa: PLC0415
+    from scipy.signal import welch
 
     q = np.asarray(q, dtype=np.float64)
     lo, hi = CUTOFF_RANGE[0], CUTOFF_RANGE[1] * rate

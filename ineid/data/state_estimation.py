@@ -196,6 +196,7 @@ class EstimationSummary:
 
     def to_dict(self) -> dict:
         """A JSON-able record (the dataset's origin)."""
+
         def arr(x):
             return None if x is None else [float(v) if np.isfinite(v) else None for v in np.ravel(x)]
 
@@ -205,8 +206,11 @@ class EstimationSummary:
             "gyro_bias_std": {k: arr(v) for k, v in self.gyro_bias_std.items()},
             "residual_rms": {k: {kk: float(vv) for kk, vv in v.items()} for k, v in self.residual_rms.items()},
             "noise": {"gyro": self.noise.gyro, "accel": self.noise.accel, "alpha": self.noise.alpha},
-            "qd_prior_std": arr(self.qd_prior_std), "qdd_prior_std": arr(self.qdd_prior_std),
-            "qdd_prior": self.qdd_prior, "n_frames": self.n_frames, "q_error_std": arr(self.q_error_std),
+            "qd_prior_std": arr(self.qd_prior_std),
+            "qdd_prior_std": arr(self.qdd_prior_std),
+            "qdd_prior": self.qdd_prior,
+            "n_frames": self.n_frames,
+            "q_error_std": arr(self.q_error_std),
             "gyro_bias_cov": {k: np.asarray(v).tolist() for k, v in self.gyro_bias_cov.items()},
             "gyro_bias_unidentified": {k: np.asarray(v).tolist() for k, v in self.gyro_bias_unidentified.items()},
         }
@@ -215,26 +219,39 @@ class EstimationSummary:
         """Human-readable lines for the CLI."""
         out = [f"joint states from {len(self.imus)} IMU(s) and the encoders over {self.n_frames:,} frames"]
         for m in self.imus:
-            res = ", ".join(f"{k} {v:.3g} {UNITS[k]} ({v / getattr(self.noise, k):.2g} x noise)"
-                            for k, v in self.residual_rms[m.name].items())
+            res = ", ".join(
+                f"{k} {v:.3g} {UNITS[k]} ({v / getattr(self.noise, k):.2g} x noise)"
+                for k, v in self.residual_rms[m.name].items()
+            )
             out.append(f"  {m.describe()}: residual RMS {res}")
             if m.name in self.gyro_bias:
                 b, s = self.gyro_bias[m.name], self.gyro_bias_std[m.name]
-                out.append("    gyro bias (rad/s) " + ", ".join(
-                    f"{a} {v:.3g} +- {e:.2g}" if np.isfinite(e) else f"{a} {v:.3g} (not identified)"
-                    for a, v, e in zip("xyz", b, s, strict=True)))
+                out.append(
+                    "    gyro bias (rad/s) "
+                    + ", ".join(
+                        f"{a} {v:.3g} +- {e:.2g}" if np.isfinite(e) else f"{a} {v:.3g} (not identified)"
+                        for a, v, e in zip("xyz", b, s, strict=True)
+                    )
+                )
                 for d in self.gyro_bias_unidentified.get(m.name, ()):
-                    out.append("    gyro bias along ({}) not identified: the gyros cannot tell it from a constant "
-                               "error in a joint's rate; there it rests on the encoders alone, no std"
-                               .format(", ".join(f"{v:.3f}" for v in d)))
+                    out.append(
+                        "    gyro bias along ({}) not identified: the gyros cannot tell it from a constant "
+                        "error in a joint's rate; there it rests on the encoders alone, no std".format(
+                            ", ".join(f"{v:.3f}" for v in d)
+                        )
+                    )
         if self.q_error_std is not None:
-            out.append("  encoders' angle error std (rad, in the biases' std): "
-                       + " ".join(f"{v:.2g}" for v in self.q_error_std))
+            out.append(
+                "  encoders' angle error std (rad, in the biases' std): "
+                + " ".join(f"{v:.2g}" for v in self.q_error_std)
+            )
         for label, s in (("qd", self.qd_prior_std), ("qdd", self.qdd_prior_std)):
             if s is not None:
-                out.append(f"  prior on {label} ({'encoders' if label == 'qd' else self.qdd_prior}) std: "
-                           + " ".join("unseen" if not np.isfinite(v) else f"{v:.3g}" for v in s)
-                           + (" (unseen: no IMU sees that joint; the prior alone)" if not np.all(np.isfinite(s)) else ""))
+                out.append(
+                    f"  prior on {label} ({'encoders' if label == 'qd' else self.qdd_prior}) std: "
+                    + " ".join("unseen" if not np.isfinite(v) else f"{v:.3g}" for v in s)
+                    + (" (unseen: no IMU sees that joint; the prior alone)" if not np.all(np.isfinite(s)) else "")
+                )
         return out
 
 
@@ -322,26 +339,39 @@ def _check_inputs(model, q, qd_enc, qdd_enc, mounts, readings):
         for kind in m.kinds:
             y = None if got is None else got.get(kind)
             if y is None:
-                raise DatasetError(f"IMU {m.name!r}: no {kind} readings; give its columns "
-                                   f"{', '.join(m.columns(kind))} or leave {kind} out of its kinds")
+                raise DatasetError(
+                    f"IMU {m.name!r}: no {kind} readings; give its columns "
+                    f"{', '.join(m.columns(kind))} or leave {kind} out of its kinds"
+                )
             y = np.asarray(y, dtype=np.float64)
             if y.shape != (len(arrays[0]), 3):
-                raise DatasetError(f"IMU {m.name!r}: {kind} readings must have shape ({len(arrays[0])}, 3) on the "
-                                   f"joints' frames, got {y.shape}")
+                raise DatasetError(
+                    f"IMU {m.name!r}: {kind} readings must have shape ({len(arrays[0])}, 3) on the "
+                    f"joints' frames, got {y.shape}"
+                )
             if not np.all(np.isfinite(y)):
                 raise DatasetError(f"IMU {m.name!r}: NaN or infinite {kind} readings; drop or fill those frames first")
     return arrays
 
 
 def _misfit_error(name: str, kind: str, detail: str) -> DatasetError:
-    return DatasetError(f"IMU {name!r}: its {kind} readings do not fit the model ({detail}); check its link and "
-                        "pose (--imu LINK:x,y,z,roll,pitch,yaw, the sensor frame in the link's) and its axes")
+    return DatasetError(
+        f"IMU {name!r}: its {kind} readings do not fit the model ({detail}); check its link and "
+        "pose (--imu LINK:x,y,z,roll,pitch,yaw, the sensor frame in the link's) and its axes"
+    )
 
 
-def estimate_joint_states(model, q, qd_enc, qdd_enc, mounts: Sequence[ImuMount],
-                          readings: Mapping[str, Mapping[str, np.ndarray]],
-                          settings: EstimationSettings = EstimationSettings(), *, time=None,
-                          ) -> tuple[np.ndarray, np.ndarray, EstimationSummary]:
+def estimate_joint_states(
+    model,
+    q,
+    qd_enc,
+    qdd_enc,
+    mounts: Sequence[ImuMount],
+    readings: Mapping[str, Mapping[str, np.ndarray]],
+    settings: EstimationSettings = EstimationSettings(),
+    *,
+    time=None,
+) -> tuple[np.ndarray, np.ndarray, EstimationSummary]:
     """``qd``, ``qdd`` from the encoders and the IMUs together (equations in the module docstring).
 
     Args:
@@ -372,8 +402,10 @@ def estimate_joint_states(model, q, qd_enc, qdd_enc, mounts: Sequence[ImuMount],
 
     def mount_maps(qd):
         motion0 = link_motion(model, q, qd, np.zeros_like(qd))
-        return {m.name: jacobians_from(m, jac[:, moving_index(model, m)], motion0[:, moving_index(model, m)])
-                for m in mounts}
+        return {
+            m.name: jacobians_from(m, jac[:, moving_index(model, m)], motion0[:, moving_index(model, m)])
+            for m in mounts
+        }
 
     # -- qd: gyros, encoders' derivative, biases ---------------------------------------------------
     gyros = [m for m in mounts if "gyro" in m.kinds]
@@ -385,8 +417,11 @@ def estimate_joint_states(model, q, qd_enc, qdd_enc, mounts: Sequence[ImuMount],
 
         def gyro_h(qq):  # the whitened gyro maps at other angles
             jq = link_jacobians(model, qq)
-            return np.concatenate([(mount_rotation(m) @ jq[:, moving_index(model, m), 0]) for m in gyros],
-                                  axis=1) / noise.gyro
+            return (
+                np.concatenate([(mount_rotation(m) @ jq[:, moving_index(model, m), 0]) for m in gyros], axis=1)
+                / noise.gyro
+            )
+
         z = np.concatenate([np.asarray(readings[m.name]["gyro"], dtype=np.float64) for m in gyros], axis=1) / noise.gyro
         qd_std, gyro_maps_h = _prior_std(settings.encoder_qd_std, h, z, qd_enc, settings.gyro_bias, n, "qd"), h
         qd, beta, s_inv, qd_var = _fuse(h, z, qd_enc, 1.0 / qd_std**2, settings.gyro_bias)
@@ -435,15 +470,16 @@ def estimate_joint_states(model, q, qd_enc, qdd_enc, mounts: Sequence[ImuMount],
         qdd, _, _, _ = _fuse(h, z, prior, 1.0 / qdd_std**2, False)
         res = z - np.einsum("fmn,fn->fm", h, qdd)
         for i, (m, k) in enumerate(acc):
-            residual[m.name][k] = float(np.sqrt(np.mean(res[:, 3 * i: 3 * i + 3] ** 2)) * getattr(noise, k))
+            residual[m.name][k] = float(np.sqrt(np.mean(res[:, 3 * i : 3 * i + 3] ** 2)) * getattr(noise, k))
 
     def shown(std, maps):  # NaN for a joint no sensor sees (its std is the placeholder 1 / weak)
         return None if std is None else np.where(np.abs(maps).sum(axis=(0, 1)) > 0, std, np.nan)
 
     qd_std = shown(qd_std, gyro_maps_h) if gyros else qd_std
     qdd_std = shown(qdd_std, h) if acc else qdd_std
-    summary = EstimationSummary(tuple(mounts), bias, bias_std, residual, noise, qd_std, qdd_std,
-                                settings.qdd_prior, f, bias_cov, free, q_err)
+    summary = EstimationSummary(
+        tuple(mounts), bias, bias_std, residual, noise, qd_std, qdd_std, settings.qdd_prior, f, bias_cov, free, q_err
+    )
     _check_fit(mounts, readings, settings, summary, qd_enc, prior, gyro_maps, acc_maps)
     return qd, qdd, summary
 
@@ -460,8 +496,10 @@ def _check_fit(mounts, readings, settings, summary, qd_enc, qdd_prior, gyro_maps
                 continue
             if ratio > settings.max_residual_ratio and (worst is None or ratio > worst[0]):
                 sig = getattr(settings.noise, k)
-                detail = (f"residual RMS {rms:.3g} {UNITS[k]}, {ratio:.3g} times its noise {sig:g} {UNITS[k]}; "
-                          "or raise the noise setting if it is noisier")
+                detail = (
+                    f"residual RMS {rms:.3g} {UNITS[k]}, {ratio:.3g} times its noise {sig:g} {UNITS[k]}; "
+                    "or raise the noise setting if it is noisier"
+                )
                 worst = (ratio, m.name, k, detail)
     for m in mounts:
         for k in m.kinds:
@@ -470,8 +508,11 @@ def _check_fit(mounts, readings, settings, summary, qd_enc, qdd_prior, gyro_maps
                 pred = np.einsum("fmn,fn->fm", gyro_maps[m.name].gyro_qd, qd_enc)
             else:
                 mp = acc_maps[m.name]
-                pred = (np.einsum("fmn,fn->fm", mp.gyro_qd, qdd_prior) + mp.alpha_0 if k == "alpha"
-                        else np.einsum("fmn,fn->fm", mp.accel_qdd, qdd_prior) + mp.accel_0)
+                pred = (
+                    np.einsum("fmn,fn->fm", mp.gyro_qd, qdd_prior) + mp.alpha_0
+                    if k == "alpha"
+                    else np.einsum("fmn,fn->fm", mp.accel_qdd, qdd_prior) + mp.accel_0
+                )
             d = y - pred
             if k == "gyro" and settings.gyro_bias:
                 d = d - d.mean(axis=0)
@@ -480,8 +521,10 @@ def _check_fit(mounts, readings, settings, summary, qd_enc, qdd_prior, gyro_maps
             if rms_d > limit:
                 ratio = settings.max_residual_ratio * rms_d / limit
                 if worst is None or ratio > worst[0]:
-                    detail = (f"they differ from what the encoders predict by {rms_d:.3g} {UNITS[k]} RMS, "
-                              f"{100 * rms_d / max(rms_p, 1e-300):.0f} % of it")
+                    detail = (
+                        f"they differ from what the encoders predict by {rms_d:.3g} {UNITS[k]} RMS, "
+                        f"{100 * rms_d / max(rms_p, 1e-300):.0f} % of it"
+                    )
                     worst = (ratio, m.name, k, detail)
     if worst is not None:
         raise _misfit_error(worst[1], worst[2], worst[3])

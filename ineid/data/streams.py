@@ -111,14 +111,24 @@ def check_units(time_unit: str, force_unit: str, moment_unit: str) -> None:
     Raises:
         DatasetError: naming the setting and its choices.
     """
-    for name, value, units in (("time_unit", time_unit, TIME_UNITS), ("force_unit", force_unit, FORCE_UNITS),
-                               ("moment_unit", moment_unit, MOMENT_UNITS)):
+    for name, value, units in (
+        ("time_unit", time_unit, TIME_UNITS),
+        ("force_unit", force_unit, FORCE_UNITS),
+        ("moment_unit", moment_unit, MOMENT_UNITS),
+    ):
         if value not in units:
             raise DatasetError(f"{name} must be one of {', '.join(units)}, got {value!r}")
 
 
-def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: float = 1.0, time_unit: str = "s",
-                force_unit: str = "N", moment_unit: str = "Nm") -> Streams:
+def in_si_units(
+    streams: Streams,
+    model,
+    angle_unit: str = "rad",
+    wrench_scale: float = 1.0,
+    time_unit: str = "s",
+    force_unit: str = "N",
+    moment_unit: str = "Nm",
+) -> Streams:
     """``streams`` in SI units: time stamps in s, revolute joints' ``q`` (``qd``, ``qdd``) in rad, forces in N and
     moments in N*m, then the wrench multiplied by ``wrench_scale``.
 
@@ -135,7 +145,7 @@ def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: 
     Returns:
         A new :class:`Streams`; its ``origin`` records the five settings.
     """
-    from dataclasses import replace  # noqa: PLC0415
+    from dataclasses import replace
 
     check_units(time_unit, force_unit, moment_unit)
     factor = np.ones(model.n_dof)
@@ -147,8 +157,14 @@ def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: 
         a = None if a is None else np.asarray(a, dtype=np.float64)
         # a wrongly shaped array is left as it is: recording_dataset names the problem
         joints[k] = a * factor if a is not None and a.ndim == 2 and a.shape[1] == model.n_dof else a
-    origin = {**streams.origin, "angle_unit": angle_unit, "wrench_scale": float(wrench_scale), "time_unit": time_unit,
-              "force_unit": force_unit, "moment_unit": moment_unit}
+    origin = {
+        **streams.origin,
+        "angle_unit": angle_unit,
+        "wrench_scale": float(wrench_scale),
+        "time_unit": time_unit,
+        "force_unit": force_unit,
+        "moment_unit": moment_unit,
+    }
     wrench = None if streams.wrench is None else np.asarray(streams.wrench, dtype=np.float64) * wrench_scale
     if wrench is not None and wrench.ndim == 2 and wrench.shape[1] == 6:
         wrench = wrench * np.repeat([FORCE_UNITS[force_unit], MOMENT_UNITS[moment_unit]], 3)
@@ -157,9 +173,15 @@ def in_si_units(streams: Streams, model, angle_unit: str = "rad", wrench_scale: 
     def stamps(t):
         return None if t is None else np.asarray(t, dtype=np.float64) * seconds
 
-    return replace(streams, **joints, wrench=wrench, origin=origin, joint_time=stamps(streams.joint_time),
-                   wrench_time=stamps(streams.wrench_time),
-                   imus=tuple(replace(s, time=stamps(s.time)) for s in streams.imus))
+    return replace(
+        streams,
+        **joints,
+        wrench=wrench,
+        origin=origin,
+        joint_time=stamps(streams.joint_time),
+        wrench_time=stamps(streams.wrench_time),
+        imus=tuple(replace(s, time=stamps(s.time)) for s in streams.imus),
+    )
 
 
 def units_note(origin: dict) -> str | None:
@@ -169,9 +191,11 @@ def units_note(origin: dict) -> str | None:
         parts.append(f"time stamps converted from {origin['time_unit']}")
     if origin.get("angle_unit") == "deg":
         parts.append("revolute joint angles (and measured qd, qdd) converted from degrees")
-    converted = [f"{what} from {origin[key]}" for what, key, si in (("forces", "force_unit", "N"),
-                                                                   ("moments", "moment_unit", "Nm"))
-                 if origin.get(key, si) != si]
+    converted = [
+        f"{what} from {origin[key]}"
+        for what, key, si in (("forces", "force_unit", "N"), ("moments", "moment_unit", "Nm"))
+        if origin.get(key, si) != si
+    ]
     if converted:
         parts.append(" and ".join(converted) + " converted")
     if origin.get("wrench_scale", 1.0) != 1.0:

@@ -203,9 +203,12 @@ class FourierTrajectory:
             DatasetError: not a trajectory record, or a field with the wrong shape or value.
         """
         if not isinstance(d, Mapping) or d.get("format") != FORMAT:
-            raise DatasetError(f"{source}: not an ineid trajectory (expected \"format\": \"{FORMAT}\")")
+            raise DatasetError(f'{source}: not an ineid trajectory (expected "format": "{FORMAT}")')
         if int(d.get("version", 0)) > VERSION:
-            raise DatasetError(f"{source}: trajectory format version {d.get('version')} is newer than this ineid reads ({VERSION}); upgrade ineid")
+            raise DatasetError(
+                f"{source}: trajectory format version {d.get('version')} is newer than this ineid reads ({VERSION}); "
+                "upgrade ineid"
+            )
         try:
             return cls(
                 base_frequency=float(d["base_frequency"]),
@@ -249,15 +252,18 @@ def trajectory_csv_text(t, q, qd, qdd, comments: Sequence[str] = ()) -> str:
     return buf.getvalue()
 
 
-def write_trajectory_csv(path: str | Path, t, q, qd, qdd, comments: Sequence[str] = (), overwrite: bool = False) -> Path:
+def write_trajectory_csv(
+    path: str | Path, t, q, qd, qdd, comments: Sequence[str] = (), overwrite: bool = False
+) -> Path:
     """Write sampled states as ``time, q1..qn, qd1..qn, qdd1..qn`` (atomic)."""
     path = Path(path)
     _check_output(path, overwrite)
     return atomic_write(path, trajectory_csv_text(t, q, qd, qdd, comments))
 
 
-def write_trajectory_json(path: str | Path, trajectory: FourierTrajectory, extra: Mapping | None = None,
-                          overwrite: bool = False) -> Path:
+def write_trajectory_json(
+    path: str | Path, trajectory: FourierTrajectory, extra: Mapping | None = None, overwrite: bool = False
+) -> Path:
     """Write the coefficients (and ``extra`` JSON-able fields, e.g. the design record) atomically."""
     path = Path(path)
     _check_output(path, overwrite)
@@ -322,8 +328,12 @@ class SampledTrajectory:
 
     def describe(self) -> dict:
         """JSON-able provenance (what a dataset records in its sampling settings)."""
-        d = {"source": self.source, "n_frames": self.n_frames, "duration": float(self.time[-1] - self.time[0]),
-             "sha256": self.digest()}
+        d = {
+            "source": self.source,
+            "n_frames": self.n_frames,
+            "duration": float(self.time[-1] - self.time[0]),
+            "sha256": self.digest(),
+        }
         if self.fourier is not None:
             d["fourier"] = self.fourier.to_dict()
         return d
@@ -337,7 +347,7 @@ def read_trajectory_csv(path: str | Path) -> SampledTrajectory:
             strictly increasing, no rows.
     """
     path = Path(path)
-    from ineid.data.csv_import import read_csv_rows  # noqa: PLC0415
+    from ineid.data.csv_import import read_csv_rows
 
     numbered = read_csv_rows(path)
     if not numbered:
@@ -364,7 +374,9 @@ def read_trajectory_csv(path: str | Path) -> SampledTrajectory:
             try:
                 data[i, k] = float(row[c])
             except ValueError:
-                raise DatasetError(f"{path}: line {line}, column {required[k]!r}: {row[c].strip()!r} is not a number") from None
+                raise DatasetError(
+                    f"{path}: line {line}, column {required[k]!r}: {row[c].strip()!r} is not a number"
+                ) from None
     bad = ~np.isfinite(data)
     if bad.any():
         r, k = np.argwhere(bad)[0]
@@ -401,7 +413,9 @@ def load_trajectory(path: str | Path, rate: float | None = None, n_frames: int |
         q, qd, qdd = traj.evaluate(t)
         return SampledTrajectory(t, q, qd, qdd, source=path.name, joint_names=traj.joint_names, fourier=traj)
     if n_frames is not None:
-        raise DatasetError(f"{path}: the rows of a trajectory CSV are the frames; drop the frame count (or use its .json)")
+        raise DatasetError(
+            f"{path}: the rows of a trajectory CSV are the frames; drop the frame count (or use its .json)"
+        )
     sampled = read_trajectory_csv(path)
     names = _csv_joint_names(path)
     if names and len(names) == sampled.n_dof:
@@ -419,7 +433,7 @@ def _csv_joint_names(path: Path) -> tuple[str, ...]:
                     break
                 text = line.lstrip()[1:].strip()
                 if text.startswith("joints:"):
-                    rest = text[len("joints:"):].strip()
+                    rest = text[len("joints:") :].strip()
                     if not rest.startswith("["):
                         return tuple(n.strip() for n in rest.split(",") if n.strip())
                     names = parse_json(rest)
@@ -439,15 +453,21 @@ def check_trajectory_fits(trajectory: SampledTrajectory, model) -> None:
     """
     src = trajectory.source or "the trajectory"
     if trajectory.n_dof != model.n_dof:
-        raise DatasetError(f"{src} moves {trajectory.n_dof} joints, {model.name} has {model.n_dof}; "
-                           "design the trajectory for this robot (ineid excite)")
+        raise DatasetError(
+            f"{src} moves {trajectory.n_dof} joints, {model.name} has {model.n_dof}; "
+            "design the trajectory for this robot (ineid excite)"
+        )
     if trajectory.joint_names and tuple(trajectory.joint_names) != tuple(model.joint_names):
-        raise DatasetError(f"{src} is for joints {', '.join(trajectory.joint_names)}, {model.name} has "
-                           f"{', '.join(model.joint_names)}; design the trajectory for this robot (ineid excite)")
+        raise DatasetError(
+            f"{src} is for joints {', '.join(trajectory.joint_names)}, {model.name} has "
+            f"{', '.join(model.joint_names)}; design the trajectory for this robot (ineid excite)"
+        )
     lo, hi = np.asarray(model.q_lower, float), np.asarray(model.q_upper, float)
     tol = 1e-9 * (hi - lo)
     bad = np.flatnonzero(np.any((trajectory.q < lo - tol) | (trajectory.q > hi + tol), axis=0))
     if bad.size:
         j = int(bad[0])
-        raise DatasetError(f"{src}: joint {model.joint_names[j]!r} leaves its limits [{lo[j]:g}, {hi[j]:g}]; "
-                           "design the trajectory within the limits (ineid excite)")
+        raise DatasetError(
+            f"{src}: joint {model.joint_names[j]!r} leaves its limits [{lo[j]:g}, {hi[j]:g}]; "
+            "design the trajectory within the limits (ineid excite)"
+        )

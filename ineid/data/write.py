@@ -32,7 +32,7 @@ CHUNK_BYTES = 1 << 20
 
 
 def _string_array(values: Sequence[str]) -> np.ndarray:
-    import h5py  # noqa: PLC0415
+    import h5py
 
     return np.array(list(values), dtype=h5py.string_dtype())
 
@@ -103,7 +103,7 @@ class DatasetWriter:
         overwrite: bool = False,
         workers: int | None = None,
     ) -> None:
-        import h5py  # noqa: PLC0415
+        import h5py
 
         self.path = Path(path)
         if self.path.is_dir():
@@ -114,7 +114,9 @@ class DatasetWriter:
         self.meta = meta
         self.n_configs, self.n_frames = int(n_configs), int(n_frames)
         if self.n_configs < 1 or self.n_frames < 1:
-            raise DatasetError(f"a dataset needs at least one configuration and one frame, got {n_configs} x {n_frames}")
+            raise DatasetError(
+                f"a dataset needs at least one configuration and one frame, got {n_configs} x {n_frames}"
+            )
         self.shapes = expected_shapes(meta, self.n_configs, self.n_frames)
         unknown = [a for a in arrays if a not in self.shapes or a == "theta_known"]
         if unknown:
@@ -228,7 +230,7 @@ class DatasetWriter:
         self._pool.shutdown(wait=True, cancel_futures=True)
         try:
             self._file.close()
-        except Exception:  # noqa: BLE001 - the file is being discarded anyway
+        except Exception:  # the file is being discarded anyway
             pass
         with suppress(OSError):  # never hide the error that brought us here
             self._tmp.unlink(missing_ok=True)

@@ -72,7 +72,7 @@ def load_from_directory(
         UntrustedCodeError: a file fails a check (``reason`` says which); nothing was run.
         CodegenError: a verified module fails to import.
     """
-    from ineid._trust import Untrusted, verified  # noqa: PLC0415
+    from ineid._trust import Untrusted, verified
 
     directory = Path(directory)
     names = file_names(robot_name)
@@ -99,8 +99,8 @@ def load_sources(directory: str | Path, robot_name: str, sources: dict[str, byte
         module = importlib.util.module_from_spec(spec)
         module.__file__ = str(path)
         try:
-            exec(compile(sources[name], str(path), "exec", dont_inherit=True), module.__dict__)  # noqa: S102
-        except Exception as e:  # noqa: BLE001 - e.g. a module ineid generated from an unusable URDF
+            exec(compile(sources[name], str(path), "exec", dont_inherit=True), module.__dict__)
+        except Exception as e:  # e.g. a module ineid generated from an unusable URDF
             raise CodegenError(f"generated module {str(path)!r} fails to import ({e}); regenerate it") from None
         sys.modules[key] = module
         modules.append(module)

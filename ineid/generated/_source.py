@@ -14,8 +14,17 @@ import ast
 from ineid.errors import CodegenError
 
 _IMPORTS = {"jax": ("jax.numpy", "jnp"), "casadi": ("casadi", "ca")}
-_CONSTANTS = {"ROBOT", "N_DOF", "JOINT_NAMES", "LINK_NAMES", "JOINT_TYPES", "KINEMATIC_FINGERPRINT", "OP_COUNT",
-              "SHAPE", "NONZERO"}
+_CONSTANTS = {
+    "ROBOT",
+    "N_DOF",
+    "JOINT_NAMES",
+    "LINK_NAMES",
+    "JOINT_TYPES",
+    "KINEMATIC_FINGERPRINT",
+    "OP_COUNT",
+    "SHAPE",
+    "NONZERO",
+}
 _FUNCTIONS = {"program"}
 
 
@@ -49,8 +58,10 @@ def check_module_source(text: str, kind: str, where: str = "generated module") -
         if problem is None and name is not None and name in defined:
             problem = f"{name} is defined twice"
         if problem is not None:
-            raise CodegenError(f"{where} has an unexpected statement at line {node.lineno} ({problem}); "
-                               "it was not imported; regenerate it")
+            raise CodegenError(
+                f"{where} has an unexpected statement at line {node.lineno} ({problem}); "
+                "it was not imported; regenerate it"
+            )
         if name is not None:
             defined.add(name)
     missing = sorted((constants | functions) - defined)
@@ -78,8 +89,11 @@ def _constants_problem(values: dict[str, object]) -> str | None:
     if values["SHAPE"] != (6, 10 * n):
         return f"SHAPE = {values['SHAPE']!r}, not (6, {10 * n})"
     nz = values["NONZERO"]
-    ok = isinstance(nz, tuple) and len(nz) == 6 and all(
-        isinstance(row, tuple) and all(isinstance(c, int) and 0 <= c < 10 * n for c in row) for row in nz)
+    ok = (
+        isinstance(nz, tuple)
+        and len(nz) == 6
+        and all(isinstance(row, tuple) and all(isinstance(c, int) and 0 <= c < 10 * n for c in row) for row in nz)
+    )
     if not ok or not isinstance(values["OP_COUNT"], int):
         return "a NONZERO or OP_COUNT of the wrong shape"
     return None
@@ -93,8 +107,9 @@ def _defined_name(node: ast.stmt) -> str | None:
     return None
 
 
-def _problem(node: ast.stmt, index: int, kind: str, constants: set[str], functions: set[str],
-             values: dict[str, object]) -> str | None:
+def _problem(
+    node: ast.stmt, index: int, kind: str, constants: set[str], functions: set[str], values: dict[str, object]
+) -> str | None:
     """Why ``node`` may not be at the top level of a ``kind`` module, or None if it may."""
     if isinstance(node, ast.Expr):
         ok = index == 0 and isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)

@@ -58,7 +58,7 @@ class InformationBlocks:
         those axes have offsets and are centred (:meth:`ineid.channels.ChannelSet.offset_mask`);
         None: every axis.
         """
-        from ineid.identify.systems import Offsets  # noqa: PLC0415
+        from ineid.identify.systems import Offsets
 
         self._per_axis("centring")
         if self.s is None or self.t is None:
@@ -98,5 +98,14 @@ class InformationBlocks:
         def pick(a):
             return None if a is None else a[rows]
 
-        return InformationBlocks(self.G[rows], self.h[rows], self.e[rows], self.n_frames, pick(self.s), pick(self.t),
-                                 pick(self.w_ref), pick(self.y_ref), pick(self.axis_w))
+        return InformationBlocks(
+            self.G[rows],
+            self.h[rows],
+            self.e[rows],
+            self.n_frames,
+            pick(self.s),
+            pick(self.t),
+            pick(self.w_ref),
+            pick(self.y_ref),
+            pick(self.axis_w),
+        )

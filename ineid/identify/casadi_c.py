@@ -69,7 +69,7 @@ def compile_function(fn, compiler: str | None = None):
     Raises:
         CodegenError: no C compiler, or the compiler failed.
     """
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     cc = compiler or c_compiler()
     if cc is None:
@@ -94,8 +94,9 @@ def compile_function(fn, compiler: str | None = None):
                 log.info("compiled CasADi function %s found in %s", name, library)
                 return loaded
             except Untrusted as e:
-                log.warning("the cached compiled CasADi function %s in %s %s; compiling it again",
-                            name, folder, e.reason)
+                log.warning(
+                    "the cached compiled CasADi function %s in %s %s; compiling it again", name, folder, e.reason
+                )
         partial = create_temporary(library)
         cmd = [*shlex.split(cc), *CFLAGS, "-o", str(partial), str(source)]
         log.info("compiling CasADi function %s: %s", name, " ".join(cmd))
@@ -132,7 +133,7 @@ def _load_checked(name: str, library: Path, record: str):
     Raises:
         Untrusted: ownership, permissions or hash do not pass.
     """
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     hashes = recorded_hashes(library.parent, private=True, manifest=record)
     with opened(library, private=True) as (fd, data):
@@ -152,7 +153,7 @@ def _load_checked(name: str, library: Path, record: str):
 
 def _frame_blocks(model, base):
     """Per-frame ``(G (r x 6r), h (r x 6), e (1 x 6))`` of one frame as a CasADi ``Function``."""
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     n = model.n_dof
     q, qd, qdd = (ca.SX.sym(s, n) for s in ("q", "qd", "qdd"))
@@ -187,7 +188,7 @@ def _build_chunk_function(model, base, base_key: tuple, n_frames: int):
     per_config = frame.map(n_frames, [False, False, False, False, True], [True, True, True])
     per_chunk = per_config.map(CONFIGS_PER_CALL, [False, False, False, False, True], [False, False, False])
     tag = hashlib.sha256(f"{model.name}:{model.unknown_links}:{base_key}:{n_frames}".encode()).hexdigest()[:10]
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     args = [ca.MX.sym(s, *per_chunk.size_in(i)) for i, s in enumerate(("q", "qd", "qdd", "wrench", "theta_known"))]
     named = ca.Function(f"ineid_blocks_{tag}", args, per_chunk(*args))
@@ -199,7 +200,7 @@ def information_blocks_c(model, base, q, qd, qdd, wrench, theta_known, progress=
 
     Args and result as there: (C, F, n_dof) frames, (C, F, 6) wrench -> ``InformationBlocks``.
     """
-    from ineid.identify.fused import InformationBlocks  # noqa: PLC0415
+    from ineid.identify.fused import InformationBlocks
 
     q, qd, qdd, wrench = (np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench))
     c, f, n = q.shape

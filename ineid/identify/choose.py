@@ -67,33 +67,47 @@ def select_channels(channels: ChannelSet, use: Sequence[str] | None) -> ChannelS
     for name in use:
         if not any(name in channel_names(c) for c in channels):
             what = "joint torques" if name in ("torque", "tau", "joint_torque") else f"channel named {name!r}"
-            raise IdentificationError(f"--use {name}: this dataset has no {what} (it measures {have}); "
-                                      f"choose among {have}", status="unknown_channel")
+            raise IdentificationError(
+                f"--use {name}: this dataset has no {what} (it measures {have}); choose among {have}",
+                status="unknown_channel",
+            )
     return ChannelSet(tuple(c for c in channels if any(n in channel_names(c) for n in use)))
 
 
 def actuation_requested(settings) -> bool:
     """Whether ``settings`` (a :class:`ineid.identify.solve.SolveSettings`) asks for any actuation model."""
-    return bool(settings.friction or settings.armature or settings.torque_offset or settings.asymmetric_friction
-                or settings.coulomb_zone or settings.torque_constant_unknown)
+    return bool(
+        settings.friction
+        or settings.armature
+        or settings.torque_offset
+        or settings.asymmetric_friction
+        or settings.coulomb_zone
+        or settings.torque_constant_unknown
+    )
 
 
 def check_actuation(settings) -> None:
     """Refuse inconsistent actuation settings (``ValueError``, one line each)."""
     bad = [f for f in settings.friction if f not in FRICTION_MODELS]
     if bad or len(set(settings.friction)) != len(settings.friction):
-        raise ValueError(f"friction must be none or any of {', '.join(FRICTION_MODELS)} (each once), "
-                         f"got {','.join(settings.friction)}")
+        raise ValueError(
+            f"friction must be none or any of {', '.join(FRICTION_MODELS)} (each once), "
+            f"got {','.join(settings.friction)}"
+        )
     if not settings.coulomb_zone >= 0:
         raise ValueError(f"coulomb_zone must be >= 0 rad/s, got {settings.coulomb_zone}")
     if settings.coulomb_zone and "coulomb" not in settings.friction:
         raise ValueError("coulomb_zone smooths Coulomb friction: add friction 'coulomb' (--friction coulomb)")
     if settings.torque_constant_unknown and not settings.two_step:
-        raise ValueError("torque constants are identified in the second of two steps (the links from the wrench "
-                         "first): add --two-step")
+        raise ValueError(
+            "torque constants are identified in the second of two steps (the links from the wrench "
+            "first): add --two-step"
+        )
     if settings.asymmetric_friction and not settings.friction:
-        raise ValueError("asymmetric_friction splits the friction coefficients per direction: "
-                         "add a friction model (--friction viscous,coulomb)")
+        raise ValueError(
+            "asymmetric_friction splits the friction coefficients per direction: "
+            "add a friction model (--friction viscous,coulomb)"
+        )
 
 
 def with_actuation(channels: ChannelSet, settings) -> ChannelSet:
@@ -108,21 +122,32 @@ def with_actuation(channels: ChannelSet, settings) -> ChannelSet:
             raise IdentificationError(
                 f"--friction, --armature and --torque-offset model joint torques, and the channels fitted "
                 f"({', '.join(channels.keys)}) have none; fit a dataset with joint torques (--use torque) "
-                "or leave them out", status="no_torque_channel")
+                "or leave them out",
+                status="no_torque_channel",
+            )
         return channels
     currents = [c for c in actuated if _has_torque_constant(c)]
     if settings.torque_constant_unknown and not currents:
         raise IdentificationError(
             f"--torque-constant-unknown identifies motor currents' torque constants, and the channels fitted "
             f"({', '.join(channels.keys)}) have no motor currents: fit a dataset with currents (--use current) "
-            "or leave it out", status="no_current_channel")
+            "or leave it out",
+            status="no_current_channel",
+        )
     out = channels
     for c in actuated:
         k = {"identify_k": bool(settings.torque_constant_unknown)} if _has_torque_constant(c) else {}
-        out = out.replace(dataclasses.replace(
-            c, friction=tuple(f for f in FRICTION_MODELS if f in settings.friction),
-            coulomb_zone=float(settings.coulomb_zone), asymmetric=bool(settings.asymmetric_friction),
-            armature=bool(settings.armature), torque_offset=bool(settings.torque_offset), **k))
+        out = out.replace(
+            dataclasses.replace(
+                c,
+                friction=tuple(f for f in FRICTION_MODELS if f in settings.friction),
+                coulomb_zone=float(settings.coulomb_zone),
+                asymmetric=bool(settings.asymmetric_friction),
+                armature=bool(settings.armature),
+                torque_offset=bool(settings.torque_offset),
+                **k,
+            )
+        )
     return out
 
 
@@ -149,11 +174,17 @@ def solve_channels(ds, settings, model) -> ChannelSet:
         check_no_extra_columns(channels, model)
         (first, *rest) = channels
         if rest or not isinstance(first, BaseWrench):
-            raise IdentificationError(f"backend 'casadi-c' fits one base wrench; this dataset measures "
-                                      f"{channels.describe()}: use backend 'jax' or 'casadi'", status="unsupported")
+            raise IdentificationError(
+                f"backend 'casadi-c' fits one base wrench; this dataset measures "
+                f"{channels.describe()}: use backend 'jax' or 'casadi'",
+                status="unsupported",
+            )
         if first.transform() is not None:
-            raise IdentificationError("backend 'casadi-c' fits in the base frame only; this dataset's wrench is in a "
-                                      "sensor frame: use backend 'jax' or 'casadi'", status="unsupported")
+            raise IdentificationError(
+                "backend 'casadi-c' fits in the base frame only; this dataset's wrench is in a "
+                "sensor frame: use backend 'jax' or 'casadi'",
+                status="unsupported",
+            )
     return channels
 
 
@@ -164,7 +195,7 @@ def channels_named(names: Sequence[str] | None) -> ChannelSet:
     Raises:
         IdentificationError: a name that is neither, or joint torques this ineid has no channel for.
     """
-    from ineid.channels import channel_from_dict, channel_kinds  # noqa: PLC0415
+    from ineid.channels import channel_from_dict, channel_kinds
 
     out = []
     for name in names or ("wrench",):
@@ -173,10 +204,13 @@ def channels_named(names: Sequence[str] | None) -> ChannelSet:
         elif name in ("torque", "tau", "joint_torque") and "joint_torque" in channel_kinds():
             out.append(channel_from_dict({"kind": "joint_torque", "key": "tau"}))
         elif name in ("torque", "tau", "joint_torque"):
-            raise IdentificationError("this ineid has no joint-torque channel yet; use --use wrench",
-                                      status="unknown_channel")
+            raise IdentificationError(
+                "this ineid has no joint-torque channel yet; use --use wrench", status="unknown_channel"
+            )
         else:
-            raise IdentificationError(f"--use {name}: without --data the channels are wrench and torque; "
-                                      "choose among them (or analyse a dataset's channels with --data)",
-                                      status="unknown_channel")
+            raise IdentificationError(
+                f"--use {name}: without --data the channels are wrench and torque; "
+                "choose among them (or analyse a dataset's channels with --data)",
+                status="unknown_channel",
+            )
     return ChannelSet(tuple(dict.fromkeys(out)))

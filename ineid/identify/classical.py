@@ -90,8 +90,9 @@ def _box_system(fit: BaseFit, base: BaseParameters) -> tuple[np.ndarray, np.ndar
     return a, b
 
 
-def lsqlin_theta(fit: BaseFit, base: BaseParameters, bounds: tuple[np.ndarray, np.ndarray] | None = None,
-                 progress=None) -> tuple[np.ndarray, np.ndarray]:
+def lsqlin_theta(
+    fit: BaseFit, base: BaseParameters, bounds: tuple[np.ndarray, np.ndarray] | None = None, progress=None
+) -> tuple[np.ndarray, np.ndarray]:
     """The paper's linear least squares over every standard parameter: ``theta`` (C, n) and ``status`` (C,).
 
     Without ``bounds``: ``theta = B^+ beta_hat``, the minimum-norm solution (module doc), one
@@ -104,14 +105,15 @@ def lsqlin_theta(fit: BaseFit, base: BaseParameters, bounds: tuple[np.ndarray, n
     status[~fit.full_rank] = "rank_deficient"
     theta = np.nan_to_num(fit.beta) @ np.linalg.pinv(base.B).T
     if bounds is not None:
-        from scipy.optimize import lsq_linear  # noqa: PLC0415
+        from scipy.optimize import lsq_linear
 
         lb, ub = (np.asarray(v, dtype=np.float64) for v in bounds)
         a, b = _box_system(fit, base)
         for i in range(c):
             if fit.full_rank[i]:
-                sol = lsq_linear(a[i], b[i], bounds=(lb, ub), method="trf", lsq_solver="exact", tol=1e-13,
-                                 max_iter=1000)
+                sol = lsq_linear(
+                    a[i], b[i], bounds=(lb, ub), method="trf", lsq_solver="exact", tol=1e-13, max_iter=1000
+                )
                 theta[i] = np.clip(sol.x, lb, ub)
                 if sol.status <= 0:  # -1: failed; 0: max_iter reached
                     status[i] = f"lsqlin: {sol.message}"
@@ -175,8 +177,9 @@ def theta_jacobian(x: np.ndarray, n_links: int) -> np.ndarray:
         for j, (a, b) in enumerate(_PAIRS):
             row = o + 4 + j
             jac[..., row, o] = (a == b) * cc - c[..., a] * c[..., b]
-            jac[..., row, o + 1 : o + 4] = m[..., None] * (2 * c * (a == b) - eye3[a] * c[..., b, None]
-                                                           - c[..., a, None] * eye3[b])
+            jac[..., row, o + 1 : o + 4] = m[..., None] * (
+                2 * c * (a == b) - eye3[a] * c[..., b, None] - c[..., a, None] * eye3[b]
+            )
     return jac
 
 
@@ -218,8 +221,9 @@ def _tr_step(uf, s, v, delta, alpha, m: int, n: int, rtol: float = 0.01, max_ite
     return np.where(gn[:, None], p_gn, p), np.where(gn, 0.0, alpha)
 
 
-def trf(a: np.ndarray, b: np.ndarray, x0: np.ndarray, n_links: int, tol: float = LSQNONLIN_TOL,
-        max_nfev: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def trf(
+    a: np.ndarray, b: np.ndarray, x0: np.ndarray, n_links: int, tol: float = LSQNONLIN_TOL, max_nfev: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``min_x ||a theta(x) - b||^2`` for a batch of problems by scipy's trust-region reflective method without
     bounds (``least_squares(method="trf", x_scale=1.0, tr_solver="exact")``: ``trf_no_bounds``), step for step.
 
@@ -282,10 +286,16 @@ def trf(a: np.ndarray, b: np.ndarray, x0: np.ndarray, n_links: int, tol: float =
         finite = np.all(np.isfinite(f_new), axis=1)
         cost_new = 0.5 * np.einsum("cm,cm->c", f_new, f_new)
         reduction = np.where(finite, cost[idx] - cost_new, -1.0)
-        ratio = np.where(predicted > 0, reduction / np.where(predicted > 0, predicted, 1.0),
-                         np.where((predicted == 0) & (reduction == 0), 1.0, 0.0))
-        delta_new = np.where(ratio < 0.25, 0.25 * step_norm,
-                             np.where((ratio > 0.75) & (step_norm > 0.95 * delta[idx]), 2.0 * delta[idx], delta[idx]))
+        ratio = np.where(
+            predicted > 0,
+            reduction / np.where(predicted > 0, predicted, 1.0),
+            np.where((predicted == 0) & (reduction == 0), 1.0, 0.0),
+        )
+        delta_new = np.where(
+            ratio < 0.25,
+            0.25 * step_norm,
+            np.where((ratio > 0.75) & (step_norm > 0.95 * delta[idx]), 2.0 * delta[idx], delta[idx]),
+        )
         ftol_ok = (reduction < tol * cost[idx]) & (ratio > 0.25)
         xtol_ok = step_norm < tol * (tol + np.linalg.norm(x[idx], axis=1))
         term = np.where(ftol_ok & xtol_ok, 4, np.where(ftol_ok, 2, np.where(xtol_ok, 3, 0))) * finite
@@ -334,14 +344,21 @@ def lsqnonlin_theta(fit: BaseFit, base: BaseParameters, start: np.ndarray, progr
         if progress is not None:
             progress(c, c)
     elif engine == "scipy":
-        from scipy.optimize import least_squares  # noqa: PLC0415
+        from scipy.optimize import least_squares
 
         for i in range(c):
             if run[i]:
                 ai, bi = a[i], b[i]
-                sol = least_squares(lambda x, ai=ai, bi=bi: ai @ theta_from_x(x, n_links) - bi, x0[i],
-                                    jac=lambda x, ai=ai: ai @ theta_jacobian(x, n_links), method="trf",
-                                    ftol=LSQNONLIN_TOL, xtol=LSQNONLIN_TOL, gtol=LSQNONLIN_TOL, max_nfev=max_nfev)
+                sol = least_squares(
+                    lambda x, ai=ai, bi=bi: ai @ theta_from_x(x, n_links) - bi,
+                    x0[i],
+                    jac=lambda x, ai=ai: ai @ theta_jacobian(x, n_links),
+                    method="trf",
+                    ftol=LSQNONLIN_TOL,
+                    xtol=LSQNONLIN_TOL,
+                    gtol=LSQNONLIN_TOL,
+                    max_nfev=max_nfev,
+                )
                 x[i], code[i], nfev[i] = sol.x, sol.status, sol.nfev
             if progress is not None:
                 progress(i + 1, c)
@@ -354,8 +371,9 @@ def lsqnonlin_theta(fit: BaseFit, base: BaseParameters, start: np.ndarray, progr
     return theta, success, status.astype(object), nfev
 
 
-def classical_estimate(settings, fit: BaseFit, base: BaseParameters, prior: np.ndarray,
-                       progress=None) -> tuple[Estimate, np.ndarray]:
+def classical_estimate(
+    settings, fit: BaseFit, base: BaseParameters, prior: np.ndarray, progress=None
+) -> tuple[Estimate, np.ndarray]:
     """The :class:`ineid.identify.linear.Estimate` of ``settings.method`` (``lsqlin`` or ``lsqnonlin``) and the
     seconds each configuration took (C,).
 
@@ -369,8 +387,11 @@ def classical_estimate(settings, fit: BaseFit, base: BaseParameters, prior: np.n
         theta, status = lsqlin_theta(fit, base, bounds, progress)
         success = fit.full_rank & (status == "ok")
     elif settings.method == "lsqnonlin":
-        start = prior if settings.start == "prior" else np.where(fit.full_rank[:, None], linear_theta(fit, base, prior),
-                                                                 prior)
+        start = (
+            prior
+            if settings.start == "prior"
+            else np.where(fit.full_rank[:, None], linear_theta(fit, base, prior), prior)
+        )
         theta, success, status, _ = lsqnonlin_theta(fit, base, start, progress)
     else:
         raise ValueError(f"method must be one of {', '.join(CLASSICAL_METHODS)}, got {settings.method!r}")

@@ -48,8 +48,8 @@ def estimate_delay(streams, model, settings, max_delay: float = MAX_DELAY) -> De
         DatasetError: as :func:`ineid.data.recording.recording_dataset`, or a recording too
             short for the search range.
     """
-    from scipy.interpolate import make_interp_spline  # noqa: PLC0415
-    from scipy.optimize import minimize_scalar  # noqa: PLC0415
+    from scipy.interpolate import make_interp_spline
+    from scipy.optimize import minimize_scalar
 
     if not (max_delay > 0 and np.isfinite(max_delay)):
         raise DatasetError(f"the delay search range must be a positive number of seconds, got {max_delay}")
@@ -58,8 +58,9 @@ def estimate_delay(streams, model, settings, max_delay: float = MAX_DELAY) -> De
     # the wrench stream as recording_dataset filters it, on its own uniform grid, as a spline
     tw = np.asarray(streams.wrench_time, dtype=np.float64)
     hw = signals.median_interval(tw, f"{streams.source}: the wrench stream")
-    tw_u, w_u = signals.to_uniform(tw, np.asarray(streams.wrench, dtype=np.float64)
-                                   * (-1.0 if settings.flip_wrench else 1.0), hw)
+    tw_u, w_u = signals.to_uniform(
+        tw, np.asarray(streams.wrench, dtype=np.float64) * (-1.0 if settings.flip_wrench else 1.0), hw
+    )
     edge = 0.0
     if summary.cutoff is not None:
         w_u = signals.LowPass(summary.cutoff, 1.0 / hw).apply(w_u)
@@ -67,13 +68,22 @@ def estimate_delay(streams, model, settings, max_delay: float = MAX_DELAY) -> De
     keep = (t - max_delay >= tw_u[0] + edge) & (t + max_delay <= tw_u[-1] - edge)
     base = base_parameters(model, bias=True)
     if keep.sum() < 2 * base.rank:
-        raise DatasetError(f"{streams.source}: {keep.sum()} frames remain for a delay search over +-{max_delay:g} s; "
-                           "record longer or give --delay")
+        raise DatasetError(
+            f"{streams.source}: {keep.sum()} frames remain for a delay search over +-{max_delay:g} s; "
+            "record longer or give --delay"
+        )
     spline = make_interp_spline(tw_u, w_u, k=3, axis=0)
     t = t[keep]
     # a recording's one channel: the base wrench, in its sensor's frame
-    w, y0 = stack(model, ds.q[:, keep], ds.qd[:, keep], ds.qdd[:, keep], np.zeros((1, len(t), 6)), ds.theta_known,
-                  ds.meta.channels)
+    w, y0 = stack(
+        model,
+        ds.q[:, keep],
+        ds.qd[:, keep],
+        ds.qdd[:, keep],
+        np.zeros((1, len(t), 6)),
+        ds.theta_known,
+        ds.meta.channels,
+    )
     wc, _, _ = remove_offsets(w, np.zeros_like(y0))
     scale = spline(t).std(axis=0)
     scale = np.where(scale > 0, scale, 1.0)

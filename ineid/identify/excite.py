@@ -14,7 +14,8 @@ nothing below depends on units. With ``bias=True`` (``ineid solve --bias estimat
 constant sensor offsets identified jointly) the samples are centred per axis,
 ``Phi_k - mean_j Phi_j``, which profiles the offsets out exactly, and the base parameters
 are those of the centred regressor (:func:`ineid.identify.base_parameters` with ``bias``);
-the gradient needs no extra term, since the centred rows sum to zero. With ``M = (1/N) sum_k Phi_k^T Phi_k`` (the information
+the gradient needs no extra term, since the centred rows sum to zero. With ``M = (1/N) sum_k Phi_k^T Phi_k`` (the
+information
 per sample) the criteria are
 
     d-opt:  f = -log det M                (D-optimality; the volume of the confidence ellipsoid)
@@ -296,9 +297,20 @@ def design_excitation(
     """
     s = settings
     duration, harmonics, base_frequency, criterion, starts, rate = (
-        s.duration, s.harmonics, s.base_frequency, s.criterion, s.starts, s.rate)
+        s.duration,
+        s.harmonics,
+        s.base_frequency,
+        s.criterion,
+        s.starts,
+        s.rate,
+    )
     margin, velocity_scale, acceleration_scale, bias, seed = (
-        s.margin, s.velocity_scale, s.acceleration_scale, s.bias, s.seed)
+        s.margin,
+        s.velocity_scale,
+        s.acceleration_scale,
+        s.bias,
+        s.seed,
+    )
     design_points, constraint_points, max_iter, tol = s.design_points, s.constraint_points, s.max_iter, s.tol
     t_start = time.perf_counter()
     if criterion not in CRITERIA:
@@ -328,7 +340,8 @@ def design_excitation(
     n_rate = whole_count(duration * rate)
     if n_rate is None:
         raise ExcitationError(
-            f"duration {duration:g} s is not a whole number of samples at {rate:g} Hz; choose a multiple of {1 / rate:g} s",
+            f"duration {duration:g} s is not a whole number of samples at {rate:g} Hz; choose a multiple of "
+            f"{1 / rate:g} s",
             reason="duration",
         )
     if n_rate > MAX_SAMPLES:
@@ -339,7 +352,8 @@ def design_excitation(
         )
     if harmonics * f0 >= rate / 2.0:
         raise ExcitationError(
-            f"the highest harmonic ({harmonics} x {f0:g} Hz = {harmonics * f0:g} Hz) is at or above half the sample rate "
+            f"the highest harmonic ({harmonics} x {f0:g} Hz = {harmonics * f0:g} Hz) is at or above half the sample "
+            "rate "
             f"({rate:g} Hz): the duration is too short for {harmonics} harmonics; lengthen --duration (or lower "
             "--base-frequency), use fewer --harmonics, or raise --rate",
             reason="duration",
@@ -366,16 +380,28 @@ def design_excitation(
     safety = None
     pairs = CollisionPairs(model, bounds.qd_max) if s.self_collision else None
     if limits.active or (pairs is not None and pairs.n):
-        safety = SafetyConstraints(model, limits, bounds.qd_max, bounds.qdd_max, f0, harmonics, problem.rest,
-                                   problem.mid, problem.half, problem.v_scale, pairs)
+        safety = SafetyConstraints(
+            model,
+            limits,
+            bounds.qd_max,
+            bounds.qdd_max,
+            f0,
+            harmonics,
+            problem.rest,
+            problem.mid,
+            problem.half,
+            problem.v_scale,
+            pairs,
+        )
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 12]))
     x0s = [problem.random_start(rng) for _ in range(starts)]
     t_compile = time.perf_counter()
     problem.gradient(x0s[0])  # the first call of the compiled regressor and its derivatives
     compile_seconds = time.perf_counter() - t_compile
     if s.sensors is not None:  # the state errors' noise, once, on the first start: IPOPT's objective stays as is
-        weights = state_errors(model, s.sensors, problem.trajectory(x0s[0], duration, model.joint_names), rate, sigma,
-                               base.channels, seed)
+        weights = state_errors(
+            model, s.sensors, problem.trajectory(x0s[0], duration, model.joint_names), rate, sigma, base.channels, seed
+        )
         problem.reweigh(weights.sigma)
 
     solver, _keep, bnds = _ipopt_solver(problem, max_iter, tol, safety)
@@ -403,8 +429,7 @@ def design_excitation(
                     status = f"unsafe ({status})"
                 x = safe
             f = problem.value(x) if x is not None else math.inf
-            records.append(StartRecord(f_start, f, status, int(stats.get("iter_count", 0)),
-                                       time.perf_counter() - t0))
+            records.append(StartRecord(f_start, f, status, int(stats.get("iter_count", 0)), time.perf_counter() - t0))
             if x is not None and f < best_f:
                 best_x, best_f = x, f
         if progress is not None:
@@ -413,15 +438,20 @@ def design_excitation(
         raise ExcitationError(
             f"IPOPT found no design that keeps every bound: {unsafe[1]} stays violated (by {-unsafe[0]:.3g} m "
             "on the grid, margin between samples included); "
-            + ("pass --no-self-collision if those shapes are too coarse" if unsafe[1].endswith("self-collision")
-               else "relax that bound") + ", or lower --velocity-scale and --acceleration-scale (smaller motions), "
+            + (
+                "pass --no-self-collision if those shapes are too coarse"
+                if unsafe[1].endswith("self-collision")
+                else "relax that bound"
+            )
+            + ", or lower --velocity-scale and --acceleration-scale (smaller motions), "
             "or try more --starts",
             reason="infeasible_workspace",
         )
     if best_x is None:
         raise ExcitationError(
             f"every random start leaves base parameters undetermined (the information matrix of the "
-            f"{base.rank} base parameters is singular); widen the bounds (--margin), add --harmonics or lengthen --duration",
+            f"{base.rank} base parameters is singular); widen the bounds (--margin), add --harmonics or lengthen "
+            "--duration",
             reason="rank_deficient",
         )
     names = model.joint_names
@@ -432,8 +462,9 @@ def design_excitation(
     sig_opt = sig_rnd = sigma
     states = None
     if s.sensors is not None:  # each trajectory's own state errors
-        st_opt, st_rnd = (state_errors(model, s.sensors, tr, rate, sigma, base.channels, seed)
-                          for tr in (traj, random_traj))
+        st_opt, st_rnd = (
+            state_errors(model, s.sensors, tr, rate, sigma, base.channels, seed) for tr in (traj, random_traj)
+        )
         sig_opt, sig_rnd = st_opt.sigma, st_rnd.sigma
         states = states_record(s.sensors, weights, st_opt, st_rnd)
     _, q, qd, qdd = traj.sample(rate)
@@ -449,17 +480,40 @@ def design_excitation(
     safety_record = None if pairs is None else dict(limits.to_dict(), self_collision=pairs.describe())
     if safety is not None:
         # check the written samples themselves, and a grid ten times denser, against the bounds (no margins)
-        safety_record = dict(safety.describe(), samples=verify(safety, q),
-                             dense=verify(safety, traj.evaluate(np.linspace(0.0, 1.0 / f0, 10 * n_rate // periods + 1))[0]))
+        safety_record = dict(
+            safety.describe(),
+            samples=verify(safety, q),
+            dense=verify(safety, traj.evaluate(np.linspace(0.0, 1.0 / f0, 10 * n_rate // periods + 1))[0]),
+        )
         if min(safety_record["samples"]["min_clearance"], safety_record["dense"]["min_clearance"]) < 0:
             raise ExcitationError(  # the guarantee of excite_safety failed: never write such a design
                 f"the design breaks {safety_record['dense']['constraint']}; please report this; meanwhile "
-                "give the bound more room", reason="infeasible_workspace")
-    record = dict(s.to_dict(), base_frequency=f0, design_points=design_points, constraint_points=constraint_points,
-                  unknown_links=list(model.unknown_links), robot=model.name)
+                "give the bound more room",
+                reason="infeasible_workspace",
+            )
+    record = dict(
+        s.to_dict(),
+        base_frequency=f0,
+        design_points=design_points,
+        constraint_points=constraint_points,
+        unknown_links=list(model.unknown_links),
+        robot=model.name,
+    )
     return ExcitationResult(
-        trajectory=traj, criterion=criterion, value=best_f, optimized=optimized, random=random,
-        random_trajectory=random_traj, base=base, sigma=sigma, bounds=bounds, rate=float(rate), starts=records,
-        seconds=time.perf_counter() - t_start, compile_seconds=compile_seconds, settings=record,
-        safety=safety_record, states=states,
+        trajectory=traj,
+        criterion=criterion,
+        value=best_f,
+        optimized=optimized,
+        random=random,
+        random_trajectory=random_traj,
+        base=base,
+        sigma=sigma,
+        bounds=bounds,
+        rate=float(rate),
+        starts=records,
+        seconds=time.perf_counter() - t_start,
+        compile_seconds=compile_seconds,
+        settings=record,
+        safety=safety_record,
+        states=states,
     )

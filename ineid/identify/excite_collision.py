@@ -32,24 +32,30 @@ class CollisionPairs:
     """
 
     def __init__(self, model, qd_max) -> None:
-        from ineid.robots.collision import body_capsules  # noqa: PLC0415
-        from ineid.robots.kinematics import reach  # noqa: PLC0415
+        from ineid.robots.collision import body_capsules
+        from ineid.robots.kinematics import reach
 
         self.chain = model.chain
         found = body_capsules(model.urdf_text, self.chain, model.urdf_path, model.locked_joints)
         self.capsules, self.notes = found.capsules, list(found.notes)
         caps = self.capsules
         n = self.chain.n_dof
-        mid = 0.5 * (np.array([j.q_lower for j in self.chain.joints]) + np.array([j.q_upper for j in self.chain.joints]))
-        pairs = [(i, k) for i, k in product(range(len(caps)), repeat=2) if i < k and abs(caps[i].link - caps[k].link) >= 2]
+        mid = 0.5 * (
+            np.array([j.q_lower for j in self.chain.joints]) + np.array([j.q_upper for j in self.chain.joints])
+        )
+        pairs = [
+            (i, k) for i, k in product(range(len(caps)), repeat=2) if i < k and abs(caps[i].link - caps[k].link) >= 2
+        ]
         self.pairs = np.zeros((0, 2), dtype=int)
         if pairs:
             clear = self._clearance(mid[None, :], np.array(pairs))[0][0]
-            for (i, k), c in zip(pairs, clear):
+            for (i, k), c in zip(pairs, clear, strict=True):
                 if c <= 0:
-                    self.notes.append(f"{caps[i].name!r} and {caps[k].name!r} overlap at the middle of the joint "
-                                      "ranges (bounding shapes too coarse): not checked")
-            self.pairs = np.array([p for p, c in zip(pairs, clear) if c > 0], dtype=int).reshape(-1, 2)
+                    self.notes.append(
+                        f"{caps[i].name!r} and {caps[k].name!r} overlap at the middle of the joint "
+                        "ranges (bounding shapes too coarse): not checked"
+                    )
+            self.pairs = np.array([p for p, c in zip(pairs, clear, strict=True) if c > 0], dtype=int).reshape(-1, 2)
         w = np.asarray(qd_max, dtype=np.float64)
         origin_reach = reach(self.chain)  # (n, n)
         revolute = np.array([j.type == "revolute" for j in self.chain.joints])
@@ -72,7 +78,7 @@ class CollisionPairs:
 
     def _segments(self, q: np.ndarray, idx: np.ndarray):
         """Segment ends (T, len(idx), 3) twice, base frame, of capsules ``idx`` at ``q`` (T, n_dof)."""
-        from ineid.robots.kinematics import link_poses  # noqa: PLC0415
+        from ineid.robots.kinematics import link_poses
 
         r, p = link_poses(self.chain, q)
         ends = []
@@ -86,7 +92,7 @@ class CollisionPairs:
         return ends
 
     def _clearance(self, q: np.ndarray, pairs: np.ndarray, closest: bool = False):
-        from ineid.robots.collision import segment_distance  # noqa: PLC0415
+        from ineid.robots.collision import segment_distance
 
         a1, b1 = self._segments(q, pairs[:, 0])
         a2, b2 = self._segments(q, pairs[:, 1])
@@ -100,7 +106,7 @@ class CollisionPairs:
 
     def gradient(self, q: np.ndarray) -> np.ndarray:
         """(T, C, n_dof) ``d clearance / d q``: the unit vector between the closest points along their Jacobians."""
-        from ineid.robots.kinematics import point_jacobians  # noqa: PLC0415
+        from ineid.robots.kinematics import point_jacobians
 
         _, c1, c2 = self._clearance(q, self.pairs, closest=True)
         diff = c1 - c2
@@ -112,5 +118,8 @@ class CollisionPairs:
         return np.einsum("tci,tcij->tcj", unit, j1 - j2)
 
     def describe(self) -> dict:
-        return {"pairs": self.labels(), "capsules": [{"body": c.name, "shape": c.shape, "radius": c.radius}
-                                                     for c in self.capsules], "notes": self.notes}
+        return {
+            "pairs": self.labels(),
+            "capsules": [{"body": c.name, "shape": c.shape, "radius": c.radius} for c in self.capsules],
+            "notes": self.notes,
+        }

@@ -120,8 +120,11 @@ def design_noise(noise: NoiseModel | None = None, channels: ChannelSet | None = 
                 sigma = np.broadcast_to(np.asarray(given, dtype=np.float64), (n_a,))
             what = f"the noise of channel {c.key!r} ({c.key}=STD)"
         if sigma.shape != (c.n_axes(model),) or not np.all(sigma > 0):
-            raise ExcitationError(f"the design needs a positive noise on every axis of channel {c.key!r}, got "
-                                  f"{np.asarray(sigma).tolist()}; give {what}", reason="noise")
+            raise ExcitationError(
+                f"the design needs a positive noise on every axis of channel {c.key!r}, got "
+                f"{np.asarray(sigma).tolist()}; give {what}",
+                reason="noise",
+            )
         parts.append(sigma)
     return np.concatenate(parts)
 
@@ -196,8 +199,14 @@ class DesignEvaluation:
         return self.d_opt if name == "d-opt" else math.log(self.condition_number)
 
     def to_dict(self) -> dict:
-        return {"n_samples": self.n_samples, "d_opt": self.d_opt, "condition_number": self.condition_number,
-                "rank": self.rank, "std": self.std.tolist(), "rel_std": self.rel_std.tolist()}
+        return {
+            "n_samples": self.n_samples,
+            "d_opt": self.d_opt,
+            "condition_number": self.condition_number,
+            "rank": self.rank,
+            "std": self.std.tolist(),
+            "rel_std": self.rel_std.tolist(),
+        }
 
 
 def evaluate_design(model, q, qd, qdd, base: DesignBase, sigma: np.ndarray) -> DesignEvaluation:
@@ -235,8 +244,8 @@ def _regressor_jet(jax_regressor):
     for 160 samples; the reverse-mode pull-back (``jax.vjp``) compiled in 47 s and ran in
     54 ms (both under the same load).
     """
-    import jax  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax
+    import jax.numpy as jnp
 
     def jet(q, qd, qdd, gravity):
         n = q.shape[-1]
@@ -258,15 +267,16 @@ def _design_rows(rows, extra):
         return rows
 
     def both(q, qd, qdd, gravity):
-        import jax.numpy as jnp  # noqa: PLC0415
+        import jax.numpy as jnp
 
         return jnp.concatenate([rows(q, qd, qdd, gravity), extra(q, qd, qdd)], axis=-1)
 
     return both
 
 
-def regressor_and_derivatives(model, q, qd, qdd, chunk: int = DEFAULT_CHUNK, derivatives: bool = True,
-                               channels: ChannelSet | None = None):
+def regressor_and_derivatives(
+    model, q, qd, qdd, chunk: int = DEFAULT_CHUNK, derivatives: bool = True, channels: ChannelSet | None = None
+):
     """The channels' rows ``Psi = [T Phi | E](q_k, qd_k, qdd_k)`` (F, A, 10 n_links + n_extra) and, with
     ``derivatives``, ``dPsi`` (3 n_dof, F, A, 10 n_links + n_extra); ``channels`` default the base wrench
     (``A = 6``, no extra columns). ``E`` (friction, armature, offsets) in the channels' own axes.

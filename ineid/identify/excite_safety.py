@@ -99,21 +99,24 @@ def check_limits(model, limits: SafetyLimits) -> None:
             when the first joint is revolute (it never moves), or every place a point can
             reach (a ball about the first joint's origin of radius its reach).
     """
-    from ineid.robots.kinematics import reach, welded_frames  # noqa: PLC0415
+    from ineid.robots.kinematics import reach, welded_frames
 
     if limits.floor is not None and not math.isfinite(limits.floor):
         raise ExcitationError(f"--floor must be a finite height in m, got {limits.floor!r}", reason="workspace")
     if limits.workspace is not None:
         box = limits.workspace
         if len(box) != 6 or not all(math.isfinite(v) for v in box):
-            raise ExcitationError("--workspace takes six finite numbers XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX (m, base frame)",
-                                  reason="workspace")
+            raise ExcitationError(
+                "--workspace takes six finite numbers XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX (m, base frame)", reason="workspace"
+            )
         for a in range(3):
             if not box[2 * a] < box[2 * a + 1]:
                 c = _AXES[a].upper()
                 raise ExcitationError(
                     f"--workspace: {c}MIN {box[2 * a]:g} is not below {c}MAX {box[2 * a + 1]:g}; give "
-                    "XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX with each minimum below its maximum", reason="workspace")
+                    "XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX with each minimum below its maximum",
+                    reason="workspace",
+                )
     chain = model.chain
     welded = welded_frames(model.urdf_text, chain, model.locked_joints)
     names = [*model.link_names, *welded.names]
@@ -126,7 +129,8 @@ def check_limits(model, limits: SafetyLimits) -> None:
                 f"{label} excludes the origin of link {names[0]!r}, fixed at {_AXES[axis]} = {o1[axis]:.4g} m by joint "
                 f"{first.name!r} (the mount; base frame, origin at the base link): "
                 f"{'lower --floor' if label.startswith('--floor') else 'widen the --workspace box'} to include it",
-                reason="workspace")
+                reason="workspace",
+            )
         reach_max = sign * (o1[axis] - bound) + radius
         worst = int(np.argmin(reach_max))
         if reach_max[worst] < 0:
@@ -134,7 +138,8 @@ def check_limits(model, limits: SafetyLimits) -> None:
                 f"{label} excludes everywhere link frame {names[worst]!r} can reach ({_AXES[axis]} within "
                 f"{o1[axis]:.4g} +- {radius[worst]:.4g} m of joint {first.name!r}'s origin, base frame); "
                 f"{'lower --floor' if label.startswith('--floor') else 'widen the --workspace box'}",
-                reason="workspace")
+                reason="workspace",
+            )
 
 
 class SafetyConstraints:
@@ -152,10 +157,22 @@ class SafetyConstraints:
         pairs: the capsule pairs kept apart, or None.
     """
 
-    def __init__(self, model, limits: SafetyLimits, qd_max, qdd_max, f0: float, harmonics: int, rest,
-                 mid, half, v_scale, pairs=None) -> None:
-        from ineid.data.trajectory import state_matrices  # noqa: PLC0415
-        from ineid.robots.kinematics import reach, welded_frames  # noqa: PLC0415
+    def __init__(
+        self,
+        model,
+        limits: SafetyLimits,
+        qd_max,
+        qdd_max,
+        f0: float,
+        harmonics: int,
+        rest,
+        mid,
+        half,
+        v_scale,
+        pairs=None,
+    ) -> None:
+        from ineid.data.trajectory import state_matrices
+        from ineid.robots.kinematics import reach, welded_frames
 
         self.model, self.limits, self.chain = model, limits, model.chain
         self.pairs = pairs if pairs is not None and pairs.n else None
@@ -165,8 +182,9 @@ class SafetyConstraints:
         self.spaces = limits.half_spaces()
         self.names = (*model.link_names, *self.welded.names) if self.spaces else ()
         self.point_link = np.r_[np.arange(n), self.welded.link].astype(int)[: len(self.names)]
-        self.accel = acceleration_bounds(self.chain, reach(self.chain, self.welded)[: len(self.names)],
-                                         self.point_link, qd_max, qdd_max)
+        self.accel = acceleration_bounds(
+            self.chain, reach(self.chain, self.welded)[: len(self.names)], self.point_link, qd_max, qdd_max
+        )
         period = 1.0 / f0
         grid = math.ceil(period * math.sqrt(max(self.accel.max(initial=0.0), 0.0) / (8.0 * STEP_TOLERANCE)))
         if self.pairs is not None:
@@ -201,7 +219,7 @@ class SafetyConstraints:
     def clearances(self, q: np.ndarray) -> np.ndarray:
         """(T, C) every row's clearance at ``q`` (T, n_dof), m, no margins: ``sign * (p[axis] - bound)``
         of each point and half-space, then each capsule pair's gap."""
-        from ineid.robots.kinematics import frame_points  # noqa: PLC0415
+        from ineid.robots.kinematics import frame_points
 
         q = np.atleast_2d(q)
         parts = []
@@ -240,7 +258,7 @@ class SafetyConstraints:
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
         """(C, n_dof (2H - 1)) the exact derivative of :meth:`values` (where the closest points are unique)."""
-        from ineid.robots.kinematics import frame_points, point_jacobians  # noqa: PLC0415
+        from ineid.robots.kinematics import frame_points, point_jacobians
 
         q, _, _, w = self._evaluate(x)
         parts = []
@@ -259,15 +277,24 @@ class SafetyConstraints:
 
     def describe(self) -> dict:
         """The settings and guarantees, JSON-able (recorded in the design)."""
-        out = dict(self.limits.to_dict(), points=list(self.names), grid_points_per_period=self.grid,
-                   margin_between_samples=self.margin.tolist(), acceleration_bound=self.accel.tolist())
-        out["self_collision"] = None if self._asked is None else dict(
-            self._asked.describe(), margin_between_samples=self.pair_margin.tolist())
+        out = dict(
+            self.limits.to_dict(),
+            points=list(self.names),
+            grid_points_per_period=self.grid,
+            margin_between_samples=self.margin.tolist(),
+            acceleration_bound=self.accel.tolist(),
+        )
+        out["self_collision"] = (
+            None
+            if self._asked is None
+            else dict(self._asked.describe(), margin_between_samples=self.pair_margin.tolist())
+        )
         return out
 
 
 def acceleration_bounds(chain, reach_m: np.ndarray, point_link: np.ndarray, qd_max, qdd_max) -> np.ndarray:
-    """(P,) bounds of ``|p_P''|`` (m/s^2) over every motion within ``|qd| <= qd_max``, ``|qdd| <= qdd_max`` (module doc)."""
+    """(P,) bounds of ``|p_P''|`` (m/s^2) over every motion within ``|qd| <= qd_max``, ``|qdd| <= qdd_max`` (module
+    doc)."""
     w, a = np.asarray(qd_max, float), np.asarray(qdd_max, float)
     revolute = np.array([j.type == "revolute" for j in chain.joints])
     omega_before = np.concatenate([[0.0], np.cumsum(np.where(revolute, w, 0.0))[:-1]])
@@ -307,7 +334,7 @@ def make_safe(safety: SafetyConstraints, x: np.ndarray, steps: int = 16) -> np.n
 
 def casadi_constraint(safety: SafetyConstraints):
     """A CasADi function ``x -> (C,)`` of :meth:`SafetyConstraints.values` with its exact Jacobian (callbacks)."""
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     nx, nc = safety.n * safety.nz, safety.n_constraints
 
@@ -376,7 +403,7 @@ def verify(safety: SafetyConstraints, q: np.ndarray) -> dict:
 def bound_sources(model) -> dict[str, tuple[str, str]]:
     """Per joint name, where its velocity and acceleration bounds come from: ``"URDF"`` or ``"default"``
     (``<limit velocity>`` missing or zero, no ``<ineid acceleration>``: :mod:`ineid.robots.urdf`'s defaults)."""
-    import xml.etree.ElementTree as ET  # noqa: PLC0415
+    import xml.etree.ElementTree as ET
 
     out = {}
     for j in ET.fromstring(model.urdf_text).findall("joint"):  # not the <joint> of a <transmission>
@@ -385,6 +412,8 @@ def bound_sources(model) -> dict[str, tuple[str, str]]:
             velocity = float(limit.get("velocity", "0")) if limit is not None else 0.0
         except ValueError:
             velocity = 0.0
-        out[j.get("name")] = ("URDF" if velocity > 0 else "default",
-                              "URDF" if acc is not None and acc.get("acceleration") else "default")
+        out[j.get("name")] = (
+            "URDF" if velocity > 0 else "default",
+            "URDF" if acc is not None and acc.get("acceleration") else "default",
+        )
     return {name: out.get(name, ("default", "default")) for name in model.joint_names}

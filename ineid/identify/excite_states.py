@@ -58,8 +58,12 @@ class StateErrors:
     sigma: np.ndarray
 
     def to_dict(self) -> dict:
-        return {"rms_q": self.rms[0].tolist(), "rms_qd": self.rms[1].tolist(), "rms_qdd": self.rms[2].tolist(),
-                "noise_std": self.sigma.tolist()}
+        return {
+            "rms_q": self.rms[0].tolist(),
+            "rms_qd": self.rms[1].tolist(),
+            "rms_qdd": self.rms[2].tolist(),
+            "noise_std": self.sigma.tolist(),
+        }
 
 
 def rehearsed_rms(model, sensors: ImuRehearsal, trajectory, rate: float, seed: int = 0) -> np.ndarray:
@@ -67,12 +71,14 @@ def rehearsed_rms(model, sensors: ImuRehearsal, trajectory, rate: float, seed: i
     t, q, qd, qdd = trajectory.sample(rate)
     t, q, qd, qdd = t[:-1], q[:-1], qd[:-1], qdd[:-1]  # whole periods, the end left out: periodic
     if len(t) < MIN_SAMPLES:
-        raise ExcitationError(f"{len(t)} samples are too few to rehearse the import's filter and differences for "
-                              f"--encoder-bits and --imu; raise --rate or lengthen --duration (at least {MIN_SAMPLES})",
-                              reason="settings")
+        raise ExcitationError(
+            f"{len(t)} samples are too few to rehearse the import's filter and differences for "
+            f"--encoder-bits and --imu; raise --rate or lengthen --duration (at least {MIN_SAMPLES})",
+            reason="settings",
+        )
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), STREAM]))
     est = rehearse(model, sensors, t, q, qd, qdd, {}, rng)[:3]
-    return np.stack([np.sqrt(np.mean((e - x) ** 2, axis=0)) for e, x in zip(est, (q, qd, qdd))])
+    return np.stack([np.sqrt(np.mean((e - x) ** 2, axis=0)) for e, x in zip(est, (q, qd, qdd), strict=True)])
 
 
 def inflated_noise(model, q, qd, qdd, sigma: np.ndarray, rms: np.ndarray, channels=None) -> np.ndarray:
@@ -91,8 +97,9 @@ def inflated_noise(model, q, qd, qdd, sigma: np.ndarray, rms: np.ndarray, channe
     return np.sqrt(np.asarray(sigma, dtype=np.float64) ** 2 + added / len(q))
 
 
-def state_errors(model, sensors: ImuRehearsal, trajectory, rate: float, sigma: np.ndarray, channels=None,
-                 seed: int = 0) -> StateErrors:
+def state_errors(
+    model, sensors: ImuRehearsal, trajectory, rate: float, sigma: np.ndarray, channels=None, seed: int = 0
+) -> StateErrors:
     """The rehearsed state errors of ``trajectory`` and the noise they add (module doc)."""
     rms = rehearsed_rms(model, sensors, trajectory, rate, seed)
     _, q, qd, qdd = trajectory.sample(rate)
@@ -106,13 +113,18 @@ def describe_sensors(sensors: ImuRehearsal) -> str:
     if sensors.mounts:
         kinds = [k for k in UNITS if any(k in m.kinds for m in sensors.mounts)]
         noise = ", ".join(f"{k} {sensors.noise.get(k, 0.0):g} {UNITS[k]}" for k in kinds)
-        text += (f" and IMU{'s' if len(sensors.mounts) > 1 else ''} "
-                 f"{', '.join(m.name for m in sensors.mounts)} ({noise})")
+        text += (
+            f" and IMU{'s' if len(sensors.mounts) > 1 else ''} {', '.join(m.name for m in sensors.mounts)} ({noise})"
+        )
     return text + ", filtered, differentiated" + (" and fused" if sensors.mounts else "") + " as the import does"
 
 
 def states_record(sensors: ImuRehearsal, weights: StateErrors, designed: StateErrors, random: StateErrors) -> dict:
     """The design record's ``joint_state_errors``: the sensors, and each trajectory's errors and noise."""
-    return {"sensors": sensors.to_dict(), "described": describe_sensors(sensors),
-            "weights_noise_std": weights.sigma.tolist(), "optimized": designed.to_dict(),
-            "random_fourier": random.to_dict()}
+    return {
+        "sensors": sensors.to_dict(),
+        "described": describe_sensors(sensors),
+        "weights_noise_std": weights.sigma.tolist(),
+        "optimized": designed.to_dict(),
+        "random_fourier": random.to_dict(),
+    }

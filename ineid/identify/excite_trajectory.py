@@ -77,8 +77,18 @@ class _Problem:
     velocity bound: variables of order one).
     """
 
-    def __init__(self, model, base: DesignBase, sigma, criterion, bounds: Bounds, f0: float, harmonics: int,
-                 design_points: int, constraint_points: int) -> None:
+    def __init__(
+        self,
+        model,
+        base: DesignBase,
+        sigma,
+        criterion,
+        bounds: Bounds,
+        f0: float,
+        harmonics: int,
+        design_points: int,
+        constraint_points: int,
+    ) -> None:
         self.model, self.base, self.sigma, self.criterion = model, base, sigma, criterion
         self.f0, self.h, self.n = f0, harmonics, model.n_dof
         self.rest = _rest_basis(harmonics)  # (2H, 2H-2)
@@ -126,8 +136,9 @@ class _Problem:
     def trajectory(self, x: np.ndarray, duration: float, joint_names) -> FourierTrajectory:
         u, alpha = self.split(x)
         coef = self.v_scale[:, None] * (alpha @ self.rest.T)  # (n, 2H)
-        return FourierTrajectory(self.f0, self.mid + self.half * u, coef[:, : self.h], coef[:, self.h :],
-                                 duration, tuple(joint_names))
+        return FourierTrajectory(
+            self.f0, self.mid + self.half * u, coef[:, : self.h], coef[:, self.h :], duration, tuple(joint_names)
+        )
 
     def design_states(self, x: np.ndarray):
         u, alpha = self.split(x)
@@ -149,7 +160,7 @@ class _Problem:
         phi = centred(phi) if self.base.bias else phi
         a = self.base.n_axes
         sel = self.base.columns >= a  # every column (the offsets are profiled out, not columns)
-        weight = (self.base.scales[sel] / self.sigma[:, None])  # (A, r)
+        weight = self.base.scales[sel] / self.sigma[:, None]  # (A, r)
         dphi = dpsi[..., self.base.columns[sel] - a] * weight
         self._last = (key, (phi, dphi, sel))
         return self._last[1]
@@ -201,8 +212,14 @@ class _Problem:
                     lo.append(np.full(nc, -b))
                     hi.append(np.full(nc, b))
                 r0 += nc
-        return (np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), r0,
-                np.concatenate(lo), np.concatenate(hi))
+        return (
+            np.concatenate(rows),
+            np.concatenate(cols),
+            np.concatenate(vals),
+            r0,
+            np.concatenate(lo),
+            np.concatenate(hi),
+        )
 
     def project(self, x: np.ndarray) -> np.ndarray:
         """The nearest design along each joint's amplitude that meets the tightened grid bounds.
@@ -217,13 +234,15 @@ class _Problem:
         ca = alpha.T * self.v_scale
         e, v, acc = self.cq @ ca, self.cqd @ ca, self.cqdd @ ca
         with np.errstate(divide="ignore"):
-            s = np.minimum.reduce([
-                np.ones(self.n),
-                np.where(e.max(0) > 0, (self.q_hi - q0) / e.max(0), np.inf),
-                np.where(e.min(0) < 0, (self.q_lo - q0) / e.min(0), np.inf),
-                self.qd_bound / np.abs(v).max(0),
-                self.qdd_bound / np.abs(acc).max(0),
-            ])
+            s = np.minimum.reduce(
+                [
+                    np.ones(self.n),
+                    np.where(e.max(0) > 0, (self.q_hi - q0) / e.max(0), np.inf),
+                    np.where(e.min(0) < 0, (self.q_lo - q0) / e.min(0), np.inf),
+                    self.qd_bound / np.abs(v).max(0),
+                    self.qdd_bound / np.abs(acc).max(0),
+                ]
+            )
         s = np.maximum(s, 0.0) * (1.0 - 1e-12)
         return np.concatenate([u[:, None], alpha * s[:, None]], axis=1).ravel()
 
@@ -235,8 +254,9 @@ class _Problem:
         ca = alpha.T * self.v_scale
         e, v, acc = self.cq @ ca, self.cqd @ ca, self.cqdd @ ca
         swing = e.max(0) - e.min(0)
-        s = np.minimum.reduce([self.qd_bound / np.abs(v).max(0), self.qdd_bound / np.abs(acc).max(0),
-                               (self.q_hi - self.q_lo) / swing]) * (1.0 - 1e-9)
+        s = np.minimum.reduce(
+            [self.qd_bound / np.abs(v).max(0), self.qdd_bound / np.abs(acc).max(0), (self.q_hi - self.q_lo) / swing]
+        ) * (1.0 - 1e-9)
         lo = self.q_lo - s * e.min(0)
         hi = self.q_hi - s * e.max(0)
         q0 = lo + (hi - lo) * rng.random(self.n)
@@ -262,14 +282,18 @@ def design_bounds(model, margin: float = 0.05, velocity_scale: float = 1.0, acce
             raise ExcitationError(f"{name} must be positive, got {v:g}", reason="infeasible_bounds")
     lo, hi = np.asarray(model.q_lower, float), np.asarray(model.q_upper, float)
     span = hi - lo
-    return Bounds(lo + margin * span, hi - margin * span, np.asarray(model.qd_max, float) * velocity_scale,
-                  np.asarray(model.qdd_max, float) * acceleration_scale)
+    return Bounds(
+        lo + margin * span,
+        hi - margin * span,
+        np.asarray(model.qd_max, float) * velocity_scale,
+        np.asarray(model.qdd_max, float) * acceleration_scale,
+    )
 
 
 def _ipopt_solver(problem: _Problem, max_iter: int, tol: float, safety=None):
     """A CasADi nlpsol (IPOPT) for ``problem``: linear constraints, callback objective, and the
     floor and box constraints of ``safety`` (:class:`SafetyConstraints`) when given."""
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     nx = problem.n * problem.nz
 

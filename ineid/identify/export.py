@@ -41,15 +41,16 @@ def urdf_with_inertials(urdf_text: str, theta_by_link: dict[str, np.ndarray], lo
             them; identify with the consistent method).
         RobotModelError: a link is not a moving link of the URDF.
     """
-    from ineid.robots.urdf import parse_chain  # noqa: PLC0415
+    from ineid.robots.urdf import parse_chain
 
     chain = parse_chain(urdf_text, locked_joints=locked_joints or None)
     moving = {j.link for j in chain.joints}
     payloads = {b.name for b in chain.body_links.values() if b.parent}
     for link, theta in theta_by_link.items():
         if link not in moving | payloads:
-            raise RobotModelError(f"{link!r} is not a moving link of the URDF ({', '.join(sorted(moving))}) nor a "
-                                  "link welded to one")
+            raise RobotModelError(
+                f"{link!r} is not a moving link of the URDF ({', '.join(sorted(moving))}) nor a link welded to one"
+            )
         problems = physical_violations(np.asarray(theta, dtype=np.float64), rtol=0.0)
         if problems:
             raise IdentificationError(
@@ -72,9 +73,13 @@ def urdf_with_inertials(urdf_text: str, theta_by_link: dict[str, np.ndarray], lo
         ET.SubElement(
             inertial,
             "inertia",
-            ixx=repr(float(ic[0, 0])), ixy=repr(float(ic[0, 1])), ixz=repr(float(ic[0, 2])),
-            iyy=repr(float(ic[1, 1])), iyz=repr(float(ic[1, 2])), izz=repr(float(ic[2, 2])),
-        )  # fmt: skip
+            ixx=repr(float(ic[0, 0])),
+            ixy=repr(float(ic[0, 1])),
+            ixz=repr(float(ic[0, 2])),
+            iyy=repr(float(ic[1, 1])),
+            iyz=repr(float(ic[1, 2])),
+            izz=repr(float(ic[2, 2])),
+        )
         el.insert(index, ET.Comment(" identified by ineid (mass, centre of mass, inertia about it in link axes) "))
         el.insert(index + 1, inertial)
         if link in payloads:  # a payload's own inertial, in its frame: its body and the rest stay as they are
@@ -103,8 +108,10 @@ def _check_same_names(before: str, after: str) -> None:
     except ET.ParseError:
         same = False
     if not same:
-        raise RobotModelError("the exported URDF would not read back with the original's links and joints; "
-                              "nothing was written (please report this)")
+        raise RobotModelError(
+            "the exported URDF would not read back with the original's links and joints; "
+            "nothing was written (please report this)"
+        )
 
 
 def export_urdf(results, config: int, out: str | Path, overwrite: bool = False) -> Path:

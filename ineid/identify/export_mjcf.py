@@ -39,8 +39,9 @@ FRAME_ATOL = 1e-9
 """m and (unit-vector) rad: joint origins and axes of the results' robot and the MJCF agree to this."""
 
 
-def mjcf_with_inertials(mjcf_path: str | Path, theta_by_link: dict[str, np.ndarray], results_urdf: str | None = None,
-                        locked_joints=None) -> tuple[bytes, dict[str, tuple[float, np.ndarray, np.ndarray]]]:
+def mjcf_with_inertials(
+    mjcf_path: str | Path, theta_by_link: dict[str, np.ndarray], results_urdf: str | None = None, locked_joints=None
+) -> tuple[bytes, dict[str, tuple[float, np.ndarray, np.ndarray]]]:
     """The MJCF's bytes with the given bodies' inertials replaced, and what each body written must read back as.
 
     Args:
@@ -52,7 +53,8 @@ def mjcf_with_inertials(mjcf_path: str | Path, theta_by_link: dict[str, np.ndarr
         locked_joints: as when the model was loaded.
 
     Returns:
-        ``(data, expected)``: the file's bytes, edited (in the encoding it declares); ``expected[body] = (mass, com, inertia about com)`` in the body frame,
+        ``(data, expected)``: the file's bytes, edited (in the encoding it declares); ``expected[body] = (mass,
+        com, inertia about com)`` in the body frame,
         for each body written (by its MJCF name).
 
     Raises:
@@ -61,25 +63,32 @@ def mjcf_with_inertials(mjcf_path: str | Path, theta_by_link: dict[str, np.ndarr
             body is unnamed or defined in an included file, or the file's encoding is not one MuJoCo
             reads or its bytes are not valid in it.
     """
-    from ineid.robots.urdf import parse_chain  # noqa: PLC0415
+    from ineid.robots.urdf import parse_chain
 
     robot = read_mjcf(mjcf_path)
     chain = parse_chain(robot.urdf_text, source=robot.source, locked_joints=locked_joints or None)
     if results_urdf is not None:
-        _check_same_robot(parse_chain(results_urdf, source="the results' URDF", locked_joints=locked_joints or None),
-                          chain, robot.source)
+        _check_same_robot(
+            parse_chain(results_urdf, source="the results' URDF", locked_joints=locked_joints or None),
+            chain,
+            robot.source,
+        )
     moving = {j.link for j in chain.joints}
     payloads = {b.name for b in chain.body_links.values() if b.parent}
     expected: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
     for link, theta in theta_by_link.items():
         if link not in moving | payloads:
-            raise RobotModelError(f"{robot.source}: {link!r} is not a moving body of the MJCF "
-                                  f"({', '.join(sorted(moving))}) nor a body welded to one")
+            raise RobotModelError(
+                f"{robot.source}: {link!r} is not a moving body of the MJCF "
+                f"({', '.join(sorted(moving))}) nor a body welded to one"
+            )
         problems = physical_violations(np.asarray(theta, dtype=np.float64), rtol=0.0)
         if problems:
             raise IdentificationError(
                 f"the estimate of link {link!r} is not a rigid body ({'; '.join(problems)}); an MJCF cannot hold it: "
-                "identify with --method consistent", status="non_physical")
+                "identify with --method consistent",
+                status="non_physical",
+            )
         m, c, ic = inertial_from_theta(np.asarray(theta, dtype=np.float64))
         expected[link] = (float(m), c - robot.bodies[link].link_p_body, ic)
         if link in moving:
@@ -95,8 +104,10 @@ def mjcf_with_inertials(mjcf_path: str | Path, theta_by_link: dict[str, np.ndarr
         xml_name = robot.bodies[name].xml_name
         if xml_name is None or xml_name not in spans:
             where = "is unnamed" if xml_name is None else "is not in this file (an <include>d file?)"
-            raise RobotModelError(f"{robot.source}: body {name!r} {where}; ineid edits named bodies of the main file: "
-                                  "name it, or move it into the main file")
+            raise RobotModelError(
+                f"{robot.source}: body {name!r} {where}; ineid edits named bodies of the main file: "
+                "name it, or move it into the main file"
+            )
         start_end, inertial = spans[xml_name]
         by_xml[xml_name] = (m, c, ic)
         if m == 0.0:
@@ -107,7 +118,7 @@ def mjcf_with_inertials(mjcf_path: str | Path, theta_by_link: dict[str, np.ndarr
         new_bytes = new.encode(encoding)
         if inertial is not None:
             edits.append((inertial[0], inertial[1], new_bytes))
-        elif data[start_end - 2:start_end] == b"/>":  # <body name=.../>: open it
+        elif data[start_end - 2 : start_end] == b"/>":  # <body name=.../>: open it
             edits.append((start_end - 2, start_end, b">" + _indent(data, start_end) + new_bytes + b"</body>"))
         else:
             edits.append((start_end, start_end, _indent(data, start_end) + new_bytes))
@@ -122,13 +133,19 @@ def _check_same_robot(results_chain, chain, source: str) -> None:
     for a in results_chain.joints:
         b = by_name.get(a.name)
         if b is None or b.link != a.link:
-            raise RobotModelError(f"{source}: the results' joint {a.name!r} (link {a.link!r}) is not in the MJCF "
-                                  f"(joints: {', '.join(by_name)}); give --robot the MJCF of the robot the results "
-                                  "were identified on (names must match)")
-        if not all(np.allclose(getattr(a, k), getattr(b, k), rtol=0, atol=FRAME_ATOL)
-                   for k in ("parent_R_joint", "parent_p_joint", "axis")):
-            raise RobotModelError(f"{source}: joint {a.name!r} has another origin or axis in the MJCF than in the "
-                                  "results' robot, so the link frames differ; identify with the MJCF as ROBOT")
+            raise RobotModelError(
+                f"{source}: the results' joint {a.name!r} (link {a.link!r}) is not in the MJCF "
+                f"(joints: {', '.join(by_name)}); give --robot the MJCF of the robot the results "
+                "were identified on (names must match)"
+            )
+        if not all(
+            np.allclose(getattr(a, k), getattr(b, k), rtol=0, atol=FRAME_ATOL)
+            for k in ("parent_R_joint", "parent_p_joint", "axis")
+        ):
+            raise RobotModelError(
+                f"{source}: joint {a.name!r} has another origin or axis in the MJCF than in the "
+                "results' robot, so the link frames differ; identify with the MJCF as ROBOT"
+            )
 
 
 def _body_spans(data: bytes) -> dict[str, tuple[int, tuple[int, int] | None]]:
@@ -144,7 +161,7 @@ def _body_spans(data: bytes) -> dict[str, tuple[int, tuple[int, int] | None]]:
         _, attrs, begin = stack.pop()
         tag_stop = _tag_end(data, begin)
         # an empty element ends with its start tag; else expat is at the end tag's "<"
-        stop = tag_stop if data[tag_stop - 2:tag_stop] == b"/>" else data.index(b">", parser.CurrentByteIndex) + 1
+        stop = tag_stop if data[tag_stop - 2 : tag_stop] == b"/>" else data.index(b">", parser.CurrentByteIndex) + 1
         if tag == "body" and attrs.get("name"):
             out.setdefault(attrs["name"], [None, None])[0] = tag_stop
         elif tag == "inertial" and stack and stack[-1][0] == "body" and stack[-1][1].get("name"):
@@ -162,7 +179,7 @@ def _tag_end(data: bytes, begin: int) -> int:
     """The offset just past the ``>`` that closes the tag starting at ``begin`` (quotes skipped)."""
     quote = None
     for i in range(begin, len(data)):
-        ch = data[i:i + 1]
+        ch = data[i : i + 1]
         if quote:
             quote = None if ch == quote else quote
         elif ch in (b'"', b"'"):
@@ -174,7 +191,7 @@ def _tag_end(data: bytes, begin: int) -> int:
 
 def _indent(data: bytes, at: int) -> bytes:
     """A newline and the indentation (spaces and tabs) of the line holding offset ``at``, two spaces deeper."""
-    line = data[data.rfind(b"\n", 0, at) + 1:at]
+    line = data[data.rfind(b"\n", 0, at) + 1 : at]
     return b"\n" + line[: len(line) - len(line.lstrip(b" \t"))] + b"  "
 
 
@@ -190,9 +207,13 @@ def check_read_back(path: str | Path, expected: dict[str, tuple[float, np.ndarra
             body reads back otherwise (the compiler overrides ``<inertial>``).
     """
     mujoco = import_mujoco("export-mjcf")
-    m, _ = compile_mjcf(mujoco, path, "", "the exported model from its folder",
-                        "nothing was written: write it beside the original (includes and meshes are found relative "
-                        "to the model file)")
+    m, _ = compile_mjcf(
+        mujoco,
+        path,
+        "",
+        "the exported model from its folder",
+        "nothing was written: write it beside the original (includes and meshes are found relative to the model file)",
+    )
     for name, (mass, c, ic) in expected.items():
         b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
         r = np.empty(9)
@@ -200,14 +221,17 @@ def check_read_back(path: str | Path, expected: dict[str, tuple[float, np.ndarra
         r = r.reshape(3, 3)
         got = r @ np.diag(m.body_inertia[b]) @ r.T
         scale = max(float(np.abs(ic).max()), 1e-300)
-        ok = (abs(m.body_mass[b] - mass) <= 1e-9 * max(mass, 1.0)
-              and (mass == 0.0 or (np.allclose(m.body_ipos[b], c, rtol=0, atol=1e-9)
-                                   and np.allclose(got, ic, rtol=0, atol=1e-9 * scale))))
+        ok = abs(m.body_mass[b] - mass) <= 1e-9 * max(mass, 1.0) and (
+            mass == 0.0
+            or (np.allclose(m.body_ipos[b], c, rtol=0, atol=1e-9) and np.allclose(got, ic, rtol=0, atol=1e-9 * scale))
+        )
         if not ok:
-            raise RobotModelError(f"MuJoCo reads body {name!r} of the exported model back as mass "
-                                  f"{float(m.body_mass[b]):g} kg, not the identified {mass:g}: its <compiler> overrides "
-                                  "<inertial> (inertiafromgeom=\"true\", boundmass, boundinertia); set "
-                                  "inertiafromgeom=\"auto\" and drop the bounds; nothing was written")
+            raise RobotModelError(
+                f"MuJoCo reads body {name!r} of the exported model back as mass "
+                f"{float(m.body_mass[b]):g} kg, not the identified {mass:g}: its <compiler> overrides "
+                '<inertial> (inertiafromgeom="true", boundmass, boundinertia); set '
+                'inertiafromgeom="auto" and drop the bounds; nothing was written'
+            )
 
 
 def export_mjcf(results, config: int, robot: str | Path, out: str | Path, overwrite: bool = False) -> Path:

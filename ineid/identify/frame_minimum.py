@@ -69,8 +69,10 @@ class FrameMinimum:
         text = f"{f} generic frame{'s give' if f != 1 else ' gives'} rank {self.ranks[f - 1]} of {self.rank}"
         bound = sum(min(len(axes) * rows, r) for axes, r in self.groups)
         if short and bound < self.rank:
-            spans = "; ".join(f"the {', '.join(axes)} rows span only {r} of the {self.rank} identifiable directions"
-                              for axes, r in short)
+            spans = "; ".join(
+                f"the {', '.join(axes)} rows span only {r} of the {self.rank} identifiable directions"
+                for axes, r in short
+            )
             text += f", since {spans}, whatever the motion"
             if self.n_offsets:
                 text += " (and the offsets take one frame's rows of each axis)"
@@ -80,9 +82,11 @@ class FrameMinimum:
         """Why ``n_frames`` are too few, naming the minimum; the counting message when counting explains it."""
         s, verb = ("s", "give") if n_frames != 1 else ("", "gives")
         if self.reason is None or n_frames < self.by_counting:
-            return (f"{n_frames} frame{s} {verb} {self.n_axes * n_frames} equations for {self.rank + self.n_offsets} "
-                    f"identifiable parameters{' and offsets' if self.n_offsets else ''}; use at least {self.frames} "
-                    "frames (more with noise)")
+            return (
+                f"{n_frames} frame{s} {verb} {self.n_axes * n_frames} equations for {self.rank + self.n_offsets} "
+                f"identifiable parameters{' and offsets' if self.n_offsets else ''}; use at least {self.frames} "
+                "frames (more with noise)"
+            )
         return f"use at least {self.frames} frames (more with noise): {self.reason}"
 
     def require(self, n_frames: int) -> None:
@@ -91,8 +95,9 @@ class FrameMinimum:
             raise IdentificationError(self.message(n_frames), status="too_few_frames")
 
 
-def frame_minimum_from_regressor(ws: np.ndarray, n_axes: int, rank: int, axis_names, axis_groups,
-                                 offset_mask: np.ndarray | None = None) -> FrameMinimum:
+def frame_minimum_from_regressor(
+    ws: np.ndarray, n_axes: int, rank: int, axis_names, axis_groups, offset_mask: np.ndarray | None = None
+) -> FrameMinimum:
     """The :class:`FrameMinimum` of generic frames' stacked regressor ``ws`` (AF, p): scaled, frame-major rows.
 
     Args:
@@ -118,13 +123,20 @@ def frame_minimum_from_regressor(ws: np.ndarray, n_axes: int, rank: int, axis_na
             frames = f
             break
     if frames is None:
-        raise IdentificationError(f"{f_max} generic frames reach rank {max(ranks)} of {rank}: the structural "
-                                  "analysis is inconsistent; report this", status="ill_conditioned")
+        raise IdentificationError(
+            f"{f_max} generic frames reach rank {max(ranks)} of {rank}: the structural "
+            "analysis is inconsistent; report this",
+            status="ill_conditioned",
+        )
     labels = list(dict.fromkeys(axis_groups))
     groups = []
     for label in labels:
         idx = [a for a in range(n_axes) if axis_groups[a] == label]
         rows = (w3 - w3.mean(axis=0) * centre)[:, idx]
-        groups.append((tuple(axis_names[a] for a in idx),
-                       numerical_rank(np.linalg.svd(rows.reshape(-1, ws.shape[1]), compute_uv=False))))
+        groups.append(
+            (
+                tuple(axis_names[a] for a in idx),
+                numerical_rank(np.linalg.svd(rows.reshape(-1, ws.shape[1]), compute_uv=False)),
+            )
+        )
     return FrameMinimum(frames, by_counting, rank, n_offsets, n_axes, tuple(ranks), tuple(groups))

@@ -38,35 +38,41 @@ def identify_frames(
             parameters (with what is missing), or an IPOPT failure (``.status`` holds
             IPOPT's return status).
     """
-    from ineid.data.schema import Dataset, DatasetMeta  # noqa: PLC0415
-    from ineid.identify.identifiability import analyze_frames  # noqa: PLC0415
+    from ineid.data.schema import Dataset, DatasetMeta
+    from ineid.identify.identifiability import analyze_frames
 
     arrays = [np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench)]
     for label, a, width in zip(("q", "qd", "qdd", "wrench"), arrays, (model.n_dof,) * 3 + (6,), strict=True):
         if a.ndim != 2 or a.shape[1] != width or len(a) != len(arrays[0]):
             raise ValueError(f"{label} must have shape (n_frames, {width}), got {a.shape}")
         if not np.all(np.isfinite(a)):
-            raise IdentificationError(f"{label} holds NaN or infinite values; drop or repair those frames",
-                                      status="non_finite")
+            raise IdentificationError(
+                f"{label} holds NaN or infinite values; drop or repair those frames", status="non_finite"
+            )
     base = base_parameters(model, bias=bias == "estimate")
     frame_minimum(model, bias == "estimate").require(len(arrays[0]))
     analysis = analyze_frames(model, *arrays[:3], base, bias=bias == "estimate")
     if not analysis.ok:
         raise IdentificationError(analysis.problem(), status="rank_deficient")
-    meta = DatasetMeta.for_model(model, source="recording",
-                                 sensor=None if sensor_pose is None else sensor_pose.to_dict())
+    meta = DatasetMeta.for_model(
+        model, source="recording", sensor=None if sensor_pose is None else sensor_pose.to_dict()
+    )
     ds = Dataset(meta, *(a[None] for a in arrays), theta_known=model.theta_cad[model.known_index])
     res = solve_dataset(
         ds,
-        SolveSettings(method=method, frames=len(arrays[0]), weights=weights,
-                      axis_sigma=None if axis_sigma is None else tuple(axis_sigma), start=start, bias=bias),
+        SolveSettings(
+            method=method,
+            frames=len(arrays[0]),
+            weights=weights,
+            axis_sigma=None if axis_sigma is None else tuple(axis_sigma),
+            start=start,
+            bias=bias,
+        ),
         model=model,
-    )  # fmt: skip
+    )
     if not res.success[0]:
         raise IdentificationError(
             f"the {method} solver failed ({res.status[0]}); try start='linear', more frames, or the linear method",
             status=str(res.status[0]),
         )
     return res
-
-

@@ -79,9 +79,14 @@ WORKERS = min(os.cpu_count() or 1, 4)
 two threads run on two cores (measured 1.3x on two cores over one dispatching thread)."""
 
 
-def _map_chunks(kernel: Callable, frame_arrays: list[np.ndarray], config_arrays: list[np.ndarray],
-                consts: tuple, progress: Callable[[int, int], None] | None = None,
-                target: int | None = None) -> list[np.ndarray]:
+def _map_chunks(
+    kernel: Callable,
+    frame_arrays: list[np.ndarray],
+    config_arrays: list[np.ndarray],
+    consts: tuple,
+    progress: Callable[[int, int], None] | None = None,
+    target: int | None = None,
+) -> list[np.ndarray]:
     """Sum ``kernel(*frame_chunks, mask, *config_chunks, *consts)`` over frame chunks, per configuration chunk.
 
     ``frame_arrays`` are (C, F, .) and ``config_arrays`` (C, .); each call gets (Cc, Fc, .)
@@ -103,7 +108,7 @@ def _map_chunks(kernel: Callable, frame_arrays: list[np.ndarray], config_arrays:
     def pad(piece, shape):
         if piece.shape[: len(shape)] == shape:
             return piece
-        out = np.zeros(shape + piece.shape[len(shape):])
+        out = np.zeros(shape + piece.shape[len(shape) :])
         out[tuple(slice(0, k) for k in piece.shape[: len(shape)])] = piece
         return out
 
@@ -155,10 +160,17 @@ def _map_chunks(kernel: Callable, frame_arrays: list[np.ndarray], config_arrays:
     return [np.concatenate([r[i] for r in results]) for i in range(len(results[0]))]
 
 
-@functools.lru_cache(maxsize=None)
-def _blocks_kernel(structure: tuple, n_cols: int, base_columns: tuple[int, ...], known_columns: tuple[int, ...],
-                   sum_columns: tuple[int, ...] = (), summed: bool = False, base_extra: tuple[int, ...] = (),
-                   sum_extra: tuple[int, ...] = ()):
+@functools.cache
+def _blocks_kernel(
+    structure: tuple,
+    n_cols: int,
+    base_columns: tuple[int, ...],
+    known_columns: tuple[int, ...],
+    sum_columns: tuple[int, ...] = (),
+    summed: bool = False,
+    base_extra: tuple[int, ...] = (),
+    sum_extra: tuple[int, ...] = (),
+):
     """Jitted ``(q, qd, qdd, values, mask, [w_ref, y_ref,] gravity, theta_known, xs) -> (G, h, e[, s, t])``.
 
     ``structure``: :meth:`ineid.channels.ChannelSet.structure` of the channels, whose rows
@@ -178,11 +190,17 @@ def _blocks_kernel(structure: tuple, n_cols: int, base_columns: tuple[int, ...],
     in the channels' own axes (``T`` not applied), after the links' columns (``w_ref`` then has
     ``10 n_u + n_extra`` columns).
     """
-    import jax  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax
+    import jax.numpy as jnp
 
-    base_pos = (tuple(sum_columns.index(c) for c in base_columns)
-                + tuple(len(sum_columns) + sum_extra.index(j) for j in base_extra)) if sum_columns else ()
+    base_pos = (
+        (
+            tuple(sum_columns.index(c) for c in base_columns)
+            + tuple(len(sum_columns) + sum_extra.index(j) for j in base_extra)
+        )
+        if sum_columns
+        else ()
+    )
     columns = sum_columns or base_columns
     extra_columns = sum_extra if sum_columns else base_extra
     n_extra = sum(channel.n_extra for channel in structure)
@@ -195,7 +213,7 @@ def _blocks_kernel(structure: tuple, n_cols: int, base_columns: tuple[int, ...],
         a0 = e0 = 0
         for channel in structure:
             if channel.n_extra:
-                e = e.at[..., a0:a0 + channel.n_axes, e0:e0 + channel.n_extra].set(channel.extra_rows(q, qd, qdd))
+                e = e.at[..., a0 : a0 + channel.n_axes, e0 : e0 + channel.n_extra].set(channel.extra_rows(q, qd, qdd))
             a0, e0 = a0 + channel.n_axes, e0 + channel.n_extra
         e = e[..., jnp.asarray(extra_columns, dtype=jnp.int32)]  # (Cc, Fc, A, k)
         return jnp.transpose(e, (2, 0, 3, 1)) * mask[None, :, None, :]
@@ -206,8 +224,15 @@ def _blocks_kernel(structure: tuple, n_cols: int, base_columns: tuple[int, ...],
 
         # (n_a, Cc, r, Fc): frames last, each entry one contiguous run (XLA:CPU's fast layout)
         w = jnp.stack([jnp.stack([entry(a, c) for c in columns], axis=1) for a in range(n_axes)])
-        known = jnp.stack([sum((entries[a * n_cols + c] * theta_known[k] for k, c in enumerate(known_columns)),
-                               start=jnp.zeros(batch, dtype)) for a in range(n_axes)])  # (n_a, Cc, Fc)
+        known = jnp.stack(
+            [
+                sum(
+                    (entries[a * n_cols + c] * theta_known[k] for k, c in enumerate(known_columns)),
+                    start=jnp.zeros(batch, dtype),
+                )
+                for a in range(n_axes)
+            ]
+        )  # (n_a, Cc, Fc)
         return w, known
 
     def core(q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs, d):
@@ -244,35 +269,59 @@ def _blocks_kernel(structure: tuple, n_cols: int, base_columns: tuple[int, ...],
         return g, h, e, jnp.einsum("acpf->cap", w_all), jnp.einsum("acf->ca", y)
 
     if sum_columns:
-        return jax.jit(lambda q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs:
-                       core(q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs, None))
+        return jax.jit(
+            lambda q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs: core(
+                q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs, None
+            )
+        )
     if summed:
-        return jax.jit(lambda q, qd, qdd, wrench, mask, d, gravity, theta_known, xs:
-                       core(q, qd, qdd, wrench, mask, None, None, gravity, theta_known, xs, d))
-    return jax.jit(lambda q, qd, qdd, wrench, mask, gravity, theta_known, xs:
-                   core(q, qd, qdd, wrench, mask, None, None, gravity, theta_known, xs, None))
+        return jax.jit(
+            lambda q, qd, qdd, wrench, mask, d, gravity, theta_known, xs: core(
+                q, qd, qdd, wrench, mask, None, None, gravity, theta_known, xs, d
+            )
+        )
+    return jax.jit(
+        lambda q, qd, qdd, wrench, mask, gravity, theta_known, xs: core(
+            q, qd, qdd, wrench, mask, None, None, gravity, theta_known, xs, None
+        )
+    )
 
 
 def _transforms(channels: ChannelSet, model) -> tuple[np.ndarray, ...]:
     """Each channel's ``T`` as a kernel argument (the identity where it has none: not read)."""
-    return tuple(np.eye(c.n_axes(model)) if t is None else np.asarray(t, dtype=np.float64)
-                 for c, t in zip(channels, channels.transforms(), strict=True))
+    return tuple(
+        np.eye(c.n_axes(model)) if t is None else np.asarray(t, dtype=np.float64)
+        for c, t in zip(channels, channels.transforms(), strict=True)
+    )
 
 
 def check_no_extra_columns(channels: ChannelSet, model, what: str = "backend 'casadi-c'") -> None:
     """Refuse channels with extra kept columns where ``what`` does not identify them (the ``casadi-c`` blocks)."""
-    from ineid.errors import IdentificationError  # noqa: PLC0415
+    from ineid.errors import IdentificationError
 
     extra = channels.extra_names(model)
     if extra:
-        raise IdentificationError(f"{what} does not fit extra parameters ({', '.join(extra[:3])}"
-                                  f"{', ...' if len(extra) > 3 else ''}); use backend 'jax' or 'casadi', or leave "
-                                  "the friction, armature and torque-offset models out", status="unsupported")
+        raise IdentificationError(
+            f"{what} does not fit extra parameters ({', '.join(extra[:3])}"
+            f"{', ...' if len(extra) > 3 else ''}); use backend 'jax' or 'casadi', or leave "
+            "the friction, armature and torque-offset models out",
+            status="unsupported",
+        )
 
 
-def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
-                       progress: Callable[[int, int], None] | None = None, sums: bool = False,
-                       axis_weights: np.ndarray | None = None, channels: ChannelSet | None = None) -> InformationBlocks:
+def information_blocks(
+    model,
+    base,
+    q,
+    qd,
+    qdd,
+    wrench,
+    theta_known,
+    progress: Callable[[int, int], None] | None = None,
+    sums: bool = False,
+    axis_weights: np.ndarray | None = None,
+    channels: ChannelSet | None = None,
+) -> InformationBlocks:
     """Per-axis blocks ``G, h, e`` of every configuration (see module doc).
 
     Args:
@@ -301,11 +350,17 @@ def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
     r, p = base.rank, base.n_params
     if n_configs == 0:
         if axis_weights is not None:
-            return InformationBlocks(np.zeros((0, r, r)), np.zeros((0, r)), np.zeros((0, n_axes)), n_frames,
-                                     axis_w=np.zeros((0, n_axes)))
-        return InformationBlocks(np.zeros((0, n_axes, r, r)), np.zeros((0, n_axes, r)), np.zeros((0, n_axes)),
-                                 n_frames, np.zeros((0, n_axes, p)) if sums else None,
-                                 np.zeros((0, n_axes)) if sums else None)
+            return InformationBlocks(
+                np.zeros((0, r, r)), np.zeros((0, r)), np.zeros((0, n_axes)), n_frames, axis_w=np.zeros((0, n_axes))
+            )
+        return InformationBlocks(
+            np.zeros((0, n_axes, r, r)),
+            np.zeros((0, n_axes, r)),
+            np.zeros((0, n_axes)),
+            n_frames,
+            np.zeros((0, n_axes, p)) if sums else None,
+            np.zeros((0, n_axes)) if sums else None,
+        )
     n_link = base.n_link_params
     link_base = base.base_index[base.base_index < n_link]
     columns = tuple(int(c) for c in np.asarray(model.unknown_index)[link_base])
@@ -316,9 +371,15 @@ def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
         extra_kernel_args = (base_extra, tuple(range(n_extra)) if sums else ())
     if sums and axis_weights is not None:
         raise ValueError("centred blocks (sums=True) are per axis; leave axis_weights out")
-    kernel = _blocks_kernel(channels.structure(model), 10 * model.n_links, columns,
-                            tuple(int(c) for c in model.known_index), sum_columns, axis_weights is not None,
-                            *extra_kernel_args)
+    kernel = _blocks_kernel(
+        channels.structure(model),
+        10 * model.n_links,
+        columns,
+        tuple(int(c) for c in model.known_index),
+        sum_columns,
+        axis_weights is not None,
+        *extra_kernel_args,
+    )
     theta_known = np.asarray(theta_known, dtype=np.float64)
     consts = (model.gravity, theta_known, _transforms(channels, model))
     if axis_weights is not None:
@@ -333,22 +394,22 @@ def information_blocks(model, base, q, qd, qdd, wrench, theta_known,
     return InformationBlocks(*out[:3], n_frames, out[3], out[4], w_ref, y_ref)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _residual_kernel(structure: tuple):
     """Jitted ``(q, qd, qdd, values, fit, mask, theta, bias, gravity, xs) -> (ssr_fit, ssr_held, ss_held)``.
 
     With extra kept columns (``n_e`` over the channels) ``theta`` is ``[theta, x]`` (Cc, 10 n + n_e)
     and the prediction ``T Phi theta + E x`` (each channel's ``E_i x_i`` on its own axes).
     """
-    import jax  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax
+    import jax.numpy as jnp
 
     n_extra = sum(channel.n_extra for channel in structure)
 
     def kernel(q, qd, qdd, wrench, fit, mask, theta, bias, gravity, xs):
         # fit: (Cc, Fc, 1) 1 on fitted frames, 0 on held-out ones; theta: (Cc, 10 n); bias: (Cc, A)
         if n_extra:
-            theta, extra = theta[:, : theta.shape[1] - n_extra], theta[:, theta.shape[1] - n_extra:]
+            theta, extra = theta[:, : theta.shape[1] - n_extra], theta[:, theta.shape[1] - n_extra :]
         parts = []
         e0 = 0
         for channel, x in zip(structure, xs, strict=True):
@@ -356,7 +417,7 @@ def _residual_kernel(structure: tuple):
             predicted = predicted @ x.T if channel.transformed else predicted
             if channel.n_extra:
                 e = channel.extra_rows(q, qd, qdd)  # (Cc, Fc, n_a, n_e_i)
-                predicted = predicted + jnp.einsum("cfae,ce->cfa", e, extra[:, e0:e0 + channel.n_extra])
+                predicted = predicted + jnp.einsum("cfae,ce->cfa", e, extra[:, e0 : e0 + channel.n_extra])
                 e0 += channel.n_extra
             parts.append(predicted)
         predicted = parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=-1)
@@ -368,9 +429,18 @@ def _residual_kernel(structure: tuple):
     return jax.jit(kernel)
 
 
-def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int, bias: np.ndarray | None = None,
-                  channels: ChannelSet | None = None,
-                  extra: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def residual_sums(
+    model,
+    q,
+    qd,
+    qdd,
+    wrench,
+    theta,
+    n_fit: int,
+    bias: np.ndarray | None = None,
+    channels: ChannelSet | None = None,
+    extra: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sums of squares of ``values - (T Phi theta + E x + b)`` per configuration: fitted and held-out frames.
 
     Args:
@@ -408,9 +478,13 @@ def residual_sums(model, q, qd, qdd, wrench, theta, n_fit: int, bias: np.ndarray
     if n_configs * n_frames <= SMALL_JOB_FRAMES:
         return _residual_sums_casadi(model, channels, arrays, theta, bias, n_fit)
     kernel = _residual_kernel(channels.structure(model))
-    ssr_fit, ssr_held, ss_held = _map_chunks(kernel, [*arrays, fit], [theta, bias],
-                                             (model.gravity, _transforms(channels, model)),
-                                             target=RESIDUAL_TARGET_FRAMES)
+    ssr_fit, ssr_held, ss_held = _map_chunks(
+        kernel,
+        [*arrays, fit],
+        [theta, bias],
+        (model.gravity, _transforms(channels, model)),
+        target=RESIDUAL_TARGET_FRAMES,
+    )
     return ssr_fit, ssr_held, ss_held
 
 

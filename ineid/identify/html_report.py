@@ -51,8 +51,9 @@ class ReportInputs:
     missing: list[tuple[str, str]] = field(default_factory=list)
 
 
-def inputs_from_files(results_path: str | Path, data_path: str | Path | None = None,
-                      validate_path: str | Path | None = None) -> ReportInputs:  # fmt: skip
+def inputs_from_files(
+    results_path: str | Path, data_path: str | Path | None = None, validate_path: str | Path | None = None
+) -> ReportInputs:
     """Read the results file and find its dataset: ``data_path``, else the path the results record.
 
     A missing, moved or different dataset (its fingerprint not the recorded one) is recorded in
@@ -61,18 +62,25 @@ def inputs_from_files(results_path: str | Path, data_path: str | Path | None = N
     Raises:
         DatasetError: the results file does not read (not ineid's, damaged, newer).
     """
-    from ineid.identify.results import load_results  # noqa: PLC0415
+    from ineid.identify.results import load_results
 
     res = load_results(results_path)
     out = ReportInputs(res, results_path=Path(results_path))
     m = res.meta
     recorded = m.get("dataset_path") or (m.get("recordings") or [{}])[0].get("path")
-    out.ds = _dataset(out, data_path or recorded, m.get("dataset_fingerprint"), "the dataset", "--data",
-                      given=data_path is not None)  # fmt: skip
+    out.ds = _dataset(
+        out, data_path or recorded, m.get("dataset_fingerprint"), "the dataset", "--data", given=data_path is not None
+    )
     v = m.get("validation")
     if v:
-        out.validate_ds = _dataset(out, validate_path or v.get("path"), v.get("fingerprint"),
-                                   "the validation recording", "--validate", given=validate_path is not None)
+        out.validate_ds = _dataset(
+            out,
+            validate_path or v.get("path"),
+            v.get("fingerprint"),
+            "the validation recording",
+            "--validate",
+            given=validate_path is not None,
+        )
     if out.ds is not None:
         try:
             out.model = out.ds.model()
@@ -83,18 +91,27 @@ def inputs_from_files(results_path: str | Path, data_path: str | Path | None = N
 
 
 def _dataset(out: ReportInputs, path, fingerprint, what: str, option: str, given: bool):
-    from ineid.data.read import load_dataset  # noqa: PLC0415
+    from ineid.data.read import load_dataset
 
     res = out.res
     fix = f"give it with {option} PATH (ineid report RESULTS {option} PATH --out report.html)"
     if not path:
-        out.missing.append((f"the results file records no path of {what} (written by an older ineid, or solved "
-                            "in memory): no validation plots, residual tests or excitation figures", fix))
+        out.missing.append(
+            (
+                f"the results file records no path of {what} (written by an older ineid, or solved "
+                "in memory): no validation plots, residual tests or excitation figures",
+                fix,
+            )
+        )
         return None
     if not Path(path).exists():
         moved = "" if given else " (moved or deleted since the solve)"
-        out.missing.append((f"{what} {path} is not there{moved}: no validation plots, residual tests or "
-                            "excitation figures", fix.replace(" PATH", " NEW_PATH")))
+        out.missing.append(
+            (
+                f"{what} {path} is not there{moved}: no validation plots, residual tests or excitation figures",
+                fix.replace(" PATH", " NEW_PATH"),
+            )
+        )
         return None
     try:
         configs = np.asarray(res.config_index) if option == "--data" else None
@@ -104,16 +121,21 @@ def _dataset(out: ReportInputs, path, fingerprint, what: str, option: str, given
         return None
     found = ds.fingerprint()
     if fingerprint and found != fingerprint:
-        out.missing.append((f"{what} {path} is not the one these results were solved on (fingerprint {found}, "
-                            f"the results record {fingerprint})", fix))
+        out.missing.append(
+            (
+                f"{what} {path} is not the one these results were solved on (fingerprint {found}, "
+                f"the results record {fingerprint})",
+                fix,
+            )
+        )
         return None
     return ds
 
 
 def _validation_part(inputs: ReportInputs, i: int, config: int) -> dict | None:
-    from ineid.identify.report import validation, validation_on  # noqa: PLC0415
-    from ineid.identify.report_figures import data_uri, default_span, spectrum_figure, validation_figure  # noqa: PLC0415
-    from ineid.identify.residuals import check_residual, stated_noise  # noqa: PLC0415
+    from ineid.identify.report import validation, validation_on
+    from ineid.identify.report_figures import data_uri, default_span, spectrum_figure, validation_figure
+    from ineid.identify.residuals import check_residual, stated_noise
 
     res, ds = inputs.res, inputs.ds
     if ds is None or not res.success[i]:
@@ -131,33 +153,66 @@ def _validation_part(inputs: ReportInputs, i: int, config: int) -> dict | None:
     if meta.source == "synthetic":
         noise = stated_noise(meta.noise, v.blocks, len(v.axes))
         source = "stated by the synthetic dataset (its noise settings)" if meta.noise else "none: clean synthetic data"
-    check = check_residual(v.time if v.series else None, v.measured, v.predicted, v.axes, v.units, v.blocks,
-                           v.qd, noise, source, _delay(res, frames_of, inputs.model, i))  # fmt: skip
+    check = check_residual(
+        v.time if v.series else None,
+        v.measured,
+        v.predicted,
+        v.axes,
+        v.units,
+        v.blocks,
+        v.qd,
+        noise,
+        source,
+        _delay(res, frames_of, inputs.model, i),
+    )
     sigma = np.array([c.noise for c in check.axes])
-    figures = [("Measured against predicted, the residual under each axis (whole validation span)",
-                data_uri(validation_figure(v, noise=sigma, span=(float(v.time[0]), float(v.time[-1])))))]
+    figures = [
+        (
+            "Measured against predicted, the residual under each axis (whole validation span)",
+            data_uri(validation_figure(v, noise=sigma, span=(float(v.time[0]), float(v.time[-1])))),
+        )
+    ]
     zoom = default_span(v.time, v.series)
     if zoom is not None:
-        figures.append((f"The first {zoom[1] - zoom[0]:g} s, readable",
-                        data_uri(validation_figure(v, noise=sigma, span=zoom))))
+        figures.append(
+            (f"The first {zoom[1] - zoom[0]:g} s, readable", data_uri(validation_figure(v, noise=sigma, span=zoom)))
+        )
     if v.series and len(v.time) >= 8:
         figures.append(("Residual amplitude spectrum per axis", data_uri(spectrum_figure(v, noise=sigma))))
-    rows = [{"axis": c.axis, "unit": c.unit, "rms": sections.fmt(c.rms, 3), "noise": sections.fmt(c.noise, 3),
-             "ratio": sections.fmt(c.ratio, 3), "lag1": sections.fmt(c.lag1, 2),
-             "peak": "-" if np.isnan(c.peak_hz) else f"{c.peak_hz:.3g} Hz ({c.peak_share:.0%})",
-             "friction": "-" if np.isnan(c.friction_share) else f"{c.friction_share:.0%}"} for c in check.axes]
+    rows = [
+        {
+            "axis": c.axis,
+            "unit": c.unit,
+            "rms": sections.fmt(c.rms, 3),
+            "noise": sections.fmt(c.noise, 3),
+            "ratio": sections.fmt(c.ratio, 3),
+            "lag1": sections.fmt(c.lag1, 2),
+            "peak": "-" if np.isnan(c.peak_hz) else f"{c.peak_hz:.3g} Hz ({c.peak_share:.0%})",
+            "friction": "-" if np.isnan(c.friction_share) else f"{c.friction_share:.0%}",
+        }
+        for c in check.axes
+    ]
     delay = [(f"{1e3 * d:.3g} ms", f"{s:.0%}") for d, s in check.delay.values()]
-    return {"source": v.source, "frames": len(v.time), "frame": v.frame, "config": v.config, "figures": figures,
-            "rows": rows, "noise_source": check.noise_source, "delay": delay, "tested": check.tested,
-            "warnings": check.warnings}  # fmt: skip
+    return {
+        "source": v.source,
+        "frames": len(v.time),
+        "frame": v.frame,
+        "config": v.config,
+        "figures": figures,
+        "rows": rows,
+        "noise_source": check.noise_source,
+        "delay": delay,
+        "tested": check.tested,
+        "warnings": check.warnings,
+    }
 
 
 def _delay(res, ds, model, i: int):
     """:func:`ineid.identify.residuals.delay_scan` on every frame of configuration row ``i`` of ``ds`` (None: no
     time series)."""
-    from ineid.channels import ChannelSet  # noqa: PLC0415
-    from ineid.identify.residuals import MAX_SCAN_FRAMES, delay_scan  # noqa: PLC0415
-    from ineid.identify.systems import stack_casadi  # noqa: PLC0415
+    from ineid.channels import ChannelSet
+    from ineid.identify.residuals import MAX_SCAN_FRAMES, delay_scan
+    from ineid.identify.systems import stack_casadi
 
     if ds.time is None or ds.n_frames < 8:
         return None
@@ -172,14 +227,16 @@ def _delay(res, ds, model, i: int):
 
 def report_context(inputs: ReportInputs, config: int | None = None) -> dict:
     """Everything the template shows (module doc), as plain values."""
-    from ineid._version import __version__  # noqa: PLC0415
+    from ineid._version import __version__
 
     res, ds, model = inputs.res, inputs.ds, inputs.model
     missing = list(inputs.missing)
     i = sections.solved_index(res, config)
     if config is not None and i is None:
-        raise DatasetError(f"configuration {config} is not in the results; they hold "
-                           f"{np.asarray(res.config_index)[:10].tolist()}{' ...' if res.n > 10 else ''}")
+        raise DatasetError(
+            f"configuration {config} is not in the results; they hold "
+            f"{np.asarray(res.config_index)[:10].tolist()}{' ...' if res.n > 10 else ''}"
+        )
     ctx = {
         "title": f"ineid identification report: {res.meta['robot']}",
         "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
@@ -191,9 +248,13 @@ def report_context(inputs: ReportInputs, config: int | None = None) -> dict:
         "param_order": sections.params_order(),
         "findings": list(res.meta.get("warnings") or []),
         "checked": res.meta.get("warnings") is not None,
-        "config": None, "estimates": None, "validity": None, "payload": None, "validation": None,
+        "config": None,
+        "estimates": None,
+        "validity": None,
+        "payload": None,
+        "validation": None,
         "excitation": None,
-    }  # fmt: skip
+    }
     cost = None
     if i is not None and res.success[i]:
         ctx["config"] = int(res.config_index[i])
@@ -204,14 +265,26 @@ def report_context(inputs: ReportInputs, config: int | None = None) -> dict:
         ctx["excitation"] = sections.excitation_section(res, ds, model, i)
         cost = _offset_cost(res, ds, model, i)
     elif i is None or not res.success[i]:
-        missing.append(("no configuration was identified, so there are no estimates to show",
-                        "see the solver status under Method; solve again with other settings"))
+        missing.append(
+            (
+                "no configuration was identified, so there are no estimates to show",
+                "see the solver status under Method; solve again with other settings",
+            )
+        )
     ctx["identifiability"] = sections.identifiability_section(res, cost)
     ctx["missing"] = missing
     ctx["residual_warnings"] = [] if ctx["validation"] is None else ctx["validation"]["warnings"]
     bad = sorted({r["link"] for r in ctx["validity"] or [] if r["which"] == "estimate" and r["problems"]})
-    ctx["invalid"] = [(f"the estimate of {', '.join(bad)} is not a rigid body (see Physical validity): the data or "
-                       "the method cannot pin it down; solve with --method consistent")] if bad else []
+    ctx["invalid"] = (
+        [
+            (
+                f"the estimate of {', '.join(bad)} is not a rigid body (see Physical validity): the data or "
+                "the method cannot pin it down; solve with --method consistent"
+            )
+        ]
+        if bad
+        else []
+    )
     return ctx
 
 
@@ -220,8 +293,8 @@ def _offset_cost(res, ds, model, i: int):
     when they were estimated and the dataset is at hand."""
     if ds is None or model is None or res.settings.bias != "estimate":
         return None
-    from ineid.channels import ChannelSet  # noqa: PLC0415
-    from ineid.identify.identifiability import bias_cost  # noqa: PLC0415
+    from ineid.channels import ChannelSet
+    from ineid.identify.identifiability import bias_cost
 
     records = res.meta.get("channels")
     channels = ds.meta.channels if records is None else ChannelSet.from_list(records, "the results' channels")
@@ -233,10 +306,15 @@ def _offset_cost(res, ds, model, i: int):
 
 def render(ctx: dict) -> str:
     """The page of :func:`report_context`'s ``ctx`` (Jinja2, autoescaped)."""
-    import jinja2  # noqa: PLC0415
+    import jinja2
 
-    env = jinja2.Environment(loader=jinja2.PackageLoader("ineid.identify", "templates"),
-                             autoescape=True, undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("ineid.identify", "templates"),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
     return env.get_template("report.html.j2").render(**ctx)
 
 
@@ -253,7 +331,7 @@ def write_report(html: str, path: str | Path, overwrite: bool = False) -> Path:
         OutputExistsError: ``path`` exists and ``overwrite`` is off.
         DatasetError: ``path`` is a folder or its folder does not exist.
     """
-    from ineid._atomic import atomic_write, check_output_file  # noqa: PLC0415
+    from ineid._atomic import atomic_write, check_output_file
 
     path = check_output_file(path, overwrite, "report.html")
     return atomic_write(path, html.encode("utf-8"))

@@ -205,7 +205,7 @@ def base_parameters_from_regressor(w: np.ndarray, names, scales: np.ndarray, n_e
 
 def generic_frames(model, n_frames: int = STRUCTURAL_FRAMES, seed: int = 0):
     """Random frames within the model's bounds: (n_frames, n_dof) x 3."""
-    from ineid.data.sampling import model_uniform_states  # noqa: PLC0415
+    from ineid.data.sampling import model_uniform_states
 
     return model_uniform_states(model, n_frames, np.random.default_rng(seed))
 
@@ -306,8 +306,9 @@ def frame_minimum(model, bias: bool = False, channels: ChannelSet | None = None)
         w = _regressor_unknown(model, *generic_frames(model), channels) * base.scales
         names, units = chans.axes(model), chans.units(model)
         groups = [(n.split(".")[0] if "." in n else "", u) for n, u in zip(names, units, strict=True)]
-        cache[key] = frame_minimum_from_regressor(w, len(names), base.rank, names, groups,
-                                                  _offset_mask(channels, model, bias))
+        cache[key] = frame_minimum_from_regressor(
+            w, len(names), base.rank, names, groups, _offset_mask(channels, model, bias)
+        )
     return cache[key]
 
 
@@ -373,8 +374,9 @@ class FrameAnalysis:
         )
 
 
-def analyze_frames(model, q, qd, qdd, base: BaseParameters | None = None, bias: bool = False,
-                   channels: ChannelSet | None = None) -> FrameAnalysis:
+def analyze_frames(
+    model, q, qd, qdd, base: BaseParameters | None = None, bias: bool = False, channels: ChannelSet | None = None
+) -> FrameAnalysis:
     """Rank, singular values, conditioning and missing directions of one set of frames.
 
     Args:
@@ -403,8 +405,9 @@ def analyze_frames(model, q, qd, qdd, base: BaseParameters | None = None, bias: 
         wb = ws[:, base.base_index]
         kept = set(_greedy_independent(wb, rtol=1e-6))
         undetermined = tuple(base.names[i] for i in range(r) if i not in kept)
-    return FrameAnalysis(len(q), rank, r, sv, cond, min_frames, undetermined, n_axes,
-                         frame_minimum(model, bias, channels))
+    return FrameAnalysis(
+        len(q), rank, r, sv, cond, min_frames, undetermined, n_axes, frame_minimum(model, bias, channels)
+    )
 
 
 @dataclass(frozen=True)
@@ -447,8 +450,9 @@ def bias_cost(model, q, qd, qdd, channels: ChannelSet | None = None) -> BiasCost
     base, base_c = base_parameters(model, channels=channels), base_parameters(model, bias=True, channels=channels)
     q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (q, qd, qdd))
     w = _regressor_unknown(model, q, qd, qdd, channels)
-    wc = centred_regressor(w, (BASE_WRENCH if channels is None else channels).n_axes(model),
-                           _offset_mask(channels, model, True))
+    wc = centred_regressor(
+        w, (BASE_WRENCH if channels is None else channels).n_axes(model), _offset_mask(channels, model, True)
+    )
 
     def cov(a: np.ndarray) -> np.ndarray:
         return np.linalg.pinv(a.T @ a)
@@ -461,7 +465,9 @@ def bias_cost(model, q, qd, qdd, channels: ChannelSet | None = None) -> BiasCost
     m = base_c.B @ np.linalg.pinv(base.B)
     var_nb = np.einsum("ij,jk,ik->i", m, cov_nb, m)
     var_c = np.diag(cov(wc[:, base_c.base_index]))
-    lost = tuple(p for p, a, b in zip(base.param_names, base.identifiable, base_c.identifiable, strict=True) if a and not b)
+    lost = tuple(
+        p for p, a, b in zip(base.param_names, base.identifiable, base_c.identifiable, strict=True) if a and not b
+    )
     # the offsets' null directions that are new: those of the column scan's (sparse, readable)
     # directions that each add a dimension to the null space without offsets (scaled coordinates)
     span = base.null_basis / base.scales[:, None]
@@ -473,7 +479,13 @@ def bias_cost(model, q, qd, qdd, channels: ChannelSet | None = None) -> BiasCost
             span = trial
             new_dirs.append(texts[k])
     return BiasCost(
-        base, base_c, lost, tuple(new_dirs), np.sqrt(var_c / np.maximum(var_nb, 1e-300)),
-        (cond(w[:, base.base_index], base.scales[base.base_index]),
-         cond(wc[:, base_c.base_index], base_c.scales[base_c.base_index])),
-    )  # fmt: skip
+        base,
+        base_c,
+        lost,
+        tuple(new_dirs),
+        np.sqrt(var_c / np.maximum(var_nb, 1e-300)),
+        (
+            cond(w[:, base.base_index], base.scales[base.base_index]),
+            cond(wc[:, base_c.base_index], base_c.scales[base_c.base_index]),
+        ),
+    )

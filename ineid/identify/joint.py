@@ -41,8 +41,7 @@ from ineid.identify.systems import check_frames, remove_offsets, stack
 
 def _robot_of(ds) -> tuple:
     m = ds.meta
-    return (m.urdf, tuple(m.unknown_links), np.asarray(m.gravity).tolist(), m.locked_joints or {},
-            m.channels.to_list())
+    return (m.urdf, tuple(m.unknown_links), np.asarray(m.gravity).tolist(), m.locked_joints or {}, m.channels.to_list())
 
 
 def _label(ds, i: int) -> str:
@@ -61,24 +60,40 @@ def check_same_robot(datasets, validate=None) -> None:
     first = everything[0]
     for i, ds in enumerate(everything[1:], start=1):
         if _robot_of(ds) != _robot_of(first):
-            what = [n for n, a, b in zip(("URDF", "unknown links", "gravity", "locked joints", "channels"),
-                                         _robot_of(first), _robot_of(ds), strict=True) if a != b]
+            what = [
+                n
+                for n, a, b in zip(
+                    ("URDF", "unknown links", "gravity", "locked joints", "channels"),
+                    _robot_of(first),
+                    _robot_of(ds),
+                    strict=True,
+                )
+                if a != b
+            ]
             role = "--validate" if validate is not None and ds is validate else "input"
             raise IdentificationError(
                 f"{role} {_label(ds, i)} is a recording of robot {ds.meta.robot!r} but {_label(first, 0)} is of "
                 f"{first.meta.robot!r} (they differ in {', '.join(what)}): fit and validate with recordings of one "
-                "robot, the same URDF, unknown links and channels", status="different_robots")
+                "robot, the same URDF, unknown links and channels",
+                status="different_robots",
+            )
         if ds.n_configs != first.n_configs:
             raise IdentificationError(
                 f"{_label(ds, i)} holds {ds.n_configs} configurations and {_label(first, 0)} {first.n_configs}: "
                 "select the same number from each (--select), configuration i of each is fitted together",
-                status="config_mismatch")
-        if ds.theta_unknown is not None and first.theta_unknown is not None and not np.allclose(
-                ds.theta_unknown, first.theta_unknown, rtol=1e-12, atol=0.0):
+                status="config_mismatch",
+            )
+        if (
+            ds.theta_unknown is not None
+            and first.theta_unknown is not None
+            and not np.allclose(ds.theta_unknown, first.theta_unknown, rtol=1e-12, atol=0.0)
+        ):
             raise IdentificationError(
                 f"{_label(ds, i)} and {_label(first, 0)} are synthetic datasets of different true parameters "
                 "(other seeds or sampling): a joint fit needs recordings of the same bodies; split one dataset's "
-                "frames instead", status="different_bodies")
+                "frames instead",
+                status="different_bodies",
+            )
 
 
 def solve_recordings(datasets, settings, model=None, validate=None, progress=None) -> SolveResults:
@@ -106,15 +121,21 @@ def solve_recordings(datasets, settings, model=None, validate=None, progress=Non
     datasets = list(datasets)
     check_same_robot(datasets, validate)
     if settings.method not in ("linear", "nonlinear", "consistent") or settings.backend != "jax":
-        raise IdentificationError("several recordings or --validate are fitted by the linear, nonlinear and "
-                                  "consistent methods with backend 'jax'", status="unsupported")
+        raise IdentificationError(
+            "several recordings or --validate are fitted by the linear, nonlinear and "
+            "consistent methods with backend 'jax'",
+            status="unsupported",
+        )
     if settings.two_step:
-        raise IdentificationError("--two-step fits one dataset; leave it out with several recordings or --validate",
-                                  status="unsupported")
+        raise IdentificationError(
+            "--two-step fits one dataset; leave it out with several recordings or --validate", status="unsupported"
+        )
     if settings.frames is not None:
-        raise IdentificationError("with several recordings or --validate every frame of the inputs is fitted: "
-                                  "leave out --fit-frames (--validate holds out a whole recording)",
-                                  status="unsupported")
+        raise IdentificationError(
+            "with several recordings or --validate every frame of the inputs is fitted: "
+            "leave out --fit-frames (--validate holds out a whole recording)",
+            status="unsupported",
+        )
     t_start = time.perf_counter()
     ds0 = datasets[0]
     model = model or ds0.model()
@@ -135,22 +156,45 @@ def solve_recordings(datasets, settings, model=None, validate=None, progress=Non
     # 1. the blocks of each input (centred on its own with offsets), summed
     total, offsets = None, []
     for ds in datasets:
-        blocks = information_blocks(model, base, ds.q, ds.qd, ds.qdd, ds.measured(channels), ds.theta_known,
-                                    sums=with_bias, channels=channels)
+        blocks = information_blocks(
+            model, base, ds.q, ds.qd, ds.qdd, ds.measured(channels), ds.theta_known, sums=with_bias, channels=channels
+        )
         if with_bias:
             blocks, off = blocks.centred(base, mask)
             offsets.append(off)
-        total = blocks if total is None else InformationBlocks(total.G + blocks.G, total.h + blocks.h,
-                                                               total.e + blocks.e, total.n_frames + blocks.n_frames)
+        total = (
+            blocks
+            if total is None
+            else InformationBlocks(
+                total.G + blocks.G, total.h + blocks.h, total.e + blocks.e, total.n_frames + blocks.n_frames
+            )
+        )
     lost = mask.astype(np.float64) * len(datasets) if with_bias else None
     fit, refit = fit_base_blocks(total, base, settings.weights, axis_sigma, lost)
     for i in np.flatnonzero(refit):  # ill-conditioned: QR of the stacked, centred frames of every input
-        parts = [stack(model, d.q[i:i + 1], d.qd[i:i + 1], d.qdd[i:i + 1], d.measured(channels)[i:i + 1],
-                       d.theta_known, channels) for d in datasets]
+        parts = [
+            stack(
+                model,
+                d.q[i : i + 1],
+                d.qd[i : i + 1],
+                d.qdd[i : i + 1],
+                d.measured(channels)[i : i + 1],
+                d.theta_known,
+                channels,
+            )
+            for d in datasets
+        ]
         if with_bias:
             parts = [remove_offsets(w, y, n_axes, mask)[:2] for w, y in parts]
-        ref = fit_base(np.concatenate([w for w, _ in parts], axis=1), np.concatenate([y for _, y in parts], axis=1),
-                       base, settings.weights, axis_sigma, n_axes, lost)
+        ref = fit_base(
+            np.concatenate([w for w, _ in parts], axis=1),
+            np.concatenate([y for _, y in parts], axis=1),
+            base,
+            settings.weights,
+            axis_sigma,
+            n_axes,
+            lost,
+        )
         for f in dataclasses.fields(type(fit)):
             if f.name != "dof":
                 getattr(fit, f.name)[i] = getattr(ref, f.name)[0]
@@ -159,8 +203,10 @@ def solve_recordings(datasets, settings, model=None, validate=None, progress=Non
 
     # 2. the exact residuals of every input at the linear estimate
     def residuals(theta_u):
-        return sum(estimate_residual_sums(model, d, d.n_frames, 0, theta_u, channels,
-                                          offsets[k] if with_bias else None)[0] for k, d in enumerate(datasets))
+        return sum(
+            estimate_residual_sums(model, d, d.n_frames, 0, theta_u, channels, offsets[k] if with_bias else None)[0]
+            for k, d in enumerate(datasets)
+        )
 
     theta_lin = linear_theta(fit, base, prior)
     fit = with_exact_rss(fit, residuals(theta_lin))
@@ -199,24 +245,38 @@ def solve_recordings(datasets, settings, model=None, validate=None, progress=Non
         n_val = validate.n_frames
         ok = est.success
         meta["validation"] = {
-            "path": None if validate.path is None else str(validate.path), "fingerprint": validate.fingerprint(),
-            "n_frames": n_val, "offsets": "fitted alone on it, parameters fixed" if with_bias else "none",
+            "path": None if validate.path is None else str(validate.path),
+            "fingerprint": validate.fingerprint(),
+            "n_frames": n_val,
+            "offsets": "fitted alone on it, parameters fixed" if with_bias else "none",
             "rms": np.median(val_rms[ok], axis=0).tolist() if ok.any() else None,
             "rel": float(np.median(val_rel[ok])) if ok.any() else None,
         }
     meta["recordings"] = recordings
     meta["total_seconds"] = time.perf_counter() - t_start
     return SolveResults(
-        settings=settings, base=base, param_names=tuple(base.param_names),
+        settings=settings,
+        base=base,
+        param_names=tuple(base.param_names),
         config_index=np.asarray(ds0.config_index, dtype=np.int64),
-        theta_hat=est.theta, theta_std=est.theta_std, base_hat=est.beta, base_std=est.beta_std,
-        success=est.success, status=np.asarray(est.status, dtype=object),
+        theta_hat=est.theta,
+        theta_std=est.theta_std,
+        base_hat=est.beta,
+        base_std=est.beta_std,
+        success=est.success,
+        status=np.asarray(est.status, dtype=object),
         seconds=np.full(c, meta["total_seconds"] / max(c, 1)),
-        fit_rms=fit_rms, validation_rms=val_rms, validation_rel=val_rel,
-        n_frames_fit=n_total, n_frames_validation=n_val, theta_prior=prior,
+        fit_rms=fit_rms,
+        validation_rms=val_rms,
+        validation_rel=val_rel,
+        n_frames_fit=n_total,
+        n_frames_validation=n_val,
+        theta_prior=prior,
         theta_true=truth_with_extras(ds0, base),
-        meta=meta, bias_hat=bias_hat, bias_std=bias_std,
-    )  # fmt: skip
+        meta=meta,
+        bias_hat=bias_hat,
+        bias_std=bias_std,
+    )
 
 
 def validation_error(model, ds, theta_u, channels, offset_mask=None) -> tuple[np.ndarray, np.ndarray]:

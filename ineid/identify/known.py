@@ -69,7 +69,9 @@ def known_std(model, uncertainty: Iterable[tuple[str, float]]) -> np.ndarray:
             what = "an unknown (identified) link" if link in model.unknown_links else "not a link of this robot"
             raise IdentificationError(
                 f"--known-uncertainty {link}={f:g}: {link!r} is {what}; name one of the known links "
-                f"({', '.join(known) or 'none'})", status="unknown_link")
+                f"({', '.join(known) or 'none'})",
+                status="unknown_link",
+            )
         frac[known.index(link)] = f
     cad = np.asarray(model.theta_cad[model.known_index], dtype=np.float64)
     if not len(cad):
@@ -78,8 +80,17 @@ def known_std(model, uncertainty: Iterable[tuple[str, float]]) -> np.ndarray:
     return np.repeat(frac, 10) * size
 
 
-def known_covariance(model, base, q, qd, qdd, channels, axis_weights: np.ndarray, std_k: np.ndarray,
-                     offset_mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def known_covariance(
+    model,
+    base,
+    q,
+    qd,
+    qdd,
+    channels,
+    axis_weights: np.ndarray,
+    std_k: np.ndarray,
+    offset_mask: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """``(S Sigma_k S^T, e)`` of every configuration (module doc): (C, r, r) and (C,).
 
     ``e = E||(I - H) D R_k dtheta_k||^2 = ||(I - H) D R_k Sigma_k^(1/2)||_F^2`` is what the CAD

@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.identify.identifiability import BaseParameters, numerical_rank
-from ineid.identify.weighting import (  # noqa: F401  (ESTIMATE_ROUNDS was defined here)
+from ineid.identify.weighting import (  # ESTIMATE_ROUNDS was defined here
     ESTIMATE_ROUNDS,
     estimated_axis_weights,
     estimated_weights_inflation,
@@ -129,8 +129,9 @@ def axis_weights(weights: str, axis_sigma, c: int, n_axes: int = 6) -> np.ndarra
     try:
         sig = np.broadcast_to(np.asarray(axis_sigma, dtype=np.float64), (c, n_axes))
     except ValueError:
-        raise ValueError(f"axis_sigma must hold {n_axes} numbers (one per measured axis), "
-                         f"got {np.asarray(axis_sigma).tolist()}") from None
+        raise ValueError(
+            f"axis_sigma must hold {n_axes} numbers (one per measured axis), got {np.asarray(axis_sigma).tolist()}"
+        ) from None
     if np.any(sig <= 0) or not np.all(np.isfinite(sig)):
         raise ValueError(f"axis_sigma must be positive and finite, got {np.asarray(axis_sigma).tolist()}")
     return 1.0 / sig
@@ -177,8 +178,9 @@ def fit_base(
         signal = np.einsum("cfa,cfa->ca", y.reshape(c, -1, n_axes), y.reshape(c, -1, n_axes))
         for _ in range(ESTIMATE_ROUNDS):
             per_axis = resid.reshape(c, n // n_axes, n_axes) / axis_w[:, None, :]
-            axis_w = estimated_axis_weights(np.einsum("cfa,cfa->ca", per_axis, per_axis), g, axis_w,
-                                            _r_inverse(rr), frames, signal)
+            axis_w = estimated_axis_weights(
+                np.einsum("cfa,cfa->ca", per_axis, per_axis), g, axis_w, _r_inverse(rr), frames, signal
+            )
             beta, rr, rss, rank, cond, resid = _weighted_fit(w_b, y, axis_w, scales_b)
     sigma2 = rss / max(dof, 1)
     a_inv = _r_inverse(rr)
@@ -211,8 +213,10 @@ def _normal_fit(blocks, axis_w: np.ndarray, scales_b: np.ndarray):
     c = blocks.e.shape[0]
     if c <= NORMAL_CHUNK:
         return _normal_fit_chunk(blocks, axis_w, scales_b)
-    parts = [_normal_fit_chunk(blocks.select(slice(i, i + NORMAL_CHUNK)), axis_w[i : i + NORMAL_CHUNK], scales_b)
-             for i in range(0, c, NORMAL_CHUNK)]
+    parts = [
+        _normal_fit_chunk(blocks.select(slice(i, i + NORMAL_CHUNK)), axis_w[i : i + NORMAL_CHUNK], scales_b)
+        for i in range(0, c, NORMAL_CHUNK)
+    ]
     return tuple(np.concatenate(p) for p in zip(*parts, strict=True))
 
 
@@ -305,8 +309,9 @@ def fit_base_blocks(
     frames = _axis_frames(blocks.n_frames, n_axes, axis_offsets)
     if estimated:
         for _ in range(ESTIMATE_ROUNDS):
-            axis_w = estimated_axis_weights(blocks.axis_rss(np.nan_to_num(beta)), blocks.G, axis_w, a_inv, frames,
-                                            blocks.e)
+            axis_w = estimated_axis_weights(
+                blocks.axis_rss(np.nan_to_num(beta)), blocks.G, axis_w, a_inv, frames, blocks.e
+            )
             beta, rr, rss, rank, cond, a_inv, bad = _normal_fit(blocks, axis_w, scales_b)
             refit |= bad
         a_inv = a_inv + estimated_weights_inflation(blocks.G, axis_w, a_inv, frames)
@@ -411,7 +416,7 @@ def fit_base_casadi(w: np.ndarray, y: np.ndarray, base: BaseParameters, axis_w: 
 
     ``w`` (AF, 10 n_u) and ``y`` (AF,); ``axis_w`` (A,) optional row weights (default: none, six axes).
     """
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     n = w.shape[0]
     axis_w = np.ones(6) if axis_w is None else np.asarray(axis_w, dtype=np.float64)

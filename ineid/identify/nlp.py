@@ -84,7 +84,7 @@ def null_basis_scaled(base: BaseParameters) -> np.ndarray:
 
 
 def _theta_nonlinear(x, mass_s, length):
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     out = []
     for k in range(len(mass_s)):
@@ -95,19 +95,22 @@ def _theta_nonlinear(x, mass_s, length):
         ixx, ixy, iyy, ixz, iyz, izz = (xs[4 + j] * i_s for j in range(6))
         cx, cy, cz = c[0], c[1], c[2]
         out += [
-            m, m * cx, m * cy, m * cz,
+            m,
+            m * cx,
+            m * cy,
+            m * cz,
             ixx + m * (cy * cy + cz * cz),
             ixy - m * cx * cy,
             iyy + m * (cx * cx + cz * cz),
             ixz - m * cx * cz,
             iyz - m * cy * cz,
             izz + m * (cx * cx + cy * cy),
-        ]  # fmt: skip
+        ]
     return ca.vertcat(*out)
 
 
 def _log_cholesky_factor(x, k):
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     a, d1, d2, d3, s12, s23, s13, t1, t2, t3 = (x[10 * k + j] for j in range(10))
     u = ca.SX.zeros(4, 4)
@@ -119,7 +122,7 @@ def _log_cholesky_factor(x, k):
 
 def _entropic(x, prior_j_inv: list[np.ndarray]):
     """sum over links of tr(Jp^-1 J) - log det(Jp^-1 J) - 4 (scaled units; zero at the prior)."""
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     total = 0
     for k, jp_inv in enumerate(prior_j_inv):
@@ -130,7 +133,7 @@ def _entropic(x, prior_j_inv: list[np.ndarray]):
 
 
 def _theta_log_cholesky(x, mass_s, length):
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     out = []
     for k in range(len(mass_s)):
@@ -141,9 +144,17 @@ def _theta_log_cholesky(x, mass_s, length):
         sigma = j[0:3, 0:3] * mass_s[k] * length[k] ** 2
         tr = sigma[0, 0] + sigma[1, 1] + sigma[2, 2]
         out += [
-            m, h[0], h[1], h[2],
-            tr - sigma[0, 0], -sigma[0, 1], tr - sigma[1, 1], -sigma[0, 2], -sigma[1, 2], tr - sigma[2, 2],
-        ]  # fmt: skip
+            m,
+            h[0],
+            h[1],
+            h[2],
+            tr - sigma[0, 0],
+            -sigma[0, 1],
+            tr - sigma[1, 1],
+            -sigma[0, 2],
+            -sigma[1, 2],
+            tr - sigma[2, 2],
+        ]
     return ca.vertcat(*out)
 
 
@@ -236,7 +247,7 @@ class NlpSolver:
                 ``jit``): several seconds once per solver, then faster solves (see
                 ``benchmarks/identify.py``). Needs a C compiler.
         """
-        import casadi as ca  # noqa: PLC0415
+        import casadi as ca
 
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
@@ -285,14 +296,17 @@ class NlpSolver:
         }
         opts.update({f"ipopt.{k}": v for k, v in (ipopt_options or {}).items()})
         if compiled:
-            from ineid.identify.casadi_c import c_compiler  # noqa: PLC0415
+            from ineid.identify.casadi_c import c_compiler
 
             cc = c_compiler()
             if cc is None:
-                raise CodegenError("compiled IPOPT problems need a C compiler (cc, gcc or clang on PATH, or $CC); "
-                                   "install one or use the default backend")
-            opts.update({"jit": True, "compiler": "shell",
-                         "jit_options": {"compiler": cc, "flags": ["-O2"], "verbose": False}})
+                raise CodegenError(
+                    "compiled IPOPT problems need a C compiler (cc, gcc or clang on PATH, or $CC); "
+                    "install one or use the default backend"
+                )
+            opts.update(
+                {"jit": True, "compiler": "shell", "jit_options": {"compiler": cc, "flags": ["-O2"], "verbose": False}}
+            )
         solver = nlpsol(f"ineid_{method}", {"x": x, "p": p, "f": f, "g": g}, opts)  # stops on SIGINT, SIGTERM
         theta_fn = ca.Function("theta", [x], [theta])
         return cls(method, base, prior, pull, entropic, solver, theta_fn)
@@ -300,7 +314,9 @@ class NlpSolver:
     def start(self, theta: np.ndarray) -> np.ndarray:
         n_lp, scales = self.base.n_link_params, self.base.scales
         x = (nonlinear_start if self.method == "nonlinear" else log_cholesky_start)(theta[:n_lp], scales[:n_lp])
-        return np.concatenate([x, np.asarray(theta[n_lp:], dtype=np.float64) / scales[n_lp:]]) if self.base.n_extra else x
+        return (
+            np.concatenate([x, np.asarray(theta[n_lp:], dtype=np.float64) / scales[n_lp:]]) if self.base.n_extra else x
+        )
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lb, ub = np.full(self.n_params, -np.inf), np.full(self.n_params, np.inf)

@@ -77,6 +77,12 @@ def payload_section(model, base, theta: np.ndarray, cov_beta: np.ndarray, succes
             std = np.sqrt(np.maximum(var, 0.0))
             std[np.any(jac[:, unidentified] != 0, axis=1)] = np.nan
             values[c], stds[c] = q, std
-        out[payload.link] = {"mass": values[:, 0], "mass_std": stds[:, 0], "com": values[:, 1:4],
-                             "com_std": stds[:, 1:4], "inertia": values[:, 4:], "inertia_std": stds[:, 4:]}
+        out[payload.link] = {
+            "mass": values[:, 0],
+            "mass_std": stds[:, 0],
+            "com": values[:, 1:4],
+            "com_std": stds[:, 1:4],
+            "inertia": values[:, 4:],
+            "inertia_std": stds[:, 4:],
+        }
     return out

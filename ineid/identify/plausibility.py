@@ -54,8 +54,17 @@ from ineid.data.streams import FORCE_UNITS, MOMENT_UNITS
 from ineid.errors import IdentificationError
 from ineid.identify.unit_fits import fit_error, fitted_channels, refit_units
 
-__all__ = ["Finding", "check_fitted_units", "check_held_out_error", "check_solve", "check_total_mass",
-           "estimated_total_mass", "fitted_channels", "fitted_static_force", "linear_counterpart"]  # fmt: skip
+__all__ = [
+    "Finding",
+    "check_fitted_units",
+    "check_held_out_error",
+    "check_solve",
+    "check_total_mass",
+    "estimated_total_mass",
+    "fitted_channels",
+    "fitted_static_force",
+    "linear_counterpart",
+]
 
 MASS_FACTOR = 3.0
 """An estimated total mass more than this factor above or below the URDF's warns."""
@@ -94,9 +103,11 @@ def _wrench_fix(force: float, moment: float) -> tuple[str, str]:
         return f"forces in {fw} and moments in {mw}", "data import " + " ".join(options)
     if force == moment:
         return "units other than N and N*m", f"data import --wrench-scale {force:g}"
-    return (f"forces x {force:g} and moments x {moment:g} off N and N*m",
-            f"data import --force-unit, --moment-unit and --wrench-scale to make the forces x {force:g} and the "
-            f"moments x {moment:g}")
+    return (
+        f"forces x {force:g} and moments x {moment:g} off N and N*m",
+        f"data import --force-unit, --moment-unit and --wrench-scale to make the forces x {force:g} and the "
+        f"moments x {moment:g}",
+    )
 
 
 def linear_counterpart(ds, res, model):
@@ -109,15 +120,22 @@ def linear_counterpart(ds, res, model):
     """
     if res.settings.method == "linear":
         return res
-    from dataclasses import replace  # noqa: PLC0415
+    from dataclasses import replace
 
-    from ineid.identify.solve import solve_dataset  # noqa: PLC0415
+    from ineid.identify.solve import solve_dataset
 
     network = res.settings.method == "network"
     backend = "casadi" if res.settings.backend == "casadi" else "jax"  # the route chosen: no compilation
-    settings = replace(res.settings, method="linear", frames=res.n_frames_fit, backend=backend, run=None, bounds=None,
-                       weights="none" if network else res.settings.weights,
-                       axis_sigma=None if network else res.settings.axis_sigma)  # fmt: skip
+    settings = replace(
+        res.settings,
+        method="linear",
+        frames=res.n_frames_fit,
+        backend=backend,
+        run=None,
+        bounds=None,
+        weights="none" if network else res.settings.weights,
+        axis_sigma=None if network else res.settings.axis_sigma,
+    )
     return solve_dataset(ds, settings, model=model)
 
 
@@ -135,7 +153,8 @@ def check_total_mass(res, model) -> Finding | None:
     est = float(np.median(m))
     ratio = est / urdf
     what = f"the estimated total mass of the moving links {est:.4g} kg" + (
-        f" (median over {len(m)} configurations)" if len(m) > 1 else "")
+        f" (median over {len(m)} configurations)" if len(m) > 1 else ""
+    )
     if est < 0:
         # with offsets estimated the static part is absorbed and a flipped wrench leaves a small
         # negative mass: only a large one also says something about the unit
@@ -153,8 +172,10 @@ def check_total_mass(res, model) -> Finding | None:
         words, options = _wrench_fix(scale, scale)
         hint = f"the wrench looks like {words} ({options})"
     else:
-        hint = ("check the sensor pose (data import --sensor-pose), the wrench's unit (data import --wrench-scale) "
-                "and the URDF's masses")
+        hint = (
+            "check the sensor pose (data import --sensor-pose), the wrench's unit (data import --wrench-scale) "
+            "and the URDF's masses"
+        )
     return Finding("total_mass_scale", f"{what} is {times(ratio)} the URDF's {urdf:.4g} kg: {hint}")
 
 
@@ -169,8 +190,12 @@ def _held_out_errors(res, ds) -> tuple[np.ndarray, str]:
     if res.n_frames_validation:
         if not offsets:
             return np.asarray(res.validation_rel, dtype=np.float64), "held-out"
-        frames, rms, n, where = (slice(res.n_frames_fit, res.n_frames_fit + res.n_frames_validation),
-                                 res.validation_rms, res.n_frames_validation, "held-out")  # fmt: skip
+        frames, rms, n, where = (
+            slice(res.n_frames_fit, res.n_frames_fit + res.n_frames_validation),
+            res.validation_rms,
+            res.n_frames_validation,
+            "held-out",
+        )
     else:
         frames, rms, n, where = slice(0, res.n_frames_fit), res.fit_rms, res.n_frames_fit, "fitted"
     measured = ds.measured(fitted_channels(res, ds))  # every axis the fit saw
@@ -201,8 +226,11 @@ def check_held_out_error(res, ds) -> Finding | None:
     median = math.inf if math.isnan(median) else median
     if not median > HELD_OUT_ERROR:
         return None
-    shown = f"error {median:.3g}" if math.isfinite(median) else (
-        f"the {where} wrench is " + ("constant" if res.bias_hat is not None else "zero"))
+    shown = (
+        f"error {median:.3g}"
+        if math.isfinite(median)
+        else (f"the {where} wrench is " + ("constant" if res.bias_hat is not None else "zero"))
+    )
     untared = ", an untared sensor (solve --bias estimate)" if res.settings.bias == "none" else ""
     return Finding(
         "held_out_error",
@@ -270,18 +298,29 @@ def check_fitted_units(ds, res, linear, model) -> Finding | None:
     what = "wrench" if wrench else "measurements"
     ratio = before / best.error if 0 < best.error and math.isfinite(before) else math.inf
     gain = " over 1000x better" if ratio > 1000 else f" {times(ratio)} better"
-    evidence = (f"the model explains the {what}{gain} (error {best.error:.2g} against {before:.2g}, a linear fit of "
-                f"{best.n_frames} frames)")
+    evidence = (
+        f"the model explains the {what}{gain} (error {best.error:.2g} against {before:.2g}, a linear fit of "
+        f"{best.n_frames} frames)"
+    )
     if best.angle != 1.0:
         if imported_deg:
-            return Finding("angles_in_radians", "the joint angles look like radians that --angle-unit deg converted "
-                           f"again: read as radians {evidence}: import the recording without --angle-unit deg")
-        return Finding("angles_in_degrees", f"the joint angles look like degrees: read as degrees {evidence}: "
-                       "import the recording with data import --angle-unit deg")
+            return Finding(
+                "angles_in_radians",
+                "the joint angles look like radians that --angle-unit deg converted "
+                f"again: read as radians {evidence}: import the recording without --angle-unit deg",
+            )
+        return Finding(
+            "angles_in_degrees",
+            f"the joint angles look like degrees: read as degrees {evidence}: "
+            "import the recording with data import --angle-unit deg",
+        )
     moment = force * best.moment
     words, options = _wrench_fix(force, moment)
-    change = f"the wrench x {force:g}" if force == moment else " and ".join(
-        f"the {name} x {k:g}" for name, k in (("forces", force), ("moments", moment)) if k != 1.0)
+    change = (
+        f"the wrench x {force:g}"
+        if force == moment
+        else " and ".join(f"the {name} x {k:g}" for name, k in (("forces", force), ("moments", moment)) if k != 1.0)
+    )
     return Finding("wrench_unit", f"the wrench looks like {words}: with {change} {evidence}: {options}")
 
 
@@ -297,8 +336,11 @@ def check_solve(ds, res, model=None) -> list[Finding]:
         The findings, at most one per likely mistake; empty when all is plausible.
     """
     model = model or ds.model()
-    first = (check_gravity(model.gravity, "the dataset's gravity", "data import or data generate --gravity")
-             or check_recording_time(ds) or check_angle_units(model, ds.q))
+    first = (
+        check_gravity(model.gravity, "the dataset's gravity", "data import or data generate --gravity")
+        or check_recording_time(ds)
+        or check_angle_units(model, ds.q)
+    )
     if first is not None:  # every fit of these frames is garbage: nothing more to learn
         return [first]
     try:
@@ -312,9 +354,15 @@ def check_solve(ds, res, model=None) -> list[Finding]:
     if fit is None or not np.asarray(fit.success, dtype=bool).any():
         return []
     force = fitted_static_force(fit, ds)
-    static = None if force is None else check_static_force(
-        model, force, "the fitted model's static force" if fit.bias_hat is not None
-        else "the mean force over the fitted frames")
+    static = (
+        None
+        if force is None
+        else check_static_force(
+            model,
+            force,
+            "the fitted model's static force" if fit.bias_hat is not None else "the mean force over the fitted frames",
+        )
+    )
     held = check_held_out_error(fit, ds)
     mass = None if linear is None else check_total_mass(linear, model)
     if held is not None:

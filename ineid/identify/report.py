@@ -70,12 +70,14 @@ def validation(res, ds, model=None, config: int | None = None) -> Validation:
     Raises:
         DatasetError: the configuration was not solved, or none was.
     """
-    from ineid.identify.steps import predicted_wrench  # noqa: PLC0415
+    from ineid.identify.steps import predicted_wrench
 
     model = model or ds.model()
     i = _solved(res, config)
     held_out = res.n_frames_validation > 0
-    frames = slice(res.n_frames_fit, res.n_frames_fit + res.n_frames_validation) if held_out else slice(0, res.n_frames_fit)
+    frames = (
+        slice(res.n_frames_fit, res.n_frames_fit + res.n_frames_validation) if held_out else slice(0, res.n_frames_fit)
+    )
     one = ds.select(configs=[i])
     records = res.meta.get("channels")  # the channels fitted (a results file of ineid 0.1: the dataset's)
     channels = ds.meta.channels if records is None else ChannelSet.from_list(records, "the results' channels")
@@ -97,7 +99,7 @@ def validation_on(res, ds, model=None, config: int | None = None) -> Validation:
     Raises:
         DatasetError: the configuration was not solved, or none was.
     """
-    from ineid.identify.steps import predicted_wrench  # noqa: PLC0415
+    from ineid.identify.steps import predicted_wrench
 
     model = model or ds.model()
     i = _solved(res, config)
@@ -124,7 +126,9 @@ def _solved(res, config: int | None) -> int:
         raise DatasetError("no configuration was identified, so there is nothing to validate; see the solver status")
     hits = solved if config is None else np.flatnonzero((np.asarray(res.config_index) == config) & res.success)
     if not hits.size:
-        raise DatasetError(f"configuration {config} was not solved; solved ones: {res.config_index[solved][:10].tolist()}")
+        raise DatasetError(
+            f"configuration {config} was not solved; solved ones: {res.config_index[solved][:10].tolist()}"
+        )
     return int(hits[0])
 
 
@@ -132,8 +136,21 @@ def _validation(model, channels, meas, pred, t, one, frames, held_out, config, s
     rms = np.sqrt(np.mean((meas - pred) ** 2, axis=0))
     frame = "sensor" if channels.transform(model) is not None else "base"
     blocks = tuple((b.channel.key, b.start, b.stop, b.channel.kind) for b in channels.blocks(model))
-    return Validation(t, meas, pred, rms, held_out, config, frame, channels.axes(model), channels.units(model),
-                      series=one.time is not None, qd=np.asarray(one.qd[0, frames]), blocks=blocks, source=source)
+    return Validation(
+        t,
+        meas,
+        pred,
+        rms,
+        held_out,
+        config,
+        frame,
+        channels.axes(model),
+        channels.units(model),
+        series=one.time is not None,
+        qd=np.asarray(one.qd[0, frames]),
+        blocks=blocks,
+        source=source,
+    )
 
 
 def plot_validation(v: Validation, path: str | Path, title: str = "", span: tuple[float, float] | None = None) -> Path:
@@ -143,10 +160,10 @@ def plot_validation(v: Validation, path: str | Path, title: str = "", span: tupl
     ``span``: ``(start, stop)`` seconds shown (default: :func:`ineid.identify.report_figures.default_span`).
     ``title`` (it may hold names from the inputs) is drawn literally: mathtext is off for it.
     """
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
-    from ineid._atomic import save_figure  # noqa: PLC0415
-    from ineid.identify.report_figures import validation_figure  # noqa: PLC0415
+    from ineid._atomic import save_figure
+    from ineid.identify.report_figures import validation_figure
 
     fig = validation_figure(v, title=title, span=span)
     try:

@@ -22,10 +22,10 @@ DEFAULT_SPAN = 10.0
 
 
 def _plt():
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     return plt
 
@@ -44,10 +44,12 @@ def _window(v, span) -> tuple[np.ndarray, str]:
         return np.arange(len(v.time)), "whole span"
     keep = np.flatnonzero((v.time >= span[0]) & (v.time <= span[1]))
     if keep.size < 2:
-        from ineid.errors import DatasetError  # noqa: PLC0415
+        from ineid.errors import DatasetError
 
-        raise DatasetError(f"the span {span[0]:g}..{span[1]:g} s holds {keep.size} validation frames; the frames run "
-                           f"from {v.time[0]:.6g} to {v.time[-1]:.6g} s")  # fmt: skip
+        raise DatasetError(
+            f"the span {span[0]:g}..{span[1]:g} s holds {keep.size} validation frames; the frames run "
+            f"from {v.time[0]:.6g} to {v.time[-1]:.6g} s"
+        )
     if keep.size == len(v.time):
         return keep, "whole span"
     return keep, f"{v.time[keep[0]]:.4g}..{v.time[keep[-1]]:.4g} s of {v.time[0]:.4g}..{v.time[-1]:.4g} s"
@@ -96,8 +98,9 @@ def validation_figure(v, title: str = "", span: tuple[float, float] | None = Non
             top.legend(loc="best", fontsize=8)
     which = v.source or ("held-out frames" if v.held_out else "fitted frames (none held out)")
     # The title holds the robot's name: literal text, never mathtext (a "$" in it would be parsed).
-    fig.suptitle(f"{title}measured vs predicted, {which}, configuration {v.config}, {v.frame} frame ({shown})",
-                 parse_math=False)
+    fig.suptitle(
+        f"{title}measured vs predicted, {which}, configuration {v.config}, {v.frame} frame ({shown})", parse_math=False
+    )
     fig.subplots_adjust(left=0.08, right=0.98, top=1 - 0.75 / fig.get_figheight(), bottom=0.5 / fig.get_figheight())
     return fig
 
@@ -110,7 +113,7 @@ def spectrum_figure(v, noise=None, columns: int = 3):
     drawn dashed where the noise is known.
     """
     plt = _plt()
-    from matplotlib import ticker  # noqa: PLC0415
+    from matplotlib import ticker
 
     n_axes = len(v.axes)
     n_rows = -(-n_axes // columns)
@@ -139,8 +142,14 @@ def spectrum_figure(v, noise=None, columns: int = 3):
         ax.yaxis.set_minor_formatter(ticker.NullFormatter())
         if k // columns == n_rows - 1 or k + columns >= n_axes:
             ax.set_xlabel("frequency (Hz)")
-    fig.subplots_adjust(left=0.07, right=0.98, top=1 - 0.35 / fig.get_figheight(), bottom=0.55 / fig.get_figheight(),
-                        hspace=0.45, wspace=0.25)  # fmt: skip
+    fig.subplots_adjust(
+        left=0.07,
+        right=0.98,
+        top=1 - 0.35 / fig.get_figheight(),
+        bottom=0.55 / fig.get_figheight(),
+        hspace=0.45,
+        wspace=0.25,
+    )
     return fig
 
 

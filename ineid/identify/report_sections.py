@@ -70,10 +70,13 @@ def method_section(res) -> dict:
 def robot_section(res, model) -> dict:
     m = res.meta
     out = {
-        "name": m["robot"], "source": m["source"], "unknown_links": list(m["unknown_links"]),
+        "name": m["robot"],
+        "source": m["source"],
+        "unknown_links": list(m["unknown_links"]),
         "gravity": ", ".join(fmt(g) for g in m["gravity"]),
         "locked": [f"{k} = {fmt(v)} rad" for k, v in sorted((m.get("locked_joints") or {}).items())],
-        "joints": None, "known_links": None,
+        "joints": None,
+        "known_links": None,
     }
     if model is not None:
         out["joints"] = list(model.joint_names)
@@ -86,15 +89,19 @@ def identifiability_section(res, cost=None) -> dict:
     offsets' cost (:class:`ineid.identify.identifiability.BiasCost`) when given; the extra parameters."""
     base = res.base
     out = {
-        "rank": base.rank, "n_params": base.n_params, "names": list(base.names),
+        "rank": base.rank,
+        "n_params": base.n_params,
+        "names": list(base.names),
         "null": base.null_directions(),
         "identifiable": [p for p, ok in zip(base.param_names, base.identifiable, strict=True) if ok],
-        "extra": list(base.param_names[base.n_link_params:]), "cost": None,
+        "extra": list(base.param_names[base.n_link_params :]),
+        "cost": None,
     }
     if cost is not None:
         out["cost"] = {
             "rank": f"{cost.base.rank} without offsets, {cost.base_bias.rank} with",
-            "lost": list(cost.lost), "null": list(cost.new_null_directions),
+            "lost": list(cost.lost),
+            "null": list(cost.new_null_directions),
             "condition": f"{fmt(cost.condition[0])} without offsets, {fmt(cost.condition[1])} with",
             "inflation": [(n, fmt(x, 3)) for n, x in zip(cost.base_bias.names, cost.std_inflation, strict=True)],
         }
@@ -108,23 +115,36 @@ def estimates_section(res, i: int) -> dict:
     rows = []
     for k, name in enumerate(res.param_names):
         std = res.theta_std[i, k]
-        rows.append({
-            "name": name, "cad": fmt(prior[k]), "estimate": fmt(res.theta_hat[i, k]),
-            "std": fmt(std, 3) if np.isfinite(std) else "- (prior)",
-            "identifiable": bool(res.base.identifiable[k]), "truth": None if truth is None else fmt(truth[k]),
-        })  # fmt: skip
+        rows.append(
+            {
+                "name": name,
+                "cad": fmt(prior[k]),
+                "estimate": fmt(res.theta_hat[i, k]),
+                "std": fmt(std, 3) if np.isfinite(std) else "- (prior)",
+                "identifiable": bool(res.base.identifiable[k]),
+                "truth": None if truth is None else fmt(truth[k]),
+            }
+        )
     base_truth = None if res.theta_true is None else res.base_true[i]
     base_rows = []
     for k, name in enumerate(res.base.names):
         est, std = res.base_hat[i, k], res.base_std[i, k]
         rel = abs(std / est) if est != 0 and np.isfinite(std) else math.nan
-        base_rows.append({"name": name, "estimate": fmt(est), "std": fmt(std, 3),
-                          "rel": "-" if math.isnan(rel) else f"{100 * rel:.2g} %",
-                          "truth": None if base_truth is None else fmt(base_truth[k])})  # fmt: skip
+        base_rows.append(
+            {
+                "name": name,
+                "estimate": fmt(est),
+                "std": fmt(std, 3),
+                "rel": "-" if math.isnan(rel) else f"{100 * rel:.2g} %",
+                "truth": None if base_truth is None else fmt(base_truth[k]),
+            }
+        )
     offsets = None
     if res.bias_hat is not None:
-        offsets = [(a, u, fmt(res.bias_hat[i, k]), fmt(res.bias_std[i, k], 3))
-                   for k, (a, u) in enumerate(zip(res.axes, res.units, strict=True))]
+        offsets = [
+            (a, u, fmt(res.bias_hat[i, k]), fmt(res.bias_std[i, k], 3))
+            for k, (a, u) in enumerate(zip(res.axes, res.units, strict=True))
+        ]
     return {"rows": rows, "base": base_rows, "truth": truth is not None, "offsets": offsets}
 
 
@@ -134,9 +154,20 @@ def validity_section(res, i: int) -> list[dict]:
     prior = res.theta_prior[i] if res.theta_prior.ndim == 2 else res.theta_prior
     out = []
     for k, link in enumerate(res.meta["unknown_links"]):
-        for which, theta in (("estimate", res.theta_hat[i, 10 * k : 10 * k + 10]), ("CAD", prior[10 * k : 10 * k + 10])):
-            row = {"link": link, "which": which, "mass": fmt(theta[0]), "com": "-", "moments": "-", "pseudo": "-",
-                   "triangle": "-", "problems": physical_violations(theta)}
+        for which, theta in (
+            ("estimate", res.theta_hat[i, 10 * k : 10 * k + 10]),
+            ("CAD", prior[10 * k : 10 * k + 10]),
+        ):
+            row = {
+                "link": link,
+                "which": which,
+                "mass": fmt(theta[0]),
+                "com": "-",
+                "moments": "-",
+                "pseudo": "-",
+                "triangle": "-",
+                "problems": physical_violations(theta),
+            }
             if np.all(np.isfinite(theta)):
                 row["pseudo"] = ", ".join(fmt(e, 3) for e in np.linalg.eigvalsh(pseudo_inertia(theta)))
                 if theta[0] > 0:
@@ -153,14 +184,16 @@ def payload_section(res, i: int) -> list[dict] | None:
     """Per payload link: mass, centre of mass and inertia about it (link frame, SI), with std."""
     if not res.payload:
         return None
-    from ineid.identify.payload import INERTIA_NAMES  # noqa: PLC0415
+    from ineid.identify.payload import INERTIA_NAMES
 
     out = []
     for link, q in res.payload.items():
         rows = [("mass", "kg", fmt(q["mass"][i]), fmt(q["mass_std"][i], 3))]
         rows += [(f"com {a}", "m", fmt(q["com"][i, k]), fmt(q["com_std"][i, k], 3)) for k, a in enumerate("xyz")]
-        rows += [(f"{n} about com", "kg*m^2", fmt(q["inertia"][i, k]), fmt(q["inertia_std"][i, k], 3))
-                 for k, n in enumerate(INERTIA_NAMES)]
+        rows += [
+            (f"{n} about com", "kg*m^2", fmt(q["inertia"][i, k]), fmt(q["inertia_std"][i, k], 3))
+            for k, n in enumerate(INERTIA_NAMES)
+        ]
         out.append({"link": link, "rows": rows})
     return out
 
@@ -168,26 +201,52 @@ def payload_section(res, i: int) -> list[dict] | None:
 def data_section(res, ds, validate_ds=None) -> dict:
     """The dataset(s): paths, fingerprints (recorded and found), sizes, rate, origin, noise, channels."""
     m = res.meta
-    out = {"path": m.get("dataset_path") or "-", "fingerprint": m.get("dataset_fingerprint") or "-",
-           "recordings": [(r.get("path") or "in memory", r.get("fingerprint") or "-", r.get("n_frames"))
-                          for r in m.get("recordings") or []],
-           "validation": None, "loaded": None, "channels": [], "sensor": None}  # fmt: skip
+    out = {
+        "path": m.get("dataset_path") or "-",
+        "fingerprint": m.get("dataset_fingerprint") or "-",
+        "recordings": [
+            (r.get("path") or "in memory", r.get("fingerprint") or "-", r.get("n_frames"))
+            for r in m.get("recordings") or []
+        ],
+        "validation": None,
+        "loaded": None,
+        "channels": [],
+        "sensor": None,
+    }
     v = m.get("validation")
     if v:
-        out["validation"] = {"path": v.get("path") or "in memory", "fingerprint": v.get("fingerprint") or "-",
-                             "frames": v.get("n_frames"), "offsets": v.get("offsets")}
+        out["validation"] = {
+            "path": v.get("path") or "in memory",
+            "fingerprint": v.get("fingerprint") or "-",
+            "frames": v.get("n_frames"),
+            "offsets": v.get("offsets"),
+        }
     for rec in m.get("channels") or []:
         rest = {k: val for k, val in rec.items() if k not in ("kind", "key")}
-        out["channels"].append({"key": rec.get("key"), "kind": rec.get("kind"),
-                                "record": "; ".join(f"{k} {v}" for k, v in flatten(rest)) or "-"})
+        out["channels"].append(
+            {
+                "key": rec.get("key"),
+                "kind": rec.get("kind"),
+                "record": "; ".join(f"{k} {v}" for k, v in flatten(rest)) or "-",
+            }
+        )
     if m.get("sensor"):
         out["sensor"] = "; ".join(f"{k} {v}" for k, v in flatten(m["sensor"]))
     if ds is not None:
         meta = ds.meta
-        loaded = {"path": str(ds.path) if ds.path is not None else "in memory", "fingerprint": ds.fingerprint(),
-                  "source": meta.source, "configs": ds.n_configs, "frames": ds.n_frames, "rate": "-", "span": "-",
-                  "written_by": meta.ineid_version or "-", "sampling": flatten(meta.sampling or {}),
-                  "noise": flatten(meta.noise) if meta.noise else [], "origin": flatten(meta.origin or {})}
+        loaded = {
+            "path": str(ds.path) if ds.path is not None else "in memory",
+            "fingerprint": ds.fingerprint(),
+            "source": meta.source,
+            "configs": ds.n_configs,
+            "frames": ds.n_frames,
+            "rate": "-",
+            "span": "-",
+            "written_by": meta.ineid_version or "-",
+            "sampling": flatten(meta.sampling or {}),
+            "noise": flatten(meta.noise) if meta.noise else [],
+            "origin": flatten(meta.origin or {}),
+        }
         if ds.time is not None and ds.n_frames > 1:
             t = np.asarray(ds.time[0], dtype=np.float64)
             loaded["rate"] = f"{fmt(1 / np.median(np.diff(t)), 5)} Hz"
@@ -204,16 +263,22 @@ def excitation_section(res, ds, model, i: int) -> dict | None:
     design JSON lies beside the dataset, the design's condition number and expected std."""
     if ds is None or model is None:
         return None
-    from ineid.channels import ChannelSet  # noqa: PLC0415
-    from ineid.identify.identifiability import analyze_frames  # noqa: PLC0415
+    from ineid.channels import ChannelSet
+    from ineid.identify.identifiability import analyze_frames
 
     records = res.meta.get("channels")
     channels = ds.meta.channels if records is None else ChannelSet.from_list(records, "the results' channels")
     n = min(res.n_frames_fit, ds.n_frames)
     bias = res.settings.bias == "estimate"
     fa = analyze_frames(model, ds.q[i, :n], ds.qd[i, :n], ds.qdd[i, :n], bias=bias, channels=channels)
-    out = {"condition": fmt(fa.condition_number), "rank": f"{fa.rank} of {fa.structural_rank}",
-           "min_frames": fa.min_frames, "problem": fa.problem(), "trajectory": None, "design": None}
+    out = {
+        "condition": fmt(fa.condition_number),
+        "rank": f"{fa.rank} of {fa.structural_rank}",
+        "min_frames": fa.min_frames,
+        "problem": fa.problem(),
+        "trajectory": None,
+        "design": None,
+    }
     frames = (ds.meta.sampling or {}).get("frames") or {}
     if frames.get("mode") == "trajectory":
         tr = frames.get("trajectory") or {}
@@ -234,12 +299,18 @@ def _design(res, ds, source) -> dict | None:
         return None
     std_of = dict(zip(names, std, strict=False))
     i = solved_index(res, None)
-    rows = [(n, fmt(std_of.get(n), 3), fmt(res.base_std[i, k], 3) if i is not None else "-")
-            for k, n in enumerate(res.base.names)]
-    return {"path": str(path), "criterion": design.get("criterion"),
-            "condition": fmt(design["optimized"].get("condition_number")),
-            "random": fmt((design.get("random_fourier") or {}).get("condition_number")),
-            "noise": ", ".join(fmt(s) for s in design.get("wrench_noise_std") or []), "rows": rows}
+    rows = [
+        (n, fmt(std_of.get(n), 3), fmt(res.base_std[i, k], 3) if i is not None else "-")
+        for k, n in enumerate(res.base.names)
+    ]
+    return {
+        "path": str(path),
+        "criterion": design.get("criterion"),
+        "condition": fmt(design["optimized"].get("condition_number")),
+        "random": fmt((design.get("random_fourier") or {}).get("condition_number")),
+        "noise": ", ".join(fmt(s) for s in design.get("wrench_noise_std") or []),
+        "rows": rows,
+    }
 
 
 def params_order() -> str:

@@ -204,8 +204,18 @@ def periodogram_peak(r: np.ndarray, dt: float) -> tuple[float, float, int]:
     return float((k + 1) / (len(r) * dt)), float(p[k - MIN_PERIODS + 1] / total), len(p)
 
 
-def check_residual(time, measured, predicted, axes, units, blocks, qd=None, noise=None,
-                   noise_source: str = "", delay: tuple[float, float] | None = None) -> ResidualCheck:  # fmt: skip
+def check_residual(
+    time,
+    measured,
+    predicted,
+    axes,
+    units,
+    blocks,
+    qd=None,
+    noise=None,
+    noise_source: str = "",
+    delay: tuple[float, float] | None = None,
+) -> ResidualCheck:
     """Test one validation's residual (module doc).
 
     Args:
@@ -228,13 +238,23 @@ def check_residual(time, measured, predicted, axes, units, blocks, qd=None, nois
     series = time is not None and n_frames >= 3 and bool(np.all(np.diff(time) > 0))
     if noise is None:
         noise = difference_noise(measured) if series else np.full(n_axes, np.nan)
-        noise_source = ("estimated from the measured signal's second differences (a lower bound after a low-pass "
-                        "filter)" if series else "unknown (the frames are no time series; give the noise)")
+        noise_source = (
+            "estimated from the measured signal's second differences (a lower bound after a low-pass filter)"
+            if series
+            else "unknown (the frames are no time series; give the noise)"
+        )
     out = ResidualCheck([], noise_source)
     above = rms > ROUNDING * np.maximum(scale, np.finfo(float).tiny)
     tested = series and n_frames >= MIN_FRAMES
-    out.tested = "" if tested else (f"only {n_frames} validation frames (the structure tests need {MIN_FRAMES})"
-                                    if series else "the frames are no time series")
+    out.tested = (
+        ""
+        if tested
+        else (
+            f"only {n_frames} validation frames (the structure tests need {MIN_FRAMES})"
+            if series
+            else "the frames are no time series"
+        )
+    )
     dt = float(np.median(np.diff(time))) if series else math.nan
     rate = np.gradient(predicted, time, axis=0) if tested else None
     qd = None if qd is None else np.asarray(qd, dtype=np.float64)
@@ -262,10 +282,17 @@ def _model_error(out: ResidualCheck, above: np.ndarray) -> None:
     if bad:
         worst = max(bad, key=lambda x: x[1])
         text = ", ".join(f"{c.axis} {r:.3g}x" if math.isfinite(r) else f"{c.axis} (clean data)" for c, r in bad[:6])
-        out.warnings.append(Finding("model_error", (
-            f"residual RMS is more than {NOISE_FACTOR:g} x the noise on {len(bad)} of {len(out.axes)} axes ({text}): "
-            f"the model misses something (worst {worst[0].axis}); check the sensor pose, the known links' CAD "
-            "values, friction (joint torques) and the delay")))  # fmt: skip
+        out.warnings.append(
+            Finding(
+                "model_error",
+                (
+                    f"residual RMS is more than {NOISE_FACTOR:g} x the noise on {len(bad)} of {len(out.axes)} axes "
+                    f"({text}): "
+                    f"the model misses something (worst {worst[0].axis}); check the sensor pose, the known links' CAD "
+                    "values, friction (joint torques) and the delay"
+                ),
+            )
+        )
 
 
 FRICTION_KINDS = ("joint_torque", "motor_current")
@@ -276,8 +303,12 @@ def _joint_axes(blocks, n_dof: int | None) -> dict[int, int]:
     """Stacked axis -> its joint, for the channels of :data:`FRICTION_KINDS` (one axis per joint)."""
     if n_dof is None:
         return {}
-    return {start + j: j for _, start, stop, kind in blocks if kind in FRICTION_KINDS and stop - start == n_dof
-            for j in range(n_dof)}  # fmt: skip
+    return {
+        start + j: j
+        for _, start, stop, kind in blocks
+        if kind in FRICTION_KINDS and stop - start == n_dof
+        for j in range(n_dof)
+    }
 
 
 def _friction_columns(qd_j: np.ndarray) -> np.ndarray:
@@ -291,21 +322,44 @@ def _structure(out: ResidualCheck, r, delay) -> None:
         d, gain, chance = delay
         out.delay = {"shift": (d, gain)}
         if gain > max(DELAY_GAIN, 10 * chance) and d != 0:
-            out.warnings.append(Finding("delay", (
-                f"the measurements read {abs(d) * 1e3:.3g} ms {'late' if d > 0 else 'early'} against the joints: "
-                f"refitted with them shifted so, the residual's sum of squares drops by {gain:.0%}; re-import with "
-                "--delay auto (or the delay in seconds)")))  # fmt: skip
+            out.warnings.append(
+                Finding(
+                    "delay",
+                    (
+                        f"the measurements read {abs(d) * 1e3:.3g} ms {'late' if d > 0 else 'early'} against the "
+                        "joints: "
+                        f"refitted with them shifted so, the residual's sum of squares drops by {gain:.0%}; "
+                        "re-import with "
+                        "--delay auto (or the delay in seconds)"
+                    ),
+                )
+            )
     fric = [c for c in out.axes if c.friction_share > STRUCTURE_SHARE]
     if fric:
-        out.warnings.append(Finding("friction", (
-            f"the residual of {', '.join(c.axis for c in fric[:6])} follows the joint's velocity (friction explains up "
-            f"to {max(c.friction_share for c in fric):.0%} of its variance): unmodelled joint friction; identify it "
-            "(--friction viscous,coulomb) or fit channels that do not feel it (the base wrench)")))  # fmt: skip
+        out.warnings.append(
+            Finding(
+                "friction",
+                (
+                    f"the residual of {', '.join(c.axis for c in fric[:6])} follows the joint's velocity (friction "
+                    "explains up "
+                    f"to {max(c.friction_share for c in fric):.0%} of its variance): unmodelled joint friction; "
+                    "identify it "
+                    "(--friction viscous,coulomb) or fit channels that do not feel it (the base wrench)"
+                ),
+            )
+        )
     m = len(r) // 2
     peaks = [c for c in out.axes if c.peak_share > PEAK_SHARE and c.peak_share > PEAK_WHITE_FACTOR * math.log(m) / m]
     if peaks:
         c = max(peaks, key=lambda c: c.peak_share)
-        out.warnings.append(Finding("spectral_peak", (
-            f"one frequency holds {c.peak_share:.0%} of the residual's power on {c.axis} ({c.peak_hz:.3g} Hz; "
-            f"{len(peaks)} axes in all): a periodic error the model lacks (a resonance, a periodic load, friction "
-            "on a periodic trajectory)")))  # fmt: skip
+        out.warnings.append(
+            Finding(
+                "spectral_peak",
+                (
+                    f"one frequency holds {c.peak_share:.0%} of the residual's power on {c.axis} ({c.peak_hz:.3g} Hz; "
+                    f"{len(peaks)} axes in all): a periodic error the model lacks (a resonance, a periodic load, "
+                    "friction "
+                    "on a periodic trajectory)"
+                ),
+            )
+        )

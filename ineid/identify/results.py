@@ -34,9 +34,9 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
         StorageError: the file will not fit on its disk (its size is known before the write).
         OSError: the file system refused the write (read-only, permissions); no file is left.
     """
-    import h5py  # noqa: PLC0415
+    import h5py
 
-    from ineid._version import __version__  # noqa: PLC0415
+    from ineid._version import __version__
 
     path = check_output_file(path, overwrite, "results.h5")
     text = h5py.string_dtype()
@@ -118,9 +118,9 @@ def load_results(path: str | Path) -> SolveResults:
             newer version, or a damaged one: an attribute or dataset missing, of the wrong
             type or shape (named, with the fix).
     """
-    import h5py  # noqa: PLC0415
+    import h5py
 
-    from ineid._faults import fault_errno  # noqa: PLC0415
+    from ineid._faults import fault_errno
 
     path = Path(path)
     if not path.exists():
@@ -131,11 +131,12 @@ def load_results(path: str | Path) -> SolveResults:
     except OSError as e:
         if fault_errno(e) is not None:
             raise  # permission denied and the like: the CLI words it
-        from ineid.data.read import foreign_file  # noqa: PLC0415
+        from ineid.data.read import foreign_file
 
-        raise DatasetError(foreign_file(path, "an ineid results file", ", then solve it (ineid solve)")
-                           or f"{path} is not a readable HDF5 file ({str(e).splitlines()[0]}); truncated or corrupt"
-                           ) from None  # fmt: skip
+        raise DatasetError(
+            foreign_file(path, "an ineid results file", ", then solve it (ineid solve)")
+            or f"{path} is not a readable HDF5 file ({str(e).splitlines()[0]}); truncated or corrupt"
+        ) from None
     with f:
         audit_hdf5(f, path)
         fmt = _attr_text(f.attrs.get("format", ""))
@@ -160,8 +161,9 @@ class _Reader:
         self.f, self.path = f, path
 
     def damaged(self, what: str) -> DatasetError:
-        return DatasetError(f"{self.path}: {what}; the results file is damaged: solve again (ineid solve ... "
-                            "--overwrite) or restore it")  # fmt: skip
+        return DatasetError(
+            f"{self.path}: {what}; the results file is damaged: solve again (ineid solve ... --overwrite) or restore it"
+        )
 
     def attr(self, key: str):
         if key not in self.f.attrs:
@@ -220,8 +222,10 @@ class _Reader:
         if not ok or len(got) != len(shape) or any(e is not None and e != g for e, g in zip(shape, got, strict=True)):
             want = " x ".join("?" if e is None else str(e) for e in shape)
             have = "text" if dset.dtype.kind in "OSU" else str(dset.dtype)
-            raise self.damaged(f"dataset {key!r} is {have} of shape {got}, expected "
-                               f"{'text' if kind == 'O' else 'numbers'} of shape ({want})")  # fmt: skip
+            raise self.damaged(
+                f"dataset {key!r} is {have} of shape {got}, expected "
+                f"{'text' if kind == 'O' else 'numbers'} of shape ({want})"
+            )
         try:
             value = dset[()]
         except (OSError, ValueError) as e:
@@ -230,8 +234,12 @@ class _Reader:
 
     def results(self) -> SolveResults:
         try:
-            settings = SolveSettings(**{k: (tuple(v) if k in ("axis_sigma", "known_uncertainty") and v is not None
-                                            else v) for k, v in self.json("settings").items()})  # fmt: skip
+            settings = SolveSettings(
+                **{
+                    k: (tuple(v) if k in ("axis_sigma", "known_uncertainty") and v is not None else v)
+                    for k, v in self.json("settings").items()
+                }
+            )
         except (TypeError, ValueError, AttributeError) as e:
             raise self.damaged(f"its settings do not parse ({e})") from None
         names = self.texts("param_names")
@@ -316,10 +324,18 @@ class _Reader:
         """The ``payload`` section (:mod:`ineid.identify.payload`), or None when the file has none."""
         if "payload_links" not in self.f.attrs:
             return None
-        shapes = {"mass": (n,), "mass_std": (n,), "com": (n, 3), "com_std": (n, 3), "inertia": (n, 6),
-                  "inertia_std": (n, 6)}
-        return {link: {key: self.array(f"payload/{k}/{key}", shape) for key, shape in shapes.items()}
-                for k, link in enumerate(self.texts("payload_links"))}
+        shapes = {
+            "mass": (n,),
+            "mass_std": (n,),
+            "com": (n, 3),
+            "com_std": (n, 3),
+            "inertia": (n, 6),
+            "inertia_std": (n, 6),
+        }
+        return {
+            link: {key: self.array(f"payload/{k}/{key}", shape) for key, shape in shapes.items()}
+            for k, link in enumerate(self.texts("payload_links"))
+        }
 
 
 def _warnings(path: Path, attrs) -> list[dict] | None:
@@ -351,7 +367,9 @@ class ErrorRow:
     identifiable: bool | None = None
 
 
-def error_summary(estimate: np.ndarray, truth: np.ndarray, names, success: np.ndarray, identifiable=None) -> list[ErrorRow]:
+def error_summary(
+    estimate: np.ndarray, truth: np.ndarray, names, success: np.ndarray, identifiable=None
+) -> list[ErrorRow]:
     """Median and 95th-percentile relative error, and the shares within 1 % and 5 %."""
     err = relative_error(estimate[success], truth[success])
     rows = []
@@ -359,14 +377,18 @@ def error_summary(estimate: np.ndarray, truth: np.ndarray, names, success: np.nd
         e = err[:, k]
         e = e[np.isfinite(e)]
         if e.size == 0:
-            rows.append(ErrorRow(name, np.nan, np.nan, np.nan, np.nan, None if identifiable is None else bool(identifiable[k])))
+            rows.append(
+                ErrorRow(name, np.nan, np.nan, np.nan, np.nan, None if identifiable is None else bool(identifiable[k]))
+            )
             continue
-        rows.append(ErrorRow(
-            name,
-            float(np.median(e)),
-            float(np.percentile(e, 95)),
-            float(np.mean(e <= 0.01)),
-            float(np.mean(e <= 0.05)),
-            None if identifiable is None else bool(identifiable[k]),
-        ))  # fmt: skip
+        rows.append(
+            ErrorRow(
+                name,
+                float(np.median(e)),
+                float(np.percentile(e, 95)),
+                float(np.mean(e <= 0.01)),
+                float(np.mean(e <= 0.05)),
+                None if identifiable is None else bool(identifiable[k]),
+            )
+        )
     return rows

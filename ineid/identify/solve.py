@@ -182,8 +182,10 @@ class SolveSettings:
         object.__setattr__(self, "friction", tuple(str(f) for f in self.friction))
         check_actuation(self)
         if self.method == "network" and (actuation_requested(self) or self.two_step):
-            raise ValueError("method='network' predicts the links from the channels it was trained on; "
-                             "leave the friction, armature, torque-offset and two-step options out")
+            raise ValueError(
+                "method='network' predicts the links from the channels it was trained on; "
+                "leave the friction, armature, torque-offset and two-step options out"
+            )
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -268,7 +270,8 @@ def _frame_split(n_frames: int, frames: int | None, minimum: FrameMinimum) -> tu
     if frames is not None:
         if frames > n_frames:
             raise IdentificationError(
-                f"--fit-frames {frames} but the dataset has {n_frames} frames per configuration; use at most {n_frames}",
+                f"--fit-frames {frames} but the dataset has {n_frames} frames per configuration; use at most "
+                f"{n_frames}",
                 status="too_many_frames",
             )
         minimum.require(frames)
@@ -292,7 +295,9 @@ def _axis_sigma(ds, settings: SolveSettings, channels: ChannelSet | None = None,
         if sigma.shape != (n_axes,):
             raise IdentificationError(
                 f"axis_sigma holds {sigma.size} numbers; the channels measure {n_axes} axes "
-                f"({', '.join(channels.axes(model or ds.meta))}): give one per axis", status="bad_noise_levels")
+                f"({', '.join(channels.axes(model or ds.meta))}): give one per axis",
+                status="bad_noise_levels",
+            )
         return sigma
     recorded = channels.noise_std(ds.meta.noise, model or ds.meta)
     if recorded is None:
@@ -316,8 +321,9 @@ def register_method(name: str, solve: SolveMethod) -> None:
     implemented above identify (``network``: :func:`ineid.learn.amortized.solve_with_run`, registered
     when ``ineid.learn`` is imported)."""
     if name not in METHODS or name in BUILTIN_METHODS:
-        raise ValueError(f"only {', '.join(m for m in METHODS if m not in BUILTIN_METHODS)} may be registered, "
-                         f"got {name!r}")
+        raise ValueError(
+            f"only {', '.join(m for m in METHODS if m not in BUILTIN_METHODS)} may be registered, got {name!r}"
+        )
     _REGISTERED[name] = solve
 
 
@@ -328,12 +334,17 @@ def registered_method(name: str) -> SolveMethod:
         IdentificationError: none is: the module that provides it was not imported.
     """
     if name not in _REGISTERED:
-        raise IdentificationError(f"method {name!r} runs a trained network, which ineid.learn provides: "
-                                  "import ineid.learn first (it registers the method)", status="unsupported")
+        raise IdentificationError(
+            f"method {name!r} runs a trained network, which ineid.learn provides: "
+            "import ineid.learn first (it registers the method)",
+            status="unsupported",
+        )
     return _REGISTERED[name]
 
 
-def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, progress: Progress | None = None) -> SolveResults:
+def solve_dataset(
+    ds, settings: SolveSettings = SolveSettings(), model=None, progress: Progress | None = None
+) -> SolveResults:
     """Identify the unknown links of every configuration in ``ds``.
 
     Args:
@@ -352,7 +363,7 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         return registered_method(settings.method)(ds, settings, model, progress)
     model = model or ds.model()
     if settings.two_step:  # the links from the wrench, then the torques' extras (ineid.identify.two_step)
-        from ineid.identify.two_step import second_step, wrench_settings  # noqa: PLC0415
+        from ineid.identify.two_step import second_step, wrench_settings
 
         t_start = time.perf_counter()
         first = solve_dataset(ds, wrench_settings(ds, settings, model), model, progress)
@@ -378,9 +389,18 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         t0 = time.perf_counter()
         blocks_fn = information_blocks
         if settings.backend == "casadi-c":
-            from ineid.identify.casadi_c import information_blocks_c as blocks_fn  # noqa: PLC0415
-        fit, rms, offsets = _fused_fit(model, ds, fit_sl, base, settings, axis_sigma,
-                                       progress if settings.method == "linear" else None, blocks_fn, channels)
+            from ineid.identify.casadi_c import information_blocks_c as blocks_fn
+        fit, rms, offsets = _fused_fit(
+            model,
+            ds,
+            fit_sl,
+            base,
+            settings,
+            axis_sigma,
+            progress if settings.method == "linear" else None,
+            blocks_fn,
+            channels,
+        )
         seconds = np.full(c, (time.perf_counter() - t0) / max(c, 1))
     if with_bias:
         _offset_dof(fit, n_offsets)
@@ -392,7 +412,7 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
     sums = estimate_residual_sums(model, ds, n_fit, n_val, theta_lin, channels, offsets)
     fit = with_exact_rss(fit, sums[0])
     if settings.known_uncertainty:  # the known links' CAD uncertainty (ineid.identify.known)
-        from ineid.identify.known import with_known_uncertainty  # noqa: PLC0415
+        from ineid.identify.known import with_known_uncertainty
 
         fit = with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings)
 
@@ -414,7 +434,16 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
 
     # 4. residuals of the estimates on the fitted and on the held-out frames
     return dataset_results(
-        ds, settings, base, prior, sums, n_fit, n_val, t_start, channels=channels, model=model,
+        ds,
+        settings,
+        base,
+        prior,
+        sums,
+        n_fit,
+        n_val,
+        t_start,
+        channels=channels,
+        model=model,
         theta_hat=est.theta,
         theta_std=est.theta_std,
         base_hat=est.beta,
@@ -424,13 +453,23 @@ def solve_dataset(ds, settings: SolveSettings = SolveSettings(), model=None, pro
         seconds=seconds,
         bias_hat=bias_hat,
         bias_std=bias_std,
-        payload=payload_section(model, base, est.theta[:, :base.n_link_params], est.fit.cov_beta, est.success),
-    )  # fmt: skip
+        payload=payload_section(model, base, est.theta[:, : base.n_link_params], est.fit.cov_beta, est.success),
+    )
 
 
-def dataset_results(ds, settings: SolveSettings, base: BaseParameters, theta_prior: np.ndarray, sums,
-                    n_fit: int, n_val: int, t_start: float, channels: ChannelSet | None = None, model=None,
-                    **estimates) -> SolveResults:
+def dataset_results(
+    ds,
+    settings: SolveSettings,
+    base: BaseParameters,
+    theta_prior: np.ndarray,
+    sums,
+    n_fit: int,
+    n_val: int,
+    t_start: float,
+    channels: ChannelSet | None = None,
+    model=None,
+    **estimates,
+) -> SolveResults:
     """:class:`SolveResults` of estimates on ``ds``, for every solver (the methods and a trained run).
 
     What every result records the same way: the configurations' file indices, the residual
@@ -468,7 +507,7 @@ def truth_with_extras(ds, base: BaseParameters) -> np.ndarray | None:
     if not base.n_extra:
         return theta
     truth = getattr(ds.meta, "extra_truth", None) or {}
-    names = base.param_names[base.n_link_params:]
+    names = base.param_names[base.n_link_params :]
     extra = np.array([float(truth.get(n, np.nan)) for n in names])
     return np.concatenate([theta, np.broadcast_to(extra, (len(theta), len(names)))], axis=1)
 

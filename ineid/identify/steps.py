@@ -51,7 +51,7 @@ def _bias_estimate(off: Offsets, est: Estimate, base: BaseParameters):
     weight and ``T`` the null-space rule's map (:func:`ineid.identify.linear.prior_map`;
     the linearization for the IPOPT methods). Where a solve failed: NaN.
     """
-    from ineid.identify.linear import prior_map  # noqa: PLC0415
+    from ineid.identify.linear import prior_map
 
     bias = off.bias(est.theta)
     g = np.einsum("cap,pr->car", off.w_mean, prior_map(base))
@@ -68,7 +68,11 @@ def _bias_estimate(off: Offsets, est: Estimate, base: BaseParameters):
 def _concat_fits(fits: list[BaseFit]) -> BaseFit:
     if len(fits) == 1:
         return fits[0]
-    cat = {f.name: np.concatenate([getattr(x, f.name) for x in fits]) for f in dataclasses.fields(BaseFit) if f.name != "dof"}
+    cat = {
+        f.name: np.concatenate([getattr(x, f.name) for x in fits])
+        for f in dataclasses.fields(BaseFit)
+        if f.name != "dof"
+    }
     return BaseFit(dof=fits[0].dof, **cat)
 
 
@@ -78,7 +82,7 @@ def _links_and_extra(model, theta_unknown, channels: ChannelSet) -> tuple[np.nda
     theta = np.nan_to_num(theta_unknown)
     n_extra, n_u = channels.n_extra(model), len(model.unknown_index)
     if theta.shape[-1] > n_u + n_extra:  # identified torque constants after x (ineid.identify.two_step)
-        return theta[..., :n_u], theta[..., n_u:n_u + n_extra]
+        return theta[..., :n_u], theta[..., n_u : n_u + n_extra]
     return split(theta, n_extra if theta.shape[-1] == n_u + n_extra else 0)
 
 
@@ -93,13 +97,20 @@ def _torque_constant_gain(model, theta_unknown, channels: ChannelSet) -> np.ndar
     for b in channels.blocks(model):
         if getattr(b.channel, "identify_k", False):
             k0 = np.asarray(b.channel.torque_constant)
-            gain[:, b.start:b.stop] = k0 / theta[:, start:start + len(k0)]
+            gain[:, b.start : b.stop] = k0 / theta[:, start : start + len(k0)]
             start += len(k0)
     return gain
 
 
-def estimate_residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.ndarray,
-                           channels: ChannelSet | None = None, offsets: Offsets | None = None):
+def estimate_residual_sums(
+    model,
+    ds,
+    n_fit: int,
+    n_val: int,
+    theta_unknown: np.ndarray,
+    channels: ChannelSet | None = None,
+    offsets: Offsets | None = None,
+):
     """:func:`ineid.identify.fused.residual_sums` of the unknown links' estimates (NaN rows as zeros) on
     ``channels`` (default: the dataset's), in each channel's own axes, with the offsets
     ``b = ybar - Wbar theta`` that go with them. With extra kept columns ``theta_unknown`` is
@@ -109,9 +120,18 @@ def estimate_residual_sums(model, ds, n_fit: int, n_val: int, theta_unknown: np.
     theta = model.full_theta(links, ds.theta_known)
     bias = None if offsets is None else np.nan_to_num(offsets.bias(theta_unknown))
     frames = slice(0, n_fit + n_val)
-    return residual_sums(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames],
-                         ds.measured(channels)[:, frames], theta, n_fit, bias, channels,
-                         extra if extra.shape[-1] else None)
+    return residual_sums(
+        model,
+        ds.q[:, frames],
+        ds.qd[:, frames],
+        ds.qdd[:, frames],
+        ds.measured(channels)[:, frames],
+        theta,
+        n_fit,
+        bias,
+        channels,
+        extra if extra.shape[-1] else None,
+    )
 
 
 def residual_summary(sums, n_fit: int, n_val: int, theta_unknown: np.ndarray):
@@ -149,9 +169,17 @@ def _refit_stack(model, q, qd, qdd, wrench, theta_known, channels):
     return np.stack([w for w, _ in pairs]), np.stack([y for _, y in pairs])
 
 
-def _fused_fit(model, ds, fit_sl, base, settings, axis_sigma, progress,
-               blocks_fn=information_blocks,
-               channels: ChannelSet | None = None) -> tuple[BaseFit, np.ndarray, Offsets | None]:
+def _fused_fit(
+    model,
+    ds,
+    fit_sl,
+    base,
+    settings,
+    axis_sigma,
+    progress,
+    blocks_fn=information_blocks,
+    channels: ChannelSet | None = None,
+) -> tuple[BaseFit, np.ndarray, Offsets | None]:
     """The base fit of every configuration from fused normal-equation blocks (``blocks_fn``) of ``channels``
     (default: the dataset's), ill-conditioned ones refitted through QR of their stacks; the RMS of the
     weighted data, (C,); with offsets (``settings.bias == "estimate"``) the fit of the frames centred per
@@ -196,8 +224,9 @@ def _casadi_fits(model, ds, fit_sl, base, settings, axis_sigma, progress, channe
     fits, rms, seconds, offsets = [], np.empty(ds.n_configs), np.zeros(ds.n_configs), []
     for i in range(ds.n_configs):
         t0 = time.perf_counter()
-        w, y = stack_casadi(model, ds.q[i, fit_sl], ds.qd[i, fit_sl], ds.qdd[i, fit_sl], values[i, fit_sl],
-                            ds.theta_known, channels)
+        w, y = stack_casadi(
+            model, ds.q[i, fit_sl], ds.qd[i, fit_sl], ds.qdd[i, fit_sl], values[i, fit_sl], ds.theta_known, channels
+        )
         lost = None
         if settings.bias == "estimate":
             mask = channels.offset_mask(model)
@@ -226,7 +255,7 @@ def physical_start(theta_lin: np.ndarray, prior: np.ndarray, scales: np.ndarray,
     the prior where none does (it must be physical). The last ``n_extra`` entries (the
     channels' extra parameters) start at the linear estimate (the solver clips them to their bounds).
     """
-    from ineid.identify.nlp import scaled_pseudo_inertia  # noqa: PLC0415
+    from ineid.identify.nlp import scaled_pseudo_inertia
 
     if n_extra:
         n = np.shape(theta_lin)[-1] - n_extra
@@ -259,7 +288,7 @@ def _nlp_options(settings) -> dict | None:
 
 
 def _nlp_worker_init(method, base, prior, pull, entropic, compiled, options=None, stop=None):
-    global _WORKER_SOLVER, _WORKER_STOP  # noqa: PLW0603 - one compiled solver per worker process
+    global _WORKER_SOLVER, _WORKER_STOP  # one compiled solver per worker process
     # Ctrl-C and SIGTERM are the main process's to handle: it sets ``stop`` and drops the queued blocks
     # (a worker interrupted on its own would print a traceback, or die and break the pool)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -289,8 +318,15 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
     workers = settings.workers or 1
     seconds = np.zeros(c)
     if workers <= 1 or c < PARALLEL_MIN_CONFIGS:
-        solver = NlpSolver.build(settings.method, base, prior, settings.pull, settings.entropic,
-                                 _nlp_options(settings), compiled=settings.backend == "casadi-c")
+        solver = NlpSolver.build(
+            settings.method,
+            base,
+            prior,
+            settings.pull,
+            settings.entropic,
+            _nlp_options(settings),
+            compiled=settings.backend == "casadi-c",
+        )
         t = [time.perf_counter()]
 
         def timed(done, total):
@@ -303,24 +339,42 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
         log.info("IPOPT: %s solves of %d configurations", settings.method, c)
         est = nlp_estimate(fit, solver, rms, start, progress=timed)
         return est, seconds
-    import multiprocessing as mp  # noqa: PLC0415
-    from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
 
     block = max(8, min(256, c // (4 * workers)))
     jobs = [
-        (fit.R[i:i + block], fit.beta[i:i + block], fit.sigma2[i:i + block], rms[i:i + block], start[i:i + block],
-         fit.full_rank[i:i + block])
+        (
+            fit.R[i : i + block],
+            fit.beta[i : i + block],
+            fit.sigma2[i : i + block],
+            rms[i : i + block],
+            start[i : i + block],
+            fit.full_rank[i : i + block],
+        )
         for i in range(0, c, block)
-    ]  # fmt: skip
+    ]
     theta = np.full((c, base.n_params), np.nan)
     success = np.zeros(c, dtype=bool)
     status = np.empty(c, dtype=object)
     ctx = mp.get_context("spawn")  # JAX's threads and fork do not mix
     log.info("IPOPT: %s solves of %d configurations in %d worker processes", settings.method, c, workers)
     stop = ctx.Event()
-    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_nlp_worker_init,
-                             initargs=(settings.method, base, prior, settings.pull, settings.entropic,
-                                       settings.backend == "casadi-c", _nlp_options(settings), stop)) as pool:
+    with ProcessPoolExecutor(
+        workers,
+        mp_context=ctx,
+        initializer=_nlp_worker_init,
+        initargs=(
+            settings.method,
+            base,
+            prior,
+            settings.pull,
+            settings.entropic,
+            settings.backend == "casadi-c",
+            _nlp_options(settings),
+            stop,
+        ),
+    ) as pool:
         try:
             done = 0
             for j, out in enumerate(pool.map(_nlp_worker, jobs)):
@@ -344,8 +398,9 @@ def _run_nlp(fit, base, settings, prior, rms, start, progress) -> tuple[Estimate
     return estimate_from_solves(theta, success, status, fit, base), seconds
 
 
-def predicted_wrench(model, ds, theta_u, frames=slice(None), bias=None,
-                     channels: ChannelSet | None = None) -> np.ndarray:
+def predicted_wrench(
+    model, ds, theta_u, frames=slice(None), bias=None, channels: ChannelSet | None = None
+) -> np.ndarray:
     """What the estimates predict the sensors read: ``T Phi theta + E x + b`` (C, F, A) on ``frames`` of ``ds``.
 
     Args:
@@ -357,8 +412,9 @@ def predicted_wrench(model, ds, theta_u, frames=slice(None), bias=None,
     channels = ds.meta.channels if channels is None else channels
     links, extra = _links_and_extra(model, theta_u, channels)
     theta = model.full_theta(links, ds.theta_known)
-    w = predict_wrench(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], theta, channels,
-                       extra if extra.shape[-1] else None)
+    w = predict_wrench(
+        model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], theta, channels, extra if extra.shape[-1] else None
+    )
     gain = _torque_constant_gain(model, theta_u, channels)
     if gain is not None:
         w = w * gain[:, None, :]

@@ -67,9 +67,9 @@ def noise_study(
     progress=None,
 ) -> list[StudyRow]:
     """Run the sweep; one :class:`StudyRow` per (level, frames, method)."""
-    import time  # noqa: PLC0415
+    import time
 
-    from ineid.identify.identifiability import frame_minimum  # noqa: PLC0415
+    from ineid.identify.identifiability import frame_minimum
 
     for k in frames:
         frame_minimum(model).require(int(k))
@@ -88,8 +88,7 @@ def noise_study(
             ds = ds_all.select(frames=slice(0, k))
             for name in methods:
                 settings = STUDY_METHODS[name]
-                settings = SolveSettings(**{**settings.to_dict(), "frames": k, "workers": workers,
-                                            "axis_sigma": None})  # fmt: skip
+                settings = SolveSettings(**{**settings.to_dict(), "frames": k, "workers": workers, "axis_sigma": None})
                 t0 = time.perf_counter()
                 res = solve_dataset(ds, settings, model=model)
                 seconds = time.perf_counter() - t0
@@ -97,18 +96,22 @@ def noise_study(
                 b_err = relative_error(res.base_hat[ok], res.base_true[ok])
                 t_err = relative_error(res.theta_hat[ok], res.theta_true[ok])
                 valid = all_links_physical(np.nan_to_num(res.theta_hat[ok]))
-                rows.append(StudyRow(
-                    level=float(level),
-                    frames=int(k),
-                    method=name,
-                    base_error_median=float(np.nanmedian(b_err)) if ok.any() else np.nan,
-                    base_error_p95=float(np.nanpercentile(b_err, 95)) if ok.any() else np.nan,
-                    standard_error_median=float(np.nanmedian(t_err)) if ok.any() else np.nan,
-                    identifiable_error_median=float(np.nanmedian(t_err[:, res.base.identifiable])) if ok.any() else np.nan,
-                    invalid_share=float(1.0 - valid.mean()) if ok.any() else np.nan,
-                    failed_share=float(1.0 - ok.mean()),
-                    seconds=seconds,
-                ))  # fmt: skip
+                rows.append(
+                    StudyRow(
+                        level=float(level),
+                        frames=int(k),
+                        method=name,
+                        base_error_median=float(np.nanmedian(b_err)) if ok.any() else np.nan,
+                        base_error_p95=float(np.nanpercentile(b_err, 95)) if ok.any() else np.nan,
+                        standard_error_median=float(np.nanmedian(t_err)) if ok.any() else np.nan,
+                        identifiable_error_median=float(np.nanmedian(t_err[:, res.base.identifiable]))
+                        if ok.any()
+                        else np.nan,
+                        invalid_share=float(1.0 - valid.mean()) if ok.any() else np.nan,
+                        failed_share=float(1.0 - ok.mean()),
+                        seconds=seconds,
+                    )
+                )
                 done += 1
                 if progress is not None:
                     progress(done, total)
@@ -122,10 +125,10 @@ def write_rows(rows: list[StudyRow], path: str | Path) -> Path:
 
 def plot(rows: list[StudyRow], path: str | Path) -> Path:
     """Errors and invalid share against the noise level, one line per method and frame count."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.5), constrained_layout=True)
     methods = sorted({r.method for r in rows}, key=list(STUDY_METHODS).index)
@@ -135,7 +138,12 @@ def plot(rows: list[StudyRow], path: str | Path) -> Path:
         for fi, k in enumerate(frames):
             sel = sorted((r for r in rows if r.method == method and r.frames == k), key=lambda r: r.level)
             x = [r.level for r in sel]
-            kw = {"color": f"C{mi}", "linestyle": styles[fi % len(styles)], "marker": "o", "label": f"{method}, {k} frames"}
+            kw = {
+                "color": f"C{mi}",
+                "linestyle": styles[fi % len(styles)],
+                "marker": "o",
+                "label": f"{method}, {k} frames",
+            }
             axes[0].plot(x, [r.base_error_median for r in sel], **kw)
             axes[1].plot(x, [r.standard_error_median for r in sel], **kw)
             axes[2].plot(x, [100 * r.invalid_share for r in sel], **kw)

@@ -119,9 +119,13 @@ def typical_friction(model, reference: Reference, duration: float) -> JointFrict
     tau = np.sqrt(np.mean(model.joint_torques(q, qd, qdd, model.theta_cad) ** 2, axis=0))
     speed, accel = (np.sqrt(np.mean(x**2, axis=0)) for x in (qd, qdd))
     s = FRICTION_SHARES
-    return JointFriction(viscous=s["viscous"] * tau / speed, coulomb=s["coulomb"] * tau,
-                         armature=s["armature"] * tau / accel, stribeck=s["stribeck"] * s["coulomb"] * tau,
-                         stribeck_velocity=s["stribeck_velocity"] * speed)
+    return JointFriction(
+        viscous=s["viscous"] * tau / speed,
+        coulomb=s["coulomb"] * tau,
+        armature=s["armature"] * tau / accel,
+        stribeck=s["stribeck"] * s["coulomb"] * tau,
+        stribeck_velocity=s["stribeck_velocity"] * speed,
+    )
 
 
 def _reference(model, duration: float, rng: np.random.Generator) -> Reference:
@@ -139,8 +143,10 @@ def simulate_study(model, size: StudySize, seed: int = 0, progress=None) -> Stud
     import_mujoco("ineid study formulations")
     if model.payloads:
         names = ", ".join(p.link for p in model.payloads)
-        raise RobotModelError(f"ineid study formulations simulates moving links, and {names} is a payload: "
-                              "choose --unknown-links among the moving links")
+        raise RobotModelError(
+            f"ineid study formulations simulates moving links, and {names} is a payload: "
+            "choose --unknown-links among the moving links"
+        )
     rng = np.random.default_rng(seed)
     friction = typical_friction(model, _reference(model, size.duration, np.random.default_rng(seed)), size.duration)
     root = np.array([1.0, 0, 0, 0, 0.01, 0, 0.01, 0, 0, 0.01])  # any body: its weight is tared away
@@ -150,11 +156,21 @@ def simulate_study(model, size: StudySize, seed: int = 0, progress=None) -> Stud
         theta = model.theta_cad.copy()
         for link in model.unknown_links:
             i = model.link_names.index(link)
-            theta[10 * i:10 * i + 10] = sample_link_parameters(model.theta_cad[10 * i:10 * i + 10], 1, rng)[0]
+            theta[10 * i : 10 * i + 10] = sample_link_parameters(model.theta_cad[10 * i : 10 * i + 10], 1, rng)[0]
         ref = _reference(model, size.duration, rng)
-        sims.append(simulate(model, theta, None, size.duration, rate=size.rate,
-                             steps_per_sample=max(1, int(round(1000.0 / size.rate))), friction=friction,
-                             reference=ref, root_theta=root))
+        sims.append(
+            simulate(
+                model,
+                theta,
+                None,
+                size.duration,
+                rate=size.rate,
+                steps_per_sample=max(1, int(round(1000.0 / size.rate))),
+                friction=friction,
+                reference=ref,
+                root_theta=root,
+            )
+        )
         thetas.append(theta[model.unknown_index])
         if progress is not None:
             progress(k + 1, size.n_configs)
@@ -169,15 +185,33 @@ def simulate_study(model, size: StudySize, seed: int = 0, progress=None) -> Stud
 
     def dataset(t: np.ndarray, drives: dict[str, np.ndarray]) -> Dataset:
         # extra_truth: what the friction model's columns should find (Stribeck is nobody's column)
-        truth = {f"{j}.{term}": float(drives[field][i]) for i, j in enumerate(model.joint_names)
-                 for term, field in TERMS.items()}
+        truth = {
+            f"{j}.{term}": float(drives[field][i])
+            for i, j in enumerate(model.joint_names)
+            for term, field in TERMS.items()
+        }
         meta = DatasetMeta.for_model(
-            model, source="synthetic", seed=int(seed), noise=record, extra_truth=truth,
-            channels=ChannelSet.of(BaseWrench(), JointTorque()), sampling={"study": "formulations", **asdict(size)},
-            origin={"simulator": "mujoco", **{k: v.tolist() for k, v in drives.items()}})
-        return Dataset(meta=meta, q=states["q"], qd=states["qd"], qdd=states["qdd"], wrench=wrench + noise_w,
-                       theta_known=model.theta_cad[model.known_index], theta_unknown=np.stack(thetas),
-                       clean={"wrench": wrench, "tau": t}, time=states["time"], channel_values={"tau": t + noise_t})
+            model,
+            source="synthetic",
+            seed=int(seed),
+            noise=record,
+            extra_truth=truth,
+            channels=ChannelSet.of(BaseWrench(), JointTorque()),
+            sampling={"study": "formulations", **asdict(size)},
+            origin={"simulator": "mujoco", **{k: v.tolist() for k, v in drives.items()}},
+        )
+        return Dataset(
+            meta=meta,
+            q=states["q"],
+            qd=states["qd"],
+            qdd=states["qdd"],
+            wrench=wrench + noise_w,
+            theta_known=model.theta_cad[model.known_index],
+            theta_unknown=np.stack(thetas),
+            clean={"wrench": wrench, "tau": t},
+            time=states["time"],
+            channel_values={"tau": t + noise_t},
+        )
 
     ideal = {k: np.zeros_like(v) if k != "stribeck_velocity" else v for k, v in f.items()}
     return StudyData(dataset(tau, f), dataset(ideal_tau, ideal), friction)
@@ -220,10 +254,16 @@ def _predictions(res, data: StudyData, model) -> tuple[float, float, float]:
         theta = assemble_theta(ds.meta, res.theta_hat[c, :n_link], ds.theta_known)
         truth = assemble_theta(ds.meta, ds.theta_unknown[c], ds.theta_known)
         tau_links = model.joint_torques(q, qd, qdd, theta)
-        tau = tau_links + _extra_torques(res.param_names[n_link:], res.theta_hat[c, n_link:], model.joint_names, qd, qdd)
-        errs.append((_axis_rel(model.base_wrench(q, qd, qdd, theta), ds.clean["wrench"][c, held]),
-                     _axis_rel(tau, ds.clean["tau"][c, held]),
-                     _axis_rel(tau_links, model.joint_torques(q, qd, qdd, truth))))
+        tau = tau_links + _extra_torques(
+            res.param_names[n_link:], res.theta_hat[c, n_link:], model.joint_names, qd, qdd
+        )
+        errs.append(
+            (
+                _axis_rel(model.base_wrench(q, qd, qdd, theta), ds.clean["wrench"][c, held]),
+                _axis_rel(tau, ds.clean["tau"][c, held]),
+                _axis_rel(tau_links, model.joint_torques(q, qd, qdd, truth)),
+            )
+        )
     if not errs:
         return np.nan, np.nan, np.nan
     return tuple(float(v) for v in np.median(np.asarray(errs), axis=0))
@@ -237,15 +277,17 @@ def _friction_errors(res, model, friction: dict) -> dict[str, float]:
         if not cols or not res.success.any():
             out[term] = np.nan
             continue
-        truth = np.array([friction[field][model.joint_names.index(res.param_names[n_link + i].rsplit(".", 1)[0])]
-                          for i in cols])
+        truth = np.array(
+            [friction[field][model.joint_names.index(res.param_names[n_link + i].rsplit(".", 1)[0])] for i in cols]
+        )
         est = res.theta_hat[res.success][:, [n_link + i for i in cols]]
         out[term] = float(np.nanmedian(relative_error(est, truth)))
     return out
 
 
-def formulations_study(model, size: StudySize = SIZES["quick"], seed: int = 0, formulations=tuple(FORMULATIONS),
-                       progress=None) -> tuple[list[FormulationRow], StudyData, dict]:
+def formulations_study(
+    model, size: StudySize = SIZES["quick"], seed: int = 0, formulations=tuple(FORMULATIONS), progress=None
+) -> tuple[list[FormulationRow], StudyData, dict]:
     """Simulate (:func:`simulate_study`) and identify by each formulation (:func:`identify_formulations`).
 
     Returns:
@@ -259,8 +301,9 @@ def formulations_study(model, size: StudySize = SIZES["quick"], seed: int = 0, f
     return rows, data, results
 
 
-def identify_formulations(model, data: StudyData, formulations=tuple(FORMULATIONS),
-                          progress=None) -> tuple[list[FormulationRow], dict]:
+def identify_formulations(
+    model, data: StudyData, formulations=tuple(FORMULATIONS), progress=None
+) -> tuple[list[FormulationRow], dict]:
     """Identify ``data`` (with friction, then with ideal drives) by each formulation of :data:`FORMULATIONS`."""
     friction = data.friction.per_joint(model.n_dof)
     rows, results = [], {}
@@ -272,13 +315,24 @@ def identify_formulations(model, data: StudyData, formulations=tuple(FORMULATION
         ideal = solve_dataset(data.ideal, settings, model=model)
         wrench_err, torque_err, link_err = _predictions(res, data, model)
         fr = _friction_errors(res, model, friction)
-        rows.append(FormulationRow(
-            robot=model.name, formulation=name, n_params=res.base.n_params, rank=res.base.rank,
-            base_error=_base_error(res),
-            base_error_ideal=_base_error(ideal),
-            wrench_error=wrench_err, torque_error=torque_err, link_torque_error=link_err,
-            fv_error=fr["fv"], fc_error=fr["fc"], ia_error=fr["Ia"],
-            failed_share=float(1.0 - res.success.mean()), seconds=seconds))  # fmt: skip
+        rows.append(
+            FormulationRow(
+                robot=model.name,
+                formulation=name,
+                n_params=res.base.n_params,
+                rank=res.base.rank,
+                base_error=_base_error(res),
+                base_error_ideal=_base_error(ideal),
+                wrench_error=wrench_err,
+                torque_error=torque_err,
+                link_torque_error=link_err,
+                fv_error=fr["fv"],
+                fc_error=fr["fc"],
+                ia_error=fr["Ia"],
+                failed_share=float(1.0 - res.success.mean()),
+                seconds=seconds,
+            )
+        )
         results[name] = res
         if progress is not None:
             progress(k + 1, len(formulations))
@@ -292,19 +346,29 @@ def write_rows(rows: list[FormulationRow], path) -> None:
 
 def plot(rows: list[FormulationRow], results: dict, data: StudyData, model, path) -> None:
     """Base-parameter errors (ideal drives, friction), held-out prediction errors, identified friction."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     names = [r.formulation for r in rows]
     x = np.arange(len(rows))
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), constrained_layout=True)
     for ax, pairs, title in (
-        (axes[0], (("ideal drives", "base_error_ideal"), ("friction", "base_error")), "base parameters: median rel. error"),
-        (axes[1], (("wrench", "wrench_error"), ("joint torques", "torque_error"), ("links' torques vs truth",
-                                                                                  "link_torque_error")),
-         "held-out prediction: rel. RMS error"),
+        (
+            axes[0],
+            (("ideal drives", "base_error_ideal"), ("friction", "base_error")),
+            "base parameters: median rel. error",
+        ),
+        (
+            axes[1],
+            (
+                ("wrench", "wrench_error"),
+                ("joint torques", "torque_error"),
+                ("links' torques vs truth", "link_torque_error"),
+            ),
+            "held-out prediction: rel. RMS error",
+        ),
     ):
         width = 0.8 / len(pairs)
         for i, (label, attr) in enumerate(pairs):
@@ -321,12 +385,19 @@ def plot(rows: list[FormulationRow], results: dict, data: StudyData, model, path
     for i, (name, res) in enumerate(with_extra.items()):
         n_link = res.base.n_link_params
         extra = res.param_names[n_link:]
-        truth = np.array([friction[TERMS[n.rsplit(".", 1)[1]]][model.joint_names.index(n.rsplit(".", 1)[0])]
-                          for n in extra])
+        truth = np.array(
+            [friction[TERMS[n.rsplit(".", 1)[1]]][model.joint_names.index(n.rsplit(".", 1)[0])] for n in extra]
+        )
         ratio = res.theta_hat[res.success][:, n_link:] / truth
         pos = np.arange(len(extra)) + 0.2 * (i - (len(with_extra) - 1) / 2)
-        ax.plot(np.broadcast_to(pos, ratio.shape).ravel(), ratio.ravel(), "o", ms=3,
-                color=f"C{names.index(name)}", label=name)
+        ax.plot(
+            np.broadcast_to(pos, ratio.shape).ravel(),
+            ratio.ravel(),
+            "o",
+            ms=3,
+            color=f"C{names.index(name)}",
+            label=name,
+        )
         ax.set_xticks(np.arange(len(extra)))
         _literal(ax.set_xticklabels(extra, rotation=60, fontsize=7))
     ax.axhline(1.0, color="k", lw=0.8)

@@ -131,8 +131,9 @@ def reported(theta_u: np.ndarray, n_links: int, parameters: str = "paper") -> np
     return x_from_theta(theta, n_links) if parameters == "paper" else theta
 
 
-def paper_rows(res: SolveResults, method: str, frames: int, base: BaseParameters, links,
-               parameters: str = "paper") -> list[PaperRow]:
+def paper_rows(
+    res: SolveResults, method: str, frames: int, base: BaseParameters, links, parameters: str = "paper"
+) -> list[PaperRow]:
     """The :class:`PaperRow` of each parameter reported (:data:`PARAMETERS`) for one solve."""
     n = len(links)
     ok = res.success
@@ -142,16 +143,39 @@ def paper_rows(res: SolveResults, method: str, frames: int, base: BaseParameters
     for k, (name, (ident, why)) in enumerate(zip(names, reasons(base, links, parameters), strict=True)):
         e = err[:, k]
         e = e[np.isfinite(e)]
-        share = (lambda mask: float(np.mean(mask)) if e.size else float("nan"))
-        rows.append(PaperRow(
-            method, frames, name, ident, share(e <= WITHIN), share((e > BAND[0]) & (e <= BAND[1])), share(e > BAND[1]),
-            float(np.median(e)) if e.size else float("nan"), float(np.percentile(e, 95)) if e.size else float("nan"),
-            float(np.mean(ok)), float(np.sum(res.seconds)), why))  # fmt: skip
+
+        def share(mask, e=e):
+            return float(np.mean(mask)) if e.size else float("nan")
+
+        rows.append(
+            PaperRow(
+                method,
+                frames,
+                name,
+                ident,
+                share(e <= WITHIN),
+                share((e > BAND[0]) & (e <= BAND[1])),
+                share(e > BAND[1]),
+                float(np.median(e)) if e.size else float("nan"),
+                float(np.percentile(e, 95)) if e.size else float("nan"),
+                float(np.mean(ok)),
+                float(np.sum(res.seconds)),
+                why,
+            )
+        )
     return rows
 
 
-def paper_study(model, size: PaperSize = SIZES["quick"], frames=PAPER_FRAMES, methods=tuple(METHODS), seed: int = 0,
-                workers: int = 1, parameters: str = "paper", progress=None) -> tuple[list[PaperRow], dict]:
+def paper_study(
+    model,
+    size: PaperSize = SIZES["quick"],
+    frames=PAPER_FRAMES,
+    methods=tuple(METHODS),
+    seed: int = 0,
+    workers: int = 1,
+    parameters: str = "paper",
+    progress=None,
+) -> tuple[list[PaperRow], dict]:
     """Generate the paper's layout for ``model`` (clean data) and solve it with every method and number of frames.
 
     Returns:
@@ -178,8 +202,9 @@ def paper_study(model, size: PaperSize = SIZES["quick"], frames=PAPER_FRAMES, me
         ds = ds_all.select(frames=slice(0, f))
         for name in methods:
             t0 = time.perf_counter()
-            res = solve_dataset(ds, SolveSettings(frames=f, workers=workers, backend=backend, **METHODS[name]),
-                                model=model)
+            res = solve_dataset(
+                ds, SolveSettings(frames=f, workers=workers, backend=backend, **METHODS[name]), model=model
+            )
             res.seconds = np.full(res.n, (time.perf_counter() - t0) / max(res.n, 1))
             results[(name, f)] = res
             rows += paper_rows(res, name, f, base, links, parameters)
@@ -205,8 +230,10 @@ def check_claims(rows: list[PaperRow], minimum) -> list[tuple[str, str, str]]:
             return "not run", f"{method} not in --methods"
         worst = min(chosen, key=lambda r: r.within_5)
         holds = worst.within_5 >= CLAIM_SHARE
-        evidence = (f"{method}, {f_max} frames: worst {worst.parameter} within 5 % in {100 * worst.within_5:.0f} % "
-                    f"of configurations (median error {worst.median_error:.2g}; {worst.reason})")
+        evidence = (
+            f"{method}, {f_max} frames: worst {worst.parameter} within 5 % in {100 * worst.within_5:.0f} % "
+            f"of configurations (median error {worst.median_error:.2g}; {worst.reason})"
+        )
         return ("holds" if holds else "does not hold"), evidence
 
     mc = lambda p: p.rsplit(".", 1)[1] in ("m", "cx", "cy", "cz", "mx", "my", "mz")  # noqa: E731
@@ -217,15 +244,24 @@ def check_claims(rows: list[PaperRow], minimum) -> list[tuple[str, str, str]]:
     if inertia:
         band = float(np.mean([r.band_50_95 for r in inertia]))
         within = float(np.mean([r.within_5 for r in inertia]))
-        out.append(("lsqnonlin's inertia entries lie between 50 % and 95 % accuracy",
-                    "partly" if 0 < band < 1 else ("holds" if band == 1 else "does not hold"),
-                    f"{f_max} frames: {100 * band:.0f} % of the inertia entries' estimates in the band, "
-                    f"{100 * within:.0f} % within 5 %"))
-    out.append(("at least 4 frames are needed (20 unknowns, 6 equations a frame)",
-                "holds, for another reason" if minimum.frames == 4 and minimum.reason else
-                ("holds" if minimum.frames == 4 else f"does not hold: {minimum.frames}"),
-                f"the {minimum.rank} identifiable combinations need {minimum.frames} frames"
-                + (f": {minimum.reason}" if minimum.reason else "")))
+        out.append(
+            (
+                "lsqnonlin's inertia entries lie between 50 % and 95 % accuracy",
+                "partly" if 0 < band < 1 else ("holds" if band == 1 else "does not hold"),
+                f"{f_max} frames: {100 * band:.0f} % of the inertia entries' estimates in the band, "
+                f"{100 * within:.0f} % within 5 %",
+            )
+        )
+    out.append(
+        (
+            "at least 4 frames are needed (20 unknowns, 6 equations a frame)",
+            "holds, for another reason"
+            if minimum.frames == 4 and minimum.reason
+            else ("holds" if minimum.frames == 4 else f"does not hold: {minimum.frames}"),
+            f"the {minimum.rank} identifiable combinations need {minimum.frames} frames"
+            + (f": {minimum.reason}" if minimum.reason else ""),
+        )
+    )
     return out
 
 
@@ -236,10 +272,10 @@ def write_rows(rows: list[PaperRow], path) -> None:
 
 def plot(rows: list[PaperRow], path, title: str) -> None:
     """Share within 5 % per parameter, one panel per number of frames, one bar per method."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     frames = sorted({r.frames for r in rows})
     methods = list(dict.fromkeys(r.method for r in rows))

@@ -37,8 +37,16 @@ import numpy as np
 
 from ineid._atomic import save_figure, write_csv
 
-SENSOR_SETS = ("fine", "12-bit", "12-bit+gyro", "12-bit+gyro+alpha", "10-bit", "10-bit+gyro", "10-bit+gyro+alpha",
-               "10-bit+gyro2")
+SENSOR_SETS = (
+    "fine",
+    "12-bit",
+    "12-bit+gyro",
+    "12-bit+gyro+alpha",
+    "10-bit",
+    "10-bit+gyro",
+    "10-bit+gyro+alpha",
+    "10-bit+gyro2",
+)
 """The sensor sets, in table order (:func:`sensor_set`)."""
 FINE_BITS = 20
 IMU_NOISE = {"gyro": 0.005, "alpha": 0.17}
@@ -83,24 +91,25 @@ class SensorStudySize:
 def sensor_set(name: str, model) -> tuple[int, tuple]:
     """``(encoder bits, IMU mounts)`` of a :data:`SENSOR_SETS` name: IMUs at every moving link's origin (``gyro2``:
     the last two's)."""
-    from ineid.data.imu import ImuMount  # noqa: PLC0415
+    from ineid.data.imu import ImuMount
 
     if name not in SENSOR_SETS:
         raise ValueError(f"sensor set must be one of {', '.join(SENSOR_SETS)}, got {name!r}")
     bits = FINE_BITS if name == "fine" else int(name.split("-")[0])
     kinds = tuple(k for k in ("gyro", "alpha") if f"+{k}" in name)
-    links = [j.link for j in model.chain.joints][-2 if name.endswith("gyro2") else 0:]
+    links = [j.link for j in model.chain.joints][-2 if name.endswith("gyro2") else 0 :]
     return bits, tuple(ImuMount(link, kinds=kinds) for link in links) if kinds else ()
 
 
-def sensor_study(model, size: SensorStudySize = SensorStudySize(), sensors: Sequence[str] = SENSOR_SETS,
-                 seed: int = 0, progress=None) -> list[SensorStudyRow]:
+def sensor_study(
+    model, size: SensorStudySize = SensorStudySize(), sensors: Sequence[str] = SENSOR_SETS, seed: int = 0, progress=None
+) -> list[SensorStudyRow]:
     """Run the sweep; one :class:`SensorStudyRow` per (rate, bandwidth, sensor set)."""
-    import time  # noqa: PLC0415
+    import time
 
-    from ineid.data import Combination, DatasetSpec, FrameSampling, NoiseModel, generate_dataset  # noqa: PLC0415
-    from ineid.data.imu_rehearsal import ImuRehearsal  # noqa: PLC0415
-    from ineid.identify.solve import SolveSettings, solve_dataset  # noqa: PLC0415
+    from ineid.data import Combination, DatasetSpec, FrameSampling, NoiseModel, generate_dataset
+    from ineid.data.imu_rehearsal import ImuRehearsal
+    from ineid.identify.solve import SolveSettings, solve_dataset
 
     rows: list[SensorStudyRow] = []
     total, done = len(size.rates) * len(size.bandwidths) * len(sensors), 0
@@ -113,20 +122,35 @@ def sensor_study(model, size: SensorStudySize = SensorStudySize(), sensors: Sequ
             frames = FrameSampling("fourier", harmonics=max(1, int(round(bandwidth / f0))), base_frequency=f0)
             for name in sensors:
                 bits, mounts = sensor_set(name, model)
-                rehearsal = ImuRehearsal(mounts, {k: v for k, v in IMU_NOISE.items() if any(k in m.kinds for m in mounts)},
-                                         GYRO_BIAS if mounts else 0.0, bits)  # fmt: skip
+                rehearsal = ImuRehearsal(
+                    mounts,
+                    {k: v for k, v in IMU_NOISE.items() if any(k in m.kinds for m in mounts)},
+                    GYRO_BIAS if mounts else 0.0,
+                    bits,
+                )
                 t0 = time.perf_counter()
-                spec = DatasetSpec(Combination("random", n_configs=size.n_configs), n_frames=n_frames, seed=seed,
-                                   frames=frames, noise=noise, imu=rehearsal)
+                spec = DatasetSpec(
+                    Combination("random", n_configs=size.n_configs),
+                    n_frames=n_frames,
+                    seed=seed,
+                    frames=frames,
+                    noise=noise,
+                    imu=rehearsal,
+                )
                 ds = generate_dataset(model, spec)
                 res = solve_dataset(ds, SolveSettings(method="linear", weights="estimate", frames=fit), model=model)
-                rows.append(SensorStudyRow(
-                    rate=float(rate), bandwidth=float(bandwidth), sensors=name,
-                    base_error=float(np.median(_base_error(res, ds.theta_unknown))),
-                    held_out_error=float(np.median(_held_out(model, ds, res.theta_hat, fit))),
-                    qd_error=_rel(ds.qd, ds.clean["qd"]), qdd_error=_rel(ds.qdd, ds.clean["qdd"]),
-                    seconds=time.perf_counter() - t0,
-                ))  # fmt: skip
+                rows.append(
+                    SensorStudyRow(
+                        rate=float(rate),
+                        bandwidth=float(bandwidth),
+                        sensors=name,
+                        base_error=float(np.median(_base_error(res, ds.theta_unknown))),
+                        held_out_error=float(np.median(_held_out(model, ds, res.theta_hat, fit))),
+                        qd_error=_rel(ds.qd, ds.clean["qd"]),
+                        qdd_error=_rel(ds.qdd, ds.clean["qdd"]),
+                        seconds=time.perf_counter() - t0,
+                    )
+                )
                 done += 1
                 if progress is not None:
                     progress(done, total)
@@ -164,10 +188,10 @@ def write_rows(rows: list[SensorStudyRow], path: str | Path) -> Path:
 
 def plot(rows: list[SensorStudyRow], path: str | Path) -> Path:
     """Base and held-out errors of each sensor set, one group of bars per rate and bandwidth."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     cases = sorted({(r.rate, r.bandwidth) for r in rows})
     sets = [s for s in SENSOR_SETS if any(r.sensors == s for r in rows)]
@@ -175,11 +199,14 @@ def plot(rows: list[SensorStudyRow], path: str | Path) -> Path:
     width = 0.8 / max(len(sets), 1)
     for si, s in enumerate(sets):
         for ax, field in zip(axes, ("base_error", "held_out_error"), strict=True):
-            values = [next((getattr(r, field) for r in rows if (r.rate, r.bandwidth) == c and r.sensors == s), np.nan)
-                      for c in cases]
+            values = [
+                next((getattr(r, field) for r in rows if (r.rate, r.bandwidth) == c and r.sensors == s), np.nan)
+                for c in cases
+            ]
             ax.bar(np.arange(len(cases)) + si * width, values, width, label=s, color=f"C{si}")
-    for ax, title in zip(axes, ("base parameters: largest relative error", "held-out wrench: relative error"),
-                         strict=True):
+    for ax, title in zip(
+        axes, ("base parameters: largest relative error", "held-out wrench: relative error"), strict=True
+    ):
         ax.set_yscale("log")
         ax.set_title(title)
         ax.set_xticks(np.arange(len(cases)) + 0.4 - width / 2)

@@ -64,8 +64,6 @@ def parameter_scales(theta_cad_unknown: np.ndarray) -> np.ndarray:
     return np.maximum(scales, 1e-12).ravel()
 
 
-
-
 def stack(model, q, qd, qdd, wrench, theta_known, channels: ChannelSet | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(W, y)`` of each configuration: (C, AF, 10 n_unknown + n_extra) and (C, AF).
 
@@ -93,8 +91,9 @@ def stack(model, q, qd, qdd, wrench, theta_known, channels: ChannelSet | None = 
     return w, y
 
 
-def predict_wrench(model, q, qd, qdd, theta, channels: ChannelSet | None = None,
-                   extra: np.ndarray | None = None) -> np.ndarray:
+def predict_wrench(
+    model, q, qd, qdd, theta, channels: ChannelSet | None = None, extra: np.ndarray | None = None
+) -> np.ndarray:
     """``T Phi(q, qd, qdd) @ theta + E(q, qd, qdd) @ x`` per configuration, the channels stacked: (C, F, n_dof) x3,
     theta (C, 10 n_links), extra ``x`` (C, n_extra) or None (zero) -> (C, F, A) (each channel's
     :meth:`ineid.channels.Channel.predict`, plus its extra kept columns; None: the base wrench)."""
@@ -107,8 +106,9 @@ def predict_wrench(model, q, qd, qdd, theta, channels: ChannelSet | None = None,
     return out
 
 
-def stack_casadi(model, q, qd, qdd, wrench, theta_known,
-                 channels: ChannelSet | None = None) -> tuple[np.ndarray, np.ndarray]:
+def stack_casadi(
+    model, q, qd, qdd, wrench, theta_known, channels: ChannelSet | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """``(W, y)`` of one configuration through the generated CasADi functions; (AF, 10 n_u + n_extra), (AF,)."""
     channels = BASE_WRENCH if channels is None else channels
     n_axes = channels.n_axes(model)
@@ -173,12 +173,17 @@ class Offsets:
 
     @staticmethod
     def concat(parts: list[Offsets]) -> Offsets:
-        return Offsets(np.concatenate([o.w_mean for o in parts]), np.concatenate([o.y_mean for o in parts]),
-                       parts[0].n_frames, parts[0].mask)
+        return Offsets(
+            np.concatenate([o.w_mean for o in parts]),
+            np.concatenate([o.y_mean for o in parts]),
+            parts[0].n_frames,
+            parts[0].mask,
+        )
 
 
-def remove_offsets(w: np.ndarray, y: np.ndarray, n_axes: int = 6,
-                   mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, Offsets]:
+def remove_offsets(
+    w: np.ndarray, y: np.ndarray, n_axes: int = 6, mask: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, Offsets]:
     """Centre stacked systems per axis (``n_axes`` a frame; only ``mask``'s axes when given):
     ``(W - Wbar, y - ybar, Offsets)``; shapes as :func:`stack`'s."""
     c, rows, p = w.shape

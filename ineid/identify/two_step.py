@@ -73,7 +73,9 @@ def _split_channels(channels: ChannelSet) -> tuple[ChannelSet, ChannelSet]:
         raise IdentificationError(
             f"--two-step fits the links from the wrench, then the joint torques' friction; the channels fitted "
             f"({', '.join(channels.keys)}) lack {'a wrench' if not wrench else 'joint torques'}: use both "
-            "(--use wrench,torque on a dataset with both) or leave --two-step out", status="two_step_channels")
+            "(--use wrench,torque on a dataset with both) or leave --two-step out",
+            status="two_step_channels",
+        )
     return ChannelSet(wrench), ChannelSet(torque)
 
 
@@ -83,8 +85,11 @@ def _axis_slice(settings, channels: ChannelSet, part: ChannelSet, model) -> tupl
         return None
     sigma = np.asarray(settings.axis_sigma, dtype=np.float64)
     if sigma.shape != (channels.n_axes(model),):
-        raise IdentificationError(f"axis_sigma holds {sigma.size} numbers; the channels measure "
-                                  f"{channels.n_axes(model)} axes: give one per axis", status="bad_noise_levels")
+        raise IdentificationError(
+            f"axis_sigma holds {sigma.size} numbers; the channels measure "
+            f"{channels.n_axes(model)} axes: give one per axis",
+            status="bad_noise_levels",
+        )
     parts = channels.split(sigma, model)
     return tuple(float(v) for c in part for v in parts[c.key])
 
@@ -98,13 +103,23 @@ def wrench_settings(ds, settings, model):
     channels = select_channels(ds.meta.channels, settings.use)
     wrench, _ = _split_channels(channels)
     if not actuation_requested(settings):
-        raise IdentificationError("--two-step fits the joint torques' friction, armature or offsets after the links: "
-                                  "give at least one (--friction viscous,coulomb, --armature, --torque-offset)",
-                                  status="two_step_nothing")
-    return dataclasses.replace(settings, use=wrench.keys, two_step=False, friction=(), coulomb_zone=0.0,
-                               asymmetric_friction=False, armature=False, torque_offset=False,
-                               torque_constant_unknown=False,
-                               axis_sigma=_axis_slice(settings, channels, wrench, model))
+        raise IdentificationError(
+            "--two-step fits the joint torques' friction, armature or offsets after the links: "
+            "give at least one (--friction viscous,coulomb, --armature, --torque-offset)",
+            status="two_step_nothing",
+        )
+    return dataclasses.replace(
+        settings,
+        use=wrench.keys,
+        two_step=False,
+        friction=(),
+        coulomb_zone=0.0,
+        asymmetric_friction=False,
+        armature=False,
+        torque_offset=False,
+        torque_constant_unknown=False,
+        axis_sigma=_axis_slice(settings, channels, wrench, model),
+    )
 
 
 def stacked_bases(a: BaseParameters, b: BaseParameters) -> BaseParameters:
@@ -113,23 +128,30 @@ def stacked_bases(a: BaseParameters, b: BaseParameters) -> BaseParameters:
 
     def block(x, y):
         out = np.zeros((x.shape[0] + y.shape[0], x.shape[1] + y.shape[1]))
-        out[: x.shape[0], : x.shape[1]], out[x.shape[0]:, x.shape[1]:] = x, y
+        out[: x.shape[0], : x.shape[1]], out[x.shape[0] :, x.shape[1] :] = x, y
         return out
 
     return BaseParameters(
         param_names=(*a.param_names, *b.param_names),
         base_index=np.concatenate([a.base_index, n_a + b.base_index]),
         dependent_index=np.concatenate([a.dependent_index, n_a + b.dependent_index]),
-        K=block(a.K, b.K), B=block(a.B, b.B), null_basis=block(a.null_basis, b.null_basis),
+        K=block(a.K, b.K),
+        B=block(a.B, b.B),
+        null_basis=block(a.null_basis, b.null_basis),
         identifiable=np.concatenate([a.identifiable, b.identifiable]),
-        names=(*a.names, *b.names), scales=np.concatenate([a.scales, b.scales]), n_extra=a.n_extra + b.n_extra,
+        names=(*a.names, *b.names),
+        scales=np.concatenate([a.scales, b.scales]),
+        n_extra=a.n_extra + b.n_extra,
     )
 
 
 def _k_channels(torque: ChannelSet, model) -> list:
     """``(axis block, k0)`` of each motor-current channel of ``torque`` whose torque constants are identified."""
-    return [(b, np.asarray(b.channel.torque_constant)) for b in torque.blocks(model)
-            if getattr(b.channel, "identify_k", False)]
+    return [
+        (b, np.asarray(b.channel.torque_constant))
+        for b in torque.blocks(model)
+        if getattr(b.channel, "identify_k", False)
+    ]
 
 
 def k_columns(values: np.ndarray, blocks: list, n_axes: int) -> np.ndarray:
@@ -153,7 +175,7 @@ def extra_base_parameters(model, torque: ChannelSet, bias: bool) -> BaseParamete
     w = _regressor_unknown(model, q, qd, qdd, torque)
     scales = unknown_scales(model, w, torque)
     n_e, n_axes = torque.n_extra(model), torque.n_axes(model)
-    e, names, scales = w[:, w.shape[1] - n_e:], torque.extra_names(model), scales[len(scales) - n_e:]
+    e, names, scales = w[:, w.shape[1] - n_e :], torque.extra_names(model), scales[len(scales) - n_e :]
     blocks = _k_channels(torque, model)
     if blocks:  # the currents predicted at the CAD parameters stand in for the measured ones
         predicted = predict_wrench(model, q[None], qd[None], qdd[None], model.theta_cad[None], torque)[0]
@@ -195,8 +217,10 @@ def second_step(first, ds, settings, model) -> dict:
     if settings.weights == "noise":
         axis_sigma = _axis_slice(settings, channels, torque, model) or torque.noise_std(ds.meta.noise, model)
         if axis_sigma is None:
-            raise IdentificationError("weights='noise' needs the joint torques' noise per axis: give axis_sigma or "
-                                      "use weights='estimate'", status="no_noise_levels")
+            raise IdentificationError(
+                "weights='noise' needs the joint torques' noise per axis: give axis_sigma or use weights='estimate'",
+                status="no_noise_levels",
+            )
     c = ds.n_configs
     fits, parts, rms = [], [], np.empty(c)
     per = max(1, CHUNK_ROWS // max(n_fit * n_axes * max(n_x, 1), 1))
@@ -239,8 +263,18 @@ def second_step(first, ds, settings, model) -> dict:
     values = ds.measured(channels)[:, frames]
     order = _stack_order(channels, wrench, torque, model)
     gain_all = gain_all[:, order]
-    sums = residual_sums(model, ds.q[:, frames], ds.qd[:, frames], ds.qdd[:, frames], values * gain_all[:, None],
-                         theta, n_fit, None if bias_hat is None else np.nan_to_num(bias_hat) * gain_all, channels, x)
+    sums = residual_sums(
+        model,
+        ds.q[:, frames],
+        ds.qd[:, frames],
+        ds.qdd[:, frames],
+        values * gain_all[:, None],
+        theta,
+        n_fit,
+        None if bias_hat is None else np.nan_to_num(bias_hat) * gain_all,
+        channels,
+        x,
+    )
     if k_blocks:  # (i (1 + d) - prediction)^2 / (1 + d)^2 per axis; the held-out values unscaled
         sums = (sums[0] / gain_all**2, sums[1] / gain_all**2, (values[:, n_fit:] ** 2).sum(axis=(1, 2)))
     theta_x, std_x = est.theta.copy(), est.theta_std.copy()
@@ -252,12 +286,21 @@ def second_step(first, ds, settings, model) -> dict:
     ok = first.success & est.success
     status = np.where(first.success, np.asarray(est.status, dtype=object), first.status).astype(object)
     return dict(
-        base=stacked_bases(first.base, base_x), theta_prior=np.concatenate([first.theta_prior, prior_x]), sums=sums,
-        n_fit=n_fit, n_val=n_val, channels=channels, model=model,
+        base=stacked_bases(first.base, base_x),
+        theta_prior=np.concatenate([first.theta_prior, prior_x]),
+        sums=sums,
+        n_fit=n_fit,
+        n_val=n_val,
+        channels=channels,
+        model=model,
         theta_hat=np.concatenate([first.theta_hat, theta_x], axis=1),
         theta_std=np.concatenate([first.theta_std, std_x], axis=1),
         base_hat=np.concatenate([first.base_hat, est.beta], axis=1),
         base_std=np.concatenate([first.base_std, est.beta_std], axis=1),
-        success=ok, status=status, seconds=first.seconds + (time.perf_counter() - t0) / max(c, 1),
-        bias_hat=bias_hat, bias_std=bias_std, payload=first.payload,
+        success=ok,
+        status=status,
+        seconds=first.seconds + (time.perf_counter() - t0) / max(c, 1),
+        bias_hat=bias_hat,
+        bias_std=bias_std,
+        payload=first.payload,
     )

@@ -96,10 +96,17 @@ def with_units(ds, model, angle: float = 1.0, moment: float = 1.0):
     ``moment`` (what the import would have made of the same file with the other unit)."""
     factor = np.array([angle if kind == "revolute" else 1.0 for kind in model.joint_types])
     scale = np.repeat([1.0, moment], 3)
-    values = {c.key: np.asarray(ds.measurements[c.key]) * scale for c in ds.meta.channels
-              if isinstance(c, BaseWrench) and moment != 1.0}
+    values = {
+        c.key: np.asarray(ds.measurements[c.key]) * scale
+        for c in ds.meta.channels
+        if isinstance(c, BaseWrench) and moment != 1.0
+    }
     return dataclasses.replace(
-        ds, q=ds.q * factor, qd=ds.qd * factor, qdd=ds.qdd * factor, wrench=values.pop("wrench", ds.wrench),
+        ds,
+        q=ds.q * factor,
+        qd=ds.qd * factor,
+        qdd=ds.qdd * factor,
+        wrench=values.pop("wrench", ds.wrench),
         channel_values={**ds.channel_values, **values},
     )
 
@@ -154,6 +161,14 @@ def refit_units(ds, channels: ChannelSet, offsets: bool, model, hypotheses) -> l
         scaled = with_units(sub, model, angle, moment)
         parts = [_least_squares(scaled, i, model, channels, mask) for i in range(sub.n_configs)]
         rss, ss = np.array([p[0] for p in parts]), np.array([p[1] for p in parts])
-        fits.append(UnitFit(angle, moment, relative_error(rss, ss), float(np.median([p[2] for p in parts])),
-                            float(np.median([p[3] for p in parts])), sub.n_frames))
+        fits.append(
+            UnitFit(
+                angle,
+                moment,
+                relative_error(rss, ss),
+                float(np.median([p[2] for p in parts])),
+                float(np.median([p[3] for p in parts])),
+                sub.n_frames,
+            )
+        )
     return fits

@@ -59,8 +59,14 @@ def axis_leverage(g: np.ndarray, axis_w: np.ndarray, a_inv: np.ndarray) -> np.nd
     return axis_w**2 * np.einsum("cars,csr->ca", g, a_inv)
 
 
-def estimated_axis_weights(axis_rss: np.ndarray, g: np.ndarray, axis_w: np.ndarray, a_inv: np.ndarray,
-                           axis_frames: np.ndarray, axis_signal: np.ndarray) -> np.ndarray:
+def estimated_axis_weights(
+    axis_rss: np.ndarray,
+    g: np.ndarray,
+    axis_w: np.ndarray,
+    a_inv: np.ndarray,
+    axis_frames: np.ndarray,
+    axis_signal: np.ndarray,
+) -> np.ndarray:
     """(C, A) new row weights ``1 / sigma_a`` with ``sigma_a^2 = rss_a / (F_a - h_a)``.
 
     Args:
@@ -80,8 +86,9 @@ def estimated_axis_weights(axis_rss: np.ndarray, g: np.ndarray, axis_w: np.ndarr
     return 1.0 / np.maximum(sig, 1e-300)
 
 
-def estimated_weights_inflation(g: np.ndarray, axis_w: np.ndarray, a_inv: np.ndarray,
-                                axis_frames: np.ndarray) -> np.ndarray:
+def estimated_weights_inflation(
+    g: np.ndarray, axis_w: np.ndarray, a_inv: np.ndarray, axis_frames: np.ndarray
+) -> np.ndarray:
     """(C, r, r) ``2 V Q V``: what estimating the weights adds to ``V = A^-1`` (module doc).
 
     Args:

@@ -37,12 +37,15 @@ def network_frames(n_frames: int, k: int, frames: int | None) -> int:
     if n_frames < k:
         raise IdentificationError(
             f"the run takes {k} frames per sample but the dataset has {n_frames} per configuration; "
-            "use a run trained with fewer frames per sample (--sample-frames)", status="too_few_frames")  # fmt: skip
+            "use a run trained with fewer frames per sample (--sample-frames)",
+            status="too_few_frames",
+        )
     if frames is not None:
         if frames % k or frames > n_frames:
             raise IdentificationError(
                 f"--fit-frames {frames} must be a multiple of the run's {k} frames per sample and at most {n_frames}",
-                status="bad_frames")  # fmt: skip
+                status="bad_frames",
+            )
         return frames
     fit = (n_frames - int(HOLDOUT_FRACTION * n_frames)) // k * k
     return fit if fit >= k else n_frames // k * k
@@ -61,16 +64,22 @@ def _check_channels(trained: ChannelSet, measured: ChannelSet) -> None:
         IdentificationError: naming what differs and the methods that can identify the data.
     """
     same = trained.keys == measured.keys and all(
-        type(a) is type(b) and _same_transform(a.transform(), b.transform()) for a, b in zip(trained, measured))
+        type(a) is type(b) and _same_transform(a.transform(), b.transform())
+        for a, b in zip(trained, measured, strict=True)
+    )
     if same:
         return
-    if trained.keys == measured.keys and all(type(a) is type(b) for a, b in zip(trained, measured)):
+    if trained.keys == measured.keys and all(type(a) is type(b) for a, b in zip(trained, measured, strict=True)):
         raise IdentificationError(
             "a trained run reads wrenches in the base frame; this recording's wrench is in a sensor frame: "
-            "identify it with --method linear, nonlinear or consistent", status="sensor_frame")  # fmt: skip
-    raise IdentificationError(f"the run was trained on {trained.describe()}; this dataset measures "
-                              f"{measured.describe()}: identify it with --method linear, nonlinear or consistent",
-                              status="channels")
+            "identify it with --method linear, nonlinear or consistent",
+            status="sensor_frame",
+        )
+    raise IdentificationError(
+        f"the run was trained on {trained.describe()}; this dataset measures "
+        f"{measured.describe()}: identify it with --method linear, nonlinear or consistent",
+        status="channels",
+    )
 
 
 def _same_transform(a, b) -> bool:
@@ -96,10 +105,10 @@ def solve_with_run(ds, settings, model=None, progress=None):
             than the dataset's unknown links.
         IdentificationError: too few frames for the run, or a wrench in a sensor frame.
     """
-    from ineid.identify.identifiability import base_parameters  # noqa: PLC0415
-    from ineid.identify.solve import dataset_results, estimate_residual_sums  # noqa: PLC0415
-    from ineid.learn.evaluate import predict  # noqa: PLC0415
-    from ineid.learn.runs import load_run  # noqa: PLC0415
+    from ineid.identify.identifiability import base_parameters
+    from ineid.identify.solve import dataset_results, estimate_residual_sums
+    from ineid.learn.evaluate import predict
+    from ineid.learn.runs import load_run
 
     run = load_run(settings.run)
     if list(ds.meta.unknown_param_names) != list(run.meta["param_names"]):
@@ -110,8 +119,9 @@ def solve_with_run(ds, settings, model=None, progress=None):
     n_features = len(run.x_scaler.center)
     width = 3 * ds.q.shape[-1] + ds.meta.channels.n_axes(ds.meta)
     if width != n_features:
-        raise TrainingError(f"the run takes {n_features} features per frame; the dataset's frames have "
-                            f"{width}: it is another robot")  # fmt: skip
+        raise TrainingError(
+            f"the run takes {n_features} features per frame; the dataset's frames have {width}: it is another robot"
+        )
     _check_channels(trained_channels(run), ds.meta.channels)
     model = model or ds.model()
     base = base_parameters(model, channels=ds.meta.channels)
@@ -128,7 +138,14 @@ def solve_with_run(ds, settings, model=None, progress=None):
     sums = estimate_residual_sums(model, ds, n_fit, n_val, theta)
     prior = np.asarray(model.theta_cad[model.unknown_index], dtype=np.float64)
     return dataset_results(
-        ds, settings, base, prior, sums, n_fit, n_val, t0,
+        ds,
+        settings,
+        base,
+        prior,
+        sums,
+        n_fit,
+        n_val,
+        t0,
         theta_hat=theta,
         theta_std=np.full_like(theta, np.nan),
         base_hat=theta @ base.B.T,
@@ -136,7 +153,7 @@ def solve_with_run(ds, settings, model=None, progress=None):
         success=ok,
         status=np.where(ok, "ok", "non_finite").astype(object),
         seconds=seconds,
-    )  # fmt: skip
+    )
 
 
 register_method("network", solve_with_run)  # SolveSettings(method="network"), `ineid solve --method network`

@@ -54,11 +54,15 @@ class TrainConfig:
             (self.loss in LOSSES, f"loss must be one of {', '.join(LOSSES)}"),
             (self.optimizer in OPTIMIZERS, f"optimizer must be one of {', '.join(OPTIMIZERS)}"),
             (self.schedule in SCHEDULES, f"schedule must be one of {', '.join(SCHEDULES)}"),
-            (self.lr > 0 and self.epochs >= 1 and self.batch >= 1 and self.patience >= 0,
-             "lr, epochs and batch must be positive and patience >= 0"),
-            (self.alpha >= 0 and self.beta >= 0 and (self.alpha > 0 or (self.loss == "physics" and self.beta > 0)),
-             "alpha and beta must be >= 0 and the loss not identically zero"),
-        ]  # fmt: skip
+            (
+                self.lr > 0 and self.epochs >= 1 and self.batch >= 1 and self.patience >= 0,
+                "lr, epochs and batch must be positive and patience >= 0",
+            ),
+            (
+                self.alpha >= 0 and self.beta >= 0 and (self.alpha > 0 or (self.loss == "physics" and self.beta > 0)),
+                "alpha and beta must be >= 0 and the loss not identically zero",
+            ),
+        ]
         for ok, message in checks:
             if not ok:
                 raise ValueError(message)

@@ -50,9 +50,10 @@ def split_configs(n_configs: int, n_train: int | None, n_val: int | None, n_test
         )
     perm = np.random.default_rng(np.random.SeedSequence([int(seed), 11])).permutation(n_configs)
     return Split(
-        np.sort(perm[:n_train]), np.sort(perm[n_train : n_train + n_val]),
+        np.sort(perm[:n_train]),
+        np.sort(perm[n_train : n_train + n_val]),
         np.sort(perm[n_train + n_val : n_train + n_val + n_test]),
-    )  # fmt: skip
+    )
 
 
 def frame_features(ds) -> np.ndarray:

@@ -47,14 +47,16 @@ PREDICT_CHUNK_FRAMES = 100_000
 """Frames per chunk of configurations in :func:`predict` (bounds a wls run's regressor memory)."""
 
 
-def predict(run: Run, ds: Dataset, configs: np.ndarray, batch: int = 1024, model: RobotModel | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+def predict(
+    run: Run, ds: Dataset, configs: np.ndarray, batch: int = 1024, model: RobotModel | None = None
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Per-configuration estimates (C, n_u), per-sample estimates (C, G, n_u), frames used.
 
     A configuration's groups ``[0, K), [K, 2K), ...`` are its samples; a ``wls`` run also
     gets each frame's regressor and wrench (the generated JAX regressor of ``model``,
     default the dataset's), computed a chunk of configurations at a time.
     """
-    import jax  # noqa: PLC0415
+    import jax
 
     k = run.config.model.frames
     configs = np.asarray(configs)
@@ -63,7 +65,7 @@ def predict(run: Run, ds: Dataset, configs: np.ndarray, batch: int = 1024, model
     groups = ds.n_frames // k
     structured = run.config.model.uses_regressor
     if structured:
-        from ineid.identify.systems import stack  # noqa: PLC0415
+        from ineid.identify.systems import stack
 
         model = model or ds.model()
     apply = jax.jit(run.net.apply)
@@ -78,8 +80,10 @@ def predict(run: Run, ds: Dataset, configs: np.ndarray, batch: int = 1024, model
             channels = ds.meta.channels
             n_axes = channels.n_axes(model)
             w, y = stack(model, sub.q, sub.qd, sub.qdd, sub.measured(channels), sub.theta_known, channels)
-            arrays += [w.reshape(sub.n_configs, sub.n_frames, n_axes, -1),
-                       y.reshape(sub.n_configs, sub.n_frames, n_axes)]
+            arrays += [
+                w.reshape(sub.n_configs, sub.n_frames, n_axes, -1),
+                y.reshape(sub.n_configs, sub.n_frames, n_axes),
+            ]
         for start in range(0, len(pos), batch):
             parts = [a[pos[start : start + batch, None], frames[start : start + batch]] for a in arrays]
             n = len(parts[0])
@@ -93,7 +97,7 @@ def predict(run: Run, ds: Dataset, configs: np.ndarray, batch: int = 1024, model
 
 def floor_estimator(theta_fit: np.ndarray, b: np.ndarray):
     """The linear MMSE estimate of ``theta`` from exact ``beta = B theta`` (see module doc)."""
-    from ineid.learn.wls import null_space_map  # noqa: PLC0415
+    from ineid.learn.wls import null_space_map
 
     mu_t, mu_b, gain = null_space_map(theta_fit, b)
 
@@ -104,9 +108,9 @@ def floor_estimator(theta_fit: np.ndarray, b: np.ndarray):
 
 
 def _stats(est, truth, names):
-    import warnings  # noqa: PLC0415
+    import warnings
 
-    from ineid.identify.results import relative_error  # noqa: PLC0415
+    from ineid.identify.results import relative_error
 
     err = relative_error(est, truth)
     ss_res = np.sum((est - truth) ** 2, axis=0)
@@ -148,7 +152,9 @@ class Evaluation:
         return dict(self.__dict__)
 
 
-def evaluate(run: Run, ds: Dataset, configs: np.ndarray | None = None, model: RobotModel | None = None, linear: bool = True) -> Evaluation:
+def evaluate(
+    run: Run, ds: Dataset, configs: np.ndarray | None = None, model: RobotModel | None = None, linear: bool = True
+) -> Evaluation:
     """Evaluate ``run`` on configurations of ``ds`` (default: the run's test split when ``ds``
     is its dataset, else every configuration).
 
@@ -160,10 +166,10 @@ def evaluate(run: Run, ds: Dataset, configs: np.ndarray | None = None, model: Ro
         linear: also compute the classical references on the same configurations and
             frames: the linear least squares and the Gaussian-prior estimate.
     """
-    from ineid.identify import SolveSettings, base_parameters, frame_minimum, solve_dataset  # noqa: PLC0415
-    from ineid.identify.results import relative_error  # noqa: PLC0415
-    from ineid.identify.systems import predict_wrench  # noqa: PLC0415
-    from ineid.params import all_links_physical  # noqa: PLC0415
+    from ineid.identify import SolveSettings, base_parameters, frame_minimum, solve_dataset
+    from ineid.identify.results import relative_error
+    from ineid.identify.systems import predict_wrench
+    from ineid.params import all_links_physical
 
     ds.require_truth("evaluating a network")
     if list(ds.meta.unknown_param_names) != list(run.meta["param_names"]):
@@ -231,15 +237,18 @@ def gaussian_prior_estimates(run: Run, ds, configs: np.ndarray, f_used: int, mod
         same: ``ds`` is the run's dataset; otherwise the fit is 5-fold out of fold over
             ``configs`` (None when there are fewer than ``5 (r + 2)`` of them).
     """
-    from ineid.identify import base_parameters  # noqa: PLC0415
-    from ineid.learn.train import wls_context  # noqa: PLC0415
-    from ineid.learn.wls import WlsContext, iter_systems, prior_estimate  # noqa: PLC0415
+    from ineid.identify import base_parameters
+    from ineid.learn.train import wls_context
+    from ineid.learn.wls import WlsContext, iter_systems, prior_estimate
 
     scale = np.asarray(run.meta["wrench_scale"])
     n = len(configs)
     if same:
-        contexts = [WlsContext.from_dict(run.meta["wls"]) if "wls" in run.meta else
-                    wls_context(ds, run.split.train, model, run.y_scaler, scale)]  # fmt: skip
+        contexts = [
+            WlsContext.from_dict(run.meta["wls"])
+            if "wls" in run.meta
+            else wls_context(ds, run.split.train, model, run.y_scaler, scale)
+        ]
         fold = np.zeros(n, dtype=np.int64)
     else:
         if n < 5 * (base_parameters(model, channels=ds.meta.channels).rank + 2):
@@ -249,8 +258,9 @@ def gaussian_prior_estimates(run: Run, ds, configs: np.ndarray, f_used: int, mod
     sub = ds.select(configs, slice(0, f_used))
     theta = np.empty((n, len(run.meta["param_names"])))
     beta = np.empty((n, contexts[0].rank))
-    for sl, w, y in iter_systems(model, sub.q, sub.qd, sub.qdd, sub.measured(), sub.theta_known,
-                                 channels=ds.meta.channels):
+    for sl, w, y in iter_systems(
+        model, sub.q, sub.qd, sub.qdd, sub.measured(), sub.theta_known, channels=ds.meta.channels
+    ):
         for k, ctx in enumerate(contexts):
             rows = np.flatnonzero(fold[sl] == k)
             if rows.size:

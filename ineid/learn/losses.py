@@ -92,11 +92,13 @@ class Physics:
         Args:
             inputs: ``(psi_u, y)`` when cached, else ``(q, qd, qdd, wrench)`` of the frames.
         """
-        import jax  # noqa: PLC0415
+        import jax
 
         if self.compact is not None:
-            raise ValueError("the compact cached regressor holds Psi_b's entries, not Psi_u: a network that "
-                             "reads the regressor is prepared with the full one")
+            raise ValueError(
+                "the compact cached regressor holds Psi_b's entries, not Psi_u: a network that "
+                "reads the regressor is prepared with the full one"
+            )
         if self.mode == "cached":
             return inputs
         q, qd, qdd, wrench = inputs

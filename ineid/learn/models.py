@@ -91,7 +91,7 @@ def hidden_widths(arch: str, n_out: int, depth: int | None = None, width: int | 
         _check_size(arch, int(depth), int(width))
         return (int(width),) * int(depth)
     if arch == "wls":
-        from ineid.learn.wls import WLS_DEPTH, WLS_WIDTH  # noqa: PLC0415
+        from ineid.learn.wls import WLS_DEPTH, WLS_WIDTH
 
         depth, width = depth or WLS_DEPTH, width or WLS_WIDTH
         if depth < 1 or width < 1:
@@ -162,7 +162,7 @@ class ModelSpec:
         """The Flax module; ``context`` (a :class:`ineid.learn.wls.WlsContext`) is required by ``wls``."""
         hidden = hidden_widths(self.arch, n_out, self.depth, self.width)
         if self.uses_regressor:
-            from ineid.learn.wls import WLS  # noqa: PLC0415
+            from ineid.learn.wls import WLS
 
             if context is None:
                 raise ValueError("the wls network needs the constants fitted on its training split (context)")

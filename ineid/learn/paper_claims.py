@@ -30,9 +30,10 @@ FACTOR_CLAIMS = (  # (factor, the paper's best, the paper's words)
     ("activation", "tanh", "the tanh activation function ... produced the most promising results"),
     ("scaler", "robust", "the robust scaler ... produced the most promising results"),
     ("optimizer", "sgd", "the SGD optimizer produced the most promising results"),
-)  # fmt: skip
-SIAMESE_CLAIM = "the most promising result was produced by the Siamese network with eight hidden layers and a width " \
-                "factor of eight"  # fmt: skip
+)
+SIAMESE_CLAIM = (
+    "the most promising result was produced by the Siamese network with eight hidden layers and a width factor of eight"
+)
 CLASSICAL_CLAIM = "the AI-based methods struggled to achieve the precision of classical numerical optimization"
 
 
@@ -76,9 +77,12 @@ def _show(values: list[float]) -> str:
 
 def _context_name(key: dict) -> str:
     frames = "" if key.get("frames", 1) == 1 else (" Siamese K" if key.get("siamese") else " K") + str(key["frames"])
-    parts = [f"{key['arch']}{frames}" if "arch" in key else None,
-             *(str(key[k]) for k in ("activation", "scaler", "optimizer") if k in key),
-             f"{key['epochs']} epochs", f"{key['n_train']} training configurations"]  # fmt: skip
+    parts = [
+        f"{key['arch']}{frames}" if "arch" in key else None,
+        *(str(key[k]) for k in ("activation", "scaler", "optimizer") if k in key),
+        f"{key['epochs']} epochs",
+        f"{key['n_train']} training configurations",
+    ]
     return ", ".join(p for p in parts if p)
 
 
@@ -107,7 +111,7 @@ def factor_claim(table: dict[tuple, list[float]], factor: str, best: str, claim:
     i = CELL.index(factor)
     groups: dict[tuple, dict[str, list[float]]] = defaultdict(dict)
     for cell, values in table.items():
-        groups[cell[:i] + cell[i + 1:]][cell[i]] = values
+        groups[cell[:i] + cell[i + 1 :]][cell[i]] = values
     judged = []
     for rest, by_value in sorted(groups.items(), key=str):
         if best not in by_value or len(by_value) < 2:
@@ -135,26 +139,39 @@ def siamese_claim(table: dict[tuple, list[float]], arch: str = "net6", claim: st
 
         verdict, details = _judge(by_net[mine[0]], {label(n): v for n, v in by_net.items() if n != mine[0]})
         context = dict(zip(CELL[3:], rest, strict=True))
-        judged.append((verdict, f"{_context_name(context)}: {label(mine[0])} {_show(by_net[mine[0]])} against {details}"))
+        judged.append(
+            (verdict, f"{_context_name(context)}: {label(mine[0])} {_show(by_net[mine[0]])} against {details}")
+        )
     return _combine(claim, judged, f"no Siamese {arch} network beside other networks of the same settings")
 
 
 def classical_claim(rows, metric: str = "test_standard_median", claim: str = CLASSICAL_CLAIM) -> Verdict:
     """Every network's test error is above linear least squares' on the same test configurations and frames."""
     linear = "linear_standard_median" if metric == "test_standard_median" else "linear_base_median"
-    pairs = [(float(_get(r, metric)), float(_get(r, linear)), _get(r, "name")) for r in rows
-             if _get(r, "status") == "ok" and np.isfinite(float(_get(r, metric)))]  # fmt: skip
+    pairs = [
+        (float(_get(r, metric)), float(_get(r, linear)), _get(r, "name"))
+        for r in rows
+        if _get(r, "status") == "ok" and np.isfinite(float(_get(r, metric)))
+    ]
     pairs = [p for p in pairs if np.isfinite(p[1])]
     if not pairs:
         return Verdict(claim, UNDECIDABLE, "no finished trial with a least-squares comparison")
     best = min(pairs)
     beaten = [p for p in pairs if p[0] <= p[1]]
     if beaten:
-        return Verdict(claim, NOT_HELD, f"{len(beaten)} of {len(pairs)} trials at or below least squares, e.g. "
-                                        f"{beaten[0][2]} {beaten[0][0]:.3g} against {beaten[0][1]:.3g}")  # fmt: skip
+        return Verdict(
+            claim,
+            NOT_HELD,
+            f"{len(beaten)} of {len(pairs)} trials at or below least squares, e.g. "
+            f"{beaten[0][2]} {beaten[0][0]:.3g} against {beaten[0][1]:.3g}",
+        )
     ratio = min(p[0] / p[1] for p in pairs) if all(p[1] > 0 for p in pairs) else float("inf")
-    return Verdict(claim, HELD, f"all {len(pairs)} trials above linear least squares; the best network "
-                                f"({best[2]}) {best[0]:.3g} against {best[1]:.3g}, at least {ratio:.3g} x")  # fmt: skip
+    return Verdict(
+        claim,
+        HELD,
+        f"all {len(pairs)} trials above linear least squares; the best network "
+        f"({best[2]}) {best[0]:.3g} against {best[1]:.3g}, at least {ratio:.3g} x",
+    )
 
 
 def check_claims(rows, metrics: tuple[str, ...] = tuple(METRICS)) -> list[Verdict]:
@@ -172,9 +189,9 @@ def check_claims(rows, metrics: tuple[str, ...] = tuple(METRICS)) -> list[Verdic
 
 def write_claims(verdicts: list[Verdict], path) -> None:
     """``claims.csv``: claim, verdict, why (atomically)."""
-    import dataclasses  # noqa: PLC0415
-    from pathlib import Path  # noqa: PLC0415
+    import dataclasses
+    from pathlib import Path
 
-    from ineid._atomic import write_csv  # noqa: PLC0415
+    from ineid._atomic import write_csv
 
     write_csv(Path(path), ["claim", "verdict", "why"], [dataclasses.asdict(v) for v in verdicts])

@@ -86,9 +86,18 @@ class Size:
 
 SIZES = {
     "paper": Size(DatasetSpec(seed=0), 3000, 500, 500, epochs=100, siamese_epochs=10, seeds=(0, 1)),
-    "quick": Size(DatasetSpec(Combination("random", n_configs=24), n_frames=20, seed=0), 12, 6, 6, epochs=2,
-                  siamese_epochs=2, seeds=(0,), batch=64, siamese_batch=16),
-}  # fmt: skip
+    "quick": Size(
+        DatasetSpec(Combination("random", n_configs=24), n_frames=20, seed=0),
+        12,
+        6,
+        6,
+        epochs=2,
+        siamese_epochs=2,
+        seeds=(0,),
+        batch=64,
+        siamese_batch=16,
+    ),
+}
 
 
 @dataclass(frozen=True)
@@ -106,8 +115,10 @@ def plan(name: str) -> list[Part]:
     best = {"activations": ("tanh",), "scalers": ("robust",), "optimizers": ("sgd",)}
     every = {"activations": ACTIVATIONS, "scalers": SCALERS, "optimizers": OPTIMIZERS}
     if name == "full":
-        return [Part("single", Grid(archs=("simple", *TABLE1_ARCHS, "funnel"), **every)),
-                Part("siamese", Grid(archs=TABLE1_ARCHS, frames=(SIAMESE_FRAMES,), siamese=(True,), **every))]  # fmt: skip
+        return [
+            Part("single", Grid(archs=("simple", *TABLE1_ARCHS, "funnel"), **every)),
+            Part("siamese", Grid(archs=TABLE1_ARCHS, frames=(SIAMESE_FRAMES,), siamese=(True,), **every)),
+        ]
     if name == "decisive":
         net1 = ("net1",)
         return [
@@ -115,22 +126,36 @@ def plan(name: str) -> list[Part]:
             Part("scalers", Grid(archs=net1, **{**best, "scalers": SCALERS[1:]})),
             Part("optimizers", Grid(archs=net1, **{**best, "optimizers": OPTIMIZERS[1:]})),
             Part("siamese-single", Grid(archs=("net1", SIAMESE_BEST), **best), siamese_size=True),
-            Part("siamese", Grid(archs=("net1", SIAMESE_BEST), frames=(SIAMESE_FRAMES,), siamese=(True,), **best),
-                 siamese_size=True),
-        ]  # fmt: skip
+            Part(
+                "siamese",
+                Grid(archs=("net1", SIAMESE_BEST), frames=(SIAMESE_FRAMES,), siamese=(True,), **best),
+                siamese_size=True,
+            ),
+        ]
     if name == "quick":
-        return [Part("grid", Grid(archs=("simple",), activations=ACTIVATIONS[:2], scalers=SCALERS[:2],
-                                  optimizers=OPTIMIZERS))]  # fmt: skip
+        return [
+            Part(
+                "grid", Grid(archs=("simple",), activations=ACTIVATIONS[:2], scalers=SCALERS[:2], optimizers=OPTIMIZERS)
+            )
+        ]
     raise ValueError(f"plan must be one of {', '.join(PLANS)}, got {name!r}")
 
 
 def base_config(size: Size, part: Part, seed: int) -> TrainConfig:
     """The settings of a part's trials besides the grid's (patience 0: every trial runs all its epochs)."""
     k_frames = max(part.grid.frames) > 1
-    return TrainConfig(model=ModelSpec("simple"), lr=size.lr, momentum=size.momentum, patience=0, seed=int(seed),
-                       epochs=size.siamese_epochs if part.siamese_size else size.epochs,
-                       batch=size.siamese_batch if k_frames else size.batch,
-                       n_train=size.n_train, n_val=size.n_val, n_test=size.n_test)  # fmt: skip
+    return TrainConfig(
+        model=ModelSpec("simple"),
+        lr=size.lr,
+        momentum=size.momentum,
+        patience=0,
+        seed=int(seed),
+        epochs=size.siamese_epochs if part.siamese_size else size.epochs,
+        batch=size.siamese_batch if k_frames else size.batch,
+        n_train=size.n_train,
+        n_val=size.n_val,
+        n_test=size.n_test,
+    )
 
 
 @dataclass
@@ -157,8 +182,9 @@ def sweep_folders(parts: list[Part], size: Size, out_dir: str | Path) -> list[Pa
     return [Path(out_dir) / p.name / f"seed-{s}" for p in parts for s in size.seeds]
 
 
-def check_study_folder(ds, parts: list[Part], size: Size, out_dir: str | Path, *, resume: bool = False,
-                       overwrite: bool = False) -> None:
+def check_study_folder(
+    ds, parts: list[Part], size: Size, out_dir: str | Path, *, resume: bool = False, overwrite: bool = False
+) -> None:
     """Whether :func:`run_study` may write ``out_dir`` (called by it; the CLI calls it before its progress bar).
 
     Raises:
@@ -168,12 +194,29 @@ def check_study_folder(ds, parts: list[Part], size: Size, out_dir: str | Path, *
     for part in parts:
         for seed in size.seeds:
             folder = Path(out_dir) / part.name / f"seed-{seed}"
-            check_sweep_folder(ds, part.grid, base_config(size, part, seed), folder, overwrite=overwrite,
-                               resume=resume and (folder / SWEEP_RECORD).is_file())  # fmt: skip
+            check_sweep_folder(
+                ds,
+                part.grid,
+                base_config(size, part, seed),
+                folder,
+                overwrite=overwrite,
+                resume=resume and (folder / SWEEP_RECORD).is_file(),
+            )
 
 
-def run_study(ds, parts: list[Part], size: Size, out_dir: str | Path, *, model=None, progress=None,
-              resume: bool = False, overwrite: bool = False, engine: str = "sequential", **engine_kw) -> list[StudyRow]:
+def run_study(
+    ds,
+    parts: list[Part],
+    size: Size,
+    out_dir: str | Path,
+    *,
+    model=None,
+    progress=None,
+    resume: bool = False,
+    overwrite: bool = False,
+    engine: str = "sequential",
+    **engine_kw,
+) -> list[StudyRow]:
     """Run every part once per seed (part by part, so the first parts' claims are decided first) and write
     ``OUT/networks.csv`` after each sweep; each sweep folder is an ordinary ``ineid sweep`` folder.
 
@@ -207,8 +250,18 @@ def run_study(ds, parts: list[Part], size: Size, out_dir: str | Path, *, model=N
                     progress(offset + i, total, row)
 
             again = resume and (folder / SWEEP_RECORD).is_file()
-            got = sweep(ds, part.grid, base, folder, model=model, progress=step, overwrite=overwrite, resume=again,
-                        engine=engine, **engine_kw)  # fmt: skip
+            got = sweep(
+                ds,
+                part.grid,
+                base,
+                folder,
+                model=model,
+                progress=step,
+                overwrite=overwrite,
+                resume=again,
+                engine=engine,
+                **engine_kw,
+            )
             by_name = {r.name: r for r in got}
             rows += [StudyRow.of(by_name[run_name(c)], part.name, c) for c in cfgs]
             done += len(cfgs)
@@ -222,7 +275,7 @@ def write_rows(rows: list[StudyRow], path: str | Path) -> None:
 
 def read_rows(path: str | Path) -> list[StudyRow]:
     """The rows of a ``networks.csv`` (as :func:`write_rows` wrote them)."""
-    import csv  # noqa: PLC0415
+    import csv
 
     types = {f.name: f.type for f in dataclasses.fields(StudyRow)}
     out = []
@@ -231,8 +284,14 @@ def read_rows(path: str | Path) -> list[StudyRow]:
             kw = {}
             for k, v in rec.items():
                 t = types[k]
-                kw[k] = (v == "True") if t in ("bool", bool) else int(v) if t in ("int", int) else \
-                    float(v) if t in ("float", float) else v  # fmt: skip
+                kw[k] = (
+                    (v == "True")
+                    if t in ("bool", bool)
+                    else int(v)
+                    if t in ("int", int)
+                    else float(v)
+                    if t in ("float", float)
+                    else v
+                )
             out.append(StudyRow(**kw))
     return out
-

@@ -35,14 +35,15 @@ INSTALL_HINT = "the ray engine needs Ray: pip install 'ineid[ray]' (or pip insta
 def import_ray():
     """The ``ray`` module, or :class:`OptionalDependencyError` saying how to install it."""
     try:
-        import ray  # noqa: PLC0415
+        import ray
     except ImportError:
         raise OptionalDependencyError(INSTALL_HINT) from None
     return ray
 
 
-def _trial(ds, cfg: TrainConfig, dataset_path: str | None, physics_mode: str,
-           started: dict[str, bytes] | None = None) -> tuple[SweepRow, dict[str, bytes]]:
+def _trial(
+    ds, cfg: TrainConfig, dataset_path: str | None, physics_mode: str, started: dict[str, bytes] | None = None
+) -> tuple[SweepRow, dict[str, bytes]]:
     """One trial on a worker: train and evaluate in a temporary folder; the row and the folder's files.
 
     ``started``: the files of an interrupted run of this trial, continued from its checkpoint.
@@ -66,10 +67,20 @@ def _message(err: BaseException) -> str:
     return f"{type(cause or err).__name__}: {first.strip()}"
 
 
-def ray_trials(ds, cfgs: list[TrainConfig], out_dir: Path, *, dataset_path: str | None = None,
-               physics_mode: str = "cached", progress: Callable | None = None, address: str | None = None,
-               cpus_per_trial: float = 1.0, gpus_per_trial: float = 0.0,
-               ray_init: dict | None = None, states: dict[str, str] | None = None) -> list[SweepRow]:
+def ray_trials(
+    ds,
+    cfgs: list[TrainConfig],
+    out_dir: Path,
+    *,
+    dataset_path: str | None = None,
+    physics_mode: str = "cached",
+    progress: Callable | None = None,
+    address: str | None = None,
+    cpus_per_trial: float = 1.0,
+    gpus_per_trial: float = 0.0,
+    ray_init: dict | None = None,
+    states: dict[str, str] | None = None,
+) -> list[SweepRow]:
     """Run every trial of ``cfgs`` as a Ray task; rows in completion order (see the module doc).
 
     Args:
@@ -116,7 +127,9 @@ def ray_trials(ds, cfgs: list[TrainConfig], out_dir: Path, *, dataset_path: str 
             options = {"include_dashboard": False, "log_to_driver": False, **(ray_init or {})}
             cpus = options.get("num_cpus") or os.cpu_count() or 1
             if cpus_per_trial > cpus:
-                raise ValueError(f"{cpus_per_trial} CPUs per trial but the local cluster has {cpus}; lower --cpus-per-trial")
+                raise ValueError(
+                    f"{cpus_per_trial} CPUs per trial but the local cluster has {cpus}; lower --cpus-per-trial"
+                )
             ray.init(**options)
         else:
             ray.init(address=address, log_to_driver=False)

@@ -95,11 +95,13 @@ def read_config(run_dir: Path) -> tuple[dict, object, Split]:
         raise damaged(path, "split needs exactly train, val and test")
     split = Split(*(_int_array(split[k], path, f"split.{k}") for k in ("train", "val", "test")))
     n_configs = meta["dataset"].get("n_configs")
-    if isinstance(n_configs, int) and any(a.size and a.max() >= n_configs for a in (split.train, split.val, split.test)):
+    if isinstance(n_configs, int) and any(
+        a.size and a.max() >= n_configs for a in (split.train, split.val, split.test)
+    ):
         raise damaged(path, f"its split names configurations beyond the dataset's {n_configs}")
     _numbers(meta["wrench_scale"], path, "wrench_scale")
     if cfg.model.uses_regressor:
-        from ineid.learn.wls import WlsContext  # noqa: PLC0415
+        from ineid.learn.wls import WlsContext
 
         try:
             WlsContext.from_dict(meta["wls"])
@@ -133,7 +135,7 @@ def read_msgpack(path: Path, template):
     Raises:
         TrainingError: truncated or corrupt bytes, or parameters of another network.
     """
-    from flax import serialization  # noqa: PLC0415
+    from flax import serialization
 
     data = _inputs.regular_file(path, "the run file").read_bytes()
     if not data:

@@ -42,8 +42,13 @@ if TYPE_CHECKING:
     from ineid.learn.config import TrainConfig
 
 CONFIG, SCALERS, METRICS, CHECKPOINT, MODEL, EVALUATION = (
-    "config.json", "scalers.json", "metrics.jsonl", "checkpoint.msgpack", "model.msgpack", "evaluation.json",
-)  # fmt: skip
+    "config.json",
+    "scalers.json",
+    "metrics.jsonl",
+    "checkpoint.msgpack",
+    "model.msgpack",
+    "evaluation.json",
+)
 RUN_FILES = (CONFIG, SCALERS, METRICS, CHECKPOINT, MODEL, EVALUATION)
 
 
@@ -68,7 +73,9 @@ def start_run(run_dir: Path, cfg: TrainConfig, ds: Dataset, *, resume: bool, ove
     """
     if not resume:
         if run_dir.exists() and any(run_dir.iterdir()) and not overwrite:
-            raise TrainingError(f"{run_dir} is not empty; pass --overwrite to replace the run, or --resume to continue it")
+            raise TrainingError(
+                f"{run_dir} is not empty; pass --overwrite to replace the run, or --resume to continue it"
+            )
         run_dir.mkdir(parents=True, exist_ok=True)
         for name in RUN_FILES:
             (run_dir / name).unlink(missing_ok=True)
@@ -120,7 +127,7 @@ class MetricsLog:
 
 def save_state(run_dir: Path, state: dict, final: bool = False) -> None:
     """Write the checkpoint (``state``), or with ``final`` the best parameters as ``model.msgpack``."""
-    from flax import serialization  # noqa: PLC0415
+    from flax import serialization
 
     if final:
         atomic_write(run_dir / MODEL, serialization.to_bytes(state["best_params"]))
@@ -162,7 +169,7 @@ def build_net(cfg: TrainConfig, meta: dict):
     """The Flax module of a run from its settings and ``config.json`` (a wls run's constants)."""
     context = None
     if cfg.model.uses_regressor:
-        from ineid.learn.wls import WlsContext  # noqa: PLC0415
+        from ineid.learn.wls import WlsContext
 
         if "wls" not in meta:
             raise TrainingError("the run's config.json lacks the wls constants; the run folder is damaged")
@@ -177,14 +184,17 @@ def load_run(run_dir: str | Path) -> Run:
         TrainingError: a file is missing (an unfinished run says how to finish it) or does
             not match the run's network.
     """
-    import jax  # noqa: PLC0415
+    import jax
 
     run_dir = Path(run_dir)
     files = [run_dir / n for n in (CONFIG, SCALERS, MODEL)]
     missing = [f.name for f in files if not f.is_file()]
     if missing:
-        hint = " (training was interrupted: finish it with `ineid train ... --resume`)" if (
-            run_dir / CHECKPOINT).is_file() else ""
+        hint = (
+            " (training was interrupted: finish it with `ineid train ... --resume`)"
+            if (run_dir / CHECKPOINT).is_file()
+            else ""
+        )
         raise TrainingError(f"{run_dir} is not a finished training run: {', '.join(missing)} missing{hint}")
     meta, cfg, split = read_config(run_dir)
     x_scaler, y_scaler = read_scalers(run_dir)
@@ -193,8 +203,9 @@ def load_run(run_dir: str | Path) -> Run:
     if cfg.model.uses_regressor:
         n_u = meta["n_out"]
         n_axes = len(meta["wrench_scale"])  # the measured axes of a frame (the wrench: six)
-        template = net.init(jax.random.key(0), x, np.zeros((1, cfg.model.frames, n_axes, n_u)),
-                            np.zeros((1, cfg.model.frames, n_axes)))
+        template = net.init(
+            jax.random.key(0), x, np.zeros((1, cfg.model.frames, n_axes, n_u)), np.zeros((1, cfg.model.frames, n_axes))
+        )
     else:
         template = net.init(jax.random.key(0), x)
     params = read_msgpack(files[2], template)
@@ -230,9 +241,9 @@ def writing_run(run_dir: str | Path, *, resume: bool, overwrite: bool) -> Iterat
     Raises:
         OutputBusyError: another process is writing ``run_dir``.
     """
-    import shutil  # noqa: PLC0415
+    import shutil
 
-    from ineid._atomic import Terminated, output_lock, remove_stale_temporaries, replace_folder, staging_folder  # noqa: PLC0415
+    from ineid._atomic import Terminated, output_lock, remove_stale_temporaries, replace_folder, staging_folder
 
     run_dir = Path(run_dir)
     run_dir.parent.mkdir(parents=True, exist_ok=True)

@@ -51,7 +51,7 @@ def gather_samples(arrays, mode, rows, frames, n_axes: int = 6):
     Per-frame arrays are gathered by one flat index ``row * n_frames + frame`` along their
     first axis: a single-axis ``take``, much cheaper on the CPU than a two-axis gather.
     """
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax.numpy as jnp
 
     n_frames = arrays["x"].shape[1]
     flat = rows[:, None] * n_frames + frames
@@ -79,16 +79,17 @@ def forward(net, spec: ModelSpec, physics: Physics):
 def init_params(net, spec: ModelSpec, prep: Prepared, key):
     """Initial parameters of ``net`` from the shapes of one sample of ``prep``."""
     k = spec.frames
-    x, _, inputs = gather_samples(prep.arrays, prep.physics.mode, np.zeros(1, dtype=np.int64), np.arange(k)[None],
-                                  prep.physics.n_axes)
+    x, _, inputs = gather_samples(
+        prep.arrays, prep.physics.mode, np.zeros(1, dtype=np.int64), np.arange(k)[None], prep.physics.n_axes
+    )
     return net.init(key, x, *prep.physics.system(inputs)) if spec.uses_regressor else net.init(key, x)
 
 
 def build_functions(net, cfg: TrainConfig, prep: Prepared, optimizer):
     """Jitted ``train_steps`` (with ``.single`` for one step) and ``eval_batch`` for a run."""
-    import jax  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
-    import optax  # noqa: PLC0415
+    import jax
+    import jax.numpy as jnp
+    import optax
 
     loss_fn = make_loss(net.apply, cfg.alpha, cfg.effective_beta, prep.physics, cfg.model.uses_regressor)
     apply = forward(net, cfg.model, prep.physics)

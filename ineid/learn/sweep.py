@@ -52,7 +52,11 @@ class Grid:
                 if False in self.siamese:
                     continue  # wls shares its frame encoder anyway: one run, not two
                 siam = False
-            sizes = {"depth": base.model.depth, "width": base.model.width} if arch in SIZED else {"depth": None, "width": None}
+            sizes = (
+                {"depth": base.model.depth, "width": base.model.width}
+                if arch in SIZED
+                else {"depth": None, "width": None}
+            )
             model = dataclasses.replace(base.model, arch=arch, activation=act, frames=k, siamese=siam, **sizes)
             out.append(dataclasses.replace(base, model=model, scaler=scaler, optimizer=opt, loss=loss))
         return out
@@ -64,14 +68,17 @@ ENGINES = ("sequential", "ray")
 SWEEP_RECORD = "sweep.json"
 """The settings of a sweep in its folder (grid, run settings, dataset fingerprint), checked by ``resume``."""
 
+
 def sweep_record(grid: Grid, base: TrainConfig, ds: Dataset) -> dict:
     """What ``OUT/sweep.json`` holds: the grid, the run settings and the dataset's fingerprint (JSON types)."""
-    return json.loads(json.dumps({"grid": dataclasses.asdict(grid), "run settings": base.to_dict(),
-                                  "dataset": ds.fingerprint()}))  # fmt: skip
+    return json.loads(
+        json.dumps({"grid": dataclasses.asdict(grid), "run settings": base.to_dict(), "dataset": ds.fingerprint()})
+    )
 
 
-def check_sweep_folder(ds: Dataset, grid: Grid, base: TrainConfig, out_dir: str | Path, *, overwrite: bool = False,
-                       resume: bool = False) -> dict:
+def check_sweep_folder(
+    ds: Dataset, grid: Grid, base: TrainConfig, out_dir: str | Path, *, overwrite: bool = False, resume: bool = False
+) -> dict:
     """Whether :func:`sweep` may write ``out_dir`` (called by it; the CLI calls it before its progress bar).
 
     Returns:
@@ -88,27 +95,49 @@ def check_sweep_folder(ds: Dataset, grid: Grid, base: TrainConfig, out_dir: str 
         try:
             saved = read_json(out_dir / SWEEP_RECORD, "the sweep record")
         except (IneidError, OSError, ValueError):
-            raise TrainingError(f"{out_dir} holds no sweep to resume (no readable {SWEEP_RECORD}); start it without "
-                                "--resume") from None  # fmt: skip
-        differs = {"grid": "a different grid", "run settings": "different run settings",
-                   "dataset": "a different dataset"}  # fmt: skip
+            raise TrainingError(
+                f"{out_dir} holds no sweep to resume (no readable {SWEEP_RECORD}); start it without --resume"
+            ) from None
+        differs = {
+            "grid": "a different grid",
+            "run settings": "different run settings",
+            "dataset": "a different dataset",
+        }
         for key, what in differs.items():
             if not isinstance(saved, dict) or saved.get(key) != record[key]:
-                raise TrainingError(f"{out_dir} holds a sweep with {what}; resume it with the same settings and "
-                                    "dataset, or use a new folder")  # fmt: skip
+                raise TrainingError(
+                    f"{out_dir} holds a sweep with {what}; resume it with the same settings and "
+                    "dataset, or use a new folder"
+                )
     elif not overwrite:
         names = [run_name(c) for c in grid.configs(base)]
         busy = [n for n in names if (out_dir / n).is_dir() and any((out_dir / n).iterdir())]
         if busy:
-            raise TrainingError(f"{out_dir / busy[0]} holds a run; pass --overwrite to replace the sweep's runs, or "
-                                "--resume to continue the sweep")  # fmt: skip
+            raise TrainingError(
+                f"{out_dir / busy[0]} holds a run; pass --overwrite to replace the sweep's runs, or "
+                "--resume to continue the sweep"
+            )
     return record
 
 
-def sweep(ds: Dataset, grid: Grid, base: TrainConfig, out_dir: str | Path, dataset_path: str | None = None,
-          model: RobotModel | None = None, progress=None, overwrite: bool = False, physics_mode: str = "cached", *,
-          engine: str = "sequential", address: str | None = None, cpus_per_trial: float = 1.0,
-          gpus_per_trial: float = 0.0, ray_init: dict | None = None, resume: bool = False) -> list[SweepRow]:
+def sweep(
+    ds: Dataset,
+    grid: Grid,
+    base: TrainConfig,
+    out_dir: str | Path,
+    dataset_path: str | None = None,
+    model: RobotModel | None = None,
+    progress=None,
+    overwrite: bool = False,
+    physics_mode: str = "cached",
+    *,
+    engine: str = "sequential",
+    address: str | None = None,
+    cpus_per_trial: float = 1.0,
+    gpus_per_trial: float = 0.0,
+    ray_init: dict | None = None,
+    resume: bool = False,
+) -> list[SweepRow]:
     """Train and evaluate every configuration of ``grid`` into ``out_dir/<name>``; rows ranked
     by the test median relative error of the standard parameters, failed trials last.
 
@@ -147,29 +176,43 @@ def sweep(ds: Dataset, grid: Grid, base: TrainConfig, out_dir: str | Path, datas
         OutputBusyError: another process is writing ``out_dir``.
         OptionalDependencyError: ``engine="ray"`` without Ray installed.
     """
-    from ineid._atomic import output_lock  # noqa: PLC0415
-    from ineid.errors import IneidError  # noqa: PLC0415
+    from ineid._atomic import output_lock
+    from ineid.errors import IneidError
 
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
     out_dir = Path(out_dir)
     cfgs = grid.configs(base)
     if not cfgs:
-        raise ValueError("the grid is empty (a Siamese network needs more than one frame: add --sample-frames values > 1)")
+        raise ValueError(
+            "the grid is empty (a Siamese network needs more than one frame: add --sample-frames values > 1)"
+        )
     names = [run_name(cfg) for cfg in cfgs]
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     with output_lock(out_dir):
         record = check_sweep_folder(ds, grid, base, out_dir, overwrite=overwrite, resume=resume)
         out_dir.mkdir(parents=True, exist_ok=True)
         atomic_write(out_dir / SWEEP_RECORD, json.dumps(record, indent=1))
-        states = {n: trial_state(out_dir / n, cfg, record["dataset"]) if resume else "new"
-                  for n, cfg in zip(names, cfgs, strict=True)}  # fmt: skip
+        states = {
+            n: trial_state(out_dir / n, cfg, record["dataset"]) if resume else "new"
+            for n, cfg in zip(names, cfgs, strict=True)
+        }
         if engine == "ray":
-            from ineid.learn.ray_engine import ray_trials  # noqa: PLC0415
+            from ineid.learn.ray_engine import ray_trials
 
-            rows = ray_trials(ds, cfgs, out_dir, dataset_path=dataset_path, physics_mode=physics_mode,
-                              progress=progress, address=address, cpus_per_trial=cpus_per_trial,
-                              gpus_per_trial=gpus_per_trial, ray_init=ray_init, states=states)  # fmt: skip
+            rows = ray_trials(
+                ds,
+                cfgs,
+                out_dir,
+                dataset_path=dataset_path,
+                physics_mode=physics_mode,
+                progress=progress,
+                address=address,
+                cpus_per_trial=cpus_per_trial,
+                gpus_per_trial=gpus_per_trial,
+                ray_init=ray_init,
+                states=states,
+            )
         else:
             model = model or ds.model()
             rows = []
@@ -181,17 +224,18 @@ def sweep(ds: Dataset, grid: Grid, base: TrainConfig, out_dir: str | Path, datas
                 if progress is not None:
                     progress(i + 1, len(cfgs), rows[-1])
         rows.sort(key=lambda r: (r.status != "ok", np.nan_to_num(r.test_standard_median, nan=np.inf), r.name))
-        write_csv(out_dir / "sweep.csv", [f.name for f in dataclasses.fields(SweepRow)],
-                  [dataclasses.asdict(r) for r in rows])  # fmt: skip
+        write_csv(
+            out_dir / "sweep.csv", [f.name for f in dataclasses.fields(SweepRow)], [dataclasses.asdict(r) for r in rows]
+        )
         plot(rows, out_dir / "sweep.png")
     return rows
 
 
 def plot(rows: list[SweepRow], path: Path) -> Path:
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(max(6, 0.6 * len(rows) + 2), 4.5), constrained_layout=True)
     x = np.arange(len(rows))

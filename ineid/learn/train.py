@@ -42,8 +42,9 @@ if TYPE_CHECKING:
     from ineid.data import Dataset
     from ineid.robots import RobotModel
 
+
 def make_optimizer(cfg: TrainConfig, steps_per_epoch: int):
-    import optax  # noqa: PLC0415
+    import optax
 
     if cfg.schedule == "cosine":
         lr = optax.cosine_decay_schedule(cfg.lr, decay_steps=max(1, cfg.epochs * steps_per_epoch))
@@ -60,8 +61,16 @@ CACHE_LIMIT_BYTES = 6 * 2**30
 """A cached physics term larger than this falls back to the inline regressor."""
 
 
-def prepare(ds: Dataset, cfg: TrainConfig, rows: np.ndarray, model: RobotModel, scalers=None, fit_rows: np.ndarray | None = None,
-            wrench_scale: np.ndarray | None = None, physics_mode: str = "cached") -> Prepared:
+def prepare(
+    ds: Dataset,
+    cfg: TrainConfig,
+    rows: np.ndarray,
+    model: RobotModel,
+    scalers=None,
+    fit_rows: np.ndarray | None = None,
+    wrench_scale: np.ndarray | None = None,
+    physics_mode: str = "cached",
+) -> Prepared:
     """Scalers (fitted on ``fit_rows`` unless given) and device arrays of configurations ``rows``.
 
     Args:
@@ -77,9 +86,9 @@ def prepare(ds: Dataset, cfg: TrainConfig, rows: np.ndarray, model: RobotModel, 
     The physics term is over the dataset's measurement channels (``ds.meta.channels``: their
     rows, their values stacked, one normalization per axis).
     """
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax.numpy as jnp
 
-    from ineid.identify.systems import stack  # noqa: PLC0415
+    from ineid.identify.systems import stack
 
     ds.require_truth("training")
     k = cfg.model.frames
@@ -112,10 +121,11 @@ def prepare(ds: Dataset, cfg: TrainConfig, rows: np.ndarray, model: RobotModel, 
         w = w.reshape(sub.n_configs, sub.n_frames, n_axes, n_u)
         y = y.reshape(sub.n_configs, sub.n_frames, n_axes)
         if not cfg.model.uses_regressor:  # a network that does not read Psi: the compact rows
-            from ineid.identify.identifiability import base_parameters  # noqa: PLC0415
+            from ineid.identify.identifiability import base_parameters
 
-            compact, rows_compact = CompactRegressor.from_frames(w, y, base_parameters(model, channels=channels),
-                                                                 wrench_scale)
+            compact, rows_compact = CompactRegressor.from_frames(
+                w, y, base_parameters(model, channels=channels), wrench_scale
+            )
             del w, y
     physics = Physics(
         mode=physics_mode,
@@ -137,8 +147,9 @@ def prepare(ds: Dataset, cfg: TrainConfig, rows: np.ndarray, model: RobotModel, 
         arrays["psi"] = jnp.asarray(w)
         arrays["yres"] = jnp.asarray(y)
     else:
-        arrays.update(q=jnp.asarray(sub.q), qd=jnp.asarray(sub.qd), qdd=jnp.asarray(sub.qdd),
-                      wrench=jnp.asarray(values))
+        arrays.update(
+            q=jnp.asarray(sub.q), qd=jnp.asarray(sub.qd), qdd=jnp.asarray(sub.qdd), wrench=jnp.asarray(values)
+        )
     return Prepared(rows, x_scaler, y_scaler, arrays, physics, n_u, sub.n_frames)
 
 
@@ -149,21 +160,23 @@ def wls_context(ds, train_rows: np.ndarray, model, y_scaler: Scaler, wrench_scal
     the true parameters over every training frame (:func:`ineid.learn.wls.residual_sigma`), computed a chunk of
     configurations at a time.
     """
-    from ineid.identify import base_parameters  # noqa: PLC0415
-    from ineid.learn.wls import SIGMA_FLOOR, fit_context, iter_systems  # noqa: PLC0415
+    from ineid.identify import base_parameters
+    from ineid.learn.wls import SIGMA_FLOOR, fit_context, iter_systems
 
     sub = ds.select(np.asarray(train_rows))
     channels = ds.meta.channels
     n_axes = channels.n_axes(model)
     sq, n = np.zeros(n_axes), 0
-    for sl, w, y in iter_systems(model, sub.q, sub.qd, sub.qdd, sub.measured(channels), sub.theta_known,
-                                 channels=channels):
+    for sl, w, y in iter_systems(
+        model, sub.q, sub.qd, sub.qdd, sub.measured(channels), sub.theta_known, channels=channels
+    ):
         res = (y - np.einsum("cnp,cp->cn", w, sub.theta_unknown[sl])).reshape(-1, n_axes)
         sq += np.sum(res**2, axis=0)
         n += len(res)
     sigma = np.maximum(np.sqrt(sq / max(n, 1)), SIGMA_FLOOR * np.asarray(wrench_scale))
-    return fit_context(sub.theta_unknown, sigma, base_parameters(model, channels=channels), y_scaler.center,
-                       y_scaler.scale)
+    return fit_context(
+        sub.theta_unknown, sigma, base_parameters(model, channels=channels), y_scaler.center, y_scaler.scale
+    )
 
 
 @dataclass
@@ -213,8 +226,14 @@ def train(
         OutputBusyError: another process is writing the run folder.
     """
     ds.require_truth("training")
-    kwargs = {"dataset_path": dataset_path, "resume": resume, "overwrite": overwrite, "progress": progress,
-              "model": model, "physics_mode": physics_mode}  # fmt: skip
+    kwargs = {
+        "dataset_path": dataset_path,
+        "resume": resume,
+        "overwrite": overwrite,
+        "progress": progress,
+        "model": model,
+        "physics_mode": physics_mode,
+    }
     with writing_run(run_dir, resume=resume, overwrite=overwrite) as work:
         result = _train_into(ds, cfg, work, **kwargs)
         if finish is not None:
@@ -223,14 +242,23 @@ def train(
     return result
 
 
-def _train_into(ds: Dataset, cfg: TrainConfig, run_dir: Path, *, dataset_path: str | None, resume: bool,
-                overwrite: bool, progress: EpochProgress | None, model: RobotModel | None,
-                physics_mode: str) -> TrainResult:
+def _train_into(
+    ds: Dataset,
+    cfg: TrainConfig,
+    run_dir: Path,
+    *,
+    dataset_path: str | None,
+    resume: bool,
+    overwrite: bool,
+    progress: EpochProgress | None,
+    model: RobotModel | None,
+    physics_mode: str,
+) -> TrainResult:
     """:func:`train` in ``run_dir``: the run folder itself, or the hidden folder of a replacement."""
-    import jax  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax
+    import jax.numpy as jnp
 
-    from ineid.cache import enable_compilation_cache  # noqa: PLC0415
+    from ineid.cache import enable_compilation_cache
 
     enable_compilation_cache()
     resumed = start_run(run_dir, cfg, ds, resume=resume, overwrite=overwrite)
@@ -250,10 +278,13 @@ def _train_into(ds: Dataset, cfg: TrainConfig, run_dir: Path, *, dataset_path: s
     steps_per_epoch = n_samples // batch
     context = None
     if cfg.model.uses_regressor:
-        from ineid.learn.wls import WlsContext  # noqa: PLC0415
+        from ineid.learn.wls import WlsContext
 
-        context = (WlsContext.from_dict(resumed.config["wls"]) if resumed is not None
-                   else wls_context(ds, split.train, model, prep.y_scaler, prep.physics.wrench_scale))  # fmt: skip
+        context = (
+            WlsContext.from_dict(resumed.config["wls"])
+            if resumed is not None
+            else wls_context(ds, split.train, model, prep.y_scaler, prep.physics.wrench_scale)
+        )
         # Train on the identifiable part of the targets: the rest (along the null directions) no
         # wrench can tell, and fitting it would only teach the network the training configurations.
         truth = context.identifiable_part(ds.theta_unknown[prep.rows])
@@ -262,8 +293,15 @@ def _train_into(ds: Dataset, cfg: TrainConfig, run_dir: Path, *, dataset_path: s
     params = init_params(net, cfg.model, prep, jax.random.key(cfg.seed))
     optimizer = make_optimizer(cfg, steps_per_epoch)
     opt_state = optimizer.init(params)
-    state = {"params": params, "opt_state": opt_state, "best_params": params, "epoch": 0,
-             "best_val": float("inf"), "best_epoch": 0, "bad_epochs": 0}  # fmt: skip
+    state = {
+        "params": params,
+        "opt_state": opt_state,
+        "best_params": params,
+        "epoch": 0,
+        "best_val": float("inf"),
+        "best_epoch": 0,
+        "bad_epochs": 0,
+    }
     if resumed is not None:
         state = load_state(run_dir, state, cfg.epochs)
     else:
@@ -271,16 +309,23 @@ def _train_into(ds: Dataset, cfg: TrainConfig, run_dir: Path, *, dataset_path: s
             "train": cfg.to_dict(),
             "split": split.to_dict(),
             "physics_mode": prep.physics.mode,
-            "dataset": {"path": dataset_path, "robot": ds.meta.robot, "n_configs": ds.n_configs,
-                        "n_frames": ds.n_frames, "seed": ds.meta.seed, "noise": ds.meta.noise,
-                        "fingerprint": ds.fingerprint(), "channels": ds.meta.channels.to_list()},
+            "dataset": {
+                "path": dataset_path,
+                "robot": ds.meta.robot,
+                "n_configs": ds.n_configs,
+                "n_frames": ds.n_frames,
+                "seed": ds.meta.seed,
+                "noise": ds.meta.noise,
+                "fingerprint": ds.fingerprint(),
+                "channels": ds.meta.channels.to_list(),
+            },
             "n_out": prep.n_out,
             "param_names": ds.meta.unknown_param_names,
             "unknown_links": list(ds.meta.unknown_links),
             "wrench_scale": prep.physics.wrench_scale.tolist(),
             "steps_per_epoch": steps_per_epoch,
             "batch": batch,
-        }  # fmt: skip
+        }
         if context is not None:
             meta["wls"] = context.to_dict()
         write_config(run_dir, meta, prep.x_scaler, prep.y_scaler)
@@ -302,8 +347,9 @@ def _train_into(ds: Dataset, cfg: TrainConfig, run_dir: Path, *, dataset_path: s
         t0 = time.perf_counter()
         pos, frames = epoch_groups(len(split.train), prep.n_frames, k, cfg.seed, epoch)
         rows = train_local[pos]
-        params, opt_state, sums = run_epoch(train_steps, params, opt_state, prep.arrays, rows, frames, batch,
-                                            steps_per_epoch)
+        params, opt_state, sums = run_epoch(
+            train_steps, params, opt_state, prep.arrays, rows, frames, batch, steps_per_epoch
+        )
         train_loss = sums / max(steps_per_epoch, 1)
         if not np.all(np.isfinite(train_loss)):
             raise TrainingError(f"the training loss diverged (non-finite) at epoch {epoch}; lower --lr")
@@ -315,10 +361,15 @@ def _train_into(ds: Dataset, cfg: TrainConfig, run_dir: Path, *, dataset_path: s
         else:
             state["bad_epochs"] = int(state["bad_epochs"]) + 1
         record = {
-            "epoch": epoch, "train_loss": float(train_loss[0]), "train_mse": float(train_loss[1]),
-            "train_phys": float(train_loss[2]), "val_mse": float(val_mse), "val_phys": float(val_phys),
-            "best_epoch": int(state["best_epoch"]), "seconds": time.perf_counter() - t0,
-        }  # fmt: skip
+            "epoch": epoch,
+            "train_loss": float(train_loss[0]),
+            "train_mse": float(train_loss[1]),
+            "train_phys": float(train_loss[2]),
+            "val_mse": float(val_mse),
+            "val_phys": float(val_phys),
+            "best_epoch": int(state["best_epoch"]),
+            "seconds": time.perf_counter() - t0,
+        }
         metrics.append(record)
         save_state(run_dir, state)
         if progress is not None:
@@ -327,5 +378,6 @@ def _train_into(ds: Dataset, cfg: TrainConfig, run_dir: Path, *, dataset_path: s
             stopped = True
             break
     save_state(run_dir, state, final=True)
-    return TrainResult(run_dir, epoch, int(state["best_epoch"]), float(state["best_val"]), stopped,
-                       time.perf_counter() - t_start)  # fmt: skip
+    return TrainResult(
+        run_dir, epoch, int(state["best_epoch"]), float(state["best_val"]), stopped, time.perf_counter() - t_start
+    )

@@ -62,23 +62,48 @@ class SweepRow:
             return ev[key]["overall_median"] if ev.get(key) else nan
 
         return cls(
-            name=run_name(cfg), arch=cfg.model.arch, activation=cfg.model.activation, scaler=cfg.scaler,
-            optimizer=cfg.optimizer, loss=cfg.loss, frames=cfg.model.frames, siamese=cfg.model.siamese,
-            epochs_run=epochs_run, seconds=seconds, test_standard_median=median("network"),
-            test_base_median=median("network_base"), floor_standard_median=median("floor"),
-            linear_standard_median=median("linear"), linear_base_median=median("linear_base"),
-            physical_share=ev["physical_share"], gaussian_standard_median=median("gaussian"),
+            name=run_name(cfg),
+            arch=cfg.model.arch,
+            activation=cfg.model.activation,
+            scaler=cfg.scaler,
+            optimizer=cfg.optimizer,
+            loss=cfg.loss,
+            frames=cfg.model.frames,
+            siamese=cfg.model.siamese,
+            epochs_run=epochs_run,
+            seconds=seconds,
+            test_standard_median=median("network"),
+            test_base_median=median("network_base"),
+            floor_standard_median=median("floor"),
+            linear_standard_median=median("linear"),
+            linear_base_median=median("linear_base"),
+            physical_share=ev["physical_share"],
+            gaussian_standard_median=median("gaussian"),
             gaussian_base_median=median("gaussian_base"),
-        )  # fmt: skip
+        )
 
     @classmethod
     def failed(cls, cfg: TrainConfig, message: str) -> SweepRow:
         nan = float("nan")
-        return cls(name=run_name(cfg), arch=cfg.model.arch, activation=cfg.model.activation, scaler=cfg.scaler,
-                   optimizer=cfg.optimizer, loss=cfg.loss, frames=cfg.model.frames, siamese=cfg.model.siamese,
-                   epochs_run=0, seconds=nan, test_standard_median=nan, test_base_median=nan,
-                   floor_standard_median=nan, linear_standard_median=nan, linear_base_median=nan,
-                   physical_share=nan, status=f"failed: {message}")  # fmt: skip
+        return cls(
+            name=run_name(cfg),
+            arch=cfg.model.arch,
+            activation=cfg.model.activation,
+            scaler=cfg.scaler,
+            optimizer=cfg.optimizer,
+            loss=cfg.loss,
+            frames=cfg.model.frames,
+            siamese=cfg.model.siamese,
+            epochs_run=0,
+            seconds=nan,
+            test_standard_median=nan,
+            test_base_median=nan,
+            floor_standard_median=nan,
+            linear_standard_median=nan,
+            linear_base_median=nan,
+            physical_share=nan,
+            status=f"failed: {message}",
+        )
 
 
 TRIAL_STATES = ("new", "checkpoint", "evaluate", "finished")
@@ -114,8 +139,15 @@ def _trained(run_dir: Path) -> tuple[int, float]:
         raise damaged(path, "a record lacks its seconds") from None
 
 
-def run_trial(ds, cfg: TrainConfig, run_dir: Path, dataset_path: str | None = None, model=None,
-              physics_mode: str = "cached", state: str = "new") -> SweepRow:
+def run_trial(
+    ds,
+    cfg: TrainConfig,
+    run_dir: Path,
+    dataset_path: str | None = None,
+    model=None,
+    physics_mode: str = "cached",
+    state: str = "new",
+) -> SweepRow:
     """Train one grid point into ``run_dir``, evaluate it on the test split and write its ``evaluation.json``.
 
     ``state`` (:func:`trial_state`) says how much of it is done: ``"new"`` trains afresh
@@ -125,8 +157,16 @@ def run_trial(ds, cfg: TrainConfig, run_dir: Path, dataset_path: str | None = No
     if state not in TRIAL_STATES:
         raise ValueError(f"state must be one of {', '.join(TRIAL_STATES)}, got {state!r}")
     if state in ("new", "checkpoint"):
-        result = train(ds, cfg, run_dir, dataset_path=dataset_path, resume=state == "checkpoint", overwrite=True,
-                       model=model, physics_mode=physics_mode)  # fmt: skip
+        result = train(
+            ds,
+            cfg,
+            run_dir,
+            dataset_path=dataset_path,
+            resume=state == "checkpoint",
+            overwrite=True,
+            model=model,
+            physics_mode=physics_mode,
+        )
     if state == "finished":
         ev = read_run_json(run_dir / EVALUATION)
     else:

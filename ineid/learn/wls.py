@@ -176,7 +176,7 @@ def iter_systems(model, q, qd, qdd, wrench, theta_known, max_frames: int = 200_0
     """``(slice, W (c, AF, n_u), y (c, AF))`` of chunks of configurations, about ``max_frames`` frames
     at a time (:func:`ineid.identify.systems.stack` of ``channels``, default the base wrench, which
     holds a whole chunk in memory); ``wrench`` (C, F, A) the channels' values."""
-    from ineid.identify.systems import stack  # noqa: PLC0415
+    from ineid.identify.systems import stack
 
     n_configs, n_frames = q.shape[:2]
     per = max(1, max_frames // max(n_frames, 1))
@@ -185,7 +185,9 @@ def iter_systems(model, q, qd, qdd, wrench, theta_known, max_frames: int = 200_0
         yield (sl, *stack(model, q[sl], qd[sl], qdd[sl], wrench[sl], theta_known, channels))
 
 
-def fit_context(theta_fit: np.ndarray, sigma: np.ndarray, base, y_center: np.ndarray, y_scale: np.ndarray) -> WlsContext:
+def fit_context(
+    theta_fit: np.ndarray, sigma: np.ndarray, base, y_center: np.ndarray, y_scale: np.ndarray
+) -> WlsContext:
     """The :class:`WlsContext` from training truth ``theta_fit`` (C, n_u) and the noise model ``sigma`` (A,), one per
     measured axis (the wrench: six).
 
@@ -304,7 +306,9 @@ class WLS(nn.Module):
         return (theta - jnp.asarray(c.y_center)) / jnp.asarray(c.y_scale)
 
 
-def prior_estimate(context: WlsContext, w: np.ndarray, y: np.ndarray, prior: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def prior_estimate(
+    context: WlsContext, w: np.ndarray, y: np.ndarray, prior: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """The untrained model by another route: the Gaussian-prior (posterior-mean) estimate.
 
     ``beta = argmin ||D (y - W_b beta)||^2 + ||L^-1 (beta - mu_beta)||^2`` with

@@ -84,5 +84,7 @@ def snap_joint_angles(root: ET.Element, robot) -> list[str]:
         changed.append(joint.name)
     if not changed:
         return []
-    return [f"origin rpy angles within {ANGLE_ATOL:g} rad of a multiple of pi/2 taken as exact (CAD rounding) at "
-            f"{len(changed)} joint{'s' if len(changed) > 1 else ''}: {', '.join(changed)}"]
+    return [
+        f"origin rpy angles within {ANGLE_ATOL:g} rad of a multiple of pi/2 taken as exact (CAD rounding) at "
+        f"{len(changed)} joint{'s' if len(changed) > 1 else ''}: {', '.join(changed)}"
+    ]

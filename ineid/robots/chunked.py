@@ -36,7 +36,8 @@ def host_array(label: str, x) -> np.ndarray:
     """``x`` as a float64 NumPy array (a JAX array is copied from its device if needed).
 
     Raises:
-        TypeError: ``x`` is a tracer (called inside ``jax.jit``, ``grad`` or ``vmap``), naming the pure functions to use.
+        TypeError: ``x`` is a tracer (called inside ``jax.jit``, ``grad`` or ``vmap``), naming the pure functions
+        to use.
     """
     try:
         return np.asarray(x, dtype=np.float64)
@@ -54,10 +55,10 @@ def nonzero_flat(nonzero: tuple[tuple[int, ...], ...], n_cols: int) -> np.ndarra
     return np.array([r * n_cols + c for r, cols in enumerate(nonzero) for c in cols], dtype=np.int64)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _entries_kernel_cached(entries_fn: Callable, entries: tuple[int, ...]):
-    import jax  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax
+    import jax.numpy as jnp
 
     def kernel(q, qd, qdd, gravity):
         values = entries_fn(q, qd, qdd, gravity)
@@ -75,11 +76,11 @@ def entries_kernel(entries_fn: Callable, entries: np.ndarray):
     return _entries_kernel_cached(entries_fn, tuple(int(i) for i in entries))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def theta_kernel(fn: Callable):
     """Jitted ``(q, qd, qdd, theta, gravity) -> fn(q, qd, qdd, gravity, theta)``: theta (N, p) per
     frame or (p,) for all (a composed wrench or torque that never forms the regressor)."""
-    import jax  # noqa: PLC0415
+    import jax
 
     def kernel(q, qd, qdd, theta, gravity):
         return fn(q, qd, qdd, gravity, theta)

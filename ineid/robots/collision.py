@@ -53,10 +53,10 @@ def _mesh_bounds(filename: str, urdf_path: Path | None) -> np.ndarray | None:
     """(2, 3) axis-aligned bounds of a mesh file, or None when it cannot be found or read."""
     rel = filename
     if rel.startswith("file://"):
-        rel = rel[len("file://"):]
+        rel = rel[len("file://") :]
     candidates = []
     if rel.startswith("package://"):
-        pkg_path = rel[len("package://"):]
+        pkg_path = rel[len("package://") :]
         package, _, rest = pkg_path.partition("/")
         if urdf_path is not None:
             for anc in urdf_path.resolve().parents:
@@ -69,17 +69,16 @@ def _mesh_bounds(filename: str, urdf_path: Path | None) -> np.ndarray | None:
     if path is None:
         return None
     try:
-        import trimesh  # noqa: PLC0415
+        import trimesh
 
         mesh = trimesh.load(str(path), force="mesh")
         bounds = np.asarray(mesh.bounds, dtype=np.float64)
-    except Exception:  # noqa: BLE001  (any unreadable mesh is skipped and reported)
+    except Exception:  # any unreadable mesh is skipped and reported
         return None
     return bounds if bounds.shape == (2, 3) and np.all(np.isfinite(bounds)) else None
 
 
-def body_capsules(urdf_text: str, chain: Chain, urdf_path: Path | None = None,
-                  locked_joints=None) -> BodyCapsules:
+def body_capsules(urdf_text: str, chain: Chain, urdf_path: Path | None = None, locked_joints=None) -> BodyCapsules:
     """The bounding capsules of every body of ``chain`` (module doc), in their body's frame."""
     poses = welded_poses(urdf_text, chain, locked_joints)
     out = BodyCapsules()

@@ -26,16 +26,16 @@ from ineid.robots.chunked import entries_kernel, host_array, nonzero_flat, run_c
 
 
 def _program():
-    from ineid.robots import program  # noqa: PLC0415  (the compositions; JAX imported on first use)
+    from ineid.robots import program  # the compositions; JAX imported on first use
 
     return program
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _structural_nonzero(entries_fn, n_dof: int, n_rows: int, n_cols: int) -> tuple[tuple[int, ...], ...]:
     """Per row, the columns an entries function does not return as the number 0 (its structure)."""
-    import jax  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax
+    import jax.numpy as jnp
 
     x = jax.ShapeDtypeStruct((1, n_dof), jnp.float64)
     values = []
@@ -79,14 +79,16 @@ class CutRegressors:
     @functools.cached_property
     def casadi_joint_torque_regressor(self):
         """``casadi.Function`` ``(q, qd, qdd) -> Y`` (n_dof x 1 each -> n_dof x 10 n_links), the model's gravity."""
-        return self._with_gravity(_program().casadi_torque_functions(self._casadi).regressor, "joint_torque_regressor",
-                                  "Y")
+        return self._with_gravity(
+            _program().casadi_torque_functions(self._casadi).regressor, "joint_torque_regressor", "Y"
+        )
 
     @functools.cached_property
     def casadi_joint_torques(self):
         """``casadi.Function`` ``(q, qd, qdd, theta) -> tau`` (n_dof x 1), the model's gravity."""
-        return self._with_gravity(_program().casadi_torque_functions(self._casadi).torques, "joint_torques", "tau",
-                                  theta=True)
+        return self._with_gravity(
+            _program().casadi_torque_functions(self._casadi).torques, "joint_torques", "tau", theta=True
+        )
 
     def joint_torque_regressor(self, q, qd, qdd) -> np.ndarray:
         """``Y_tau(q, qd, qdd)``: ``tau = Y_tau @ theta`` with the model's gravity.
@@ -140,8 +142,9 @@ class CutRegressors:
         With ``link`` the last link and a payload welded to it, this is what a wrist F/T sensor
         at the link's origin reads (before its mount transform).
         """
-        return self._chunked_regressor(self.jax_link_wrench_functions(link).entries, self.link_wrench_nonzero(link),
-                                       q, qd, qdd)
+        return self._chunked_regressor(
+            self.jax_link_wrench_functions(link).entries, self.link_wrench_nonzero(link), q, qd, qdd
+        )
 
     def link_wrench(self, q, qd, qdd, link: str, theta=None) -> np.ndarray:
         """``Y_L @ theta`` (..., 6) float64 NumPy without forming ``Y_L`` (see :meth:`link_wrench_regressor`)."""
@@ -149,7 +152,7 @@ class CutRegressors:
 
     # -- shared evaluators ------------------------------------------------------------------
     def _with_gravity(self, full, name: str, output: str, theta: bool = False):
-        import casadi as ca  # noqa: PLC0415
+        import casadi as ca
 
         q, qd, qdd = (ca.SX.sym(s, self.n_dof) for s in ("q", "qd", "qdd"))
         args, names = [q, qd, qdd], ["q", "qd", "qdd"]

@@ -44,8 +44,10 @@ def link_inertial(link, source: str) -> tuple[np.ndarray, str | None]:
     inertia = np.asarray(inertial.inertia if inertial.inertia is not None else np.zeros((3, 3)), dtype=np.float64)
     if not (math.isfinite(m) and np.all(np.isfinite(inertia))):
         entries = " ".join(f"{v:g}" for v in inertia[np.triu_indices(3)])
-        raise RobotModelError(f"{source}: link {link.name!r}: <inertial> holds a non-finite value (mass {m:g}, "
-                              f"inertia {entries}); give finite numbers")
+        raise RobotModelError(
+            f"{source}: link {link.name!r}: <inertial> holds a non-finite value (mass {m:g}, "
+            f"inertia {entries}); give finite numbers"
+        )
     if m < 0:
         raise RobotModelError(f"{source}: link {link.name!r}: mass {m:g} kg is negative; give it a positive mass")
     if m <= FRAME_MASS:
@@ -55,9 +57,15 @@ def link_inertial(link, source: str) -> tuple[np.ndarray, str | None]:
                 f"{source}: link {link.name!r}: {what} with a non-zero inertia is not a rigid body; "
                 "give it a positive mass or remove the <inertial>"
             )
-        note = None if m == 0 and not np.any(inertia) else (
-            f"link {link.name!r}: mass {m:g} kg with inertia of at most {np.abs(inertia).max():g} kg*m^2 is a frame; "
-            "dropped")
+        note = (
+            None
+            if m == 0 and not np.any(inertia)
+            else (
+                f"link {link.name!r}: mass {m:g} kg with inertia of at most {np.abs(inertia).max():g} kg*m^2 is a "
+                "frame; "
+                "dropped"
+            )
+        )
         return np.zeros(10), note
     r, p = _origin(inertial.origin)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(p))):
@@ -67,7 +75,9 @@ def link_inertial(link, source: str) -> tuple[np.ndarray, str | None]:
         )
     problems = inertia_problems(inertia)
     if problems:
-        raise RobotModelError(f"{source}: link {link.name!r}: non-physical <inertial>: {problems}; fix the <inertia> values")
+        raise RobotModelError(
+            f"{source}: link {link.name!r}: non-physical <inertial>: {problems}; fix the <inertia> values"
+        )
     return theta_from_inertial(m, p, r @ inertia @ r.T), None
 
 

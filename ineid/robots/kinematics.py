@@ -84,7 +84,7 @@ class WeldedFrames:
     def tool(self) -> tuple[str, ...]:
         """The frames welded to the last moving link (the tool frame and its parents)."""
         last = int(self.link.max()) if len(self.link) else -1
-        return tuple(n for n, k in zip(self.names, self.link) if k == last)
+        return tuple(n for n, k in zip(self.names, self.link, strict=True) if k == last)
 
 
 def _rpy(rpy) -> np.ndarray:
@@ -148,11 +148,17 @@ def welded_frames(urdf_text: str, chain: Chain, locked_joints: Mapping[str, floa
     to the root (it never moves).
     """
     moving = {j.link for j in chain.joints}
-    items = [(name, v) for name, v in welded_poses(urdf_text, chain, locked_joints).items()
-             if v[0] >= 0 and name not in moving]
-    return WeldedFrames(tuple(n for n, _ in items), np.array([v[0] for _, v in items], dtype=int),
-                        np.array([v[1] for _, v in items]).reshape(-1, 3, 3),
-                        np.array([v[2] for _, v in items]).reshape(-1, 3))
+    items = [
+        (name, v)
+        for name, v in welded_poses(urdf_text, chain, locked_joints).items()
+        if v[0] >= 0 and name not in moving
+    ]
+    return WeldedFrames(
+        tuple(n for n, _ in items),
+        np.array([v[0] for _, v in items], dtype=int),
+        np.array([v[1] for _, v in items]).reshape(-1, 3, 3),
+        np.array([v[2] for _, v in items]).reshape(-1, 3),
+    )
 
 
 def frame_points(chain: Chain, q, welded: WeldedFrames | None = None, xp=np):
@@ -213,7 +219,7 @@ def reach(chain: Chain, welded: WeldedFrames | None = None) -> np.ndarray:
         links += [int(k) for k in welded.link]
         extra += [float(np.linalg.norm(o)) for o in welded.offset]
     out = np.zeros((len(links), n))
-    for k, (i, e) in enumerate(zip(links, extra)):
+    for k, (i, e) in enumerate(zip(links, extra, strict=True)):
         for j in range(i + 1):
             out[k, j] = travel[j] + offsets[j + 1 : i + 1].sum() + travel[j + 1 : i + 1].sum() + e
     return out

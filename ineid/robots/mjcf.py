@@ -64,7 +64,7 @@ _INERTIA = {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (
 def import_mujoco(purpose: str = "the MuJoCo simulation"):
     """The ``mujoco`` module, or :class:`OptionalDependencyError` naming ``purpose`` and the install command."""
     try:
-        import mujoco  # noqa: PLC0415
+        import mujoco
     except ImportError:
         raise OptionalDependencyError(f"{purpose} {INSTALL_HINT}") from None
     return mujoco
@@ -185,15 +185,22 @@ def read_mjcf(path: str | Path) -> MjcfRobot:
     if scenery:
         notes.append(f"bodies welded to the world outside the robot are not part of it: {', '.join(scenery)}")
     unnamed = [names["body"][b] for b in members if names["xml_body"][b] is None]
-    unnamed += [names["joint"][j] for b in members for j in range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b])
-                if not mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)]
+    unnamed += [
+        names["joint"][j]
+        for b in members
+        for j in range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b])
+        if not mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
+    ]
     if unnamed:
         notes.append(f"unnamed bodies and joints are called {', '.join(unnamed)} (export-mjcf needs named bodies)")
     world_R_root = _quat_matrix(mujoco, m.body_quat[root]) if root else np.eye(3)
     g_base = world_R_root.T @ np.asarray(m.opt.gravity, dtype=np.float64)
     if not np.allclose(g_base, (0.0, 0.0, -9.81), rtol=0, atol=1e-12):
-        notes.append("the model's gravity in the base frame is " + " ".join(f"{v:.6g}" for v in g_base) +
-                     " m/s^2; ineid's default is 0 0 -9.81: pass --gravity to use the model's")
+        notes.append(
+            "the model's gravity in the base frame is "
+            + " ".join(f"{v:.6g}" for v in g_base)
+            + " m/s^2; ineid's default is 0 0 -9.81: pass --gravity to use the model's"
+        )
     shift = {b: _shift(m, b) for b in range(m.nbody)}
     bodies = {}
     robot = ET.Element("robot", name=_model_name(path))
@@ -209,13 +216,14 @@ def read_mjcf(path: str | Path) -> MjcfRobot:
         _joint(mujoco, m, b, shift, names, robot, source)
     ET.indent(robot, space="  ")
     text = '<?xml version="1.0"?>\n<!-- written by ineid from an MJCF compiled by MuJoCo (ineid.robots.mjcf) -->\n'
-    return MjcfRobot(source, text + ET.tostring(robot, encoding="unicode") + "\n", names["body"][root], bodies,
-                     tuple(notes))
+    return MjcfRobot(
+        source, text + ET.tostring(robot, encoding="unicode") + "\n", names["body"][root], bodies, tuple(notes)
+    )
 
 
 def load_mjcf_chain(path: str | Path, locked_joints: Mapping[str, float] | None = None) -> tuple[Chain, str]:
     """``(chain, urdf_text)`` of an MJCF robot (:func:`read_mjcf`, then :func:`ineid.robots.urdf.parse_chain`)."""
-    from ineid.robots.urdf import parse_chain  # noqa: PLC0415
+    from ineid.robots.urdf import parse_chain
 
     robot = read_mjcf(path)
     chain = parse_chain(robot.urdf_text, source=robot.source, locked_joints=locked_joints)
@@ -235,7 +243,7 @@ def robot_file_chain(path: str | Path, locked_joints: Mapping[str, float] | None
         path = regular_file(path, "the robot file", max_bytes=MJCF_MAX_BYTES, limit_name="MJCF_MAX_BYTES")
     if is_mjcf(path):
         return load_mjcf_chain(path, locked_joints)
-    from ineid.robots.urdf import load_chain  # noqa: PLC0415
+    from ineid.robots.urdf import load_chain
 
     return load_chain(path, locked_joints=locked_joints), None
 
@@ -249,29 +257,40 @@ def _check_supported(mujoco, m, source: str) -> None:
 
     if m.ntendon:
         tendons = ", ".join(name(mujoco.mjtObj.mjOBJ_TENDON, i, f"#{i}") for i in range(m.ntendon))
-        raise RobotModelError(f"{source}: <tendon> {tendons}: ineid models rigid serial arms without tendons; remove "
-                              "the <tendon> section (and the actuators and sensors that use it)")
+        raise RobotModelError(
+            f"{source}: <tendon> {tendons}: ineid models rigid serial arms without tendons; remove "
+            "the <tendon> section (and the actuators and sensors that use it)"
+        )
     if m.neq:
         eqs = ", ".join(name(mujoco.mjtObj.mjOBJ_EQUALITY, i, f"#{i}") for i in range(m.neq))
-        raise RobotModelError(f"{source}: <equality> constraint {eqs}: ineid models serial arms without closed loops "
-                              "or coupled joints; remove the <equality> section")
+        raise RobotModelError(
+            f"{source}: <equality> constraint {eqs}: ineid models serial arms without closed loops "
+            "or coupled joints; remove the <equality> section"
+        )
     for j in range(m.njnt):
         kind = int(m.jnt_type[j])
         if kind not in (_HINGE, _SLIDE):
             body = name(mujoco.mjtObj.mjOBJ_BODY, int(m.jnt_bodyid[j]), f"#{m.jnt_bodyid[j]}")
-            fix = ("weld the body to its parent (remove the <freejoint>/<joint type=\"free\">; a floating object "
-                   "is no part of the arm: remove it)" if kind == 0 else
-                   "replace it by hinge joints in nested bodies, or remove it")
-            raise RobotModelError(f"{source}: {_JOINT_KIND[kind]} joint "
-                                  f"{name(mujoco.mjtObj.mjOBJ_JOINT, j, f'#{j}')!r} of body {body!r}: ineid supports "
-                                  f"hinge and slide joints only; {fix}")
+            fix = (
+                'weld the body to its parent (remove the <freejoint>/<joint type="free">; a floating object '
+                "is no part of the arm: remove it)"
+                if kind == 0
+                else "replace it by hinge joints in nested bodies, or remove it"
+            )
+            raise RobotModelError(
+                f"{source}: {_JOINT_KIND[kind]} joint "
+                f"{name(mujoco.mjtObj.mjOBJ_JOINT, j, f'#{j}')!r} of body {body!r}: ineid supports "
+                f"hinge and slide joints only; {fix}"
+            )
     for b in range(1, m.nbody):
         if m.body_jntnum[b] > 1:
             adr = int(m.body_jntadr[b])
             joints = ", ".join(name(mujoco.mjtObj.mjOBJ_JOINT, j, f"#{j}") for j in range(adr, adr + m.body_jntnum[b]))
-            raise RobotModelError(f"{source}: body {name(mujoco.mjtObj.mjOBJ_BODY, b, f'#{b}')!r} has "
-                                  f"{m.body_jntnum[b]} joints ({joints}); ineid needs one joint per body: give each "
-                                  "joint a body of its own (nested, with no pos or quat)")
+            raise RobotModelError(
+                f"{source}: body {name(mujoco.mjtObj.mjOBJ_BODY, b, f'#{b}')!r} has "
+                f"{m.body_jntnum[b]} joints ({joints}); ineid needs one joint per body: give each "
+                "joint a body of its own (nested, with no pos or quat)"
+            )
 
 
 def _name(mujoco, m, kind, i: int, source: str) -> str | None:
@@ -279,8 +298,10 @@ def _name(mujoco, m, kind, i: int, source: str) -> str | None:
     try:
         return mujoco.mj_id2name(m, kind, i)
     except UnicodeDecodeError:
-        raise RobotModelError(f"{source}: the name of {kind.name[6:].lower()} #{i} is not UTF-8 (MuJoCo reads a file's "
-                              "bytes as UTF-8, whatever its XML declaration says); save the MJCF as UTF-8") from None
+        raise RobotModelError(
+            f"{source}: the name of {kind.name[6:].lower()} #{i} is not UTF-8 (MuJoCo reads a file's "
+            "bytes as UTF-8, whatever its XML declaration says); save the MJCF as UTF-8"
+        ) from None
 
 
 def _names(mujoco, m, source: str) -> dict[str, list]:
@@ -302,22 +323,28 @@ def _check_finite(m, members: list[int], names: dict[str, list], source: str) ->
         for f in _BODY_FIELDS:
             value = np.asarray(getattr(m, f)[b], dtype=np.float64)
             if not np.all(np.isfinite(value)):
-                raise RobotModelError(f"{source}: body {names['body'][b]!r}: {f[5:]} {_fmt(value)} is not finite; "
-                                      "give finite numbers")
+                raise RobotModelError(
+                    f"{source}: body {names['body'][b]!r}: {f[5:]} {_fmt(value)} is not finite; give finite numbers"
+                )
         for j in range(int(m.body_jntadr[b]), int(m.body_jntadr[b] + m.body_jntnum[b])):
             for f in _JOINT_FIELDS:
                 value = np.asarray(getattr(m, f)[j], dtype=np.float64)
                 if not np.all(np.isfinite(value)):
-                    raise RobotModelError(f"{source}: joint {names['joint'][j]!r}: {f[4:]} {_fmt(value)} is not "
-                                          "finite; give finite numbers")
+                    raise RobotModelError(
+                        f"{source}: joint {names['joint'][j]!r}: {f[4:]} {_fmt(value)} is not "
+                        "finite; give finite numbers"
+                    )
             ref = float(m.qpos0[int(m.jnt_qposadr[j])])
             if not math.isfinite(ref):
-                raise RobotModelError(f"{source}: joint {names['joint'][j]!r}: ref {ref!r} is not finite; give a "
-                                      "finite number")
+                raise RobotModelError(
+                    f"{source}: joint {names['joint'][j]!r}: ref {ref!r} is not finite; give a finite number"
+                )
             lo, hi = (float(v) for v in m.jnt_range[j])
             if lo > hi:
-                raise RobotModelError(f"{source}: joint {names['joint'][j]!r}: range {lo!r} {hi!r} (compiled, rad or "
-                                      "m) has its lower end above the upper one; give range=\"LOWER UPPER\"")
+                raise RobotModelError(
+                    f"{source}: joint {names['joint'][j]!r}: range {lo!r} {hi!r} (compiled, rad or "
+                    'm) has its lower end above the upper one; give range="LOWER UPPER"'
+                )
 
 
 def _model_name(path) -> str:
@@ -414,8 +441,10 @@ def _joint(mujoco, m, b: int, shift: dict, names: dict, robot: ET.Element, sourc
             pos = pos - r @ axis * ref
         limited = bool(m.jnt_limited[j])
         if not hinge and not limited:
-            raise RobotModelError(f"{source}: slide joint {names['joint'][j]!r} has no range; give it "
-                                  "range=\"LOWER UPPER\" (and limited=\"true\" where the compiler needs it)")
+            raise RobotModelError(
+                f"{source}: slide joint {names['joint'][j]!r} has no range; give it "
+                'range="LOWER UPPER" (and limited="true" where the compiler needs it)'
+            )
         kind = ("revolute" if limited else "continuous") if hinge else "prismatic"
         el = ET.SubElement(robot, "joint", name=names["joint"][j], type=kind)
         _origin(el, r, pos)

@@ -69,8 +69,8 @@ class RobotModel(CutRegressors):
         self._links = extended_links(chain, self.payloads)
         links = self.link_names
         # Keep chain order whatever order the caller gave.
-        self.unknown_links: tuple[str, ...] = tuple(l for l in links if l in unknown)
-        self.known_links: tuple[str, ...] = tuple(l for l in links if l not in unknown)
+        self.unknown_links: tuple[str, ...] = tuple(name for name in links if name in unknown)
+        self.known_links: tuple[str, ...] = tuple(name for name in links if name not in unknown)
         for module in (jax_module, casadi_module):
             if module.KINEMATIC_FINGERPRINT != chain.kinematic_fingerprint():
                 raise CodegenError(
@@ -133,7 +133,7 @@ class RobotModel(CutRegressors):
         return self._columns(self.known_links)
 
     def _columns(self, links: Sequence[str]) -> np.ndarray:
-        idx = [self.link_names.index(l) for l in links]
+        idx = [self.link_names.index(name) for name in links]
         return np.array([10 * i + k for i in idx for k in range(10)], dtype=np.int64)
 
     # -- parameters and bounds -------------------------------------------------------
@@ -300,8 +300,7 @@ class RobotModel(CutRegressors):
             out_k[start:stop, dest_k] = rows[n_u:, : stop - start].T
 
         run_chunked(entries_kernel(_jax_functions(self._jax).entries, order), flat, (self._gravity_device,), write)
-        return (out_u.reshape(batch + (6, len(self.unknown_index))),
-                out_k.reshape(batch + (6, len(self.known_index))))  # fmt: skip
+        return (out_u.reshape(batch + (6, len(self.unknown_index))), out_k.reshape(batch + (6, len(self.known_index))))
 
     def base_wrench(self, q, qd, qdd, theta=None) -> np.ndarray:
         """``[F; M] = Psi(q, qd, qdd) @ theta``: the wrench on the fixture, (..., 6) float64 NumPy.
@@ -316,7 +315,7 @@ class RobotModel(CutRegressors):
 
     @cached_property
     def _gravity_device(self):
-        import jax.numpy as jnp  # noqa: PLC0415
+        import jax.numpy as jnp
 
         return jnp.asarray(self.gravity)
 
@@ -346,7 +345,7 @@ class RobotModel(CutRegressors):
 
         ``Y(q, qd, qdd) == regressor(q, qd, qdd)`` for one frame (round-off).
         """
-        import casadi as ca  # noqa: PLC0415
+        import casadi as ca
 
         full = _casadi_functions(self._casadi).regressor
         q, qd, qdd = (ca.SX.sym(s, self.n_dof) for s in ("q", "qd", "qdd"))
@@ -359,7 +358,7 @@ class RobotModel(CutRegressors):
 
         ``w == Y(q, qd, qdd) @ theta`` (round-off), without forming ``Y``.
         """
-        import casadi as ca  # noqa: PLC0415
+        import casadi as ca
 
         full = _casadi_functions(self._casadi).wrench
         q, qd, qdd = (ca.SX.sym(s, self.n_dof) for s in ("q", "qd", "qdd"))
@@ -369,12 +368,12 @@ class RobotModel(CutRegressors):
 
 
 def _jax_functions(module):
-    from ineid.robots.program import jax_functions  # noqa: PLC0415
+    from ineid.robots.program import jax_functions
 
     return jax_functions(module)
 
 
 def _casadi_functions(module):
-    from ineid.robots.program import casadi_functions  # noqa: PLC0415
+    from ineid.robots.program import casadi_functions
 
     return casadi_functions(module)

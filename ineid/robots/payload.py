@@ -53,8 +53,11 @@ def resolve_payloads(chain: Chain, unknown: Sequence[str], robot: str) -> tuple[
         if link is None or not link.parent:
             welded = [b.name for b in chain.body_links.values() if b.parent]
             tared = name in chain.merged_links.get(chain.root_link, ())
-            why = (f"link {name!r} is welded to the root link {chain.root_link!r}: its weight is tared with the "
-                   "fixture" if tared else f"unknown link {name!r} is not a moving link of {robot}")
+            why = (
+                f"link {name!r} is welded to the root link {chain.root_link!r}: its weight is tared with the fixture"
+                if tared
+                else f"unknown link {name!r} is not a moving link of {robot}"
+            )
             payload_hint = f"; or a link welded to one, as a payload: {', '.join(welded)}" if welded else ""
             choices = ", ".join(moving) + payload_hint
             raise RobotModelError(f"{why}; choose from {choices}")
@@ -120,8 +123,12 @@ def payload_modules(jax_module, casadi_module, chain: Chain, payloads: Sequence[
     """
     moving = [j.link for j in chain.joints]
     spec = tuple(
-        (moving.index(p.body), tuple(map(tuple, chain.body_links[p.link].body_R_link)),
-         tuple(chain.body_links[p.link].body_p_link), tuple(map(tuple, p.fold)))
+        (
+            moving.index(p.body),
+            tuple(map(tuple, chain.body_links[p.link].body_R_link)),
+            tuple(chain.body_links[p.link].body_p_link),
+            tuple(map(tuple, p.fold)),
+        )
         for p in payloads
     )
     m = column_map(chain, payloads)
@@ -140,7 +147,7 @@ _PER_LINK = ("R", "p", "w", "wd", "a", "Yn")
 
 def _welded_outputs(out: dict, body: int, rotation, t, fold) -> dict:
     """The program outputs of a frame welded to link ``body`` (see :func:`payload_modules`)."""
-    from ineid.robots.program import add, cross, matvec, mul  # noqa: PLC0415
+    from ineid.robots.program import add, cross, matvec, mul
 
     r_b, w, wd, a = (out[k][body] for k in ("R", "w", "wd", "a"))
     rt = tuple(tuple(rotation[r][c] for r in range(3)) for c in range(3))  # B_R_P^T
@@ -151,7 +158,7 @@ def _welded_outputs(out: dict, body: int, rotation, t, fold) -> dict:
     return {"R": r_p, "p": p_p, "w": matvec(rt, w), "wd": matvec(rt, wd), "a": matvec(rt, a_origin), "Yn": yn}
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _wrapped(jax_module, casadi_module, spec: tuple, links: tuple[str, ...], m_rows: tuple):
     m = np.array(m_rows)
     n, n_ext = m.shape
@@ -176,17 +183,24 @@ def _wrapped(jax_module, casadi_module, spec: tuple, links: tuple[str, ...], m_r
 
         return view
 
-    body_of = tuple(int(np.flatnonzero(np.abs(m[:, 10 * c : 10 * c + 10]).sum(axis=1))[0]) // 10
-                    for c in range(n_ext // 10))  # each block's moving body
+    body_of = tuple(
+        int(np.flatnonzero(np.abs(m[:, 10 * c : 10 * c + 10]).sum(axis=1))[0]) // 10 for c in range(n_ext // 10)
+    )  # each block's moving body
     # per extended column, the original columns it combines (the structural nonzeros of Psi M)
     sources = [set(np.flatnonzero(m[:, c]).tolist()) for c in range(n_ext)]
     nonzero = tuple(tuple(c for c in range(n_ext) if sources[c] & set(cols)) for cols in jax_module.NONZERO)
 
     def view_of(module, suffix):
         return _ModuleView(
-            __name__=f"{module.__name__} ({suffix})", KINEMATIC_FINGERPRINT=module.KINEMATIC_FINGERPRINT,
-            N_DOF=module.N_DOF, LINK_NAMES=links, OP_COUNT=getattr(module, "OP_COUNT", 0), NONZERO=nonzero,
-            JOINT_TYPES=module.JOINT_TYPES, BODY_OF=body_of, program=extended(module.program),
+            __name__=f"{module.__name__} ({suffix})",
+            KINEMATIC_FINGERPRINT=module.KINEMATIC_FINGERPRINT,
+            N_DOF=module.N_DOF,
+            LINK_NAMES=links,
+            OP_COUNT=getattr(module, "OP_COUNT", 0),
+            NONZERO=nonzero,
+            JOINT_TYPES=module.JOINT_TYPES,
+            BODY_OF=body_of,
+            program=extended(module.program),
         )
 
     return view_of(jax_module, "payload links"), view_of(casadi_module, "payload links")

@@ -85,9 +85,11 @@ def dot(u: Sequence, v: Sequence):
 
 
 def cross(u: Sequence, v: Sequence) -> tuple:
-    return (add(mul(u[1], v[2]), neg(mul(u[2], v[1]))),
-            add(mul(u[2], v[0]), neg(mul(u[0], v[2]))),
-            add(mul(u[0], v[1]), neg(mul(u[1], v[0]))))
+    return (
+        add(mul(u[1], v[2]), neg(mul(u[2], v[1]))),
+        add(mul(u[2], v[0]), neg(mul(u[0], v[2]))),
+        add(mul(u[0], v[1]), neg(mul(u[1], v[0]))),
+    )
 
 
 def matvec(m: Sequence, v: Sequence) -> tuple:
@@ -99,8 +101,9 @@ def base_entries(out: dict) -> tuple:
     """The ``6 x 10 n`` entries of ``Psi`` (load on the fixture), row-major: ``Psi[r, 10 i + k] = -Yn_i[r, k]``."""
     yn = out["Yn"]
     n = len(yn)
-    return tuple(neg(yn[c // 10][r][c % 10]) if not _zero(yn[c // 10][r][c % 10]) else 0
-                 for r in range(6) for c in range(10 * n))
+    return tuple(
+        neg(yn[c // 10][r][c % 10]) if not _zero(yn[c // 10][r][c % 10]) else 0 for r in range(6) for c in range(10 * n)
+    )
 
 
 def _zero(x) -> bool:
@@ -115,16 +118,19 @@ def _block_wrench(out: dict, i: int, theta_i: Sequence) -> tuple[tuple, tuple]:
     h = (hx, hy, hz)
     inertia = ((ixx, ixy, ixz), (ixy, iyy, iyz), (ixz, iyz, izz))
     f = tuple(add(mul(m, a[r]), x, y) for r, x, y in zip(range(3), cross(wd, h), cross(w, cross(w, h)), strict=True))
-    n = tuple(add(x, y, z) for x, y, z in zip(matvec(inertia, wd), cross(w, matvec(inertia, w)), cross(h, a),
-                                              strict=True))
+    n = tuple(
+        add(x, y, z) for x, y, z in zip(matvec(inertia, wd), cross(w, matvec(inertia, w)), cross(h, a), strict=True)
+    )
     force = matvec(R, f)
     return force, tuple(add(x, y) for x, y in zip(matvec(R, n), cross(p, force), strict=True))
 
 
 def _sum_wrenches(wrenches) -> tuple[tuple, tuple]:
     wrenches = list(wrenches)
-    return (tuple(add(*(f[r] for f, _ in wrenches)) for r in range(3)),
-            tuple(add(*(m[r] for _, m in wrenches)) for r in range(3)))
+    return (
+        tuple(add(*(f[r] for f, _ in wrenches)) for r in range(3)),
+        tuple(add(*(m[r] for _, m in wrenches)) for r in range(3)),
+    )
 
 
 def base_wrench(out: dict, theta: Sequence) -> tuple:
@@ -164,8 +170,9 @@ def joint_torque_entries(out: dict, joint_types: Sequence[str], body_of: Sequenc
                 if body_of[i] < j:
                     entries.append(0)
                     continue
-                entries.append(_project(kind, z, m, [block[r][k] for r in range(3)],
-                                        [block[r][k] for r in range(3, 6)]))
+                entries.append(
+                    _project(kind, z, m, [block[r][k] for r in range(3)], [block[r][k] for r in range(3, 6)])
+                )
     return tuple(entries)
 
 
@@ -205,8 +212,9 @@ def link_wrench_entries(out: dict, link_block: int, body_of: Sequence[int]) -> t
     for i, block in enumerate(out["Yn"]):
         for k in range(10):
             if i in beyond:
-                cols.append(_to_link(out, link_block, [block[r][k] for r in range(3)],
-                                     [block[r][k] for r in range(3, 6)]))
+                cols.append(
+                    _to_link(out, link_block, [block[r][k] for r in range(3)], [block[r][k] for r in range(3, 6)])
+                )
             else:
                 cols.append((0,) * 6)
     return tuple(col[r] for r in range(6) for col in cols)
@@ -214,8 +222,9 @@ def link_wrench_entries(out: dict, link_block: int, body_of: Sequence[int]) -> t
 
 def link_wrench(out: dict, theta: Sequence, link_block: int, body_of: Sequence[int]) -> tuple:
     """The wrench of :func:`link_wrench_entries` for ``theta`` without forming the regressor."""
-    force, torque = _sum_wrenches(_block_wrench(out, i, theta[10 * i : 10 * i + 10])
-                                  for i in beyond_link(body_of, link_block))
+    force, torque = _sum_wrenches(
+        _block_wrench(out, i, theta[10 * i : 10 * i + 10]) for i in beyond_link(body_of, link_block)
+    )
     return _to_link(out, link_block, force, torque)
 
 
@@ -256,7 +265,7 @@ class JaxFunctions(NamedTuple):
 
 
 def _stack(values, batch, dtype, axis=-1):
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax.numpy as jnp
 
     return jnp.stack([jnp.broadcast_to(jnp.asarray(v, dtype=dtype), batch) for v in values], axis=axis)
 
@@ -265,7 +274,7 @@ def _jax_rows(entries, n_rows: int, n_cols: int):
     """``(q, qd, qdd, gravity) -> (..., n_rows, n_cols)`` from an entries function."""
 
     def rows(q, qd, qdd, gravity):
-        import jax.numpy as jnp  # noqa: PLC0415
+        import jax.numpy as jnp
 
         q, qd, qdd, gravity = (jnp.asarray(x) for x in (q, qd, qdd, gravity))
         batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1])
@@ -278,7 +287,7 @@ def _jax_contracted(program, compose, n_cols: int):
     """``(q, qd, qdd, gravity, theta) -> (..., k)``: ``compose(out, theta_entries)`` stacked."""
 
     def contracted(q, qd, qdd, gravity, theta):
-        import jax.numpy as jnp  # noqa: PLC0415
+        import jax.numpy as jnp
 
         q, qd, qdd, gravity, theta = (jnp.asarray(x) for x in (q, qd, qdd, gravity, theta))
         batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1], theta.shape[:-1])
@@ -288,10 +297,10 @@ def _jax_contracted(program, compose, n_cols: int):
     return contracted
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def jax_functions(module: ModuleType) -> JaxFunctions:
     """The compositions of one generated JAX module (the same objects on every call)."""
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax.numpy as jnp
 
     program = module.program
     n = len(module.LINK_NAMES)  # parameter blocks (payload views add links after their body)
@@ -310,11 +319,17 @@ def jax_functions(module: ModuleType) -> JaxFunctions:
         batch = q.shape[:-1]
         r = _stack([x for link in rot for row in link for x in row], batch, q.dtype)
         return r.reshape(batch + (n, 3, 3)), _stack([x for link in pos for x in link], batch, q.dtype).reshape(
-            batch + (n, 3))
+            batch + (n, 3)
+        )
 
     return JaxFunctions(
-        program, entries, _jax_rows(entries, 6, 10 * n), _jax_contracted(program, base_wrench, 10 * n), poses,
-        torque_entries, _jax_rows(torque_entries, len(types), 10 * n),
+        program,
+        entries,
+        _jax_rows(entries, 6, 10 * n),
+        _jax_contracted(program, base_wrench, 10 * n),
+        poses,
+        torque_entries,
+        _jax_rows(torque_entries, len(types), 10 * n),
         _jax_contracted(program, lambda out, th: joint_torques(out, th, types, owners), 10 * n),
     )
 
@@ -333,7 +348,7 @@ class LinkWrenchFunctions(NamedTuple):
     wrench: object
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def jax_link_wrench_functions(module: ModuleType, link_block: int) -> LinkWrenchFunctions:
     """The cut wrench at parameter block ``link_block``'s link, for one generated JAX module (cached)."""
     program, owners = module.program, body_of(module)
@@ -343,7 +358,8 @@ def jax_link_wrench_functions(module: ModuleType, link_block: int) -> LinkWrench
         return link_wrench_entries(program(q, qd, qdd, gravity), link_block, owners)
 
     return LinkWrenchFunctions(
-        entries, _jax_rows(entries, 6, 10 * n),
+        entries,
+        _jax_rows(entries, 6, 10 * n),
         _jax_contracted(program, lambda out, th: link_wrench(out, th, link_block, owners), 10 * n),
     )
 
@@ -386,7 +402,7 @@ def _casadi_vector(ca, values):
 
 
 def _casadi_symbols(module: ModuleType):
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     n = len(module.LINK_NAMES)
     q, qd, qdd = (ca.SX.sym(s, module.N_DOF) for s in ("q", "qd", "qdd"))
@@ -395,25 +411,27 @@ def _casadi_symbols(module: ModuleType):
     return [q, qd, qdd, gravity], ["q", "qd", "qdd", "gravity"], theta, [theta[c] for c in range(10 * n)]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def casadi_functions(module: ModuleType) -> CasadiFunctions:
     """The compositions of one generated CasADi module, built once per module (an ``SX`` graph of the program)."""
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     n = len(module.LINK_NAMES)  # parameter blocks (payload views add links after their body)
     args, names, theta, th = _casadi_symbols(module)
     out = module.program(*args)
-    regressor = ca.Function("base_wrench_regressor", args, [_casadi_matrix(ca, base_entries(out), 6, 10 * n)],
-                            names, ["Y"])
-    wrench = ca.Function("base_wrench", [*args, theta], [_casadi_vector(ca, base_wrench(out, th))],
-                         [*names, "theta"], ["w"])
+    regressor = ca.Function(
+        "base_wrench_regressor", args, [_casadi_matrix(ca, base_entries(out), 6, 10 * n)], names, ["Y"]
+    )
+    wrench = ca.Function(
+        "base_wrench", [*args, theta], [_casadi_vector(ca, base_wrench(out, th))], [*names, "theta"], ["w"]
+    )
     return CasadiFunctions(regressor, wrench)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def casadi_torque_functions(module: ModuleType) -> CasadiTorqueFunctions:
     """The joint-torque compositions of one generated CasADi module (built on first use, then cached)."""
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     n = len(module.LINK_NAMES)
     types, owners = tuple(module.JOINT_TYPES), body_of(module)
@@ -421,20 +439,28 @@ def casadi_torque_functions(module: ModuleType) -> CasadiTorqueFunctions:
     out = module.program(*args)
     y_tau = _casadi_matrix(ca, joint_torque_entries(out, types, owners), len(types), 10 * n)
     torque_regressor = ca.Function("joint_torque_regressor", args, [y_tau], names, ["Y"])
-    torques = ca.Function("joint_torques", [*args, theta], [_casadi_vector(ca, joint_torques(out, th, types, owners))],
-                          [*names, "theta"], ["tau"])
+    torques = ca.Function(
+        "joint_torques",
+        [*args, theta],
+        [_casadi_vector(ca, joint_torques(out, th, types, owners))],
+        [*names, "theta"],
+        ["tau"],
+    )
     return CasadiTorqueFunctions(torque_regressor, torques)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def casadi_link_wrench_functions(module: ModuleType, link_block: int) -> LinkWrenchFunctions:
     """The cut wrench at parameter block ``link_block``'s link as ``casadi.Function`` objects (cached)."""
-    import casadi as ca  # noqa: PLC0415
+    import casadi as ca
 
     n, owners = len(module.LINK_NAMES), body_of(module)
     args, names, theta, th = _casadi_symbols(module)
     out = module.program(*args)
     y = _casadi_matrix(ca, link_wrench_entries(out, link_block, owners), 6, 10 * n)
     w = _casadi_vector(ca, link_wrench(out, th, link_block, owners))
-    return LinkWrenchFunctions(None, ca.Function("link_wrench_regressor", args, [y], names, ["Y"]),
-                               ca.Function("link_wrench", [*args, theta], [w], [*names, "theta"], ["w"]))
+    return LinkWrenchFunctions(
+        None,
+        ca.Function("link_wrench_regressor", args, [y], names, ["Y"]),
+        ca.Function("link_wrench", [*args, theta], [w], [*names, "theta"], ["w"]),
+    )

@@ -72,12 +72,15 @@ class _Counts:
 def check_urdf_size(nbytes: int, source: str) -> None:
     """Refuse URDF text larger than :data:`URDF_MAX_BYTES` (one line naming the size, the limit and the fix)."""
     if nbytes > URDF_MAX_BYTES:
-        raise InputFileError(f"{source}: the URDF is {nbytes:,} bytes, over the {URDF_MAX_BYTES:,} bytes ineid reads "
-                             "(URDF_MAX_BYTES); remove what no URDF reader needs (long comments, embedded data)")
+        raise InputFileError(
+            f"{source}: the URDF is {nbytes:,} bytes, over the {URDF_MAX_BYTES:,} bytes ineid reads "
+            "(URDF_MAX_BYTES); remove what no URDF reader needs (long comments, embedded data)"
+        )
 
 
-def check_counts(source: str, what: str, bodies: int, joints: int, elements: int | None = None, *,
-                 exact: bool = True) -> None:
+def check_counts(
+    source: str, what: str, bodies: int, joints: int, elements: int | None = None, *, exact: bool = True
+) -> None:
     """Refuse a model over :data:`MAX_BODIES`, :data:`MAX_JOINTS` or :data:`MJCF_MAX_ELEMENTS`.
 
     Args:
@@ -85,8 +88,11 @@ def check_counts(source: str, what: str, bodies: int, joints: int, elements: int
         exact: the counts are the model's (else counting stops at the first count over its limit,
             and the message says "more than").
     """
-    checks = ((bodies, MAX_BODIES, "MAX_BODIES", what), (joints, MAX_JOINTS, "MAX_JOINTS", "joints"),
-              (elements or 0, MJCF_MAX_ELEMENTS, "MJCF_MAX_ELEMENTS", "elements"))
+    checks = (
+        (bodies, MAX_BODIES, "MAX_BODIES", what),
+        (joints, MAX_JOINTS, "MAX_JOINTS", "joints"),
+        (elements or 0, MJCF_MAX_ELEMENTS, "MJCF_MAX_ELEMENTS", "elements"),
+    )
     for count, limit, name, noun in checks:
         if count > limit:
             has = f"{count:,} {noun}, over" if exact else f"more {noun} than"
@@ -116,18 +122,23 @@ def scan_mjcf(path: str | Path) -> Path:
 def _scan(counts: _Counts, path: Path, mult: int, parent: str | None, stack: tuple[Path, ...]) -> None:
     """Count ``path``'s elements into ``counts``, ``mult`` times each; ``parent``: the tag it is spliced under."""
     if len(stack) > MJCF_MAX_INCLUDE_DEPTH:
-        raise InputFileError(f"{counts.source}: files included {len(stack)} deep, over the {MJCF_MAX_INCLUDE_DEPTH} "
-                             "ineid follows (MJCF_MAX_INCLUDE_DEPTH); include the parts from fewer levels")
+        raise InputFileError(
+            f"{counts.source}: files included {len(stack)} deep, over the {MJCF_MAX_INCLUDE_DEPTH} "
+            "ineid follows (MJCF_MAX_INCLUDE_DEPTH); include the parts from fewer levels"
+        )
     try:
         counts.nbytes += os.stat(path).st_size
         if counts.nbytes > MJCF_MAX_BYTES:
-            raise InputFileError(f"{counts.source}: the MJCF and the files it includes hold over {MJCF_MAX_BYTES:,} "
-                                 f"bytes (MJCF_MAX_BYTES, each inclusion counted); {_FIX}")
+            raise InputFileError(
+                f"{counts.source}: the MJCF and the files it includes hold over {MJCF_MAX_BYTES:,} "
+                f"bytes (MJCF_MAX_BYTES, each inclusion counted); {_FIX}"
+            )
         with open(path, "rb") as f:
             data = f.read(MJCF_MAX_BYTES)  # a file that grew since its size was read: no more than the limit
     except OSError as e:
-        raise InputFileError(f"{counts.source}: cannot read {path} ({e.strerror or e}); check the path and its "
-                             "permissions") from None
+        raise InputFileError(
+            f"{counts.source}: cannot read {path} ({e.strerror or e}); check the path and its permissions"
+        ) from None
     main = path == Path(counts.source)
     xml_encoding(data, counts.source, "the MJCF" if main else f"the file it pulls in, {path},")
     here = path.resolve().parent
@@ -157,8 +168,10 @@ def _scan(counts: _Counts, path: Path, mult: int, parent: str | None, stack: tup
         parser.Parse(data, True)
     except xml.parsers.expat.ExpatError as e:
         where = "" if main else f" (in {path})"
-        raise InputFileError(f"{counts.source}: not well-formed XML{where}: {e}; ineid counts an MJCF's bodies before "
-                             "MuJoCo reads it: fix the XML") from None
+        raise InputFileError(
+            f"{counts.source}: not well-formed XML{where}: {e}; ineid counts an MJCF's bodies before "
+            "MuJoCo reads it: fix the XML"
+        ) from None
 
 
 def _count(counts: _Counts, tag: str, up: str | None, attrs: dict[str, str], mult: int) -> None:
@@ -240,8 +253,10 @@ def _check_asset(counts: _Counts, name: str, here: Path) -> None:
 
 def _check_kind(counts: _Counts, verb: str, path: Path, st: os.stat_result) -> None:
     if not stat.S_ISREG(st.st_mode):
-        raise InputFileError(f"{counts.source}: the MJCF {verb} {path}, which is {file_kind(st.st_mode)}, not a "
-                             "regular file; give a file")
+        raise InputFileError(
+            f"{counts.source}: the MJCF {verb} {path}, which is {file_kind(st.st_mode)}, not a "
+            "regular file; give a file"
+        )
 
 
 _DECLARATION = re.compile(rb"""<\?xml[^>]*?\sencoding\s*=\s*["']([^"']*)["']""")
@@ -262,22 +277,28 @@ def xml_encoding(data: bytes, source: str, what: str = "the MJCF") -> str:
     """
     fix = "save the file as UTF-8 (MuJoCo reads a file's bytes as UTF-8)"
     if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):  # UTF-32's marks begin with these too
-        raise RobotModelError(f"{source}: {what} is UTF-16 or UTF-32 (a byte-order mark), which MuJoCo does not "
-                              f"read; {fix}")
+        raise RobotModelError(
+            f"{source}: {what} is UTF-16 or UTF-32 (a byte-order mark), which MuJoCo does not read; {fix}"
+        )
     found = _DECLARATION.match(data.removeprefix(codecs.BOM_UTF8))
     name = found.group(1).decode("ascii", "replace") if found else "UTF-8"
     try:
         codec = codecs.lookup(name)
     except LookupError:
-        raise RobotModelError(f"{source}: {what} declares encoding {name!r}, which ineid does not know; "
-                              f"{fix}") from None
+        raise RobotModelError(
+            f"{source}: {what} declares encoding {name!r}, which ineid does not know; {fix}"
+        ) from None
     if _PROBE.encode(codec.name, "replace") != _PROBE.encode("ascii"):
-        raise RobotModelError(f"{source}: {what} declares encoding {name!r}, which is not a superset of ASCII and "
-                              f"which MuJoCo does not read; {fix}")
+        raise RobotModelError(
+            f"{source}: {what} declares encoding {name!r}, which is not a superset of ASCII and "
+            f"which MuJoCo does not read; {fix}"
+        )
     try:
         data.decode(codec.name)
     except UnicodeDecodeError as e:
         declared = "the encoding its XML declaration names" if found else "the encoding of XML without a declaration"
-        raise RobotModelError(f"{source}: byte {e.start:,} (0x{data[e.start]:02x}) of {what} is not valid {name}, "
-                              f"{declared}; save the file in that encoding, or declare the one it is in") from None
+        raise RobotModelError(
+            f"{source}: byte {e.start:,} (0x{data[e.start]:02x}) of {what} is not valid {name}, "
+            f"{declared}; save the file in that encoding, or declare the one it is in"
+        ) from None
     return codec.name

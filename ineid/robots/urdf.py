@@ -114,12 +114,17 @@ def _parse_chain(data: bytes, source: str, locked_joints: Mapping[str, float] | 
 
 def _yourdfpy_robot(data: bytes, source: str):
     """yourdfpy's ``Robot`` of URDF ``data`` (no meshes, no scene graph), once lxml has read it (:func:`check_lxml`)."""
-    import yourdfpy  # noqa: PLC0415  (heavy: trimesh)
+    import yourdfpy  # heavy: trimesh
 
     check_lxml(data, source)
     try:
-        return yourdfpy.URDF.load(io.BytesIO(data), build_scene_graph=False, load_meshes=False,
-                                  build_collision_scene_graph=False, load_collision_meshes=False).robot
+        return yourdfpy.URDF.load(
+            io.BytesIO(data),
+            build_scene_graph=False,
+            load_meshes=False,
+            build_collision_scene_graph=False,
+            load_collision_meshes=False,
+        ).robot
     except Exception as e:  # yourdfpy raises assorted builtin errors for bad attribute values
         raise RobotModelError(f"{source}: invalid URDF ({type(e).__name__}: {e})") from None
 
@@ -127,11 +132,14 @@ def _yourdfpy_robot(data: bytes, source: str):
 def _check_finite_joint(j, source: str) -> None:
     """A joint's ``<origin>`` and ``<axis>`` hold finite numbers (yourdfpy accepts nan and inf)."""
     if j.origin is not None and not np.all(np.isfinite(np.asarray(j.origin, dtype=np.float64))):
-        raise RobotModelError(f"{source}: joint {j.name!r}: <origin xyz=... rpy=...> holds a non-finite value "
-                              "(nan or inf); give finite numbers")
+        raise RobotModelError(
+            f"{source}: joint {j.name!r}: <origin xyz=... rpy=...> holds a non-finite value "
+            "(nan or inf); give finite numbers"
+        )
     if j.axis is not None and not np.all(np.isfinite(np.asarray(j.axis, dtype=np.float64))):
-        raise RobotModelError(f"{source}: joint {j.name!r}: <axis xyz=...> holds a non-finite value (nan or inf); "
-                              "give a finite direction")
+        raise RobotModelError(
+            f"{source}: joint {j.name!r}: <axis xyz=...> holds a non-finite value (nan or inf); give a finite direction"
+        )
 
 
 def _transform(origin) -> tuple[np.ndarray, np.ndarray]:
@@ -156,7 +164,7 @@ def _fold(theta: np.ndarray, parent_R: np.ndarray, parent_p: np.ndarray) -> np.n
     """Express a body's parameters in its parent frame: theta' = X(parent_T_body) theta."""
     if theta[0] == 0:
         return np.zeros(10)
-    from ineid.params import inertial_from_theta  # noqa: PLC0415
+    from ineid.params import inertial_from_theta
 
     m, c, ic = inertial_from_theta(theta)
     return theta_from_inertial(m, parent_R @ c + parent_p, parent_R @ ic @ parent_R.T)
@@ -181,21 +189,22 @@ def _mimic_locks(robot, locked: dict[str, float]) -> tuple[dict[str, float], lis
             locked[j.name] = mult * locked[j.mimic.joint] + offset
             followers.setdefault(j.mimic.joint, []).append(f"{j.name} at {locked[j.name]:g}")
             changed = True
-    notes = [f"locked with joint {leader!r}, which they mimic: {', '.join(names)}"
-             for leader, names in followers.items()]
+    notes = [
+        f"locked with joint {leader!r}, which they mimic: {', '.join(names)}" for leader, names in followers.items()
+    ]
     return locked, notes
 
 
-def _build_chain(
-    robot, source: str, locked: dict[str, float], qdd_bounds: dict[str, str], notes: list[str]
-) -> Chain:
+def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[str, str], notes: list[str]) -> Chain:
     links = {link.name: link for link in robot.links}
     if not links:
         raise RobotModelError(f"{source}: the URDF has no <link>")
     joints_by_name = {j.name: j for j in robot.joints}
     for name in locked:
         if name not in joints_by_name:
-            raise RobotModelError(f"{source}: locked joint {name!r} is not in the URDF (joints: {', '.join(joints_by_name)})")
+            raise RobotModelError(
+                f"{source}: locked joint {name!r} is not in the URDF (joints: {', '.join(joints_by_name)})"
+            )
     locked, mimic_notes = _mimic_locks(robot, locked)
     notes = [*notes, *mimic_notes]
     children: dict[str, list] = {name: [] for name in links}
@@ -212,7 +221,9 @@ def _build_chain(
             if end not in links:
                 raise RobotModelError(f"{source}: joint {j.name!r} refers to link {end!r}, which is not defined")
         if j.child in child_seen:
-            raise RobotModelError(f"{source}: link {j.child!r} is the child of two joints ({child_seen[j.child]!r}, {j.name!r})")
+            raise RobotModelError(
+                f"{source}: link {j.child!r} is the child of two joints ({child_seen[j.child]!r}, {j.name!r})"
+            )
         child_seen[j.child] = j.name
         children[j.parent].append(j)
     roots = [name for name in links if name not in child_seen]
@@ -284,22 +295,36 @@ def _build_chain(
         axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
         norm = float(np.linalg.norm(axis))
         if not math.isfinite(norm) or norm < 1e-12:
-            raise RobotModelError(f"{source}: joint {j.name!r} has an axis of zero length; give <axis xyz=...> a direction")
+            raise RobotModelError(
+                f"{source}: joint {j.name!r} has an axis of zero length; give <axis xyz=...> a direction"
+            )
         r, p = _transform(j.origin)
         theta, moving_out, names = collect_body(j.child)
         merged[j.child] = tuple(names)
         if theta[0] <= 0:  # a massless moving link: known, contributes nothing, not identified by default
-            notes.append(f"moving link {j.child!r} has no mass (no <inertial>, and nothing with mass is welded "
-                         "to it): a known link contributing nothing")
+            notes.append(
+                f"moving link {j.child!r} has no mass (no <inertial>, and nothing with mass is welded "
+                "to it): a known link contributing nothing"
+            )
         specs.append(_joint_spec(j, source, body_R @ r, body_R @ p + body_p, axis / norm, theta, qdd_bounds))
     if not specs:
-        raise RobotModelError(f"{source}: the URDF has no moving joint (every joint is fixed or locked); nothing "
-                              "would move the base wrench: lock fewer joints, or give a URDF with a moving chain")
+        raise RobotModelError(
+            f"{source}: the URDF has no moving joint (every joint is fixed or locked); nothing "
+            "would move the base wrench: lock fewer joints, or give a URDF with a moving chain"
+        )
     if all(s.theta[0] <= 0 for s in specs):
-        raise RobotModelError(f"{source}: no moving link carries mass ({', '.join(s.link for s in specs)}); nothing "
-                              "would move the base wrench: give the moving links <inertial> elements")
-    return Chain(name=robot.name or Path(source).stem, root_link=roots[0], joints=tuple(specs), merged_links=merged,
-                 body_links=body_links, notes=tuple(notes))
+        raise RobotModelError(
+            f"{source}: no moving link carries mass ({', '.join(s.link for s in specs)}); nothing "
+            "would move the base wrench: give the moving links <inertial> elements"
+        )
+    return Chain(
+        name=robot.name or Path(source).stem,
+        root_link=roots[0],
+        joints=tuple(specs),
+        merged_links=merged,
+        body_links=body_links,
+        notes=tuple(notes),
+    )
 
 
 def _joint_spec(j, source, parent_R, parent_p, axis, theta, qdd_bounds) -> JointSpec:
@@ -382,4 +407,3 @@ def fixed_frame_pose(
         r_acc, p_acc = r @ r_acc, r @ p_acc + p
         name = j.parent
     return r_acc, p_acc
-

@@ -20,8 +20,15 @@ from ineid.robots.chain import BodyLink, Chain, JointSpec
 CHAIN_SUBDIR = "chains"
 """Parsed URDFs live in ``cache_dir() / CHAIN_SUBDIR`` as JSON, one file per URDF text."""
 
-_PARSER_FILES = ("urdf.py", "urdf_checks.py", "robot_files.py", "inertial.py", "cad_rounding.py", "chain.py",
-                 "urdf_cache.py")
+_PARSER_FILES = (
+    "urdf.py",
+    "urdf_checks.py",
+    "robot_files.py",
+    "inertial.py",
+    "cad_rounding.py",
+    "chain.py",
+    "urdf_cache.py",
+)
 """The modules a parse depends on: a change to any of them parses every URDF again."""
 
 
@@ -36,7 +43,7 @@ def _chain_key(data: bytes, source: str, locked_joints: Mapping[str, float] | No
 
 
 def _chain_file(key: str) -> Path:
-    from ineid.cache import private_folder  # noqa: PLC0415
+    from ineid.cache import private_folder
 
     return private_folder(CHAIN_SUBDIR) / f"{key}.json"
 
@@ -52,10 +59,10 @@ def cached_chain(key: str) -> Chain | None:
     Like code, it is read only from a private cache folder (:mod:`ineid._trust`), and only
     when the file is owned by you and not writable by others.
     """
-    import logging  # noqa: PLC0415
+    import logging
 
     from ineid._inputs import parse_json
-    from ineid._trust import Untrusted, read_checked  # noqa: PLC0415
+    from ineid._trust import Untrusted, read_checked
 
     path = _chain_file(key)
     try:
@@ -67,12 +74,19 @@ def cached_chain(key: str) -> Chain | None:
             name: BodyLink(**{**b, **{k: np.asarray(b[k], dtype=np.float64) for k in _LINK_ARRAYS}})
             for name, b in doc["body_links"].items()
         }
-        chain = Chain(doc["name"], doc["root_link"], joints, {k: tuple(v) for k, v in doc["merged_links"].items()},
-                      links, tuple(doc["notes"]))
+        chain = Chain(
+            doc["name"],
+            doc["root_link"],
+            joints,
+            {k: tuple(v) for k, v in doc["merged_links"].items()},
+            links,
+            tuple(doc["notes"]),
+        )
     except Untrusted as e:  # e.reason: "has a file that is writable by group or others (<file>)"
         # logged under the parser's name, as before this module was split from it
-        logging.getLogger("ineid.robots.urdf").warning("the cache of parsed URDFs in %s %s; parsing the URDF again",
-                                            path.parent, e.reason)
+        logging.getLogger("ineid.robots.urdf").warning(
+            "the cache of parsed URDFs in %s %s; parsing the URDF again", path.parent, e.reason
+        )
         return None
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
@@ -88,7 +102,9 @@ def _sound(chain: Chain) -> bool:
     for j in chain.joints:
         if not all(isinstance(v, str) for v in (j.name, j.type, j.link)) or not isinstance(j.continuous, bool):
             return False
-        if any(getattr(j, k).shape != shape or not np.all(np.isfinite(getattr(j, k))) for k, shape in _ARRAY_SHAPES.items()):
+        if any(
+            getattr(j, k).shape != shape or not np.all(np.isfinite(getattr(j, k))) for k, shape in _ARRAY_SHAPES.items()
+        ):
             return False
         bounds = (j.q_lower, j.q_upper, j.qd_max, j.qdd_max)
         if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and not np.isnan(v) for v in bounds):
@@ -96,28 +112,39 @@ def _sound(chain: Chain) -> bool:
     for name, b in chain.body_links.items():
         if not all(isinstance(v, str) for v in (b.name, b.body, b.parent)) or b.name != name:
             return False
-        if any(getattr(b, k).shape != shape or not np.all(np.isfinite(getattr(b, k))) for k, shape in _LINK_ARRAYS.items()):
+        if any(
+            getattr(b, k).shape != shape or not np.all(np.isfinite(getattr(b, k))) for k, shape in _LINK_ARRAYS.items()
+        ):
             return False
     return all(isinstance(n, str) for n in chain.notes)
 
 
 def _store_chain(key: str, chain: Chain) -> None:
     """Remember a parsed chain (JSON: floats round-trip exactly); a read-only cache is skipped."""
-    from ineid._atomic import atomic_write  # noqa: PLC0415
+    from ineid._atomic import atomic_write
 
     joints = [
-        {f.name: (getattr(j, f.name).tolist() if f.name in _ARRAY_FIELDS else getattr(j, f.name))
-         for f in fields(JointSpec)}
+        {
+            f.name: (getattr(j, f.name).tolist() if f.name in _ARRAY_FIELDS else getattr(j, f.name))
+            for f in fields(JointSpec)
+        }
         for j in chain.joints
     ]
     links = {
-        name: {f.name: (getattr(b, f.name).tolist() if f.name in _LINK_ARRAYS else getattr(b, f.name))
-               for f in fields(BodyLink)}
+        name: {
+            f.name: (getattr(b, f.name).tolist() if f.name in _LINK_ARRAYS else getattr(b, f.name))
+            for f in fields(BodyLink)
+        }
         for name, b in chain.body_links.items()
     }
-    doc = {"name": chain.name, "root_link": chain.root_link, "joints": joints,
-           "merged_links": {k: list(v) for k, v in chain.merged_links.items()},
-           "body_links": links, "notes": list(chain.notes)}
+    doc = {
+        "name": chain.name,
+        "root_link": chain.root_link,
+        "joints": joints,
+        "merged_links": {k: list(v) for k, v in chain.merged_links.items()},
+        "body_links": links,
+        "notes": list(chain.notes),
+    }
     path = _chain_file(key)
     try:
         atomic_write(path, json.dumps(doc))

@@ -107,8 +107,10 @@ def _check_numbers(el: ET.Element, path: str, attrs: dict[str, int | None], owne
             raise RobotModelError(f"{where} holds a non-finite value (nan or inf); give finite numbers")
         meaning = _NOT_NEGATIVE.get((tag, attr))
         if meaning and values[0] < 0:
-            raise RobotModelError(f"{where} is negative; give {meaning} (a positive number), or leave the attribute "
-                                  "out for ineid's default")
+            raise RobotModelError(
+                f"{where} is negative; give {meaning} (a positive number), or leave the attribute "
+                "out for ineid's default"
+            )
 
 
 def check_lxml(data: bytes, source: str) -> None:
@@ -122,5 +124,7 @@ def check_lxml(data: bytes, source: str) -> None:
     try:
         etree.fromstring(data, parser=etree.XMLParser(remove_blank_text=True))
     except etree.XMLSyntaxError as e:
-        raise RobotModelError(f"{source}: lxml, yourdfpy's XML parser, cannot read the URDF ({e}); remove what no "
-                              "URDF reader needs (huge comments or text, deep nesting)") from None
+        raise RobotModelError(
+            f"{source}: lxml, yourdfpy's XML parser, cannot read the URDF ({e}); remove what no "
+            "URDF reader needs (huge comments or text, deep nesting)"
+        ) from None

@@ -148,8 +148,9 @@ def _outputs(sym: SymbolicRegressor, p: _Printer) -> list[str]:
 
 
 def _function(sym: SymbolicRegressor, body: list[str], doc: str) -> str:
-    return ("\n\ndef program(q, qd, qdd, gravity):\n    \"\"\"" + doc + '    """\n'
-            + "".join(f"    {line}\n" for line in body))
+    return (
+        '\n\ndef program(q, qd, qdd, gravity):\n    """' + doc + '    """\n' + "".join(f"    {line}\n" for line in body)
+    )
 
 
 def _print_lines(sym: SymbolicRegressor, p: _Printer) -> list[str]:
@@ -158,8 +159,9 @@ def _print_lines(sym: SymbolicRegressor, p: _Printer) -> list[str]:
     return [f"{lhs} = {p.doprint(rhs)}" for lhs, rhs in sym.lines]
 
 
-def emit_jax(sym: SymbolicRegressor, robot_name: str, fingerprint: str, regenerate: str,
-             printed: list[str] | None = None) -> str:
+def emit_jax(
+    sym: SymbolicRegressor, robot_name: str, fingerprint: str, regenerate: str, printed: list[str] | None = None
+) -> str:
     """The JAX module's source: ``program(q, qd, qdd, gravity)``, pure, jit-safe, batched over leading axes.
 
     XLA:CPU copies cheap elementwise producers into every fusion that reads them, so without a
@@ -174,20 +176,28 @@ def emit_jax(sym: SymbolicRegressor, robot_name: str, fingerprint: str, regenera
     trig = [(lhs, rhs) for lhs, rhs in sym.lines if _is_trig(rhs)]
     if trig:
         stacked = ", ".join(p.doprint(rhs) for _, rhs in trig)
-        body.append(f"_trig = jnp.stack(jnp.broadcast_arrays({stacked}), axis=-1) @ jnp.eye({len(trig)}, dtype=q.dtype)")
+        body.append(
+            f"_trig = jnp.stack(jnp.broadcast_arrays({stacked}), axis=-1) @ jnp.eye({len(trig)}, dtype=q.dtype)"
+        )
         body += [f"{lhs} = _trig[..., {k}]" for k, (lhs, _) in enumerate(trig)]
     barriers: dict[int, list] = {}
     for at, names in sym.barriers:
         barriers.setdefault(at, []).append(names)
-    for k, (lhs, rhs) in enumerate(sym.lines):
+    for k, (_, rhs) in enumerate(sym.lines):
         if not _is_trig(rhs):
             body.append(printed[k])
         for names in barriers.get(k + 1, []):
             listed = ", ".join(str(s) for s in names)
-            body.append(f"_b = jnp.stack(jnp.broadcast_arrays({listed}), axis=-1) @ jnp.eye({len(names)}, dtype=q.dtype)")
+            body.append(
+                f"_b = jnp.stack(jnp.broadcast_arrays({listed}), axis=-1) @ jnp.eye({len(names)}, dtype=q.dtype)"
+            )
             body += [f"{s} = _b[..., {m}]" for m, s in enumerate(names)]
     body += _outputs(sym, p)
-    doc = _DOC.format(shape="..., ", n=sym.n_dof, entry="a JAX array of the batch shape or a Python number (exact 0, +-1 or a constant)")
+    doc = _DOC.format(
+        shape="..., ",
+        n=sym.n_dof,
+        entry="a JAX array of the batch shape or a Python number (exact 0, +-1 or a constant)",
+    )
     return (
         _header(robot_name, fingerprint, sym.op_count, len(sym.lines), regenerate)
         + '\n"""JAX Newton-Euler program of the robot ``ROBOT``; pure and jit-safe, batched over leading axes."""\n\n'
@@ -198,8 +208,9 @@ def emit_jax(sym: SymbolicRegressor, robot_name: str, fingerprint: str, regenera
     )
 
 
-def emit_casadi(sym: SymbolicRegressor, robot_name: str, fingerprint: str, regenerate: str,
-                printed: list[str] | None = None) -> str:
+def emit_casadi(
+    sym: SymbolicRegressor, robot_name: str, fingerprint: str, regenerate: str, printed: list[str] | None = None
+) -> str:
     """The CasADi module's source: ``program(q, qd, qdd, gravity)`` on ``casadi.SX`` (or ``MX``) vectors,
     the same lines as :func:`emit_jax`'s. ``printed``: :func:`emit_jax`'s lines, reused but for
     the trigonometric ones."""
@@ -207,8 +218,10 @@ def emit_casadi(sym: SymbolicRegressor, robot_name: str, fingerprint: str, regen
     if printed is None:
         printed = _print_lines(sym, p)
     else:
-        printed = [f"{lhs} = {p.doprint(rhs)}" if _is_trig(rhs) else text
-                   for (lhs, rhs), text in zip(sym.lines, printed, strict=True)]
+        printed = [
+            f"{lhs} = {p.doprint(rhs)}" if _is_trig(rhs) else text
+            for (lhs, rhs), text in zip(sym.lines, printed, strict=True)
+        ]
     body = _unpack(sym, "{k}") + printed + _outputs(sym, p)
     doc = _DOC.format(shape="", n=sym.n_dof, entry="a CasADi scalar expression or a Python number")
     return (
@@ -251,8 +264,13 @@ def emit_modules(sym: SymbolicRegressor, robot_name: str, regenerate: str = "mak
         for key, want in expected.items():
             if values.get(key) != want:
                 raise CodegenError(f"the emitted module {name} does not hold the {key} given; it was not written")
-    return Emitted(files=files, op_count=sym.op_count, n_lines=len(sym.lines), derive_seconds=sym.seconds,
-                   print_seconds=time.perf_counter() - t0)
+    return Emitted(
+        files=files,
+        op_count=sym.op_count,
+        n_lines=len(sym.lines),
+        derive_seconds=sym.seconds,
+        print_seconds=time.perf_counter() - t0,
+    )
 
 
 def derive_and_emit(chain: Chain, robot_name: str, regenerate: str = "make generate") -> Emitted:
@@ -277,8 +295,14 @@ def derive_and_emit(chain: Chain, robot_name: str, regenerate: str = "make gener
         ok = True
         return emitted
     finally:
-        _step(total, total, "%s for %s after %.1f s", "finished" if ok else "stopped", ascii(robot_name),
-              time.perf_counter() - t0)
+        _step(
+            total,
+            total,
+            "%s for %s after %.1f s",
+            "finished" if ok else "stopped",
+            ascii(robot_name),
+            time.perf_counter() - t0,
+        )
 
 
 def write_files(files: dict[str, str] | dict[str, bytes], directory: str | Path, manifest: bool = True) -> list[Path]:
@@ -291,7 +315,7 @@ def write_files(files: dict[str, str] | dict[str, bytes], directory: str | Path,
     SIGTERM wait until the last file is written, so an interruption leaves the old files and
     manifest or the new ones, never modules that their manifest does not match.
     """
-    from ineid._trust import write_manifest  # noqa: PLC0415
+    from ineid._trust import write_manifest
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)

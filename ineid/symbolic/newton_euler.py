@@ -62,8 +62,13 @@ def derivation_step(done: int, total: int, message: str, *args: object) -> None:
     """Log one step of a derivation at INFO, with ``record.derivation_step = (done, total)`` and
     ``record.derivation_text``, the step's own words (``message % args``)."""
     text = message % args
-    log.info("regressor derivation, step %d of %d: %s", done, total, text,
-             extra={"derivation_step": (done, total), "derivation_text": text})
+    log.info(
+        "regressor derivation, step %d of %d: %s",
+        done,
+        total,
+        text,
+        extra={"derivation_step": (done, total), "derivation_text": text},
+    )
 
 
 _LOCK = "lock the joints you do not identify with --lock JOINT=POSITION (locked_joints in Python)"
@@ -87,9 +92,14 @@ def check_derivable(chain: Chain) -> None:
     """
     _refuse_long(chain)
     if chain.n_dof > SLOW_DERIVATION_JOINTS:
-        log.warning("%r has %d moving joints: compiling its regressor's kernels takes a minute or more "
-                    "(see docs/regressor.md); "
-                    "to shorten it, %s", chain.name, chain.n_dof, _LOCK)
+        log.warning(
+            "%r has %d moving joints: compiling its regressor's kernels takes a minute or more "
+            "(see docs/regressor.md); "
+            "to shorten it, %s",
+            chain.name,
+            chain.n_dof,
+            _LOCK,
+        )
 
 
 Vec = list  # three sympy expressions
@@ -179,8 +189,11 @@ class _Builder:
         """``expr`` expanded, bound to a new name unless it is a number, a name or minus a name,
         or already named (itself or its negative: ``qd0**2`` and ``-qd0**2`` share one line)."""
         expr = sp.expand(expr)
-        if expr.is_Number or expr.is_Symbol or (expr.is_Mul and len(expr.args) == 2 and expr.args[0] == -1
-                                                 and expr.args[1].is_Symbol):
+        if (
+            expr.is_Number
+            or expr.is_Symbol
+            or (expr.is_Mul and len(expr.args) == 2 and expr.args[0] == -1 and expr.args[1].is_Symbol)
+        ):
             return expr
         if expr in self.known:
             return self.known[expr]
@@ -284,8 +297,9 @@ class SymbolicRegressor:
         """
         flat = [e for row in self.Y for e in row]
         lines = list(self.lines)
-        fn = sp.lambdify((self.q, self.qd, self.qdd, self.gravity), flat, modules="numpy",
-                         cse=lambda exprs: (lines, list(exprs)))
+        fn = sp.lambdify(
+            (self.q, self.qd, self.qdd, self.gravity), flat, modules="numpy", cse=lambda exprs: (lines, list(exprs))
+        )
 
         def f(q, qd, qdd, gravity):
             q, qd, qdd = (np.asarray(x, dtype=np.float64) for x in (q, qd, qdd))
@@ -314,11 +328,13 @@ def _net_wrench_columns(b: _Builder, R: Mat, p: Vec, w: Vec, wd: Vec, a: Vec) ->
     """``Yn`` of one link (6 x 10 rows ``[F; M]``): its net wrench's columns in the base frame,
     moment about the base origin, from its motion in its own frame."""
     sw = _skew(w)
-    h_map = b.mat([[_skew(wd)[r][c] + sum((sw[r][m] * sw[m][c] for m in range(3)), ZERO) for c in range(3)]
-                   for r in range(3)])  # f = h_map h: wd x h + w x (w x h)
+    h_map = b.mat(
+        [[_skew(wd)[r][c] + sum((sw[r][m] * sw[m][c] for m in range(3)), ZERO) for c in range(3)] for r in range(3)]
+    )  # f = h_map h: wd x h + w x (w x h)
     l_w, l_wd = _inertia_map(w), _inertia_map(wd)
-    l_map = b.mat([[l_wd[r][c] + sum((sw[r][m] * l_w[m][c] for m in range(3)), ZERO) for c in range(6)]
-                   for r in range(3)])  # n = l_map vech(I): I wd + w x (I w)
+    l_map = b.mat(
+        [[l_wd[r][c] + sum((sw[r][m] * l_w[m][c] for m in range(3)), ZERO) for c in range(6)] for r in range(3)]
+    )  # n = l_map vech(I): I wd + w x (I w)
     f_m = b.vec(_matvec(R, a), "f")  # the mass column: f = m a, n = 0
     cols = [(f_m, b.vec(_cross(p, f_m), "n"))]
     f_h = b.mat(_matmul(R, h_map), "f")
@@ -368,7 +384,7 @@ def _vanishing(sym_inputs, lines, entries, n_points: int = 2) -> list[bool]:
     constants enter as the binary fractions they are (a rotation read from ``rpy`` is not
     exactly orthogonal), as SymPy's expansion saw them. Seeded: the same program, the same answer.
     """
-    import random  # noqa: PLC0415
+    import random
 
     rng = random.Random(len(lines))
     zero = [True] * len(entries)
@@ -475,8 +491,13 @@ def derive_base_wrench_regressor(chain: Chain) -> SymbolicRegressor:
         z = b.vec(_matvec(R, k), "z")  # the joint axis (constant in the link frame), base frame
         out["axis"].append(tuple(z))
         out["moment"].append(tuple(b.vec(_cross(p, z), "m")))
-        for key, value in (("R", tuple(tuple(row) for row in R)), ("p", tuple(p)), ("w", tuple(w)),
-                           ("wd", tuple(wd)), ("a", tuple(a))):
+        for key, value in (
+            ("R", tuple(tuple(row) for row in R)),
+            ("p", tuple(p)),
+            ("w", tuple(w)),
+            ("wd", tuple(wd)),
+            ("a", tuple(a)),
+        ):
             out[key].append(value)
         out["Yn"].append(_net_wrench_columns(b, R, p, w, wd, a))
     # columns that vanish identically become exact zeros (structure the solvers and NONZERO rely on)
@@ -485,8 +506,17 @@ def derive_base_wrench_regressor(chain: Chain) -> SymbolicRegressor:
     out["Yn"] = [tuple(tuple(ZERO if next(zero) else e for e in row) for row in yn) for yn in out["Yn"]]
     every = [e for key in out for e in _flatten(out[key])]
     lines, barriers = _prune(b.lines, b.barriers, [e for e in every if isinstance(e, sp.Basic)])
-    return SymbolicRegressor(chain, q, qd, qdd, g, tuple(lines), tuple(barriers),
-                             **{k: tuple(v) for k, v in out.items()}, seconds=time.perf_counter() - t0)
+    return SymbolicRegressor(
+        chain,
+        q,
+        qd,
+        qdd,
+        g,
+        tuple(lines),
+        tuple(barriers),
+        **{k: tuple(v) for k, v in out.items()},
+        seconds=time.perf_counter() - t0,
+    )
 
 
 def _flatten(x):
