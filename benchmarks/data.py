@@ -39,7 +39,7 @@ from ineid.data import (
     load_dataset,
     write_dataset,
 )
-from ineid.data.write import chunk_rows
+from ineid.data.dataset.write import chunk_rows
 
 FLOOR_S = 30.0
 

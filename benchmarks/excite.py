@@ -31,10 +31,9 @@ from machine import cpu_description  # benchmarks/machine.py
 
 import ineid
 from ineid.data import Combination, DatasetSpec, FrameSampling, NoiseModel, generate_dataset
-from ineid.data.sampling import model_uniform_states
-from ineid.data.trajectory import SampledTrajectory
-from ineid.identify import SolveSettings, relative_error, solve_dataset
-from ineid.identify.excite import (
+from ineid.data.synthesis.sampling import model_uniform_states
+from ineid.data.synthesis.trajectory import SampledTrajectory
+from ineid.excite.design import (
     ExcitationSettings,
     design_base,
     design_excitation,
@@ -42,7 +41,8 @@ from ineid.identify.excite import (
     evaluate_design,
     regressor_and_derivatives,
 )
-from ineid.identify.study import REFERENCE_NOISE
+from ineid.identify import SolveSettings, relative_error, solve_dataset
+from ineid.studies.noise import REFERENCE_NOISE
 
 EXAMPLES = "cmeel.prefix/share/example-robot-data/robots"
 

@@ -1,6 +1,6 @@
 """Where the formulations study's time goes (issue 21): MuJoCo's simulation, then each formulation's solves.
 
-``ineid study formulations`` (``ineid.identify.study_formulations``) simulates every configuration
+``ineid study formulations`` (``ineid.studies.formulations``) simulates every configuration
 in MuJoCo (RK4 at 1 ms, the computed-torque law and the Stribeck term in a Python control callback
 called at every RK4 stage), then identifies the recordings by each formulation twice (with friction,
 then with ideal drives). Printed: the simulation's seconds and its rate (simulated seconds per wall
@@ -17,7 +17,7 @@ import time
 from regressor import header  # benchmarks/regressor.py
 
 import ineid
-from ineid.identify.study_formulations import SIZES, identify_formulations, simulate_study
+from ineid.studies.formulations import SIZES, identify_formulations, simulate_study
 
 
 def main() -> None:

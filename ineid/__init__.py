@@ -15,6 +15,7 @@ os.environ.setdefault("JAX_ENABLE_X64", "1")
 if "jax" in sys.modules:  # imported before ineid: the variable came too late
     sys.modules["jax"].config.update("jax_enable_x64", True)
 
+from ineid import _moved
 from ineid._version import __version__
 from ineid.errors import (
     CodegenError,
@@ -38,10 +39,12 @@ from ineid.params import (
     theta_from_inertial,
 )
 
+_moved.install()  # the old import paths of moved modules, for one release
+
 _LAZY = {
     "BUILTIN_ROBOTS": "ineid.robots",
     "RobotModel": "ineid.robots",
-    "load_robot": "ineid.codegen",
+    "load_robot": "ineid.robots.load",
 }
 
 

@@ -2,7 +2,7 @@
 
 Every file ineid writes goes through here: :func:`atomic_write` for data in memory,
 :func:`atomic_output` for files written by a library (HDF5, matplotlib, CSV writers), and
-:class:`ineid.data.write.DatasetWriter` (which uses :func:`create_temporary`) for streamed
+:class:`ineid.data.dataset.write.DatasetWriter` (which uses :func:`create_temporary`) for streamed
 datasets. A temporary file beside the target is renamed into place only when complete, so
 an exception, Ctrl-C or (once :func:`terminate_on_sigterm` is installed) a scheduler's
 SIGTERM leaves either the old file or nothing, never half a file. Temporaries have

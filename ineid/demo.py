@@ -17,8 +17,8 @@ import numpy as np
 def main(n_frames: int = 100_000, seed: int = 0) -> None:
     import jax
 
-    from ineid.codegen import load_robot
-    from ineid.data.sampling import model_uniform_states
+    from ineid.data.synthesis.sampling import model_uniform_states
+    from ineid.robots.load import load_robot
 
     model = load_robot("sweaty-arm")
     q, qd, qdd = model_uniform_states(model, n_frames, np.random.default_rng(seed))

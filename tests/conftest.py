@@ -92,7 +92,7 @@ def robot_and_pinocchio(name: str, gravity):
 
 def random_states(model, n: int, rng: np.random.Generator):
     """q within limits, qd and qdd within the sampling bounds: (n, n_dof) each."""
-    from ineid.data.sampling import model_uniform_states
+    from ineid.data.synthesis.sampling import model_uniform_states
 
     return model_uniform_states(model, n, rng)
 

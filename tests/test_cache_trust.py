@@ -22,10 +22,10 @@ from click.testing import CliRunner
 import ineid
 from ineid import _trust, cache
 from ineid.cli import main
-from ineid.codegen import default_codegen_dir, generate_code
 from ineid.generated import BUILTIN_DIR, file_names
 from ineid.identify import casadi_c
 from ineid.robots import load_chain
+from ineid.robots.codegen import default_codegen_dir, generate_code
 
 from .conftest import FIXTURES
 
@@ -43,12 +43,12 @@ def logged(monkeypatch):
             lines.append(record.getMessage())
 
     handler = Keep(logging.WARNING)
-    for name in ("ineid.cache", "ineid.codegen", "ineid.identify.casadi_c", "ineid.robots.urdf"):
+    for name in ("ineid.cache", "ineid.robots.codegen", "ineid.identify.casadi_c", "ineid.robots.urdf"):
         logger = logging.getLogger(name)
         monkeypatch.setattr(logger, "level", logging.WARNING)
         logger.addHandler(handler)
     yield lines
-    for name in ("ineid.cache", "ineid.codegen", "ineid.identify.casadi_c", "ineid.robots.urdf"):
+    for name in ("ineid.cache", "ineid.robots.codegen", "ineid.identify.casadi_c", "ineid.robots.urdf"):
         logging.getLogger(name).removeHandler(handler)
 
 

@@ -233,8 +233,8 @@ def test_robot_show_lists_the_welded_links(payload_case, run):
 
 
 def test_payload_is_recovered_exactly_and_exported_in_place(payload_case, tmp_path):
-    from ineid.identify.export import urdf_with_inertials
     from ineid.identify.systems import stack_casadi
+    from ineid.robots.urdf_write import urdf_with_inertials
 
     model, _, truth = payload_case
     pin_truth = pinocchio_model(truth)
@@ -256,7 +256,7 @@ def test_payload_is_recovered_exactly_and_exported_in_place(payload_case, tmp_pa
 def test_a_welded_hand_solves_and_reports_its_payload_section(tmp_path, run):
     """The built-in arm's hand (welded to the forearm) as a payload: the JAX evaluators through the
     fold, ``ineid solve``'s exact recovery on noise-free data, the payload section saved and shown."""
-    from ineid.data.schema import Dataset, DatasetMeta
+    from ineid.data.dataset.schema import Dataset, DatasetMeta
     from ineid.identify import load_results, save_results
     from ineid.identify.solve import SolveSettings, solve_dataset
 

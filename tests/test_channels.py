@@ -26,7 +26,7 @@ from ineid.channels import (
     register,
     wrench_transform,
 )
-from ineid.data.meta import VERSION
+from ineid.data.dataset.meta import VERSION
 from ineid.errors import DatasetError
 from tests.conftest import random_states, rel_err
 

@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from ineid.codegen import generate_code
 from ineid.generated import BUILTIN_DIR, file_names
 from ineid.robots import BUILTIN_ROBOTS, load_chain
+from ineid.robots.codegen import generate_code
 
 from .conftest import FIXTURES
 
@@ -41,7 +41,7 @@ def test_checked_in_code_matches_generator(name, tmp_path):
 def test_generation_is_byte_identical_across_hash_seeds(tmp_path):
     """Regeneration in fresh interpreters with different hash seeds gives the same bytes."""
     code = (
-        "import sys; from ineid.robots import load_chain; from ineid.codegen import generate_code; "
+        "import sys; from ineid.robots import load_chain; from ineid.robots.codegen import generate_code; "
         "generate_code(load_chain(sys.argv[1]), 'mixed-chain', sys.argv[2])"
     )
     outs = []

@@ -1,5 +1,6 @@
-"""Recordings read safely, in bounded time and memory: CSV files (:mod:`ineid.data.csv_import`,
-:mod:`ineid.data.csv_rows`), ROS bags' files and metadata (:mod:`ineid.data.bag_metadata`), values beyond any
+"""Recordings read safely, in bounded time and memory: CSV files (:mod:`ineid.data.recordings.csv_import`,
+:mod:`ineid.data.recordings.csv_rows`), ROS bags' files and metadata (:mod:`ineid.data.recordings.bag_metadata`),
+values beyond any
 sensor, the import's rate and cut-off against the recording, and ``--plot`` formats checked before any work."""
 
 from __future__ import annotations
@@ -15,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ineid.data import csv_rows
-from ineid.data.csv_import import read_csv_streams
-from ineid.data.recording import recording_dataset
+from ineid.data.recordings import csv_rows
+from ineid.data.recordings.csv_import import read_csv_streams
+from ineid.data.recordings.pipeline import recording_dataset
 from ineid.errors import DatasetError, InputFileError
 
 from .bag_files import write_bag
@@ -213,7 +214,7 @@ def test_numpy_and_row_by_row_parsing_agree(tmp_path, model, monkeypatch):
         (
             "1e308",
             "line 100, column 'fz' is 1e308, beyond 1e+09 in magnitude, more than any sensor or clock gives "
-            "(ineid.data.streams.VALUE_LIMIT)",
+            "(ineid.data.recordings.streams.VALUE_LIMIT)",
         ),
         ("-1e309", "line 100, column 'fz' is -1e309, beyond the range of a float64"),
         ("inf", "line 100, column 'fz' is inf; values must be finite"),

@@ -29,8 +29,8 @@ from ineid.data import (
     write_dataset,
     write_recording_csv,
 )
-from ineid.data.meta import VERSION
-from ineid.data.sampling import random_rotations
+from ineid.data.dataset.meta import VERSION
+from ineid.data.synthesis.sampling import random_rotations
 from ineid.params import inertial_from_theta, pseudo_inertia
 from ineid.reference import pinocchio_base_wrench, pinocchio_model
 
@@ -209,7 +209,7 @@ def test_noise_is_recorded_and_leaves_the_clean_data_alone(model, small):
 
 def test_chunked_generation_streams(model, tmp_path):
     """Several chunks, the last one short; memory holds one chunk at a time."""
-    from ineid.data.generate import GenerationPlan
+    from ineid.data.synthesis.generate import GenerationPlan
 
     spec = small_spec(combination=Combination("random", n_configs=1000), n_frames=300)
     plan = GenerationPlan(model, spec)
@@ -403,7 +403,10 @@ def test_csv_import_wrong_joint_count(model, tmp_path):
 
 
 def test_importing_data_never_imports_sympy():
-    code = "import sys, ineid.data; import ineid.data.generate; assert 'sympy' not in sys.modules, 'sympy imported'"
+    code = (
+        "import sys, ineid.data; import ineid.data.synthesis.generate; "
+        "assert 'sympy' not in sys.modules, 'sympy imported'"
+    )
     subprocess.run([sys.executable, "-c", code], check=True, env={**os.environ, "PYTHONHASHSEED": "0"})
 
 
@@ -425,8 +428,8 @@ def test_csv_errors_name_the_physical_line(model, small, tmp_path):
 def test_parallel_chunk_reads_equal_h5py(small, tmp_path):
     """Arrays ineid wrote are inflated on all cores; any row range equals h5py's own read,
     and a file with other filters (no shuffle) goes through h5py."""
-    from ineid.data import read
-    from ineid.data.write import DatasetWriter
+    from ineid.data.dataset import read
+    from ineid.data.dataset.write import DatasetWriter
 
     path = tmp_path / "s.h5"
     per_config = [k for k in small.arrays() if k != "theta_known"]

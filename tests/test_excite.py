@@ -9,9 +9,14 @@ import pytest
 from click.testing import CliRunner
 
 import ineid
-from ineid.data.trajectory import FourierTrajectory, load_trajectory, read_trajectory_csv, read_trajectory_json
+from ineid.data.synthesis.trajectory import (
+    FourierTrajectory,
+    load_trajectory,
+    read_trajectory_csv,
+    read_trajectory_json,
+)
 from ineid.errors import ExcitationError
-from ineid.identify.excite import (
+from ineid.excite.design import (
     ExcitationSettings,
     _Problem,
     design_base,
@@ -76,7 +81,7 @@ def test_expected_std_is_the_spread_of_least_squares_estimates(arm, design):
     """The reported std is the Cramer-Rao bound: Monte-Carlo least squares on the design's frames matches it."""
     _, q, qd, qdd = design.trajectory.sample(design.rate)
     base = design.base
-    from ineid.identify.excite import regressor_and_derivatives
+    from ineid.excite.design import regressor_and_derivatives
 
     psi, _ = regressor_and_derivatives(arm, q, qd, qdd, derivatives=False)
     wb = psi[..., base.columns - 6].reshape(-1, base.rank)  # no bias columns in this design
@@ -110,7 +115,7 @@ def test_bias_design_is_for_the_offset_aware_base_parameters(arm):
     rng = np.random.default_rng(SEED)
     q, qd, qdd = (rng.uniform(-1, 1, (300, arm.n_dof)) for _ in range(3))
     ev = evaluate_design(arm, q, qd, qdd, with_bias, design_noise())
-    from ineid.identify.excite import regressor_and_derivatives, scaled_regressor
+    from ineid.excite.design import regressor_and_derivatives, scaled_regressor
 
     phi = scaled_regressor(regressor_and_derivatives(arm, q, qd, qdd, derivatives=False)[0], with_bias, design_noise())
     ones = np.tile(np.eye(6) / design_noise()[:, None], (len(q), 1))
@@ -120,7 +125,7 @@ def test_bias_design_is_for_the_offset_aware_base_parameters(arm):
 
 
 def test_trajectory_json_and_csv_agree(tmp_path, design):
-    from ineid.data.trajectory import write_trajectory_csv, write_trajectory_json
+    from ineid.data.synthesis.trajectory import write_trajectory_csv, write_trajectory_json
 
     t, q, qd, qdd = design.trajectory.sample(100.0)
     write_trajectory_csv(tmp_path / "t.csv", t, q, qd, qdd, ["joints: a, b, c, d"])

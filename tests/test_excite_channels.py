@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from ineid.channels import BaseWrench, ChannelSet, JointTorque, MotorCurrent
-from ineid.data.noise import NoiseModel
+from ineid.data.synthesis.noise import NoiseModel
 from ineid.errors import ExcitationError
+from ineid.excite.design import ExcitationSettings, design_base, design_excitation, design_noise, evaluate_design
 from ineid.identify import base_parameters
-from ineid.identify.excite import ExcitationSettings, design_base, design_excitation, design_noise, evaluate_design
 
 TORQUES = ChannelSet.of(JointTorque().with_actuation(friction=("viscous", "coulomb"), armature=True))
 

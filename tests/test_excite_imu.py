@@ -1,5 +1,5 @@
 """``ineid excite --encoder-bits N --imu LINK``: the design accounts for the joint-state errors of a lab's sensors
-(issue 22 point 3; :mod:`ineid.identify.excite_states`)."""
+(issue 22 point 3; :mod:`ineid.excite.states`)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid.data.imu_rehearsal import ImuRehearsal
-from ineid.data.trajectory import FourierTrajectory
-from ineid.identify.excite import regressor_and_derivatives
-from ineid.identify.excite_states import inflated_noise, rehearsed_rms
+from ineid.data.synthesis.imu_rehearsal import ImuRehearsal
+from ineid.data.synthesis.trajectory import FourierTrajectory
+from ineid.excite.design import regressor_and_derivatives
+from ineid.excite.states import inflated_noise, rehearsed_rms
 
 DESIGN = ("-q", "excite", "sweaty-arm", "--duration", 5, "--harmonics", 3, "--starts", 1)
 GYROS = ("--imu", "shoulder_roll_link", "--imu", "upper_arm", "--imu", "forearm")

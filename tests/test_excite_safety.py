@@ -10,7 +10,7 @@ from click.testing import CliRunner
 
 import ineid
 from ineid.errors import ExcitationError
-from ineid.identify.excite import ExcitationSettings, design_excitation
+from ineid.excite.design import ExcitationSettings, design_excitation
 from ineid.robots.kinematics import frame_points, link_poses, point_jacobians, welded_frames
 
 UR5 = "cmeel.prefix/share/example-robot-data/robots/ur_description/urdf/ur5_robot.urdf"
@@ -155,7 +155,7 @@ def test_cli_floor_summary_record_and_one_line_errors(tmp_path):
     record = json.loads(out.with_suffix(".json").read_text())["design"]
     assert record["workspace"]["floor"] == 0.25 and record["settings"]["floor"] == 0.25
     assert record["workspace"]["samples"]["min_clearance"] >= 0
-    sampled = ineid.data.trajectory.read_trajectory_csv(out)
+    sampled = ineid.data.synthesis.trajectory.read_trajectory_csv(out)
     arm = ineid.load_robot("sweaty-arm")
     assert frame_points(arm.chain, sampled.q, welded_frames(arm.urdf_text, arm.chain))[..., 2].min() >= 0.25
     for args, text in (
@@ -219,7 +219,7 @@ def test_bounding_capsules_contain_the_shapes(collision_arm):
 
 
 def test_self_collision_kept_at_every_instant_where_the_free_design_collides(collision_arm):
-    from ineid.identify.excite_collision import CollisionPairs
+    from ineid.excite.collision import CollisionPairs
 
     pairs = CollisionPairs(collision_arm, collision_arm.qd_max)
     assert len(pairs.labels()) == 6 and "'base_link' and 'hand'" in pairs.labels()  # non-adjacent bodies only
@@ -251,9 +251,9 @@ def test_mesh_geometry_gives_bounding_capsules():
 
 
 def test_constraint_jacobian_matches_finite_differences(collision_arm):
-    from ineid.identify.excite import _Problem, design_base, design_bounds, design_noise
-    from ineid.identify.excite_collision import CollisionPairs
-    from ineid.identify.excite_safety import SafetyConstraints, SafetyLimits
+    from ineid.excite.collision import CollisionPairs
+    from ineid.excite.design import _Problem, design_base, design_bounds, design_noise
+    from ineid.excite.safety import SafetyConstraints, SafetyLimits
 
     bounds = design_bounds(collision_arm)
     prob = _Problem(collision_arm, design_base(collision_arm), design_noise(None), "d-opt", bounds, 0.2, 3, 160, 96)

@@ -214,7 +214,7 @@ def test_results_that_cannot_fit_are_refused_before_writing(monkeypatch, tmp_pat
 
 def test_full_disk_on_data_generate(monkeypatch, tmp_path):
     """ENOSPC where HDF5 stores a chunk (h5py's OSError, errno and temporary name in its text)."""
-    from ineid.data import write
+    from ineid.data.dataset import write
 
     out = tmp_path / "d.h5"
 
@@ -228,7 +228,7 @@ def test_full_disk_on_data_generate(monkeypatch, tmp_path):
 
 
 def test_a_dataset_too_big_for_the_disk_stops_at_its_first_chunks(monkeypatch, tmp_path):
-    from ineid.data import write
+    from ineid.data.dataset import write
 
     monkeypatch.setattr(write, "free_disk", lambda path: 50_000)
     # chunks of 192 configurations x 100 frames, as test_cli's SIGTERM test writes (its kernel is compiled)

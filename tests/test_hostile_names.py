@@ -140,8 +140,8 @@ def test_generated_code_holds_names_as_data(name, clean, tmp_path):
 
 @pytest.mark.parametrize("name", list(HOSTILE.values()), ids=list(HOSTILE))
 def test_exported_urdf_reads_back(name):
-    from ineid.identify.export import urdf_with_inertials
     from ineid.params import theta_from_inertial
+    from ineid.robots.urdf_write import urdf_with_inertials
 
     theta = {
         name: theta_from_inertial(2.0, np.array([0.1, 0.0, 0.03]), np.diag([0.02, 0.03, 0.04])),

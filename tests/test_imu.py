@@ -11,9 +11,9 @@ import pytest
 import ineid
 from ineid import DatasetError
 from ineid.channels.pose import SensorPose
-from ineid.data.imu import ImuMount, imu_jacobians, imu_readings, parse_imu
-from ineid.data.signals import LowPass, derivatives
-from ineid.data.state_estimation import EstimationSettings, ImuNoise, estimate_joint_states
+from ineid.data.imu.estimation import EstimationSettings, ImuNoise, estimate_joint_states
+from ineid.data.imu.readings import ImuMount, imu_jacobians, imu_readings, parse_imu
+from ineid.data.recordings.signals import LowPass, derivatives
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -46,7 +46,7 @@ def recording(arm):
 def simulated_recording(arm) -> dict:
     """MuJoCo: 6 s at 200 Hz of fast motion (0.6 Hz base, harmonics to 2.4 Hz), IMUs on every moving link,
     the unknown links' parameters drawn around the CAD values."""
-    from ineid.data.sampling import sample_link_parameters
+    from ineid.data.synthesis.sampling import sample_link_parameters
     from tests.imu_mujoco import root_theta, simulate_imus
 
     rng = np.random.default_rng(7)
@@ -87,7 +87,7 @@ def _cut(readings):
 def _base_error(arm, recording, q, qd, qdd) -> float:
     """The largest base-parameter error of the linear identification from these states (edges dropped) and
     MuJoCo's wrench: ``|beta_hat - beta| / max(|beta|, scale)``."""
-    from ineid.data.recording import ImportSettings, Streams, recording_dataset
+    from ineid.data.recordings.pipeline import ImportSettings, Streams, recording_dataset
     from ineid.identify import SolveSettings, solve_dataset
 
     t, wrench = recording["t"][EDGE:-EDGE], recording["wrench"][EDGE:-EDGE]
@@ -235,8 +235,7 @@ def test_gyro_bias_std_is_honest_for_fine_and_coarse_encoders(arm, recording):
     """Over noise draws (gyro noise, and the encoders' quantization grid shifted at random), the gyro biases'
     z-scores along every identifiable direction have RMS near 1 with 16-, 12- and 10-bit encoders (the white-noise
     std gave RMS 2.3 and 3.1, |z| up to 6.4 and 8.9, with 12- and 10-bit ones), and the last link's IMU's bias
-    along the last
-    joint's axis is reported as not identified: no std on the axes leaning on it."""
+    along the last joint's axis is reported as not identified: no std on the axes leaning on it."""
     gyros = [replace(m, kinds=("gyro",)) for m in recording["mounts"]]
     last = gyros[-1]
     axis = imu_jacobians(arm, last, recording["q"][:1], recording["qd"][:1]).gyro_qd[0, :, -1]
@@ -330,8 +329,8 @@ def test_bad_imus_are_one_line_each(arm, recording):
 def _imported(arm, recording, readings, mounts, bits: int = 10):
     """The import (``recording_dataset``) of the recording with ``bits``-bit encoders, MuJoCo's wrench and these
     IMU readings: ``(dataset, relative qd error, relative qdd error, largest base error)`` against the truth."""
-    from ineid.data.recording import ImportSettings, recording_dataset
-    from ineid.data.streams import ImuStream, Streams
+    from ineid.data.recordings.pipeline import ImportSettings, recording_dataset
+    from ineid.data.recordings.streams import ImuStream, Streams
     from ineid.identify import SolveSettings, solve_dataset
 
     t, step = recording["t"], 2 * np.pi / 2**bits

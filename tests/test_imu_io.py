@@ -29,7 +29,7 @@ def rec(model):
     """The arm's recording: joints and wrench at 200 Hz, a forearm IMU (all kinds, at a pose) at 250 Hz
     stamped 1.3 ms after the joints, an upper-arm gyro at 250 Hz on a clock of its own (2.1 ms later)."""
     from ineid.channels.pose import parse_sensor_pose
-    from ineid.data.imu import ImuMount, imu_readings
+    from ineid.data.imu.readings import ImuMount, imu_readings
 
     tq = np.arange(0.0, DURATION, 1 / JOINT_RATE)
     q, qd, qdd = trajectory(tq)
@@ -44,7 +44,7 @@ def rec(model):
 
 def write_csv(path: Path, rec, columns=None, shift: float = 0.0) -> Path:
     """One CSV of three clocks: joint+wrench rows, then each IMU's rows (cells of the others empty), by time."""
-    from ineid.data.recording_imu import IMU_AXES
+    from ineid.data.recordings.imus import IMU_AXES
 
     n = rec["q"].shape[1]
     imu_cols = [
@@ -192,7 +192,7 @@ def check_fused(ds, tol: float = 2e-3) -> None:
 
 
 def test_csv_round_trip_three_clocks(model, rec, run, tmp_path):
-    from ineid.data.read import load_dataset
+    from ineid.data.dataset.read import load_dataset
 
     path = write_csv(tmp_path / "rec.csv", rec)
     out = tmp_path / "rec.h5"
@@ -225,7 +225,7 @@ def test_csv_round_trip_three_clocks(model, rec, run, tmp_path):
 
 @pytest.mark.parametrize("kind", ["ros1", "mcap"])
 def test_bag_round_trip_imu_topics(model, rec, run, tmp_path, kind):
-    from ineid.data.read import load_dataset
+    from ineid.data.dataset.read import load_dataset
 
     bag = write_imu_bag(
         tmp_path / ("rec.bag" if kind == "ros1" else "rec"), kind, model, rec, frame_ids={"forearm": "forearm_imu"}
@@ -257,7 +257,7 @@ def test_bag_round_trip_imu_topics(model, rec, run, tmp_path, kind):
 
 
 def test_generate_imu_rehearsal_round_trip(model, run, tmp_path):
-    from ineid.data.read import load_dataset
+    from ineid.data.dataset.read import load_dataset
 
     out = tmp_path / "g.h5"
     r = run(
@@ -354,8 +354,8 @@ def test_bad_imu_inputs_are_one_line_and_write_nothing(model, rec, run, tmp_path
 
 def test_imu_delay_shifts_the_imu_clock(model, rec):
     """IMU stamps 4 ms late: --imu-delay 0.004 puts them back (the library call, no file)."""
-    from ineid.data.recording import ImportSettings, recording_dataset
-    from ineid.data.streams import ImuStream, Streams
+    from ineid.data.recordings.pipeline import ImportSettings, recording_dataset
+    from ineid.data.recordings.streams import ImuStream, Streams
 
     imus = tuple(ImuStream(name, t + 0.004, r) for name, (t, r) in rec["imus"].items())
     streams = Streams(rec["tq"], rec["q"], None, None, rec["tq"], rec["wrench"], "arrays", imus=imus)

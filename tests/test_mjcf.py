@@ -1,4 +1,4 @@
-"""MJCF robots (:mod:`ineid.robots.mjcf`) and ``export-mjcf`` (:mod:`ineid.identify.export_mjcf`).
+"""MJCF robots (:mod:`ineid.robots.mjcf`) and ``export-mjcf`` (:mod:`ineid.robots.mjcf_write`).
 
 Checked against independent engines: the tests' MuJoCo arm (``arm_mjcf`` of sweaty-arm) gives the
 regressor of the URDF's model and of Pinocchio; a Menagerie-style model (default classes, degrees,
@@ -78,8 +78,8 @@ def folder(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def arm_xml(folder):
-    """The tests' MuJoCo arm: sweaty-arm as :func:`ineid.data.mujoco_sim.arm_mjcf` writes it."""
-    from ineid.data.mujoco_sim import arm_mjcf, root_link_theta
+    """The tests' MuJoCo arm: sweaty-arm as :func:`ineid.data.synthesis.mujoco_sim.arm_mjcf` writes it."""
+    from ineid.data.synthesis.mujoco_sim import arm_mjcf, root_link_theta
 
     model = ineid.load_robot("sweaty-arm")
     path = folder / "arm.xml"
@@ -200,7 +200,7 @@ def changed_lines(before: str, after: str) -> tuple[list[str], list[str]]:
 
 def test_export_mjcf_round_trip(menagerie, folder):
     """Identified values read back by MuJoCo (and ineid) to round-off; every other line of the file as it was."""
-    from ineid.identify import export_mjcf
+    from ineid.robots.mjcf_write import export_mjcf
 
     path, model, _ = menagerie
     theta = {link: perturbed(model, link, k) for k, link in enumerate(("link2", "link3"))}
@@ -229,7 +229,7 @@ def test_export_mjcf_round_trip(menagerie, folder):
 
 def test_export_mjcf_refusals_leave_no_file(menagerie, folder, model):
     from ineid.errors import IdentificationError, RobotModelError
-    from ineid.identify import export_mjcf
+    from ineid.robots.mjcf_write import export_mjcf
 
     path, mj_model, _ = menagerie
     i = mj_model.link_names.index("link2")
@@ -366,7 +366,7 @@ def test_arm_hinged_on_the_world_with_unnamed_bodies(tmp_path):
 
 def test_export_urdf_results_into_the_mjcf_twin(arm_xml, model, folder):
     """Results identified on sweaty-arm's URDF, written into its MJCF twin (same names and frames)."""
-    from ineid.identify import export_mjcf
+    from ineid.robots.mjcf_write import export_mjcf
 
     forearm = perturbed(model, "forearm", 3)
     out = folder / "twin.xml"
@@ -380,7 +380,7 @@ def test_export_urdf_results_into_the_mjcf_twin(arm_xml, model, folder):
 
 def test_export_mjcf_edits_any_spelling_of_inertial(menagerie, folder):
     """``<inertial ...></inertial>``, a comment with ``>`` and quotes before it: only the element is replaced."""
-    from ineid.identify import export_mjcf
+    from ineid.robots.mjcf_write import export_mjcf
 
     path, model, _ = menagerie
     old = '<inertial pos="0.1 0 0.01" mass="0.9" fullinertia="0.004 0.02 0.021 0.0001 -0.0002 0.0003"/>'
@@ -402,7 +402,7 @@ def test_export_mjcf_edits_any_spelling_of_inertial(menagerie, folder):
 def test_export_mjcf_keeps_the_declared_encoding(menagerie, folder):
     """An MJCF declared ISO-8859-1 with accents in a comment (MuJoCo reads it): every byte but the edited
     ``<inertial>`` written back as it was, in that encoding; MuJoCo and ineid read the result."""
-    from ineid.identify import export_mjcf
+    from ineid.robots.mjcf_write import export_mjcf
 
     path, model, _ = menagerie
     head = '<?xml version="1.0" encoding="ISO-8859-1"?>\n<!-- bras articulé, réglé à 0° -->\n'

@@ -8,7 +8,9 @@ import csv
 import pytest
 
 from ineid.learn.models import TABLE1
-from ineid.learn.paper_claims import (
+from ineid.learn.scalers import Scaler
+from ineid.learn.train import OPTIMIZERS as TRAIN_OPTIMIZERS
+from ineid.studies.paper_claims import (
     HELD,
     NOT_HELD,
     UNDECIDABLE,
@@ -18,8 +20,8 @@ from ineid.learn.paper_claims import (
     factor_claim,
     siamese_claim,
 )
-from ineid.learn.paper_claims import cells as claim_cells
-from ineid.learn.paper_networks import (
+from ineid.studies.paper_claims import cells as claim_cells
+from ineid.studies.paper_networks import (
     ACTIVATIONS,
     OPTIMIZERS,
     PAPER_BEST,
@@ -29,8 +31,6 @@ from ineid.learn.paper_networks import (
     plan,
     read_rows,
 )
-from ineid.learn.scalers import Scaler
-from ineid.learn.train import OPTIMIZERS as TRAIN_OPTIMIZERS
 
 
 def _configs(parts, size):

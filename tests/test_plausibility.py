@@ -19,7 +19,8 @@ from click.testing import CliRunner
 from ineid import DatasetError
 from ineid.cli import main
 from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
-from ineid.data.plausibility import (
+from ineid.data.recordings.pipeline import ImportSettings, Streams, in_si_units
+from ineid.data.recordings.plausibility import (
     Finding,
     check_angle_units,
     check_dataset,
@@ -28,9 +29,8 @@ from ineid.data.plausibility import (
     check_time_unit,
     moving_mass,
 )
-from ineid.data.recording import ImportSettings, Streams, in_si_units
-from ineid.data.sampling import FrameSampling
-from ineid.data.streams import ImuStream, units_note
+from ineid.data.recordings.streams import ImuStream, units_note
+from ineid.data.synthesis.sampling import FrameSampling
 from ineid.identify import SolveSettings, load_results, solve_dataset
 from ineid.identify.plausibility import check_solve, estimated_total_mass
 

@@ -12,10 +12,18 @@ import pytest
 import ineid
 from ineid import DatasetError, RobotModelError
 from ineid.data import load_dataset
-from ineid.data.meta import VERSION
-from ineid.data.recording import ImportSettings, Streams, import_recording, recording_dataset
-from ineid.data.signals import LowPass, choose_cutoff
-from ineid.identify import SolveSettings, bias_cost, generic_frames, load_results, save_results, solve_dataset
+from ineid.data.dataset.meta import VERSION
+from ineid.data.recordings.pipeline import ImportSettings, Streams, import_recording, recording_dataset
+from ineid.data.recordings.signals import LowPass, choose_cutoff
+from ineid.identify import (
+    SolveSettings,
+    bias_cost,
+    estimate_delay,
+    generic_frames,
+    load_results,
+    save_results,
+    solve_dataset,
+)
 from ineid.sensor import SensorPose, matrix_rpy, parse_sensor_pose, rpy_matrix, wrench_in_sensor, wrench_transform
 
 POSE_TEXT = "0.03,-0.02,-0.05,3.1,0.2,0.7"
@@ -196,7 +204,9 @@ def test_two_clocks_and_a_delay_given_or_estimated(lab):
     assert errors[0.003] < TOL_TWO_CLOCKS
     assert errors[0.0] > 100 * errors[0.003]  # 3 ms unaccounted for costs far more than the filtering
     # the delay estimated from the model (measured: 3.0023 ms, residual 2.3e-4 against 1.3e-2 at 0)
-    ds, summary = recording_dataset(streams, lab.model, ImportSettings(sensor_pose=POSE_TEXT, estimate_delay=True))
+    ds, summary = recording_dataset(
+        streams, lab.model, ImportSettings(sensor_pose=POSE_TEXT, estimate_delay=True), estimate_delay
+    )
     est = summary.delay_estimate
     assert abs(est.delay - 0.003) < 2e-5 and est.residual < 0.05 * est.residual_at_zero
     assert "wrench delay estimated: 3.00" in summary.lines()[-1] and ds.meta.origin["import"]["delay_estimated"]

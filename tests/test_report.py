@@ -24,8 +24,8 @@ from markupsafe import escape
 
 from ineid.data import Combination, DatasetSpec, FrameSampling, NoiseModel, generate_dataset, load_dataset
 from ineid.identify import load_results
-from ineid.identify.html_report import build_report, inputs_from_files
-from ineid.identify.residuals import check_residual
+from ineid.report.html import build_report, inputs_from_files
+from ineid.report.residuals import check_residual
 
 DELAY_FRAMES = 2
 RATE = 40.0  # Hz: 400 frames over one 10 s period of the Fourier trajectory
@@ -133,7 +133,7 @@ def test_report_of_data_on_an_excite_trajectory(solved, tmp_path, model):
     bear out (independent: the design's information matrix against the fit's residual-based covariance)."""
     import json
 
-    from ineid.data.trajectory import write_trajectory_csv
+    from ineid.data.synthesis.trajectory import write_trajectory_csv
     from ineid.identify import base_parameters
     from ineid.identify.systems import stack_casadi
 
@@ -374,8 +374,8 @@ def test_bad_inputs_are_one_line(solved, tmp_path):
 
 
 def test_plot_has_a_residual_panel_per_axis_and_a_readable_span(solved):
-    from ineid.identify.report import validation
-    from ineid.identify.report_figures import default_span, validation_figure
+    from ineid.report.figures import default_span, validation_figure
+    from ineid.report.plot import validation
 
     data, results, _ = solved["clean"]
     res, ds = load_results(results), load_dataset(data, clean=False)

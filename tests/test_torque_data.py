@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ineid.data import NoiseModel, load_dataset
-from ineid.data.recording import ImportSettings, import_recording
+from ineid.data.recordings.pipeline import ImportSettings, import_recording
 from ineid.errors import DatasetError
 
 POSE_TEXT = "0.03,-0.02,-0.05,3.1,0.2,0.7"
@@ -75,7 +75,7 @@ def test_generated_torques_are_the_channel_and_pinocchios_rnea_plus_friction(mod
     from ineid.channels import BaseWrench, ChannelSet
     from ineid.channels.torque import JointTorque
     from ineid.data import Combination, DatasetSpec, generate_dataset, write_dataset
-    from ineid.data.generate import actuated
+    from ineid.data.synthesis.generate import actuated
 
     if path == "jax":  # a small dataset goes through CasADi; the big ones' compiled JAX path, forced
         monkeypatch.setattr(robot_model, "SMALL_JOB_FRAMES", 0)
@@ -250,7 +250,7 @@ def test_imported_torques_are_the_model_at_the_filtered_states(model, tmp_path, 
     from ineid.channels import BaseWrench, ChannelSet
     from ineid.channels.torque import JointTorque
     from ineid.data import Combination, DatasetSpec, FrameSampling, generate_dataset, write_recording_csv
-    from ineid.data.generate import actuated
+    from ineid.data.synthesis.generate import actuated
 
     truth = {"elbow.fc": 0.3} if coulomb else {"elbow.fv": 0.1, "shoulder_roll.Ia": 0.02, "elbow.offset": 0.5}
     spec = DatasetSpec(
@@ -320,7 +320,7 @@ def test_bag_efforts_are_the_joint_torques_matched_by_name(lab, tmp_path):
 def test_a_wrench_at_a_link_is_a_link_wrench_channel(lab, tmp_path, run):
     """A wrist sensor: ``--sensor-pose LINK:x,y,z,r,p,y`` or a URDF frame welded to a moving link."""
     from ineid.channels import SensorPose
-    from ineid.data.recording_channels import resolve_wrench_channel
+    from ineid.data.recordings.channels import resolve_wrench_channel
 
     model = lab.model
     channel, where = resolve_wrench_channel("hand", None, model)  # welded to the forearm, 0.26 m down its z
@@ -370,7 +370,7 @@ def test_motor_currents_with_their_drives(lab, tmp_path):
 
 
 def test_version_4_is_refused_by_an_older_reader_with_one_line(lab, tmp_path, monkeypatch):
-    import ineid.data.read as read
+    import ineid.data.dataset.read as read
 
     ds, _ = import_recording(lab.file("csv"), lab.model, ImportSettings(sensor_pose=POSE_TEXT))
     path = ds.save(tmp_path / "v4.h5")

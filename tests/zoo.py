@@ -105,7 +105,7 @@ def check_export(arm: ZooArm, folder: Path, n_states: int = 50, tol: float = 1e-
     """
     import ineid
     from ineid.data import load_dataset
-    from ineid.data.sampling import model_uniform_states
+    from ineid.data.synthesis.sampling import model_uniform_states
     from ineid.identify.results import load_results
     from ineid.reference import pinocchio_base_wrench, pinocchio_model
 

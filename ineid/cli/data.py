@@ -32,7 +32,7 @@ from ineid.cli.simulation import (
 )
 from ineid.cli.simulation import friction_truth as simulation_truth
 
-_SAMPLING = "ineid.data.sampling"
+_SAMPLING = "ineid.data.synthesis.sampling"
 
 
 @click.group()
@@ -68,7 +68,7 @@ def data() -> None:
     "--n-frames",
     type=click.IntRange(min=1),
     cls=LibraryOption,
-    default_from="ineid.data.generate:DatasetSpec.n_frames",
+    default_from="ineid.data.synthesis.generate:DatasetSpec.n_frames",
     help="Frames per configuration.",
 )
 @deprecated_alias("--frames", "n_frames", "--n-frames", type=click.IntRange(min=1))
@@ -76,7 +76,7 @@ def data() -> None:
     "--seed",
     type=SEED,
     cls=LibraryOption,
-    default_from="ineid.data.generate:DatasetSpec.seed",
+    default_from="ineid.data.synthesis.generate:DatasetSpec.seed",
     help="Seed of every random draw.",
 )
 @click.option(
@@ -227,7 +227,7 @@ def data_generate(
         sensor = sensor_channel(sensor_pose, model)
     sampled = None
     if trajectory is not None:
-        from ineid.data.trajectory import check_trajectory_fits, load_trajectory
+        from ineid.data.synthesis.trajectory import check_trajectory_fits, load_trajectory
 
         sampled = load_trajectory(trajectory, n_frames=n_frames if frames_given else None)
         check_trajectory_fits(sampled, model)
@@ -405,14 +405,12 @@ def data_import(
     optional with torques), a ROS 1 .bag, or a ROS 2 bag folder or .mcap (sensor_msgs/JointState with its
     effort as joint torques, geometry_msgs/WrenchStamped). Link IMUs (imu_<NAME>_wx.. columns, sensor_msgs/Imu
     topics): qd, qdd fused from the encoders and the IMUs (docs/recordings.md)."""
-    from ineid.data.recording import ImportSettings, import_recording
-
-    if delay is None:  # --delay auto: the estimate fits the model; importing it registers it with the import
-        import ineid.identify.delay  # noqa: F401
+    from ineid.data.recordings.pipeline import ImportSettings
+    from ineid.workflow import import_recording
 
     prepare_output(out, overwrite, inputs=[*folder_inputs(path, "the input recording"), *robot_inputs(robot)])
     model = robot.load()
-    from ineid.data.recording_imu import parse_imu_text
+    from ineid.data.recordings.imus import parse_imu_text
 
     for text in imus:  # a mount that does not parse is said before the file is read
         parse_imu_text(text, model)
@@ -436,13 +434,19 @@ def data_import(
     )
     with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
         ds, summary = import_recording(
-            path, model, settings, joint_topic, wrench_topic, progress=bar, imu_topics=tuple(imu_topics)
+            path,
+            model,
+            settings,
+            joint_topic=joint_topic,
+            wrench_topic=wrench_topic,
+            progress=bar,
+            imu_topics=tuple(imu_topics),
         )
     ds.save(out, overwrite=overwrite)
     click.echo(f"wrote {out}: one recording of {plain(model.name)}")
     for line in summary.lines():
         click.echo(f"  {plain(line)}")
-    from ineid.data.plausibility import check_dataset
+    from ineid.data.recordings.plausibility import check_dataset
 
     print_findings(check_dataset(ds, model))
 

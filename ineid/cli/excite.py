@@ -1,4 +1,4 @@
-"""``ineid excite``: design an excitation trajectory (the library: :mod:`ineid.identify.excite`)."""
+"""``ineid excite``: design an excitation trajectory (the library: :mod:`ineid.excite.design`)."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from ineid.cli.output import ProgressBar, console, shown, table
 from ineid.cli.output_files import overwrite_option, prepare_output, robot_inputs
 from ineid.cli.simulation import IMU_NOISE_KEYS
 
-_SETTINGS = "ineid.identify.excite:ExcitationSettings"
+_SETTINGS = "ineid.excite.design:ExcitationSettings"
 
 
 def _workspace(ctx, param, value):
@@ -63,7 +63,7 @@ def _workspace(ctx, param, value):
 )
 @click.option(
     "--criterion",
-    type=LibraryChoice("ineid.identify.excite:CRITERIA"),
+    type=LibraryChoice("ineid.excite.design:CRITERIA"),
     cls=LibraryOption,
     default_from=f"{_SETTINGS}.criterion",
     help="d-opt: -log det of the scaled information; cond: log of the scaled condition number.",
@@ -187,8 +187,8 @@ def excite(
     link IMUs will cause (to first order: they inflate the noise).
     """
     from ineid._atomic import _signals_deferred
-    from ineid.data.trajectory import write_trajectory_csv, write_trajectory_json
-    from ineid.identify.excite import ExcitationSettings, design_excitation
+    from ineid.data.synthesis.trajectory import write_trajectory_csv, write_trajectory_json
+    from ineid.excite.design import ExcitationSettings, design_excitation
 
     coefficients = coefficients if coefficients is not None else out.with_suffix(".json")
     if coefficients.resolve() == out.resolve():
@@ -347,7 +347,7 @@ def print_states(states: dict, model) -> None:
 
 def print_limits(res, model) -> None:
     """The bounds in force: each joint's velocity and acceleration bound and its source, the floor and box."""
-    from ineid.identify.excite_safety import bound_sources
+    from ineid.excite.safety import bound_sources
 
     con = console()
     sources = bound_sources(model)

@@ -25,7 +25,8 @@ from ineid.cli.output_files import overwrite_option, prepare_output, results_inp
 def export_mjcf_cmd(results_path, robot, config, out, overwrite) -> None:
     """Write the MJCF ROBOT with the identified bodies' inertials of one configuration; the rest of the file as it
     was."""
-    from ineid.identify import export_mjcf, load_results
+    from ineid.identify import load_results
+    from ineid.robots.mjcf_write import export_mjcf
 
     inputs = [("the input results file", results_path), ("the input MJCF", robot), *results_inputs(results_path)]
     prepare_output(out, overwrite, inputs=inputs)

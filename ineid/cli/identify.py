@@ -335,7 +335,8 @@ def solve(
     --torque-offset model the joint torques' actuation, identified with the links (--two-step: after them).
     """
     from ineid.data import load_dataset, read_meta
-    from ineid.identify import SolveSettings, save_results, solve_dataset
+    from ineid.identify import SolveSettings, save_results
+    from ineid.workflow import solve_dataset
 
     data_path = data_paths[0]
     joint = len(data_paths) > 1 or validate_path is not None
@@ -354,8 +355,6 @@ def solve(
         given.append("--plot")
     if method == "network" and given:
         raise click.UsageError(f"{', '.join(given)} do not apply to --method network")
-    if method == "network":  # a trained run as the solver: ineid.learn registers it with solve_dataset
-        import ineid.learn.amortized  # noqa: F401
     check_solve_outputs(plot_path, plot_span, report_path, overwrite, [*inputs, ("the results file (--out)", out)])
     if sigma is not None and weights != "noise":
         raise click.UsageError("--sigma goes with --weights noise")
@@ -610,7 +609,7 @@ def study() -> None:
     "--methods",
     default="linear,weighted,consistent",
     show_default=True,
-    callback=names_in("ineid.identify.study:STUDY_METHODS", "--methods"),
+    callback=names_in("ineid.studies.noise:STUDY_METHODS", "--methods"),
 )
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--workers", type=WORKERS, default=None, help="Processes for IPOPT (default: CPU count, at most 4 x).")
@@ -625,7 +624,7 @@ def study() -> None:
 @click.pass_context
 def study_noise(ctx, robot, levels, fit_frames, n_configs, methods, seed, workers, out_dir, overwrite):
     """Errors and physical validity of linear, weighted and consistent estimates under noise."""
-    from ineid.identify.study import noise_study, plot, write_rows
+    from ineid.studies.noise import noise_study, plot, write_rows
 
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path, png_path = out_dir / "noise_study.csv", out_dir / "noise_study.png"

@@ -140,11 +140,11 @@ def check_imu_generate(imus, gyro_bias: float, encoder_bits: int | None, noise: 
 
 
 def imu_rehearsal(imus, gyro_bias: float, encoder_bits: int | None, noise: dict | None, model):
-    """The :class:`ineid.data.imu_rehearsal.ImuRehearsal` of the options (None without ``--imu``)."""
+    """The :class:`ineid.data.synthesis.imu_rehearsal.ImuRehearsal` of the options (None without ``--imu``)."""
     if not imus and encoder_bits is None:
         return None
-    from ineid.data.imu_rehearsal import ImuRehearsal
-    from ineid.data.recording_imu import parse_imu_text
+    from ineid.data.recordings.imus import parse_imu_text
+    from ineid.data.synthesis.imu_rehearsal import ImuRehearsal
 
     mounts = [parse_imu_text(text, model) for text in imus]
     names = [m.name for m in mounts]
@@ -189,9 +189,10 @@ def imu_excite(f):
 
 
 def excite_sensors(imus, encoder_bits: int | None, noise: dict | None, model):
-    """The :class:`ineid.data.imu_rehearsal.ImuRehearsal` ``ineid excite`` designs for (None: joint states exact).
+    """The :class:`ineid.data.synthesis.imu_rehearsal.ImuRehearsal` ``ineid excite`` designs for (None: joint
+    states exact).
 
-    The IMUs' noise not given in ``--noise`` is the import's default (:class:`ineid.data.state_estimation.ImuNoise`):
+    The IMUs' noise not given in ``--noise`` is the import's default (:class:`ineid.data.imu.estimation.ImuNoise`):
     a design for noise-free IMUs would promise too much.
 
     Raises:
@@ -208,7 +209,7 @@ def excite_sensors(imus, encoder_bits: int | None, noise: dict | None, model):
         raise click.UsageError(
             "with --encoder-bits or --imu the joint-state errors come from the sensors: drop the q, qd, qdd noise"
         )
-    from ineid.data.state_estimation import ImuNoise
+    from ineid.data.imu.estimation import ImuNoise
 
     default = ImuNoise()
     sensors = imu_rehearsal(imus, 0.0, encoder_bits, noise, model)

@@ -215,7 +215,7 @@ class RobotChoice:
     gravity: tuple[float, float, float] | None = None
 
     def load(self):
-        from ineid.codegen import load_robot
+        from ineid.robots.load import load_robot
 
         kwargs = {"unknown_links": self.unknown_links, "locked_joints": self.locked_joints}
         if self.gravity is not None:
@@ -268,7 +268,7 @@ def _gravity(ctx, param, value: tuple[float, float, float] | None) -> tuple[floa
     """``--gravity`` as given; one warning line when it looks like another unit than m/s^2."""
     if value is not None:
         from ineid.cli.output import print_findings
-        from ineid.data.plausibility import check_gravity
+        from ineid.data.recordings.plausibility import check_gravity
 
         found = check_gravity(value, "--gravity")
         print_findings([found] if found is not None else [])

@@ -375,7 +375,7 @@ def show_derivation_progress(on: bool) -> None:
 
 
 def print_findings(findings) -> None:
-    """Plausibility warnings (:class:`ineid.data.plausibility.Finding`), one line each on stderr.
+    """Plausibility warnings (:class:`ineid.data.recordings.plausibility.Finding`), one line each on stderr.
 
     Shown with ``-q`` too: a quiet run is the one whose user would not look at the numbers.
     """

@@ -62,7 +62,7 @@ def write_solve_outputs(
     separate validation recording), each a line on the console."""
     con = console()
     if plot_path is not None and res.success.any():
-        from ineid.identify.report import plot_validation, validation
+        from ineid.report.plot import plot_validation, validation
 
         v = validation(res, ds, model)
         name = plain(res.meta["robot"])  # one line in the title, and not a page long
@@ -77,7 +77,7 @@ def write_solve_outputs(
     elif plot_path is not None:
         con.print(f"no configuration identified: {shown(plot_path)} not written")
     if report_path is not None:
-        from ineid.identify.html_report import ReportInputs, build_report, write_report
+        from ineid.report.html import ReportInputs, build_report, write_report
 
         inputs = ReportInputs(res, ds, validate, model, results_path=Path(out))
         write_report(build_report(inputs), report_path, overwrite=overwrite)
@@ -115,7 +115,7 @@ def report(results_path, data_path, validate_path, config, out, overwrite) -> No
     identifiability, estimates beside the CAD values with std, physical validity, validation
     (measured vs predicted, residual and its spectrum, warnings), excitation. No network needed to
     view it; print it from the browser."""
-    from ineid.identify.html_report import build_report, inputs_from_files, write_report
+    from ineid.report.html import build_report, inputs_from_files, write_report
 
     read = [
         ("the input results file", results_path),

@@ -103,10 +103,10 @@ def generate(robot: str | None, out_dir: Path | None, all_builtin: bool, locked:
     from ineid._atomic import check_output
     from ineid._trust import MANIFEST, is_manifest
     from ineid.cli.output_files import check_not_input
-    from ineid.codegen import default_codegen_dir, generate_code
     from ineid.generated import BUILTIN_DIR, file_names
     from ineid.robots import BUILTIN_ROBOTS
-    from ineid.robots.mjcf import robot_file_chain
+    from ineid.robots.codegen import default_codegen_dir, generate_code
+    from ineid.robots.load import robot_file_chain
     from ineid.symbolic.emit import GENERATOR
 
     if all_builtin == (robot is not None):

@@ -11,7 +11,7 @@ from ineid.cli.options import SEED, PlotFile, names_in, quiet, robot_options
 from ineid.cli.output import ProgressBar, console, table
 from ineid.cli.output_files import overwrite_option, prepare_output, robot_inputs
 
-_STUDY = "ineid.identify.study_formulations"
+_STUDY = "ineid.studies.formulations"
 
 
 def _fmt(x: float, percent: bool = True) -> str:
@@ -53,8 +53,8 @@ def study_formulations(ctx, robot, quick, n_configs, duration, formulations, see
     torques with and without a friction model, and from both. Needs MuJoCo (pip install 'ineid[mujoco]')."""
     from dataclasses import replace
 
-    from ineid.data.mujoco_sim import import_mujoco
-    from ineid.identify.study_formulations import (
+    from ineid.data.synthesis.mujoco_sim import import_mujoco
+    from ineid.studies.formulations import (
         FORMULATIONS,
         SIZES,
         formulations_study,

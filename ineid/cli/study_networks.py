@@ -12,7 +12,7 @@ from ineid.cli.options import FiniteFloatRange, LibraryChoice, numbers, quiet
 from ineid.cli.output import ProgressBar, console, table
 from ineid.cli.output_files import overwrite_option
 
-_NETS = "ineid.learn.paper_networks"
+_NETS = "ineid.studies.paper_networks"
 
 
 def _fmt(x: float) -> str:
@@ -109,8 +109,8 @@ def study_networks(
     from dataclasses import replace
 
     from ineid.cli.output_files import on_interrupt, prepare_output
-    from ineid.learn.paper_claims import check_claims, write_claims
-    from ineid.learn.paper_networks import (
+    from ineid.studies.paper_claims import check_claims, write_claims
+    from ineid.studies.paper_networks import (
         FILE,
         SIZES,
         check_study_folder,
@@ -144,8 +144,8 @@ def study_networks(
 
         ds = load_dataset(data_path, clean=False)
     else:
-        from ineid.codegen import load_robot
         from ineid.data import generate_dataset
+        from ineid.robots.load import load_robot
 
         ds = generate_dataset(load_robot("sweaty-arm"), size.dataset)
 

@@ -1,7 +1,7 @@
 """``ineid study paper``: the paper's section 4 on its own data layout, per parameter, its claims checked.
 
 The command prints its sections one after the other (:data:`SECTIONS` order): the classical solvers
-(:mod:`ineid.identify.study_paper`), then the paper's claims, and with ``--networks DIR`` the paper's
+(:mod:`ineid.studies.paper`), then the paper's claims, and with ``--networks DIR`` the paper's
 network exploration (``ineid study networks --plan decisive``, its quick size with ``--quick``).
 """
 
@@ -16,7 +16,7 @@ from ineid.cli.options import SEED, WORKERS, LibraryChoice, PlotFile, names_in, 
 from ineid.cli.output import ProgressBar, console, shown, table
 from ineid.cli.output_files import overwrite_option, prepare_output, robot_inputs
 
-_STUDY = "ineid.identify.study_paper"
+_STUDY = "ineid.studies.paper"
 
 
 def _pct(x: float) -> str:
@@ -156,7 +156,7 @@ def study_paper(
     from dataclasses import replace
 
     from ineid.identify.identifiability import frame_minimum
-    from ineid.identify.study_paper import METHODS, SIZES, check_claims, paper_study, plot, write_rows
+    from ineid.studies.paper import METHODS, SIZES, check_claims, paper_study, plot, write_rows
 
     for path, option in ((csv_path, "--csv"), (plot_path, "--plot")):
         if path is not None:

@@ -30,7 +30,7 @@ from ineid.cli.output_files import overwrite_option, prepare_output, robot_input
 @click.option(
     "--sensors",
     default=None,
-    callback=names_in("ineid.identify.study_sensors:SENSOR_SETS", "--sensors"),
+    callback=names_in("ineid.studies.sensors:SENSOR_SETS", "--sensors"),
     help="Sensor sets, comma-separated (default all).",
 )
 @click.option(
@@ -64,7 +64,7 @@ def study_sensors(ctx, robot, rates, bandwidths, sensors, n_configs, quick, seed
     gyroscopes and angular-acceleration sensors, over logging rate and motion bandwidth (docs/recordings.md)."""
     from dataclasses import replace
 
-    from ineid.identify.study_sensors import SENSOR_SETS, SensorStudySize, plot, sensor_study, write_rows
+    from ineid.studies.sensors import SENSOR_SETS, SensorStudySize, plot, sensor_study, write_rows
 
     for p in (plot_path, csv_path):
         if p is not None:

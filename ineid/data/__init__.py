@@ -7,12 +7,14 @@ A recording from a real arm enters through :func:`read_recording_csv`.
 
 from __future__ import annotations
 
-from ineid.data.csv_import import csv_columns, write_recording_csv
-from ineid.data.generate import DatasetSpec, generate_dataset, write_dataset
-from ineid.data.noise import NoiseModel
-from ineid.data.read import iter_dataset, load_dataset, read_meta
-from ineid.data.recording import read_recording_csv
-from ineid.data.sampling import (
+from ineid.data.dataset.read import iter_dataset, load_dataset, read_meta
+from ineid.data.dataset.schema import FORMAT, VERSION, Dataset, DatasetMeta, assemble_theta, model_from_meta
+from ineid.data.dataset.write import DatasetWriter, save_dataset
+from ineid.data.recordings.csv_import import csv_columns, write_recording_csv
+from ineid.data.recordings.pipeline import read_recording_csv
+from ineid.data.synthesis.generate import DatasetSpec, generate_dataset, write_dataset
+from ineid.data.synthesis.noise import NoiseModel
+from ineid.data.synthesis.sampling import (
     Combination,
     FrameSampling,
     ParameterSampling,
@@ -20,8 +22,6 @@ from ineid.data.sampling import (
     sample_frames,
     sample_link_parameters,
 )
-from ineid.data.schema import FORMAT, VERSION, Dataset, DatasetMeta, assemble_theta, model_from_meta
-from ineid.data.write import DatasetWriter, save_dataset
 
 __all__ = [
     "FORMAT",

@@ -9,9 +9,7 @@ results -> :func:`save_results` / :func:`export_urdf` / :func:`export_mjcf`. Nev
 
 from __future__ import annotations
 
-from ineid.identify.delay import estimate_delay  # importing it registers the estimate with data.recording
-from ineid.identify.export import export_urdf, urdf_with_inertials
-from ineid.identify.export_mjcf import export_mjcf, mjcf_with_inertials
+from ineid.identify.delay import estimate_delay
 from ineid.identify.frame_minimum import FrameMinimum
 from ineid.identify.frames import identify_frames
 from ineid.identify.identifiability import (
@@ -30,6 +28,8 @@ from ineid.identify.nlp import NlpSolver, nlp_estimate
 from ineid.identify.results import error_summary, load_results, relative_error, save_results
 from ineid.identify.solve import METHODS, SolveResults, SolveSettings, solve_dataset
 from ineid.identify.systems import parameter_scales, stack, stack_casadi
+from ineid.robots.mjcf_write import export_mjcf, mjcf_with_inertials
+from ineid.robots.urdf_write import export_urdf, urdf_with_inertials
 
 __all__ = [
     "METHODS",

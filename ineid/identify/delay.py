@@ -24,8 +24,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ineid.data import signals
-from ineid.data.recording import DelayEstimate, recording_dataset, register_delay_estimator
+from ineid.data.recordings import signals
+from ineid.data.recordings.pipeline import DelayEstimate, recording_dataset
 from ineid.errors import DatasetError
 from ineid.identify.identifiability import base_parameters
 from ineid.identify.systems import remove_offsets, stack
@@ -38,14 +38,14 @@ def estimate_delay(streams, model, settings, max_delay: float = MAX_DELAY) -> De
     """The wrench delay (s; positive: the wrench stamps are late) that best fits the model (module docstring).
 
     Args:
-        streams: the recording's :class:`ineid.data.streams.Streams`.
+        streams: the recording's :class:`ineid.data.recordings.streams.Streams`.
         model: the :class:`ineid.RobotModel`.
-        settings: the :class:`ineid.data.recording.ImportSettings` (cut-off, rate, sensor pose,
+        settings: the :class:`ineid.data.recordings.pipeline.ImportSettings` (cut-off, rate, sensor pose,
             sign); its ``delay`` is ignored.
         max_delay: s, half the search range.
 
     Raises:
-        DatasetError: as :func:`ineid.data.recording.recording_dataset`, or a recording too
+        DatasetError: as :func:`ineid.data.recordings.pipeline.recording_dataset`, or a recording too
             short for the search range.
     """
     from scipy.interpolate import make_interp_spline
@@ -104,6 +104,3 @@ def estimate_delay(streams, model, settings, max_delay: float = MAX_DELAY) -> De
     best = minimize_scalar(objective, bounds=(lo, hi), method="bounded", options={"xatol": 1e-7})
     d = float(best.x) if best.fun <= values[k] else float(grid[k])
     return DelayEstimate(d, float(np.sqrt(objective(d))), float(np.sqrt(objective(0.0))))
-
-
-register_delay_estimator(estimate_delay)  # what ImportSettings(estimate_delay=True) and `data import --delay auto` call

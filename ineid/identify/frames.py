@@ -38,7 +38,7 @@ def identify_frames(
             parameters (with what is missing), or an IPOPT failure (``.status`` holds
             IPOPT's return status).
     """
-    from ineid.data.schema import Dataset, DatasetMeta
+    from ineid.data.dataset.schema import Dataset, DatasetMeta
     from ineid.identify.identifiability import analyze_frames
 
     arrays = [np.asarray(a, dtype=np.float64) for a in (q, qd, qdd, wrench)]

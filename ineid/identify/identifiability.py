@@ -205,7 +205,7 @@ def base_parameters_from_regressor(w: np.ndarray, names, scales: np.ndarray, n_e
 
 def generic_frames(model, n_frames: int = STRUCTURAL_FRAMES, seed: int = 0):
     """Random frames within the model's bounds: (n_frames, n_dof) x 3."""
-    from ineid.data.sampling import model_uniform_states
+    from ineid.data.synthesis.sampling import model_uniform_states
 
     return model_uniform_states(model, n_frames, np.random.default_rng(seed))
 

@@ -1,6 +1,6 @@
 """Plausibility checks of a solve: the fit against the URDF, before a user trusts garbage.
 
-Adds to the data-only checks of :mod:`ineid.data.plausibility` those that need the
+Adds to the data-only checks of :mod:`ineid.data.recordings.plausibility` those that need the
 estimates of :func:`ineid.identify.solve_dataset`:
 
 * total mass: the estimated mass of the moving links (the unknown links' masses from the
@@ -14,7 +14,7 @@ estimates of :func:`ineid.identify.solve_dataset`:
   relative to the wrench less its mean) above :data:`HELD_OUT_ERROR`
   (``held_out_error``: the model explains almost nothing);
 * the fitted static force (the mean of the fitted frames less the estimated offsets, in the
-  base frame) against gravity, as :func:`ineid.data.plausibility.check_static_force`;
+  base frame) against gravity, as :func:`ineid.data.recordings.plausibility.check_static_force`;
 * units only a fit can tell (:mod:`ineid.identify.unit_fits`): where the solve's linear fit
   leaves more than :data:`FIT_GATE` of the measurements unexplained, a subsample is refitted
   with the joint angles in the other unit (``angles_in_degrees``, ``angles_in_radians``) and
@@ -39,7 +39,7 @@ import math
 import numpy as np
 
 from ineid.channels import BaseWrench
-from ineid.data.plausibility import (
+from ineid.data.recordings.plausibility import (
     Finding,
     check_angle_units,
     check_gravity,
@@ -50,7 +50,7 @@ from ineid.data.plausibility import (
     power_of_ten,
     times,
 )
-from ineid.data.streams import FORCE_UNITS, MOMENT_UNITS
+from ineid.data.recordings.streams import FORCE_UNITS, MOMENT_UNITS
 from ineid.errors import IdentificationError
 from ineid.identify.unit_fits import fit_error, fitted_channels, refit_units
 

@@ -13,7 +13,7 @@ from ineid._atomic import atomic_write, check_output_file
 from ineid._faults import require_disk
 from ineid._inputs import parse_json, regular_file
 from ineid.channels import WRENCH_AXES
-from ineid.data.hdf5_audit import audit_hdf5
+from ineid.data.dataset.hdf5_audit import audit_hdf5
 from ineid.errors import DatasetError
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.solve import SolveResults, SolveSettings
@@ -131,7 +131,7 @@ def load_results(path: str | Path) -> SolveResults:
     except OSError as e:
         if fault_errno(e) is not None:
             raise  # permission denied and the like: the CLI words it
-        from ineid.data.read import foreign_file
+        from ineid.data.dataset.read import foreign_file
 
         raise DatasetError(
             foreign_file(path, "an ineid results file", ", then solve it (ineid solve)")

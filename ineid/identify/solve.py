@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -57,8 +57,8 @@ from ineid.progress import Progress
 BUILTIN_METHODS = ("linear", "nonlinear", "consistent", *CLASSICAL_METHODS)
 """The methods identify implements itself; ``lsqlin``, ``lsqnonlin``: the paper's (:mod:`ineid.identify.classical`)."""
 METHODS = (*BUILTIN_METHODS, "network")
-"""Every method; ``network`` (a trained run) is implemented by :mod:`ineid.learn.amortized`, which
-registers it when imported (:func:`register_method`): identify never imports learn."""
+"""Every method; ``network`` (a trained run) is implemented by :mod:`ineid.learn.amortized` and passed to
+:func:`solve_dataset` in ``methods`` (:func:`ineid.workflow.solve_dataset` does): identify never imports learn."""
 STARTS = ("prior", "linear")
 """IPOPT's start: the CAD values, or the linear estimate made physical."""
 BACKENDS = ("jax", "casadi", "casadi-c")
@@ -313,37 +313,13 @@ def _axis_sigma(ds, settings: SolveSettings, channels: ChannelSet | None = None,
 SolveMethod = Callable[..., "SolveResults"]
 """``solve(ds, settings, model, progress) -> SolveResults``, as :func:`solve_dataset`."""
 
-_REGISTERED: dict[str, SolveMethod] = {}
-
-
-def register_method(name: str, solve: SolveMethod) -> None:
-    """Make ``solve_dataset`` run ``solve`` for ``SolveSettings(method=name)``, a method of :data:`METHODS`
-    implemented above identify (``network``: :func:`ineid.learn.amortized.solve_with_run`, registered
-    when ``ineid.learn`` is imported)."""
-    if name not in METHODS or name in BUILTIN_METHODS:
-        raise ValueError(
-            f"only {', '.join(m for m in METHODS if m not in BUILTIN_METHODS)} may be registered, got {name!r}"
-        )
-    _REGISTERED[name] = solve
-
-
-def registered_method(name: str) -> SolveMethod:
-    """The solver registered for ``name`` (:func:`register_method`).
-
-    Raises:
-        IdentificationError: none is: the module that provides it was not imported.
-    """
-    if name not in _REGISTERED:
-        raise IdentificationError(
-            f"method {name!r} runs a trained network, which ineid.learn provides: "
-            "import ineid.learn first (it registers the method)",
-            status="unsupported",
-        )
-    return _REGISTERED[name]
-
 
 def solve_dataset(
-    ds, settings: SolveSettings = SolveSettings(), model=None, progress: Progress | None = None
+    ds,
+    settings: SolveSettings = SolveSettings(),
+    model=None,
+    progress: Progress | None = None,
+    methods: Mapping[str, SolveMethod] | None = None,
 ) -> SolveResults:
     """Identify the unknown links of every configuration in ``ds``.
 
@@ -352,6 +328,8 @@ def solve_dataset(
         settings: method and options.
         model: the dataset's :class:`ineid.RobotModel` (default: rebuilt from the file).
         progress: ``progress(done, total)`` over configurations.
+        methods: solvers of the methods implemented above identify, by name (``{"network":
+            ineid.learn.solve_with_run}``; :func:`ineid.workflow.solve_dataset` passes every one).
 
     Raises:
         IdentificationError: too few frames for the identifiable parameters, or noise
@@ -359,14 +337,21 @@ def solve_dataset(
             IPOPT not converging) do not raise: they are recorded in ``success`` and ``status``.
     """
     enable_compilation_cache()
-    if settings.method not in BUILTIN_METHODS:  # a trained run as the solver (registered by ineid.learn)
-        return registered_method(settings.method)(ds, settings, model, progress)
+    if settings.method not in BUILTIN_METHODS:  # a trained run as the solver (ineid.learn's, passed in)
+        solve = (methods or {}).get(settings.method)
+        if solve is None:
+            raise IdentificationError(
+                f"method {settings.method!r} runs a trained network, which ineid.learn provides: use "
+                "ineid.workflow.solve_dataset, or pass methods={'network': ineid.learn.solve_with_run}",
+                status="unsupported",
+            )
+        return solve(ds, settings, model, progress)
     model = model or ds.model()
     if settings.two_step:  # the links from the wrench, then the torques' extras (ineid.identify.two_step)
         from ineid.identify.two_step import second_step, wrench_settings
 
         t_start = time.perf_counter()
-        first = solve_dataset(ds, wrench_settings(ds, settings, model), model, progress)
+        first = solve_dataset(ds, wrench_settings(ds, settings, model), model, progress, methods)
         return dataset_results(ds, settings, t_start=t_start, **second_step(first, ds, settings, model))
     with_bias = settings.bias == "estimate"
     channels = solve_channels(ds, settings, model)

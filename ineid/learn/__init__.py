@@ -5,14 +5,14 @@ Data flow: a :class:`ineid.data.Dataset` -> :func:`split_configs` and scalers ->
 MSE or the physics-informed loss (:mod:`.losses`, the generated JAX regressor inside the
 jitted loss) -> :func:`evaluate` against the null-space floor and the linear least
 squares -> :func:`sweep` over grids; a trained run identifies datasets as
-``solve_dataset``'s ``method="network"`` (:func:`solve_with_run`, registered on import).
+``solve_dataset``'s ``method="network"`` (:func:`solve_with_run`, passed in by :mod:`ineid.workflow`).
 Never imports sympy.
 """
 
 from __future__ import annotations
 
 from ineid.errors import TrainingError
-from ineid.learn.amortized import solve_with_run  # registers method="network" with ineid.identify.solve_dataset
+from ineid.learn.amortized import solve_with_run
 from ineid.learn.data import Split, epoch_groups, fixed_groups, frame_features, split_configs
 from ineid.learn.evaluate import Evaluation, evaluate, floor_estimator, predict
 from ineid.learn.losses import LOSSES, PHYSICS_MODES, Physics, make_loss

@@ -18,7 +18,6 @@ import numpy as np
 
 from ineid.channels import BASE_WRENCH, ChannelSet
 from ineid.errors import IdentificationError, TrainingError
-from ineid.identify.solve import register_method
 
 HOLDOUT_FRACTION = 0.2
 """Without ``frames``, about this share of each configuration's frames is held out (as for the other methods)."""
@@ -154,6 +153,3 @@ def solve_with_run(ds, settings, model=None, progress=None):
         status=np.where(ok, "ok", "non_finite").astype(object),
         seconds=seconds,
     )
-
-
-register_method("network", solve_with_run)  # SolveSettings(method="network"), `ineid solve --method network`

@@ -1,41 +1,28 @@
-"""Robot models: the built-in arm(s), URDF parsing and :class:`RobotModel`.
+"""Robots: their files (URDF, MJCF: read and written), the built-in arm, and the :class:`RobotModel` that
+evaluates a robot's generated code.
 
-Loading a model with its generated code is :func:`ineid.load_robot` (in :mod:`ineid.codegen`).
+Data flow: a robot file -> its format's reader (:mod:`.urdf`, :mod:`.mjcf`; picked by :mod:`.load`) ->
+a :class:`ineid.chain.Chain` -> its generated modules, found or derived (:mod:`.codegen`) ->
+:func:`load_robot` -> :class:`RobotModel`. Identified parameters go back into the files by the writers
+(:mod:`.urdf_write`, :mod:`.mjcf_write`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
-
+from ineid.chain import Chain, JointSpec
+from ineid.robots.builtin import BUILTIN_ROBOTS, BuiltinRobot
+from ineid.robots.load import load_robot, robot_file_chain
 from ineid.robots.model import DEFAULT_GRAVITY, RobotModel
-from ineid.robots.urdf import Chain, JointSpec, load_chain
+from ineid.robots.urdf import load_chain
 
-_HERE = Path(__file__).resolve().parent
-
-
-@dataclass(frozen=True)
-class BuiltinRobot:
-    """A robot shipped with ineid: its URDF in this package and the links it identifies."""
-
-    name: str
-    urdf: str
-    unknown_links: tuple[str, ...]
-    description: str
-
-    @property
-    def urdf_path(self) -> Path:
-        return _HERE / self.urdf
-
-
-BUILTIN_ROBOTS: dict[str, BuiltinRobot] = {
-    "sweaty-arm": BuiltinRobot(
-        name="sweaty-arm",
-        urdf="sweaty_arm.urdf",
-        unknown_links=("upper_arm", "forearm"),
-        description="4-DOF humanoid arm (shoulder pitch, shoulder roll, upper-arm yaw, elbow); representative values",
-    ),
-}
-
-
-__all__ = ["BUILTIN_ROBOTS", "DEFAULT_GRAVITY", "BuiltinRobot", "Chain", "JointSpec", "RobotModel", "load_chain"]
+__all__ = [
+    "BUILTIN_ROBOTS",
+    "DEFAULT_GRAVITY",
+    "BuiltinRobot",
+    "Chain",
+    "JointSpec",
+    "RobotModel",
+    "load_chain",
+    "load_robot",
+    "robot_file_chain",
+]

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid.robots.chain import Chain
+from ineid.chain import Chain
 from ineid.robots.kinematics import _floats, _rpy, welded_poses
 
 

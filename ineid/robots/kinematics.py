@@ -1,7 +1,7 @@
 """Forward kinematics of a :class:`Chain`: link frames, the frames welded to them, point Jacobians.
 
 Frames (all in the base frame, the root link's): link ``i``'s frame is the frame of moving
-joint ``i`` moved by ``q_i`` (:class:`ineid.robots.chain.JointSpec`), so its pose is the
+joint ``i`` moved by ``q_i`` (:class:`ineid.chain.JointSpec`), so its pose is the
 product ``prod_j (parent_R_joint_j, parent_p_joint_j) (Rot(axis_j, q_j) | axis_j q_j)``
 along the chain. :func:`link_poses` evaluates it with array operations of the module it is
 given (NumPy by default, ``jax.numpy`` works the same: n small 3x3 products per sample,
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ineid.robots.chain import Chain
+from ineid.chain import Chain
 
 
 def _rotation(xp, axis: np.ndarray, angle):

@@ -5,7 +5,7 @@ classes, ``<compiler angle=... eulerseq=...>``, ``inertiafromgeom``, ``fullinert
 ``diaginertia`` with ``quat``); this module reads the *compiled* model (``body_pos``,
 ``body_quat``, ``jnt_axis``, ``jnt_pos``, ``jnt_range``, ``body_mass``, ``body_ipos``,
 ``body_iquat``, ``body_inertia``) and writes the URDF of the same robot, which
-:func:`ineid.robots.urdf.parse_chain` turns into the :class:`~ineid.robots.chain.Chain`. So an
+:func:`ineid.robots.urdf.parse_chain` turns into the :class:`~ineid.chain.Chain`. So an
 MJCF robot is a URDF robot from there on: datasets carry that URDF text, and locking joints,
 payloads, welded frames, sensor frames and generated-code caching (by the chain's kinematic
 fingerprint) work unchanged.
@@ -46,11 +46,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid._inputs import regular_file
+from ineid.chain import Chain
 from ineid.errors import OptionalDependencyError, RobotModelError
 from ineid.robots.cad_rounding import matrix_rpy
-from ineid.robots.chain import Chain
-from ineid.robots.robot_files import MJCF_MAX_BYTES, URDF_MAX_BYTES, scan_mjcf
+from ineid.robots.robot_files import scan_mjcf
 
 INSTALL_HINT = "needs MuJoCo: pip install 'ineid[mujoco]'"
 MJCF_SUFFIXES = (".xml", ".mjcf")
@@ -228,24 +227,6 @@ def load_mjcf_chain(path: str | Path, locked_joints: Mapping[str, float] | None 
     robot = read_mjcf(path)
     chain = parse_chain(robot.urdf_text, source=robot.source, locked_joints=locked_joints)
     return replace(chain, notes=(*robot.notes, *chain.notes)), robot.urdf_text
-
-
-def robot_file_chain(path: str | Path, locked_joints: Mapping[str, float] | None = None) -> tuple[Chain, str | None]:
-    """``(chain, urdf_text)`` of a robot file: an MJCF (:func:`is_mjcf`) through its URDF, else a URDF (text None).
-
-    Raises:
-        InputFileError: the file is not a regular file (checked before it is opened), or is over its
-            format's limits (:mod:`ineid.robots.robot_files`).
-    """
-    if Path(path).suffix.lower() == ".urdf":
-        path = regular_file(path, "the URDF", max_bytes=URDF_MAX_BYTES, limit_name="URDF_MAX_BYTES")
-    else:  # bounded before is_mjcf reads up to its first element
-        path = regular_file(path, "the robot file", max_bytes=MJCF_MAX_BYTES, limit_name="MJCF_MAX_BYTES")
-    if is_mjcf(path):
-        return load_mjcf_chain(path, locked_joints)
-    from ineid.robots.urdf import load_chain
-
-    return load_chain(path, locked_joints=locked_joints), None
 
 
 # -- the pieces ------------------------------------------------------------------------

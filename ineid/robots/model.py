@@ -9,6 +9,7 @@ from types import ModuleType
 
 import numpy as np
 
+from ineid.chain import Chain
 from ineid.errors import CodegenError, RobotModelError
 from ineid.params import full_theta, param_names
 from ineid.robots.chunked import (  # noqa: F401  (CHUNK_FRAMES, SMALL_FRAMES, SMALL_JOB_FRAMES: importable here too)
@@ -22,7 +23,6 @@ from ineid.robots.chunked import (  # noqa: F401  (CHUNK_FRAMES, SMALL_FRAMES, S
 )
 from ineid.robots.cuts import CutRegressors
 from ineid.robots.payload import extended_links, extended_theta_cad, payload_modules, resolve_payloads
-from ineid.robots.urdf import Chain
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 """m/s^2 in the base frame: z up."""

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ineid.chain import Chain
 from ineid.errors import RobotModelError
 from ineid.params import transform_matrix
-from ineid.robots.chain import Chain
 
 
 @dataclass(frozen=True, eq=False)

@@ -25,7 +25,7 @@ readers), else :data:`DEFAULT_QDD_MAX`. Every number read is checked first
 (:mod:`ineid.robots.urdf_checks`: finite, limits not negative), and the text is bounded
 (:mod:`ineid.robots.robot_files`).
 
-:class:`Chain` and :class:`JointSpec` are defined in :mod:`ineid.robots.chain` (importable
+:class:`Chain` and :class:`JointSpec` are defined in :mod:`ineid.chain` (importable
 from here too).
 """
 
@@ -40,10 +40,10 @@ from pathlib import Path
 import numpy as np
 
 from ineid._inputs import regular_file
+from ineid.chain import BodyLink, Chain, JointSpec
 from ineid.errors import RobotModelError
 from ineid.params import theta_from_inertial
 from ineid.robots.cad_rounding import snap_joint_angles
-from ineid.robots.chain import BodyLink, Chain, JointSpec
 from ineid.robots.inertial import link_inertial
 from ineid.robots.robot_files import URDF_MAX_BYTES, check_urdf_size
 from ineid.robots.urdf_cache import CHAIN_SUBDIR, _chain_file, _chain_key, _store_chain, cached_chain  # noqa: F401

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ineid.robots.chain import BodyLink, Chain, JointSpec
+from ineid.chain import BodyLink, Chain, JointSpec
 
 CHAIN_SUBDIR = "chains"
 """Parsed URDFs live in ``cache_dir() / CHAIN_SUBDIR`` as JSON, one file per URDF text."""
@@ -26,10 +26,10 @@ _PARSER_FILES = (
     "robot_files.py",
     "inertial.py",
     "cad_rounding.py",
-    "chain.py",
+    "../chain.py",
     "urdf_cache.py",
 )
-"""The modules a parse depends on: a change to any of them parses every URDF again."""
+"""The modules a parse depends on (paths from this folder): a change to any of them parses every URDF again."""
 
 
 def _chain_key(data: bytes, source: str, locked_joints: Mapping[str, float] | None) -> str:

@@ -18,10 +18,10 @@ import sympy as sp
 from sympy.printing.str import StrPrinter
 
 from ineid._atomic import _signals_deferred, atomic_write
+from ineid.chain import Chain
 from ineid.errors import CodegenError
 from ineid.generated import file_names
 from ineid.generated._source import check_module_source
-from ineid.robots.urdf import Chain
 from ineid.symbolic.newton_euler import (
     STEPS_AFTER_JOINTS,
     SymbolicRegressor,

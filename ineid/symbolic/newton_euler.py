@@ -38,8 +38,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import sympy as sp
 
+from ineid.chain import Chain
 from ineid.errors import CodegenError
-from ineid.robots.chain import Chain
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,539 @@
+"""Joint states from everything measured: encoders, gyroscopes, accelerometers, angular-acceleration sensors.
+
+``q`` comes from the encoders. Every IMU reading is linear in the joint rates along the chain
+(:mod:`ineid.data.imu.readings`, per frame ``k`` and IMU ``m``, sensor frame):
+
+    gyro   y_w  = G_m(q_k) qd_k + b_m + e            G_m = R^T J_w           (b_m: a constant bias)
+    alpha  y_al = G_m(q_k) qdd_k + R^T c_wd + e
+    accel  y_a  = A_m(q_k) qdd_k + R^T (c_a + c_wd x r + w x (w x r)) + e     A_m = R^T (J_o - S(r) J_w)
+
+**Velocities.** Stacking the gyros of frame ``k`` (rows whitened by the gyro noise ``s_g``:
+``G_k``, ``y_k``, biases ``beta = b / s_g``) and the encoders' derivative as a prior with std ``s_e``
+per joint (``P = diag(1 / s_e^2)``), the estimate minimises over all ``qd_k`` and ``beta``
+
+    sum_k |y_k - G_k qd_k - beta|^2 + (qd_k - qd_enc,k)^T P (qd_k - qd_enc,k).
+
+Its normal equations are block-arrow shaped; per frame ``A_k = G_k^T G_k + P`` (n_dof x n_dof),
+``c_k = G_k^T y_k + P qd_enc,k``. Eliminating each frame's ``qd_k = A_k^-1 (c_k - G_k^T beta)``
+leaves the small bias system (3 per gyro)
+
+    S beta = sum_k (y_k - G_k A_k^-1 c_k),      S = sum_k (I - G_k A_k^-1 G_k^T),
+
+solved once, then every ``qd_k`` by back-substitution: O(n_frames) work and memory, never the
+whole recording's matrix. The biases' covariance is not ``s_g^2 S^-1`` (white noise alone) but a
+sandwich over the frames' residuals with a Newey-West middle plus the encoders' angle errors
+propagated through the maps, since the encoders' errors are correlated over many frames
+(:mod:`ineid.data.imu.gyro_bias`). Without ``gyro_bias`` the biases are zero
+and each frame is its own least squares.
+
+**Accelerations.** Given ``q`` and the fused ``qd``, the angular-acceleration sensors and the
+accelerometers are linear in ``qdd`` alone (no bias), whitened by their noise, with a prior on
+``qdd`` (the encoders' second derivative, or with ``time`` and ``qdd_prior="gyros"`` the derivative
+of the fused ``qd``) of std ``s_p``: per frame ``qdd_k = (H_k^T H_k + P_p)^-1 (H_k^T z_k + P_p qdd_prior,k)``.
+Without such sensors ``qdd`` is the prior.
+
+**Prior weights from the data** (``encoder_qd_std=None``): the sensors' residuals at the prior are
+the prior's errors seen through the maps plus the sensors' noise; the prior's error variance per joint
+(independent joints: one encoder each) is their maximum-likelihood estimate by expectation-maximisation
+over the frames (:func:`ineid.data.imu.prior_weights.prior_variance`: winsorized, so a filter's edges do not
+move it, and near-singular frames, where the posterior is the prior's own, neither swamp nor shrink it),
+floored at ``1e-3`` of the sensors' own std (the encoders are then far better than the IMUs and win).
+With gyro biases, biases and weights alternate (:data:`BIAS_ROUNDS`), starting from the readings' mean
+misfit against the prior. The same for ``qdd``. With ``qdd_prior="gyros"``, the filter's ``cutoff``
+and gyros that leave a direction unseen, the derivative of the fused ``qd`` is weighed against the
+encoders' ``qdd`` frame by frame (:attr:`EstimationSettings.cutoff`).
+
+**What the data cannot tell.** Each frame is estimated on its own (the biases aside): no smoothing
+over time, so low-pass the IMU streams as the angles are and give the noise the filter leaves. A
+gyro bias along the axis of a joint that no IMU further out sees (the last joint's axis, for an IMU
+on the last link) is a constant error in that joint's rate: only the encoders fix it (the mean of
+their derivative); the summary names such directions and gives no std for the axes along them. The
+maps are evaluated at the encoders' angles, so their errors (quantization, filtering) reach the
+biases too; the reported std includes them (``encoder_q_std``, or estimated).
+
+**Checks.** Per IMU and kind the residual RMS (reading less its fitted value) is reported; one
+whose RMS exceeds ``max_residual_ratio`` times its noise (and :data:`RESIDUAL_FLOOR` of its readings'
+RMS), or whose readings differ from what the encoders predict by more than ``max_encoder_misfit`` of
+the predicted RMS (gyro after its bias, and above the noise limit too), is a :class:`DatasetError`
+naming the IMU and the fix: it does not sit where the mount says (a wrong link, pose or axis
+order), or the noise setting is too low.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ineid.data.imu.gyro_bias import (
+    angle_covariance,
+    angle_error_variance,
+    angle_sensitivity,
+    bias_covariance,
+    leaning_axes,
+    unidentified_directions,
+)
+from ineid.data.imu.prior_weights import COVERAGE_MIN, blend, coverage, prior_variance
+from ineid.data.imu.readings import (
+    UNITS,
+    ImuMount,
+    _check_names,
+    jacobians_from,
+    link_jacobians,
+    link_motion,
+    moving_index,
+)
+from ineid.errors import DatasetError
+
+WEAK = 1e-9
+"""The first pass's prior weight, relative to the sensors' largest mean information per joint: the
+sensors' own estimate, to 1e-9, where they determine the rates (the prior where they do not)."""
+RESIDUAL_FLOOR = 0.01
+"""A residual within this fraction of its readings' RMS (about their mean) is never a misfit, whatever the noise:
+low-passed readings against the model at low-passed angles differ by about 1e-3 of it; an IMU turned by
+0.1 rad among others on the chain leaves 2.7 %."""
+BIAS_ROUNDS = 3
+"""With gyro biases: rounds of (biases from the fusion at the current prior weights, then the weights with those
+biases taken off). The sensors alone cannot place a bias their frames confound with the rates (an IMU whose gyro
+sees three joints, say)."""
+
+
+@dataclass(frozen=True)
+class ImuNoise:
+    """Per-kind white-noise std at the recording rate (after resampling).
+
+    Attributes:
+        gyro: rad/s. accel: m/s^2. alpha: rad/s^2 (the paper's group's sensor, 0.17).
+    """
+
+    gyro: float = 0.005
+    accel: float = 0.05
+    alpha: float = 0.17
+
+    def __post_init__(self) -> None:
+        for k in ("gyro", "accel", "alpha"):
+            v = getattr(self, k)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise DatasetError(f"IMU noise {k}: a positive number ({UNITS[k]}), got {v!r}")
+
+
+@dataclass(frozen=True)
+class EstimationSettings:
+    """How :func:`estimate_joint_states` weighs the sensors.
+
+    Attributes:
+        noise: the IMUs' noise per kind.
+        encoder_qd_std: std of the encoders' derivative as the prior on ``qd`` (rad/s; one number or one
+            per joint); None: from the data (module docstring).
+        encoder_qdd_std: the same for the prior on ``qdd`` (rad/s^2).
+        encoder_q_std: std of the encoders' angle errors (rad; one number or one per joint; for raw
+            quantization ``2 pi / 2^bits / sqrt(12)``), for the gyro biases' std only; None: from the gyro
+            residuals' excess over the noise (:mod:`ineid.data.imu.gyro_bias`; it sees only errors that rise above
+            the gyro noise).
+        gyro_bias: estimate one constant bias per gyro axis over the recording.
+        max_residual_ratio: residual RMS / noise above this: the mount does not fit (DatasetError).
+        max_encoder_misfit: readings differing from the encoders' prediction by more than this fraction
+            of the predicted RMS (and by more than ``max_residual_ratio`` times the noise): DatasetError.
+        qdd_prior: ``"encoders"`` (``qdd_enc``) or ``"gyros"`` (the derivative of the fused ``qd``,
+            central differences over ``time``: low-pass the gyros first).
+        cutoff: Hz, the low-pass the readings and the angles went through (None: unknown). With
+            ``qdd_prior="gyros"``, when the gyros leave a direction unseen in some frames
+            (:func:`ineid.data.imu.prior_weights.coverage` below
+            :data:`~ineid.data.imu.prior_weights.COVERAGE_MIN`: IMUs
+            on some links only), the derivative of the fused ``qd`` is then weighed frame by frame against
+            ``qdd_enc`` (:func:`ineid.data.imu.prior_weights.blend`; its variance ``(2 pi cutoff)^2 / 3`` times the
+            fused ``qd``'s, that of white noise through the filter), so that ``qdd`` leans on the encoders where
+            the gyros see a joint poorly; give ``qdd_enc`` at the angles' own cut-off.
+    """
+
+    noise: ImuNoise = field(default_factory=ImuNoise)
+    encoder_qd_std: float | Sequence[float] | None = None
+    encoder_qdd_std: float | Sequence[float] | None = None
+    encoder_q_std: float | Sequence[float] | None = None
+    gyro_bias: bool = True
+    max_residual_ratio: float = 5.0
+    max_encoder_misfit: float = 0.2
+    qdd_prior: str = "encoders"
+    cutoff: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.qdd_prior not in ("encoders", "gyros"):
+            raise DatasetError(f"qdd_prior must be 'encoders' or 'gyros', got {self.qdd_prior!r}")
+        if self.cutoff is not None and not (np.isfinite(self.cutoff) and self.cutoff > 0):
+            raise DatasetError(f"cutoff must be a positive number of Hz or None, got {self.cutoff!r}")
+        for k in ("max_residual_ratio", "max_encoder_misfit"):
+            v = getattr(self, k)
+            if not (np.isfinite(v) and v > 0):
+                raise DatasetError(f"{k} must be a positive number, got {v!r}")
+
+
+@dataclass(frozen=True)
+class EstimationSummary:
+    """What the estimate used and found.
+
+    Attributes:
+        imus: the mounts, in order.
+        gyro_bias, gyro_bias_std: per IMU with a gyro, (3,) rad/s, sensor frame (zeros without ``gyro_bias``);
+            the std is NaN on an axis leaning on an unidentified direction (:mod:`ineid.data.imu.gyro_bias`).
+        gyro_bias_cov: per IMU with a gyro, (3, 3) (rad/s)^2: the biases' covariance (a Newey-West sandwich plus
+            the encoders' angle errors); meaningful for combinations orthogonal to the unidentified directions.
+        gyro_bias_unidentified: per IMU whose bias the gyros cannot tell from a constant rate error, (k, 3)
+            orthonormal directions in its sensor frame (the last joint's axis for an IMU on the last link): there
+            the bias rests on the encoders' mean rate alone, with no std.
+        residual_rms: per IMU, per kind: RMS of reading minus fitted value (its unit).
+        noise: the noise used.
+        qd_prior_std, qdd_prior_std: (n_dof,) the priors' std used (None: that prior alone gave the estimate;
+            NaN for a joint no IMU sees).
+        qdd_prior: which prior ``qdd`` had (``encoders`` or ``gyros``).
+        n_frames: frames estimated.
+        q_error_std: (n_dof,) the encoders' angle-error std the biases' std assumes (rad; None without biases).
+    """
+
+    imus: tuple[ImuMount, ...]
+    gyro_bias: dict[str, np.ndarray]
+    gyro_bias_std: dict[str, np.ndarray]
+    residual_rms: dict[str, dict[str, float]]
+    noise: ImuNoise
+    qd_prior_std: np.ndarray | None
+    qdd_prior_std: np.ndarray | None
+    qdd_prior: str
+    n_frames: int
+    gyro_bias_cov: dict[str, np.ndarray] = field(default_factory=dict)
+    gyro_bias_unidentified: dict[str, np.ndarray] = field(default_factory=dict)
+    q_error_std: np.ndarray | None = None
+
+    def to_dict(self) -> dict:
+        """A JSON-able record (the dataset's origin)."""
+
+        def arr(x):
+            return None if x is None else [float(v) if np.isfinite(v) else None for v in np.ravel(x)]
+
+        return {
+            "imus": [m.to_dict() for m in self.imus],
+            "gyro_bias": {k: arr(v) for k, v in self.gyro_bias.items()},
+            "gyro_bias_std": {k: arr(v) for k, v in self.gyro_bias_std.items()},
+            "residual_rms": {k: {kk: float(vv) for kk, vv in v.items()} for k, v in self.residual_rms.items()},
+            "noise": {"gyro": self.noise.gyro, "accel": self.noise.accel, "alpha": self.noise.alpha},
+            "qd_prior_std": arr(self.qd_prior_std),
+            "qdd_prior_std": arr(self.qdd_prior_std),
+            "qdd_prior": self.qdd_prior,
+            "n_frames": self.n_frames,
+            "q_error_std": arr(self.q_error_std),
+            "gyro_bias_cov": {k: np.asarray(v).tolist() for k, v in self.gyro_bias_cov.items()},
+            "gyro_bias_unidentified": {k: np.asarray(v).tolist() for k, v in self.gyro_bias_unidentified.items()},
+        }
+
+    def lines(self) -> list[str]:
+        """Human-readable lines for the CLI."""
+        out = [f"joint states from {len(self.imus)} IMU(s) and the encoders over {self.n_frames:,} frames"]
+        for m in self.imus:
+            res = ", ".join(
+                f"{k} {v:.3g} {UNITS[k]} ({v / getattr(self.noise, k):.2g} x noise)"
+                for k, v in self.residual_rms[m.name].items()
+            )
+            out.append(f"  {m.describe()}: residual RMS {res}")
+            if m.name in self.gyro_bias:
+                b, s = self.gyro_bias[m.name], self.gyro_bias_std[m.name]
+                out.append(
+                    "    gyro bias (rad/s) "
+                    + ", ".join(
+                        f"{a} {v:.3g} +- {e:.2g}" if np.isfinite(e) else f"{a} {v:.3g} (not identified)"
+                        for a, v, e in zip("xyz", b, s, strict=True)
+                    )
+                )
+                for d in self.gyro_bias_unidentified.get(m.name, ()):
+                    out.append(
+                        "    gyro bias along ({}) not identified: the gyros cannot tell it from a constant "
+                        "error in a joint's rate; there it rests on the encoders alone, no std".format(
+                            ", ".join(f"{v:.3f}" for v in d)
+                        )
+                    )
+        if self.q_error_std is not None:
+            out.append(
+                "  encoders' angle error std (rad, in the biases' std): "
+                + " ".join(f"{v:.2g}" for v in self.q_error_std)
+            )
+        for label, s in (("qd", self.qd_prior_std), ("qdd", self.qdd_prior_std)):
+            if s is not None:
+                out.append(
+                    f"  prior on {label} ({'encoders' if label == 'qd' else self.qdd_prior}) std: "
+                    + " ".join("unseen" if not np.isfinite(v) else f"{v:.3g}" for v in s)
+                    + (" (unseen: no IMU sees that joint; the prior alone)" if not np.all(np.isfinite(s)) else "")
+                )
+        return out
+
+
+# -- the least squares -----------------------------------------------------------------------------
+def _fuse(h: np.ndarray, z: np.ndarray, prior: np.ndarray, p: np.ndarray, bias: bool):
+    """Per frame ``min |z_k - h_k x_k - beta|^2 + |x_k - prior_k|^2_P``, ``beta`` shared (if ``bias``).
+
+    Args:
+        h: (F, m, n) whitened maps. z: (F, m) whitened readings. prior: (F, n). p: (n,) prior weights.
+
+    Returns:
+        ``x`` (F, n), ``beta`` (m,), ``S^-1`` (m, m) (``cov(beta)`` for white errors; zeros without ``bias``),
+        ``diag(A_k^-1)`` (F, n).
+    """
+    f, m, n = h.shape
+    ht = np.swapaxes(h, 1, 2)
+    a = ht @ h + np.diag(p)
+    c = np.einsum("fnm,fm->fn", ht, z) + p * prior
+    chol = np.linalg.cholesky(a)
+
+    def solve(rhs):  # A_k^-1 rhs_k, rhs (F, n, k)
+        y = np.linalg.solve(chol, rhs)
+        return np.linalg.solve(np.swapaxes(chol, 1, 2), y)
+
+    beta, cov = np.zeros(m), np.zeros((m, m))
+    if bias and m:
+        x0 = solve(c[..., None])[..., 0]
+        s = f * np.eye(m) - np.einsum("fmn,fnk->mk", h, solve(ht))
+        rhs = (z - np.einsum("fmn,fn->fm", h, x0)).sum(axis=0)
+        cov = np.linalg.inv(0.5 * (s + s.T))
+        beta = cov @ rhs
+        c = c - np.einsum("fnm,m->fn", ht, beta)
+    x = solve(c[..., None])[..., 0]
+    inv = solve(np.broadcast_to(np.eye(n), (f, n, n)).copy())
+    return x, beta, cov, np.diagonal(inv, axis1=1, axis2=2)
+
+
+def _bias_cov(h, s_inv, white, qd, p, q, gyro_h, q_std):
+    """The whitened biases' covariance: the sandwich over the residuals plus the angle errors' long-range
+    part (:mod:`ineid.data.imu.gyro_bias`), and the angle errors' std used (``q_std``, or from the residuals)."""
+    ht = np.swapaxes(h, 1, 2)
+    a_inv_ht = np.linalg.solve(ht @ h + np.diag(p), ht)
+    m_k = np.eye(h.shape[1]) - h @ a_inv_ht
+    mk = m_k @ angle_sensitivity(gyro_h, q, qd)
+    if q_std is None:
+        s2 = np.full(len(p), angle_error_variance(white, m_k, mk, np.swapaxes(a_inv_ht, 1, 2) * p, 1.0 / p))
+    else:
+        s2 = _prior_std(q_std, None, None, None, False, len(p), "q") ** 2
+    return bias_covariance(s_inv, white) + angle_covariance(s_inv, mk, s2), np.sqrt(s2)
+
+
+def _prior_std(given, h, z, prior, bias: bool, n: int, label: str) -> np.ndarray:
+    """The prior's std per joint: ``given`` (a number or one per joint), or from the data (module docstring)."""
+    if given is not None:
+        s = np.broadcast_to(np.asarray(given, dtype=np.float64), (n,)).copy()
+        if not np.all(np.isfinite(s)) or np.any(s <= 0):
+            raise DatasetError(f"encoder_{label}_std must be positive numbers (one, or one per joint), got {given!r}")
+        return s
+    info = np.mean(np.einsum("fmn,fmn->fn", h, h), axis=0)  # the sensors' mean information per joint
+    weak = WEAK * (np.max(info) + 1e-300)
+    # the biases first from the readings' mean misfit against the prior (its errors average out), then
+    # alternately the weights and the biases at those weights
+    beta = np.mean(z - np.einsum("fmn,fn->fm", h, prior), axis=0) if bias else np.zeros(h.shape[1])
+    s2 = np.zeros(n)
+    for i in range(1 + (BIAS_ROUNDS if bias else 0)):
+        if i:
+            beta = _fuse(h, z, prior, 1.0 / s2, True)[1]
+        s2 = prior_variance(h, z - beta - np.einsum("fmn,fn->fm", h, prior), weak)
+    return np.sqrt(s2)
+
+
+def _check_inputs(model, q, qd_enc, qdd_enc, mounts, readings):
+    arrays = []
+    for label, x in (("q", q), ("qd_enc", qd_enc), ("qdd_enc", qdd_enc)):
+        x = np.asarray(x, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != model.n_dof or (arrays and x.shape != arrays[0].shape):
+            raise ValueError(f"{label} must have shape (n_frames, {model.n_dof}), got {x.shape}")
+        if not np.all(np.isfinite(x)):
+            raise DatasetError(f"{label}: NaN or infinite values; drop or fill those frames first")
+        arrays.append(x)
+    _check_names(mounts)
+    for m in mounts:
+        moving_index(model, m)
+        got = readings.get(m.name)
+        for kind in m.kinds:
+            y = None if got is None else got.get(kind)
+            if y is None:
+                raise DatasetError(
+                    f"IMU {m.name!r}: no {kind} readings; give its columns "
+                    f"{', '.join(m.columns(kind))} or leave {kind} out of its kinds"
+                )
+            y = np.asarray(y, dtype=np.float64)
+            if y.shape != (len(arrays[0]), 3):
+                raise DatasetError(
+                    f"IMU {m.name!r}: {kind} readings must have shape ({len(arrays[0])}, 3) on the "
+                    f"joints' frames, got {y.shape}"
+                )
+            if not np.all(np.isfinite(y)):
+                raise DatasetError(f"IMU {m.name!r}: NaN or infinite {kind} readings; drop or fill those frames first")
+    return arrays
+
+
+def _misfit_error(name: str, kind: str, detail: str) -> DatasetError:
+    return DatasetError(
+        f"IMU {name!r}: its {kind} readings do not fit the model ({detail}); check its link and "
+        "pose (--imu LINK:x,y,z,roll,pitch,yaw, the sensor frame in the link's) and its axes"
+    )
+
+
+def estimate_joint_states(
+    model,
+    q,
+    qd_enc,
+    qdd_enc,
+    mounts: Sequence[ImuMount],
+    readings: Mapping[str, Mapping[str, np.ndarray]],
+    settings: EstimationSettings = EstimationSettings(),
+    *,
+    time=None,
+) -> tuple[np.ndarray, np.ndarray, EstimationSummary]:
+    """``qd``, ``qdd`` from the encoders and the IMUs together (equations in the module docstring).
+
+    Args:
+        model: the :class:`ineid.RobotModel` (its gravity enters the accelerometers).
+        q: (F, n_dof) the encoders' angles (filtered as for identification).
+        qd_enc, qdd_enc: (F, n_dof) their derivatives: the priors.
+        mounts: the IMUs.
+        readings: ``readings[mount.name][kind]`` (F, 3), sensor frame, on ``q``'s frames.
+        settings: noise, priors, bias, checks.
+        time: (F,) s, only for ``settings.qdd_prior == "gyros"``.
+
+    Returns:
+        ``(qd, qdd, summary)``: (F, n_dof) each, and an :class:`EstimationSummary`. Noise-free
+        readings (``imu_readings``) give back the true rates to round-off when they determine them.
+
+    Raises:
+        DatasetError: missing or malformed readings, or an IMU that does not fit (one line naming it).
+    """
+    mounts = list(mounts)
+    q, qd_enc, qdd_enc = _check_inputs(model, q, qd_enc, qdd_enc, mounts, readings)
+    f, n = q.shape
+    noise = settings.noise
+    jac = link_jacobians(model, q) if mounts else None
+    gyro_maps = acc_maps = None
+
+    def mount_rotation(m):
+        return m.link_R_sensor.T
+
+    def mount_maps(qd):
+        motion0 = link_motion(model, q, qd, np.zeros_like(qd))
+        return {
+            m.name: jacobians_from(m, jac[:, moving_index(model, m)], motion0[:, moving_index(model, m)])
+            for m in mounts
+        }
+
+    # -- qd: gyros, encoders' derivative, biases ---------------------------------------------------
+    gyros = [m for m in mounts if "gyro" in m.kinds]
+    bias, bias_std, bias_cov, free, residual = {}, {}, {}, {}, {m.name: {} for m in mounts}
+    qd, qd_std, q_err = qd_enc.copy(), None, None
+    if gyros:
+        gyro_maps = mount_maps(np.zeros_like(q))
+        h = np.concatenate([gyro_maps[m.name].gyro_qd for m in gyros], axis=1) / noise.gyro
+
+        def gyro_h(qq):  # the whitened gyro maps at other angles
+            jq = link_jacobians(model, qq)
+            return (
+                np.concatenate([(mount_rotation(m) @ jq[:, moving_index(model, m), 0]) for m in gyros], axis=1)
+                / noise.gyro
+            )
+
+        z = np.concatenate([np.asarray(readings[m.name]["gyro"], dtype=np.float64) for m in gyros], axis=1) / noise.gyro
+        qd_std, gyro_maps_h = _prior_std(settings.encoder_qd_std, h, z, qd_enc, settings.gyro_bias, n, "qd"), h
+        qd, beta, s_inv, qd_var = _fuse(h, z, qd_enc, 1.0 / qd_std**2, settings.gyro_bias)
+        white = z - np.einsum("fmn,fn->fm", h, qd) - beta
+        res = white * noise.gyro
+        cov, null = np.zeros_like(s_inv), np.zeros((0, len(beta)))
+        if settings.gyro_bias:
+            cov, q_err = _bias_cov(h, s_inv, white, qd, 1.0 / qd_std**2, q, gyro_h, settings.encoder_q_std)
+            cov = cov * noise.gyro**2
+            null = unidentified_directions(h)
+        std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        std[leaning_axes(null)] = np.nan
+        for i, m in enumerate(gyros):
+            sl = slice(3 * i, 3 * i + 3)
+            bias[m.name], bias_std[m.name], bias_cov[m.name] = beta[sl] * noise.gyro, std[sl], cov[sl, sl]
+            if len(null):  # this IMU's share of the unidentified directions, orthonormal
+                _, sv, vt = np.linalg.svd(null[:, sl])
+                if sv[0] > 1e-6:
+                    free[m.name] = vt[: int(np.sum(sv > 1e-6 * sv[0]))]
+            residual[m.name]["gyro"] = float(np.sqrt(np.mean(res[:, sl] ** 2)))
+
+    # -- qdd: angular-acceleration sensors and accelerometers, given q and the fused qd -----------
+    if settings.qdd_prior == "gyros":
+        if time is None or not gyros:
+            raise DatasetError("qdd_prior='gyros' needs the frames' time and at least one gyro; or use 'encoders'")
+        prior = np.gradient(qd, np.asarray(time, dtype=np.float64), axis=0)
+        if settings.cutoff is not None and coverage(gyro_maps_h * noise.gyro) < COVERAGE_MIN:
+            # the gyros leave a direction unseen: there weighed against the encoders' (only then: elsewhere the
+            # encoders' qdd, filtered at another cut-off than the wrench, costs the identification more than it
+            # saves: 12-bit encoders with a gyro on every link, base error 0.013 against 0.0055 without)
+            prior, _ = blend(prior, qd_var * (2 * np.pi * settings.cutoff) ** 2 / 3, qdd_enc)
+    else:
+        prior = qdd_enc
+    acc = [(m, k) for m in mounts for k in ("alpha", "accel") if k in m.kinds]
+    qdd, qdd_std = prior.copy(), None
+    if acc:
+        acc_maps = mount_maps(qd)
+        hs, zs = [], []
+        for m, k in acc:
+            mp, sig = acc_maps[m.name], getattr(noise, k)
+            y = np.asarray(readings[m.name][k], dtype=np.float64)
+            hs.append((mp.gyro_qd if k == "alpha" else mp.accel_qdd) / sig)
+            zs.append((y - (mp.alpha_0 if k == "alpha" else mp.accel_0)) / sig)
+        h, z = np.concatenate(hs, axis=1), np.concatenate(zs, axis=1)
+        qdd_std = _prior_std(settings.encoder_qdd_std, h, z, prior, False, n, "qdd")
+        qdd, _, _, _ = _fuse(h, z, prior, 1.0 / qdd_std**2, False)
+        res = z - np.einsum("fmn,fn->fm", h, qdd)
+        for i, (m, k) in enumerate(acc):
+            residual[m.name][k] = float(np.sqrt(np.mean(res[:, 3 * i : 3 * i + 3] ** 2)) * getattr(noise, k))
+
+    def shown(std, maps):  # NaN for a joint no sensor sees (its std is the placeholder 1 / weak)
+        return None if std is None else np.where(np.abs(maps).sum(axis=(0, 1)) > 0, std, np.nan)
+
+    qd_std = shown(qd_std, gyro_maps_h) if gyros else qd_std
+    qdd_std = shown(qdd_std, h) if acc else qdd_std
+    summary = EstimationSummary(
+        tuple(mounts), bias, bias_std, residual, noise, qd_std, qdd_std, settings.qdd_prior, f, bias_cov, free, q_err
+    )
+    _check_fit(mounts, readings, settings, summary, qd_enc, prior, gyro_maps, acc_maps)
+    return qd, qdd, summary
+
+
+def _check_fit(mounts, readings, settings, summary, qd_enc, qdd_prior, gyro_maps, acc_maps) -> None:
+    """Raise for the worst IMU that does not fit: residual far above its noise, or readings against the encoders."""
+    worst = None
+    for m in mounts:
+        for k, rms in summary.residual_rms[m.name].items():
+            ratio = rms / getattr(settings.noise, k)
+            y = np.asarray(readings[m.name][k], dtype=np.float64)
+            signal = float(np.sqrt(np.mean((y - y.mean(axis=0)) ** 2)))
+            if rms <= RESIDUAL_FLOOR * signal:  # the model's own error (filtered readings, the angles' errors)
+                continue
+            if ratio > settings.max_residual_ratio and (worst is None or ratio > worst[0]):
+                sig = getattr(settings.noise, k)
+                detail = (
+                    f"residual RMS {rms:.3g} {UNITS[k]}, {ratio:.3g} times its noise {sig:g} {UNITS[k]}; "
+                    "or raise the noise setting if it is noisier"
+                )
+                worst = (ratio, m.name, k, detail)
+    for m in mounts:
+        for k in m.kinds:
+            y = np.asarray(readings[m.name][k], dtype=np.float64)
+            if k == "gyro":
+                pred = np.einsum("fmn,fn->fm", gyro_maps[m.name].gyro_qd, qd_enc)
+            else:
+                mp = acc_maps[m.name]
+                pred = (
+                    np.einsum("fmn,fn->fm", mp.gyro_qd, qdd_prior) + mp.alpha_0
+                    if k == "alpha"
+                    else np.einsum("fmn,fn->fm", mp.accel_qdd, qdd_prior) + mp.accel_0
+                )
+            d = y - pred
+            if k == "gyro" and settings.gyro_bias:
+                d = d - d.mean(axis=0)
+            rms_d, rms_p = float(np.sqrt(np.mean(d**2))), float(np.sqrt(np.mean(pred**2)))
+            limit = max(settings.max_encoder_misfit * rms_p, settings.max_residual_ratio * getattr(settings.noise, k))
+            if rms_d > limit:
+                ratio = settings.max_residual_ratio * rms_d / limit
+                if worst is None or ratio > worst[0]:
+                    detail = (
+                        f"they differ from what the encoders predict by {rms_d:.3g} {UNITS[k]} RMS, "
+                        f"{100 * rms_d / max(rms_p, 1e-300):.0f} % of it"
+                    )
+                    worst = (ratio, m.name, k, detail)
+    if worst is not None:
+        raise _misfit_error(worst[1], worst[2], worst[3])

@@ -1,0 +1,419 @@
+"""Where an excitation design may move the arm: a floor and a workspace box, at every instant.
+
+**What is kept.** Every moving link frame's origin and every frame welded to a moving
+link (the tool flange, a hand: :func:`ineid.robots.kinematics.welded_frames`), the
+"points" ``p_P(t)`` in the base frame, stay at ``z >= floor`` and inside the box
+``[xmin, xmax] x [ymin, ymax] x [zmin, zmax]`` for every ``t``, not only at samples.
+
+**Between samples.** Each bound is a half-space ``g(t) = s (p_P,a(t) - b) >= 0`` (axis
+``a``, sign ``s``). At the instant ``t*`` where ``g`` is smallest, ``g'(t*) = 0`` (the
+trajectory is periodic, so every instant is interior), and the nearest point of a grid of
+``N`` points per period is within ``dt / 2``, so ``g(t_k) <= g(t*) + A_P dt^2 / 8`` with
+``A_P`` a bound of the point's acceleration ``|p_P''|``; the grid constraint
+``g(t_k) >= A_P dt^2 / 8`` therefore implies ``g(t) >= 0`` everywhere. ``A_P`` comes from
+the joint bounds the design keeps at every instant (``|qd_j| <= w_j``, ``|qdd_j| <= a_j``)
+and the reach ``L_Pj`` (:func:`ineid.robots.kinematics.reach`: an upper bound of the
+distance from joint ``j`` to the point in every configuration). Differentiating
+``p' = sum_j J_j qd_j`` (``J_j = s_j x (p - o_j)`` revolute, ``s_j`` prismatic):
+
+    |p''| <= sum_j a_j l_Pj + sum_j w_j D_Pj,
+    D_Pj = 2 W_{j-1} L_Pj + sum_{k >= j} w_k l_Pk     (revolute j; W_{j-1}: sum of w over the
+    D_Pj = W_{j-1}                                     revolute joints before j, a bound of
+                                                       the angular speed of the axis)
+
+with ``l_Pj = L_Pj`` (revolute) or 1 (prismatic). ``N`` is chosen so that the largest
+``A_P dt^2 / 8`` is at most :data:`STEP_TOLERANCE` (at most :data:`MAX_GRID` points).
+
+**In IPOPT.** The grid values of each (point, half-space) pair are aggregated into one
+smooth constraint, the Kreisselmeier-Steinhauser lower bound of their minimum,
+``KS = -(1/rho) log sum_k exp(-rho g_k) <= min_k g_k`` (within ``log(N) / rho`` =
+:data:`KS_SLACK` of it), with its exact gradient (the softmax weights times the point
+Jacobians, :func:`ineid.robots.kinematics.point_jacobians`, through the linear map from
+the design variables to ``q``), on at most :data:`OPTIMIZER_POINTS` of the grid points (every
+``stride``-th, with the whole grid's margins) so that an iteration stays cheap. After IPOPT,
+the values on the whole grid are checked; a design that misses them (IPOPT's tolerance, or
+an instant between the points IPOPT saw) has its amplitudes scaled towards its mean pose
+until they hold (or the start is rejected).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ineid.errors import ExcitationError
+
+STEP_TOLERANCE = 0.005
+"""m: the largest clearance kept between grid points (sets the grid of the floor and the box)."""
+KS_SLACK = 0.001
+"""m: how much the smooth aggregate may undershoot the smallest grid clearance."""
+COLLISION_TOLERANCE = 0.01
+"""m: the largest gap kept between capsules between grid points (a first-order bound, so coarser)."""
+MAX_GRID = 8192
+OPTIMIZER_POINTS = 1024
+"""Grid points per period that IPOPT's constraints see, at most (the design is then checked on the whole grid)."""
+"""Grid points per period of the floor and workspace constraints, at most."""
+_AXES = "xyz"
+
+
+@dataclass(frozen=True)
+class SafetyLimits:
+    """A floor and a workspace box in the base frame (m); None: not bounded.
+
+    Attributes:
+        floor: every point at ``z >= floor``.
+        workspace: ``(xmin, xmax, ymin, ymax, zmin, zmax)``.
+    """
+
+    floor: float | None = None
+    workspace: tuple[float, float, float, float, float, float] | None = None
+
+    @property
+    def active(self) -> bool:
+        return self.floor is not None or self.workspace is not None
+
+    def half_spaces(self) -> list[tuple[int, float, float, str]]:
+        """``(axis, sign, bound, label)``: ``sign * (p[axis] - bound) >= 0`` each."""
+        out = []
+        if self.floor is not None:
+            out.append((2, 1.0, float(self.floor), f"--floor {self.floor:g}"))
+        if self.workspace is not None:
+            for a in range(3):
+                lo, hi = self.workspace[2 * a], self.workspace[2 * a + 1]
+                out.append((a, 1.0, float(lo), f"workspace {_AXES[a]} >= {lo:g}"))
+                out.append((a, -1.0, float(hi), f"workspace {_AXES[a]} <= {hi:g}"))
+        return out
+
+    def to_dict(self) -> dict:
+        return {"floor": self.floor, "workspace": None if self.workspace is None else list(self.workspace)}
+
+
+def check_limits(model, limits: SafetyLimits) -> None:
+    """Refuse limits no motion can keep, before any design (one line each, with the fix).
+
+    Raises:
+        ExcitationError: a box whose minimum is not below its maximum, a non-finite number,
+            or a floor or box that excludes where a point must be: the first link's origin
+            when the first joint is revolute (it never moves), or every place a point can
+            reach (a ball about the first joint's origin of radius its reach).
+    """
+    from ineid.robots.kinematics import reach, welded_frames
+
+    if limits.floor is not None and not math.isfinite(limits.floor):
+        raise ExcitationError(f"--floor must be a finite height in m, got {limits.floor!r}", reason="workspace")
+    if limits.workspace is not None:
+        box = limits.workspace
+        if len(box) != 6 or not all(math.isfinite(v) for v in box):
+            raise ExcitationError(
+                "--workspace takes six finite numbers XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX (m, base frame)", reason="workspace"
+            )
+        for a in range(3):
+            if not box[2 * a] < box[2 * a + 1]:
+                c = _AXES[a].upper()
+                raise ExcitationError(
+                    f"--workspace: {c}MIN {box[2 * a]:g} is not below {c}MAX {box[2 * a + 1]:g}; give "
+                    "XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX with each minimum below its maximum",
+                    reason="workspace",
+                )
+    chain = model.chain
+    welded = welded_frames(model.urdf_text, chain, model.locked_joints)
+    names = [*model.link_names, *welded.names]
+    radius = reach(chain, welded)[:, 0]
+    first = chain.joints[0]
+    o1 = first.parent_p_joint
+    for axis, sign, bound, label in limits.half_spaces():
+        if first.type == "revolute" and sign * (o1[axis] - bound) < 0:
+            raise ExcitationError(
+                f"{label} excludes the origin of link {names[0]!r}, fixed at {_AXES[axis]} = {o1[axis]:.4g} m by joint "
+                f"{first.name!r} (the mount; base frame, origin at the base link): "
+                f"{'lower --floor' if label.startswith('--floor') else 'widen the --workspace box'} to include it",
+                reason="workspace",
+            )
+        reach_max = sign * (o1[axis] - bound) + radius
+        worst = int(np.argmin(reach_max))
+        if reach_max[worst] < 0:
+            raise ExcitationError(
+                f"{label} excludes everywhere link frame {names[worst]!r} can reach ({_AXES[axis]} within "
+                f"{o1[axis]:.4g} +- {radius[worst]:.4g} m of joint {first.name!r}'s origin, base frame); "
+                f"{'lower --floor' if label.startswith('--floor') else 'widen the --workspace box'}",
+                reason="workspace",
+            )
+
+
+class SafetyConstraints:
+    """The floor, box and self-collision constraints of one design problem (module doc): values, Jacobian, clearances.
+
+    Rows: every (point, half-space) pair of the floor and box, then every capsule pair of
+    ``pairs`` (:mod:`ineid.excite.collision`).
+
+    Args:
+        model: the robot.
+        limits: the floor and box.
+        qd_max, qdd_max: (n_dof,) the bounds the design keeps at every instant.
+        f0, harmonics: the trajectory's base frequency and harmonics.
+        rest: (2H, 2H - 2) the rest basis; ``mid, half, v_scale`` the map of :class:`_Problem`.
+        pairs: the capsule pairs kept apart, or None.
+    """
+
+    def __init__(
+        self,
+        model,
+        limits: SafetyLimits,
+        qd_max,
+        qdd_max,
+        f0: float,
+        harmonics: int,
+        rest,
+        mid,
+        half,
+        v_scale,
+        pairs=None,
+    ) -> None:
+        from ineid.data.synthesis.trajectory import state_matrices
+        from ineid.robots.kinematics import reach, welded_frames
+
+        self.model, self.limits, self.chain = model, limits, model.chain
+        self.pairs = pairs if pairs is not None and pairs.n else None
+        self._asked = pairs  # None: --no-self-collision
+        self.welded = welded_frames(model.urdf_text, self.chain, model.locked_joints)
+        n = self.chain.n_dof
+        self.spaces = limits.half_spaces()
+        self.names = (*model.link_names, *self.welded.names) if self.spaces else ()
+        self.point_link = np.r_[np.arange(n), self.welded.link].astype(int)[: len(self.names)]
+        self.accel = acceleration_bounds(
+            self.chain, reach(self.chain, self.welded)[: len(self.names)], self.point_link, qd_max, qdd_max
+        )
+        period = 1.0 / f0
+        grid = math.ceil(period * math.sqrt(max(self.accel.max(initial=0.0), 0.0) / (8.0 * STEP_TOLERANCE)))
+        if self.pairs is not None:
+            grid = max(grid, math.ceil(period * self.pairs.speed.max() / (2.0 * COLLISION_TOLERANCE)))
+        self.grid = int(min(max(grid, 32 * harmonics), MAX_GRID))
+        dt = period / self.grid
+        self.margin = self.accel * dt * dt / 8.0  # (P,) m
+        self.pair_margin = self.pairs.speed * dt / 2.0 if self.pairs is not None else np.zeros(0)
+        self.rho = math.log(self.grid) / KS_SLACK
+        self.n, self.nz = n, 2 * harmonics - 1
+        self.mid, self.half, self.v_scale = mid, half, v_scale
+        self.pq = state_matrices(np.arange(self.grid) * dt, f0, harmonics)[0] @ rest  # (N, 2H-2)
+        # IPOPT sees every stride-th grid point (with the dense grid's margins): the cost of an
+        # iteration stays bounded; the dense grid itself is what make_safe and the design check
+        self.stride = max(1, math.ceil(self.grid / OPTIMIZER_POINTS))
+        self._last: dict[bool, tuple[bytes, tuple]] = {}
+
+    @property
+    def n_constraints(self) -> int:
+        return len(self.names) * len(self.spaces) + (self.pairs.n if self.pairs is not None else 0)
+
+    def labels(self) -> list[str]:
+        """One per constraint row: ``"<point> <half-space>"``, then ``"<body> and <body> self-collision"``."""
+        out = [f"{p!r} {s[3]}" for p in self.names for s in self.spaces]
+        return out + ([f"{p} self-collision" for p in self.pairs.labels()] if self.pairs is not None else [])
+
+    def grid_q(self, x: np.ndarray, dense: bool = True) -> np.ndarray:
+        z = np.asarray(x, dtype=np.float64).reshape(self.n, self.nz)
+        pq = self.pq if dense else self.pq[:: self.stride]
+        return self.mid + self.half * z[:, 0] + pq @ (z[:, 1:].T * self.v_scale)
+
+    def clearances(self, q: np.ndarray) -> np.ndarray:
+        """(T, C) every row's clearance at ``q`` (T, n_dof), m, no margins: ``sign * (p[axis] - bound)``
+        of each point and half-space, then each capsule pair's gap."""
+        from ineid.robots.kinematics import frame_points
+
+        q = np.atleast_2d(q)
+        parts = []
+        if self.spaces:
+            pts = frame_points(self.chain, q, self.welded)
+            parts.append(np.stack([s * (pts[..., a] - b) for a, s, b, _ in self.spaces], axis=-1).reshape(len(q), -1))
+        if self.pairs is not None:
+            parts.append(self.pairs.clearances(q))
+        return np.concatenate(parts, axis=1)
+
+    def margins(self) -> np.ndarray:
+        """(C,) the clearance each row keeps on the grid (module doc), m."""
+        return np.r_[np.repeat(self.margin, len(self.spaces)), self.pair_margin]
+
+    def _evaluate(self, x: np.ndarray, dense: bool = False):
+        key = np.asarray(x, dtype=np.float64).tobytes()
+        if dense in self._last and self._last[dense][0] == key:
+            return self._last[dense][1]
+        q = self.grid_q(x, dense)
+        g = self.clearances(q) - self.margins()  # (N, C)
+        gmin = g.min(axis=0)
+        e = np.exp(-self.rho * (g - gmin))
+        total = e.sum(axis=0)
+        ks = gmin - np.log(total) / self.rho
+        self._last[dense] = (key, (q, g, ks, e / total))
+        return self._last[dense][1]
+
+    def values(self, x: np.ndarray) -> np.ndarray:
+        """(C,) the smooth lower bounds of the smallest clearance less margin on every ``stride``-th grid
+        point (what IPOPT keeps >= 0)."""
+        return self._evaluate(x)[2]
+
+    def grid_slack(self, x: np.ndarray) -> np.ndarray:
+        """(C,) the smallest grid clearance less margin of each constraint (>= 0: kept at every instant)."""
+        return self._evaluate(x, dense=True)[1].min(axis=0)
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        """(C, n_dof (2H - 1)) the exact derivative of :meth:`values` (where the closest points are unique)."""
+        from ineid.robots.kinematics import frame_points, point_jacobians
+
+        q, _, _, w = self._evaluate(x)
+        parts = []
+        if self.spaces:
+            pts = frame_points(self.chain, q, self.welded)
+            jac = point_jacobians(self.chain, q, self.point_link, pts)  # (N, P, 3, n)
+            axes = np.array([a for a, _, _, _ in self.spaces])
+            signs = np.array([s for _, s, _, _ in self.spaces])
+            parts.append((signs[None, None, :, None] * jac[:, :, axes, :]).reshape(len(q), -1, self.n))
+        if self.pairs is not None:
+            parts.append(self.pairs.gradient(q))
+        dq = w[..., None] * np.concatenate(parts, axis=1)  # (N, C, n) d ks / d q(t_k)
+        du = self.half * dq.sum(axis=0)  # (C, n)
+        dalpha = np.einsum("kl,kcj->cjl", self.pq[:: self.stride], dq) * self.v_scale[:, None]  # (C, n, 2H-2)
+        return np.concatenate([du[..., None], dalpha], axis=-1).reshape(self.n_constraints, self.n * self.nz)
+
+    def describe(self) -> dict:
+        """The settings and guarantees, JSON-able (recorded in the design)."""
+        out = dict(
+            self.limits.to_dict(),
+            points=list(self.names),
+            grid_points_per_period=self.grid,
+            margin_between_samples=self.margin.tolist(),
+            acceleration_bound=self.accel.tolist(),
+        )
+        out["self_collision"] = (
+            None
+            if self._asked is None
+            else dict(self._asked.describe(), margin_between_samples=self.pair_margin.tolist())
+        )
+        return out
+
+
+def acceleration_bounds(chain, reach_m: np.ndarray, point_link: np.ndarray, qd_max, qdd_max) -> np.ndarray:
+    """(P,) bounds of ``|p_P''|`` (m/s^2) over every motion within ``|qd| <= qd_max``, ``|qdd| <= qdd_max`` (module
+    doc)."""
+    w, a = np.asarray(qd_max, float), np.asarray(qdd_max, float)
+    revolute = np.array([j.type == "revolute" for j in chain.joints])
+    omega_before = np.concatenate([[0.0], np.cumsum(np.where(revolute, w, 0.0))[:-1]])
+    out = np.zeros(len(point_link))
+    for k, i in enumerate(point_link):
+        moved = np.arange(chain.n_dof) <= i
+        ell = np.where(revolute, reach_m[k], 1.0) * moved
+        total = float(a @ ell)
+        for j in range(int(i) + 1):
+            if revolute[j]:
+                d = 2.0 * omega_before[j] * reach_m[k, j] + float(w[j:] @ ell[j:])
+            else:
+                d = omega_before[j]
+            total += w[j] * d
+        out[k] = total
+    return out
+
+
+def make_safe(safety: SafetyConstraints, x: np.ndarray, steps: int = 16) -> np.ndarray | None:
+    """``x`` if its grid constraints hold, else the largest scaling of its amplitudes about its mean pose
+    that keeps them (bisection; the joint bounds and rest stay kept), or None when the mean pose fails."""
+    z = np.asarray(x, dtype=np.float64).reshape(safety.n, safety.nz)
+
+    def scaled(s: float) -> np.ndarray:
+        return np.concatenate([z[:, :1], z[:, 1:] * s], axis=1).ravel()
+
+    if np.all(safety.grid_slack(x) >= 0):
+        return np.asarray(x, dtype=np.float64)
+    if not np.all(safety.grid_slack(scaled(0.0)) >= 0):
+        return None
+    lo, hi = 0.0, 1.0
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if np.all(safety.grid_slack(scaled(mid)) >= 0) else (lo, mid)
+    return scaled(lo)
+
+
+def casadi_constraint(safety: SafetyConstraints):
+    """A CasADi function ``x -> (C,)`` of :meth:`SafetyConstraints.values` with its exact Jacobian (callbacks)."""
+    import casadi as ca
+
+    nx, nc = safety.n * safety.nz, safety.n_constraints
+
+    class Jacobian(ca.Callback):
+        def __init__(self, name, opts):
+            ca.Callback.__init__(self)
+            self.construct(name, opts)
+
+        def get_n_in(self):
+            return 2
+
+        def get_n_out(self):
+            return 1
+
+        def get_sparsity_in(self, i):
+            return ca.Sparsity.dense(nx, 1) if i == 0 else ca.Sparsity.dense(nc, 1)
+
+        def get_sparsity_out(self, i):
+            return ca.Sparsity.dense(nc, nx)
+
+        def eval(self, arg):
+            return [ca.DM(safety.jacobian(np.asarray(arg[0]).ravel()))]
+
+    class Values(ca.Callback):
+        def __init__(self, name, opts):
+            ca.Callback.__init__(self)
+            self._jac = None
+            self.construct(name, opts)
+
+        def get_n_in(self):
+            return 1
+
+        def get_n_out(self):
+            return 1
+
+        def get_sparsity_in(self, i):
+            return ca.Sparsity.dense(nx, 1)
+
+        def get_sparsity_out(self, i):
+            return ca.Sparsity.dense(nc, 1)
+
+        def eval(self, arg):
+            return [ca.DM(safety.values(np.asarray(arg[0]).ravel()))]
+
+        def has_jacobian(self):
+            return True
+
+        def get_jacobian(self, name, inames, onames, opts):
+            self._jac = Jacobian(name, opts)
+            return self._jac
+
+    return Values("workspace_constraints", {"enable_fd": False})
+
+
+def verify(safety: SafetyConstraints, q: np.ndarray) -> dict:
+    """The smallest clearance over samples ``q`` (T, n_dof) (no margins): m, which point and bound.
+
+    Returns:
+        ``{"min_clearance": m, "constraint": label}``; negative: a bound is violated.
+    """
+    c = safety.clearances(q).min(axis=0)  # (C,)
+    k = int(np.argmin(c))
+    return {"min_clearance": float(c[k]), "constraint": safety.labels()[k]}
+
+
+def bound_sources(model) -> dict[str, tuple[str, str]]:
+    """Per joint name, where its velocity and acceleration bounds come from: ``"URDF"`` or ``"default"``
+    (``<limit velocity>`` missing or zero, no ``<ineid acceleration>``: :mod:`ineid.robots.urdf`'s defaults)."""
+    import xml.etree.ElementTree as ET
+
+    out = {}
+    for j in ET.fromstring(model.urdf_text).findall("joint"):  # not the <joint> of a <transmission>
+        limit, acc = j.find("limit"), j.find("ineid")
+        try:
+            velocity = float(limit.get("velocity", "0")) if limit is not None else 0.0
+        except ValueError:
+            velocity = 0.0
+        out[j.get("name")] = (
+            "URDF" if velocity > 0 else "default",
+            "URDF" if acc is not None and acc.get("acceleration") else "default",
+        )
+    return {name: out.get(name, ("default", "default")) for name in model.joint_names}
