@@ -33,14 +33,8 @@ import ineid
 from ineid.data import Combination, DatasetSpec, FrameSampling, NoiseModel, generate_dataset
 from ineid.data.synthesis.sampling import model_uniform_states
 from ineid.data.synthesis.trajectory import SampledTrajectory
-from ineid.excite.design import (
-    ExcitationSettings,
-    design_base,
-    design_excitation,
-    design_noise,
-    evaluate_design,
-    regressor_and_derivatives,
-)
+from ineid.excite.design import design_base, design_excitation, design_noise, evaluate_design, regressor_and_derivatives
+from ineid.excite.settings import ExcitationSettings
 from ineid.identify import SolveSettings, relative_error, solve_dataset
 from ineid.studies.noise import REFERENCE_NOISE
 

@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 from machine import cpu_description  # benchmarks/machine.py
 
-from ineid.data.recordings.pipeline import ImportSettings, Streams, import_recording, recording_dataset
+from ineid.data.recordings.pipeline import Streams, import_recording, recording_dataset
+from ineid.data.recordings.settings import ImportSettings
 from ineid.data.recordings.signals import LowPass, choose_cutoff, derivatives
 from ineid.identify import SolveSettings, solve_dataset
 from ineid.identify.delay import estimate_delay

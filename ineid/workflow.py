@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ineid.data.recordings.pipeline import ImportSettings
+from ineid.data.recordings.settings import ImportSettings
 from ineid.identify.solve import SolveMethod, SolveResults, SolveSettings
 from ineid.progress import Progress
 

@@ -16,15 +16,8 @@ from ineid.data.synthesis.trajectory import (
     read_trajectory_json,
 )
 from ineid.errors import ExcitationError
-from ineid.excite.design import (
-    ExcitationSettings,
-    _Problem,
-    design_base,
-    design_bounds,
-    design_excitation,
-    design_noise,
-    evaluate_design,
-)
+from ineid.excite.design import _Problem, design_base, design_bounds, design_excitation, design_noise, evaluate_design
+from ineid.excite.settings import ExcitationSettings
 
 from .conftest import SEED
 

@@ -8,7 +8,8 @@ import pytest
 from ineid.channels import BaseWrench, ChannelSet, JointTorque, MotorCurrent
 from ineid.data.synthesis.noise import NoiseModel
 from ineid.errors import ExcitationError
-from ineid.excite.design import ExcitationSettings, design_base, design_excitation, design_noise, evaluate_design
+from ineid.excite.design import design_base, design_excitation, design_noise, evaluate_design
+from ineid.excite.settings import ExcitationSettings
 from ineid.identify import base_parameters
 
 TORQUES = ChannelSet.of(JointTorque().with_actuation(friction=("viscous", "coulomb"), armature=True))

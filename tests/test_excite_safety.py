@@ -10,7 +10,8 @@ from click.testing import CliRunner
 
 import ineid
 from ineid.errors import ExcitationError
-from ineid.excite.design import ExcitationSettings, design_excitation
+from ineid.excite.design import design_excitation
+from ineid.excite.settings import ExcitationSettings
 from ineid.robots.kinematics import frame_points, link_poses, point_jacobians, welded_frames
 
 UR5 = "cmeel.prefix/share/example-robot-data/robots/ur_description/urdf/ur5_robot.urdf"

@@ -11,8 +11,9 @@ import pytest
 import ineid
 from ineid import DatasetError
 from ineid.channels.pose import SensorPose
-from ineid.data.imu.estimation import EstimationSettings, ImuNoise, estimate_joint_states
+from ineid.data.imu.estimation import estimate_joint_states
 from ineid.data.imu.readings import ImuMount, imu_jacobians, imu_readings, parse_imu
+from ineid.data.imu.settings import EstimationSettings, ImuNoise
 from ineid.data.recordings.signals import LowPass, derivatives
 
 mujoco = pytest.importorskip("mujoco")
@@ -87,7 +88,8 @@ def _cut(readings):
 def _base_error(arm, recording, q, qd, qdd) -> float:
     """The largest base-parameter error of the linear identification from these states (edges dropped) and
     MuJoCo's wrench: ``|beta_hat - beta| / max(|beta|, scale)``."""
-    from ineid.data.recordings.pipeline import ImportSettings, Streams, recording_dataset
+    from ineid.data.recordings.pipeline import Streams, recording_dataset
+    from ineid.data.recordings.settings import ImportSettings
     from ineid.identify import SolveSettings, solve_dataset
 
     t, wrench = recording["t"][EDGE:-EDGE], recording["wrench"][EDGE:-EDGE]
@@ -329,7 +331,8 @@ def test_bad_imus_are_one_line_each(arm, recording):
 def _imported(arm, recording, readings, mounts, bits: int = 10):
     """The import (``recording_dataset``) of the recording with ``bits``-bit encoders, MuJoCo's wrench and these
     IMU readings: ``(dataset, relative qd error, relative qdd error, largest base error)`` against the truth."""
-    from ineid.data.recordings.pipeline import ImportSettings, recording_dataset
+    from ineid.data.recordings.pipeline import recording_dataset
+    from ineid.data.recordings.settings import ImportSettings
     from ineid.data.recordings.streams import ImuStream, Streams
     from ineid.identify import SolveSettings, solve_dataset
 

@@ -354,7 +354,8 @@ def test_bad_imu_inputs_are_one_line_and_write_nothing(model, rec, run, tmp_path
 
 def test_imu_delay_shifts_the_imu_clock(model, rec):
     """IMU stamps 4 ms late: --imu-delay 0.004 puts them back (the library call, no file)."""
-    from ineid.data.recordings.pipeline import ImportSettings, recording_dataset
+    from ineid.data.recordings.pipeline import recording_dataset
+    from ineid.data.recordings.settings import ImportSettings
     from ineid.data.recordings.streams import ImuStream, Streams
 
     imus = tuple(ImuStream(name, t + 0.004, r) for name, (t, r) in rec["imus"].items())

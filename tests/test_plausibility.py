@@ -19,7 +19,7 @@ from click.testing import CliRunner
 from ineid import DatasetError
 from ineid.cli import main
 from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
-from ineid.data.recordings.pipeline import ImportSettings, Streams, in_si_units
+from ineid.data.recordings.pipeline import Streams, in_si_units
 from ineid.data.recordings.plausibility import (
     Finding,
     check_angle_units,
@@ -29,6 +29,7 @@ from ineid.data.recordings.plausibility import (
     check_time_unit,
     moving_mass,
 )
+from ineid.data.recordings.settings import ImportSettings
 from ineid.data.recordings.streams import ImuStream, units_note
 from ineid.data.synthesis.sampling import FrameSampling
 from ineid.identify import SolveSettings, load_results, solve_dataset

@@ -13,7 +13,8 @@ import ineid
 from ineid import DatasetError, RobotModelError
 from ineid.data import load_dataset
 from ineid.data.dataset.meta import VERSION
-from ineid.data.recordings.pipeline import ImportSettings, Streams, import_recording, recording_dataset
+from ineid.data.recordings.pipeline import Streams, import_recording, recording_dataset
+from ineid.data.recordings.settings import ImportSettings
 from ineid.data.recordings.signals import LowPass, choose_cutoff
 from ineid.identify import (
     SolveSettings,

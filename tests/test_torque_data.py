@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from ineid.data import NoiseModel, load_dataset
-from ineid.data.recordings.pipeline import ImportSettings, import_recording
+from ineid.data.recordings.pipeline import import_recording
+from ineid.data.recordings.settings import ImportSettings
 from ineid.errors import DatasetError
 
 POSE_TEXT = "0.03,-0.02,-0.05,3.1,0.2,0.7"

@@ -120,9 +120,9 @@ def main(ctx: click.Context, verbose: int, quiet: int) -> None:
         enable_compilation_cache()  # JAX not imported yet: sets the environment variables JAX reads
 
 
-from ineid.cli import cache, data, excite, export_mjcf, identify, learn, report, robot  # noqa: E402  (commands register on main)
+from ineid.cli import cache, data, excite, export_mjcf, identify, learn, report, robot, solve, study, sweep  # noqa: E402  (commands register on main)
 
-for _module in (robot, data, excite, identify, export_mjcf, report, learn, cache):
+for _module in (robot, data, excite, identify, solve, export_mjcf, report, learn, sweep, study, cache):
     _module.register(main)
 
 __all__ = ["IneidGroup", "main"]

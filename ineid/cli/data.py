@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from ineid.cli.imu_options import check_imu_generate, imu_generate, imu_import, imu_rehearsal
+from ineid.cli.imu_options import check_imu_generate, imu_generate, imu_rehearsal
 from ineid.cli.options import (
     SEED,
     FiniteFloatRange,
@@ -20,8 +20,8 @@ from ineid.cli.options import (
     quiet,
     robot_options,
 )
-from ineid.cli.output import ProgressBar, console, plain, print_findings, shown, table
-from ineid.cli.output_files import folder_inputs, overwrite_option, prepare_output, robot_inputs
+from ineid.cli.output import ProgressBar, console, plain, shown, table
+from ineid.cli.output_files import overwrite_option, prepare_output, robot_inputs
 from ineid.cli.simulation import (
     channels_option,
     drives,
@@ -272,185 +272,6 @@ def data_generate(
     )
 
 
-def _finite(ctx, param, value: float) -> float:
-    """A finite number (click's FloatRange lets inf through)."""
-    import math
-
-    if not math.isfinite(value):
-        raise click.BadParameter(f"{value} is not a finite number")
-    return value
-
-
-def _delay(ctx, param, value: str) -> float | None:
-    """``--delay``: seconds, or ``auto`` (None: estimate it)."""
-    if value.strip().lower() == "auto":
-        return None
-    try:
-        return float(value)
-    except ValueError:
-        raise click.BadParameter(f"{value!r} is neither a number of seconds nor 'auto'") from None
-
-
-@data.command("import")
-@click.argument("path", metavar="PATH", type=click.Path(path_type=Path))
-@robot_options(positional="option")
-@click.option(
-    "--sensor-pose",
-    default=None,
-    metavar="X,Y,Z,R,P,Y|FRAME|LINK:X,Y,Z,R,P,Y",
-    help="The sensor frame in the base frame (m, rad, URDF rpy), a URDF link (welded to the base, or to "
-    "a moving link: a wrist sensor), or LINK:x,y,z,r,p,y in URDF link LINK's frame (default: the "
-    "bag's wrench frame_id if the URDF has that link, else the base frame).",
-)
-@click.option(
-    "--cutoff",
-    type=FiniteFloatRange(min=0, min_open=True),
-    default=None,
-    metavar="HZ",
-    help="Low-pass cut-off of angles and wrench (default: chosen from the joint angles when qd, qdd "
-    "are derived; no filter when they are measured).",
-)
-@click.option(
-    "--rate",
-    type=FiniteFloatRange(min=0, min_open=True),
-    default=None,
-    metavar="HZ",
-    help="Rate of the frames (default: the slower stream's).",
-)
-@click.option(
-    "--delay",
-    default="0",
-    show_default=True,
-    metavar="S|auto",
-    callback=_delay,
-    help="How late the wrench time stamps are against the joints' (s), or auto: estimated from the "
-    "model within +-50 ms.",
-)
-@click.option("--joint-topic", default="/joint_states", show_default=True, help="Bags: the JointState topic.")
-@click.option("--wrench-topic", default=None, help="Bags: the WrenchStamped topic (needed when there are several).")
-@click.option(
-    "--flip-wrench",
-    is_flag=True,
-    help="The sensor reports the wrench on the robot (the opposite of ineid's convention); negate it.",
-)
-@click.option(
-    "--wrench-scale",
-    type=click.FloatRange(min=0, min_open=True),
-    default=1.0,
-    show_default=True,
-    metavar="FACTOR",
-    callback=_finite,
-    help="Multiply every force and moment by FACTOR (0.001 for a wrench in mN and N*mm).",
-)
-@click.option(
-    "--angle-unit",
-    type=click.Choice(["rad", "deg"]),
-    default="rad",
-    show_default=True,
-    help="Unit of the revolute joints' angles (and of measured qd, qdd); deg converts them to rad.",
-)
-@click.option(
-    "--time-unit",
-    type=click.Choice(["s", "ms", "us", "ns"]),
-    default="s",
-    show_default=True,
-    help="Unit of the time stamps (of every stream); converted to s.",
-)
-@click.option(
-    "--force-unit",
-    type=click.Choice(["N", "mN", "kN"]),
-    default="N",
-    show_default=True,
-    help="Unit of the wrench's forces; converted to N (before --wrench-scale).",
-)
-@click.option(
-    "--moment-unit",
-    type=click.Choice(["Nm", "Nmm", "kNm"]),
-    default="Nm",
-    show_default=True,
-    help="Unit of the wrench's moments (Nmm: N*mm, also mN*m); converted to N*m (before --wrench-scale).",
-)
-@torque_constant_option
-@gear_ratio_option
-@imu_import
-@click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
-@overwrite_option
-@click.pass_context
-def data_import(
-    ctx,
-    path,
-    robot,
-    sensor_pose,
-    cutoff,
-    rate,
-    delay,
-    joint_topic,
-    wrench_topic,
-    flip_wrench,
-    wrench_scale,
-    angle_unit,
-    time_unit,
-    force_unit,
-    moment_unit,
-    torque_constant,
-    gear_ratio,
-    imus,
-    imu_topics,
-    imu_delay,
-    imu_noise,
-    out,
-    overwrite,
-) -> None:
-    """Import a recording: a CSV (time, q1..qn, [qd1..qn, qdd1..qn,] [tau1..taun,] fx fy fz mx my mz; the wrench
-    optional with torques), a ROS 1 .bag, or a ROS 2 bag folder or .mcap (sensor_msgs/JointState with its
-    effort as joint torques, geometry_msgs/WrenchStamped). Link IMUs (imu_<NAME>_wx.. columns, sensor_msgs/Imu
-    topics): qd, qdd fused from the encoders and the IMUs (docs/recordings.md)."""
-    from ineid.data.recordings.pipeline import ImportSettings
-    from ineid.workflow import import_recording
-
-    prepare_output(out, overwrite, inputs=[*folder_inputs(path, "the input recording"), *robot_inputs(robot)])
-    model = robot.load()
-    from ineid.data.recordings.imus import parse_imu_text
-
-    for text in imus:  # a mount that does not parse is said before the file is read
-        parse_imu_text(text, model)
-    settings = ImportSettings(
-        sensor_pose=sensor_pose,
-        cutoff=cutoff,
-        rate=rate,
-        delay=delay or 0.0,
-        estimate_delay=delay is None,
-        flip_wrench=flip_wrench,
-        angle_unit=angle_unit,
-        wrench_scale=wrench_scale,
-        time_unit=time_unit,
-        force_unit=force_unit,
-        moment_unit=moment_unit,
-        torque_constant=torque_constant,
-        gear_ratio=gear_ratio,
-        imus=tuple(imus),
-        imu_delay=imu_delay,
-        imu_noise=imu_noise,
-    )
-    with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
-        ds, summary = import_recording(
-            path,
-            model,
-            settings,
-            joint_topic=joint_topic,
-            wrench_topic=wrench_topic,
-            progress=bar,
-            imu_topics=tuple(imu_topics),
-        )
-    ds.save(out, overwrite=overwrite)
-    click.echo(f"wrote {out}: one recording of {plain(model.name)}")
-    for line in summary.lines():
-        click.echo(f"  {plain(line)}")
-    from ineid.data.recordings.plausibility import check_dataset
-
-    print_findings(check_dataset(ds, model))
-
-
 @data.command("info")
 @click.argument("path", metavar="FILE", type=click.Path(path_type=Path))
 def data_info(path: Path) -> None:
@@ -547,4 +368,7 @@ def data_info(path: Path) -> None:
 
 
 def register(main: click.Group) -> None:
+    from ineid.cli.data_import import data_import
+
+    data.add_command(data_import)
     main.add_command(data)

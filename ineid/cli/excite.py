@@ -188,7 +188,8 @@ def excite(
     """
     from ineid._atomic import _signals_deferred
     from ineid.data.synthesis.trajectory import write_trajectory_csv, write_trajectory_json
-    from ineid.excite.design import ExcitationSettings, design_excitation
+    from ineid.excite.design import design_excitation
+    from ineid.excite.settings import ExcitationSettings
 
     coefficients = coefficients if coefficients is not None else out.with_suffix(".json")
     if coefficients.resolve() == out.resolve():

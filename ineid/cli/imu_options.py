@@ -209,7 +209,7 @@ def excite_sensors(imus, encoder_bits: int | None, noise: dict | None, model):
         raise click.UsageError(
             "with --encoder-bits or --imu the joint-state errors come from the sensors: drop the q, qd, qdd noise"
         )
-    from ineid.data.imu.estimation import ImuNoise
+    from ineid.data.imu.settings import ImuNoise
 
     default = ImuNoise()
     sensors = imu_rehearsal(imus, 0.0, encoder_bits, noise, model)

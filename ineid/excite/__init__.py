@@ -10,8 +10,9 @@ trajectories it was compared with). Never imports sympy.
 
 from __future__ import annotations
 
-from ineid.excite.design import ExcitationResult, ExcitationSettings, StartRecord, design_excitation
+from ineid.excite.design import design_excitation
 from ineid.excite.safety import SafetyLimits
+from ineid.excite.settings import ExcitationResult, ExcitationSettings, StartRecord
 from ineid.excite.trajectory import Bounds, design_bounds
 
 __all__ = [

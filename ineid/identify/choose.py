@@ -27,7 +27,6 @@ from collections.abc import Sequence
 from ineid.channels import BaseWrench, ChannelSet, LinkWrench
 from ineid.channels.link_wrench import refuse_nothing_beyond
 from ineid.errors import IdentificationError
-from ineid.identify.fused import check_no_extra_columns
 
 FRICTION_MODELS = ("viscous", "coulomb")
 """The friction terms of a joint-torque channel, in the order its extra columns take them."""
@@ -214,3 +213,15 @@ def channels_named(names: Sequence[str] | None) -> ChannelSet:
                 status="unknown_channel",
             )
     return ChannelSet(tuple(dict.fromkeys(out)))
+
+
+def check_no_extra_columns(channels: ChannelSet, model, what: str = "backend 'casadi-c'") -> None:
+    """Refuse channels with extra kept columns where ``what`` does not identify them (the ``casadi-c`` blocks)."""
+    extra = channels.extra_names(model)
+    if extra:
+        raise IdentificationError(
+            f"{what} does not fit extra parameters ({', '.join(extra[:3])}"
+            f"{', ...' if len(extra) > 3 else ''}); use backend 'jax' or 'casadi', or leave "
+            "the friction, armature and torque-offset models out",
+            status="unsupported",
+        )

@@ -25,7 +25,8 @@ from dataclasses import replace
 import numpy as np
 
 from ineid.data.recordings import signals
-from ineid.data.recordings.pipeline import DelayEstimate, recording_dataset
+from ineid.data.recordings.pipeline import recording_dataset
+from ineid.data.recordings.summary import DelayEstimate
 from ineid.errors import DatasetError
 from ineid.identify.identifiability import base_parameters
 from ineid.identify.systems import remove_offsets, stack

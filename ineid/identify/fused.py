@@ -295,20 +295,6 @@ def _transforms(channels: ChannelSet, model) -> tuple[np.ndarray, ...]:
     )
 
 
-def check_no_extra_columns(channels: ChannelSet, model, what: str = "backend 'casadi-c'") -> None:
-    """Refuse channels with extra kept columns where ``what`` does not identify them (the ``casadi-c`` blocks)."""
-    from ineid.errors import IdentificationError
-
-    extra = channels.extra_names(model)
-    if extra:
-        raise IdentificationError(
-            f"{what} does not fit extra parameters ({', '.join(extra[:3])}"
-            f"{', ...' if len(extra) > 3 else ''}); use backend 'jax' or 'casadi', or leave "
-            "the friction, armature and torque-offset models out",
-            status="unsupported",
-        )
-
-
 def information_blocks(
     model,
     base,

@@ -17,7 +17,6 @@ the steps themselves are :mod:`ineid.identify.steps`.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -27,15 +26,23 @@ import numpy as np
 from ineid.cache import enable_compilation_cache
 from ineid.channels import ChannelSet
 from ineid.errors import IdentificationError
-from ineid.identify.choose import actuation_requested, check_actuation, solve_channels
+from ineid.identify.choose import solve_channels
 from ineid.identify.classical import CLASSICAL_METHODS, classical_estimate
 from ineid.identify.extras import prior_with_extras
 from ineid.identify.frame_minimum import FrameMinimum
 from ineid.identify.fused import information_blocks
 from ineid.identify.identifiability import BaseParameters, base_parameters, frame_minimum
-from ineid.identify.linear import WEIGHT_MODES, linear_estimate, linear_theta, with_exact_rss
-from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL
+from ineid.identify.linear import linear_estimate, linear_theta, with_exact_rss
 from ineid.identify.payload import payload_section
+from ineid.identify.settings import (  # the settings: BACKENDS, ... are still importable from here (__all__)
+    BACKENDS,
+    BIAS_MODES,
+    BUILTIN_METHODS,
+    HOLDOUT_FRACTION,
+    METHODS,
+    STARTS,
+    SolveSettings,
+)
 from ineid.identify.steps import (  # noqa: F401  (PARALLEL_MIN_CONFIGS, physical_start, ... were here: still importable)
     BIAS_MAX_ITER,
     PARALLEL_MIN_CONFIGS,
@@ -53,147 +60,6 @@ from ineid.identify.steps import (  # noqa: F401  (PARALLEL_MIN_CONFIGS, physica
 )
 from ineid.identify.systems import Offsets
 from ineid.progress import Progress
-
-BUILTIN_METHODS = ("linear", "nonlinear", "consistent", *CLASSICAL_METHODS)
-"""The methods identify implements itself; ``lsqlin``, ``lsqnonlin``: the paper's (:mod:`ineid.identify.classical`)."""
-METHODS = (*BUILTIN_METHODS, "network")
-"""Every method; ``network`` (a trained run) is implemented by :mod:`ineid.learn.amortized` and passed to
-:func:`solve_dataset` in ``methods`` (:func:`ineid.workflow.solve_dataset` does): identify never imports learn."""
-STARTS = ("prior", "linear")
-"""IPOPT's start: the CAD values, or the linear estimate made physical."""
-BACKENDS = ("jax", "casadi", "casadi-c")
-"""The least-squares engine: fused JAX kernels; CasADi per configuration (QR, an independent
-route; linear method only); or the fused blocks through CasADi's C code, compiled (needs a C compiler)."""
-BIAS_MODES = ("none", "estimate")
-"""The sensors' constant offsets (six for the base wrench): absent (a tared sensor), or identified with the
-parameters (every channel's, :meth:`ineid.channels.ChannelSet.with_offsets`)."""
-HOLDOUT_FRACTION = 0.2
-"""Without ``frames``, this share of each configuration's frames is held out for validation."""
-
-
-@dataclass(frozen=True)
-class SolveSettings:
-    """How to identify.
-
-    Attributes:
-        method: ``"linear"``, ``"nonlinear"`` (the paper's mass / centre of mass / inertia
-            form) or ``"consistent"`` (log-Cholesky, always physical); ``"lsqlin"``, ``"lsqnonlin"``: the
-            paper's MATLAB solvers over every standard parameter, its reference (:mod:`ineid.identify.classical`).
-        frames: frames fitted per configuration (the first ``frames``); the rest are held
-            out for validation. ``None``: all but the last 20 % (all, when too few).
-        weights: ``"estimate"`` (the default: the noise of each measured axis estimated from the
-            residuals, :mod:`ineid.identify.weighting`), ``"noise"`` (``1/sigma`` per measured axis
-            from ``axis_sigma``, or from the dataset's recorded noise) or ``"none"`` (equal noise on
-            every axis assumed: the standard deviations are wrong where it differs).
-        axis_sigma: (A,) noise standard deviations per measured axis (the base wrench: fx..mz)
-            for ``weights="noise"``.
-        start: IPOPT's (and ``lsqnonlin``'s) start, ``"prior"`` (the CAD values) or ``"linear"`` (the linear
-            estimate, made physical for ``consistent`` if needed).
-        bounds: ``lsqlin``'s box, ``theta_cad -/+ bounds * max(|theta_cad|, scale)``
-            (:func:`ineid.identify.classical.cad_bounds`); None: unbounded (minimum norm).
-        pull, entropic: prior weights of the IPOPT solvers (see :mod:`ineid.identify.nlp`).
-        backend: ``"jax"`` (fused normal-equation blocks, batched), ``"casadi"`` (per
-            configuration, the generated CasADi function and CasADi's QR; no compilation)
-            or ``"casadi-c"`` (the same blocks as ``"jax"`` from the CasADi function printed
-            as C and compiled, see :mod:`ineid.identify.casadi_c`, and for ``nonlinear`` /
-            ``consistent`` the IPOPT problem compiled too; needs a C compiler).
-        workers: processes for the IPOPT solvers (default 1); used from
-            :data:`ineid.identify.steps.PARALLEL_MIN_CONFIGS` configurations on. More than one uses spawned
-            processes (multiprocessing): call from under ``if __name__ == "__main__":``.
-        bias: ``"none"`` (the wrench holds no offset) or ``"estimate"``: constant offsets,
-            one per sensor axis (six for the base wrench), identified jointly with the parameters (every method;
-            :class:`ineid.identify.systems.Offsets`). They also take the weight of whatever
-            sits between the sensor and the first joint.
-        run: the trained run folder of ``method="network"`` (:mod:`ineid.learn.amortized`).
-        known_uncertainty: ``(link, fraction)`` pairs, the known links' CAD uncertainty
-            (:mod:`ineid.identify.known`: std ``fraction * max(|theta_cad|, scale)`` per
-            parameter) added to the reported covariance; link ``"*"`` for every known link.
-            Empty: the CAD values are taken as exact.
-        use: the dataset's channels fitted, by key or kind (``("wrench",)``, ``("torque",)``,
-            ``("wrench", "torque")``; :mod:`ineid.identify.choose`); None: every channel it has.
-        friction: the joint torques' friction model, any of ``"viscous"``, ``"coulomb"``;
-            ``coulomb_zone`` (rad/s) smooths ``sign(qd)`` into ``tanh(qd / zone)``;
-            ``asymmetric_friction``: one coefficient per direction. ``armature``: rotor inertia
-            ``Ia qdd``; ``torque_offset``: a constant torque per joint. Each adds extra kept
-            columns to the joint-torque channels (``<joint>.fv``, ...), identified with the links'
-            parameters and recorded after them (:mod:`ineid.identify.extras`); refused without a
-            joint-torque channel among those fitted.
-        two_step: FloBaRoID's two steps (:mod:`ineid.identify.two_step`): the links from the
-            wrench alone, then the joint torques' extra parameters from their residual with the
-            links fixed; needs both channels.
-        torque_constant_unknown: the motor-current channels' torque constants are identified too
-            (``<joint>.k``, relative to their nominal values), in step 2 of ``two_step`` (needs it).
-    """
-
-    method: str = "linear"
-    frames: int | None = None
-    weights: str = "estimate"
-    axis_sigma: tuple[float, ...] | None = None
-    start: str = "prior"
-    pull: float = DEFAULT_PULL
-    entropic: float = DEFAULT_ENTROPIC
-    backend: str = "jax"
-    workers: int | None = None
-    bias: str = "none"
-    run: str | None = None
-    known_uncertainty: tuple[tuple[str, float], ...] = ()
-    use: tuple[str, ...] | None = None
-    friction: tuple[str, ...] = ()
-    coulomb_zone: float = 0.0
-    asymmetric_friction: bool = False
-    armature: bool = False
-    torque_offset: bool = False
-    two_step: bool = False
-    torque_constant_unknown: bool = False
-    bounds: float | None = None
-
-    def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        if self.weights not in WEIGHT_MODES:
-            raise ValueError(f"weights must be one of {', '.join(WEIGHT_MODES)}, got {self.weights!r}")
-        if self.start not in STARTS:
-            raise ValueError(f"start must be one of {', '.join(STARTS)}, got {self.start!r}")
-        if self.backend not in BACKENDS:
-            raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
-        if self.bias not in BIAS_MODES:
-            raise ValueError(f"bias must be one of {', '.join(BIAS_MODES)}, got {self.bias!r}")
-        if self.backend == "casadi-c" and self.bias == "estimate":
-            raise ValueError("backend='casadi-c' does not estimate sensor offsets; use backend 'jax' or 'casadi'")
-        if self.backend == "casadi" and self.method not in BUILTIN_METHODS:  # casadi-c serves every method
-            raise ValueError("backend='casadi' applies to identify's own methods, not a trained network")
-        if self.bounds is not None and (self.method != "lsqlin" or not (np.isfinite(self.bounds) and self.bounds > 0)):
-            raise ValueError(f"bounds (a fraction > 0 of the CAD values) go with method='lsqlin', got {self.bounds}")
-        if self.frames is not None and self.frames < 1:
-            raise ValueError(f"frames must be >= 1, got {self.frames}")
-        if self.method == "network" and self.bias != "none":
-            raise ValueError("method='network' estimates no sensor offsets; use bias='none'")
-        if (self.method == "network") != (self.run is not None):
-            raise ValueError("method='network' needs run (a trained run folder), and run goes with method='network'")
-        pairs = tuple((str(link), float(f)) for link, f in self.known_uncertainty)
-        object.__setattr__(self, "known_uncertainty", pairs)  # lists from a results file: hashable pairs
-        for link, f in pairs:
-            if not (np.isfinite(f) and f >= 0):
-                raise ValueError(f"known_uncertainty of {link!r} must be a fraction >= 0, got {f}")
-        if pairs and self.method == "network":
-            raise ValueError("method='network' does not propagate the known links' uncertainty")
-        if self.use is not None:  # lists from a results file: hashable tuples
-            object.__setattr__(self, "use", tuple(str(u) for u in self.use))
-        object.__setattr__(self, "friction", tuple(str(f) for f in self.friction))
-        check_actuation(self)
-        if self.method == "network" and (actuation_requested(self) or self.two_step):
-            raise ValueError(
-                "method='network' predicts the links from the channels it was trained on; "
-                "leave the friction, armature, torque-offset and two-step options out"
-            )
-
-    def to_dict(self) -> dict:
-        d = dataclasses.asdict(self)
-        d["axis_sigma"] = None if self.axis_sigma is None else list(self.axis_sigma)
-        d["known_uncertainty"] = [list(p) for p in self.known_uncertainty]
-        d["use"] = None if self.use is None else list(self.use)
-        d["friction"] = list(self.friction)
-        return d
 
 
 @dataclass
@@ -517,3 +383,20 @@ def results_meta(ds, total_seconds: float, channels: ChannelSet | None = None, m
         "units": list(channels.units(names)),
         "total_seconds": total_seconds,
     }
+
+
+__all__ = [
+    "BACKENDS",
+    "BIAS_MODES",
+    "BUILTIN_METHODS",
+    "HOLDOUT_FRACTION",
+    "METHODS",
+    "STARTS",
+    "SolveMethod",
+    "SolveResults",
+    "SolveSettings",
+    "dataset_results",
+    "results_meta",
+    "solve_dataset",
+    "truth_with_extras",
+]

@@ -170,7 +170,8 @@ class PreparedImus:
         ``sqrt(NOISE_BANDWIDTH cutoff / (rate / 2))`` of it (:func:`filtered_noise`, the
         slowest IMU's rate), which is what the estimate weighs and checks the residuals against.
         """
-        from ineid.data.imu.estimation import EstimationSettings, ImuNoise, estimate_joint_states
+        from ineid.data.imu.estimation import estimate_joint_states
+        from ineid.data.imu.settings import EstimationSettings, ImuNoise
 
         if settings is None:
             settings = EstimationSettings(noise=ImuNoise(**(imu_noise or {})), qdd_prior=qdd_prior(self.mounts))
@@ -303,7 +304,7 @@ def filtered_noise(noise: Mapping[str, float], cutoff: float | None, rate: float
     """The :class:`ineid.data.imu.estimation.ImuNoise` of white noise ``noise`` at ``rate`` Hz after the
     low-pass at ``cutoff`` (None: unfiltered); a kind without noise gets a floor of 1 % of the default's (its
     readings are trusted, not infinitely)."""
-    from ineid.data.imu.estimation import ImuNoise
+    from ineid.data.imu.settings import ImuNoise
 
     factor = 1.0 if cutoff is None else math.sqrt(min(1.0, NOISE_BANDWIDTH * cutoff / (rate / 2)))
     default = ImuNoise()

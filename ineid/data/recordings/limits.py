@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from ineid.data.recordings import signals
-from ineid.data.recordings.streams import ANGLE_UNITS, check_units, first_beyond
+from ineid.data.recordings.streams import ANGLE_UNITS, TIME_LIMIT, VALUE_LIMIT, check_units, first_beyond
 from ineid.errors import DatasetError
 
 MIN_FRAMES = 10
@@ -79,3 +79,55 @@ def check_magnitudes(a: np.ndarray, what: str, limit: float) -> None:
             f"{what} holds {v:g} at sample {k}, beyond {limit:g} in magnitude, more than any sensor "
             "or clock gives (ineid.data.recordings.streams.VALUE_LIMIT, TIME_LIMIT): drop or repair that sample"
         )
+
+
+def check_stream(name: str, t: np.ndarray, arrays: dict[str, np.ndarray], source: str) -> float:
+    """Finite values and increasing time; the median interval (s)."""
+    for label, a in {"time": t, **arrays}.items():
+        bad = ~np.isfinite(a.reshape(len(a), -1))
+        if bad.any():
+            rows = np.flatnonzero(bad.any(axis=1))
+            k = int(rows[0])
+            what = "NaN" if np.isnan(a.reshape(len(a), -1)[k]).any() else "an infinite value"
+            when = f", t = {float(t[k])!r} s" if label != "time" and np.isfinite(t[k]) else ""
+            raise DatasetError(
+                f"{source}: the {name} stream's {label} holds {what} at sample {k}{when} ({len(rows)} sample"
+                f"{'s' if len(rows) != 1 else ''} in all); values must be finite: drop or repair those samples"
+            )
+        check_magnitudes(a, f"{source}: the {name} stream's {label}", TIME_LIMIT if label == "time" else VALUE_LIMIT)
+    return signals.median_interval(t, f"{source}: the {name} stream")
+
+
+MAX_UPSAMPLING = 100.0
+"""``--rate`` may be at most this multiple of the faster stream's rate: resampling adds no information,
+and beyond it only memory (a 10 s recording at 1e9 Hz wanted 74 GiB)."""
+
+
+def check_delay(delay: float, tq: np.ndarray, tw: np.ndarray, src: str) -> None:
+    """A delay longer than the whole recording leaves no overlap (and, huge, no time resolution)."""
+    with np.errstate(invalid="ignore"):
+        span = float(np.max([tq.max(), tw.max()]) - np.min([tq.min(), tw.min()])) if tq.size and tw.size else 0.0
+    if math.isfinite(span) and abs(delay) > span:
+        raise DatasetError(
+            f"{src}: a delay of {delay:g} s is longer than the whole recording ({span:.6g} s), so the streams cannot "
+            "overlap; --delay is how late the wrench time stamps are against the joints', in seconds"
+        )
+
+
+def check_rate(rate: float | None, joint_rate: float, wrench_rate: float, overlap: float, n_dof: int) -> None:
+    """Refuse a ``rate`` above :data:`MAX_UPSAMPLING` x the faster stream's, or frames that do not fit in memory."""
+    if rate is None:
+        return
+    fastest = max(joint_rate, wrench_rate)
+    check_min_rate(rate, overlap, MAX_UPSAMPLING * fastest)
+    if rate > MAX_UPSAMPLING * fastest * (1 + 1e-9):  # the median interval of printed time stamps is inexact
+        raise DatasetError(
+            f"--rate {rate:g} Hz is more than {MAX_UPSAMPLING:g} x the faster stream's rate ({fastest:g} Hz): "
+            f"resampling adds no information; use at most {MAX_UPSAMPLING * fastest:g} Hz (default: the slower "
+            "stream's rate)"
+        )
+    from ineid._faults import require_memory
+
+    # frames x (q, qd, qdd, wrench, time) in float64, about four copies alive while resampling
+    n_frames = max(overlap, 0.0) * rate
+    require_memory(n_frames * (3 * n_dof + 7) * 8 * 4, f"{n_frames:,.0f} frames at --rate {rate:g} Hz", "lower --rate")

@@ -28,8 +28,7 @@ the ``joint_torque`` channel under ``tau`` (format version 4).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -44,134 +43,23 @@ from ineid.data.recordings.channels import (  # noqa: F401  (resolve_sensor re-e
     resolve_wrench_channel,
     rider_channels,
 )
-from ineid.data.recordings.limits import check_cutoff, check_import_settings, check_magnitudes, check_min_rate
+from ineid.data.recordings.limits import (
+    MAX_UPSAMPLING,
+    check_cutoff,
+    check_delay,
+    check_rate,
+    check_stream,
+)
+from ineid.data.recordings.settings import DelayEstimator, ImportSettings
 from ineid.data.recordings.streams import (
     SI_UNITS,
-    TIME_LIMIT,
-    VALUE_LIMIT,
     Streams,
     in_si_units,
     units_note,
 )
-from ineid.data.recordings.summary import DelayEstimate, ImportSummary  # re-exported
+from ineid.data.recordings.summary import DelayEstimate, ImportSummary
 from ineid.errors import DatasetError
 from ineid.progress import Progress
-
-
-@dataclass(frozen=True)
-class ImportSettings:
-    """How to turn :class:`Streams` into frames (the options of ``ineid data import``).
-
-    Attributes:
-        sensor_pose: ``"x,y,z,roll,pitch,yaw"`` (m, rad, URDF rpy) or a URDF frame name, the
-            sensor frame in the base frame; None: the frame named by the wrench messages'
-            ``frame_id`` when the URDF has it, else the base frame.
-        cutoff: Hz, the low-pass cut-off; None: chosen from the joint angles (when they
-            are differentiated) or no filter (when ``qd``/``qdd`` are measured).
-        rate: Hz, the rate of the frames; None: the slower stream's.
-        delay: s, how late the wrench time stamps are against the joints'.
-        flip_wrench: the sensor reports the wrench on the robot; negate it.
-        angle_unit: ``"rad"`` or ``"deg"``: the unit of the revolute joints' ``q`` (and of
-            ``qd``, ``qdd`` when given, per s and per s^2); degrees are converted to radians.
-            Prismatic joints stay in m.
-        wrench_scale: every force and moment is multiplied by it (0.001 for a wrench in mN
-            and N*mm); finite and positive (``flip_wrench`` negates).
-        time_unit, force_unit, moment_unit: the units of the time stamps, forces and moments
-            (:data:`ineid.data.recordings.streams.TIME_UNITS`, ...), converted to s, N and N*m.
-        estimate_delay: estimate ``delay`` from the model instead
-            (:func:`ineid.identify.delay.estimate_delay`, within ``+-max_delay`` s).
-        max_delay: s, the search range of ``estimate_delay``.
-        torque_constant, gear_ratio: the drives of a recording with motor currents: ``k_j``
-            (N*m/A at the motor) and ``G_j`` (motor turns per joint turn), one number for every
-            joint or one per joint; the currents are stored as a ``motor_current`` channel
-            (``i = tau / (k G)``).
-        imus: ``--imu`` texts, the mounts of the recording's link IMUs (:mod:`ineid.data.recordings.imus`);
-            an IMU not given is placed by the link or URDF frame its name names.
-        imu_delay: s, how late the IMU time stamps are against the joints'.
-        imu_noise: ``{"gyro": rad/s, "accel": m/s^2, "alpha": rad/s^2}``, the IMUs' white-noise std at
-            their own rates (missing: :class:`ineid.data.imu.estimation.ImuNoise`'s defaults).
-        estimation: the :class:`ineid.data.imu.estimation.EstimationSettings` of the fusion, used as
-            given except for its noise, scaled by the filter (None: ``imu_noise``, and ``qdd`` from the
-            derivative of the fused ``qd`` when a gyro measures, :func:`ineid.data.recordings.imus.qdd_prior`).
-    """
-
-    sensor_pose: str | None = None
-    cutoff: float | None = None
-    rate: float | None = None
-    delay: float = 0.0
-    flip_wrench: bool = False
-    estimate_delay: bool = False
-    max_delay: float = 0.05
-    angle_unit: str = "rad"
-    wrench_scale: float = 1.0
-    time_unit: str = "s"
-    force_unit: str = "N"
-    moment_unit: str = "Nm"
-    torque_constant: tuple[float, ...] | None = None
-    gear_ratio: tuple[float, ...] | None = None
-    imus: tuple[str, ...] = ()
-    imu_delay: float = 0.0
-    imu_noise: dict | None = None
-    estimation: object | None = None
-
-    def __post_init__(self) -> None:
-        check_import_settings(self)
-
-
-DelayEstimator = Callable[[Streams, object, ImportSettings, float], DelayEstimate]
-"""``estimator(streams, model, settings, max_delay)``: the wrench delay that best fits the model."""
-
-
-def _check_stream(name: str, t: np.ndarray, arrays: dict[str, np.ndarray], source: str) -> float:
-    """Finite values and increasing time; the median interval (s)."""
-    for label, a in {"time": t, **arrays}.items():
-        bad = ~np.isfinite(a.reshape(len(a), -1))
-        if bad.any():
-            rows = np.flatnonzero(bad.any(axis=1))
-            k = int(rows[0])
-            what = "NaN" if np.isnan(a.reshape(len(a), -1)[k]).any() else "an infinite value"
-            when = f", t = {float(t[k])!r} s" if label != "time" and np.isfinite(t[k]) else ""
-            raise DatasetError(
-                f"{source}: the {name} stream's {label} holds {what} at sample {k}{when} ({len(rows)} sample"
-                f"{'s' if len(rows) != 1 else ''} in all); values must be finite: drop or repair those samples"
-            )
-        check_magnitudes(a, f"{source}: the {name} stream's {label}", TIME_LIMIT if label == "time" else VALUE_LIMIT)
-    return signals.median_interval(t, f"{source}: the {name} stream")
-
-
-MAX_UPSAMPLING = 100.0
-"""``--rate`` may be at most this multiple of the faster stream's rate: resampling adds no information,
-and beyond it only memory (a 10 s recording at 1e9 Hz wanted 74 GiB)."""
-
-
-def _check_delay(delay: float, tq: np.ndarray, tw: np.ndarray, src: str) -> None:
-    """A delay longer than the whole recording leaves no overlap (and, huge, no time resolution)."""
-    with np.errstate(invalid="ignore"):
-        span = float(np.max([tq.max(), tw.max()]) - np.min([tq.min(), tw.min()])) if tq.size and tw.size else 0.0
-    if math.isfinite(span) and abs(delay) > span:
-        raise DatasetError(
-            f"{src}: a delay of {delay:g} s is longer than the whole recording ({span:.6g} s), so the streams cannot "
-            "overlap; --delay is how late the wrench time stamps are against the joints', in seconds"
-        )
-
-
-def _check_rate(rate: float | None, joint_rate: float, wrench_rate: float, overlap: float, n_dof: int) -> None:
-    """Refuse a ``rate`` above :data:`MAX_UPSAMPLING` x the faster stream's, or frames that do not fit in memory."""
-    if rate is None:
-        return
-    fastest = max(joint_rate, wrench_rate)
-    check_min_rate(rate, overlap, MAX_UPSAMPLING * fastest)
-    if rate > MAX_UPSAMPLING * fastest * (1 + 1e-9):  # the median interval of printed time stamps is inexact
-        raise DatasetError(
-            f"--rate {rate:g} Hz is more than {MAX_UPSAMPLING:g} x the faster stream's rate ({fastest:g} Hz): "
-            f"resampling adds no information; use at most {MAX_UPSAMPLING * fastest:g} Hz (default: the slower "
-            "stream's rate)"
-        )
-    from ineid._faults import require_memory
-
-    # frames x (q, qd, qdd, wrench, time) in float64, about four copies alive while resampling
-    n_frames = max(overlap, 0.0) * rate
-    require_memory(n_frames * (3 * n_dof + 7) * 8 * 4, f"{n_frames:,.0f} frames at --rate {rate:g} Hz", "lower --rate")
 
 
 def recording_dataset(
@@ -269,17 +157,17 @@ def recording_dataset(
         w = np.asarray(streams.wrench, dtype=np.float64) * (-1.0 if settings.flip_wrench else 1.0)
         if w.ndim != 2 or w.shape != (len(tw), 6):
             raise DatasetError(f"{src}: wrench of shape {w.shape} for {len(tw)} time stamps; expected 6 columns")
-        _check_delay(settings.delay, tq, np.asarray(streams.wrench_time, dtype=np.float64), src)
+        check_delay(settings.delay, tq, np.asarray(streams.wrench_time, dtype=np.float64), src)
     elif settings.delay:
         raise DatasetError(f"{src}: --delay is how late the wrench is, and the recording has no wrench; drop it")
-    hq = _check_stream("joint", tq, {**joint_arrays, **riders}, src)
+    hq = check_stream("joint", tq, {**joint_arrays, **riders}, src)
     if has_wrench:
-        hw = _check_stream("wrench", tw, {"wrench": w}, src)
+        hw = check_stream("wrench", tw, {"wrench": w}, src)
         wrench_channel, where = resolve_wrench_channel(settings.sensor_pose, streams.frame_id, model)
     else:
         tw, w, hw, wrench_channel, where = tq, None, hq, None, "the base frame"
     rate = settings.rate or min(1.0 / hq, 1.0 / hw)
-    _check_rate(
+    check_rate(
         settings.rate,
         1.0 / hq,
         1.0 / hw,
@@ -557,3 +445,15 @@ def read_recording_csv(path: str | Path, model, flip_wrench: bool = False, setti
 
     settings = replace(settings or ImportSettings(), flip_wrench=flip_wrench)
     return recording_dataset(read_csv_streams(path, model), model, settings)[0]
+
+
+__all__ = [
+    "MAX_UPSAMPLING",
+    "DelayEstimate",
+    "DelayEstimator",
+    "ImportSettings",
+    "ImportSummary",
+    "import_recording",
+    "read_recording_csv",
+    "recording_dataset",
+]

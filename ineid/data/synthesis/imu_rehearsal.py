@@ -125,8 +125,9 @@ def rehearse(
         The filtered encoder angles, the fused ``qd``, ``qdd`` (the encoders' derivatives without IMUs),
         the filtered values, and the :class:`ineid.data.imu.estimation.EstimationSummary` (None without IMUs).
     """
-    from ineid.data.imu.estimation import EstimationSettings, ImuNoise, estimate_joint_states
+    from ineid.data.imu.estimation import estimate_joint_states
     from ineid.data.imu.readings import imu_readings
+    from ineid.data.imu.settings import EstimationSettings, ImuNoise
     from ineid.data.recordings.imus import (
         filter_model_error,
         filtered_noise,

@@ -1,0 +1,312 @@
+"""``ineid solve``: identify the unknown links of a dataset (or several recordings jointly), and validate."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import click
+
+from ineid.cli.channel_options import channel_options, settings_flags
+from ineid.cli.options import (
+    WORKERS,
+    FiniteFloatRange,
+    LibraryChoice,
+    LibraryOption,
+    PlotFile,
+    deprecated_alias,
+    parse_selection,
+    quiet,
+    select_alias,
+    select_option,
+)
+from ineid.cli.output import ProgressBar, console, print_findings, print_results, shown
+from ineid.cli.output_files import overwrite_option, prepare_output, run_inputs
+from ineid.cli.report import check_solve_outputs, plot_span_option, report_option, write_solve_outputs
+
+_SOLVE = "ineid.identify.solve"
+
+
+@click.command()
+@click.argument("data_paths", metavar="DATA.h5...", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option(
+    "--validate",
+    "validate_path",
+    type=click.Path(path_type=Path),
+    default=None,
+    metavar="REC.h5",
+    help="A separate recording of the same robot: the fitted parameters' prediction error on it "
+    "(RMS per axis, relative). With --bias estimate its own offsets are fitted alone on it.",
+)
+@click.option(
+    "--method",
+    type=LibraryChoice(f"{_SOLVE}:METHODS"),
+    cls=LibraryOption,
+    default_from=f"{_SOLVE}:SolveSettings.method",
+    help="network: a trained run (--run) identifies every configuration at once.",
+)
+@click.option(
+    "--run",
+    "run_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    metavar="RUN",
+    help="Run folder of `ineid train`, for --method network.",
+)
+@click.option(
+    "--fit-frames",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Frames fitted per configuration (the first K; the rest validate). Default: 80 %.",
+)
+@deprecated_alias("--frames", "fit_frames", "--fit-frames", type=click.IntRange(min=1))
+@select_option
+@select_alias
+@click.option(
+    "--weights",
+    type=LibraryChoice("ineid.identify.linear:WEIGHT_MODES"),
+    cls=LibraryOption,
+    default_from=f"{_SOLVE}:SolveSettings.weights",
+    help="Row weights per wrench axis: estimated from the residuals (default: calibrated std when the noise "
+    "differs per axis), from the noise levels (--sigma or the file), or none (equal noise assumed).",
+)
+@click.option(
+    "--sigma",
+    nargs=6,
+    type=FiniteFloatRange(min=0, min_open=True),
+    default=None,
+    metavar="FX FY FZ MX MY MZ",
+    help="Wrench noise std per axis (N, N*m) for --weights noise.",
+)
+@click.option(
+    "--start",
+    type=LibraryChoice(f"{_SOLVE}:STARTS"),
+    cls=LibraryOption,
+    default_from=f"{_SOLVE}:SolveSettings.start",
+    help="IPOPT's (and lsqnonlin's) start: the CAD values, or the linear estimate (made physical).",
+)
+@click.option(
+    "--bounds",
+    type=FiniteFloatRange(min=0, min_open=True),
+    default=None,
+    metavar="FRACTION",
+    help="lsqlin only: keep every parameter within FRACTION of max(|CAD value|, its scale) of its CAD "
+    "value (0.5: 50 %). Default: unbounded, the minimum-norm solution.",
+)
+@click.option(
+    "--backend",
+    type=LibraryChoice(f"{_SOLVE}:BACKENDS"),
+    cls=LibraryOption,
+    default_from=f"{_SOLVE}:SolveSettings.backend",
+    help="Least squares: fused JAX kernels; CasADi per configuration (no compilation); or "
+    "casadi-c, the CasADi route compiled to C (IPOPT problems too; needs a C compiler).",
+)
+@click.option(
+    "--workers",
+    type=WORKERS,
+    default=None,
+    help="Processes for IPOPT (default: CPU count, at most 4 x; fewer than 256 configurations run in one).",
+)
+@click.option(
+    "--bias",
+    type=LibraryChoice(f"{_SOLVE}:BIAS_MODES"),
+    cls=LibraryOption,
+    default_from=f"{_SOLVE}:SolveSettings.bias",
+    help="estimate: identify six constant sensor offsets with the parameters (an untared sensor).",
+)
+@click.option(
+    "--known-uncertainty",
+    "known_uncertainty",
+    multiple=True,
+    metavar="[LINK=]FRACTION",
+    callback=lambda ctx, param, v: _known_uncertainty(v),
+    help="The known links' CAD uncertainty, added to the reported std: each known parameter off by "
+    "FRACTION of max(|CAD value|, the link's scale) (0.05: 5 %); LINK=FRACTION for one link "
+    "(repeatable; overrides a plain FRACTION). Default: the CAD taken as exact.",
+)
+@channel_options(two_step=True)
+@click.option(
+    "--plot",
+    "plot_path",
+    type=PlotFile(),
+    default=None,
+    metavar="FILE",
+    help="Write measured vs predicted wrench of the held-out frames (first solved configuration), "
+    "per axis with the residual and its RMS (.png, .pdf, .svg).",
+)
+@plot_span_option
+@report_option
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Results file (.h5).")
+@overwrite_option
+@click.pass_context
+def solve(
+    ctx,
+    data_paths,
+    validate_path,
+    method,
+    run_dir,
+    fit_frames,
+    selection,
+    weights,
+    sigma,
+    start,
+    bounds,
+    backend,
+    workers,
+    bias,
+    known_uncertainty,
+    plot_path,
+    plot_span,
+    report_path,
+    out,
+    overwrite,
+    **channel_flags,
+) -> None:
+    """Identify the unknown links of every selected configuration of DATA.h5.
+
+    Several DATA files (recordings of one robot): configuration i of each is fitted jointly from
+    all their frames (each with its own offsets under --bias estimate); --validate REC.h5 reports
+    the prediction error on a separate recording.
+
+    --method network: a trained run (--run RUN) estimates all configurations in batches; with
+    --fit-frames, a multiple of the run's frames per sample.
+
+    --use wrench,torque chooses the channels (default: every one the file has); --friction, --armature,
+    --torque-offset model the joint torques' actuation, identified with the links (--two-step: after them).
+    """
+    from ineid.data import load_dataset, read_meta
+    from ineid.identify import SolveSettings, save_results
+    from ineid.workflow import solve_dataset
+
+    data_path = data_paths[0]
+    joint = len(data_paths) > 1 or validate_path is not None
+    inputs = [*(("the input dataset", p) for p in data_paths), *run_inputs(run_dir)]
+    if validate_path is not None:
+        inputs.append(("the validation recording (--validate)", validate_path))
+    prepare_output(out, overwrite, inputs=inputs)
+    if (method == "network") != (run_dir is not None):
+        raise click.UsageError("--method network needs --run RUN (a trained run folder), and --run goes with it")
+    given = [
+        f"--{n.replace('_', '-')}"
+        for n in ("weights", "sigma", "start", "backend", "workers", "bias", "known_uncertainty")
+        if ctx.get_parameter_source(n) is click.core.ParameterSource.COMMANDLINE
+    ]
+    if method == "network" and plot_path is not None:
+        given.append("--plot")
+    if method == "network" and given:
+        raise click.UsageError(f"{', '.join(given)} do not apply to --method network")
+    check_solve_outputs(plot_path, plot_span, report_path, overwrite, [*inputs, ("the results file (--out)", out)])
+    if sigma is not None and weights != "noise":
+        raise click.UsageError("--sigma goes with --weights noise")
+    _, shapes = read_meta(data_path)
+    idx = parse_selection(selection, shapes["q"][0])
+    try:
+        settings = SolveSettings(
+            method=method,
+            frames=fit_frames,
+            weights=weights,
+            axis_sigma=tuple(sigma) if sigma else None,
+            start=start,
+            backend=backend,
+            workers=workers or os.cpu_count() or 1,
+            bias=bias,
+            run=None if run_dir is None else str(run_dir),
+            known_uncertainty=known_uncertainty,
+            bounds=bounds,
+            **settings_flags(channel_flags),
+        )
+    except ValueError as e:
+        raise click.UsageError(str(e)) from None
+    if joint:
+        for opt, bad in (
+            ("--fit-frames", fit_frames is not None),
+            ("--plot", plot_path is not None),
+            ("--method network", method == "network"),
+            ("--backend", backend != "jax"),
+        ):
+            if bad:
+                raise click.UsageError(
+                    f"{opt} does not apply to several recordings or --validate "
+                    "(every frame of the inputs is fitted, by the jax backend)"
+                )
+    ds = load_dataset(data_path, configs=idx, clean=False)
+    model = ds.model()
+    val = None
+    if joint:
+        from ineid.identify.joint import solve_recordings
+
+        more = [load_dataset(p, configs=idx, clean=False) for p in data_paths[1:]]
+        val = None if validate_path is None else load_dataset(validate_path, configs=idx, clean=False)
+        with ProgressBar(f"solving ({method})", "configurations", quiet(ctx)) as bar:
+            res = solve_recordings([ds, *more], settings, model=model, validate=val, progress=bar)
+        solved_ds, ds = ds, _joined(ds, more)  # the plausibility checks see every frame fitted
+    else:
+        with ProgressBar(f"solving ({method})", "configurations", quiet(ctx)) as bar:
+            res = solve_dataset(ds, settings, model=model, progress=bar)
+        solved_ds = ds
+    from ineid.identify.plausibility import check_solve
+
+    findings = check_solve(ds, res, model)
+    res.meta["warnings"] = [f.to_dict() for f in findings]
+    save_results(res, out, overwrite=overwrite)
+    print_results(res, out)
+    if res.meta.get("validation"):
+        _print_validation(res)
+    print_findings(findings)
+    write_solve_outputs(
+        res, solved_ds, model, method, plot_path, plot_span, report_path, out, validate=val, overwrite=overwrite
+    )
+
+
+def _joined(ds, more):
+    """One dataset of the frames of ``ds`` and ``more`` (same robot, configurations), for the plausibility checks."""
+    import dataclasses
+
+    import numpy as np
+
+    if not more:
+        return ds
+    every = (ds, *more)
+    arrays = {k: np.concatenate([getattr(d, k) for d in every], axis=1) for k in ("q", "qd", "qdd")}
+    if ds.wrench is not None:
+        arrays["wrench"] = np.concatenate([d.wrench for d in every], axis=1)
+    arrays["channel_values"] = {
+        k: np.concatenate([d.channel_values[k] for d in every], axis=1) for k in ds.channel_values
+    }
+    return dataclasses.replace(ds, **arrays, clean={}, time=None)
+
+
+def _print_validation(res) -> None:
+    v = res.meta["validation"]
+    if v.get("rel") is None:
+        return
+    console().print(
+        f"validation on {shown(v['path'] or 'the validation recording')} ({v['n_frames']} frames; offsets "
+        f"{v['offsets']}): residual RMS per axis ({' '.join(res.axes)}) "
+        + " ".join(f"{r:.3g}" for r in v["rms"])
+        + f"; relative error {v['rel']:.3g} (median)"
+    )
+
+
+def _known_uncertainty(values) -> tuple[tuple[str, float], ...]:
+    """``--known-uncertainty`` values as ``(link, fraction)`` pairs (link ``*``: every known link)."""
+    import math
+
+    pairs = []
+    for v in values:
+        link, _, text = v.rpartition("=")
+        try:
+            f = float(text)
+        except ValueError:
+            f = math.nan
+        if not (math.isfinite(f) and 0 <= f < 10) or (v.count("=") and not link):
+            raise click.BadParameter(
+                f"{v!r} is not FRACTION or LINK=FRACTION with 0 <= FRACTION < 10 (0.05: 5 %)",
+                param_hint="'--known-uncertainty'",
+            )
+        pairs.append((link or "*", f))
+    return tuple(pairs)
+
+
+def register(main: click.Group) -> None:
+    main.add_command(solve)
