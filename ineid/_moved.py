@@ -66,7 +66,7 @@ MOVED: dict[str, str] = {
     "ineid.data.generate": "ineid.data.synthesis.generate",
     "ineid.data.trajectory": "ineid.data.synthesis.trajectory",
     "ineid.data.imu_rehearsal": "ineid.data.synthesis.imu_rehearsal",
-    "ineid.data.mujoco_sim": "ineid.data.synthesis.mujoco_sim",
+    "ineid.data.mujoco_sim": "ineid.studies.mujoco_sim",
 }
 """Old module path -> new module path."""
 

@@ -19,9 +19,9 @@ def _quat(r: np.ndarray) -> np.ndarray:
 
 
 def _arm_mjcf(model, theta, root_theta, timestep: float) -> str:
-    """The arm's MJCF as the other MuJoCo tests build it (``ineid.data.synthesis.mujoco_sim`` once issue 21 lands)."""
+    """The arm's MJCF as the other MuJoCo tests build it (``ineid.studies.mujoco_sim`` once issue 21 lands)."""
     try:
-        from ineid.data.synthesis.mujoco_sim import arm_mjcf
+        from ineid.studies.mujoco_sim import arm_mjcf
 
         return arm_mjcf(model.chain, theta, root_theta, SensorPose(), timestep)
     except ImportError:
@@ -31,9 +31,9 @@ def _arm_mjcf(model, theta, root_theta, timestep: float) -> str:
 
 
 def _sim_parts():
-    """``(Reference, root_theta(model))`` from ``ineid.data.synthesis.mujoco_sim`` (issue 21) or the tests' old home."""
+    """``(Reference, root_theta(model))`` from ``ineid.studies.mujoco_sim`` (issue 21) or the tests' old home."""
     try:
-        from ineid.data.synthesis.mujoco_sim import Reference, root_link_theta
+        from ineid.studies.mujoco_sim import Reference, root_link_theta
 
         return Reference, root_link_theta
     except ImportError:

@@ -1,7 +1,7 @@
 """The tests' lab recording: MuJoCo simulates ``sweaty-arm`` the way a lab records it.
 
 The simulator itself (the arm as MJCF on a force/torque sensor, the computed-torque
-reference tracking, joint friction and armature) is :mod:`ineid.data.synthesis.mujoco_sim`; this module
+reference tracking, joint friction and armature) is :mod:`ineid.studies.mujoco_sim`; this module
 draws the simulated parameters and writes the files a lab would bring (CSV, bags). A lab's
 recording is the sensor wrench plus a constant bias, and the joint angles only, at 1 kHz.
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ineid.channels.pose import SensorPose
-from ineid.data.synthesis.mujoco_sim import simulate
+from ineid.studies.mujoco_sim import simulate
 
 SENSOR_POSE = SensorPose((0.03, -0.02, -0.05), (3.1, 0.2, 0.7))
 """The test sensor: 3-5 cm off the base origin and turned nearly upside down (roll 3.1 rad)."""

@@ -78,8 +78,8 @@ def folder(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def arm_xml(folder):
-    """The tests' MuJoCo arm: sweaty-arm as :func:`ineid.data.synthesis.mujoco_sim.arm_mjcf` writes it."""
-    from ineid.data.synthesis.mujoco_sim import arm_mjcf, root_link_theta
+    """The tests' MuJoCo arm: sweaty-arm as :func:`ineid.studies.mujoco_sim.arm_mjcf` writes it."""
+    from ineid.studies.mujoco_sim import arm_mjcf, root_link_theta
 
     model = ineid.load_robot("sweaty-arm")
     path = folder / "arm.xml"

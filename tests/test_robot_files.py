@@ -253,7 +253,7 @@ def test_mjcf_numbers_and_encodings_are_one_line(run, tmp_path, case):
 
 @needs_mujoco
 def test_mujoco_warnings_while_stepping_stay_out_of_the_working_folder(tmp_path, monkeypatch):
-    """An unstable step warns through the same handler (``ineid.data.synthesis.mujoco_sim`` steps inside it)."""
+    """An unstable step warns through the same handler (``ineid.studies.mujoco_sim`` steps inside it)."""
     import mujoco
 
     from ineid.robots.mjcf import mujoco_warnings

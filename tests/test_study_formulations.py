@@ -41,7 +41,7 @@ def _theta(model, seed):
 
 
 def _simulate(model, friction, seed=3, duration=1.5):
-    from ineid.data.synthesis.mujoco_sim import simulate
+    from ineid.studies.mujoco_sim import simulate
 
     theta = _theta(model, seed)
     return theta, simulate(
@@ -50,7 +50,7 @@ def _simulate(model, friction, seed=3, duration=1.5):
 
 
 def test_mujoco_joint_torques_are_ineids_without_friction(arm):
-    from ineid.data.synthesis.mujoco_sim import NO_FRICTION, root_wrench
+    from ineid.studies.mujoco_sim import NO_FRICTION, root_wrench
 
     theta, sim = _simulate(arm, NO_FRICTION)
     tau = arm.joint_torques(sim.q, sim.qd, sim.qdd, theta)
@@ -63,7 +63,7 @@ def test_mujoco_joint_torques_are_ineids_without_friction(arm):
 def test_mujoco_joint_torques_with_friction_are_ineids_plus_the_drive(arm):
     """tau = Y_tau theta + Ia qdd + f (f: MuJoCo's damping, frictionloss and Stribeck torques), and f is
     viscous + Coulomb + Stribeck away from rest; the base wrench does not see the joints' friction."""
-    from ineid.data.synthesis.mujoco_sim import JointFriction, root_wrench
+    from ineid.studies.mujoco_sim import JointFriction, root_wrench
 
     n = arm.n_dof
     drive = JointFriction(
@@ -90,7 +90,7 @@ def test_joint_torque_channel_fits_mujoco_drives_exactly(model):
     """Least squares on [Y_tau,u | E] (the channel's rows and extra columns) recovers the unknown links'
     torques and the joints' viscous friction and armature from clean MuJoCo torques."""
     from ineid.channels import JointTorque
-    from ineid.data.synthesis.mujoco_sim import JointFriction
+    from ineid.studies.mujoco_sim import JointFriction
 
     drive = JointFriction(viscous=[0.3, 0.5, 0.2, 0.1], armature=[0.02, 0.05, 0.01, 0.01])
     theta, sim = _simulate(model, drive, duration=3.0)

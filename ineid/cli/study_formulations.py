@@ -53,7 +53,7 @@ def study_formulations(ctx, robot, quick, n_configs, duration, formulations, see
     torques with and without a friction model, and from both. Needs MuJoCo (pip install 'ineid[mujoco]')."""
     from dataclasses import replace
 
-    from ineid.data.synthesis.mujoco_sim import import_mujoco
+    from ineid.studies.mujoco_sim import import_mujoco
     from ineid.studies.formulations import (
         FORMULATIONS,
         SIZES,

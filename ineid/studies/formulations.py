@@ -2,7 +2,7 @@
 
 The paper identifies from the base wrench and claims that this avoids modelling the joints'
 friction and motors, which the classical formulation (joint torques, ``tau = Y theta``) must
-model. This study measures the claim on MuJoCo data (:mod:`ineid.data.synthesis.mujoco_sim`, an engine
+model. This study measures the claim on MuJoCo data (:mod:`ineid.studies.mujoco_sim`, an engine
 independent of ineid's): every configuration of the arm (its unknown links drawn around the CAD
 values) follows its own smooth reference while its joints have viscous, Coulomb and Stribeck
 friction and rotor inertia (armature); the base wrench and the joint torques are recorded with
@@ -35,7 +35,7 @@ from ineid._atomic import save_figure, write_csv
 from ineid.channels import BaseWrench, ChannelSet, JointTorque
 from ineid.data.dataset.meta import DatasetMeta, assemble_theta
 from ineid.data.dataset.schema import Dataset
-from ineid.data.synthesis.mujoco_sim import JointFriction, Reference, import_mujoco, simulate
+from ineid.studies.mujoco_sim import JointFriction, Reference, import_mujoco, simulate
 from ineid.data.synthesis.sampling import sample_link_parameters
 from ineid.errors import RobotModelError
 from ineid.identify.results import relative_error

@@ -1,3 +1,3 @@
 """Synthetic data: parameter sets and frames (:mod:`.sampling`), Fourier trajectories (:mod:`.trajectory`),
-sensor noise (:mod:`.noise`), rehearsed IMUs (:mod:`.imu_rehearsal`), MuJoCo simulation with joint friction
-(:mod:`.mujoco_sim`), and the dataset generator (:mod:`.generate`)."""
+sensor noise (:mod:`.noise`), rehearsed IMUs (:mod:`.imu_rehearsal`), and the dataset generator
+(:mod:`.generate`)."""
