@@ -53,7 +53,6 @@ def study_formulations(ctx, robot, quick, n_configs, duration, formulations, see
     torques with and without a friction model, and from both. Needs MuJoCo (pip install 'ineid[mujoco]')."""
     from dataclasses import replace
 
-    from ineid.studies.mujoco_sim import import_mujoco
     from ineid.studies.formulations import (
         FORMULATIONS,
         SIZES,
@@ -61,6 +60,7 @@ def study_formulations(ctx, robot, quick, n_configs, duration, formulations, see
         plot,
         write_rows,
     )
+    from ineid.studies.mujoco_sim import import_mujoco
 
     import_mujoco("ineid study formulations")
     for path, option in ((plot_path, "--plot"), (csv_path, "--csv")):

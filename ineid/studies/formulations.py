@@ -35,11 +35,11 @@ from ineid._atomic import save_figure, write_csv
 from ineid.channels import BaseWrench, ChannelSet, JointTorque
 from ineid.data.dataset.meta import DatasetMeta, assemble_theta
 from ineid.data.dataset.schema import Dataset
-from ineid.studies.mujoco_sim import JointFriction, Reference, import_mujoco, simulate
 from ineid.data.synthesis.sampling import sample_link_parameters
 from ineid.errors import RobotModelError
 from ineid.identify.results import relative_error
 from ineid.identify.solve import SolveSettings, solve_dataset
+from ineid.studies.mujoco_sim import JointFriction, Reference, import_mujoco, simulate
 
 FRICTION_MODEL = {"friction": ("viscous", "coulomb"), "armature": True}
 FORMULATIONS = {
