@@ -11,21 +11,7 @@ import numpy as np
 from ineid.channels import ChannelSet
 from ineid.data.synthesis.imu_rehearsal import ImuRehearsal
 from ineid.data.synthesis.trajectory import FourierTrajectory
-from ineid.excite.criterion import (  # noqa: F401  (re-exported: they were defined here)
-    CRITERIA,
-    DEFAULT_CHUNK,
-    DESIGN_NOISE,
-    DesignBase,
-    DesignEvaluation,
-    _regressor_jet,
-    centred,
-    criterion_and_gradient,
-    design_base,
-    design_noise,
-    evaluate_design,
-    regressor_and_derivatives,
-    scaled_regressor,
-)
+from ineid.excite.criterion import DesignBase, DesignEvaluation
 from ineid.excite.trajectory import Bounds
 
 MAX_STARTS = 10_000
