@@ -78,7 +78,7 @@ from ineid.data.synthesis.noise import NoiseModel
 from ineid.data.synthesis.trajectory import FourierTrajectory, whole_count
 from ineid.errors import ExcitationError
 from ineid.excite.collision import CollisionPairs
-from ineid.excite.criterion import (  # noqa: F401  (the names of ineid.identify.excite, this module's old path, until ineid 0.3)
+from ineid.excite.criterion import (  # noqa: F401  (also the names of the old path ineid.identify.excite, until ineid 0.3)
     CRITERIA,
     DEFAULT_CHUNK,
     DESIGN_NOISE,

@@ -162,13 +162,13 @@ class ExcitationSettings:
     def to_dict(self) -> dict:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         if self.channels is None:
-            del d["channels"]  # the base wrench: the record of ineid 0.1
+            del d["channels"]  # the base wrench: a record without channels
         else:
             d["channels"] = self.channels.to_list()
         if self.workspace is not None:
             d["workspace"] = list(self.workspace)
         if self.sensors is None:
-            del d["sensors"]  # joint states exact: the record as before
+            del d["sensors"]  # joint states exact: a record without sensors
         else:
             d["sensors"] = self.sensors.to_dict()
         return d
