@@ -33,9 +33,8 @@ def numpy_function(
             ((n_out, n_in), or (n_in,) when ``n_out`` is 1).
 
     Returns:
-        A :class:`casadi.Callback` of one input and one output; CasADi does not own Python callbacks,
-        so the caller keeps it alive as long as any function built on it (:func:`ineid.identify.ipopt.nlpsol`'s
-        ``keep``). It keeps its Jacobian callback alive itself.
+        A :class:`casadi.Callback` (it keeps its Jacobian's alive); CasADi does not own Python callbacks, so the
+        caller keeps it alive as long as any function built on it (``keep`` of :func:`ineid.identify.ipopt.nlpsol`).
     """
     import casadi as ca
 
