@@ -16,8 +16,9 @@ from ineid.data.synthesis.trajectory import (
     read_trajectory_json,
 )
 from ineid.errors import ExcitationError
-from ineid.excite.design import _Problem, design_base, design_bounds, design_excitation, design_noise, evaluate_design
+from ineid.excite.design import design_base, design_bounds, design_excitation, design_noise, evaluate_design
 from ineid.excite.settings import ExcitationSettings
+from ineid.excite.trajectory import DesignProblem
 
 from .conftest import SEED
 
@@ -89,7 +90,7 @@ def test_expected_std_is_the_spread_of_least_squares_estimates(arm, design):
 @pytest.mark.parametrize(("criterion", "bias"), [("d-opt", False), ("cond", False), ("d-opt", True)])
 def test_gradient_matches_finite_differences(arm, criterion, bias):
     base = design_base(arm, bias=bias)
-    problem = _Problem(arm, base, design_noise(), criterion, design_bounds(arm), 1 / DURATION, 4, 160, 128)
+    problem = DesignProblem(arm, base, design_noise(), criterion, design_bounds(arm), 1 / DURATION, 4, 160, 128)
     x = problem.random_start(np.random.default_rng(SEED))
     f, g = problem.gradient(x)
     assert np.isfinite(f)

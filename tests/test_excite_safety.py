@@ -253,11 +253,14 @@ def test_mesh_geometry_gives_bounding_capsules():
 
 def test_constraint_jacobian_matches_finite_differences(collision_arm):
     from ineid.excite.collision import CollisionPairs
-    from ineid.excite.design import _Problem, design_base, design_bounds, design_noise
+    from ineid.excite.design import design_base, design_bounds, design_noise
     from ineid.excite.safety import SafetyConstraints, SafetyLimits
+    from ineid.excite.trajectory import DesignProblem
 
     bounds = design_bounds(collision_arm)
-    prob = _Problem(collision_arm, design_base(collision_arm), design_noise(None), "d-opt", bounds, 0.2, 3, 160, 96)
+    prob = DesignProblem(
+        collision_arm, design_base(collision_arm), design_noise(None), "d-opt", bounds, 0.2, 3, 160, 96
+    )
     safety = SafetyConstraints(
         collision_arm,
         SafetyLimits(floor=0.1, workspace=(-0.5, 0.5, -0.5, 0.6, -0.5, 1.0)),

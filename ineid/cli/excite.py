@@ -186,8 +186,6 @@ def excite(
     With --encoder-bits and --imu the design accounts for the joint-state errors the lab's encoders and
     link IMUs will cause (to first order: they inflate the noise).
     """
-    from ineid._atomic import _signals_deferred
-    from ineid.data.synthesis.trajectory import write_trajectory_csv, write_trajectory_json
     from ineid.excite.design import design_excitation
     from ineid.excite.settings import ExcitationSettings
 
@@ -217,6 +215,18 @@ def excite(
         channels=channels,
         sensors=sensors,
     )
+    _warn_beyond_bounds(velocity_scale, acceleration_scale)
+    with ProgressBar("designing", "starts", quiet(ctx)) as bar:
+        wrench = {k: v for k, v in (noise or {}).items() if k not in IMU_NOISE_KEYS}  # the IMUs': in sensors
+        res = design_excitation(model, settings, noise=noise_model(wrench or None, model.n_dof), progress=bar)
+    n_samples = _write_design(res, model, rate, out, coefficients, overwrite)
+    print_design(res, model)
+    print_limits(res, model)
+    click.echo(f"wrote {out} ({n_samples:,} samples) and {coefficients}")
+
+
+def _warn_beyond_bounds(velocity_scale: float, acceleration_scale: float) -> None:
+    """A warning on stderr for each scale above 1 (bounds beyond the model's)."""
     for name, scale in (("--velocity-scale", velocity_scale), ("--acceleration-scale", acceleration_scale)):
         if scale > 1:
             click.echo(
@@ -224,9 +234,14 @@ def excite(
                 "defaults where it gives none): make sure the arm can follow",
                 err=True,
             )
-    with ProgressBar("designing", "starts", quiet(ctx)) as bar:
-        wrench = {k: v for k, v in (noise or {}).items() if k not in IMU_NOISE_KEYS}  # the IMUs': in sensors
-        res = design_excitation(model, settings, noise=noise_model(wrench or None, model.n_dof), progress=bar)
+
+
+def _write_design(res, model, rate: float, out: Path, coefficients: Path, overwrite: bool) -> int:
+    """The design's samples at ``rate`` Hz to the CSV ``out`` and its coefficients and record to the JSON
+    ``coefficients``, as a pair (an interruption leaves both old files or both new ones); returns the samples."""
+    from ineid._atomic import _signals_deferred
+    from ineid.data.synthesis.trajectory import write_trajectory_csv, write_trajectory_json
+
     t, q, qd, qdd = res.trajectory.sample(rate)
     comments = [
         (
@@ -236,12 +251,10 @@ def excite(
         f"joints: {json.dumps(list(model.joint_names))}",  # JSON: names may hold commas
         f"coefficients: {coefficients.name}",
     ]
-    with _signals_deferred():  # a pair: an interruption leaves both old files or both new ones
+    with _signals_deferred():
         write_trajectory_json(coefficients, res.trajectory, {"design": res.to_dict()}, overwrite=overwrite)
         write_trajectory_csv(out, t, q, qd, qdd, comments, overwrite=overwrite)
-    print_design(res, model)
-    print_limits(res, model)
-    click.echo(f"wrote {out} ({len(t):,} samples) and {coefficients}")
+    return len(t)
 
 
 def print_design(res, model) -> None:

@@ -1,4 +1,4 @@
-"""The link IMUs' options of ``ineid data import`` and ``ineid data generate`` (issue 22)."""
+"""The link IMUs' options of ``ineid data import`` and ``ineid data generate``."""
 
 from __future__ import annotations
 

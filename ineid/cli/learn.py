@@ -24,88 +24,91 @@ _CFG = "ineid.learn.train:TrainConfig"
 _MODEL = "ineid.learn.models:ModelSpec"
 
 
+_RUN_OPTIONS = (
+    click.option(
+        "--depth",
+        type=click.IntRange(min=1),
+        default=None,
+        help="Hidden layers of --arch mlp (or of the wls frame encoder, default 2).",
+    ),
+    click.option(
+        "--width",
+        type=click.IntRange(min=1),
+        default=None,
+        help="Neurons per layer of --arch mlp (or of the wls frame encoder, default 32).",
+    ),
+    click.option("--lr", type=FiniteFloatRange(min=0, min_open=True), cls=LibraryOption, default_from=f"{_CFG}.lr"),
+    click.option(
+        "--schedule",
+        type=LibraryChoice("ineid.learn.train:SCHEDULES"),
+        cls=LibraryOption,
+        default_from=f"{_CFG}.schedule",
+    ),
+    click.option("--epochs", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_CFG}.epochs"),
+    click.option(
+        "--batch",
+        type=click.IntRange(min=1),
+        cls=LibraryOption,
+        default_from=f"{_CFG}.batch",
+        help="Samples per step.",
+    ),
+    click.option(
+        "--alpha",
+        type=FiniteFloatRange(min=0),
+        cls=LibraryOption,
+        default_from=f"{_CFG}.alpha",
+        help="Weight of the MSE.",
+    ),
+    click.option(
+        "--beta",
+        type=FiniteFloatRange(min=0),
+        cls=LibraryOption,
+        default_from=f"{_CFG}.beta",
+        help="Weight of the wrench residual (physics loss).",
+    ),
+    click.option(
+        "--patience",
+        type=click.IntRange(min=0),
+        cls=LibraryOption,
+        default_from=f"{_CFG}.patience",
+        help="Early stopping: epochs without a better validation MSE (0: off).",
+    ),
+    click.option(
+        "--train-configs",
+        "n_train",
+        type=click.IntRange(min=1),
+        default=None,
+        help="Training configurations (default 70 %).",
+    ),
+    click.option(
+        "--val-configs",
+        "n_val",
+        type=click.IntRange(min=1),
+        default=None,
+        help="Validation configurations (default 15 %).",
+    ),
+    click.option(
+        "--test-configs",
+        "n_test",
+        type=click.IntRange(min=1),
+        default=None,
+        help="Test configurations (default: the rest).",
+    ),
+    click.option("--seed", type=SEED, cls=LibraryOption, default_from=f"{_CFG}.seed"),
+    click.option(
+        "--physics-mode",
+        type=LibraryChoice("ineid.learn.losses:PHYSICS_MODES"),
+        default="cached",
+        show_default=True,
+        help="Regressor of the physics loss: computed once per frame, or inside the loss.",
+    ),
+)
+"""The options of :func:`run_options`, in the order ``--help`` lists them."""
+
+
 def run_options(f):
     """Options shared by ``ineid train`` and ``ineid sweep`` (the settings of one run; defaults: TrainConfig's)."""
-    opts = [
-        click.option(
-            "--depth",
-            type=click.IntRange(min=1),
-            default=None,
-            help="Hidden layers of --arch mlp (or of the wls frame encoder, default 2).",
-        ),
-        click.option(
-            "--width",
-            type=click.IntRange(min=1),
-            default=None,
-            help="Neurons per layer of --arch mlp (or of the wls frame encoder, default 32).",
-        ),
-        click.option("--lr", type=FiniteFloatRange(min=0, min_open=True), cls=LibraryOption, default_from=f"{_CFG}.lr"),
-        click.option(
-            "--schedule",
-            type=LibraryChoice("ineid.learn.train:SCHEDULES"),
-            cls=LibraryOption,
-            default_from=f"{_CFG}.schedule",
-        ),
-        click.option("--epochs", type=click.IntRange(min=1), cls=LibraryOption, default_from=f"{_CFG}.epochs"),
-        click.option(
-            "--batch",
-            type=click.IntRange(min=1),
-            cls=LibraryOption,
-            default_from=f"{_CFG}.batch",
-            help="Samples per step.",
-        ),
-        click.option(
-            "--alpha",
-            type=FiniteFloatRange(min=0),
-            cls=LibraryOption,
-            default_from=f"{_CFG}.alpha",
-            help="Weight of the MSE.",
-        ),
-        click.option(
-            "--beta",
-            type=FiniteFloatRange(min=0),
-            cls=LibraryOption,
-            default_from=f"{_CFG}.beta",
-            help="Weight of the wrench residual (physics loss).",
-        ),
-        click.option(
-            "--patience",
-            type=click.IntRange(min=0),
-            cls=LibraryOption,
-            default_from=f"{_CFG}.patience",
-            help="Early stopping: epochs without a better validation MSE (0: off).",
-        ),
-        click.option(
-            "--train-configs",
-            "n_train",
-            type=click.IntRange(min=1),
-            default=None,
-            help="Training configurations (default 70 %).",
-        ),
-        click.option(
-            "--val-configs",
-            "n_val",
-            type=click.IntRange(min=1),
-            default=None,
-            help="Validation configurations (default 15 %).",
-        ),
-        click.option(
-            "--test-configs",
-            "n_test",
-            type=click.IntRange(min=1),
-            default=None,
-            help="Test configurations (default: the rest).",
-        ),
-        click.option("--seed", type=SEED, cls=LibraryOption, default_from=f"{_CFG}.seed"),
-        click.option(
-            "--physics-mode",
-            type=LibraryChoice("ineid.learn.losses:PHYSICS_MODES"),
-            default="cached",
-            show_default=True,
-            help="Regressor of the physics loss: computed once per frame, or inside the loss.",
-        ),
-    ]
-    for o in reversed(opts):
+    for o in reversed(_RUN_OPTIONS):
         f = o(f)
     return f
 
@@ -195,13 +198,49 @@ def train_cmd(
     from ineid.cli.output_files import on_interrupt, prepare_output
     from ineid.data import load_dataset
     from ineid.learn import evaluate, load_run, train
-    from ineid.learn.runs import CHECKPOINT, EVALUATION, RUN_FILES, holds_run
+    from ineid.learn.runs import EVALUATION, RUN_FILES, holds_run
 
     cfg = train_config(
         dict(arch=arch, activation=activation, depth=depth, width=width, siamese=siamese, frames=sample_frames), kw
     )
     prepare_output(run_dir, overwrite, kind="folder", inputs=[("the input dataset", data_path)], contents=RUN_FILES)
-    replacing = overwrite and not resume and holds_run(run_dir)
+    left_behind = _left_behind(run_dir, data_path, replacing=overwrite and not resume and holds_run(run_dir))
+
+    ds = load_dataset(data_path, clean=False)
+    model = ds.model()
+    evaluations = []
+
+    def finish(work: Path) -> None:  # part of the run: written before a replacement is swapped in
+        ev = evaluate(load_run(work), ds, model=model)
+        atomic_write(work / EVALUATION, json.dumps(ev.to_dict(), indent=1))
+        evaluations.append(ev)
+
+    with on_interrupt(left_behind), ProgressBar(f"training {cfg.model.name}", "epochs", quiet(ctx)) as bar:
+        result = train(
+            ds,
+            cfg,
+            run_dir,
+            dataset_path=str(data_path),
+            resume=resume,
+            overwrite=overwrite,
+            progress=_epoch_progress(bar, cfg.model.name),
+            model=model,
+            physics_mode=physics_mode,
+            finish=finish,
+        )
+    click.echo(
+        f"{result.epochs_run} epochs in {result.seconds:.1f} s"
+        + (" (stopped early)" if result.stopped_early else "")
+        + f"; best validation MSE {result.best_val_mse:.4g} at epoch {result.best_epoch}; wrote {run_dir}"
+    )
+    print_evaluation(evaluations[-1])
+
+
+def _left_behind(run_dir: Path, data_path: Path, replacing: bool):
+    """What an interrupted ``ineid train`` says it leaves in ``run_dir`` (None: nothing to say); ``replacing``: the
+    folder held a run that the new one replaces once finished."""
+    from ineid.learn.runs import CHECKPOINT
+
     previous = _folder_id(run_dir)
 
     def left_behind() -> str | None:
@@ -216,42 +255,20 @@ def train_cmd(
             )
         return None
 
-    ds = load_dataset(data_path, clean=False)
-    model = ds.model()
-    evaluations = []
+    return left_behind
 
-    def finish(work: Path) -> None:  # part of the run: written before a replacement is swapped in
-        ev = evaluate(load_run(work), ds, model=model)
-        atomic_write(work / EVALUATION, json.dumps(ev.to_dict(), indent=1))
-        evaluations.append(ev)
 
-    with on_interrupt(left_behind), ProgressBar(f"training {cfg.model.name}", "epochs", quiet(ctx)) as bar:
+def _epoch_progress(bar, name: str):
+    """``progress(epoch, epochs, record)`` of :func:`ineid.learn.train`: the bar, with the epoch's losses."""
 
-        def progress(epoch, total, rec):
-            bar(epoch, total)
-            bar.set_description(
-                f"training {cfg.model.name}  loss {rec['train_loss']:.4f}  val mse "
-                f"{rec['val_mse']:.4f}  val phys {rec['val_phys']:.4f}"
-            )
-
-        result = train(
-            ds,
-            cfg,
-            run_dir,
-            dataset_path=str(data_path),
-            resume=resume,
-            overwrite=overwrite,
-            progress=progress,
-            model=model,
-            physics_mode=physics_mode,
-            finish=finish,
+    def progress(epoch, total, rec):
+        bar(epoch, total)
+        bar.set_description(
+            f"training {name}  loss {rec['train_loss']:.4f}  val mse "
+            f"{rec['val_mse']:.4f}  val phys {rec['val_phys']:.4f}"
         )
-    click.echo(
-        f"{result.epochs_run} epochs in {result.seconds:.1f} s"
-        + (" (stopped early)" if result.stopped_early else "")
-        + f"; best validation MSE {result.best_val_mse:.4g} at epoch {result.best_epoch}; wrote {run_dir}"
-    )
-    print_evaluation(evaluations[-1])
+
+    return progress
 
 
 @click.command("evaluate")

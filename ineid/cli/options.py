@@ -19,8 +19,9 @@ Flag names carry one meaning across commands:
 ``--out``              the file or folder to write; never replaced without ``--overwrite``
 =====================  ====================================================================
 
-The spellings of ineid 0.1 (``--configs``, ``--frames``, ``--frames-list``, ``--robot`` on
-``data generate``/``study noise``) keep working for one release with a deprecation message.
+The deprecated spellings (``--configs``, ``--frames``, ``--frames-list``, ``--robot`` on
+``data generate``/``study noise``) keep working, with a deprecation message, until ineid
+:data:`DEPRECATED_UNTIL`.
 Defaults live in the library's dataclasses and constants; options read them from there.
 """
 

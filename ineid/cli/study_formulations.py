@@ -53,7 +53,6 @@ def study_formulations(ctx, robot, quick, n_configs, duration, formulations, see
     torques with and without a friction model, and from both. Needs MuJoCo (pip install 'ineid[mujoco]')."""
     from dataclasses import replace
 
-    from ineid.studies.mujoco_sim import import_mujoco
     from ineid.studies.formulations import (
         FORMULATIONS,
         SIZES,
@@ -61,6 +60,7 @@ def study_formulations(ctx, robot, quick, n_configs, duration, formulations, see
         plot,
         write_rows,
     )
+    from ineid.studies.mujoco_sim import import_mujoco
 
     import_mujoco("ineid study formulations")
     for path, option in ((plot_path, "--plot"), (csv_path, "--csv")):
@@ -71,6 +71,21 @@ def study_formulations(ctx, robot, quick, n_configs, duration, formulations, see
     model = robot.load()
     with ProgressBar("formulations study", "configurations + formulations", quiet(ctx)) as bar:
         rows, data, results = formulations_study(model, size, seed, formulations or tuple(FORMULATIONS), progress=bar)
+    _print_study(rows, data, model, size)
+    written = []
+    if csv_path is not None:
+        write_rows(rows, csv_path)
+        written.append(str(csv_path))
+    if plot_path is not None:
+        plot(rows, results, data, model, plot_path)
+        written.append(str(plot_path))
+    if written:
+        click.echo(f"wrote {' and '.join(written)}")
+
+
+def _print_study(rows, data, model, size) -> None:
+    """One line per formulation (errors of the base parameters, the held-out channels and the drives' terms), and
+    the drives the simulation gave each joint."""
     f = data.friction.per_joint(model.n_dof)
     t = table(
         f"Formulations study, {model.name}: {size.n_configs} MuJoCo configurations of {size.duration:g} s at "
@@ -120,12 +135,3 @@ def study_formulations(ctx, robot, quick, n_configs, duration, formulations, see
         ),
         markup=False,
     )
-    written = []
-    if csv_path is not None:
-        write_rows(rows, csv_path)
-        written.append(str(csv_path))
-    if plot_path is not None:
-        plot(rows, results, data, model, plot_path)
-        written.append(str(plot_path))
-    if written:
-        click.echo(f"wrote {' and '.join(written)}")

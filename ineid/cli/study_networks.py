@@ -122,13 +122,7 @@ def study_networks(
 
     if resume and overwrite:
         raise click.UsageError("give --resume (continue the study) or --overwrite (start it afresh), not both")
-    engine_kw = {k: v for k, v in (("address", address), ("cpus_per_trial", cpus_per_trial)) if v is not None}
-    if engine != "ray" and engine_kw:
-        raise click.UsageError("--address and --cpus-per-trial go with --engine ray")
-    if engine == "ray":
-        from ineid.learn.ray_engine import import_ray
-
-        import_ray()
+    engine_kw = _engine_options(engine, address, cpus_per_trial)
     size = SIZES["quick" if quick else "paper"]
     given = dict(
         epochs=epochs, siamese_epochs=siamese_epochs, n_train=n_train, n_val=n_val, n_test=n_test, seeds=seeds, lr=lr
@@ -139,16 +133,7 @@ def study_networks(
     prepare_output(
         out_dir, overwrite, kind="folder", inputs=inputs, contents=(FILE, "claims.csv", *{p.name for p in parts})
     )
-    if data_path is not None:
-        from ineid.data import load_dataset
-
-        ds = load_dataset(data_path, clean=False)
-    else:
-        from ineid.data import generate_dataset
-        from ineid.robots.load import load_robot
-
-        ds = generate_dataset(load_robot("sweaty-arm"), size.dataset)
-
+    ds = _study_dataset(data_path, size)
     check_study_folder(ds, parts, size, out_dir, resume=resume, overwrite=overwrite)
 
     def left_behind() -> str | None:
@@ -172,10 +157,43 @@ def study_networks(
         )
     verdicts = check_claims(rows)
     write_claims(verdicts, out_dir / "claims.csv")
+    _print_study(rows, verdicts, f"Network study ({'quick' if quick else plan_name})", size.n_train)
+    failed = [r for r in rows if r.status != "ok"]
+    if failed:
+        click.echo(f"{len(failed)} of {len(rows)} trials failed (see networks.csv's status column)", err=True)
+    click.echo(f"wrote {out_dir / FILE} and {out_dir / 'claims.csv'}")
+
+
+def _engine_options(engine: str, address: str | None, cpus_per_trial: float | None) -> dict:
+    """The Ray options given (refused without ``--engine ray``); with Ray, say how to install it before anything
+    loads."""
+    engine_kw = {k: v for k, v in (("address", address), ("cpus_per_trial", cpus_per_trial)) if v is not None}
+    if engine != "ray" and engine_kw:
+        raise click.UsageError("--address and --cpus-per-trial go with --engine ray")
+    if engine == "ray":
+        from ineid.learn.ray_engine import import_ray
+
+        import_ray()
+    return engine_kw
+
+
+def _study_dataset(data_path, size):
+    """The dataset at ``data_path``, or (None) the sweaty-arm's generated at the study's size."""
+    if data_path is not None:
+        from ineid.data import load_dataset
+
+        return load_dataset(data_path, clean=False)
+    from ineid.data import generate_dataset
+    from ineid.robots.load import load_robot
+
+    return generate_dataset(load_robot("sweaty-arm"), size.dataset)
+
+
+def _print_study(rows, verdicts, title: str, n_train: int) -> None:
+    """The trials' table (test median relative errors) and the claims' verdicts."""
     con = console()
     t = table(
-        f"Network study ({'quick' if quick else plan_name}): {size.n_train} training configurations, "
-        f"test median relative error",
+        f"{title}: {n_train} training configurations, test median relative error",
         ("part", "seed", "run", "standard", "base", "linear LS", "epochs", "s"),
         left=("part", "run"),
     )
@@ -195,7 +213,3 @@ def study_networks(
     for v in verdicts:
         c.add_row(v.claim, v.verdict, v.why)
     con.print(c)
-    failed = [r for r in rows if r.status != "ok"]
-    if failed:
-        click.echo(f"{len(failed)} of {len(rows)} trials failed (see networks.csv's status column)", err=True)
-    click.echo(f"wrote {out_dir / FILE} and {out_dir / 'claims.csv'}")

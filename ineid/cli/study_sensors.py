@@ -1,4 +1,4 @@
-"""``ineid study sensors``: encoders alone, or with link gyroscopes and angular-acceleration sensors (issue 22)."""
+"""``ineid study sensors``: encoders alone, or with link gyroscopes and angular-acceleration sensors."""
 
 from __future__ import annotations
 

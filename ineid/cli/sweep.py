@@ -123,33 +123,12 @@ def sweep_cmd(
     from ineid._atomic import check_output
     from ineid.cli.output_files import on_interrupt, prepare_output
     from ineid.data import load_dataset
-    from ineid.learn import Grid, sweep
-    from ineid.learn.sweep import SWEEP_RECORD, check_sweep_folder, run_name, trial_state
+    from ineid.learn import sweep
+    from ineid.learn.sweep import SWEEP_RECORD, check_sweep_folder, run_name
 
-    given = dict(
-        archs=archs,
-        activations=activations,
-        scalers=scalers,
-        optimizers=optimizers,
-        losses=losses,
-        frames=sample_frames,
-    )
-    grid = Grid(
-        **{k: v for k, v in given.items() if v is not None},
-        siamese={"off": (False,), "on": (True,), "both": (False, True)}[siamese],
-    )
+    grid = _sweep_grid(archs, activations, scalers, optimizers, losses, sample_frames, siamese)
     base = train_config(dict(arch="mlp" if depth or width else "simple", depth=depth, width=width), kw)
-    ray_given = [
-        f"--{n.replace('_', '-')}"
-        for n in ("address", "cpus_per_trial", "gpus_per_trial")
-        if ctx.get_parameter_source(n) is click.core.ParameterSource.COMMANDLINE
-    ]
-    if engine != "ray" and ray_given:
-        raise click.UsageError(f"{', '.join(ray_given)} go with --engine ray")
-    if engine == "ray":
-        from ineid.learn.ray_engine import import_ray
-
-        import_ray()  # says how to install Ray before anything is loaded
+    _check_engine(ctx, engine)
     if resume and overwrite:
         raise click.UsageError("give --resume (continue the sweep) or --overwrite (start it afresh), not both")
     try:
@@ -167,20 +146,9 @@ def sweep_cmd(
     )
     if out_dir.is_dir() and not resume:
         check_output(out_dir / "sweep.csv", overwrite)
-
-    def left_behind() -> str | None:
-        if not (out_dir / SWEEP_RECORD).is_file():
-            return None
-        fingerprint = ds.fingerprint()
-        done = sum(trial_state(out_dir / run_name(c), c, fingerprint) == "finished" for c in cfgs)
-        return (
-            f"{done} of {len(cfgs)} trials in {out_dir} are finished; continue the sweep with "
-            f"`ineid sweep {data_path} ... --out {out_dir} --resume` (the same settings)"
-        )
-
     ds = load_dataset(data_path, clean=False)
     check_sweep_folder(ds, grid, base, out_dir, overwrite=overwrite, resume=resume)
-    with on_interrupt(left_behind), ProgressBar("sweep", "runs", quiet(ctx)) as bar:
+    with on_interrupt(_left_behind(ds, cfgs, data_path, out_dir)), ProgressBar("sweep", "runs", quiet(ctx)) as bar:
         bar(0, len(cfgs))
         rows = sweep(
             ds,
@@ -197,6 +165,64 @@ def sweep_cmd(
             gpus_per_trial=gpus_per_trial,
             resume=resume,
         )
+    _print_sweep(data_path, rows)
+    click.echo(f"wrote {out_dir / 'sweep.csv'} and {out_dir / 'sweep.png'}")
+
+
+def _sweep_grid(archs, activations, scalers, optimizers, losses, sample_frames, siamese: str):
+    """The grid of the options given (each None: the grid's default); ``siamese``: off, on or both."""
+    from ineid.learn import Grid
+
+    given = dict(
+        archs=archs,
+        activations=activations,
+        scalers=scalers,
+        optimizers=optimizers,
+        losses=losses,
+        frames=sample_frames,
+    )
+    grid = Grid(
+        **{k: v for k, v in given.items() if v is not None},
+        siamese={"off": (False,), "on": (True,), "both": (False, True)}[siamese],
+    )
+    return grid
+
+
+def _left_behind(ds, cfgs, data_path, out_dir: Path):
+    """What an interrupted ``ineid sweep`` says it leaves in ``out_dir``: its finished trials and how to continue
+    (None before the sweep's record is written)."""
+    from ineid.learn.sweep import SWEEP_RECORD, run_name, trial_state
+
+    def left_behind() -> str | None:
+        if not (out_dir / SWEEP_RECORD).is_file():
+            return None
+        fingerprint = ds.fingerprint()
+        done = sum(trial_state(out_dir / run_name(c), c, fingerprint) == "finished" for c in cfgs)
+        return (
+            f"{done} of {len(cfgs)} trials in {out_dir} are finished; continue the sweep with "
+            f"`ineid sweep {data_path} ... --out {out_dir} --resume` (the same settings)"
+        )
+
+    return left_behind
+
+
+def _check_engine(ctx, engine: str) -> None:
+    """Refuse the Ray options without ``--engine ray``; with it, say how to install Ray before anything loads."""
+    ray_given = [
+        f"--{n.replace('_', '-')}"
+        for n in ("address", "cpus_per_trial", "gpus_per_trial")
+        if ctx.get_parameter_source(n) is click.core.ParameterSource.COMMANDLINE
+    ]
+    if engine != "ray" and ray_given:
+        raise click.UsageError(f"{', '.join(ray_given)} go with --engine ray")
+    if engine == "ray":
+        from ineid.learn.ray_engine import import_ray
+
+        import_ray()  # says how to install Ray before anything is loaded
+
+
+def _print_sweep(data_path, rows) -> None:
+    """The trials' table, ranked by test error (a failed trial: its status), and how many failed (stderr)."""
     t = table(
         f"Sweep on {data_path}: test median relative error, ranked",
         (
@@ -235,7 +261,6 @@ def sweep_cmd(
         click.echo(
             f"{len(failed)} of {len(rows)} trials failed (see the table and sweep.csv's status column)", err=True
         )
-    click.echo(f"wrote {out_dir / 'sweep.csv'} and {out_dir / 'sweep.png'}")
 
 
 def register(main: click.Group) -> None:

@@ -70,20 +70,20 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from ineid.data.synthesis.noise import NoiseModel
-from ineid.data.synthesis.trajectory import whole_count
+from ineid.data.synthesis.trajectory import FourierTrajectory, whole_count
 from ineid.errors import ExcitationError
 from ineid.excite.collision import CollisionPairs
-from ineid.excite.criterion import (  # noqa: F401  (re-exported: they were defined here)
+from ineid.excite.criterion import (  # noqa: F401  (also the names of the old path ineid.identify.excite, until ineid 0.3)
     CRITERIA,
     DEFAULT_CHUNK,
     DESIGN_NOISE,
     DesignBase,
     DesignEvaluation,
-    _regressor_jet,
     centred,
     criterion_and_gradient,
     design_base,
@@ -101,7 +101,7 @@ from ineid.excite.safety import (
 )
 from ineid.excite.settings import MAX_SAMPLES, MAX_STARTS, ExcitationResult, ExcitationSettings, StartRecord
 from ineid.excite.states import state_errors, states_record
-from ineid.excite.trajectory import Bounds, _ipopt_solver, _Problem, _rest_basis, design_bounds  # noqa: F401  (re-exported)
+from ineid.excite.trajectory import Bounds, DesignProblem, design_bounds, ipopt_solver
 from ineid.progress import Progress
 
 log = logging.getLogger(__name__)
@@ -135,28 +135,83 @@ def design_excitation(
             base parameters undetermined (rank deficient); each with what to change.
     """
     s = settings
-    duration, harmonics, base_frequency, criterion, starts, rate = (
-        s.duration,
-        s.harmonics,
-        s.base_frequency,
-        s.criterion,
-        s.starts,
-        s.rate,
-    )
-    margin, velocity_scale, acceleration_scale, bias, seed = (
-        s.margin,
-        s.velocity_scale,
-        s.acceleration_scale,
-        s.bias,
-        s.seed,
-    )
-    design_points, constraint_points, max_iter, tol = s.design_points, s.constraint_points, s.max_iter, s.tol
     t_start = time.perf_counter()
-    if criterion not in CRITERIA:
-        raise ExcitationError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}", reason="settings")
+    timing = _checked_timing(model, s)
+    setup = _problem_setup(model, s, noise, timing)
+    problem = setup.problem
+    rng = np.random.default_rng(np.random.SeedSequence([int(s.seed), 12]))
+    x0s = [problem.random_start(rng) for _ in range(s.starts)]
+    t_compile = time.perf_counter()
+    problem.gradient(x0s[0])  # the first call of the compiled regressor and its derivatives
+    compile_seconds = time.perf_counter() - t_compile
+    weights = None
+    if s.sensors is not None:  # the state errors' noise, once, on the first start: IPOPT's objective stays as is
+        first = problem.trajectory(x0s[0], timing.duration, model.joint_names)
+        weights = state_errors(model, s.sensors, first, s.rate, setup.sigma, setup.base.channels, s.seed)
+        problem.reweigh(weights.sigma)
+    starts = _solve_starts(setup, x0s, s.max_iter, s.tol, progress)
+    if starts.best_x is None:
+        raise _no_design_error(starts.unsafe, setup.base)
+    names = model.joint_names
+    traj = problem.trajectory(starts.best_x, timing.duration, names)
+    start_values = np.array([r.start_value for r in starts.records])
+    median_start = int(np.argsort(start_values)[(len(start_values) - 1) // 2])
+    random_traj = problem.trajectory(x0s[median_start], timing.duration, names)
+    optimized, random, states, q = _evaluate_pair(model, s, setup, traj, random_traj, weights)
+    safety = _safety_record(setup, traj, q, timing)
+    record = dict(
+        s.to_dict(),
+        base_frequency=timing.f0,
+        design_points=setup.design_points,
+        constraint_points=setup.constraint_points,
+        unknown_links=list(model.unknown_links),
+        robot=model.name,
+    )
+    return ExcitationResult(
+        trajectory=traj,
+        criterion=s.criterion,
+        value=starts.best_f,
+        optimized=optimized,
+        random=random,
+        random_trajectory=random_traj,
+        base=setup.base,
+        sigma=setup.sigma,
+        bounds=setup.bounds,
+        rate=float(s.rate),
+        starts=starts.records,
+        seconds=time.perf_counter() - t_start,
+        compile_seconds=compile_seconds,
+        settings=record,
+        safety=safety,
+        states=states,
+    )
+
+
+# -- the steps of a design ------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Timing:
+    """The design's times, checked: ``duration`` s, ``f0`` Hz, whole ``periods`` of ``1 / f0`` and whole
+    ``n_rate`` samples at the settings' rate in the duration."""
+
+    duration: float
+    f0: float
+    periods: int
+    n_rate: int
+
+
+def _checked_timing(model, s: ExcitationSettings) -> _Timing:
+    """Check the settings that need no bounds (criterion, links, duration, harmonics, rate, starts), in that order.
+
+    Raises:
+        ExcitationError: the first setting that fails, with what to change.
+    """
+    if s.criterion not in CRITERIA:
+        raise ExcitationError(f"criterion must be one of {', '.join(CRITERIA)}, got {s.criterion!r}", reason="settings")
     if not model.unknown_links:
         raise ExcitationError("the model has no unknown links; choose the links to identify", reason="settings")
-    duration = float(duration)
+    duration, harmonics, rate = float(s.duration), s.harmonics, s.rate
     if not (math.isfinite(duration) and duration > 0):
         raise ExcitationError(f"duration must be a positive number of seconds, got {duration!r}", reason="duration")
     if harmonics < 2:
@@ -164,9 +219,9 @@ def design_excitation(
             f"{harmonics} harmonic cannot start and end at rest and still move; use --harmonics 2 or more",
             reason="harmonics",
         )
-    f0 = 1.0 / duration if base_frequency is None else float(base_frequency)
+    f0 = 1.0 / duration if s.base_frequency is None else float(s.base_frequency)
     if not (math.isfinite(f0) and f0 > 0):
-        raise ExcitationError(f"base frequency must be positive, got {base_frequency!r}", reason="duration")
+        raise ExcitationError(f"base frequency must be positive, got {s.base_frequency!r}", reason="duration")
     periods = whole_count(duration * f0)
     if periods is None:
         raise ExcitationError(
@@ -197,17 +252,43 @@ def design_excitation(
             "--base-frequency), use fewer --harmonics, or raise --rate",
             reason="duration",
         )
-    if not 1 <= starts <= MAX_STARTS:
-        raise ExcitationError(f"starts must be in 1..{MAX_STARTS:,}, got {starts}", reason="settings")
-    bounds = design_bounds(model, margin, velocity_scale, acceleration_scale)
+    if not 1 <= s.starts <= MAX_STARTS:
+        raise ExcitationError(f"starts must be in 1..{MAX_STARTS:,}, got {s.starts}", reason="settings")
+    return _Timing(duration, f0, periods, n_rate)
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """One design problem: the joint bounds, the safety limits and their constraints (None: none kept),
+    the noise ``sigma`` (A,) weighing the axes, the base parameters, the grids' sizes and the problem."""
+
+    bounds: Bounds
+    limits: SafetyLimits
+    pairs: CollisionPairs | None
+    safety: SafetyConstraints | None
+    sigma: np.ndarray
+    base: DesignBase
+    design_points: int
+    constraint_points: int
+    problem: DesignProblem
+
+
+def _problem_setup(model, s: ExcitationSettings, noise: NoiseModel | None, timing: _Timing) -> _Setup:
+    """The bounds, the safety limits (checked), the base parameters and the problem over the coefficients.
+
+    Raises:
+        ExcitationError: bounds or limits no motion keeps, or too few samples for the base parameters.
+    """
+    bounds = design_bounds(model, s.margin, s.velocity_scale, s.acceleration_scale)
     limits = SafetyLimits(s.floor, None if s.workspace is None else tuple(float(v) for v in s.workspace))
     if limits.active:
         check_limits(model, limits)
-    sigma = design_noise(noise, settings.channels, model)
-    design_points = design_points or DEFAULT_CHUNK * math.ceil(32 * harmonics / DEFAULT_CHUNK)
-    constraint_points = constraint_points or 32 * harmonics
-    base = design_base(model, bias, settings.channels)
-    samples = n_rate + 1
+    sigma = design_noise(noise, s.channels, model)
+    harmonics = s.harmonics
+    design_points = s.design_points or DEFAULT_CHUNK * math.ceil(32 * harmonics / DEFAULT_CHUNK)
+    constraint_points = s.constraint_points or 32 * harmonics
+    base = design_base(model, s.bias, s.channels)
+    samples = timing.n_rate + 1
     if base.n_axes * samples < base.rank:
         raise ExcitationError(
             f"{samples} samples give {base.n_axes * samples} equations for {base.rank} base parameters; "
@@ -215,7 +296,9 @@ def design_excitation(
             "or raise --rate",
             reason="duration",
         )
-    problem = _Problem(model, base, sigma, criterion, bounds, f0, harmonics, design_points, constraint_points)
+    problem = DesignProblem(
+        model, base, sigma, s.criterion, bounds, timing.f0, harmonics, design_points, constraint_points
+    )
     safety = None
     pairs = CollisionPairs(model, bounds.qd_max) if s.self_collision else None
     if limits.active or (pairs is not None and pairs.n):
@@ -224,7 +307,7 @@ def design_excitation(
             limits,
             bounds.qd_max,
             bounds.qdd_max,
-            f0,
+            timing.f0,
             harmonics,
             problem.rest,
             problem.mid,
@@ -232,27 +315,31 @@ def design_excitation(
             problem.v_scale,
             pairs,
         )
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 12]))
-    x0s = [problem.random_start(rng) for _ in range(starts)]
-    t_compile = time.perf_counter()
-    problem.gradient(x0s[0])  # the first call of the compiled regressor and its derivatives
-    compile_seconds = time.perf_counter() - t_compile
-    if s.sensors is not None:  # the state errors' noise, once, on the first start: IPOPT's objective stays as is
-        weights = state_errors(
-            model, s.sensors, problem.trajectory(x0s[0], duration, model.joint_names), rate, sigma, base.channels, seed
-        )
-        problem.reweigh(weights.sigma)
+    return _Setup(bounds, limits, pairs, safety, sigma, base, design_points, constraint_points, problem)
 
-    solver, _keep, bnds = _ipopt_solver(problem, max_iter, tol, safety)
-    records: list[StartRecord] = []
-    best_x, best_f = None, math.inf
-    unsafe: tuple[float, str] | None = None  # the smallest grid slack of a rejected start, and its constraint
-    log.info("IPOPT: %d start%s of %d variables", starts, "" if starts == 1 else "s", len(x0s[0]))
+
+@dataclass
+class _Starts:
+    """What the starts gave: one record each, the best safe design ``best_x`` (None: none) and its criterion,
+    and the smallest grid slack (m) of the best rejected start with its constraint (None: none rejected)."""
+
+    records: list[StartRecord]
+    best_x: np.ndarray | None = None
+    best_f: float = math.inf
+    unsafe: tuple[float, str] | None = None
+
+
+def _solve_starts(setup: _Setup, x0s: list[np.ndarray], max_iter: int, tol: float, progress) -> _Starts:
+    """IPOPT from each start, projected onto the grid bounds and made safe; the best design kept."""
+    problem, safety = setup.problem, setup.safety
+    solver, _keep, bnds = ipopt_solver(problem, max_iter, tol, safety)
+    out = _Starts([])
+    log.info("IPOPT: %d start%s of %d variables", len(x0s), "" if len(x0s) == 1 else "s", len(x0s[0]))
     for k, x0 in enumerate(x0s):
         t0 = time.perf_counter()
         f_start = problem.value(x0)
         if not math.isfinite(f_start):
-            records.append(StartRecord(f_start, f_start, "rank_deficient_start", 0, time.perf_counter() - t0))
+            out.records.append(StartRecord(f_start, f_start, "rank_deficient_start", 0, time.perf_counter() - t0))
         else:
             sol = solver(x0=x0, **bnds)
             stats = solver.stats()
@@ -263,18 +350,24 @@ def design_excitation(
                 if safe is None:
                     slack = safety.grid_slack(x)
                     worst = int(np.argmin(slack))
-                    if unsafe is None or slack[worst] > unsafe[0]:
-                        unsafe = (float(slack[worst]), safety.labels()[worst])
+                    if out.unsafe is None or slack[worst] > out.unsafe[0]:
+                        out.unsafe = (float(slack[worst]), safety.labels()[worst])
                     status = f"unsafe ({status})"
                 x = safe
             f = problem.value(x) if x is not None else math.inf
-            records.append(StartRecord(f_start, f, status, int(stats.get("iter_count", 0)), time.perf_counter() - t0))
-            if x is not None and f < best_f:
-                best_x, best_f = x, f
+            iterations = int(stats.get("iter_count", 0))
+            out.records.append(StartRecord(f_start, f, status, iterations, time.perf_counter() - t0))
+            if x is not None and f < out.best_f:
+                out.best_x, out.best_f = x, f
         if progress is not None:
-            progress(k + 1, starts)
-    if best_x is None and unsafe is not None:
-        raise ExcitationError(
+            progress(k + 1, len(x0s))
+    return out
+
+
+def _no_design_error(unsafe: tuple[float, str] | None, base: DesignBase) -> ExcitationError:
+    """Why no start gave a design: a safety constraint none kept (``unsafe``), else a singular information."""
+    if unsafe is not None:
+        return ExcitationError(
             f"IPOPT found no design that keeps every bound: {unsafe[1]} stays violated (by {-unsafe[0]:.3g} m "
             "on the grid, margin between samples included); "
             + (
@@ -286,23 +379,33 @@ def design_excitation(
             "or try more --starts",
             reason="infeasible_workspace",
         )
-    if best_x is None:
-        raise ExcitationError(
-            f"every random start leaves base parameters undetermined (the information matrix of the "
-            f"{base.rank} base parameters is singular); widen the bounds (--margin), add --harmonics or lengthen "
-            "--duration",
-            reason="rank_deficient",
-        )
-    names = model.joint_names
-    traj = problem.trajectory(best_x, duration, names)
-    start_values = np.array([r.start_value for r in records])
-    median_start = int(np.argsort(start_values)[(len(start_values) - 1) // 2])
-    random_traj = problem.trajectory(x0s[median_start], duration, names)
-    sig_opt = sig_rnd = sigma
+    return ExcitationError(
+        f"every random start leaves base parameters undetermined (the information matrix of the "
+        f"{base.rank} base parameters is singular); widen the bounds (--margin), add --harmonics or lengthen "
+        "--duration",
+        reason="rank_deficient",
+    )
+
+
+def _evaluate_pair(
+    model, s: ExcitationSettings, setup: _Setup, traj: FourierTrajectory, random_traj: FourierTrajectory, weights
+) -> tuple[DesignEvaluation, DesignEvaluation, dict | None, np.ndarray]:
+    """The design and the random trajectory evaluated on their samples at the rate, each with its own state
+    errors when ``s.sensors`` are given (``weights``: those of the first start).
+
+    Returns:
+        ``(optimized, random, states, q)``: the evaluations, the state-error record (None: joint states exact)
+        and the design's sampled positions (F, n_dof).
+
+    Raises:
+        ExcitationError: the design leaves base parameters undetermined at the rate.
+    """
+    base, rate = setup.base, s.rate
+    sig_opt = sig_rnd = setup.sigma
     states = None
     if s.sensors is not None:  # each trajectory's own state errors
         st_opt, st_rnd = (
-            state_errors(model, s.sensors, tr, rate, sigma, base.channels, seed) for tr in (traj, random_traj)
+            state_errors(model, s.sensors, tr, rate, setup.sigma, base.channels, s.seed) for tr in (traj, random_traj)
         )
         sig_opt, sig_rnd = st_opt.sigma, st_rnd.sigma
         states = states_record(s.sensors, weights, st_opt, st_rnd)
@@ -316,46 +419,31 @@ def design_excitation(
             "add --harmonics, lengthen --duration or widen the bounds",
             reason="rank_deficient",
         )
-    safety_record = None if pairs is None else dict(limits.to_dict(), self_collision=pairs.describe())
-    if safety is not None:
-        # check the written samples themselves, and a grid ten times denser, against the bounds (no margins)
-        safety_record = dict(
-            safety.describe(),
-            samples=verify(safety, q),
-            dense=verify(safety, traj.evaluate(np.linspace(0.0, 1.0 / f0, 10 * n_rate // periods + 1))[0]),
+    return optimized, random, states, q
+
+
+def _safety_record(setup: _Setup, traj: FourierTrajectory, q: np.ndarray, timing: _Timing) -> dict | None:
+    """The limits kept and the smallest clearances of the design's samples ``q`` and of a grid ten times
+    denser (None: no self-collision and no floor or box).
+
+    Raises:
+        ExcitationError: a clearance below zero (the guarantee of :mod:`ineid.excite.safety` failed): such a
+            design is never written.
+    """
+    safety, pairs = setup.safety, setup.pairs
+    record = None if pairs is None else dict(setup.limits.to_dict(), self_collision=pairs.describe())
+    if safety is None:
+        return record
+    # check the written samples themselves, and a grid ten times denser, against the bounds (no margins)
+    dense_t = np.linspace(0.0, 1.0 / timing.f0, 10 * timing.n_rate // timing.periods + 1)
+    record = dict(safety.describe(), samples=verify(safety, q), dense=verify(safety, traj.evaluate(dense_t)[0]))
+    if min(record["samples"]["min_clearance"], record["dense"]["min_clearance"]) < 0:
+        raise ExcitationError(
+            f"the design breaks {record['dense']['constraint']}; please report this; meanwhile "
+            "give the bound more room",
+            reason="infeasible_workspace",
         )
-        if min(safety_record["samples"]["min_clearance"], safety_record["dense"]["min_clearance"]) < 0:
-            raise ExcitationError(  # the guarantee of excite_safety failed: never write such a design
-                f"the design breaks {safety_record['dense']['constraint']}; please report this; meanwhile "
-                "give the bound more room",
-                reason="infeasible_workspace",
-            )
-    record = dict(
-        s.to_dict(),
-        base_frequency=f0,
-        design_points=design_points,
-        constraint_points=constraint_points,
-        unknown_links=list(model.unknown_links),
-        robot=model.name,
-    )
-    return ExcitationResult(
-        trajectory=traj,
-        criterion=criterion,
-        value=best_f,
-        optimized=optimized,
-        random=random,
-        random_trajectory=random_traj,
-        base=base,
-        sigma=sigma,
-        bounds=bounds,
-        rate=float(rate),
-        starts=records,
-        seconds=time.perf_counter() - t_start,
-        compile_seconds=compile_seconds,
-        settings=record,
-        safety=safety_record,
-        states=states,
-    )
+    return record
 
 
 __all__ = [

@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.errors import ExcitationError
+from ineid.excite.callbacks import numpy_function
 
 STEP_TOLERANCE = 0.005
 """m: the largest clearance kept between grid points (sets the grid of the floor and the box)."""
@@ -153,7 +154,8 @@ class SafetyConstraints:
         limits: the floor and box.
         qd_max, qdd_max: (n_dof,) the bounds the design keeps at every instant.
         f0, harmonics: the trajectory's base frequency and harmonics.
-        rest: (2H, 2H - 2) the rest basis; ``mid, half, v_scale`` the map of :class:`_Problem`.
+        rest: (2H, 2H - 2) the rest basis; ``mid, half, v_scale`` the map of
+            :class:`ineid.excite.trajectory.DesignProblem`.
         pairs: the capsule pairs kept apart, or None.
     """
 
@@ -334,59 +336,9 @@ def make_safe(safety: SafetyConstraints, x: np.ndarray, steps: int = 16) -> np.n
 
 def casadi_constraint(safety: SafetyConstraints):
     """A CasADi function ``x -> (C,)`` of :meth:`SafetyConstraints.values` with its exact Jacobian (callbacks)."""
-    import casadi as ca
-
-    nx, nc = safety.n * safety.nz, safety.n_constraints
-
-    class Jacobian(ca.Callback):
-        def __init__(self, name, opts):
-            ca.Callback.__init__(self)
-            self.construct(name, opts)
-
-        def get_n_in(self):
-            return 2
-
-        def get_n_out(self):
-            return 1
-
-        def get_sparsity_in(self, i):
-            return ca.Sparsity.dense(nx, 1) if i == 0 else ca.Sparsity.dense(nc, 1)
-
-        def get_sparsity_out(self, i):
-            return ca.Sparsity.dense(nc, nx)
-
-        def eval(self, arg):
-            return [ca.DM(safety.jacobian(np.asarray(arg[0]).ravel()))]
-
-    class Values(ca.Callback):
-        def __init__(self, name, opts):
-            ca.Callback.__init__(self)
-            self._jac = None
-            self.construct(name, opts)
-
-        def get_n_in(self):
-            return 1
-
-        def get_n_out(self):
-            return 1
-
-        def get_sparsity_in(self, i):
-            return ca.Sparsity.dense(nx, 1)
-
-        def get_sparsity_out(self, i):
-            return ca.Sparsity.dense(nc, 1)
-
-        def eval(self, arg):
-            return [ca.DM(safety.values(np.asarray(arg[0]).ravel()))]
-
-        def has_jacobian(self):
-            return True
-
-        def get_jacobian(self, name, inames, onames, opts):
-            self._jac = Jacobian(name, opts)
-            return self._jac
-
-    return Values("workspace_constraints", {"enable_fd": False})
+    return numpy_function(
+        "workspace_constraints", safety.n * safety.nz, safety.n_constraints, safety.values, safety.jacobian
+    )
 
 
 def verify(safety: SafetyConstraints, q: np.ndarray) -> dict:

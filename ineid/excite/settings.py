@@ -11,21 +11,7 @@ import numpy as np
 from ineid.channels import ChannelSet
 from ineid.data.synthesis.imu_rehearsal import ImuRehearsal
 from ineid.data.synthesis.trajectory import FourierTrajectory
-from ineid.excite.criterion import (  # noqa: F401  (re-exported: they were defined here)
-    CRITERIA,
-    DEFAULT_CHUNK,
-    DESIGN_NOISE,
-    DesignBase,
-    DesignEvaluation,
-    _regressor_jet,
-    centred,
-    criterion_and_gradient,
-    design_base,
-    design_noise,
-    evaluate_design,
-    regressor_and_derivatives,
-    scaled_regressor,
-)
+from ineid.excite.criterion import DesignBase, DesignEvaluation
 from ineid.excite.trajectory import Bounds
 
 MAX_STARTS = 10_000
@@ -176,13 +162,13 @@ class ExcitationSettings:
     def to_dict(self) -> dict:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         if self.channels is None:
-            del d["channels"]  # the base wrench: the record of ineid 0.1
+            del d["channels"]  # the base wrench: a record without channels
         else:
             d["channels"] = self.channels.to_list()
         if self.workspace is not None:
             d["workspace"] = list(self.workspace)
         if self.sensors is None:
-            del d["sensors"]  # joint states exact: the record as before
+            del d["sensors"]  # joint states exact: a record without sensors
         else:
             d["sensors"] = self.sensors.to_dict()
         return d

@@ -1,4 +1,4 @@
-"""Excitation for the joint-state errors of a lab's sensors (issue 22 point 3: encoders and link IMUs).
+"""Excitation for the joint-state errors of a lab's sensors (encoders and link IMUs).
 
 ``ineid excite --encoder-bits N --imu LINK[:pose]`` designs for the joint states a lab's import
 will estimate, not for exact ones. To first order, an error ``dx_k`` in the states

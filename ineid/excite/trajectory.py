@@ -2,10 +2,10 @@
 
 A finite-Fourier trajectory per joint at rest at both ends (:func:`_rest_basis`), the
 bounds it must keep (:class:`Bounds`, :func:`design_bounds`), and the optimization problem
-over its coefficients (:class:`_Problem`: the linear maps to the states on the design and
+over its coefficients (:class:`DesignProblem`: the linear maps to the states on the design and
 constraint grids, the criterion and its exact gradient, the tightened linear constraints,
-projection and random feasible starts), and the IPOPT solver of it (:func:`_ipopt_solver`, with
-the floor and box of :mod:`ineid.excite.safety` when asked). The maths is in
+projection and random feasible starts), and the IPOPT solver of it (:func:`ipopt_solver`, with
+the floor, box and self-collision of :mod:`ineid.excite.safety` when asked). The maths is in
 :mod:`ineid.excite.design`.
 """
 
@@ -18,6 +18,7 @@ import numpy as np
 
 from ineid.data.synthesis.trajectory import FourierTrajectory, state_matrices
 from ineid.errors import ExcitationError
+from ineid.excite.callbacks import numpy_function
 from ineid.excite.criterion import (
     DesignBase,
     centred,
@@ -68,8 +69,8 @@ class Bounds:
         return {k: getattr(self, k).tolist() for k in ("q_lower", "q_upper", "qd_max", "qdd_max")}
 
 
-class _Problem:
-    """Design variables, the linear maps to states, the objective and the constraints.
+class DesignProblem:
+    """Design variables, the linear maps to states, the objective and the constraints of one excitation design.
 
     Per joint ``j`` the variables are ``z_j = [u_j, alpha_j]`` (2H - 1 numbers):
     ``q0_j = mid_j + half_j u_j`` (``u`` in [-1, 1]: the mean inside the tightened
@@ -290,63 +291,20 @@ def design_bounds(model, margin: float = 0.05, velocity_scale: float = 1.0, acce
     )
 
 
-def _ipopt_solver(problem: _Problem, max_iter: int, tol: float, safety=None):
+def ipopt_solver(problem: DesignProblem, max_iter: int, tol: float, safety=None):
     """A CasADi nlpsol (IPOPT) for ``problem``: linear constraints, callback objective, and the
-    floor and box constraints of ``safety`` (:class:`SafetyConstraints`) when given."""
+    floor, box and self-collision constraints of ``safety`` (:class:`ineid.excite.safety.SafetyConstraints`)
+    when given.
+
+    Returns:
+        ``(solver, callbacks, bounds)``: the solver (:func:`ineid.identify.ipopt.nlpsol`: stops on SIGINT and
+        SIGTERM), the CasADi callbacks it calls (the objective, the safety constraints or None), and the
+        keyword arguments ``lbx, ubx, lbg, ubg`` of each call.
+    """
     import casadi as ca
 
     nx = problem.n * problem.nz
-
-    class Gradient(ca.Callback):
-        def __init__(self, name, opts):
-            ca.Callback.__init__(self)
-            self.construct(name, opts)
-
-        def get_n_in(self):
-            return 2
-
-        def get_n_out(self):
-            return 1
-
-        def get_sparsity_in(self, i):
-            return ca.Sparsity.dense(nx, 1) if i == 0 else ca.Sparsity.dense(1, 1)
-
-        def get_sparsity_out(self, i):
-            return ca.Sparsity.dense(1, nx)
-
-        def eval(self, arg):
-            _, g = problem.gradient(np.asarray(arg[0]).ravel())
-            return [ca.DM(g).T]
-
-    class Objective(ca.Callback):
-        def __init__(self, name, opts):
-            ca.Callback.__init__(self)
-            self._jac = None
-            self.construct(name, opts)
-
-        def get_n_in(self):
-            return 1
-
-        def get_n_out(self):
-            return 1
-
-        def get_sparsity_in(self, i):
-            return ca.Sparsity.dense(nx, 1)
-
-        def get_sparsity_out(self, i):
-            return ca.Sparsity.dense(1, 1)
-
-        def eval(self, arg):
-            return [problem.value(np.asarray(arg[0]).ravel())]
-
-        def has_jacobian(self):
-            return True
-
-        def get_jacobian(self, name, inames, onames, opts):
-            self._jac = Gradient(name, opts)
-            return self._jac
-
-    objective = Objective("excitation_criterion", {"enable_fd": False})
+    objective = numpy_function("excitation_criterion", nx, 1, problem.value, lambda x: problem.gradient(x)[1])
     rows, cols, vals, nrows, lo, hi = problem.constraint_matrix()
     a = ca.DM.triplet(rows.tolist(), cols.tolist(), vals.tolist(), nrows, nx)
     x = ca.MX.sym("x", nx)

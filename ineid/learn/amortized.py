@@ -51,7 +51,7 @@ def network_frames(n_frames: int, k: int, frames: int | None) -> int:
 
 
 def trained_channels(run) -> ChannelSet:
-    """The measurement channels a run was trained on (its dataset's; a run of ineid 0.1: the base wrench)."""
+    """The measurement channels a run was trained on (its dataset's; a config without channels: the base wrench)."""
     records = run.meta.get("dataset", {}).get("channels")
     return BASE_WRENCH if records is None else ChannelSet.from_list(records, f"{run.run_dir}: channels")
 

@@ -120,48 +120,67 @@ def ray_trials(
             remote.append((cfg, _run_files(out_dir / run_name(cfg)) if state == "checkpoint" else None))
     if not remote:
         return rows
-    started = False
-    if not ray.is_initialized():
-        sigterm = signal.getsignal(signal.SIGTERM)
-        if address is None:
-            options = {"include_dashboard": False, "log_to_driver": False, **(ray_init or {})}
-            cpus = options.get("num_cpus") or os.cpu_count() or 1
-            if cpus_per_trial > cpus:
-                raise ValueError(
-                    f"{cpus_per_trial} CPUs per trial but the local cluster has {cpus}; lower --cpus-per-trial"
-                )
-            ray.init(**options)
-        else:
-            ray.init(address=address, log_to_driver=False)
-        started = True
-        if sigterm is not None and threading.current_thread() is threading.main_thread():
-            # a local cluster's head installs its own SIGTERM handler in this process (stop Ray's processes, exit 1,
-            # no line); ineid's stays, and the shutdown below stops those processes
-            signal.signal(signal.SIGTERM, sigterm)
+    started = _start_cluster(ray, address, cpus_per_trial, ray_init)
     try:
         task = ray.remote(_trial).options(num_cpus=cpus_per_trial, num_gpus=gpus_per_trial, max_retries=0)
         ds_ref = ray.put(ds)
         pending = {task.remote(ds_ref, cfg, dataset_path, physics_mode, files): cfg for cfg, files in remote}
-        while pending:
-            (ref,), _ = ray.wait(list(pending), num_returns=1)
-            cfg = pending.pop(ref)
-            try:
-                row, files = ray.get(ref)
-            except ray.exceptions.RayError as e:  # the trial raised, or its worker died
-                row = SweepRow.failed(cfg, _message(e))
-            else:
-                problem = files_problem(files)
-                if problem is None:
-                    _write_run(out_dir / run_name(cfg), files)
-                else:  # a worker that is not ours, or a broken one: write nothing of it
-                    row = SweepRow.failed(cfg, f"the worker sent back {problem}; nothing of this trial was written")
-            rows.append(row)
-            if progress is not None:
-                progress(len(rows), len(cfgs), row)
+        _gather(ray, pending, out_dir, rows, len(cfgs), progress)
         return rows
     finally:
         if started:
             ray.shutdown()
+
+
+def _start_cluster(ray, address: str | None, cpus_per_trial: float, ray_init: dict | None) -> bool:
+    """Join the cluster at ``address``, or start a local one (None), unless Ray is already initialized.
+
+    Returns:
+        Whether this call initialized Ray (and the caller shuts it down).
+
+    Raises:
+        ValueError: ``cpus_per_trial`` more than the local cluster has.
+    """
+    if ray.is_initialized():
+        return False
+    sigterm = signal.getsignal(signal.SIGTERM)
+    if address is None:
+        options = {"include_dashboard": False, "log_to_driver": False, **(ray_init or {})}
+        cpus = options.get("num_cpus") or os.cpu_count() or 1
+        if cpus_per_trial > cpus:
+            raise ValueError(
+                f"{cpus_per_trial} CPUs per trial but the local cluster has {cpus}; lower --cpus-per-trial"
+            )
+        ray.init(**options)
+    else:
+        ray.init(address=address, log_to_driver=False)
+    if sigterm is not None and threading.current_thread() is threading.main_thread():
+        # a local cluster's head installs its own SIGTERM handler in this process (stop Ray's processes, exit 1,
+        # no line); ineid's stays, and the shutdown below stops those processes
+        signal.signal(signal.SIGTERM, sigterm)
+    return True
+
+
+def _gather(ray, pending: dict, out_dir: Path, rows: list[SweepRow], total: int, progress: Callable | None) -> None:
+    """Wait for the ``pending`` tasks (``{object ref: its configuration}``), appending each trial's row to ``rows`` as
+    it completes and writing its run folder from the files it sent back (a trial that raised, died or sent back
+    anything but its run files: a failed row, nothing written)."""
+    while pending:
+        (ref,), _ = ray.wait(list(pending), num_returns=1)
+        cfg = pending.pop(ref)
+        try:
+            row, files = ray.get(ref)
+        except ray.exceptions.RayError as e:  # the trial raised, or its worker died
+            row = SweepRow.failed(cfg, _message(e))
+        else:
+            problem = files_problem(files)
+            if problem is None:
+                _write_run(out_dir / run_name(cfg), files)
+            else:  # a worker that is not ours, or a broken one: write nothing of it
+                row = SweepRow.failed(cfg, f"the worker sent back {problem}; nothing of this trial was written")
+        rows.append(row)
+        if progress is not None:
+            progress(len(rows), total, row)
 
 
 def _run_files(run_dir: Path) -> dict[str, bytes]:

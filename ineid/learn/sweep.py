@@ -177,7 +177,6 @@ def sweep(
         OptionalDependencyError: ``engine="ray"`` without Ray installed.
     """
     from ineid._atomic import output_lock
-    from ineid.errors import IneidError
 
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
@@ -197,38 +196,60 @@ def sweep(
             n: trial_state(out_dir / n, cfg, record["dataset"]) if resume else "new"
             for n, cfg in zip(names, cfgs, strict=True)
         }
-        if engine == "ray":
-            from ineid.learn.ray_engine import ray_trials
-
-            rows = ray_trials(
-                ds,
-                cfgs,
-                out_dir,
-                dataset_path=dataset_path,
-                physics_mode=physics_mode,
-                progress=progress,
-                address=address,
-                cpus_per_trial=cpus_per_trial,
-                gpus_per_trial=gpus_per_trial,
-                ray_init=ray_init,
-                states=states,
-            )
-        else:
-            model = model or ds.model()
-            rows = []
-            for i, (cfg, name) in enumerate(zip(cfgs, names, strict=True)):
-                try:
-                    rows.append(run_trial(ds, cfg, out_dir / name, dataset_path, model, physics_mode, states[name]))
-                except IneidError as e:
-                    rows.append(SweepRow.failed(cfg, str(e)))
-                if progress is not None:
-                    progress(i + 1, len(cfgs), rows[-1])
-        rows.sort(key=lambda r: (r.status != "ok", np.nan_to_num(r.test_standard_median, nan=np.inf), r.name))
-        write_csv(
-            out_dir / "sweep.csv", [f.name for f in dataclasses.fields(SweepRow)], [dataclasses.asdict(r) for r in rows]
-        )
-        plot(rows, out_dir / "sweep.png")
+        ray = dict(address=address, cpus_per_trial=cpus_per_trial, gpus_per_trial=gpus_per_trial, ray_init=ray_init)
+        rows = _run_trials(engine, ds, cfgs, out_dir, states, dataset_path, model, physics_mode, progress, ray)
+        _write_ranked(rows, out_dir)
     return rows
+
+
+def _run_trials(
+    engine: str,
+    ds: Dataset,
+    cfgs: list[TrainConfig],
+    out_dir: Path,
+    states: dict[str, str],
+    dataset_path: str | None,
+    model: RobotModel | None,
+    physics_mode: str,
+    progress,
+    ray: dict,
+) -> list[SweepRow]:
+    """Every trial, one row each (a failed one: its status): one Ray task each (``ray``: the cluster's keyword
+    arguments of :func:`ineid.learn.ray_engine.ray_trials`), or one after another in this process."""
+    if engine == "ray":
+        from ineid.learn.ray_engine import ray_trials
+
+        return ray_trials(
+            ds,
+            cfgs,
+            out_dir,
+            dataset_path=dataset_path,
+            physics_mode=physics_mode,
+            progress=progress,
+            states=states,
+            **ray,
+        )
+    model = model or ds.model()
+    rows = []
+    for i, cfg in enumerate(cfgs):
+        name = run_name(cfg)
+        try:
+            rows.append(run_trial(ds, cfg, out_dir / name, dataset_path, model, physics_mode, states[name]))
+        except IneidError as e:
+            rows.append(SweepRow.failed(cfg, str(e)))
+        if progress is not None:
+            progress(i + 1, len(cfgs), rows[-1])
+    return rows
+
+
+def _write_ranked(rows: list[SweepRow], out_dir: Path) -> None:
+    """Rank ``rows`` in place (finished trials by the test median relative error, then failed ones), and write
+    ``sweep.csv`` and ``sweep.png``."""
+    rows.sort(key=lambda r: (r.status != "ok", np.nan_to_num(r.test_standard_median, nan=np.inf), r.name))
+    write_csv(
+        out_dir / "sweep.csv", [f.name for f in dataclasses.fields(SweepRow)], [dataclasses.asdict(r) for r in rows]
+    )
+    plot(rows, out_dir / "sweep.png")
 
 
 def plot(rows: list[SweepRow], path: Path) -> Path:

@@ -21,12 +21,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ineid.errors import DatasetError, TrainingError
-from ineid.learn.config import OPTIMIZERS, SCHEDULES, TrainConfig  # noqa: F401  (re-exported)
+from ineid.learn.config import OPTIMIZERS, SCHEDULES, TrainConfig  # noqa: F401  (public here too)
 from ineid.learn.data import epoch_groups, fixed_groups, frame_features, split_configs
 from ineid.learn.losses import PHYSICS_MODES, CompactRegressor, Physics
 from ineid.learn.runs import MetricsLog, load_state, save_state, start_run, write_config, writing_run
 from ineid.learn.scalers import Scaler
-from ineid.learn.steps import (  # noqa: F401  (STEPS_PER_CALL, gather_samples, ... were here: still importable)
+from ineid.learn.steps import (  # noqa: F401  (public here too: what a training script or benchmark uses)
     STEPS_PER_CALL,
     Prepared,
     build_functions,
@@ -88,8 +88,6 @@ def prepare(
     """
     import jax.numpy as jnp
 
-    from ineid.identify.systems import stack
-
     ds.require_truth("training")
     k = cfg.model.frames
     if ds.n_frames < k:
@@ -115,18 +113,9 @@ def prepare(
         need = sub.n_configs * sub.n_frames * n_axes * (n_u + 1) * 8
         if need > CACHE_LIMIT_BYTES:
             physics_mode = "inline"
-    compact = rows_compact = None
+    compact, physics_arrays = None, {}
     if physics_mode == "cached":
-        w, y = stack(model, sub.q, sub.qd, sub.qdd, values, sub.theta_known, channels)  # (C, AF, n_u), (C, AF)
-        w = w.reshape(sub.n_configs, sub.n_frames, n_axes, n_u)
-        y = y.reshape(sub.n_configs, sub.n_frames, n_axes)
-        if not cfg.model.uses_regressor:  # a network that does not read Psi: the compact rows
-            from ineid.identify.identifiability import base_parameters
-
-            compact, rows_compact = CompactRegressor.from_frames(
-                w, y, base_parameters(model, channels=channels), wrench_scale
-            )
-            del w, y
+        compact, physics_arrays = _cached_physics(model, cfg, sub, values, wrench_scale)
     physics = Physics(
         mode=physics_mode,
         regressor=channels.jax_rows_function(model),  # the base wrench: the generated regressor itself
@@ -141,16 +130,49 @@ def prepare(
     )
     x = x_scaler.transform(feats)
     arrays = {"x": jnp.asarray(x), "z": jnp.asarray(y_scaler.transform(sub.theta_unknown))}
-    if compact is not None:  # one row a frame of the physics term's numbers (a plain MSE step never reads it)
-        arrays["compact"] = jnp.asarray(rows_compact)
-    elif physics_mode == "cached":
-        arrays["psi"] = jnp.asarray(w)
-        arrays["yres"] = jnp.asarray(y)
+    if physics_mode == "cached":
+        arrays.update(physics_arrays)
     else:
         arrays.update(
             q=jnp.asarray(sub.q), qd=jnp.asarray(sub.qd), qdd=jnp.asarray(sub.qdd), wrench=jnp.asarray(values)
         )
     return Prepared(rows, x_scaler, y_scaler, arrays, physics, n_u, sub.n_frames)
+
+
+def _cached_physics(model, cfg: TrainConfig, sub, values: np.ndarray, wrench_scale: np.ndarray):
+    """The physics term's numbers of configurations ``sub``, computed once (the ``"cached"`` mode).
+
+    Args:
+        model: the robot model.
+        cfg: the run's settings (does its network read the regressor?).
+        sub: the configurations held (:meth:`ineid.data.Dataset.select`).
+        values: (C, F, A) their channels' values (``sub.meta.channels``).
+        wrench_scale: (A,) the per-axis normalization of the physics term.
+
+    Returns:
+        ``(compact, arrays)``: for a network that does not read the regressor, the
+        :class:`ineid.learn.losses.CompactRegressor` and ``{"compact": its numbers, one row a frame}``;
+        else None and ``{"psi": (C, F, A, n_u) the unknown links' rows, "yres": (C, F, A) the values less
+        the known links' part}``.
+    """
+    import jax.numpy as jnp
+
+    from ineid.identify.systems import stack
+
+    channels = sub.meta.channels
+    n_axes, n_u = channels.n_axes(model), sub.theta_unknown.shape[1]
+    w, y = stack(model, sub.q, sub.qd, sub.qdd, values, sub.theta_known, channels)  # (C, AF, n_u), (C, AF)
+    w = w.reshape(sub.n_configs, sub.n_frames, n_axes, n_u)
+    y = y.reshape(sub.n_configs, sub.n_frames, n_axes)
+    if not cfg.model.uses_regressor:  # a network that does not read Psi: the compact rows
+        from ineid.identify.identifiability import base_parameters
+
+        compact, rows_compact = CompactRegressor.from_frames(
+            w, y, base_parameters(model, channels=channels), wrench_scale
+        )
+        del w, y
+        return compact, {"compact": jnp.asarray(rows_compact)}
+    return None, {"psi": jnp.asarray(w), "yres": jnp.asarray(y)}
 
 
 def wls_context(ds, train_rows: np.ndarray, model, y_scaler: Scaler, wrench_scale: np.ndarray):
@@ -256,7 +278,6 @@ def _train_into(
 ) -> TrainResult:
     """:func:`train` in ``run_dir``: the run folder itself, or the hidden folder of a replacement."""
     import jax
-    import jax.numpy as jnp
 
     from ineid.cache import enable_compilation_cache
 
@@ -270,25 +291,11 @@ def _train_into(
         split, scalers, wrench_scale = resumed.split, resumed.scalers, resumed.wrench_scale
     rows = np.union1d(split.train, split.val)
     prep = prepare(ds, cfg, rows, model, scalers, split.train, wrench_scale, physics_mode)
-    train_local, val_local = prep.local(split.train), prep.local(split.val)
     k = cfg.model.frames
-    n_groups = prep.n_frames // k
-    n_samples = len(split.train) * n_groups
+    n_samples = len(split.train) * (prep.n_frames // k)
     batch = min(cfg.batch, n_samples)
     steps_per_epoch = n_samples // batch
-    context = None
-    if cfg.model.uses_regressor:
-        from ineid.learn.wls import WlsContext
-
-        context = (
-            WlsContext.from_dict(resumed.config["wls"])
-            if resumed is not None
-            else wls_context(ds, split.train, model, prep.y_scaler, prep.physics.wrench_scale)
-        )
-        # Train on the identifiable part of the targets: the rest (along the null directions) no
-        # wrench can tell, and fitting it would only teach the network the training configurations.
-        truth = context.identifiable_part(ds.theta_unknown[prep.rows])
-        prep.arrays["z"] = jnp.asarray(prep.y_scaler.transform(truth))
+    context = _wls_targets(ds, cfg, split, model, prep, resumed)
     net = cfg.model.build(prep.n_out, context)
     params = init_params(net, cfg.model, prep, jax.random.key(cfg.seed))
     optimizer = make_optimizer(cfg, steps_per_epoch)
@@ -305,62 +312,118 @@ def _train_into(
     if resumed is not None:
         state = load_state(run_dir, state, cfg.epochs)
     else:
-        meta = {
-            "train": cfg.to_dict(),
-            "split": split.to_dict(),
-            "physics_mode": prep.physics.mode,
-            "dataset": {
-                "path": dataset_path,
-                "robot": ds.meta.robot,
-                "n_configs": ds.n_configs,
-                "n_frames": ds.n_frames,
-                "seed": ds.meta.seed,
-                "noise": ds.meta.noise,
-                "fingerprint": ds.fingerprint(),
-                "channels": ds.meta.channels.to_list(),
-            },
-            "n_out": prep.n_out,
-            "param_names": ds.meta.unknown_param_names,
-            "unknown_links": list(ds.meta.unknown_links),
-            "wrench_scale": prep.physics.wrench_scale.tolist(),
-            "steps_per_epoch": steps_per_epoch,
-            "batch": batch,
-        }
+        meta = _run_record(ds, cfg, split, prep, dataset_path, steps_per_epoch, batch)
         if context is not None:
             meta["wls"] = context.to_dict()
         write_config(run_dir, meta, prep.x_scaler, prep.y_scaler)
-    done = int(state["epoch"])
-    metrics = MetricsLog(run_dir, keep_through_epoch=done)
+    metrics = MetricsLog(run_dir, keep_through_epoch=int(state["epoch"]))
 
     train_steps, eval_batch = build_functions(net, cfg, prep, optimizer)
     val_pos, val_frames = fixed_groups(len(split.val), prep.n_frames, k)
-    val_rows = val_local[val_pos]
+    train_local, val_rows = prep.local(split.train), prep.local(split.val)[val_pos]
+    loop = _EpochLoop(cfg, prep, train_steps, eval_batch, train_local, val_rows, val_frames, batch, steps_per_epoch)
     t_start = time.perf_counter()
-    params, opt_state = state["params"], state["opt_state"]
-    stopped = False
-    epoch = done
-    finished = bool(cfg.patience) and int(state["bad_epochs"]) >= cfg.patience  # stopped early before
-    for epoch in range(done + 1, cfg.epochs + 1):
-        if finished:
-            stopped = True
-            break
+    epoch, stopped = _train_epochs(loop, state, run_dir, metrics, progress)
+    save_state(run_dir, state, final=True)
+    return TrainResult(
+        run_dir, epoch, int(state["best_epoch"]), float(state["best_val"]), stopped, time.perf_counter() - t_start
+    )
+
+
+def _wls_targets(ds: Dataset, cfg: TrainConfig, split, model, prep: Prepared, resumed):
+    """For a network that reads the regressor (``wls``): its constants (those of the resumed run, else fitted on
+    the training configurations), with the targets ``prep.arrays["z"]`` replaced by their identifiable part;
+    None for any other network."""
+    import jax.numpy as jnp
+
+    if not cfg.model.uses_regressor:
+        return None
+    from ineid.learn.wls import WlsContext
+
+    context = (
+        WlsContext.from_dict(resumed.config["wls"])
+        if resumed is not None
+        else wls_context(ds, split.train, model, prep.y_scaler, prep.physics.wrench_scale)
+    )
+    # Train on the identifiable part of the targets: the rest (along the null directions) no
+    # wrench can tell, and fitting it would only teach the network the training configurations.
+    truth = context.identifiable_part(ds.theta_unknown[prep.rows])
+    prep.arrays["z"] = jnp.asarray(prep.y_scaler.transform(truth))
+    return context
+
+
+def _run_record(
+    ds: Dataset, cfg: TrainConfig, split, prep: Prepared, dataset_path: str | None, steps_per_epoch: int, batch: int
+) -> dict:
+    """The run's ``config.json``: its settings, split, physics mode, dataset, outputs and batches."""
+    return {
+        "train": cfg.to_dict(),
+        "split": split.to_dict(),
+        "physics_mode": prep.physics.mode,
+        "dataset": {
+            "path": dataset_path,
+            "robot": ds.meta.robot,
+            "n_configs": ds.n_configs,
+            "n_frames": ds.n_frames,
+            "seed": ds.meta.seed,
+            "noise": ds.meta.noise,
+            "fingerprint": ds.fingerprint(),
+            "channels": ds.meta.channels.to_list(),
+        },
+        "n_out": prep.n_out,
+        "param_names": ds.meta.unknown_param_names,
+        "unknown_links": list(ds.meta.unknown_links),
+        "wrench_scale": prep.physics.wrench_scale.tolist(),
+        "steps_per_epoch": steps_per_epoch,
+        "batch": batch,
+    }
+
+
+@dataclass(frozen=True)
+class _EpochLoop:
+    """What every epoch of a run reads: its settings, the prepared arrays, the compiled steps, the training
+    configurations' local rows, the fixed validation groups (local rows and frames), the batch size and the
+    steps of an epoch."""
+
+    cfg: TrainConfig
+    prep: Prepared
+    train_steps: Callable
+    eval_batch: Callable
+    train_local: np.ndarray
+    val_rows: np.ndarray
+    val_frames: np.ndarray
+    batch: int
+    steps_per_epoch: int
+
+    def run(self, state: dict, epoch: int) -> dict:
+        """Epoch ``epoch`` from ``state`` (updated: the parameters, the best ones, the epochs without improvement).
+
+        Returns:
+            The epoch's metrics record.
+
+        Raises:
+            TrainingError: the training loss is not finite.
+        """
+        cfg, prep, steps = self.cfg, self.prep, self.steps_per_epoch
         t0 = time.perf_counter()
-        pos, frames = epoch_groups(len(split.train), prep.n_frames, k, cfg.seed, epoch)
-        rows = train_local[pos]
+        pos, frames = epoch_groups(len(self.train_local), prep.n_frames, cfg.model.frames, cfg.seed, epoch)
+        rows = self.train_local[pos]
         params, opt_state, sums = run_epoch(
-            train_steps, params, opt_state, prep.arrays, rows, frames, batch, steps_per_epoch
+            self.train_steps, state["params"], state["opt_state"], prep.arrays, rows, frames, self.batch, steps
         )
-        train_loss = sums / max(steps_per_epoch, 1)
+        train_loss = sums / max(steps, 1)
         if not np.all(np.isfinite(train_loss)):
             raise TrainingError(f"the training loss diverged (non-finite) at epoch {epoch}; lower --lr")
-        val_mse, val_phys, _ = evaluate_groups(eval_batch, params, prep.arrays, val_rows, val_frames, batch)
+        val_mse, val_phys, _ = evaluate_groups(
+            self.eval_batch, params, prep.arrays, self.val_rows, self.val_frames, self.batch
+        )
         improved = val_mse < state["best_val"]
         state.update(params=params, opt_state=opt_state, epoch=epoch)
         if improved:
             state.update(best_params=params, best_val=val_mse, best_epoch=epoch, bad_epochs=0)
         else:
             state["bad_epochs"] = int(state["bad_epochs"]) + 1
-        record = {
+        return {
             "epoch": epoch,
             "train_loss": float(train_loss[0]),
             "train_mse": float(train_loss[1]),
@@ -370,6 +433,27 @@ def _train_into(
             "best_epoch": int(state["best_epoch"]),
             "seconds": time.perf_counter() - t0,
         }
+
+
+def _train_epochs(
+    loop: _EpochLoop, state: dict, run_dir: Path, metrics: MetricsLog, progress: EpochProgress | None
+) -> tuple[int, bool]:
+    """The epochs after ``state["epoch"]`` up to ``cfg.epochs``, each recorded and checkpointed, until the
+    validation error has not improved for ``cfg.patience`` epochs.
+
+    Returns:
+        ``(epoch, stopped)``: the last epoch begun and whether the run stopped early.
+    """
+    cfg = loop.cfg
+    done = int(state["epoch"])
+    stopped = False
+    epoch = done
+    finished = bool(cfg.patience) and int(state["bad_epochs"]) >= cfg.patience  # stopped early before
+    for epoch in range(done + 1, cfg.epochs + 1):
+        if finished:
+            stopped = True
+            break
+        record = loop.run(state, epoch)
         metrics.append(record)
         save_state(run_dir, state)
         if progress is not None:
@@ -377,7 +461,4 @@ def _train_into(
         if cfg.patience and state["bad_epochs"] >= cfg.patience:
             stopped = True
             break
-    save_state(run_dir, state, final=True)
-    return TrainResult(
-        run_dir, epoch, int(state["best_epoch"]), float(state["best_val"]), stopped, time.perf_counter() - t_start
-    )
+    return epoch, stopped

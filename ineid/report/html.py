@@ -14,7 +14,7 @@ Rendered with Jinja2 (the Python field's template engine: Sphinx, MkDocs, nbconv
 Styler), autoescaping on: robot, link and joint names are data and may hold markup. The template
 is the package file ``ineid/report/templates/report.html.j2``.
 
-What cannot be shown (the dataset moved, a results file of an older ineid that records none) is
+What cannot be shown (the dataset moved, a results file that records none) is
 said in a box at the top with the fix (``--data NEW_PATH``), and the rest of the page is shown.
 """
 

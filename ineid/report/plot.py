@@ -79,7 +79,7 @@ def validation(res, ds, model=None, config: int | None = None) -> Validation:
         slice(res.n_frames_fit, res.n_frames_fit + res.n_frames_validation) if held_out else slice(0, res.n_frames_fit)
     )
     one = ds.select(configs=[i])
-    records = res.meta.get("channels")  # the channels fitted (a results file of ineid 0.1: the dataset's)
+    records = res.meta.get("channels")  # the channels fitted (a results file without them: the dataset's)
     channels = ds.meta.channels if records is None else ChannelSet.from_list(records, "the results' channels")
     bias = None if res.bias_hat is None else res.bias_hat[i : i + 1]
     pred = predicted_wrench(model, one, res.theta_hat[i : i + 1], frames, bias=bias, channels=channels)[0]

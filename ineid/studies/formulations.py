@@ -35,11 +35,11 @@ from ineid._atomic import save_figure, write_csv
 from ineid.channels import BaseWrench, ChannelSet, JointTorque
 from ineid.data.dataset.meta import DatasetMeta, assemble_theta
 from ineid.data.dataset.schema import Dataset
-from ineid.studies.mujoco_sim import JointFriction, Reference, import_mujoco, simulate
 from ineid.data.synthesis.sampling import sample_link_parameters
 from ineid.errors import RobotModelError
 from ineid.identify.results import relative_error
 from ineid.identify.solve import SolveSettings, solve_dataset
+from ineid.studies.mujoco_sim import JointFriction, Reference, import_mujoco, simulate
 
 FRICTION_MODEL = {"friction": ("viscous", "coulomb"), "armature": True}
 FORMULATIONS = {
@@ -151,6 +151,26 @@ def simulate_study(model, size: StudySize, seed: int = 0, progress=None) -> Stud
     friction = typical_friction(model, _reference(model, size.duration, np.random.default_rng(seed)), size.duration)
     root = np.array([1.0, 0, 0, 0, 0.01, 0, 0.01, 0, 0, 0.01])  # any body: its weight is tared away
     f = friction.per_joint(model.n_dof)
+    sims, thetas = _simulate_configs(model, size, friction, root, rng, progress)
+    states = {k: np.stack([getattr(s, k) for s in sims]) for k in ("q", "qd", "qdd", "time")}
+    weight = np.concatenate([root[0] * model.gravity, np.cross(root[1:4], model.gravity)])
+    wrench = np.stack([s.wrench_sensor for s in sims]) - weight
+    tau = np.stack([s.tau for s in sims])
+    ideal_tau = tau - np.stack([s.friction for s in sims]) - f["armature"] * states["qdd"]
+    noise_w = rng.normal(size=wrench.shape) * np.asarray(WRENCH_NOISE)
+    noise_t = rng.normal(size=tau.shape) * TORQUE_NOISE
+    rec = _Recordings(int(seed), size, states, wrench, noise_w, noise_t, thetas)
+    ideal = {k: np.zeros_like(v) if k != "stribeck_velocity" else v for k, v in f.items()}
+    return StudyData(_dataset(model, rec, tau, f), _dataset(model, rec, ideal_tau, ideal), friction)
+
+
+def _simulate_configs(model, size: StudySize, friction: JointFriction, root: np.ndarray, rng, progress):
+    """``size.n_configs`` MuJoCo recordings of ``model``, each with its unknown links' parameters drawn about the
+    CAD values and its own random reference, the drives' ``friction`` and the base body ``root``.
+
+    Returns:
+        ``(recordings, thetas)``: one simulation each, and its unknown parameters (n_unknown,).
+    """
     sims, thetas = [], []
     for k in range(size.n_configs):
         theta = model.theta_cad.copy()
@@ -174,47 +194,53 @@ def simulate_study(model, size: StudySize, seed: int = 0, progress=None) -> Stud
         thetas.append(theta[model.unknown_index])
         if progress is not None:
             progress(k + 1, size.n_configs)
-    states = {k: np.stack([getattr(s, k) for s in sims]) for k in ("q", "qd", "qdd", "time")}
-    weight = np.concatenate([root[0] * model.gravity, np.cross(root[1:4], model.gravity)])
-    wrench = np.stack([s.wrench_sensor for s in sims]) - weight
-    tau = np.stack([s.tau for s in sims])
-    ideal_tau = tau - np.stack([s.friction for s in sims]) - f["armature"] * states["qdd"]
-    noise_w = rng.normal(size=wrench.shape) * np.asarray(WRENCH_NOISE)
-    noise_t = rng.normal(size=tau.shape) * TORQUE_NOISE
-    record = {"wrench": list(WRENCH_NOISE), "tau": [TORQUE_NOISE] * model.n_dof}
+    return sims, thetas
 
-    def dataset(t: np.ndarray, drives: dict[str, np.ndarray]) -> Dataset:
-        # extra_truth: what the friction model's columns should find (Stribeck is nobody's column)
-        truth = {
-            f"{j}.{term}": float(drives[field][i])
-            for i, j in enumerate(model.joint_names)
-            for term, field in TERMS.items()
-        }
-        meta = DatasetMeta.for_model(
-            model,
-            source="synthetic",
-            seed=int(seed),
-            noise=record,
-            extra_truth=truth,
-            channels=ChannelSet.of(BaseWrench(), JointTorque()),
-            sampling={"study": "formulations", **asdict(size)},
-            origin={"simulator": "mujoco", **{k: v.tolist() for k, v in drives.items()}},
-        )
-        return Dataset(
-            meta=meta,
-            q=states["q"],
-            qd=states["qd"],
-            qdd=states["qdd"],
-            wrench=wrench + noise_w,
-            theta_known=model.theta_cad[model.known_index],
-            theta_unknown=np.stack(thetas),
-            clean={"wrench": wrench, "tau": t},
-            time=states["time"],
-            channel_values={"tau": t + noise_t},
-        )
 
-    ideal = {k: np.zeros_like(v) if k != "stribeck_velocity" else v for k, v in f.items()}
-    return StudyData(dataset(tau, f), dataset(ideal_tau, ideal), friction)
+@dataclass
+class _Recordings:
+    """What the study's two datasets share: the seed and size, the joint states and times (C, F, ...), the sensor
+    wrench less the root body's weight (C, F, 6) and the noise drawn for it and for the torques, and the unknown
+    parameters of each configuration."""
+
+    seed: int
+    size: StudySize
+    states: dict[str, np.ndarray]
+    wrench: np.ndarray
+    noise_wrench: np.ndarray
+    noise_tau: np.ndarray
+    thetas: list[np.ndarray]
+
+
+def _dataset(model, rec: _Recordings, t: np.ndarray, drives: dict[str, np.ndarray]) -> Dataset:
+    """The recordings as a dataset of base wrench and joint torques ``t`` (C, F, n_dof) of drives with the
+    per-joint terms ``drives`` (the friction model's columns should find them: the ``extra_truth``)."""
+    truth = {  # Stribeck is nobody's column
+        f"{j}.{term}": float(drives[field][i]) for i, j in enumerate(model.joint_names) for term, field in TERMS.items()
+    }
+    meta = DatasetMeta.for_model(
+        model,
+        source="synthetic",
+        seed=rec.seed,
+        noise={"wrench": list(WRENCH_NOISE), "tau": [TORQUE_NOISE] * model.n_dof},
+        extra_truth=truth,
+        channels=ChannelSet.of(BaseWrench(), JointTorque()),
+        sampling={"study": "formulations", **asdict(rec.size)},
+        origin={"simulator": "mujoco", **{k: v.tolist() for k, v in drives.items()}},
+    )
+    states = rec.states
+    return Dataset(
+        meta=meta,
+        q=states["q"],
+        qd=states["qd"],
+        qdd=states["qdd"],
+        wrench=rec.wrench + rec.noise_wrench,
+        theta_known=model.theta_cad[model.known_index],
+        theta_unknown=np.stack(rec.thetas),
+        clean={"wrench": rec.wrench, "tau": t},
+        time=states["time"],
+        channel_values={"tau": t + rec.noise_tau},
+    )
 
 
 def _base_error(res) -> float:

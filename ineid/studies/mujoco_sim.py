@@ -251,19 +251,7 @@ def simulate(
         m = mujoco.MjModel.from_xml_string(xml)
     d = mujoco.MjData(m)
     d.qpos[:], d.qvel[:], _ = ref(0.0)
-    mass = np.empty((m.nv, m.nv))
-    wn = 2 * np.pi * 5.0
-    drive = friction.per_joint(m.nv)
-    excess, vs = drive["stribeck"], drive["stribeck_velocity"]
-    stribeck = bool(np.any(excess > 0))
-
-    def control(mm, dd):
-        q_ref, qd_ref, qdd_ref = ref(dd.time)
-        mujoco.mj_fullM(mm, dd, mass)
-        dd.ctrl[:] = mass @ (qdd_ref + wn**2 * (q_ref - dd.qpos) + 2 * wn * (qd_ref - dd.qvel)) + dd.qfrc_bias
-        if stribeck:  # JointFriction.stribeck_torque, against the motion
-            dd.qfrc_applied[:] = -excess * np.exp(-((dd.qvel / vs) ** 2)) * np.tanh(dd.qvel / (0.2 * vs))
-
+    control = _computed_torque(mujoco, ref, friction, m.nv)
     n = int(round(duration * rate)) + 1
     out = {k: np.empty((n, m.nv)) for k in ("q", "qd", "qdd", "tau", "friction")}
     wrench = np.empty((n, 6))
@@ -295,6 +283,26 @@ def simulate(
         out["tau"],
         out["friction"],
     )
+
+
+def _computed_torque(mujoco, ref: Reference, friction: JointFriction, nv: int):
+    """MuJoCo's control callback ``control(model, data)`` of :func:`simulate`: the computed-torque law towards
+    ``ref`` (5 Hz, critically damped) into ``data.ctrl``, and the joints' Stribeck torque, against the motion, into
+    ``data.qfrc_applied``."""
+    mass = np.empty((nv, nv))
+    wn = 2 * np.pi * 5.0
+    drive = friction.per_joint(nv)
+    excess, vs = drive["stribeck"], drive["stribeck_velocity"]
+    stribeck = bool(np.any(excess > 0))
+
+    def control(mm, dd):
+        q_ref, qd_ref, qdd_ref = ref(dd.time)
+        mujoco.mj_fullM(mm, dd, mass)
+        dd.ctrl[:] = mass @ (qdd_ref + wn**2 * (q_ref - dd.qpos) + 2 * wn * (qd_ref - dd.qvel)) + dd.qfrc_bias
+        if stribeck:  # JointFriction.stribeck_torque, against the motion
+            dd.qfrc_applied[:] = -excess * np.exp(-((dd.qvel / vs) ** 2)) * np.tanh(dd.qvel / (0.2 * vs))
+
+    return control
 
 
 def root_link_theta(model) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Sensor study (issue 22): encoders alone, or with link gyroscopes and angular-acceleration sensors?
+"""Sensor study: encoders alone, or with link gyroscopes and angular-acceleration sensors?
 
 The paper measures angular velocities and accelerations directly so that no numerical
 differentiation is needed; ineid differentiates filtered encoder angles. This study runs one
