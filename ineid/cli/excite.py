@@ -186,7 +186,7 @@ def excite(
     With --encoder-bits and --imu the design accounts for the joint-state errors the lab's encoders and
     link IMUs will cause (to first order: they inflate the noise).
     """
-    from ineid._atomic import _signals_deferred
+    from ineid._atomic import signals_deferred
     from ineid.data.synthesis.trajectory import write_trajectory_csv, write_trajectory_json
     from ineid.excite.design import design_excitation
     from ineid.excite.settings import ExcitationSettings
@@ -236,7 +236,7 @@ def excite(
         f"joints: {json.dumps(list(model.joint_names))}",  # JSON: names may hold commas
         f"coefficients: {coefficients.name}",
     ]
-    with _signals_deferred():  # a pair: an interruption leaves both old files or both new ones
+    with signals_deferred():  # a pair: an interruption leaves both old files or both new ones
         write_trajectory_json(coefficients, res.trajectory, {"design": res.to_dict()}, overwrite=overwrite)
         write_trajectory_csv(out, t, q, qd, qdd, comments, overwrite=overwrite)
     print_design(res, model)
