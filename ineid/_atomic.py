@@ -330,7 +330,7 @@ def staging_folder(path: str | Path) -> Path:
 
 
 @contextmanager
-def _signals_deferred() -> Iterator[None]:
+def signals_deferred() -> Iterator[None]:
     """SIGINT and SIGTERM that come during the block take effect once it is done (main thread; elsewhere no change).
 
     Python runs signal handlers in the main thread, whichever thread the signal reached (a
@@ -375,7 +375,7 @@ def replace_folder(new: str | Path, path: str | Path, keep: tuple[str, ...] | No
             not ineid temporaries (files the user put there) are carried into the new folder.
     """
     new, path = Path(new), _real(path)
-    with _signals_deferred():
+    with signals_deferred():
         aside = None
         if path.is_dir():
             if keep is not None:

@@ -211,10 +211,10 @@ def test_bounding_capsules_contain_the_shapes(collision_arm):
     hand = found.capsules[-1]
     assert hand.link == 3  # welded to the forearm, in its frame
     # every corner of the hand's box (rotated, offset by the welded joint) lies inside its capsule
-    from ineid.robots.kinematics import _rpy
+    from ineid.robots.kinematics import rpy_rotation
 
     corners = np.array([[x, y, z] for x in (-0.015, 0.015) for y in (-0.04, 0.04) for z in (-0.05, 0.05)])
-    corners = np.array([0, 0, -0.26]) + np.array([0, 0, -0.05]) + corners @ _rpy((0.3, 0, 0)).T
+    corners = np.array([0, 0, -0.26]) + np.array([0, 0, -0.05]) + corners @ rpy_rotation((0.3, 0, 0)).T
     d, _, _ = segment_distance(hand.a, hand.b, corners, corners)
     assert np.all(d <= hand.radius + 1e-12) and hand.radius < 0.065
 

@@ -577,11 +577,12 @@ def test_truncated_dataset_and_results(tmp_path, data, results):
 def test_damaged_parsed_urdf_in_the_cache_is_parsed_again():
     import json
 
-    from ineid.robots.urdf import _chain_file, _chain_key, parse_chain
+    from ineid.robots.urdf import parse_chain
+    from ineid.robots.urdf_cache import chain_file, chain_key
 
     data = (FIXTURES / "mixed_chain.urdf").read_bytes()
     good = parse_chain(data, "m.urdf")
-    path = _chain_file(_chain_key(data, "m.urdf", None))
+    path = chain_file(chain_key(data, "m.urdf", None))
     doc = json.loads(path.read_text())
     for bad in ({**doc, "joints": []}, {**doc, "joints": [{**doc["joints"][0], "theta": [1, 2]}]}, {**doc, "name": 5}):
         path.write_text(json.dumps(bad))

@@ -210,7 +210,7 @@ class Channel(ABC):
         """``f(q, qd, qdd, gravity, theta) -> (..., n_a)``: ``T Phi theta``, jit-safe (``T`` a constant in it)."""
         return transformed_predict(self.phi_theta_function(model), _matrix_key(self.transform()))
 
-    # -- extension points (issue 21): extra kept columns ---------------------------------------
+    # -- extension points: extra kept columns ---------------------------------------------------
     def extra_names(self, model) -> tuple[str, ...]:
         """Names of the channel's extra kept columns ``x`` (``"<joint>.fv"``, ...), reported after the
         links' parameters; unique within a set. Default: none."""

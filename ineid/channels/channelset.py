@@ -9,7 +9,7 @@ with ``n_axes = n_a1 + ... + n_am`` rows, one parameter vector ``theta`` shared 
 each channel's extra kept columns ``x_i`` its own, and everything that is per axis (noise,
 row weights, residuals, offsets) per stacked axis. One channel stacks to itself: every
 function and array of a one-channel set is that channel's own, so the layers above run
-the same code (and compiled kernels) as before channels existed.
+the same code (and compiled kernels) for a one-channel set as for the channel alone.
 """
 
 from __future__ import annotations

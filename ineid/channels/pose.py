@@ -21,8 +21,8 @@ meets a measured sensor wrench goes through the channel (or :func:`wrench_in_sen
 The same ``X`` maps a wrench in a link's frame to a sensor mounted on that link, so a
 sensor on any link (a cut-wrench channel) reuses it unchanged.
 
-(This module was ``ineid.sensor`` up to ineid 0.1; that name re-exports it, with a deprecation
-warning, for one release.)
+(``ineid.sensor`` re-exports this module with a deprecation warning; that name is removed in
+ineid 0.3.)
 
 Poses follow URDF: ``x,y,z`` in metres and ``roll,pitch,yaw`` in radians with
 ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (fixed axes X, then Y, then Z).

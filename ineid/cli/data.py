@@ -184,38 +184,12 @@ def data_generate(
     overwrite,
 ) -> None:
     """Sample a synthetic ground-truth dataset of ROBOT (default sweaty-arm; the paper's: --factorial 100)."""
-    from ineid.data import Combination, DatasetSpec, FrameSampling, ParameterSampling, write_dataset
+    from ineid.data import DatasetSpec, FrameSampling, ParameterSampling, write_dataset
 
-    if factorial is not None and n_configs is not None:
-        raise click.UsageError("give --factorial N or --n-configs N, not both")
-    if pool is not None and n_configs is None:
-        raise click.UsageError("--pool applies to --n-configs (random pairing)")
-    if (frame_mode == "trajectory") != (trajectory is not None):
-        raise click.UsageError("--frame-mode trajectory and --trajectory FILE go together")
     frames_given = ctx.get_parameter_source("n_frames") is click.core.ParameterSource.COMMANDLINE
-    if trajectory is not None and frames_given and trajectory.suffix.lower() != ".json":
-        raise click.BadParameter(
-            "the rows of a trajectory CSV are the frames; drop --n-frames (or give its .json)", param_hint="--n-frames"
-        )
-    torque = channels is not None and "torque" in channels
-    if friction_truth and not (torque or (channels is not None and "current" in channels)):
-        raise click.UsageError(
-            "--friction-truth is what joint torques add: simulate them with --channels wrench,torque (or torque)"
-        )
-    if noise and "tau" in noise and not torque:
-        raise click.UsageError(
-            "tau noise is the joint torques': simulate them with --channels wrench,torque (or torque)"
-        )
-    if noise and "current" in noise and not (channels is not None and "current" in channels):
-        raise click.UsageError("current noise is the motor currents': simulate them with --channels ...,current")
-    if (
-        noise
-        and not (channels is None or "wrench" in channels)
-        and any(k in noise for k in ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "glitch"))
-    ):
-        raise click.UsageError("force and moment noise is the base wrench's: add it with --channels wrench,torque")
-    if sensor_pose is not None and not (channels is None or "wrench" in channels):
-        raise click.UsageError("--sensor-pose places the F/T sensor of the wrench channel: add wrench to --channels")
+    _check_generate_options(
+        factorial, n_configs, pool, frames_given, frame_mode, trajectory, channels, friction_truth, noise, sensor_pose
+    )
     check_imu_generate(imus, gyro_bias, encoder_bits, noise, frame_mode)
     prepare_output(out, overwrite, inputs=[*robot_inputs(robot), ("the trajectory file", trajectory)])
     model = robot.load()
@@ -232,19 +206,7 @@ def data_generate(
         sampled = load_trajectory(trajectory, n_frames=n_frames if frames_given else None)
         check_trajectory_fits(sampled, model)
         n_frames = sampled.n_frames
-    if n_configs is not None:
-        combination = Combination("random", per_link=pool, n_configs=n_configs)
-    elif factorial is not None:
-        combination = Combination("factorial", per_link=factorial)
-    else:
-        combination = Combination()
-    total = combination.count(len(model.unknown_links))
-    if n_configs is None and total > 10**8:
-        raise click.BadParameter(
-            f"{total:,} configurations ({combination.per_link}^{len(model.unknown_links)}); "
-            "use --n-configs for a random subset",
-            param_hint="--factorial",
-        )
+    combination, total = _combination(factorial, n_configs, pool, len(model.unknown_links))
     try:
         spec = DatasetSpec(
             combination=combination,
@@ -272,18 +234,86 @@ def data_generate(
     )
 
 
+def _check_generate_options(
+    factorial, n_configs, pool, frames_given, frame_mode, trajectory, channels, friction_truth, noise, sensor_pose
+) -> None:
+    """Refuse ``data generate`` options that do not go together (:class:`click.UsageError`, exit 2): each one's
+    message names what it needs."""
+    if factorial is not None and n_configs is not None:
+        raise click.UsageError("give --factorial N or --n-configs N, not both")
+    if pool is not None and n_configs is None:
+        raise click.UsageError("--pool applies to --n-configs (random pairing)")
+    if (frame_mode == "trajectory") != (trajectory is not None):
+        raise click.UsageError("--frame-mode trajectory and --trajectory FILE go together")
+    if trajectory is not None and frames_given and trajectory.suffix.lower() != ".json":
+        raise click.BadParameter(
+            "the rows of a trajectory CSV are the frames; drop --n-frames (or give its .json)", param_hint="--n-frames"
+        )
+    torque = channels is not None and "torque" in channels
+    if friction_truth and not (torque or (channels is not None and "current" in channels)):
+        raise click.UsageError(
+            "--friction-truth is what joint torques add: simulate them with --channels wrench,torque (or torque)"
+        )
+    if noise and "tau" in noise and not torque:
+        raise click.UsageError(
+            "tau noise is the joint torques': simulate them with --channels wrench,torque (or torque)"
+        )
+    if noise and "current" in noise and not (channels is not None and "current" in channels):
+        raise click.UsageError("current noise is the motor currents': simulate them with --channels ...,current")
+    if (
+        noise
+        and not (channels is None or "wrench" in channels)
+        and any(k in noise for k in ("force", "moment", "fx", "fy", "fz", "mx", "my", "mz", "glitch"))
+    ):
+        raise click.UsageError("force and moment noise is the base wrench's: add it with --channels wrench,torque")
+    if sensor_pose is not None and not (channels is None or "wrench" in channels):
+        raise click.UsageError("--sensor-pose places the F/T sensor of the wrench channel: add wrench to --channels")
+
+
+def _combination(factorial, n_configs, pool, n_unknown: int):
+    """``(combination, total)``: how ``data generate`` pairs the links' parameter sets (``--n-configs``,
+    ``--factorial``, or the default), and the configurations it gives for ``n_unknown`` unknown links.
+
+    Raises:
+        click.BadParameter: a factorial design of more than 10^8 configurations.
+    """
+    from ineid.data import Combination
+
+    if n_configs is not None:
+        combination = Combination("random", per_link=pool, n_configs=n_configs)
+    elif factorial is not None:
+        combination = Combination("factorial", per_link=factorial)
+    else:
+        combination = Combination()
+    total = combination.count(n_unknown)
+    if n_configs is None and total > 10**8:
+        raise click.BadParameter(
+            f"{total:,} configurations ({combination.per_link}^{n_unknown}); use --n-configs for a random subset",
+            param_hint="--factorial",
+        )
+    return combination, total
+
+
 @data.command("info")
 @click.argument("path", metavar="FILE", type=click.Path(path_type=Path))
 def data_info(path: Path) -> None:
     """Summarize a dataset: sizes, robot, settings, parameter and wrench ranges."""
-    import numpy as np
-
-    from ineid.data import iter_dataset, read_meta
-    from ineid.params import param_names
+    from ineid.data import read_meta
 
     meta, shapes = read_meta(path)
-    n_configs, n_frames, n_dof = shapes["q"]
     con = console()
+    _print_settings(con, path, meta, shapes)
+    if "theta_unknown" in shapes:
+        _print_parameter_ranges(con, path, meta)
+    _print_channel_ranges(con, path, meta)
+
+
+def _print_settings(con, path: Path, meta, shapes: dict) -> None:
+    """``data info``'s header: the file, sizes, robot, links, gravity, sampling, noise, origin, the channels and
+    their sensor frames, the simulated actuation, and the table of the arrays' shapes."""
+    import numpy as np
+
+    n_configs, n_frames, n_dof = shapes["q"]
     con.print(
         f"[bold]{shown(path)}[/bold]  ineid dataset v{shown(meta.version)} ({shown(meta.source)}), "
         f"written by ineid {shown(meta.ineid_version)}"
@@ -306,8 +336,6 @@ def data_info(path: Path) -> None:
     con.print(f"noise (std): {shown(json.dumps(meta.noise)) if meta.noise else 'none (clean data)'}")
     if meta.origin:
         con.print(f"origin: {shown(json.dumps(meta.origin, sort_keys=True))}")
-    from ineid.channels import BaseWrench
-
     several = len(meta.channels) > 1
     if several:
         con.print(f"measurement channels: {shown(meta.channels.describe())}")
@@ -326,35 +354,51 @@ def data_info(path: Path) -> None:
         arrays.add_row(name, " x ".join(str(s) for s in shapes[name]) or "scalar")
     con.print(arrays)
 
-    def ranges(name, width):
-        lo, hi = np.full(width, np.inf), np.full(width, -np.inf)
-        total, count = np.zeros(width), 0
-        for _, block in iter_dataset(path, name):
-            flat = block.reshape(-1, width)
-            lo, hi = np.minimum(lo, flat.min(0)), np.maximum(hi, flat.max(0))
-            total += flat.sum(0)
-            count += len(flat)
-        return lo, hi, total / max(count, 1)
 
-    if "theta_unknown" in shapes:
-        from ineid.robots.urdf import parse_chain
+def _ranges(path: Path, name: str, width: int):
+    """``(min, max, mean)`` (width,) each of array ``name`` of the dataset at ``path`` over every row, read block
+    by block."""
+    import numpy as np
 
-        chain = parse_chain(meta.urdf, source=f"{path} (its URDF)", locked_joints=meta.locked_joints or None)
-        cad = {j.link: j.theta for j in chain.joints}
-        names = param_names(meta.unknown_links)
-        lo, hi, mean = ranges("theta_unknown", len(names))
-        t = table(
-            "Unknown parameters over the configurations (SI, about each link origin)",
-            ("parameter", "CAD", "min", "mean", "max"),
-            left=("parameter",),
-        )
-        for k, name in enumerate(names):
-            link = name.rpartition(".")[0]
-            t.add_row(name, f"{cad[link][k % 10]:.5g}", f"{lo[k]:.5g}", f"{mean[k]:.5g}", f"{hi[k]:.5g}")
-        con.print(t)
-    for c in meta.channels:  # each channel's values, axis by axis, in its own units
+    from ineid.data import iter_dataset
+
+    lo, hi = np.full(width, np.inf), np.full(width, -np.inf)
+    total, count = np.zeros(width), 0
+    for _, block in iter_dataset(path, name):
+        flat = block.reshape(-1, width)
+        lo, hi = np.minimum(lo, flat.min(0)), np.maximum(hi, flat.max(0))
+        total += flat.sum(0)
+        count += len(flat)
+    return lo, hi, total / max(count, 1)
+
+
+def _print_parameter_ranges(con, path: Path, meta) -> None:
+    """The table of the unknown parameters over the configurations beside the URDF's (CAD) values."""
+    from ineid.params import param_names
+    from ineid.robots.urdf import parse_chain
+
+    chain = parse_chain(meta.urdf, source=f"{path} (its URDF)", locked_joints=meta.locked_joints or None)
+    cad = {j.link: j.theta for j in chain.joints}
+    names = param_names(meta.unknown_links)
+    lo, hi, mean = _ranges(path, "theta_unknown", len(names))
+    t = table(
+        "Unknown parameters over the configurations (SI, about each link origin)",
+        ("parameter", "CAD", "min", "mean", "max"),
+        left=("parameter",),
+    )
+    for k, name in enumerate(names):
+        link = name.rpartition(".")[0]
+        t.add_row(name, f"{cad[link][k % 10]:.5g}", f"{lo[k]:.5g}", f"{mean[k]:.5g}", f"{hi[k]:.5g}")
+    con.print(t)
+
+
+def _print_channel_ranges(con, path: Path, meta) -> None:
+    """One table per channel: its values' range axis by axis, in its own units (a wrench: in which frame)."""
+    from ineid.channels import BaseWrench
+
+    for c in meta.channels:
         axes = c.axes(meta)
-        lo, hi, mean = ranges(c.key, len(axes))
+        lo, hi, mean = _ranges(path, c.key, len(axes))
         units = ", ".join(dict.fromkeys(c.units(meta)))
         if isinstance(c, BaseWrench):
             frame = "base frame, about the base origin" if c.sensor is None else "sensor frame, about the sensor origin"

@@ -239,7 +239,7 @@ def _warn_beyond_bounds(velocity_scale: float, acceleration_scale: float) -> Non
 def _write_design(res, model, rate: float, out: Path, coefficients: Path, overwrite: bool) -> int:
     """The design's samples at ``rate`` Hz to the CSV ``out`` and its coefficients and record to the JSON
     ``coefficients``, as a pair (an interruption leaves both old files or both new ones); returns the samples."""
-    from ineid._atomic import _signals_deferred
+    from ineid._atomic import signals_deferred
     from ineid.data.synthesis.trajectory import write_trajectory_csv, write_trajectory_json
 
     t, q, qd, qdd = res.trajectory.sample(rate)
@@ -251,7 +251,7 @@ def _write_design(res, model, rate: float, out: Path, coefficients: Path, overwr
         f"joints: {json.dumps(list(model.joint_names))}",  # JSON: names may hold commas
         f"coefficients: {coefficients.name}",
     ]
-    with _signals_deferred():
+    with signals_deferred():  # a pair: an interruption leaves both old files or both new ones
         write_trajectory_json(coefficients, res.trajectory, {"design": res.to_dict()}, overwrite=overwrite)
         write_trajectory_csv(out, t, q, qd, qdd, comments, overwrite=overwrite)
     return len(t)

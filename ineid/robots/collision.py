@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ineid.chain import Chain
-from ineid.robots.kinematics import _floats, _rpy, welded_poses
+from ineid.robots.kinematics import parse_floats, rpy_rotation, welded_poses
 
 
 @dataclass(frozen=True)
@@ -94,8 +94,8 @@ def body_capsules(urdf_text: str, chain: Chain, urdf_path: Path | None = None, l
             continue
         for el in elements:
             origin = el.find("origin")
-            r = body_r @ _rpy(_floats(origin.get("rpy") if origin is not None else None, (0, 0, 0)))
-            c = body_p + body_r @ _floats(origin.get("xyz") if origin is not None else None, (0, 0, 0))
+            r = body_r @ rpy_rotation(parse_floats(origin.get("rpy") if origin is not None else None, (0, 0, 0)))
+            c = body_p + body_r @ parse_floats(origin.get("xyz") if origin is not None else None, (0, 0, 0))
             geom = el.find("geometry")
             shape = next(iter(geom), None) if geom is not None else None
             tag = shape.tag if shape is not None else ""
@@ -105,13 +105,13 @@ def body_capsules(urdf_text: str, chain: Chain, urdf_path: Path | None = None, l
                 half = 0.5 * float(shape.get("length")) * r[:, 2]
                 a, b, rad = c - half, c + half, float(shape.get("radius"))
             elif tag == "box":
-                a, b, rad = _box_capsule(c, r, _floats(shape.get("size"), (0, 0, 0)))
+                a, b, rad = _box_capsule(c, r, parse_floats(shape.get("size"), (0, 0, 0)))
             elif tag == "mesh":
                 bounds = _mesh_bounds(shape.get("filename", ""), urdf_path)
                 if bounds is None:
                     out.notes.append(f"link {name!r}: mesh {shape.get('filename')!r} not readable, skipped")
                     continue
-                bounds = bounds * _floats(shape.get("scale"), (1, 1, 1))
+                bounds = bounds * parse_floats(shape.get("scale"), (1, 1, 1))
                 lo, hi = bounds.min(axis=0), bounds.max(axis=0)
                 a, b, rad = _box_capsule(c + r @ (0.5 * (lo + hi)), r, hi - lo)
             else:

@@ -87,7 +87,8 @@ class WeldedFrames:
         return tuple(n for n, k in zip(self.names, self.link, strict=True) if k == last)
 
 
-def _rpy(rpy) -> np.ndarray:
+def rpy_rotation(rpy) -> np.ndarray:
+    """(3, 3) the rotation of URDF angles ``rpy = (roll, pitch, yaw)``, rad: ``Rz(yaw) @ Ry(pitch) @ Rx(roll)``."""
     r, p, y = rpy
     rx = np.array([[1, 0, 0], [0, math.cos(r), -math.sin(r)], [0, math.sin(r), math.cos(r)]])
     ry = np.array([[math.cos(p), 0, math.sin(p)], [0, 1, 0], [-math.sin(p), 0, math.cos(p)]])
@@ -95,7 +96,8 @@ def _rpy(rpy) -> np.ndarray:
     return rz @ ry @ rx
 
 
-def _floats(text: str | None, default) -> np.ndarray:
+def parse_floats(text: str | None, default) -> np.ndarray:
+    """The numbers of a URDF attribute such as ``xyz="0 0 0.1"`` (floats); ``default`` when it is absent or empty."""
     return np.array([float(v) for v in text.split()], dtype=np.float64) if text else np.asarray(default, float)
 
 
@@ -115,10 +117,10 @@ def welded_poses(urdf_text: str, chain: Chain, locked_joints: Mapping[str, float
         if child is None or parent is None:
             continue
         origin = j.find("origin")
-        r = _rpy(_floats(origin.get("rpy") if origin is not None else None, (0, 0, 0)))
-        p = _floats(origin.get("xyz") if origin is not None else None, (0, 0, 0))
+        r = rpy_rotation(parse_floats(origin.get("rpy") if origin is not None else None, (0, 0, 0)))
+        p = parse_floats(origin.get("xyz") if origin is not None else None, (0, 0, 0))
         axis_el = j.find("axis")
-        axis = _floats(axis_el.get("xyz") if axis_el is not None else None, (1, 0, 0))
+        axis = parse_floats(axis_el.get("xyz") if axis_el is not None else None, (1, 0, 0))
         name = j.get("name")
         if name in locked:
             axis = axis / np.linalg.norm(axis)

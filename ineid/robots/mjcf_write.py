@@ -73,6 +73,23 @@ def mjcf_with_inertials(
             chain,
             robot.source,
         )
+    expected = _expected_inertials(robot, chain, theta_by_link)
+    data = Path(mjcf_path).read_bytes()
+    encoding = xml_encoding(data, robot.source)
+    edits, by_xml = _inertial_edits(data, encoding, robot, expected)
+    for start, stop, new_bytes in sorted(edits, reverse=True):
+        data = data[:start] + new_bytes + data[stop:]
+    return data, by_xml
+
+
+def _expected_inertials(robot, chain, theta_by_link: dict[str, np.ndarray]) -> dict[str, tuple]:
+    """``{body: (mass, com, inertia about com)}`` each body is to read back as, in the body frame: the estimates,
+    and a zero inertial for each body with mass welded to an identified moving body (and not identified itself).
+
+    Raises:
+        RobotModelError: a link that is neither a moving body of the MJCF nor a body welded to one.
+        IdentificationError: an estimate that is not a rigid body.
+    """
     moving = {j.link for j in chain.joints}
     payloads = {b.name for b in chain.body_links.values() if b.parent}
     expected: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
@@ -95,8 +112,16 @@ def mjcf_with_inertials(
             for welded in chain.merged_links.get(link, (link,))[1:]:
                 if welded not in theta_by_link and chain.body_links[welded].theta[0] > 0:
                     expected[welded] = (0.0, np.zeros(3), np.zeros((3, 3)))
-    data = Path(mjcf_path).read_bytes()
-    encoding = xml_encoding(data, robot.source)
+    return expected
+
+
+def _inertial_edits(data: bytes, encoding: str, robot, expected: dict[str, tuple]) -> tuple[list, dict[str, tuple]]:
+    """``(edits, by_xml)``: the byte edits ``(start, stop, new bytes)`` that write each body's ``<inertial>`` (in
+    place of its own, or as its first child), and ``expected`` keyed by the bodies' MJCF names.
+
+    Raises:
+        RobotModelError: a body is unnamed or not in this file (an ``<include>``d one).
+    """
     spans = _body_spans(data)
     edits = []
     by_xml: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
@@ -122,9 +147,7 @@ def mjcf_with_inertials(
             edits.append((start_end - 2, start_end, b">" + _indent(data, start_end) + new_bytes + b"</body>"))
         else:
             edits.append((start_end, start_end, _indent(data, start_end) + new_bytes))
-    for start, stop, new_bytes in sorted(edits, reverse=True):
-        data = data[:start] + new_bytes + data[stop:]
-    return data, by_xml
+    return edits, by_xml
 
 
 def _check_same_robot(results_chain, chain, source: str) -> None:

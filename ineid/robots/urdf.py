@@ -46,7 +46,7 @@ from ineid.params import theta_from_inertial
 from ineid.robots.cad_rounding import snap_joint_angles
 from ineid.robots.inertial import link_inertial
 from ineid.robots.robot_files import URDF_MAX_BYTES, check_urdf_size
-from ineid.robots.urdf_cache import CHAIN_SUBDIR, _chain_file, _chain_key, _store_chain, cached_chain  # noqa: F401
+from ineid.robots.urdf_cache import CHAIN_SUBDIR, cached_chain, chain_key, store_chain  # noqa: F401  (CHAIN_SUBDIR re-exported)
 from ineid.robots.urdf_checks import check_lxml, check_urdf_tree
 
 DEFAULT_QD_MAX = 3.0
@@ -83,12 +83,12 @@ def parse_chain(text: bytes | str, source: str = "<urdf>", locked_joints: Mappin
     """
     data = text.encode() if isinstance(text, str) else text
     check_urdf_size(len(data), source)
-    key = _chain_key(data, source, locked_joints)
+    key = chain_key(data, source, locked_joints)
     chain = cached_chain(key)
     if chain is not None:
         return chain
     chain = _parse_chain(data, source, locked_joints)
-    _store_chain(key, chain)
+    store_chain(key, chain)
     return chain
 
 
@@ -155,8 +155,9 @@ def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
     return np.eye(3) + math.sin(angle) * s + (1 - math.cos(angle)) * s @ s
 
 
-def _link_theta(link, source: str) -> np.ndarray:
-    """The link's own parameters about its frame origin, zero for a frame (``inertial.link_inertial``)."""
+def link_theta(link, source: str) -> np.ndarray:
+    """(10,) a yourdfpy link's own parameters about its frame origin, zero for a frame without mass
+    (:func:`ineid.robots.inertial.link_inertial`, its note dropped)."""
     return link_inertial(link, source)[0]
 
 
@@ -196,6 +197,14 @@ def _mimic_locks(robot, locked: dict[str, float]) -> tuple[dict[str, float], lis
 
 
 def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[str, str], notes: list[str]) -> Chain:
+    """The chain of yourdfpy's ``robot``: the links welded by fixed or locked joints merged into bodies, the
+    root's body tared, one :class:`JointSpec` per moving joint; ``notes`` come first in the chain's notes.
+
+    Raises:
+        RobotModelError: no links, a locked joint not in the URDF, a joint of an unsupported type, a link
+            missing or the child of two joints, not one root, a branching tree, a mimic joint, an axis of zero
+            length, no moving joint, no moving link with mass (and :func:`_joint_spec`'s errors).
+    """
     links = {link.name: link for link in robot.links}
     if not links:
         raise RobotModelError(f"{source}: the URDF has no <link>")
@@ -206,7 +215,32 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
                 f"{source}: locked joint {name!r} is not in the URDF (joints: {', '.join(joints_by_name)})"
             )
     locked, mimic_notes = _mimic_locks(robot, locked)
-    notes = [*notes, *mimic_notes]
+    children, root = _tree(robot, source, links, locked)
+    bodies = _Bodies(source, links, children, locked, [*notes, *mimic_notes])
+    specs, merged = _moving_joints(bodies, root, qdd_bounds)
+    if not specs:
+        raise RobotModelError(
+            f"{source}: the URDF has no moving joint (every joint is fixed or locked); nothing "
+            "would move the base wrench: lock fewer joints, or give a URDF with a moving chain"
+        )
+    if all(s.theta[0] <= 0 for s in specs):
+        raise RobotModelError(
+            f"{source}: no moving link carries mass ({', '.join(s.link for s in specs)}); nothing "
+            "would move the base wrench: give the moving links <inertial> elements"
+        )
+    return Chain(
+        name=robot.name or Path(source).stem,
+        root_link=root,
+        joints=tuple(specs),
+        merged_links=merged,
+        body_links=bodies.body_links,
+        notes=tuple(bodies.notes),
+    )
+
+
+def _tree(robot, source: str, links: dict, locked: dict[str, float]) -> tuple[dict[str, list], str]:
+    """``(children, root)``: each link's child joints, and the one root link, every joint checked (finite,
+    supported or locked, both ends defined, each link the child of one joint at most)."""
     children: dict[str, list] = {name: [] for name in links}
     child_seen: dict[str, str] = {}
     for j in robot.joints:
@@ -229,58 +263,74 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
     roots = [name for name in links if name not in child_seen]
     if len(roots) != 1:
         raise RobotModelError(f"{source}: the URDF must have exactly one root link, found {len(roots)}: {roots}")
+    return children, roots[0]
 
-    def is_moving(j) -> bool:
-        return j.type in _MOVING and j.name not in locked
 
-    def inertial(name: str) -> np.ndarray:
-        theta, note = link_inertial(links[name], source)
+class _Bodies:
+    """The URDF's links merged into rigid bodies across fixed and locked joints, read as the chain is walked.
+
+    Attributes:
+        body_links: every link of a moving body, with its pose in the body's frame and its own parameters
+            (:attr:`Chain.body_links`), in the order they were read.
+        notes: the chain's notes so far, the inertials' notes appended as they are read.
+    """
+
+    def __init__(self, source: str, links: dict, children: dict[str, list], locked: dict[str, float], notes: list):
+        self.source, self.links, self.children, self.locked = source, links, children, locked
+        self.notes = notes
+        self.body_links: dict[str, BodyLink] = {}
+
+    def is_moving(self, j) -> bool:
+        """Whether joint ``j`` moves (a revolute, continuous or prismatic joint, not locked)."""
+        return j.type in _MOVING and j.name not in self.locked
+
+    def inertial(self, name: str) -> np.ndarray:
+        """(10,) link ``name``'s own parameters about its frame (:func:`ineid.robots.inertial.link_inertial`)."""
+        theta, note = link_inertial(self.links[name], self.source)
         if note:
-            notes.append(note)
+            self.notes.append(note)
         return theta
 
-    body_links: dict[str, BodyLink] = {}
-
-    def collect_body(link_name: str, tared: bool = False) -> tuple[np.ndarray, list, list[str]]:
+    def collect(self, link_name: str, tared: bool = False) -> tuple[np.ndarray, list, list[str]]:
         """Merge link_name and everything welded to it: (theta, moving joints out, link names).
 
-        The root body is tared away (the sensor is zeroed with it): its links' inertials are not read."""
-        theta = np.zeros(10) if tared else inertial(link_name)
+        ``theta`` (10,) is the body's parameters in ``link_name``'s frame; each moving joint out comes with
+        the pose ``(body_R, body_p)`` of its parent link in that frame. The root body is tared away (the
+        sensor is zeroed with it): its links' inertials are not read."""
+        theta = np.zeros(10) if tared else self.inertial(link_name)
         if not tared:
-            body_links[link_name] = BodyLink(link_name, link_name, "", np.eye(3), np.zeros(3), theta)
+            self.body_links[link_name] = BodyLink(link_name, link_name, "", np.eye(3), np.zeros(3), theta)
         moving_out: list = []
         names = [link_name]
         stack = [(link_name, np.eye(3), np.zeros(3))]
         while stack:
             name, body_R, body_p = stack.pop()
-            for j in children[name]:
-                r, p = _transform(j.origin)
-                if j.name in locked:
-                    axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
-                    value = float(locked[j.name])
-                    if j.type in ("revolute", "continuous"):
-                        r = r @ _axis_rotation(axis, value)
-                    elif j.type == "prismatic":
-                        p = p + r @ (axis / np.linalg.norm(axis)) * value
-                if is_moving(j):
+            for j in self.children[name]:
+                if self.is_moving(j):
                     moving_out.append((j, body_R, body_p))
                     continue
+                r, p = _joint_transform(j, self.locked)
                 child_R, child_p = body_R @ r, body_R @ p + body_p
                 if not tared:
-                    own = inertial(j.child)
+                    own = self.inertial(j.child)
                     theta = theta + _fold(own, child_R, child_p)
-                    body_links[j.child] = BodyLink(j.child, link_name, name, child_R, child_p, own)
+                    self.body_links[j.child] = BodyLink(j.child, link_name, name, child_R, child_p, own)
                 names.append(j.child)
                 stack.append((j.child, child_R, child_p))
         return theta, moving_out, names
 
+
+def _moving_joints(bodies: _Bodies, root: str, qdd_bounds: dict[str, str]) -> tuple[list[JointSpec], dict]:
+    """Walk from the root's body out along the moving joints, one body at a time: ``(specs, merged)``, each
+    moving joint's :class:`JointSpec` in chain order and each body's link names (the root's first)."""
+    source = bodies.source
     merged: dict[str, tuple[str, ...]] = {}
-    _, moving_out, names = collect_body(roots[0], tared=True)
-    merged[roots[0]] = tuple(names)
+    _, moving_out, names = bodies.collect(root, tared=True)
+    merged[root] = tuple(names)
     specs: list[JointSpec] = []
     while moving_out:
         if len(moving_out) > 1:
-            where = specs[-1].link if specs else roots[0]
+            where = specs[-1].link if specs else root
             raise RobotModelError(
                 f"{source}: branching tree: body {where!r} has {len(moving_out)} moving child joints "
                 f"({', '.join(j.name for j, _, _ in moving_out)}); ineid needs a serial chain: {_LOCK_HINT}"
@@ -299,32 +349,29 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
                 f"{source}: joint {j.name!r} has an axis of zero length; give <axis xyz=...> a direction"
             )
         r, p = _transform(j.origin)
-        theta, moving_out, names = collect_body(j.child)
+        theta, moving_out, names = bodies.collect(j.child)
         merged[j.child] = tuple(names)
         if theta[0] <= 0:  # a massless moving link: known, contributes nothing, not identified by default
-            notes.append(
+            bodies.notes.append(
                 f"moving link {j.child!r} has no mass (no <inertial>, and nothing with mass is welded "
                 "to it): a known link contributing nothing"
             )
         specs.append(_joint_spec(j, source, body_R @ r, body_R @ p + body_p, axis / norm, theta, qdd_bounds))
-    if not specs:
-        raise RobotModelError(
-            f"{source}: the URDF has no moving joint (every joint is fixed or locked); nothing "
-            "would move the base wrench: lock fewer joints, or give a URDF with a moving chain"
-        )
-    if all(s.theta[0] <= 0 for s in specs):
-        raise RobotModelError(
-            f"{source}: no moving link carries mass ({', '.join(s.link for s in specs)}); nothing "
-            "would move the base wrench: give the moving links <inertial> elements"
-        )
-    return Chain(
-        name=robot.name or Path(source).stem,
-        root_link=roots[0],
-        joints=tuple(specs),
-        merged_links=merged,
-        body_links=body_links,
-        notes=tuple(notes),
-    )
+    return specs, merged
+
+
+def _joint_transform(j, locked: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    """``(parent_R_child, parent_p_child)`` of joint ``j`` from its ``<origin>``, turned or slid to its position
+    when ``j`` is in ``locked`` (the axis defaults to x)."""
+    r, p = _transform(j.origin)
+    if j.name in locked:
+        axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
+        value = float(locked[j.name])
+        if j.type in ("revolute", "continuous"):
+            r = r @ _axis_rotation(axis, value)
+        elif j.type == "prismatic":
+            p = p + r @ (axis / np.linalg.norm(axis)) * value
+    return r, p
 
 
 def _joint_spec(j, source, parent_R, parent_p, axis, theta, qdd_bounds) -> JointSpec:
@@ -391,14 +438,8 @@ def fixed_frame_pose(
     name = frame
     while name in parent_joint:
         j = parent_joint[name]
-        r, p = _transform(j.origin)
-        if j.name in locked:
-            axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
-            if j.type in ("revolute", "continuous"):
-                r = r @ _axis_rotation(axis, float(locked[j.name]))
-            elif j.type == "prismatic":
-                p = p + r @ (axis / np.linalg.norm(axis)) * float(locked[j.name])
-        elif j.type != "fixed":
+        r, p = _joint_transform(j, locked)
+        if j.name not in locked and j.type != "fixed":
             raise RobotModelError(
                 f"{source}: frame {frame!r} moves with {j.type} joint {j.name!r}; the sensor frame must be welded "
                 "to the root link (a link reached from it by fixed joints only)"

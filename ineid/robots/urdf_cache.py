@@ -32,9 +32,10 @@ _PARSER_FILES = (
 """The modules a parse depends on (paths from this folder): a change to any of them parses every URDF again."""
 
 
-def _chain_key(data: bytes, source: str, locked_joints: Mapping[str, float] | None) -> str:
+def chain_key(data: bytes, source: str, locked_joints: Mapping[str, float] | None) -> str:
     """Hash of what a parse depends on: the parser's code, the URDF bytes, the source
-    name (a nameless ``<robot>`` is named after it) and the locked joints."""
+    name (a nameless ``<robot>`` is named after it) and the locked joints; the key of
+    :func:`cached_chain`, :func:`chain_file` and :func:`store_chain`."""
     here = Path(__file__).resolve().parent
     h = hashlib.sha256(b"".join((here / name).read_bytes() for name in _PARSER_FILES))
     h.update(json.dumps([source, sorted((str(k), float(v)) for k, v in (locked_joints or {}).items())]).encode())
@@ -42,7 +43,8 @@ def _chain_key(data: bytes, source: str, locked_joints: Mapping[str, float] | No
     return h.hexdigest()[:32]
 
 
-def _chain_file(key: str) -> Path:
+def chain_file(key: str) -> Path:
+    """The cache file of the chain parsed under ``key`` (:func:`chain_key`), in the private cache folder."""
     from ineid.cache import private_folder
 
     return private_folder(CHAIN_SUBDIR) / f"{key}.json"
@@ -64,7 +66,7 @@ def cached_chain(key: str) -> Chain | None:
     from ineid._inputs import parse_json
     from ineid._trust import Untrusted, read_checked
 
-    path = _chain_file(key)
+    path = chain_file(key)
     try:
         doc = parse_json(read_checked(path, private=True))  # nested too deep: a ValueError, parsed again
         joints = tuple(
@@ -83,7 +85,7 @@ def cached_chain(key: str) -> Chain | None:
             tuple(doc["notes"]),
         )
     except Untrusted as e:  # e.reason: "has a file that is writable by group or others (<file>)"
-        # logged under the parser's name, as before this module was split from it
+        # logged under the parser's name: the warning is what a URDF's parse meets
         logging.getLogger("ineid.robots.urdf").warning(
             "the cache of parsed URDFs in %s %s; parsing the URDF again", path.parent, e.reason
         )
@@ -119,7 +121,7 @@ def _sound(chain: Chain) -> bool:
     return all(isinstance(n, str) for n in chain.notes)
 
 
-def _store_chain(key: str, chain: Chain) -> None:
+def store_chain(key: str, chain: Chain) -> None:
     """Remember a parsed chain (JSON: floats round-trip exactly); a read-only cache is skipped."""
     from ineid._atomic import atomic_write
 
@@ -145,7 +147,7 @@ def _store_chain(key: str, chain: Chain) -> None:
         "body_links": links,
         "notes": list(chain.notes),
     }
-    path = _chain_file(key)
+    path = chain_file(key)
     try:
         atomic_write(path, json.dumps(doc))
     except OSError:

@@ -315,7 +315,7 @@ def root_link_theta(model) -> np.ndarray:
 
     import yourdfpy
 
-    from ineid.robots.urdf import _link_theta
+    from ineid.robots.urdf import link_theta
 
     root = model.chain.root_link
     if model.chain.merged_links.get(root, (root,)) != (root,):
@@ -327,7 +327,7 @@ def root_link_theta(model) -> np.ndarray:
         build_collision_scene_graph=False,
         load_collision_meshes=False,
     ).robot
-    return _link_theta(next(link for link in robot.links if link.name == root), "urdf")
+    return link_theta(next(link for link in robot.links if link.name == root), "urdf")
 
 
 def root_wrench(root_theta: np.ndarray, gravity: np.ndarray, sensor: SensorPose | None = None) -> np.ndarray:

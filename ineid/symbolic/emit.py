@@ -17,7 +17,7 @@ from pathlib import Path
 import sympy as sp
 from sympy.printing.str import StrPrinter
 
-from ineid._atomic import _signals_deferred, atomic_write
+from ineid._atomic import atomic_write, signals_deferred
 from ineid.chain import Chain
 from ineid.errors import CodegenError
 from ineid.generated import file_names
@@ -320,7 +320,7 @@ def write_files(files: dict[str, str] | dict[str, bytes], directory: str | Path,
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     data = {name: text.encode() if isinstance(text, str) else text for name, text in files.items()}
-    with _signals_deferred():
+    with signals_deferred():
         written = [atomic_write(directory / name, data[name]) for name in sorted(data)]
         if manifest:
             write_manifest(directory, data, private=False)

@@ -365,51 +365,14 @@ def derive_base_wrench_regressor(chain: Chain) -> SymbolicRegressor:
     qdd = sp.symbols(f"qdd0:{n}", real=True)
     g = sp.symbols("g0:3", real=True)
     b = _Builder()
-    w: Vec = [ZERO] * 3
-    wd: Vec = [ZERO] * 3
-    a: Vec = [-g[0], -g[1], -g[2]]
-    R: Mat = _eye()
-    p: Vec = [ZERO] * 3
+    link = _LinkMotion(_eye(), [ZERO] * 3, [ZERO] * 3, [ZERO] * 3, [-g[0], -g[1], -g[2]])
     out: dict[str, list] = {k: [] for k in ("R", "p", "w", "wd", "a", "axis", "moment", "Yn")}
     for i, joint in enumerate(chain.joints):
         derivation_step(i + 1, total, "Newton-Euler terms of joint %d of %d, %s", i + 1, n, ascii(joint.name))
-        P = [[_num(joint.parent_R_joint[r, c]) for c in range(3)] for r in range(3)]
-        r_ = [_num(x) for x in joint.parent_p_joint]
-        k = [_num(x) for x in joint.axis]
-        revolute = joint.type == "revolute"
-        if revolute:
-            rq = _axis_rotation(k, *b.trig_pair(i, q[i]))
-            offset = r_
-        else:  # prismatic: translation along the axis, no rotation
-            rq = _eye()
-            offset = b.vec(_add(r_, _scale(_matvec(P, k), q[i])))
-        # the pose: base_p_i at the joint origin, base_R_i = base_R_{i-1} P Rq
-        p_new = b.vec(_add(p, _matvec(R, offset)), "p")
-        ident = _is_identity(P)
-        r_p = R if ident else b.mat(_matmul(R, P))
-        R_new = b.mat(_matmul(r_p, rq), "R")
-        b.barrier([*p_new, *(x for row in R_new for x in row)])
-
-        def to_link(v: Vec) -> Vec:
-            """``(P Rq)^T v``, each stage named."""
-            if all(x == 0 for x in v):
-                return [ZERO] * 3
-            v1 = v if ident else b.vec(_tmatvec(P, v))
-            return b.vec(_tmatvec(rq, v1))
-
-        # origin acceleration in the parent frame, then everything rotated into link i
-        w_r = b.vec(_cross(w, offset))
-        a_new = to_link(b.vec(_add(a, _cross(wd, offset), _cross(w, w_r))))
-        w_rot, wd_rot = to_link(w), to_link(wd)
-        if revolute:
-            w_new = b.vec(_add(w_rot, _scale(k, qd[i])))
-            wd_new = b.vec(_add(wd_rot, _scale(k, qdd[i]), _cross(w_rot, _scale(k, qd[i]))))
-        else:
-            w_new, wd_new = w_rot, wd_rot
-            a_new = b.vec(_add(a_new, _scale(_cross(w_new, k), 2 * qd[i]), _scale(k, qdd[i])))
-        w, wd, a, R, p = w_new, wd_new, a_new, R_new, p_new
-        b.barrier([*w, *wd, *a])
-        z = b.vec(_matvec(R, k), "z")  # the joint axis (constant in the link frame), base frame
+        link = _next_link(b, joint, i, q[i], qd[i], qdd[i], link)
+        R, p, w, wd, a = link.R, link.p, link.w, link.wd, link.a
+        # the joint axis (constant in the link frame), base frame
+        z = b.vec(_matvec(R, [_num(x) for x in joint.axis]), "z")
         out["axis"].append(tuple(z))
         out["moment"].append(tuple(b.vec(_cross(p, z), "m")))
         for key, value in (
@@ -438,6 +401,65 @@ def derive_base_wrench_regressor(chain: Chain) -> SymbolicRegressor:
         **{k: tuple(v) for k, v in out.items()},
         seconds=time.perf_counter() - t0,
     )
+
+
+@dataclass(frozen=True)
+class _LinkMotion:
+    """A link's pose in the base frame and its motion in its own frame, as the builder's names.
+
+    Attributes:
+        R: base_R_link (3x3). p: base_p_link (3,), the link origin.
+        w, wd: the link's angular velocity and acceleration, link frame.
+        a: its origin's acceleration less gravity, link frame.
+    """
+
+    R: Mat
+    p: Vec
+    w: Vec
+    wd: Vec
+    a: Vec
+
+
+def _next_link(b: _Builder, joint, i: int, q_i: sp.Symbol, qd_i: sp.Symbol, qdd_i: sp.Symbol, parent: _LinkMotion):
+    """The motion of joint ``i``'s child link from its parent's (the forward Newton-Euler recursion), each
+    stage bound to a name in ``b`` and the pose and the motion marked as barriers."""
+    w, wd, a, R, p = parent.w, parent.wd, parent.a, parent.R, parent.p
+    P = [[_num(joint.parent_R_joint[r, c]) for c in range(3)] for r in range(3)]
+    r_ = [_num(x) for x in joint.parent_p_joint]
+    k = [_num(x) for x in joint.axis]
+    revolute = joint.type == "revolute"
+    if revolute:
+        rq = _axis_rotation(k, *b.trig_pair(i, q_i))
+        offset = r_
+    else:  # prismatic: translation along the axis, no rotation
+        rq = _eye()
+        offset = b.vec(_add(r_, _scale(_matvec(P, k), q_i)))
+    # the pose: base_p_i at the joint origin, base_R_i = base_R_{i-1} P Rq
+    p_new = b.vec(_add(p, _matvec(R, offset)), "p")
+    ident = _is_identity(P)
+    r_p = R if ident else b.mat(_matmul(R, P))
+    R_new = b.mat(_matmul(r_p, rq), "R")
+    b.barrier([*p_new, *(x for row in R_new for x in row)])
+
+    def to_link(v: Vec) -> Vec:
+        """``(P Rq)^T v``, each stage named."""
+        if all(x == 0 for x in v):
+            return [ZERO] * 3
+        v1 = v if ident else b.vec(_tmatvec(P, v))
+        return b.vec(_tmatvec(rq, v1))
+
+    # origin acceleration in the parent frame, then everything rotated into link i
+    w_r = b.vec(_cross(w, offset))
+    a_new = to_link(b.vec(_add(a, _cross(wd, offset), _cross(w, w_r))))
+    w_rot, wd_rot = to_link(w), to_link(wd)
+    if revolute:
+        w_new = b.vec(_add(w_rot, _scale(k, qd_i)))
+        wd_new = b.vec(_add(wd_rot, _scale(k, qdd_i), _cross(w_rot, _scale(k, qd_i))))
+    else:
+        w_new, wd_new = w_rot, wd_rot
+        a_new = b.vec(_add(a_new, _scale(_cross(w_new, k), 2 * qd_i), _scale(k, qdd_i)))
+    b.barrier([*w_new, *wd_new, *a_new])
+    return _LinkMotion(R_new, p_new, w_new, wd_new, a_new)
 
 
 def _flatten(x):

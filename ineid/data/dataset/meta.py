@@ -25,7 +25,7 @@ VERSION = 4
 """Format version this ineid writes and the newest it reads.
 
 Version 4 adds the simulated truth of the channels' extra parameters (``extra_truth``: joint
-friction, armature, torque offsets by name) and the channel kinds of issue 21 (joint torques,
+friction, armature, torque offsets by name) and the channels beyond the base wrench (joint torques,
 motor currents, a wrench at a link), with each channel's noise under its key in ``noise``; it
 reads as version 3 otherwise. Version 3 stores the measurement channels: the ``channels`` attribute holds one record per
 channel (:meth:`ineid.channels.ChannelSet.to_list`), and each channel's values are the
@@ -66,7 +66,7 @@ class DatasetMeta:
         origin: free-form provenance (e.g. the CSV file and its sign convention).
         channels: the measurement channels (:class:`ineid.channels.ChannelSet`; a list of
             their records is accepted too); default: one base wrench under ``wrench``.
-        sensor: init-only, the legacy way to say where the base wrench is measured: the
+        sensor: init-only, the short way to say where the base wrench is measured: the
             F/T sensor's pose (:meth:`ineid.channels.SensorPose.to_dict`) given to the
             channel ``wrench`` (the wrench is then what the sensor reads, in its frame,
             moment about its origin; ``None``: the base frame, about the base origin).
@@ -125,7 +125,7 @@ class DatasetMeta:
         return len(self.joint_names)
 
     def with_channels(self, channels: ChannelSet) -> DatasetMeta:
-        """A copy measuring ``channels`` (their own poses: the legacy ``sensor`` is not carried over)."""
+        """A copy measuring ``channels`` (their own poses: a ``sensor`` given at construction is not carried over)."""
         import dataclasses
 
         return dataclasses.replace(self, channels=channels, sensor=_UNSET)

@@ -216,15 +216,15 @@ class Dataset:
             sort_keys=True,
             default=str,
         )
-        legacy = m.channels == ChannelSet.of(BaseWrench(sensor=m.sensor_pose()))
+        base_wrench_only = m.channels == ChannelSet.of(BaseWrench(sensor=m.sensor_pose()))
         if m.seed is None:
             for k, v in self.measurements.items():
-                key += ("" if legacy else k) + hashlib.sha256(np.ascontiguousarray(v).tobytes()).hexdigest()
-        if m.sensor is not None:  # absent from version-1 keys, so their fingerprints stay
+                key += ("" if base_wrench_only else k) + hashlib.sha256(np.ascontiguousarray(v).tobytes()).hexdigest()
+        if m.sensor is not None:  # only with a sensor pose: a dataset in the base frame keeps its fingerprint
             key += json.dumps(m.sensor, sort_keys=True)
-        if not legacy:
+        if not base_wrench_only:
             key += json.dumps(m.channels.to_list(), sort_keys=True)
-        if m.extra_truth:  # version 4: the simulated actuation (absent before, so fingerprints stay)
+        if m.extra_truth:  # only with simulated actuation: a dataset without keeps its fingerprint
             key += json.dumps(m.extra_truth, sort_keys=True)
         return hashlib.sha256(key.encode()).hexdigest()[:16]
 

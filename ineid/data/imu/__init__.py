@@ -2,7 +2,7 @@
 encoders (:mod:`.estimation`, with the gyro biases of :mod:`.gyro_bias` and the priors' weights of
 :mod:`.prior_weights`).
 
-The names of :mod:`.readings` are re-exported here: ``ineid.data.imu`` was that module's name.
+The names of :mod:`.readings` are re-exported here (``from ineid.data.imu import ImuMount``).
 """
 
 from __future__ import annotations

@@ -62,6 +62,7 @@ order), or the noise setting is too low.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -77,7 +78,7 @@ from ineid.data.imu.prior_weights import COVERAGE_MIN, blend, coverage, prior_va
 from ineid.data.imu.readings import (
     UNITS,
     ImuMount,
-    _check_names,
+    check_imu_names,
     jacobians_from,
     link_jacobians,
     link_motion,
@@ -164,7 +165,7 @@ def _check_inputs(model, q, qd_enc, qdd_enc, mounts, readings):
         if not np.all(np.isfinite(x)):
             raise DatasetError(f"{label}: NaN or infinite values; drop or fill those frames first")
         arrays.append(x)
-    _check_names(mounts)
+    check_imu_names(mounts)
     for m in mounts:
         moving_index(model, m)
         got = readings.get(m.name)
@@ -224,96 +225,166 @@ def estimate_joint_states(
     """
     mounts = list(mounts)
     q, qd_enc, qdd_enc = _check_inputs(model, q, qd_enc, qdd_enc, mounts, readings)
-    f, n = q.shape
-    noise = settings.noise
     jac = link_jacobians(model, q) if mounts else None
-    gyro_maps = acc_maps = None
-
-    def mount_rotation(m):
-        return m.link_R_sensor.T
-
-    def mount_maps(qd):
-        motion0 = link_motion(model, q, qd, np.zeros_like(qd))
-        return {
-            m.name: jacobians_from(m, jac[:, moving_index(model, m)], motion0[:, moving_index(model, m)])
-            for m in mounts
-        }
-
-    # -- qd: gyros, encoders' derivative, biases ---------------------------------------------------
     gyros = [m for m in mounts if "gyro" in m.kinds]
-    bias, bias_std, bias_cov, free, residual = {}, {}, {}, {}, {m.name: {} for m in mounts}
-    qd, qd_std, q_err = qd_enc.copy(), None, None
-    if gyros:
-        gyro_maps = mount_maps(np.zeros_like(q))
-        h = np.concatenate([gyro_maps[m.name].gyro_qd for m in gyros], axis=1) / noise.gyro
-
-        def gyro_h(qq):  # the whitened gyro maps at other angles
-            jq = link_jacobians(model, qq)
-            return (
-                np.concatenate([(mount_rotation(m) @ jq[:, moving_index(model, m), 0]) for m in gyros], axis=1)
-                / noise.gyro
-            )
-
-        z = np.concatenate([np.asarray(readings[m.name]["gyro"], dtype=np.float64) for m in gyros], axis=1) / noise.gyro
-        qd_std, gyro_maps_h = _prior_std(settings.encoder_qd_std, h, z, qd_enc, settings.gyro_bias, n, "qd"), h
-        qd, beta, s_inv, qd_var = _fuse(h, z, qd_enc, 1.0 / qd_std**2, settings.gyro_bias)
-        white = z - np.einsum("fmn,fn->fm", h, qd) - beta
-        res = white * noise.gyro
-        cov, null = np.zeros_like(s_inv), np.zeros((0, len(beta)))
-        if settings.gyro_bias:
-            cov, q_err = _bias_cov(h, s_inv, white, qd, 1.0 / qd_std**2, q, gyro_h, settings.encoder_q_std)
-            cov = cov * noise.gyro**2
-            null = unidentified_directions(h)
-        std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-        std[leaning_axes(null)] = np.nan
-        for i, m in enumerate(gyros):
-            sl = slice(3 * i, 3 * i + 3)
-            bias[m.name], bias_std[m.name], bias_cov[m.name] = beta[sl] * noise.gyro, std[sl], cov[sl, sl]
-            if len(null):  # this IMU's share of the unidentified directions, orthonormal
-                _, sv, vt = np.linalg.svd(null[:, sl])
-                if sv[0] > 1e-6:
-                    free[m.name] = vt[: int(np.sum(sv > 1e-6 * sv[0]))]
-            residual[m.name]["gyro"] = float(np.sqrt(np.mean(res[:, sl] ** 2)))
-
-    # -- qdd: angular-acceleration sensors and accelerometers, given q and the fused qd -----------
-    if settings.qdd_prior == "gyros":
-        if time is None or not gyros:
-            raise DatasetError("qdd_prior='gyros' needs the frames' time and at least one gyro; or use 'encoders'")
-        prior = np.gradient(qd, np.asarray(time, dtype=np.float64), axis=0)
-        if settings.cutoff is not None and coverage(gyro_maps_h * noise.gyro) < COVERAGE_MIN:
-            # the gyros leave a direction unseen: there weighed against the encoders' (only then: elsewhere the
-            # encoders' qdd, filtered at another cut-off than the wrench, costs the identification more than it
-            # saves: 12-bit encoders with a gyro on every link, base error 0.013 against 0.0055 without)
-            prior, _ = blend(prior, qd_var * (2 * np.pi * settings.cutoff) ** 2 / 3, qdd_enc)
-    else:
-        prior = qdd_enc
-    acc = [(m, k) for m in mounts for k in ("alpha", "accel") if k in m.kinds]
-    qdd, qdd_std = prior.copy(), None
-    if acc:
-        acc_maps = mount_maps(qd)
-        hs, zs = [], []
-        for m, k in acc:
-            mp, sig = acc_maps[m.name], getattr(noise, k)
-            y = np.asarray(readings[m.name][k], dtype=np.float64)
-            hs.append((mp.gyro_qd if k == "alpha" else mp.accel_qdd) / sig)
-            zs.append((y - (mp.alpha_0 if k == "alpha" else mp.accel_0)) / sig)
-        h, z = np.concatenate(hs, axis=1), np.concatenate(zs, axis=1)
-        qdd_std = _prior_std(settings.encoder_qdd_std, h, z, prior, False, n, "qdd")
-        qdd, _, _, _ = _fuse(h, z, prior, 1.0 / qdd_std**2, False)
-        res = z - np.einsum("fmn,fn->fm", h, qdd)
-        for i, (m, k) in enumerate(acc):
-            residual[m.name][k] = float(np.sqrt(np.mean(res[:, 3 * i : 3 * i + 3] ** 2)) * getattr(noise, k))
-
-    def shown(std, maps):  # NaN for a joint no sensor sees (its std is the placeholder 1 / weak)
-        return None if std is None else np.where(np.abs(maps).sum(axis=(0, 1)) > 0, std, np.nan)
-
-    qd_std = shown(qd_std, gyro_maps_h) if gyros else qd_std
-    qdd_std = shown(qdd_std, h) if acc else qdd_std
-    summary = EstimationSummary(
-        tuple(mounts), bias, bias_std, residual, noise, qd_std, qdd_std, settings.qdd_prior, f, bias_cov, free, q_err
+    rates = _fuse_gyros(model, q, jac, qd_enc, mounts, gyros, readings, settings) if gyros else _GyroFit(qd_enc.copy())
+    prior = _qdd_prior(settings, rates, qdd_enc, time, bool(gyros))
+    qdd, qdd_std, acc_maps, acc_residual = _fuse_accelerations(
+        model, q, jac, rates.qd, prior, mounts, readings, settings
     )
-    _check_fit(mounts, readings, settings, summary, qd_enc, prior, gyro_maps, acc_maps)
-    return qd, qdd, summary
+    residual = {m.name: {} for m in mounts}
+    for name, rms in rates.residual.items():
+        residual[name]["gyro"] = rms
+    for name, by_kind in acc_residual.items():
+        residual[name].update(by_kind)
+    summary = EstimationSummary(
+        tuple(mounts),
+        rates.bias,
+        rates.bias_std,
+        residual,
+        settings.noise,
+        rates.std,
+        qdd_std,
+        settings.qdd_prior,
+        len(q),
+        rates.bias_cov,
+        rates.free,
+        rates.q_err,
+    )
+    _check_fit(mounts, readings, settings, summary, qd_enc, prior, rates.maps, acc_maps)
+    return rates.qd, qdd, summary
+
+
+def _mount_maps(model, q: np.ndarray, jac: np.ndarray, mounts: Sequence[ImuMount], qd: np.ndarray) -> dict:
+    """Each IMU's maps from the joint rates to its readings (:func:`ineid.data.imu.readings.jacobians_from`) at
+    the angles ``q`` and rates ``qd`` (F, n_dof); ``jac`` the links' Jacobians at ``q``."""
+    motion0 = link_motion(model, q, qd, np.zeros_like(qd))
+    return {
+        m.name: jacobians_from(m, jac[:, moving_index(model, m)], motion0[:, moving_index(model, m)]) for m in mounts
+    }
+
+
+def _shown(std: np.ndarray | None, maps: np.ndarray) -> np.ndarray | None:
+    """``std`` (n_dof,) with NaN for a joint no sensor sees in ``maps`` (F, m, n_dof) (its std is the placeholder
+    ``1 / weak``)."""
+    return None if std is None else np.where(np.abs(maps).sum(axis=(0, 1)) > 0, std, np.nan)
+
+
+@dataclass
+class _GyroFit:
+    """The joint rates fused from the gyros and the encoders' derivative (the prior), and the gyros' biases.
+
+    Attributes:
+        qd: (F, n_dof) rad/s, the rates (the encoders' derivative without gyros).
+        std: (n_dof,) the prior's std per joint, NaN for a joint no gyro sees (None without gyros).
+        var: (F, n_dof) ``diag(A_k^-1)``, the whitened rates' variances per frame (None without gyros).
+        q_err: (n_dof,) the angle errors' std the biases' covariance takes (None without biases).
+        maps: each IMU's maps at ``qd = 0`` (None without gyros).
+        h: (F, 3 n_gyros, n_dof) the gyros' maps whitened by their noise (None without gyros).
+        bias, bias_std, bias_cov: per gyro: its bias (3,) rad/s, the std (3,) and covariance (3, 3) of it.
+        free: per gyro: its share of the bias directions the data leave unidentified, orthonormal rows.
+        residual: per gyro: the RMS of its readings less their fitted values, rad/s.
+    """
+
+    qd: np.ndarray
+    std: np.ndarray | None = None
+    var: np.ndarray | None = None
+    q_err: np.ndarray | None = None
+    maps: dict | None = None
+    h: np.ndarray | None = None
+    bias: dict = field(default_factory=dict)
+    bias_std: dict = field(default_factory=dict)
+    bias_cov: dict = field(default_factory=dict)
+    free: dict = field(default_factory=dict)
+    residual: dict = field(default_factory=dict)
+
+
+def _fuse_gyros(model, q, jac, qd_enc, mounts, gyros, readings, settings: EstimationSettings) -> _GyroFit:
+    """``qd`` from the gyros ``gyros`` (of ``mounts``) with the encoders' ``qd_enc`` as the prior, and the gyros'
+    biases when ``settings.gyro_bias`` (the velocities of the module docstring)."""
+    noise, n = settings.noise, q.shape[1]
+    maps = _mount_maps(model, q, jac, mounts, np.zeros_like(q))
+    h = np.concatenate([maps[m.name].gyro_qd for m in gyros], axis=1) / noise.gyro
+
+    def gyro_h(qq):  # the whitened gyro maps at other angles
+        jq = link_jacobians(model, qq)
+        return (
+            np.concatenate([(m.link_R_sensor.T @ jq[:, moving_index(model, m), 0]) for m in gyros], axis=1) / noise.gyro
+        )
+
+    z = np.concatenate([np.asarray(readings[m.name]["gyro"], dtype=np.float64) for m in gyros], axis=1) / noise.gyro
+    qd_std = _prior_std(settings.encoder_qd_std, h, z, qd_enc, settings.gyro_bias, n, "qd")
+    qd, beta, s_inv, qd_var = _fuse(h, z, qd_enc, 1.0 / qd_std**2, settings.gyro_bias)
+    white = z - np.einsum("fmn,fn->fm", h, qd) - beta
+    res = white * noise.gyro
+    cov, null, q_err = np.zeros_like(s_inv), np.zeros((0, len(beta))), None
+    if settings.gyro_bias:
+        cov, q_err = _bias_cov(h, s_inv, white, qd, 1.0 / qd_std**2, q, gyro_h, settings.encoder_q_std)
+        cov = cov * noise.gyro**2
+        null = unidentified_directions(h)
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    std[leaning_axes(null)] = np.nan
+    fit = _GyroFit(qd, _shown(qd_std, h), qd_var, q_err, maps, h)
+    for i, m in enumerate(gyros):
+        sl = slice(3 * i, 3 * i + 3)
+        fit.bias[m.name], fit.bias_std[m.name], fit.bias_cov[m.name] = beta[sl] * noise.gyro, std[sl], cov[sl, sl]
+        if len(null):  # this IMU's share of the unidentified directions, orthonormal
+            _, sv, vt = np.linalg.svd(null[:, sl])
+            if sv[0] > 1e-6:
+                fit.free[m.name] = vt[: int(np.sum(sv > 1e-6 * sv[0]))]
+        fit.residual[m.name] = float(np.sqrt(np.mean(res[:, sl] ** 2)))
+    return fit
+
+
+def _qdd_prior(settings: EstimationSettings, rates: _GyroFit, qdd_enc: np.ndarray, time, has_gyros: bool) -> np.ndarray:
+    """(F, n_dof) the prior on ``qdd``: the encoders' ``qdd_enc``, or with ``settings.qdd_prior == "gyros"`` the
+    derivative of the fused ``qd`` over ``time`` (blended with the encoders' where the gyros leave a direction
+    unseen and the filter's cut-off is known).
+
+    Raises:
+        DatasetError: ``qdd_prior="gyros"`` without ``time`` or without a gyro.
+    """
+    if settings.qdd_prior != "gyros":
+        return qdd_enc
+    if time is None or not has_gyros:
+        raise DatasetError("qdd_prior='gyros' needs the frames' time and at least one gyro; or use 'encoders'")
+    prior = np.gradient(rates.qd, np.asarray(time, dtype=np.float64), axis=0)
+    if settings.cutoff is not None and coverage(rates.h * settings.noise.gyro) < COVERAGE_MIN:
+        # the gyros leave a direction unseen: there weighed against the encoders' (only then: elsewhere the
+        # encoders' qdd, filtered at another cut-off than the wrench, costs the identification more than it
+        # saves: 12-bit encoders with a gyro on every link, base error 0.013 against 0.0055 without)
+        prior, _ = blend(prior, rates.var * (2 * np.pi * settings.cutoff) ** 2 / 3, qdd_enc)
+    return prior
+
+
+def _fuse_accelerations(model, q, jac, qd, prior, mounts, readings, settings: EstimationSettings):
+    """``qdd`` from the angular-acceleration sensors and the accelerometers, given ``q`` and the fused ``qd``,
+    with ``prior`` (F, n_dof) as the prior (the accelerations of the module docstring).
+
+    Returns:
+        ``(qdd, qdd_std, maps, residual)``: (F, n_dof) (the prior without such sensors); the prior's std per joint,
+        NaN for a joint no sensor sees (None without such sensors); each IMU's maps at ``qd`` (None without);
+        ``{imu: {kind: RMS of its readings less their fitted values}}``.
+    """
+    acc = [(m, k) for m in mounts for k in ("alpha", "accel") if k in m.kinds]
+    if not acc:
+        return prior.copy(), None, None, {}
+    noise, n = settings.noise, q.shape[1]
+    maps = _mount_maps(model, q, jac, mounts, qd)
+    hs, zs = [], []
+    for m, k in acc:
+        mp, sig = maps[m.name], getattr(noise, k)
+        y = np.asarray(readings[m.name][k], dtype=np.float64)
+        hs.append((mp.gyro_qd if k == "alpha" else mp.accel_qdd) / sig)
+        zs.append((y - (mp.alpha_0 if k == "alpha" else mp.accel_0)) / sig)
+    h, z = np.concatenate(hs, axis=1), np.concatenate(zs, axis=1)
+    qdd_std = _prior_std(settings.encoder_qdd_std, h, z, prior, False, n, "qdd")
+    qdd, _, _, _ = _fuse(h, z, prior, 1.0 / qdd_std**2, False)
+    res = z - np.einsum("fmn,fn->fm", h, qdd)
+    residual: dict[str, dict[str, float]] = {}
+    for i, (m, k) in enumerate(acc):
+        residual.setdefault(m.name, {})[k] = float(np.sqrt(np.mean(res[:, 3 * i : 3 * i + 3] ** 2)) * getattr(noise, k))
+    return qdd, _shown(qdd_std, h), maps, residual
 
 
 def _check_fit(mounts, readings, settings, summary, qd_enc, qdd_prior, gyro_maps, acc_maps) -> None:

@@ -157,7 +157,8 @@ def _moving_blocks(model) -> tuple[int, ...]:
     return tuple(model.link_names.index(j.link) for j in model.chain.joints)
 
 
-def _check_names(mounts: Sequence[ImuMount]) -> None:
+def check_imu_names(mounts: Sequence[ImuMount]) -> None:
+    """Refuse IMUs of which two share a name (:class:`ineid.errors.DatasetError` naming the first such name)."""
     names = [m.name for m in mounts]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -282,7 +283,7 @@ def imu_readings(model, mounts: Sequence[ImuMount], q, qd, qdd) -> dict[str, dic
         DatasetError: an IMU on a link that does not move, or two IMUs with one name.
     """
     mounts = list(mounts)
-    _check_names(mounts)
+    check_imu_names(mounts)
     index = [moving_index(model, m) for m in mounts]
     flat, batch = _flat(model, q, qd, qdd)
     motion = link_motion(model, *flat) if mounts else None

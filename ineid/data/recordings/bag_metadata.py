@@ -38,7 +38,7 @@ def check_bag_files(path: Path, kind: str) -> None:
         folder / "metadata.yaml",
         "the ROS 2 bag's metadata",
         max_bytes=METADATA_BYTES,
-        limit_name="ineid.data.recordings.bags.METADATA_BYTES",
+        limit_name="ineid.data.recordings.bag_metadata.METADATA_BYTES",
     )
     info = _bag_metadata(meta)
     files = info.get("relative_file_paths")

@@ -30,14 +30,14 @@ from the bag itself.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ineid._faults import require_memory
-from ineid.data.recordings.bag_metadata import check_bag_files
+from ineid.data.recordings.bag_reader import bag_kind, open_bag
 from ineid.data.recordings.streams import VALUE_LIMIT, Streams, first_beyond
 from ineid.errors import DatasetError
 
@@ -50,101 +50,6 @@ ANGULAR_ACCELERATION = "/angular_acceleration"
 MAX_MESSAGES = 100_000_000
 """The most messages ineid reads from a bag's topics (joint states, wrench, IMUs together), as many as the
 rows of a CSV (:data:`ineid.data.recordings.csv_rows.MAX_ROWS`); the memory they need is checked too, before reading."""
-
-
-def bag_kind(path: Path) -> str:
-    """``"ros1"``, ``"ros2"`` (a folder with ``metadata.yaml``) or ``"mcap"`` (a bare MCAP file)."""
-    if path.is_dir():
-        if not (path / "metadata.yaml").exists():
-            raise DatasetError(
-                f"{path} is a folder without metadata.yaml, not a ROS 2 bag; give the bag folder, "
-                "a ROS 1 .bag file, a .mcap file or a CSV file"
-            )
-        return "ros2"
-    suffix = path.suffix.lower()
-    if suffix == ".bag":
-        return "ros1"
-    if suffix in (".mcap", ".db3"):
-        if (path.parent / "metadata.yaml").exists():
-            return "ros2"
-        if suffix == ".mcap":
-            return "mcap"
-        raise DatasetError(f"{path}: a .db3 file needs its bag folder (with metadata.yaml); give the folder")
-    raise DatasetError(f"{path}: not a ROS bag (.bag, .mcap, or a ROS 2 bag folder)")
-
-
-@contextmanager
-def _open_bag(path: Path):
-    """Yield ``(connections, messages(conns) -> iterator of (conn, log_ns, raw), deserialize(raw, type))``."""
-    from rosbags.highlevel import AnyReader, AnyReaderError
-    from rosbags.rosbag1 import ReaderError as Reader1Error
-    from rosbags.rosbag2 import ReaderError as Reader2Error
-    from rosbags.serde import SerdeError
-    from rosbags.typesys import TypesysError
-
-    errors = (AnyReaderError, Reader1Error, Reader2Error, SerdeError, TypesysError, OSError, KeyError, ValueError)
-    kind = bag_kind(path)
-    check_bag_files(path, kind)
-    try:
-        if kind == "mcap":
-            reader = _McapFile(path)
-            reader.open()
-            try:
-                yield reader.connections, reader.messages, reader.deserialize
-            finally:
-                reader.close()
-            return
-        target = path.parent if kind == "ros2" and not path.is_dir() else path
-        with AnyReader([target]) as reader:
-            yield reader.connections, lambda conns: reader.messages(connections=conns), reader.deserialize
-    except DatasetError:
-        raise
-    except errors as e:
-        text = " ".join(str(e).split())  # one line: a reader's message may quote the file over several
-        raise DatasetError(
-            f"{path}: cannot be read as a ROS bag ({type(e).__name__}: "
-            f"{text if len(text) <= 300 else text[:297] + '...'})"
-        ) from None
-
-
-class _McapFile:
-    """A bare ROS 2 ``.mcap`` file (no ``metadata.yaml``), through rosbags' MCAP storage reader."""
-
-    def __init__(self, path: Path) -> None:
-        from rosbags.rosbag2.storage_mcap import McapReader
-
-        self._reader = McapReader(path)
-        self.connections: list = []
-        self._typestore = None
-
-    def open(self) -> None:
-        from rosbags.interfaces import MessageDefinitionFormat
-        from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
-
-        self._reader.open()
-        self.connections = list(self._reader.connections)
-        types: dict = {}
-        sep = "=" * 80 + "\n"
-        for conn in self.connections:
-            fmt, text = conn.msgdef.format, conn.msgdef.data
-            if fmt == MessageDefinitionFormat.MSG:
-                types.update(get_types_from_msg(text, conn.msgtype))
-            elif fmt == MessageDefinitionFormat.IDL:
-                parts = text.split(sep)[1:] if text.startswith(f"{sep}IDL: ") else [text]
-                for part in parts:
-                    types.update(get_types_from_idl(part.split("\n", 1)[1] if part.startswith("IDL: ") else part))
-        store = get_typestore(Stores.EMPTY)
-        store.register(types)
-        self._typestore = store
-
-    def messages(self, conns) -> Iterator:
-        return self._reader.messages(conns)
-
-    def deserialize(self, raw: bytes, msgtype: str):
-        return self._typestore.deserialize_cdr(raw, msgtype)
-
-    def close(self) -> None:
-        self._reader.close()
 
 
 def _stamp_ns(msg, log_ns: int) -> int:
@@ -183,69 +88,126 @@ def read_bag_streams(
     if not path.exists():
         raise DatasetError(f"{path} does not exist")
     joint_names = list(joint_names)
-    with _open_bag(path) as (connections, messages, deserialize):
-        by_topic: dict[str, list] = {}
-        for c in connections:
-            by_topic.setdefault(c.topic, []).append(c)
-        available = ", ".join(f"{t} ({cs[0].msgtype})" for t, cs in sorted(by_topic.items())) or "none"
-        jconns = by_topic.get(joint_topic)
-        if not jconns:
-            states = [t for t, cs in by_topic.items() if cs[0].msgtype == JOINT_STATE]
-            hint = f"; its JointState topics: {', '.join(states)}: pass --joint-topic" if states else ""
-            raise DatasetError(f"{path}: the bag has no topic {joint_topic!r}{hint} (topics: {available})")
-        if jconns[0].msgtype != JOINT_STATE:
-            raise DatasetError(f"{path}: topic {joint_topic!r} holds {jconns[0].msgtype}, not {JOINT_STATE}")
-        wrenches = sorted(t for t, cs in by_topic.items() if cs[0].msgtype == WRENCH_STAMPED)
-        if wrench_topic is None:
-            if len(wrenches) > 1:
-                raise DatasetError(
-                    f"{path}: the bag has {len(wrenches)} wrench topics ({', '.join(wrenches)}); "
-                    "choose one with --wrench-topic"
-                )
-            wrench_topic = wrenches[0] if wrenches else None  # none: the joint states' efforts must be there
-        wconns = by_topic.get(wrench_topic) if wrench_topic is not None else []
-        if wrench_topic is not None and not wconns:
-            hint = f"; its wrench topics: {', '.join(wrenches)}" if wrenches else ""
-            raise DatasetError(f"{path}: the bag has no topic {wrench_topic!r}{hint} (topics: {available})")
-        if wconns and wconns[0].msgtype != WRENCH_STAMPED:
-            raise DatasetError(f"{path}: topic {wrench_topic!r} holds {wconns[0].msgtype}, not {WRENCH_STAMPED}")
-        iconns, imu_of = _imu_connections(path, by_topic, imu_topics, available)
-        total = sum(c.msgcount for c in jconns + wconns + iconns)
+    with open_bag(path) as (connections, messages, deserialize):
+        topics = _chosen_topics(path, connections, joint_topic, wrench_topic, imu_topics)
+        conns = topics.joint + topics.wrench + topics.imu
+        total = sum(c.msgcount for c in conns)
         _check_messages(path, total, len(joint_names))
-        joint_ids = {c.id for c in jconns}
-        joints = _JointStates(path, joint_topic, joint_names, sum(c.msgcount for c in jconns))
-        n_w = sum(c.msgcount for c in wconns)
-        tw, w = _Rows(1, n_w, np.int64), _Rows(6, n_w)
-        frame_ids: set[str] = set()
+        read = _Messages(path, topics, joint_topic, joint_names)
         done = 0
-        imu_data: dict[str, tuple[list, list, set]] = {c.topic: ([], [], set()) for c in iconns}
-        for conn, log_ns, raw in messages(jconns + wconns + iconns):
-            msg = deserialize(raw, conn.msgtype)
-            if conn.topic in imu_data:
-                stamps, values, frames = imu_data[conn.topic]
-                stamps.append(_stamp_ns(msg, log_ns))
-                frames.add(str(msg.header.frame_id))
-                values.append(_imu_values(msg))
-            elif conn.id in joint_ids:
-                joints.add(msg, log_ns)
-            else:
-                f, m = msg.wrench.force, msg.wrench.torque
-                tw.append(_stamp_ns(msg, log_ns))
-                w.append((f.x, f.y, f.z, m.x, m.y, m.z))
-                frame_ids.add(str(msg.header.frame_id))
+        for conn, log_ns, raw in messages(conns):
+            read.add(conn, log_ns, deserialize(raw, conn.msgtype))
             done += 1
             if progress is not None and done % 5000 == 0:
                 progress(done, total)
         if progress is not None:
             progress(done, total)
+    return _bag_streams(path, joint_topic, topics, read)
+
+
+@dataclass
+class _Topics:
+    """The bag's connections to read, each topic checked for its message type.
+
+    Attributes:
+        joint: the joint states' connections.
+        wrench: the wrench's connections (none without a wrench topic).
+        imu: the IMU topics' connections and their angular-acceleration topics'.
+        imu_of: the IMU topic of each topic in ``imu``.
+        wrench_topic: the wrench topic read, None when the bag has none (the efforts are the measurement).
+        available: the bag's topics and their types, for messages.
+    """
+
+    joint: list
+    wrench: list
+    imu: list
+    imu_of: dict[str, str]
+    wrench_topic: str | None
+    available: str
+
+
+def _chosen_topics(
+    path: Path, connections, joint_topic: str, wrench_topic: str | None, imu_topics: Sequence[str]
+) -> _Topics:
+    """The connections of the joint-state topic, the wrench topic (given, or the bag's only one) and the IMU
+    topics, each of the right message type.
+
+    Raises:
+        DatasetError: a topic missing or of another type (naming the bag's topics), several wrench topics and
+            none chosen.
+    """
+    by_topic: dict[str, list] = {}
+    for c in connections:
+        by_topic.setdefault(c.topic, []).append(c)
+    available = ", ".join(f"{t} ({cs[0].msgtype})" for t, cs in sorted(by_topic.items())) or "none"
+    jconns = by_topic.get(joint_topic)
+    if not jconns:
+        states = [t for t, cs in by_topic.items() if cs[0].msgtype == JOINT_STATE]
+        hint = f"; its JointState topics: {', '.join(states)}: pass --joint-topic" if states else ""
+        raise DatasetError(f"{path}: the bag has no topic {joint_topic!r}{hint} (topics: {available})")
+    if jconns[0].msgtype != JOINT_STATE:
+        raise DatasetError(f"{path}: topic {joint_topic!r} holds {jconns[0].msgtype}, not {JOINT_STATE}")
+    wrenches = sorted(t for t, cs in by_topic.items() if cs[0].msgtype == WRENCH_STAMPED)
+    if wrench_topic is None:
+        if len(wrenches) > 1:
+            raise DatasetError(
+                f"{path}: the bag has {len(wrenches)} wrench topics ({', '.join(wrenches)}); "
+                "choose one with --wrench-topic"
+            )
+        wrench_topic = wrenches[0] if wrenches else None  # none: the joint states' efforts must be there
+    wconns = by_topic.get(wrench_topic) if wrench_topic is not None else []
+    if wrench_topic is not None and not wconns:
+        hint = f"; its wrench topics: {', '.join(wrenches)}" if wrenches else ""
+        raise DatasetError(f"{path}: the bag has no topic {wrench_topic!r}{hint} (topics: {available})")
+    if wconns and wconns[0].msgtype != WRENCH_STAMPED:
+        raise DatasetError(f"{path}: topic {wrench_topic!r} holds {wconns[0].msgtype}, not {WRENCH_STAMPED}")
+    iconns, imu_of = _imu_connections(path, by_topic, imu_topics, available)
+    return _Topics(jconns, wconns, iconns, imu_of, wrench_topic, available)
+
+
+class _Messages:
+    """The messages of the chosen topics, gathered as they are read: joint states, wrenches, IMU readings."""
+
+    def __init__(self, path: Path, topics: _Topics, joint_topic: str, joint_names: list[str]) -> None:
+        self.joints = _JointStates(path, joint_topic, joint_names, sum(c.msgcount for c in topics.joint))
+        n_w = sum(c.msgcount for c in topics.wrench)
+        self.tw, self.w = _Rows(1, n_w, np.int64), _Rows(6, n_w)  # ns stamps; N and Nm
+        self.frame_ids: set[str] = set()  # the wrench messages' frame_id
+        self.imu_data: dict[str, tuple[list, list, set]] = {c.topic: ([], [], set()) for c in topics.imu}
+        self._joint_ids = {c.id for c in topics.joint}
+
+    def add(self, conn, log_ns: int, msg) -> None:
+        """Gather one deserialized message of connection ``conn``, logged at ``log_ns``."""
+        if conn.topic in self.imu_data:
+            stamps, values, frames = self.imu_data[conn.topic]
+            stamps.append(_stamp_ns(msg, log_ns))
+            frames.add(str(msg.header.frame_id))
+            values.append(_imu_values(msg))
+        elif conn.id in self._joint_ids:
+            self.joints.add(msg, log_ns)
+        else:
+            f, m = msg.wrench.force, msg.wrench.torque
+            self.tw.append(_stamp_ns(msg, log_ns))
+            self.w.append((f.x, f.y, f.z, m.x, m.y, m.z))
+            self.frame_ids.add(str(msg.header.frame_id))
+
+
+def _bag_streams(path: Path, joint_topic: str, topics: _Topics, read: _Messages) -> Streams:
+    """The streams of the messages read, times in s from the earliest message, checked.
+
+    Raises:
+        DatasetError: no messages on a topic read, neither a wrench nor efforts, several wrench frames, a
+            value beyond :data:`ineid.data.recordings.streams.VALUE_LIMIT`.
+    """
+    joints, wrench_topic, frame_ids, imu_data = read.joints, topics.wrench_topic, read.frame_ids, read.imu_data
     tq, q, effort = joints.stamps.array()[:, 0], joints.q.array(), joints.effort.array() if joints.effort.n else None
-    tw, w = tw.array()[:, 0], w.array()
+    tw, w = read.tw.array()[:, 0], read.w.array()
     if not len(tq) or (wrench_topic is not None and not len(w)):
         raise DatasetError(f"{path}: no messages on {joint_topic if not len(tq) else wrench_topic}")
     if wrench_topic is None and effort is None:
         raise DatasetError(
             f"{path}: the bag has no {WRENCH_STAMPED} topic and its joint states carry no effort "
-            f"(joint torques): nothing to identify from (topics: {available})"
+            f"(joint torques): nothing to identify from (topics: {topics.available})"
         )
     if len(frame_ids) > 1:
         raise DatasetError(
@@ -272,7 +234,7 @@ def read_bag_streams(
     }
     if effort is not None:
         origin["effort"] = True
-    imus = _imu_streams(path, imu_data, imu_of, t0)
+    imus = _imu_streams(path, imu_data, topics.imu_of, t0)
     if imus:
         origin["imu_topics"] = {s.where: len(s.time) for s in imus}
     return Streams(

@@ -23,11 +23,13 @@ The wrench stays in the sensor frame: the dataset records the sensor pose (the c
 record) and identification transforms the regressor (:mod:`ineid.channels.pose`); a sensor
 on a link is a wrench at that link (:mod:`ineid.data.recordings.channels`). Joint torques are
 the ``joint_torque`` channel under ``tau`` (format version 4).
+
+The checks, the cut-off, the filter and the time base are steps of :mod:`ineid.data.recordings.frames`;
+this module reads the file, estimates the delay, fuses the IMUs, and builds the dataset and its summary.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -38,25 +40,21 @@ from ineid.data.dataset.schema import Dataset, DatasetMeta
 from ineid.data.recordings import signals
 from ineid.data.recordings.channels import (  # noqa: F401  (resolve_sensor re-exported)
     RIDER_NAMES,
-    joint_channels,
     resolve_sensor,
-    resolve_wrench_channel,
     rider_channels,
 )
-from ineid.data.recordings.limits import (
-    MAX_UPSAMPLING,
-    check_cutoff,
-    check_delay,
-    check_rate,
-    check_stream,
+from ineid.data.recordings.frames import (
+    Cutoff,
+    RecordingArrays,
+    checked_arrays,
+    choose_cutoff,
+    smoothed,
+    split_columns,
+    time_base,
 )
+from ineid.data.recordings.limits import MAX_UPSAMPLING
 from ineid.data.recordings.settings import DelayEstimator, ImportSettings
-from ineid.data.recordings.streams import (
-    SI_UNITS,
-    Streams,
-    in_si_units,
-    units_note,
-)
+from ineid.data.recordings.streams import SI_UNITS, Streams, in_si_units, units_note
 from ineid.data.recordings.summary import DelayEstimate, ImportSummary
 from ineid.errors import DatasetError
 from ineid.progress import Progress
@@ -89,222 +87,161 @@ def recording_dataset(
             sampling, a sensor pose that does not parse, torques for another number of
             joints, a recording with neither a wrench nor joint torques.
     """
-    from dataclasses import replace
-
-    if streams.wrench is None:  # the wrench's settings on a recording without one: a mistake, said once
-        given = [
-            flag
-            for flag, on in (
-                ("--sensor-pose", settings.sensor_pose is not None),
-                ("--flip-wrench", settings.flip_wrench),
-                ("--wrench-scale", settings.wrench_scale != 1.0),
-                ("--force-unit", settings.force_unit != "N"),
-                ("--moment-unit", settings.moment_unit != "Nm"),
-            )
-            if on
-        ]
-        if given:
-            raise DatasetError(
-                f"{streams.source}: {', '.join(given)} set{'s' if len(given) == 1 else ''} up the "
-                "F/T sensor, and the recording has no wrench; drop it"
-            )
+    _refuse_wrench_settings(streams, settings)
     units = {k: getattr(settings, k) for k in SI_UNITS}
     if units != SI_UNITS:
         streams = in_si_units(streams, model, **units)
         settings = replace(settings, **SI_UNITS)
-    has_wrench = streams.wrench is not None
     if settings.estimate_delay:
-        if not has_wrench:
-            raise DatasetError(
-                f"{streams.source}: the recording has no wrench, so there is no wrench delay to "
-                "estimate; drop --delay auto"
-            )
-        if delay_estimator is None:
-            raise DatasetError(
-                "estimating the wrench delay fits the model: pass delay_estimator=ineid.identify.estimate_delay "
-                "(ineid.workflow.import_recording does), or give the delay (ImportSettings(delay=...), --delay S)"
-            )
-        # the wrench's own fit: the joints' other channels (torques) are on the joints' clock, not delayed
-        estimate = delay_estimator(
-            replace(streams, tau=None, current=None, imus=()),
-            model,
-            replace(settings, imus=(), imu_delay=0.0),
-            settings.max_delay,
-        )
-        ds, summary = recording_dataset(streams, model, replace(settings, delay=estimate.delay, estimate_delay=False))
-        summary.delay_estimate = estimate
-        ds.meta.origin["import"] = summary.to_dict()
-        return ds, summary
-    src = streams.source
-    n = model.n_dof
-    tq = np.asarray(streams.joint_time, dtype=np.float64)
-    q = np.asarray(streams.q, dtype=np.float64)
-    if q.ndim != 2 or q.shape != (len(tq), n):
-        raise DatasetError(f"{src}: joint angles of shape {q.shape} for {len(tq)} time stamps and {n} joints")
-    measured = streams.qd is not None and streams.qdd is not None
-    joint_arrays = {"q": q}
-    if measured:
-        joint_arrays.update(qd=np.asarray(streams.qd, dtype=np.float64), qdd=np.asarray(streams.qdd, dtype=np.float64))
-    riders = joint_channels(streams, model, len(tq), settings)  # {key: (Nq, n_a)}: measured on the joints' clock
-    if not has_wrench and not riders:
-        raise DatasetError(
-            f"{src}: the recording has neither a wrench nor joint torques; give the F/T sensor's "
-            "columns fx..mz (or its WrenchStamped topic) or the joint torques tau1..tauN (or "
-            "JointState.effort)"
-        )
-    if has_wrench:
-        tw = np.asarray(streams.wrench_time, dtype=np.float64) - settings.delay
-        w = np.asarray(streams.wrench, dtype=np.float64) * (-1.0 if settings.flip_wrench else 1.0)
-        if w.ndim != 2 or w.shape != (len(tw), 6):
-            raise DatasetError(f"{src}: wrench of shape {w.shape} for {len(tw)} time stamps; expected 6 columns")
-        check_delay(settings.delay, tq, np.asarray(streams.wrench_time, dtype=np.float64), src)
-    elif settings.delay:
-        raise DatasetError(f"{src}: --delay is how late the wrench is, and the recording has no wrench; drop it")
-    hq = check_stream("joint", tq, {**joint_arrays, **riders}, src)
-    if has_wrench:
-        hw = check_stream("wrench", tw, {"wrench": w}, src)
-        wrench_channel, where = resolve_wrench_channel(settings.sensor_pose, streams.frame_id, model)
-    else:
-        tw, w, hw, wrench_channel, where = tq, None, hq, None, "the base frame"
-    rate = settings.rate or min(1.0 / hq, 1.0 / hw)
-    check_rate(
-        settings.rate,
-        1.0 / hq,
-        1.0 / hw,
-        min(tq[-1], tw[-1]) - max(tq[0], tw[0]),
-        n + sum(a.shape[1] for a in riders.values()),
-    )
-    same_clock = not has_wrench or (len(tq) == len(tw) and np.array_equal(tq, tw))
-
-    # 1. filter (and differentiate) each stream on a uniform grid at its own rate: the joints' other
-    #    channels (torques) with the angles, through the same filter as the wrench
-    choice, cutoff_note, priors_cutoff = None, None, None
-    cutoff = settings.cutoff
-    if not measured and cutoff is None:
-        q_u = signals.to_uniform(tq, q, hq)[1]  # the angles on a uniform grid: the cut-off rules and the priors
-        choice = signals.choose_cutoff(q_u, 1.0 / hq)
-        cutoff = min(choice.cutoff, 0.4 * rate)
-        if any("gyro" in s.readings for s in streams.imus):  # the gyros measure qd: recording_imu's rule
-            from ineid.data.recordings.imus import imu_cutoff
-
-            gyro = (settings.imu_noise or {}).get("gyro", 0.005)
-            angles_cutoff = cutoff
-            cutoff, cutoff_note = imu_cutoff(q_u, 1.0 / hq, cutoff, [tuple(s.readings) for s in streams.imus], gyro)
-            cutoff = min(cutoff, 0.4 * rate)
-            priors_cutoff = angles_cutoff if angles_cutoff < cutoff else None
-    if cutoff is not None and cutoff >= 0.45 * rate:
-        raise DatasetError(
-            f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold (Nyquist {rate / 2:g} Hz); "
-            f"use --cutoff below {0.45 * rate:g} Hz or a higher --rate"
-        )
-    if settings.cutoff is not None:
-        check_cutoff(settings.cutoff, min(tq[-1], tw[-1]) - max(tq[0], tw[0]), rate)
-    prepared = _prepare_imus(streams, model, settings, cutoff, tq, priors_cutoff)
-    joint_parts = {**joint_arrays, **riders}
-    if cutoff is not None:
-        tq_u, jq = signals.to_uniform(tq, np.concatenate(list(joint_parts.values()), axis=1), hq)
-        jq = signals.LowPass(cutoff, 1.0 / hq).apply(jq)
-        parts = _columns(jq, joint_parts)
-        if measured:
-            q_s, qd_s, qdd_s = parts["q"], parts["qd"], parts["qdd"]
-        else:
-            q_s = parts["q"]
-            qd_s, qdd_s = signals.derivatives(q_s, hq)
-        riders_s = {k: parts[k] for k in riders}
-        if has_wrench:
-            tw_u, w_s = signals.to_uniform(tw, w, hw)
-            w_s = signals.LowPass(cutoff, 1.0 / hw).apply(w_s)
-        else:
-            tw_u, w_s = tq_u, None
-        edge = signals.edge_seconds(min(cutoff, priors_cutoff or cutoff))
-    else:
-        tq_u, q_s, qd_s, qdd_s = tq, q, joint_arrays["qd"], joint_arrays["qdd"]
-        riders_s = riders
-        tw_u, w_s = tw, w
-        edge = 0.0
-
-    # 2. one time base over what both streams cover, edges dropped
-    start = max(tq_u[0], tw_u[0]) + edge
-    stop = min(tq_u[-1], tw_u[-1]) - edge
-    if prepared is not None and prepared.stop - prepared.start < stop - start:  # every IMU covers the frames
-        start, stop = max(start, prepared.start), min(stop, prepared.stop)
-        if not stop > start:
-            raise DatasetError(
-                f"{src}: the IMUs, the joints and the wrench cover no common time beyond the filter's "
-                "edges; record longer, or check the time stamps, --delay and --imu-delay"
-            )
-    if not stop > start:
-        if not has_wrench:
-            raise DatasetError(
-                f"{src}: the joint stream ({tq[0]:.6g}..{tq[-1]:.6g} s) is shorter than the filter's "
-                f"edges ({edge:.3g} s at each end); record longer"
-            )
-        raise DatasetError(
-            f"{src}: the joint stream ({tq[0]:.6g}..{tq[-1]:.6g} s) and the wrench stream ({tw[0]:.6g}..{tw[-1]:.6g} s"
-            + (f", delay {settings.delay:g} s applied" if settings.delay else "")
-            + f") overlap in {max(0.0, min(tq_u[-1], tw_u[-1]) - max(tq_u[0], tw_u[0])):.3g} s"
-            + (f", less than the filter's edges ({edge:.3g} s at each end)" if edge else "")
-            + "; record longer, or check the time stamps and --delay"
-        )
-    passthrough = same_clock and settings.rate is None and cutoff is None
-    slower_t = tq_u if hq >= hw else tw_u
-    if passthrough:  # one clock, measured derivatives: the rows are the frames
-        grid = tq[(tq >= start) & (tq <= stop)]
-        rate = 1.0 / hq
-    elif settings.rate is None and signals.is_uniform(slower_t):  # the slower stream's own time base
-        grid = slower_t[(slower_t >= start - 1e-9 * max(hq, hw)) & (slower_t <= stop + 1e-9 * max(hq, hw))]
-    else:
-        h = 1.0 / rate
-        grid = start + h * np.arange(int(math.floor((stop - start) / h * (1 + 1e-12))) + 1)
-    if len(grid) < 2:
-        raise DatasetError(
-            f"{src}: {len(grid)} frame{'s' if len(grid) != 1 else ''} left on the common time base; "
-            "record longer or raise --rate"
-        )
-    joints = np.concatenate([q_s, qd_s, qdd_s, *riders_s.values()], axis=1)
-    joints, moved_q = signals.on_grid(tq_u, joints, grid)
-    wrench, moved_w = signals.on_grid(tw_u, w_s, grid) if has_wrench else (None, False)
+        return _at_estimated_delay(streams, model, settings, delay_estimator)
+    arrays = checked_arrays(streams, model, settings)
+    cut = choose_cutoff(arrays, streams, settings)
+    prepared = _prepare_imus(streams, model, settings, cut.hz, arrays.tq, cut.priors_hz)
+    smooth = smoothed(arrays, cut)
+    imu_span = None if prepared is None else (prepared.start, prepared.stop)
+    grid, rate = time_base(arrays, smooth, imu_span, settings, cut.hz)
+    n = arrays.n_dof
+    joints = np.concatenate([smooth.q, smooth.qd, smooth.qdd, *smooth.riders.values()], axis=1)
+    joints, moved_q = signals.on_grid(smooth.tq, joints, grid)
+    wrench, moved_w = signals.on_grid(smooth.tw, smooth.wrench, grid) if arrays.has_wrench else (None, False)
     imu_lines, imu_record = (), None
     if prepared is not None:  # q the encoders', qd and qdd fused with the IMUs
-        from ineid.data.recordings.imus import encoder_priors, imu_summary_lines
+        priors = joints[:, n : 3 * n] if cut.priors_hz is None else _encoder_priors(cut, arrays.hq, smooth.tq, grid)
+        imu_lines, imu_record = _fuse_imus(prepared, model, settings, grid, joints, priors)
+    resampled = tuple(name for name, moved in (("joints", moved_q), ("wrench", moved_w)) if moved)
+    summary = _summary(arrays, cut, settings, grid, rate, resampled, units_note(streams.origin), imu_lines)
+    origin = {**streams.origin, "import": summary.to_dict(), **({"imu": imu_record} if imu_record else {})}
+    return _dataset(model, settings, arrays, origin, joints, wrench, grid), summary
 
-        priors = (
-            joints[:, n : 3 * n]
-            if priors_cutoff is None
-            else signals.on_grid(tq_u, np.concatenate(encoder_priors(q_u, 1.0 / hq, priors_cutoff), axis=1), grid)[0]
+
+def _refuse_wrench_settings(streams: Streams, settings: ImportSettings) -> None:
+    """Refuse the F/T sensor's settings (pose, sign, scale, units) on a recording without a wrench: a mistake,
+    said once, naming every such flag given."""
+    if streams.wrench is not None:
+        return
+    given = [
+        flag
+        for flag, on in (
+            ("--sensor-pose", settings.sensor_pose is not None),
+            ("--flip-wrench", settings.flip_wrench),
+            ("--wrench-scale", settings.wrench_scale != 1.0),
+            ("--force-unit", settings.force_unit != "N"),
+            ("--moment-unit", settings.moment_unit != "Nm"),
         )
-        qd_f, qdd_f, estimate, imu_record = prepared.fuse(
-            model, grid, joints[:, :n], priors[:, :n], priors[:, n:], settings.estimation, settings.imu_noise
+        if on
+    ]
+    if given:
+        raise DatasetError(
+            f"{streams.source}: {', '.join(given)} set{'s' if len(given) == 1 else ''} up the "
+            "F/T sensor, and the recording has no wrench; drop it"
         )
-        joints[:, n : 2 * n], joints[:, 2 * n : 3 * n] = qd_f, qdd_f
-        imu_lines = tuple(imu_summary_lines(prepared, estimate))
-    resampled = [name for name, moved in (("joints", moved_q), ("wrench", moved_w)) if moved]
-    summary = ImportSummary(
+
+
+def _at_estimated_delay(
+    streams: Streams, model, settings: ImportSettings, delay_estimator: DelayEstimator | None
+) -> tuple[Dataset, ImportSummary]:
+    """:func:`recording_dataset` at the wrench delay ``delay_estimator`` fits (the estimate in the summary and
+    in the dataset's import record); ``streams`` and ``settings`` in SI units."""
+    if streams.wrench is None:
+        raise DatasetError(
+            f"{streams.source}: the recording has no wrench, so there is no wrench delay to estimate; drop --delay auto"
+        )
+    if delay_estimator is None:
+        raise DatasetError(
+            "estimating the wrench delay fits the model: pass delay_estimator=ineid.identify.estimate_delay "
+            "(ineid.workflow.import_recording does), or give the delay (ImportSettings(delay=...), --delay S)"
+        )
+    # the wrench's own fit: the joints' other channels (torques) are on the joints' clock, not delayed
+    estimate = delay_estimator(
+        replace(streams, tau=None, current=None, imus=()),
+        model,
+        replace(settings, imus=(), imu_delay=0.0),
+        settings.max_delay,
+    )
+    ds, summary = recording_dataset(streams, model, replace(settings, delay=estimate.delay, estimate_delay=False))
+    summary.delay_estimate = estimate
+    ds.meta.origin["import"] = summary.to_dict()
+    return ds, summary
+
+
+def _encoder_priors(cut: Cutoff, hq: float, t_joints: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """(N, 2 n_dof) the encoders' ``qd``, ``qdd`` at the frames' times ``grid``, from the angles filtered at
+    their own cut-off ``cut.priors_hz`` (below the filters' ``cut.hz``); ``t_joints`` the filtered joints' times."""
+    from ineid.data.recordings.imus import encoder_priors
+
+    return signals.on_grid(
+        t_joints, np.concatenate(encoder_priors(cut.q_uniform, 1.0 / hq, cut.priors_hz), axis=1), grid
+    )[0]
+
+
+def _fuse_imus(prepared, model, settings: ImportSettings, grid, joints, priors) -> tuple[tuple[str, ...], dict]:
+    """``qd`` and ``qdd`` of the frames fused with the IMUs, written into ``joints`` (N, 3 n_dof + riders): its
+    ``q`` stays the encoders'; ``priors`` (N, 2 n_dof) the encoders' ``qd``, ``qdd``.
+
+    Returns:
+        ``(lines, record)``: the summary's lines and the dataset's ``imu`` record.
+    """
+    from ineid.data.recordings.imus import imu_summary_lines
+
+    n = model.n_dof
+    qd_f, qdd_f, estimate, imu_record = prepared.fuse(
+        model, grid, joints[:, :n], priors[:, :n], priors[:, n:], settings.estimation, settings.imu_noise
+    )
+    joints[:, n : 2 * n], joints[:, 2 * n : 3 * n] = qd_f, qdd_f
+    return tuple(imu_summary_lines(prepared, estimate)), imu_record
+
+
+def _summary(
+    arrays: RecordingArrays,
+    cut: Cutoff,
+    settings: ImportSettings,
+    grid: np.ndarray,
+    rate: float,
+    resampled: tuple[str, ...],
+    units: str | None,
+    imu_lines: tuple[str, ...],
+) -> ImportSummary:
+    """What the import did: frames, rates, filter, the samples dropped at the edges, the sensor, the IMUs."""
+    tq, tw, hq, hw = arrays.tq, arrays.tw, arrays.hq, arrays.hw
+    return ImportSummary(
         n_frames=len(grid),
         rate=float(rate),
         span=float(grid[-1] - grid[0]),
         joint_rate=1.0 / hq,
-        wrench_rate=1.0 / hw if has_wrench else None,
-        derived=not measured,
-        cutoff=cutoff,
-        cutoff_choice=choice if settings.cutoff is None else None,
+        wrench_rate=1.0 / hw if arrays.has_wrench else None,
+        derived=not arrays.measured,
+        cutoff=cut.hz,
+        cutoff_choice=cut.choice if settings.cutoff is None else None,
         dropped_start=float(grid[0] - min(tq[0], tw[0])),
         dropped_end=float(max(tq[-1], tw[-1]) - grid[-1]),
         dropped_joint_samples=int(np.sum((tq < grid[0] - 1e-9 * hq) | (tq > grid[-1] + 1e-9 * hq))),
         dropped_wrench_samples=(
-            int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw))) if has_wrench else 0
+            int(np.sum((tw < grid[0] - 1e-9 * hw) | (tw > grid[-1] + 1e-9 * hw))) if arrays.has_wrench else 0
         ),
-        cutoff_note=cutoff_note,
-        resampled=tuple(resampled),
-        sensor=None if wrench_channel is None else wrench_channel.sensor,
+        cutoff_note=cut.note,
+        resampled=resampled,
+        sensor=None if arrays.wrench_channel is None else arrays.wrench_channel.sensor,
         delay=settings.delay,
-        units=units_note(streams.origin),
-        joint_channels=tuple(RIDER_NAMES[k] for k in riders),
-        sensor_where=where,
+        units=units,
+        joint_channels=tuple(RIDER_NAMES[k] for k in arrays.riders),
+        sensor_where=arrays.where,
         imu=imu_lines,
     )
-    values = _columns(joints[:, 3 * n :], riders)
-    origin = {**streams.origin, "import": summary.to_dict(), **({"imu": imu_record} if imu_record else {})}
+
+
+def _dataset(
+    model,
+    settings: ImportSettings,
+    arrays: RecordingArrays,
+    origin: dict,
+    joints: np.ndarray,
+    wrench: np.ndarray | None,
+    grid: np.ndarray,
+) -> Dataset:
+    """The dataset of one configuration: ``joints`` (N, 3 n_dof + riders) cut into ``q``, ``qd``, ``qdd`` and
+    the joints' channels, the wrench under its channel's key, the frames' times ``grid``."""
+    n, riders, wrench_channel = arrays.n_dof, arrays.riders, arrays.wrench_channel
+    values = split_columns(joints[:, 3 * n :], riders)
     if riders or not isinstance(wrench_channel, BaseWrench):  # channels of version 4
         channels = ChannelSet(
             tuple(c for c in (wrench_channel, *rider_channels(riders, model, settings)) if c is not None)
@@ -315,10 +252,10 @@ def recording_dataset(
         if key is not None and key != "wrench":
             channel_values[key] = wrench[None]
             wrench = None
-    else:  # the base wrench alone, as before issue 21
+    else:  # the base wrench alone: its pose kept as the meta's sensor record, numbers as given
         meta = DatasetMeta.for_model(model, source="recording", origin=origin, sensor=wrench_channel.sensor.to_dict())
         channel_values = {}
-    ds = Dataset(
+    return Dataset(
         meta=meta,
         q=joints[None, :, :n],
         qd=joints[None, :, n : 2 * n],
@@ -328,7 +265,6 @@ def recording_dataset(
         theta_known=np.asarray(model.theta_cad[model.known_index], dtype=np.float64),
         time=grid[None],
     )
-    return ds, summary
 
 
 def _prepare_imus(
@@ -363,15 +299,6 @@ def _prepare_imus(
         ),
         priors_cutoff=priors_cutoff,
     )
-
-
-def _columns(x: np.ndarray, like: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """``x`` (N, sum of widths) cut into ``{key: (N, width of like[key])}``, in ``like``'s order."""
-    out, start = {}, 0
-    for key, a in like.items():
-        out[key] = x[:, start : start + a.shape[1]]
-        start += a.shape[1]
-    return out
 
 
 def import_recording(

@@ -126,15 +126,8 @@ def rehearse(
         the filtered values, and the :class:`ineid.data.imu.estimation.EstimationSummary` (None without IMUs).
     """
     from ineid.data.imu.estimation import estimate_joint_states
-    from ineid.data.imu.readings import imu_readings
-    from ineid.data.imu.settings import EstimationSettings, ImuNoise
-    from ineid.data.recordings.imus import (
-        filter_model_error,
-        filtered_noise,
-        imu_cutoff,
-        qdd_prior,
-        with_model_error,
-    )
+    from ineid.data.imu.settings import EstimationSettings
+    from ineid.data.recordings.imus import filter_model_error, filtered_noise, qdd_prior, with_model_error
 
     time = np.asarray(time, dtype=np.float64)
     if len(time) < 8:
@@ -142,34 +135,11 @@ def rehearse(
     h = float(time[1] - time[0])
     rate = 1.0 / h
     q_enc = quantize(q, rehearsal.encoder_bits, model.joint_types)
-    cutoff = priors_cutoff = rehearsal.cutoff
-    if cutoff is None:  # the import's rules: the angles', or with gyros the upper bound (priors at the angles')
-        cutoff = priors_cutoff = min(signals.choose_cutoff(q_enc, rate).cutoff, 0.4 * rate)
-        if any("gyro" in m.kinds for m in rehearsal.mounts):
-            cutoff = imu_cutoff(
-                q_enc,
-                rate,
-                cutoff,
-                [m.kinds for m in rehearsal.mounts],
-                rehearsal.noise.get("gyro", 0.0) or 1e-2 * ImuNoise().gyro,
-            )[0]
-    if cutoff >= 0.45 * rate:
-        raise DatasetError(
-            f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold; lower it or give "
-            "more frames per period"
-        )
+    cutoff, priors_cutoff = _cutoffs(rehearsal, q_enc, rate)
     low = signals.LowPass(cutoff, rate)
     q_f = periodic_filter(q_enc, low)
     qd_e, qdd_e = periodic_derivatives(q_f, h)
-    truth = imu_readings(model, rehearsal.mounts, q, qd, qdd)
-    readings: dict[str, dict[str, np.ndarray]] = {}
-    for mount in rehearsal.mounts:  # a fixed order of draws: noise per kind, then the gyro's bias
-        readings[mount.name] = {}
-        for kind in mount.kinds:
-            x = truth[mount.name][kind] + rehearsal.noise.get(kind, 0.0) * rng.standard_normal((len(time), 3))
-            if kind == "gyro":
-                x = x + rehearsal.gyro_bias * rng.standard_normal(3)
-            readings[mount.name][kind] = periodic_filter(x, low)
+    readings = _noisy_readings(model, rehearsal, q, qd, qdd, rng, low)
     summary = None
     if rehearsal.mounts:  # as the import does: the default settings (biases estimated), the noise as filtered
         # the mounts are exact by construction: no residual check (that is for a lab's mistakes)
@@ -177,7 +147,7 @@ def rehearse(
             filtered_noise(rehearsal.noise, cutoff, rate),
             filter_model_error(model, rehearsal.mounts, q_f, h, lambda x: periodic_filter(x, low)),
         )
-        raised = priors_cutoff < cutoff  # the priors: the encoders at their own cut-off (recording_imu.encoder_priors)
+        raised = priors_cutoff < cutoff  # the priors: the encoders at their own cut-off (imus.encoder_priors)
         if raised:
             qd_e, qdd_e = periodic_derivatives(periodic_filter(q_enc, signals.LowPass(priors_cutoff, rate)), h)
         settings = EstimationSettings(
@@ -192,3 +162,50 @@ def rehearse(
         )
     filtered = {k: periodic_filter(np.asarray(v, dtype=np.float64), low) for k, v in values.items()}
     return q_f, qd_e, qdd_e, filtered, summary
+
+
+def _cutoffs(rehearsal: ImuRehearsal, q_enc: np.ndarray, rate: float) -> tuple[float, float]:
+    """``(cutoff, priors_cutoff)``, Hz: the filters' cut-off (given, or by the import's rules: the angles', or with
+    gyros the upper bound of :func:`ineid.data.recordings.imus.imu_cutoff`) and the encoders' priors' (the angles'
+    own).
+
+    Raises:
+        DatasetError: a cut-off at or above 0.45 times the frames' ``rate``.
+    """
+    from ineid.data.imu.settings import ImuNoise
+    from ineid.data.recordings.imus import imu_cutoff
+
+    cutoff = priors_cutoff = rehearsal.cutoff
+    if cutoff is None:
+        cutoff = priors_cutoff = min(signals.choose_cutoff(q_enc, rate).cutoff, 0.4 * rate)
+        if any("gyro" in m.kinds for m in rehearsal.mounts):
+            cutoff = imu_cutoff(
+                q_enc,
+                rate,
+                cutoff,
+                [m.kinds for m in rehearsal.mounts],
+                rehearsal.noise.get("gyro", 0.0) or 1e-2 * ImuNoise().gyro,
+            )[0]
+    if cutoff >= 0.45 * rate:
+        raise DatasetError(
+            f"cut-off {cutoff:g} Hz is above what frames at {rate:g} Hz can hold; lower it or give "
+            "more frames per period"
+        )
+    return cutoff, priors_cutoff
+
+
+def _noisy_readings(model, rehearsal: ImuRehearsal, q, qd, qdd, rng: np.random.Generator, low: signals.LowPass):
+    """``{imu: {kind: (F, 3)}}`` the IMUs' readings of the true states (F, n_dof) with their noise and the gyros'
+    biases drawn from ``rng``, filtered by ``low`` as periodic signals."""
+    from ineid.data.imu.readings import imu_readings
+
+    truth = imu_readings(model, rehearsal.mounts, q, qd, qdd)
+    readings: dict[str, dict[str, np.ndarray]] = {}
+    for mount in rehearsal.mounts:  # a fixed order of draws: noise per kind, then the gyro's bias
+        readings[mount.name] = {}
+        for kind in mount.kinds:
+            x = truth[mount.name][kind] + rehearsal.noise.get(kind, 0.0) * rng.standard_normal((len(q), 3))
+            if kind == "gyro":
+                x = x + rehearsal.gyro_bias * rng.standard_normal(3)
+            readings[mount.name][kind] = periodic_filter(x, low)
+    return readings
