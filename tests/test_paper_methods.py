@@ -225,7 +225,7 @@ def test_study_paper_quick(run, tmp_path):
 
 def test_study_paper_networks_section(run, tmp_path, monkeypatch):
     """``--networks DIR`` runs ``ineid study networks`` after the classical sections (its quick size with
-    ``--quick``; the network study itself is tests/test_paper_networks.py's), and refuses a full folder or
+    ``--quick``; the network study itself is tests/test_studies_paper_networks.py's), and refuses a full folder or
     another robot before the classical part runs."""
     from ineid.cli import study_networks
 
