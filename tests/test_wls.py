@@ -1,4 +1,4 @@
-"""The wls network (issue 13): exact least squares inside, gradients through the solve, training on
+"""The wls network (:mod:`ineid.learn.wls`): exact least squares inside, gradients through the solve, training on
 glitchy data, amortized solving, glitch noise, and sweeps on a local Ray cluster."""
 
 from __future__ import annotations
