@@ -11,6 +11,14 @@ import pytest
 
 import ineid
 from ineid import DatasetError, RobotModelError
+from ineid.channels.pose import (
+    SensorPose,
+    matrix_rpy,
+    parse_sensor_pose,
+    rpy_matrix,
+    wrench_in_sensor,
+    wrench_transform,
+)
 from ineid.data import load_dataset
 from ineid.data.dataset.meta import VERSION
 from ineid.data.recordings.pipeline import Streams, import_recording, recording_dataset
@@ -25,7 +33,6 @@ from ineid.identify import (
     save_results,
     solve_dataset,
 )
-from ineid.sensor import SensorPose, matrix_rpy, parse_sensor_pose, rpy_matrix, wrench_in_sensor, wrench_transform
 
 POSE_TEXT = "0.03,-0.02,-0.05,3.1,0.2,0.7"
 TOL_1KHZ = 1e-4
