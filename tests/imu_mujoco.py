@@ -8,6 +8,7 @@ import re
 import numpy as np
 
 from ineid.channels.pose import SensorPose
+from ineid.studies.mujoco_sim import Reference, arm_mjcf, root_link_theta
 
 
 def _quat(r: np.ndarray) -> np.ndarray:
@@ -18,39 +19,15 @@ def _quat(r: np.ndarray) -> np.ndarray:
     return out
 
 
-def _arm_mjcf(model, theta, root_theta, timestep: float) -> str:
-    """The arm's MJCF as the other MuJoCo tests build it (``ineid.studies.mujoco_sim`` once issue 21 lands)."""
-    try:
-        from ineid.studies.mujoco_sim import arm_mjcf
-
-        return arm_mjcf(model.chain, theta, root_theta, SensorPose(), timestep)
-    except ImportError:
-        from tests.mujoco_arm import arm_mjcf
-
-        return arm_mjcf(model.chain, theta, root_theta, SensorPose(), timestep, 0.0, 0.0)
-
-
-def _sim_parts():
-    """``(Reference, root_theta(model))`` from ``ineid.studies.mujoco_sim`` (issue 21) or the tests' old home."""
-    try:
-        from ineid.studies.mujoco_sim import Reference, root_link_theta
-
-        return Reference, root_link_theta
-    except ImportError:
-        from tests.mujoco_arm import Reference, _root_theta
-
-        return Reference, _root_theta
-
-
 def root_theta(model) -> np.ndarray:
     """The root body's own parameters (10,), from the URDF: its weight is part of what the F/T sensor reads."""
-    return _sim_parts()[1](model)
+    return root_link_theta(model)
 
 
 def imu_mjcf(model, mounts, theta, root_theta, timestep: float = 1e-3) -> str:
     """The arm with a site per IMU (its pose in its link) and MuJoCo's ``gyro`` and ``accelerometer``
     at each, after the F/T sensor's ``force`` and ``torque`` (sensordata 0:6)."""
-    xml = _arm_mjcf(model, theta, root_theta, timestep)
+    xml = arm_mjcf(model.chain, theta, root_theta, SensorPose(), timestep)
     sensors = ""
     for m in mounts:
         site = (
@@ -98,9 +75,8 @@ def simulate_imus(
     base origin, the load on the fixture: the root's weight included) and every IMU's readings."""
     import mujoco
 
-    reference_class, _ = _sim_parts()
     rng = np.random.default_rng(seed)
-    ref = reference_class.random(model, rng, base_frequency=0.2 * speed, harmonics=4)
+    ref = Reference.random(model, rng, base_frequency=0.2 * speed, harmonics=4)
     xml = imu_mjcf(model, mounts, theta, root_theta, 1.0 / (rate * steps_per_sample))
     m = mujoco.MjModel.from_xml_string(xml)
     d = mujoco.MjData(m)

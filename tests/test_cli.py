@@ -432,7 +432,7 @@ def test_help_does_not_import_jax():
 
 
 def test_verbose_logs_files_read(run, tmp_path, small_data):
-    """-v logs each dataset read once (solve reads the header, then the data: one line, issue 20)."""
+    """-v logs each dataset read once (solve reads the header, then the data: one line)."""
     args = ("solve", small_data, "--method", "linear", "--weights", "estimate", "--select", "0:6")
     r = run("-v", *args, "--out", tmp_path / "v.h5")
     assert r.exit_code == 0, r.output

@@ -220,7 +220,7 @@ def test_chunked_generation_streams(model, tmp_path):
 
 @pytest.mark.slow
 def test_100k_configurations_in_bounded_memory(tmp_path):
-    """The scale point of the issue: 100,000 x 100 frames with a bounded peak RSS."""
+    """The scale ineid is built for: 100,000 x 100 frames with a bounded peak RSS."""
     code = (
         "import resource, ineid; from ineid.data import *;"
         "m = ineid.load_robot('sweaty-arm');"

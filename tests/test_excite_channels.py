@@ -1,4 +1,4 @@
-"""Excitation for any sensor set (issue 21 point 7): designs for joint torques and their actuation model."""
+"""Excitation for any sensor set: designs for joint torques and their actuation model."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """``ineid excite --encoder-bits N --imu LINK``: the design accounts for the joint-state errors of a lab's sensors
-(issue 22 point 3; :mod:`ineid.excite.states`)."""
+(:mod:`ineid.excite.states`)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The fast paths give the reference paths' numbers.
+"""Cross-cutting: the fast paths give the reference paths' numbers.
 
 * the public, chunked ``RobotModel.regressor`` / ``regressor_split`` / ``base_wrench``
   against the generated JAX function on the whole batch (no chunks, no padding);

@@ -1,4 +1,5 @@
-"""One line for every fault: full and read-only disks, permissions, absurd option values, damaged files.
+"""Cross-cutting: one line for every fault (:mod:`ineid._faults`): full and read-only disks, permissions, absurd
+option values, damaged files.
 
 Each case is a command that once ended in a traceback (or a segmentation fault); now it exits
 with status 1 (or 2 for a usage error), prints one line naming the file or setting and the

@@ -1,4 +1,4 @@
-"""Names are data, never code: hostile robot, link and joint names in every input ineid reads.
+"""Cross-cutting: names are data, never code; hostile robot, link and joint names in every input ineid reads.
 
 Each name is planted as the robot's, a link's and a joint's name of one small 2-DOF URDF
 (written with ElementTree, so the XML itself is well-formed). Nothing may run (a canary

@@ -1,4 +1,4 @@
-"""Link IMUs (issue 22): the readings against MuJoCo's own sensors, and joint states estimated from
+"""Link IMUs (:mod:`ineid.data.imu`): the readings against MuJoCo's own sensors, and joint states estimated from
 the gyros, accelerometers, angular-acceleration sensors and encoders together."""
 
 from __future__ import annotations
@@ -358,8 +358,7 @@ def test_imus_on_some_links_never_lose_to_the_encoders(arm, recording, links):
     qd, qdd and the identification are no worse than the encoders' alone, qd clearly better. The gyros leave a
     direction unseen (a joint beyond them, three axes for four joints, or the shoulder's axes lining up), where
     the encoders' derivatives at their own cut-off carry it. Measured: qd 0.0045 / 0.0041 / 0.0078 against 0.012,
-    qdd 0.013 / 0.018 / 0.015 against 0.019, base 0.013 / 0.030 / 0.018 against 0.049; before, IMUs on the upper
-    arm and forearm gave qd 0.023 against 0.007 rad/s (issue 22)."""
+    qdd 0.013 / 0.018 / 0.015 against 0.019, base 0.013 / 0.030 / 0.018 against 0.049."""
     rng = np.random.default_rng(21)
     noisy = _noisy(recording, rng, ImuNoise())
     mounts = [replace(m, kinds=("gyro",)) for m in recording["mounts"] if m.link in links]

@@ -1,4 +1,4 @@
-"""Nothing lost: outputs that are inputs, replacement only when complete, one writer per output,
+"""Cross-cutting: nothing lost; outputs that are inputs, replacement only when complete, one writer per output,
 stale temporaries, interruptions (130 / 143 and what they leave), resumable sweeps."""
 
 from __future__ import annotations

@@ -84,7 +84,7 @@ def test_urdf_over_the_link_limit_is_refused_before_yourdfpy():
 
 def test_urdf_limits_absent_or_zero_keep_the_default():
     """``velocity="0"`` is URDF writers' "not given" (Kinova's URDF): the default, as for an absent attribute;
-    a negative velocity is refused (tests/test_robot_models.py)."""
+    a negative velocity is refused (tests/test_robots.py)."""
     text = ARM.read_text()
     assert text.count(" velocity=") == 4
     for value in ('velocity="0"', 'velocity="0.0"', ""):

@@ -1,4 +1,4 @@
-"""Issue 20's small stumbles of a first-time user, each pinned by the user's own commands (CliRunner)."""
+"""Cross-cutting: the small stumbles of a first-time user, each pinned by the user's own commands (CliRunner)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The wls network (issue 13): exact least squares inside, gradients through the solve, training on
+"""The wls network (:mod:`ineid.learn.wls`): exact least squares inside, gradients through the solve, training on
 glitchy data, amortized solving, glitch noise, and sweeps on a local Ray cluster."""
 
 from __future__ import annotations
@@ -14,12 +14,12 @@ from click.testing import CliRunner
 from jax.test_util import check_grads
 
 import ineid
+from ineid.channels.pose import SensorPose
 from ineid.cli import main
 from ineid.data import Combination, DatasetSpec, NoiseModel, generate_dataset
 from ineid.identify import SolveSettings, fit_base, load_results, stack
 from ineid.learn import Grid, ModelSpec, TrainConfig, evaluate, load_run, predict, sweep, train
 from ineid.learn.wls import WLS, fit_context, prior_estimate, residual_sigma, wls_solve
-from ineid.sensor import SensorPose
 from ineid.workflow import solve_dataset
 
 from .conftest import SEED

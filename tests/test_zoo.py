@@ -1,4 +1,4 @@
-"""Issue 20's zoo: the arms of example-robot-data through a new user's commands (``tests/zoo.py``).
+"""Cross-cutting: the zoo, the arms of example-robot-data through a new user's commands (``tests/zoo.py``).
 
 Default suite: the double pendulum's whole sequence (2 joints: a few seconds of code generation
 and compilation). ``make test-slow``: every arm of the zoo, each through ``robot show``,

@@ -1,4 +1,4 @@
-"""The zoo: every serial arm example-robot-data ships, through a new user's command sequence (issue 20).
+"""The zoo: every serial arm example-robot-data ships, through a new user's command sequence.
 
 ``ZOO`` names each arm's URDF (under example-robot-data's ``robots`` folder, found through its
 installed distribution: :func:`tests.conftest.example_robot_data_dir`) and the joints locked
@@ -61,7 +61,7 @@ ZOO: dict[str, ZooArm] = {
 }
 
 EXCITE = ("--duration", "4", "--harmonics", "3", "--starts", "1")
-"""A short design: one start, 3 harmonics over 4 s (what the issue's zoo study ran)."""
+"""A short design: one start, 3 harmonics over 4 s (what the zoo study ran)."""
 GENERATE = ("--n-configs", "5", "--n-frames", "60")
 """Five configurations of 60 frames: enough for every arm's base parameters, noise-free."""
 

@@ -1,4 +1,5 @@
-"""Honest standard deviations: the default weighting, the known links' CAD uncertainty, several recordings."""
+"""Honest standard deviations: the default weighting (:mod:`ineid.identify.weighting`), the known links' CAD
+uncertainty (:mod:`ineid.identify.known`), several recordings (:mod:`ineid.identify.joint`)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,6 @@
-"""A cache you can trust: code planted in the cache never runs; foreign or shared folders are not used.
+"""The cache folder (:mod:`ineid.cache`, :mod:`ineid._trust`, :mod:`ineid.cache_clear`), a cache you can trust:
+code planted in it never runs; foreign or shared folders are not used; ``cache clear`` removes only what
+ineid wrote.
 
 Every test has its own cache folder. A planted module or library writes a canary file
 when it runs: the canary must never appear.

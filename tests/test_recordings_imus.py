@@ -1,5 +1,5 @@
-"""Link IMUs as data (issue 22): CSV and bag round trips, each stream on its own clock; the rehearsal
-(``data generate --imu``); ``ineid study sensors --quick``; every bad input one line, no file written."""
+"""Link IMUs as data (:mod:`ineid.data.recordings.imus`): CSV and bag round trips, each stream on its own
+clock; the rehearsal (``data generate --imu``); every bad input one line, no file written."""
 
 from __future__ import annotations
 
@@ -293,14 +293,6 @@ def test_generate_imu_rehearsal_round_trip(model, run, tmp_path):
     assert np.abs(ds.q - ds.clean["q"]).max() < 2 * step  # quantized and filtered encoders
     rel = np.sqrt(np.mean((ds.qd - ds.clean["qd"]) ** 2) / np.mean(ds.clean["qd"] ** 2))
     assert rel < 0.02, rel
-
-
-def test_study_sensors_quick(run, tmp_path):
-    png, csv = tmp_path / "s.png", tmp_path / "s.csv"
-    r = run("-q", "study", "sensors", "--quick", "--sensors", "12-bit,12-bit+gyro", "--plot", png, "--csv", csv)
-    assert r.exit_code == 0, r.output
-    assert png.stat().st_size > 0 and "12-bit+gyro" in csv.read_text()
-    assert "base err" in r.output
 
 
 # -- bad input: one line each, no file ------------------------------------------------------------

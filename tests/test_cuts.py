@@ -1,4 +1,4 @@
-"""The backward pass (issue 21): joint torques and the wrench at a link, against Pinocchio.
+"""The backward pass (:mod:`ineid.robots.cuts`): joint torques and the wrench at a link, against Pinocchio.
 
 For each robot, on random states: the joint-torque regressor equals Pinocchio's
 ``computeJointTorqueRegressor``, the torques its ``rnea``, and the wrench the links beyond

@@ -6,7 +6,7 @@ moment, the net-wrench columns) and what :mod:`ineid.robots.program` composes fr
 base regressor and the base wrench, by CasADi, which needs no compilation) is compared with
 Pinocchio's own kinematics and dynamics at 1e-13 relative (round-off is ~1e-15). The JAX
 module prints the same lines (tests/test_codegen.py); compiling it for 12 joints would cost
-seconds here, and the real 7-joint arms check it in tests/test_regressor_vs_pinocchio.py.
+seconds here, and the real 7-joint arms check it in tests/test_symbolic.py.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""Motor currents with unknown torque constants (issue 21): ``<joint>.k = k0 (1 + d)`` identified in
-step 2 of ``--two-step`` from the currents' residual (the column ``-i_j``), the record of the
+"""Motor currents with unknown torque constants: ``<joint>.k = k0 (1 + d)`` identified in step 2 of
+``--two-step`` (:mod:`ineid.identify.two_step`) from the currents' residual (the column ``-i_j``), the record of the
 channel, and bad input as one line."""
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Identification with the channels' extra kept columns ``E x`` (issue 21): friction, armature, torque offsets.
+"""Identification with the channels' extra kept columns ``E x`` (:mod:`ineid.identify.extras`): friction,
+armature, torque offsets.
 
 A test-only joint-torque channel (:class:`FakeTorque`, the ``JointTorque`` contract's fields and
 extra columns, with cheap rows so nothing slow compiles) is simulated with known extra

@@ -1,7 +1,7 @@
-"""Recordings read safely, in bounded time and memory: CSV files (:mod:`ineid.data.recordings.csv_import`,
-:mod:`ineid.data.recordings.csv_rows`), ROS bags' files and metadata (:mod:`ineid.data.recordings.bag_metadata`),
-values beyond any
-sensor, the import's rate and cut-off against the recording, and ``--plot`` formats checked before any work."""
+"""Recordings read safely, in bounded time and memory (:mod:`ineid.data.recordings.limits`): CSV files
+(:mod:`ineid.data.recordings.csv_import`, :mod:`ineid.data.recordings.csv_rows`), ROS bags' files and metadata
+(:mod:`ineid.data.recordings.bag_metadata`), values beyond any sensor, the import's rate and cut-off against the
+recording, and ``--plot`` formats checked before any work."""
 
 from __future__ import annotations
 

@@ -1,5 +1,6 @@
-"""What ineid reads (cross-cutting): HDF5 files that reach outside themselves, JSON nested or sized
-beyond ineid's limits, and inputs that are not regular files (a FIFO would block the reader forever).
+"""Cross-cutting: what ineid reads (:mod:`ineid._inputs`, the HDF5 audit of :mod:`ineid.data.dataset`): HDF5
+files that reach outside themselves, JSON nested or sized beyond ineid's limits, and inputs that are not
+regular files (a FIFO would block the reader forever).
 
 Every case is one ``Error:`` line with exit status 1, nothing written. The hostile HDF5 files are
 built with h5py from ineid's own files: an external link (to ``/etc/passwd``, and to a missing

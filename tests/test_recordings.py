@@ -1,5 +1,5 @@
-"""Recordings as a lab makes them, checked against MuJoCo: the sensor frame and its offsets,
-joint angles only, two clocks, CSV and ROS bags, and the identified parameters."""
+"""Recordings as a lab makes them (:mod:`ineid.data.recordings`), checked against MuJoCo: the sensor frame and
+its offsets, joint angles only, two clocks, CSV and ROS bags, and the identified parameters."""
 
 from __future__ import annotations
 
@@ -11,6 +11,14 @@ import pytest
 
 import ineid
 from ineid import DatasetError, RobotModelError
+from ineid.channels.pose import (
+    SensorPose,
+    matrix_rpy,
+    parse_sensor_pose,
+    rpy_matrix,
+    wrench_in_sensor,
+    wrench_transform,
+)
 from ineid.data import load_dataset
 from ineid.data.dataset.meta import VERSION
 from ineid.data.recordings.pipeline import Streams, import_recording, recording_dataset
@@ -25,7 +33,6 @@ from ineid.identify import (
     save_results,
     solve_dataset,
 )
-from ineid.sensor import SensorPose, matrix_rpy, parse_sensor_pose, rpy_matrix, wrench_in_sensor, wrench_transform
 
 POSE_TEXT = "0.03,-0.02,-0.05,3.1,0.2,0.7"
 TOL_1KHZ = 1e-4
@@ -116,7 +123,7 @@ def test_version_3_stores_the_channels_and_versions_2_and_1_still_read(lab, tmp_
     assert back.meta.version == VERSION and back.meta.sensor_pose() == SensorPose((0.03, -0.02, -0.05), (3.1, 0.2, 0.7))
     assert np.allclose(back.meta.sensor_transform(), lab.pose.transform())
     assert back.meta.channels == ds.meta.channels and back.fingerprint() == ds.fingerprint()
-    with h5py.File(path, "r+") as f:  # what ineid 0.1 wrote after issue 11: version 2, the sensor attribute
+    with h5py.File(path, "r+") as f:  # what ineid 0.1 wrote: version 2, the sensor attribute
         f.attrs["version"] = 2
         f.attrs["sensor"] = json.dumps(back.meta.sensor, sort_keys=True)
         del f.attrs["channels"]

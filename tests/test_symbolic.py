@@ -1,4 +1,5 @@
-"""The generated regressor against an engine we did not write (Pinocchio), and SymPy itself.
+"""The derivation (:mod:`ineid.symbolic`) through its generated regressor, against an engine we did not write
+(Pinocchio), and SymPy itself.
 
 For each robot, on 1000 random states: generated JAX, generated CasADi, SymPy's own
 evaluation (lambdify, no CSE) and Pinocchio's base regressor and RNEA base wrench agree

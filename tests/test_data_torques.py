@@ -1,4 +1,4 @@
-"""Joint torques in the data (issue 21): the dataset format (version 4), CSV and bag import of
+"""Joint torques in the data (:mod:`ineid.data`): the dataset format (version 4), CSV and bag import of
 torques (filtered like the wrench, with or without a wrench), ``data generate`` with friction and
 noise, and bad input as one line."""
 
@@ -377,7 +377,7 @@ def test_version_4_is_refused_by_an_older_reader_with_one_line(lab, tmp_path, mo
     path = ds.save(tmp_path / "v4.h5")
     with h5py.File(path, "r") as f:
         assert int(f.attrs["version"]) == 4 and json.loads(f.attrs["extra_truth"]) is None
-    monkeypatch.setattr(read, "VERSION", 3)  # what ineid before issue 21 says
+    monkeypatch.setattr(read, "VERSION", 3)  # what a reader of version 3 says
     with pytest.raises(
         DatasetError,
         match=r"format version 4 is not supported \(this ineid reads versions 1\.\.3\); "

@@ -1,5 +1,5 @@
-"""The paper's network exploration (``ineid study networks``, issue 25): the plans cover the paper's
-settings, the claim checker's verdicts and its spread rule, and the quick study end to end."""
+"""The paper's network exploration (``ineid study networks``, :mod:`ineid.studies.paper_networks`): the plans
+cover the paper's settings, the claim checker's verdicts and its spread rule, and the quick study end to end."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Properties of the regressor that hold for any state: linearity, splitting, gradients."""
+"""Properties of the robot model's regressor (:mod:`ineid.robots.model`) that hold for any state: linearity,
+splitting, gradients."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""MuJoCo's joint torques against ineid's, and ``ineid study formulations`` (issue 21, point 6).
+"""MuJoCo's joint torques against ineid's (:mod:`ineid.studies.mujoco_sim`), and ``ineid study formulations``
+(:mod:`ineid.studies.formulations`).
 
 MuJoCo (its own dynamics, independent of ineid's generated code) simulates the arms with joint
 friction and armature; what its actuators apply must be ineid's joint torques plus exactly the

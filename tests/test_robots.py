@@ -1,4 +1,4 @@
-"""Loading robots: the built-in arm, any serial URDF, and clear errors for bad models."""
+"""Loading robots (:mod:`ineid.robots`): the built-in arm, any serial URDF, and clear errors for bad models."""
 
 from __future__ import annotations
 
