@@ -67,6 +67,7 @@ MOVED: dict[str, str] = {
     "ineid.data.trajectory": "ineid.data.synthesis.trajectory",
     "ineid.data.imu_rehearsal": "ineid.data.synthesis.imu_rehearsal",
     "ineid.data.mujoco_sim": "ineid.studies.mujoco_sim",
+    "ineid.identify.weighting": "ineid.identify.least_squares",
 }
 """Old module path -> new module path."""
 

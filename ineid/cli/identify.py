@@ -17,7 +17,7 @@ from ineid.cli.options import (
 from ineid.cli.output import console, plain, shown, table
 from ineid.cli.output_files import overwrite_option, prepare_output, results_inputs
 
-_SOLVE = "ineid.identify.solve"
+_SOLVE = "ineid.identify.settings"
 
 
 @click.command()
@@ -53,33 +53,47 @@ def identifiability(robot, n_frames, seed, data_path, config, bias, **channel_fl
     With joint torques and --friction, --armature or --torque-offset, the analysis is over the links'
     parameters and the joints' extra parameters together.
     """
-    import numpy as np
-
-    from ineid.identify import analyze_frames, base_parameters, generic_frames
+    from ineid.identify import analyze_frames, base_parameters
 
     model = robot.load()
     with_bias = bias == "estimate"
-    channels = None  # the base wrench, or what --data measures (chosen by --use and the actuation options)
-    if data_path is not None:
-        from ineid.data import load_dataset
-
-        ds = load_dataset(data_path, configs=[config], clean=False)
-        if ds.meta.joint_names != model.joint_names:
-            raise click.BadParameter(
-                f"{data_path} is a dataset of {ds.meta.robot!r}, not of {model.name!r}", param_hint="--data"
-            )
-        q, qd, qdd = ds.q[0], ds.qd[0], ds.qdd[0]
-        source = f"{len(q)} frames of configuration {config} of {data_path}"
-        channels = ds.meta.channels
-    else:
-        _require_frames_memory(model, n_frames)
-        q, qd, qdd = generic_frames(model, n_frames, seed)
-        source = f"{n_frames} random frames within the bounds (seed {seed})"
+    q, qd, qdd, source, channels = _frames(model, data_path, config, n_frames, seed)
     _require_frames_memory(model, len(q))
     channels = chosen_channels(channels, channel_flags)
     base = base_parameters(model, bias=with_bias, channels=channels)
     a = analyze_frames(model, q, qd, qdd, base, bias=with_bias, channels=channels)
     con = console()
+    _print_analysis(con, model, base, a, source, channels)
+    _print_base_parameters(con, base, channels)
+    if with_bias:
+        _print_bias_cost(con, model, q, qd, qdd, channels)
+
+
+def _frames(model, data_path, config: int, n_frames: int, seed: int):
+    """``(q, qd, qdd, source, channels)``: the frames analysed, in words, and their channels (None: the base
+    wrench): configuration ``config`` of the dataset at ``data_path``, or ``n_frames`` random frames."""
+    from ineid.identify import generic_frames
+
+    if data_path is None:
+        _require_frames_memory(model, n_frames)
+        q, qd, qdd = generic_frames(model, n_frames, seed)
+        return q, qd, qdd, f"{n_frames} random frames within the bounds (seed {seed})", None
+    from ineid.data import load_dataset
+
+    ds = load_dataset(data_path, configs=[config], clean=False)
+    if ds.meta.joint_names != model.joint_names:
+        raise click.BadParameter(
+            f"{data_path} is a dataset of {ds.meta.robot!r}, not of {model.name!r}", param_hint="--data"
+        )
+    q, qd, qdd = ds.q[0], ds.qd[0], ds.qdd[0]
+    return q, qd, qdd, f"{len(q)} frames of configuration {config} of {data_path}", ds.meta.channels
+
+
+def _print_analysis(con, model, base, a, source: str, channels) -> None:
+    """What was analysed, and the ranks, condition and singular values of the frames (``a``, a
+    :class:`ineid.identify.FrameAnalysis`) against the structure (``base``)."""
+    import numpy as np
+
     n = base.n_params
     con.print(
         f"[bold]{shown(model.name)}[/bold]: unknown links {shown(', '.join(model.unknown_links))} "
@@ -105,6 +119,10 @@ def identifiability(robot, n_frames, seed, data_path, config, bias, **channel_fl
     con.print("singular values (scaled): " + " ".join(f"{v:.3g}" for v in a.singular_values))
     if a.problem():
         con.print(f"[bold red]these frames are not enough:[/bold red] {shown(a.problem())}")
+
+
+def _print_base_parameters(con, base, channels) -> None:
+    """The base parameters, the null directions, and which standard parameters are identifiable alone."""
     t = table(
         "Base parameters: what the data determine (beta = B theta)", ("#", "base parameter"), left=("base parameter",)
     )
@@ -131,8 +149,6 @@ def identifiability(robot, n_frames, seed, data_path, config, bias, **channel_fl
             "that joint turn, so it acts on the base as if welded to the earlier link. Estimates of the other "
             "parameters need prior knowledge (ineid uses the CAD values) or constraints."
         )
-    if with_bias:
-        _print_bias_cost(con, model, q, qd, qdd, channels)
 
 
 def _require_frames_memory(model, n_frames: int) -> None:

@@ -112,10 +112,35 @@ def print_results(res, out) -> None:
     """The summary of ``ineid solve``: successes, held-out error, error tables or the estimates."""
     import numpy as np
 
-    from ineid.identify import error_summary
-
     con = console()
     n_ok = int(res.success.sum())
+    _print_solve_summary(con, res, n_ok)
+    # what decides the parameters the data do not: the CAD prior, or (the paper's solvers) where the solver stopped
+    undecided = "no (solver)" if res.settings.method in ("lsqlin", "lsqnonlin") else "no (prior)"
+    if res.theta_true is not None and n_ok:
+        _print_errors(con, res, n_ok, undecided)
+    elif n_ok:
+        _print_estimates(con, res, int(np.flatnonzero(res.success)[0]), undecided)
+    if res.bias_hat is not None and n_ok:
+        i = int(np.flatnonzero(res.success)[0])
+        # the axes and their units are the fitted channels' (the base wrench: fx..mz in N and N*m)
+        units = ", ".join(dict.fromkeys(res.units))
+        frame = "the wrench's frame" if len(res.axes) == 6 else "each sensor's frame"
+        con.print(
+            f"sensor offsets of configuration {int(res.config_index[i])} ({units}, {frame}): "
+            + ", ".join(
+                f"{shown(a)} {b:.5g} +- {s:.2g}"
+                for a, b, s in zip(res.axes, res.bias_hat[i], res.bias_std[i], strict=True)
+                if np.isfinite(b)
+            )
+        )
+    con.print(f"wrote {shown(out)}")
+
+
+def _print_solve_summary(con, res, n_ok: int) -> None:
+    """How many configurations were identified, in what time, why the others failed, and the held-out error."""
+    import numpy as np
+
     total = res.meta.get("total_seconds", float("nan"))
     con.print(
         f"[bold]{res.settings.method}[/bold] on {shown(res.meta['robot'])}: {n_ok}/{res.n} configurations identified "
@@ -136,72 +161,65 @@ def print_results(res, out) -> None:
             else f"error of {shown(', '.join(map(str, keys)))} ||y - y_hat|| / ||y||"
         )
         con.print(f"held-out {what}: median {median:.3g}, 95th percentile {p95:.3g}")
-    # what decides the parameters the data do not: the CAD prior, or (the paper's solvers) where the solver stopped
-    undecided = "no (solver)" if res.settings.method in ("lsqlin", "lsqnonlin") else "no (prior)"
-    if res.theta_true is not None and n_ok:
-        for title, est, truth, names, ident in (
-            ("standard parameters", res.theta_hat, res.theta_true, res.param_names, res.base.identifiable),
-            ("base parameters (what the data determine)", res.base_hat, res.base_true, res.base.names, None),
-        ):
-            columns = ("parameter", "median", "95th pct", "within 1%", "within 5%")
-            columns += ("identifiable",) if ident is not None else ()
-            tab = table(
-                f"Relative error, {title}, over {n_ok} configurations", columns, left=("parameter", "identifiable")
-            )
-            no_truth = np.all(np.isnan(truth[res.success]), axis=0)  # extra parameters the file does not simulate
-            for k, row in enumerate(error_summary(est, truth, names, res.success, ident)):
-                if no_truth[k]:
-                    continue
-                cells = [
-                    row.name,
-                    f"{row.median:.3g}",
-                    f"{row.p95:.3g}",
-                    f"{100 * row.within_1:.1f}%",
-                    f"{100 * row.within_5:.1f}%",
-                ]
-                if ident is not None:
-                    cells.append("yes" if row.identifiable else undecided)
-                tab.add_row(*cells)
-            con.print(tab)
-        from ineid.params import all_links_physical
 
-        valid = all_links_physical(np.nan_to_num(res.theta_links[res.success]))
-        con.print(f"physically valid estimates: {100 * valid.mean():.1f}%")
-    elif n_ok:
-        i = int(np.flatnonzero(res.success)[0])
-        tab = table(
-            f"Estimates of configuration {int(res.config_index[i])} (SI, about each link origin)",
-            ("parameter", "estimate", "std", "prior (CAD)", "identifiable"),
-            left=("parameter", "identifiable"),
-        )
-        for k, name in enumerate(res.param_names):
-            std = res.theta_std[i, k]
-            tab.add_row(
-                name,
-                f"{res.theta_hat[i, k]:.6g}",
-                "-" if not np.isfinite(std) else f"{std:.3g}",
-                f"{res.theta_prior[k]:.6g}",
-                "yes" if res.base.identifiable[k] else undecided,
-            )
+
+def _print_errors(con, res, n_ok: int, undecided: str) -> None:
+    """Synthetic data: the relative errors of the standard and base parameters against the truth, and the share
+    of physically valid estimates."""
+    import numpy as np
+
+    from ineid.identify import error_summary
+    from ineid.params import all_links_physical
+
+    for title, est, truth, names, ident in (
+        ("standard parameters", res.theta_hat, res.theta_true, res.param_names, res.base.identifiable),
+        ("base parameters (what the data determine)", res.base_hat, res.base_true, res.base.names, None),
+    ):
+        columns = ("parameter", "median", "95th pct", "within 1%", "within 5%")
+        columns += ("identifiable",) if ident is not None else ()
+        tab = table(f"Relative error, {title}, over {n_ok} configurations", columns, left=("parameter", "identifiable"))
+        no_truth = np.all(np.isnan(truth[res.success]), axis=0)  # extra parameters the file does not simulate
+        for k, row in enumerate(error_summary(est, truth, names, res.success, ident)):
+            if no_truth[k]:
+                continue
+            cells = [
+                row.name,
+                f"{row.median:.3g}",
+                f"{row.p95:.3g}",
+                f"{100 * row.within_1:.1f}%",
+                f"{100 * row.within_5:.1f}%",
+            ]
+            if ident is not None:
+                cells.append("yes" if row.identifiable else undecided)
+            tab.add_row(*cells)
         con.print(tab)
-        tab = table("Base parameters", ("base parameter", "estimate", "std"), left=("base parameter",))
-        for k, name in enumerate(res.base.names):
-            tab.add_row(name, f"{res.base_hat[i, k]:.6g}", f"{res.base_std[i, k]:.3g}")
-        con.print(tab)
-    if res.bias_hat is not None and n_ok:
-        i = int(np.flatnonzero(res.success)[0])
-        # the axes and their units are the fitted channels' (the base wrench: fx..mz in N and N*m)
-        units = ", ".join(dict.fromkeys(res.units))
-        frame = "the wrench's frame" if len(res.axes) == 6 else "each sensor's frame"
-        con.print(
-            f"sensor offsets of configuration {int(res.config_index[i])} ({units}, {frame}): "
-            + ", ".join(
-                f"{shown(a)} {b:.5g} +- {s:.2g}"
-                for a, b, s in zip(res.axes, res.bias_hat[i], res.bias_std[i], strict=True)
-                if np.isfinite(b)
-            )
+    valid = all_links_physical(np.nan_to_num(res.theta_links[res.success]))
+    con.print(f"physically valid estimates: {100 * valid.mean():.1f}%")
+
+
+def _print_estimates(con, res, i: int, undecided: str) -> None:
+    """The standard and base parameters of configuration ``i`` (a successful one), with their std."""
+    import numpy as np
+
+    tab = table(
+        f"Estimates of configuration {int(res.config_index[i])} (SI, about each link origin)",
+        ("parameter", "estimate", "std", "prior (CAD)", "identifiable"),
+        left=("parameter", "identifiable"),
+    )
+    for k, name in enumerate(res.param_names):
+        std = res.theta_std[i, k]
+        tab.add_row(
+            name,
+            f"{res.theta_hat[i, k]:.6g}",
+            "-" if not np.isfinite(std) else f"{std:.3g}",
+            f"{res.theta_prior[k]:.6g}",
+            "yes" if res.base.identifiable[k] else undecided,
         )
-    con.print(f"wrote {shown(out)}")
+    con.print(tab)
+    tab = table("Base parameters", ("base parameter", "estimate", "std"), left=("base parameter",))
+    for k, name in enumerate(res.base.names):
+        tab.add_row(name, f"{res.base_hat[i, k]:.6g}", f"{res.base_std[i, k]:.3g}")
+    con.print(tab)
 
 
 def print_evaluation(ev) -> None:

@@ -24,7 +24,7 @@ from ineid.cli.output import ProgressBar, console, print_findings, print_results
 from ineid.cli.output_files import overwrite_option, prepare_output, run_inputs
 from ineid.cli.report import check_solve_outputs, plot_span_option, report_option, write_solve_outputs
 
-_SOLVE = "ineid.identify.solve"
+_SOLVE = "ineid.identify.settings"
 
 
 @click.command()
@@ -64,7 +64,7 @@ _SOLVE = "ineid.identify.solve"
 @select_alias
 @click.option(
     "--weights",
-    type=LibraryChoice("ineid.identify.linear:WEIGHT_MODES"),
+    type=LibraryChoice(f"{_SOLVE}:WEIGHT_MODES"),
     cls=LibraryOption,
     default_from=f"{_SOLVE}:SolveSettings.weights",
     help="Row weights per wrench axis: estimated from the residuals (default: calibrated std when the noise "
@@ -175,15 +175,66 @@ def solve(
     --torque-offset model the joint torques' actuation, identified with the links (--two-step: after them).
     """
     from ineid.data import load_dataset, read_meta
-    from ineid.identify import SolveSettings, save_results
     from ineid.workflow import solve_dataset
 
-    data_path = data_paths[0]
     joint = len(data_paths) > 1 or validate_path is not None
     inputs = [*(("the input dataset", p) for p in data_paths), *run_inputs(run_dir)]
     if validate_path is not None:
         inputs.append(("the validation recording (--validate)", validate_path))
     prepare_output(out, overwrite, inputs=inputs)
+    _refuse_network_options(ctx, method, run_dir, plot_path)
+    check_solve_outputs(plot_path, plot_span, report_path, overwrite, [*inputs, ("the results file (--out)", out)])
+    if sigma is not None and weights != "noise":
+        raise click.UsageError("--sigma goes with --weights noise")
+    _, shapes = read_meta(data_paths[0])
+    idx = parse_selection(selection, shapes["q"][0])
+    settings = _settings(
+        method=method,
+        frames=fit_frames,
+        weights=weights,
+        axis_sigma=tuple(sigma) if sigma else None,
+        start=start,
+        backend=backend,
+        workers=workers or os.cpu_count() or 1,
+        bias=bias,
+        run=None if run_dir is None else str(run_dir),
+        known_uncertainty=known_uncertainty,
+        bounds=bounds,
+        **settings_flags(channel_flags),
+    )
+    if joint:
+        _refuse_joint_options(fit_frames, plot_path, method, backend)
+    ds = load_dataset(data_paths[0], configs=idx, clean=False)
+    model = ds.model()
+    bar = ProgressBar(f"solving ({method})", "configurations", quiet(ctx))
+    if joint:
+        res, solved_ds, ds, val = _solve_recordings(ds, data_paths[1:], validate_path, idx, settings, model, bar)
+    else:
+        with bar:
+            res, solved_ds, val = solve_dataset(ds, settings, model=model, progress=bar), ds, None
+    _save_and_show(res, ds, model, out, overwrite)
+    write_solve_outputs(
+        res, solved_ds, model, method, plot_path, plot_span, report_path, out, validate=val, overwrite=overwrite
+    )
+
+
+def _save_and_show(res, ds, model, out: Path, overwrite: bool) -> None:
+    """The plausibility checks of ``res`` on the frames fitted (``ds``), recorded with it; the results saved to
+    ``out`` and printed, the validation and the findings after them."""
+    from ineid.identify import save_results
+    from ineid.identify.plausibility import check_solve
+
+    findings = check_solve(ds, res, model)
+    res.meta["warnings"] = [f.to_dict() for f in findings]
+    save_results(res, out, overwrite=overwrite)
+    print_results(res, out)
+    if res.meta.get("validation"):
+        _print_validation(res)
+    print_findings(findings)
+
+
+def _refuse_network_options(ctx, method: str, run_dir, plot_path) -> None:
+    """``--method network`` with ``--run`` and nothing it does not apply to (``click.UsageError``)."""
     if (method == "network") != (run_dir is not None):
         raise click.UsageError("--method network needs --run RUN (a trained run folder), and --run goes with it")
     given = [
@@ -195,67 +246,46 @@ def solve(
         given.append("--plot")
     if method == "network" and given:
         raise click.UsageError(f"{', '.join(given)} do not apply to --method network")
-    check_solve_outputs(plot_path, plot_span, report_path, overwrite, [*inputs, ("the results file (--out)", out)])
-    if sigma is not None and weights != "noise":
-        raise click.UsageError("--sigma goes with --weights noise")
-    _, shapes = read_meta(data_path)
-    idx = parse_selection(selection, shapes["q"][0])
+
+
+def _settings(**options):
+    """The :class:`ineid.identify.SolveSettings` of ``options``; what it refuses as ``click.UsageError``."""
+    from ineid.identify import SolveSettings
+
     try:
-        settings = SolveSettings(
-            method=method,
-            frames=fit_frames,
-            weights=weights,
-            axis_sigma=tuple(sigma) if sigma else None,
-            start=start,
-            backend=backend,
-            workers=workers or os.cpu_count() or 1,
-            bias=bias,
-            run=None if run_dir is None else str(run_dir),
-            known_uncertainty=known_uncertainty,
-            bounds=bounds,
-            **settings_flags(channel_flags),
-        )
+        return SolveSettings(**options)
     except ValueError as e:
         raise click.UsageError(str(e)) from None
-    if joint:
-        for opt, bad in (
-            ("--fit-frames", fit_frames is not None),
-            ("--plot", plot_path is not None),
-            ("--method network", method == "network"),
-            ("--backend", backend != "jax"),
-        ):
-            if bad:
-                raise click.UsageError(
-                    f"{opt} does not apply to several recordings or --validate "
-                    "(every frame of the inputs is fitted, by the jax backend)"
-                )
-    ds = load_dataset(data_path, configs=idx, clean=False)
-    model = ds.model()
-    val = None
-    if joint:
-        from ineid.identify.joint import solve_recordings
 
-        more = [load_dataset(p, configs=idx, clean=False) for p in data_paths[1:]]
-        val = None if validate_path is None else load_dataset(validate_path, configs=idx, clean=False)
-        with ProgressBar(f"solving ({method})", "configurations", quiet(ctx)) as bar:
-            res = solve_recordings([ds, *more], settings, model=model, validate=val, progress=bar)
-        solved_ds, ds = ds, _joined(ds, more)  # the plausibility checks see every frame fitted
-    else:
-        with ProgressBar(f"solving ({method})", "configurations", quiet(ctx)) as bar:
-            res = solve_dataset(ds, settings, model=model, progress=bar)
-        solved_ds = ds
-    from ineid.identify.plausibility import check_solve
 
-    findings = check_solve(ds, res, model)
-    res.meta["warnings"] = [f.to_dict() for f in findings]
-    save_results(res, out, overwrite=overwrite)
-    print_results(res, out)
-    if res.meta.get("validation"):
-        _print_validation(res)
-    print_findings(findings)
-    write_solve_outputs(
-        res, solved_ds, model, method, plot_path, plot_span, report_path, out, validate=val, overwrite=overwrite
-    )
+def _refuse_joint_options(fit_frames, plot_path, method: str, backend: str) -> None:
+    """Several recordings or ``--validate``: refuse what applies to one dataset (``click.UsageError``)."""
+    for opt, bad in (
+        ("--fit-frames", fit_frames is not None),
+        ("--plot", plot_path is not None),
+        ("--method network", method == "network"),
+        ("--backend", backend != "jax"),
+    ):
+        if bad:
+            raise click.UsageError(
+                f"{opt} does not apply to several recordings or --validate "
+                "(every frame of the inputs is fitted, by the jax backend)"
+            )
+
+
+def _solve_recordings(ds, more_paths, validate_path, idx, settings, model, bar):
+    """``(results, ds, joined, validate)``: the recordings ``ds`` and ``more_paths`` (configurations ``idx`` of
+    each) fitted jointly (:func:`ineid.identify.joint.solve_recordings`) under the progress ``bar``, validated on
+    the recording ``validate`` of ``validate_path`` (None: none); ``joined`` holds every frame fitted, for the
+    plausibility checks."""
+    from ineid.data import load_dataset
+    from ineid.identify.joint import solve_recordings
+
+    more = [load_dataset(p, configs=idx, clean=False) for p in more_paths]
+    val = None if validate_path is None else load_dataset(validate_path, configs=idx, clean=False)
+    with bar:
+        res = solve_recordings([ds, *more], settings, model=model, validate=val, progress=bar)
+    return res, ds, _joined(ds, more), val
 
 
 def _joined(ds, more):

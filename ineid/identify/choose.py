@@ -15,6 +15,11 @@ with every actuation model off. Identification chooses:
   its extra kept columns (``<joint>.fv``, ...) are identified with the links' parameters
   (:mod:`ineid.identify.extras`).
 
+With ``weights="noise"``, the noise of each axis of the channels fitted: given, or recorded with the
+data (:func:`noise_levels`). FloBaRoID's two steps (:mod:`ineid.identify.two_step`) fit the wrench
+channels first (:func:`wrench_settings`), then the joint torques (:func:`two_step_channels`,
+:func:`torque_noise_levels`).
+
 Asking for an actuation model without a joint-torque channel among those fitted, or for a
 channel the file does not have, is one :class:`ineid.errors.IdentificationError` naming the fix.
 """
@@ -24,12 +29,13 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
+import numpy as np
+
 from ineid.channels import BaseWrench, ChannelSet, LinkWrench
 from ineid.channels.link_wrench import refuse_nothing_beyond
 from ineid.errors import IdentificationError
+from ineid.identify.settings import FRICTION_MODELS, SolveSettings
 
-FRICTION_MODELS = ("viscous", "coulomb")
-"""The friction terms of a joint-torque channel, in the order its extra columns take them."""
 ACTUATION_FIELDS = ("friction", "armature", "torque_offset")
 """The record fields that make a channel a joint-torque channel whose actuation can be modelled."""
 
@@ -73,43 +79,7 @@ def select_channels(channels: ChannelSet, use: Sequence[str] | None) -> ChannelS
     return ChannelSet(tuple(c for c in channels if any(n in channel_names(c) for n in use)))
 
 
-def actuation_requested(settings) -> bool:
-    """Whether ``settings`` (a :class:`ineid.identify.solve.SolveSettings`) asks for any actuation model."""
-    return bool(
-        settings.friction
-        or settings.armature
-        or settings.torque_offset
-        or settings.asymmetric_friction
-        or settings.coulomb_zone
-        or settings.torque_constant_unknown
-    )
-
-
-def check_actuation(settings) -> None:
-    """Refuse inconsistent actuation settings (``ValueError``, one line each)."""
-    bad = [f for f in settings.friction if f not in FRICTION_MODELS]
-    if bad or len(set(settings.friction)) != len(settings.friction):
-        raise ValueError(
-            f"friction must be none or any of {', '.join(FRICTION_MODELS)} (each once), "
-            f"got {','.join(settings.friction)}"
-        )
-    if not settings.coulomb_zone >= 0:
-        raise ValueError(f"coulomb_zone must be >= 0 rad/s, got {settings.coulomb_zone}")
-    if settings.coulomb_zone and "coulomb" not in settings.friction:
-        raise ValueError("coulomb_zone smooths Coulomb friction: add friction 'coulomb' (--friction coulomb)")
-    if settings.torque_constant_unknown and not settings.two_step:
-        raise ValueError(
-            "torque constants are identified in the second of two steps (the links from the wrench "
-            "first): add --two-step"
-        )
-    if settings.asymmetric_friction and not settings.friction:
-        raise ValueError(
-            "asymmetric_friction splits the friction coefficients per direction: "
-            "add a friction model (--friction viscous,coulomb)"
-        )
-
-
-def with_actuation(channels: ChannelSet, settings) -> ChannelSet:
+def with_actuation(channels: ChannelSet, settings: SolveSettings) -> ChannelSet:
     """``channels`` with each joint-torque channel's actuation models set from ``settings`` (module doc).
 
     Raises:
@@ -117,7 +87,7 @@ def with_actuation(channels: ChannelSet, settings) -> ChannelSet:
     """
     actuated = [c for c in channels if is_actuated(c)]
     if not actuated:
-        if actuation_requested(settings):
+        if settings.actuation_requested:
             raise IdentificationError(
                 f"--friction, --armature and --torque-offset model joint torques, and the channels fitted "
                 f"({', '.join(channels.keys)}) have none; fit a dataset with joint torques (--use torque) "
@@ -155,7 +125,7 @@ def _has_torque_constant(channel) -> bool:
     return "identify_k" in {f.name for f in dataclasses.fields(channel)}
 
 
-def solve_channels(ds, settings, model) -> ChannelSet:
+def solve_channels(ds, settings: SolveSettings, model) -> ChannelSet:
     """The channels ``solve_dataset`` fits: the dataset's chosen by ``settings.use``, the joint torques'
     actuation models set (:func:`with_actuation`), each with offsets when ``settings.bias == "estimate"``.
 
@@ -165,7 +135,7 @@ def solve_channels(ds, settings, model) -> ChannelSet:
         DatasetError: a wrist sensor with nothing the model moves beyond it (it reads zeros).
     """
     channels = with_actuation(select_channels(ds.meta.channels, settings.use), settings)
-    channels = channels.with_offsets(settings.bias == "estimate")
+    channels = channels.with_offsets(settings.estimates_offsets)
     for channel in channels:
         if isinstance(channel, LinkWrench):
             refuse_nothing_beyond(model, channel.link)
@@ -225,3 +195,117 @@ def check_no_extra_columns(channels: ChannelSet, model, what: str = "backend 'ca
             "the friction, armature and torque-offset models out",
             status="unsupported",
         )
+
+
+def noise_levels(ds, settings: SolveSettings, channels: ChannelSet, model) -> np.ndarray | None:
+    """The noise per measured axis of ``channels`` for ``weights="noise"`` (None for the other weights):
+    ``settings.axis_sigma``, or recorded with the data (per channel).
+
+    Raises:
+        IdentificationError: ``axis_sigma`` of another length than the channels' axes, or none given and none
+            recorded.
+    """
+    if settings.weights != "noise":
+        return None
+    n_axes = channels.n_axes(model)
+    if settings.axis_sigma is not None:
+        sigma = np.asarray(settings.axis_sigma, dtype=np.float64)
+        if sigma.shape != (n_axes,):
+            raise IdentificationError(
+                f"axis_sigma holds {sigma.size} numbers; the channels measure {n_axes} axes "
+                f"({', '.join(channels.axes(model))}): give one per axis",
+                status="bad_noise_levels",
+            )
+        return sigma
+    recorded = channels.noise_std(ds.meta.noise, model)
+    if recorded is None:
+        what = "the wrench noise" if channels.keys == ("wrench",) else "the noise of every channel"
+        raise IdentificationError(
+            f"weights='noise' needs {what} per axis: give axis_sigma (--sigma FX FY FZ MX MY MZ) "
+            "or use weights='estimate'",
+            status="no_noise_levels",
+        )
+    return recorded
+
+
+def two_step_channels(channels: ChannelSet) -> tuple[ChannelSet, ChannelSet]:
+    """``(wrench channels, joint-torque channels)`` of ``channels``: what each of the two steps fits
+    (:mod:`ineid.identify.two_step`).
+
+    Raises:
+        IdentificationError: either is missing (status ``two_step_channels``).
+    """
+    wrench = tuple(c for c in channels if not is_actuated(c))
+    torque = tuple(c for c in channels if is_actuated(c))
+    if not wrench or not torque:
+        raise IdentificationError(
+            f"--two-step fits the links from the wrench, then the joint torques' friction; the channels fitted "
+            f"({', '.join(channels.keys)}) lack {'a wrench' if not wrench else 'joint torques'}: use both "
+            "(--use wrench,torque on a dataset with both) or leave --two-step out",
+            status="two_step_channels",
+        )
+    return ChannelSet(wrench), ChannelSet(torque)
+
+
+def _axis_slice(
+    axis_sigma: tuple[float, ...] | None, channels: ChannelSet, part: ChannelSet, model
+) -> tuple[float, ...] | None:
+    """``axis_sigma`` (``SolveSettings.axis_sigma``, over ``channels``' stacked axes) at ``part``'s axes."""
+    if axis_sigma is None:
+        return None
+    sigma = np.asarray(axis_sigma, dtype=np.float64)
+    if sigma.shape != (channels.n_axes(model),):
+        raise IdentificationError(
+            f"axis_sigma holds {sigma.size} numbers; the channels measure "
+            f"{channels.n_axes(model)} axes: give one per axis",
+            status="bad_noise_levels",
+        )
+    parts = channels.split(sigma, model)
+    return tuple(float(v) for c in part for v in parts[c.key])
+
+
+def wrench_settings(ds, settings: SolveSettings, model) -> SolveSettings:
+    """Step 1's settings: ``settings`` on the wrench channels alone, without actuation models.
+
+    Raises:
+        IdentificationError: no wrench or no joint-torque channel among those chosen, or no actuation model.
+    """
+    channels = select_channels(ds.meta.channels, settings.use)
+    wrench, _ = two_step_channels(channels)
+    if not settings.actuation_requested:
+        raise IdentificationError(
+            "--two-step fits the joint torques' friction, armature or offsets after the links: "
+            "give at least one (--friction viscous,coulomb, --armature, --torque-offset)",
+            status="two_step_nothing",
+        )
+    return dataclasses.replace(
+        settings,
+        use=wrench.keys,
+        two_step=False,
+        friction=(),
+        coulomb_zone=0.0,
+        asymmetric_friction=False,
+        armature=False,
+        torque_offset=False,
+        torque_constant_unknown=False,
+        axis_sigma=_axis_slice(settings.axis_sigma, channels, wrench, model),
+    )
+
+
+def torque_noise_levels(ds, settings: SolveSettings, channels: ChannelSet, torque: ChannelSet, model):
+    """The noise per axis of ``torque``, the joint-torque channels among ``channels``, for ``weights="noise"``
+    (None otherwise): ``settings.axis_sigma`` (over ``channels``' axes) at theirs, or recorded with the data.
+
+    Raises:
+        IdentificationError: ``axis_sigma`` of another length than the channels' axes, or none given and none
+            recorded.
+    """
+    if settings.weights != "noise":
+        return None
+    axis_sigma = _axis_slice(settings.axis_sigma, channels, torque, model) or torque.noise_std(ds.meta.noise, model)
+    if axis_sigma is None:
+        raise IdentificationError(
+            "weights='noise' needs the joint torques' noise per axis: give axis_sigma or use weights='estimate'",
+            status="no_noise_levels",
+        )
+    return axis_sigma

@@ -57,12 +57,12 @@ import time
 import numpy as np
 
 from ineid.identify.identifiability import BaseParameters
-from ineid.identify.linear import BaseFit, Estimate, linear_theta, standard_std
+from ineid.identify.linear import BaseFit, Estimate, MethodEstimate, SharedFit, standard_std
+from ineid.identify.settings import SolveSettings
 from ineid.identify.systems import MASSLESS_KG
 from ineid.params import N_PARAMS_PER_LINK
+from ineid.progress import Progress
 
-CLASSICAL_METHODS = ("lsqlin", "lsqnonlin")
-"""The paper's two MATLAB solvers, over every standard parameter of the unknown links."""
 LSQNONLIN_TOL = 1e-14
 """``ftol``, ``xtol`` and ``gtol`` of ``lsqnonlin`` (scipy's trust region): a fit stops at round-off."""
 LSQNONLIN_MAX_NFEV = 100
@@ -221,6 +221,25 @@ def _tr_step(uf, s, v, delta, alpha, m: int, n: int, rtol: float = 0.01, max_ite
     return np.where(gn[:, None], p_gn, p), np.where(gn, 0.0, alpha)
 
 
+def _tr_update(reduction, predicted, step_norm, delta, x_norm, cost, finite, tol: float):
+    """scipy's ``update_tr_radius`` and ``check_termination`` after one step of a batch: the new radius
+    (B,) from the ratio of the actual to the predicted ``reduction``, and the termination code (B,) (0: go on;
+    2: ``ftol``; 3: ``xtol``; 4: both; 0 where the step's residual is not ``finite``)."""
+    ratio = np.where(
+        predicted > 0,
+        reduction / np.where(predicted > 0, predicted, 1.0),
+        np.where((predicted == 0) & (reduction == 0), 1.0, 0.0),
+    )
+    delta_new = np.where(
+        ratio < 0.25,
+        0.25 * step_norm,
+        np.where((ratio > 0.75) & (step_norm > 0.95 * delta), 2.0 * delta, delta),
+    )
+    ftol_ok = (reduction < tol * cost) & (ratio > 0.25)
+    xtol_ok = step_norm < tol * (tol + x_norm)
+    return delta_new, np.where(ftol_ok & xtol_ok, 4, np.where(ftol_ok, 2, np.where(xtol_ok, 3, 0))) * finite
+
+
 def trf(
     a: np.ndarray, b: np.ndarray, x0: np.ndarray, n_links: int, tol: float = LSQNONLIN_TOL, max_nfev: int | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -286,19 +305,9 @@ def trf(
         finite = np.all(np.isfinite(f_new), axis=1)
         cost_new = 0.5 * np.einsum("cm,cm->c", f_new, f_new)
         reduction = np.where(finite, cost[idx] - cost_new, -1.0)
-        ratio = np.where(
-            predicted > 0,
-            reduction / np.where(predicted > 0, predicted, 1.0),
-            np.where((predicted == 0) & (reduction == 0), 1.0, 0.0),
+        delta_new, term = _tr_update(
+            reduction, predicted, step_norm, delta[idx], np.linalg.norm(x[idx], axis=1), cost[idx], finite, tol
         )
-        delta_new = np.where(
-            ratio < 0.25,
-            0.25 * step_norm,
-            np.where((ratio > 0.75) & (step_norm > 0.95 * delta[idx]), 2.0 * delta[idx], delta[idx]),
-        )
-        ftol_ok = (reduction < tol * cost[idx]) & (ratio > 0.25)
-        xtol_ok = step_norm < tol * (tol + np.linalg.norm(x[idx], axis=1))
-        term = np.where(ftol_ok & xtol_ok, 4, np.where(ftol_ok, 2, np.where(xtol_ok, 3, 0))) * finite
         move = finite & (term == 0)
         alpha[idx[move]] *= delta[idx[move]] / delta_new[move]
         delta[idx] = np.where(move, delta_new, np.where(finite, delta[idx], 0.25 * step_norm))
@@ -371,33 +380,34 @@ def lsqnonlin_theta(fit: BaseFit, base: BaseParameters, start: np.ndarray, progr
     return theta, success, status.astype(object), nfev
 
 
-def classical_estimate(
-    settings, fit: BaseFit, base: BaseParameters, prior: np.ndarray, progress=None
-) -> tuple[Estimate, np.ndarray]:
-    """The :class:`ineid.identify.linear.Estimate` of ``settings.method`` (``lsqlin`` or ``lsqnonlin``) and the
-    seconds each configuration took (C,).
-
-    ``lsqlin``: bounds from ``settings.bounds`` (:func:`cad_bounds`), none when None. ``lsqnonlin``: from the CAD
-    values (``settings.start="prior"``, the paper's) or the linear estimate (``"linear"``).
-    """
-    t0 = time.perf_counter()
+def _classical_estimate(theta, success, status, shared: SharedFit, t0: float) -> MethodEstimate:
+    """The :class:`MethodEstimate` of a classical solver's ``theta`` (C, n), NaN where it failed; the seconds
+    since ``t0`` shared out over the configurations."""
+    fit, base = shared.fit, shared.base
     c = fit.beta.shape[0]
-    if settings.method == "lsqlin":
-        bounds = None if settings.bounds is None else cad_bounds(prior, base.scales, settings.bounds)
-        theta, status = lsqlin_theta(fit, base, bounds, progress)
-        success = fit.full_rank & (status == "ok")
-    elif settings.method == "lsqnonlin":
-        start = (
-            prior
-            if settings.start == "prior"
-            else np.where(fit.full_rank[:, None], linear_theta(fit, base, prior), prior)
-        )
-        theta, success, status, _ = lsqnonlin_theta(fit, base, start, progress)
-    else:
-        raise ValueError(f"method must be one of {', '.join(CLASSICAL_METHODS)}, got {settings.method!r}")
     theta[~success] = np.nan
     std = standard_std(np.nan_to_num(fit.cov_beta), base)
     std[~success] = np.nan
     beta_std = np.sqrt(np.maximum(np.diagonal(fit.cov_beta, axis1=1, axis2=2), 0.0))
     est = Estimate(theta, std, theta @ base.B.T, beta_std, success, np.asarray(status, dtype=object), fit)
-    return est, np.full(c, (time.perf_counter() - t0) / max(c, 1))
+    return MethodEstimate(est, np.full(c, (time.perf_counter() - t0) / max(c, 1)))
+
+
+def lsqlin_method(shared: SharedFit, settings: SolveSettings, progress: Progress | None = None) -> MethodEstimate:
+    """``lsqlin`` on the shared fit (:func:`lsqlin_theta`), within :func:`cad_bounds` of ``settings.bounds``
+    (unbounded when None)."""
+    t0 = time.perf_counter()
+    fit, base = shared.fit, shared.base
+    bounds = None if settings.bounds is None else cad_bounds(shared.prior, base.scales, settings.bounds)
+    theta, status = lsqlin_theta(fit, base, bounds, progress)
+    return _classical_estimate(theta, fit.full_rank & (status == "ok"), status, shared, t0)
+
+
+def lsqnonlin_method(shared: SharedFit, settings: SolveSettings, progress: Progress | None = None) -> MethodEstimate:
+    """``lsqnonlin`` on the shared fit (:func:`lsqnonlin_theta`), from the CAD values (``settings.start="prior"``,
+    the paper's) or the linear estimate (``"linear"``)."""
+    t0 = time.perf_counter()
+    fit, prior = shared.fit, shared.prior
+    start = prior if settings.start == "prior" else np.where(fit.full_rank[:, None], shared.theta_lin, prior)
+    theta, success, status, _ = lsqnonlin_theta(fit, shared.base, start, progress)
+    return _classical_estimate(theta, success, status, shared, t0)

@@ -26,6 +26,7 @@ import numpy as np
 
 from ineid.data.recordings import signals
 from ineid.data.recordings.pipeline import recording_dataset
+from ineid.data.recordings.settings import ImportSettings
 from ineid.data.recordings.summary import DelayEstimate
 from ineid.errors import DatasetError
 from ineid.identify.identifiability import base_parameters
@@ -35,13 +36,13 @@ MAX_DELAY = 0.05
 """s, the default search range: delays within +-50 ms."""
 
 
-def estimate_delay(streams, model, settings, max_delay: float = MAX_DELAY) -> DelayEstimate:
+def estimate_delay(streams, model, settings: ImportSettings, max_delay: float = MAX_DELAY) -> DelayEstimate:
     """The wrench delay (s; positive: the wrench stamps are late) that best fits the model (module docstring).
 
     Args:
         streams: the recording's :class:`ineid.data.recordings.streams.Streams`.
         model: the :class:`ineid.RobotModel`.
-        settings: the :class:`ineid.data.recordings.pipeline.ImportSettings` (cut-off, rate, sensor pose,
+        settings: the :class:`ineid.data.recordings.settings.ImportSettings` (cut-off, rate, sensor pose,
             sign); its ``delay`` is ignored.
         max_delay: s, half the search range.
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.errors import IdentificationError
+from ineid.identify.settings import HOLDOUT_FRACTION
 
 RANK_RTOL = 1e-9
 """Singular values below this fraction of the largest count as zero (scaled regressor)."""
@@ -93,6 +94,27 @@ class FrameMinimum:
         """Refuse fewer than :attr:`frames` frames (``IdentificationError``, status ``too_few_frames``)."""
         if n_frames < self.frames:
             raise IdentificationError(self.message(n_frames), status="too_few_frames")
+
+    def split(self, n_frames: int, frames: int | None = None) -> tuple[int, int]:
+        """``(fitted, held out)`` frames of a configuration of ``n_frames``: the first ``frames``, the rest held
+        out; None: :data:`ineid.identify.settings.HOLDOUT_FRACTION` held out, none when the rest would leave
+        fewer than twice the unknowns' equations. Fewer fitted than :attr:`frames` is refused (:meth:`require`).
+        """
+        if frames is not None:
+            if frames > n_frames:
+                raise IdentificationError(
+                    f"--fit-frames {frames} but the dataset has {n_frames} frames per configuration; use at most "
+                    f"{n_frames}",
+                    status="too_many_frames",
+                )
+            self.require(frames)
+            return frames, n_frames - frames
+        held = int(HOLDOUT_FRACTION * n_frames)
+        fit = n_frames - held
+        if self.n_axes * fit < 2 * (self.rank + self.n_offsets):  # too few to spare any: fit them all
+            fit, held = n_frames, 0
+        self.require(fit)
+        return fit, held
 
 
 def frame_minimum_from_regressor(

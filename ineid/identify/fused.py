@@ -48,15 +48,14 @@ from __future__ import annotations
 
 import functools
 import os
-import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 
-from ineid.cache import enable_compilation_cache
 from ineid.channels import BASE_WRENCH, ChannelSet
 from ineid.identify.blocks import InformationBlocks  # defined here before: still importable from here
+from ineid.identify.chunks import map_chunks
 from ineid.identify.extras import unknown_rows
 from ineid.robots.model import SMALL_JOB_FRAMES
 
@@ -66,6 +65,9 @@ RESIDUAL_TARGET_FRAMES = 8192
 """Frames per call of the residual kernel (``base_wrench`` only: cheaper per frame)."""
 MAX_FRAME_CHUNK = 2048
 """Longer configurations (recordings) are reduced over chunks of this many frames."""
+WORKERS = min(os.cpu_count() or 1, 4)
+"""Threads dispatching chunks: XLA:CPU runs each call in its caller's thread, so calls from
+two threads run on two cores (measured 1.3x on two cores over one dispatching thread)."""
 
 
 def _split(n_configs: int, n_frames: int, target: int | None = None) -> tuple[int, int]:
@@ -74,90 +76,29 @@ def _split(n_configs: int, n_frames: int, target: int | None = None) -> tuple[in
     return max(1, (target or TARGET_FRAMES) // frames), frames
 
 
-WORKERS = min(os.cpu_count() or 1, 4)
-"""Threads dispatching chunks: XLA:CPU runs each call in its caller's thread, so calls from
-two threads run on two cores (measured 1.3x on two cores over one dispatching thread)."""
-
-
-def _map_chunks(
-    kernel: Callable,
-    frame_arrays: list[np.ndarray],
-    config_arrays: list[np.ndarray],
-    consts: tuple,
-    progress: Callable[[int, int], None] | None = None,
-    target: int | None = None,
-) -> list[np.ndarray]:
-    """Sum ``kernel(*frame_chunks, mask, *config_chunks, *consts)`` over frame chunks, per configuration chunk.
-
-    ``frame_arrays`` are (C, F, .) and ``config_arrays`` (C, .); each call gets (Cc, Fc, .)
-    and (Cc, .) zero-padded pieces and the (Cc, Fc) mask of real frames. The kernel returns
-    a tuple of (Cc, ...) arrays, summed over frame chunks and concatenated over
-    configurations. The configurations are split among :data:`WORKERS` threads; each
-    dispatches its calls one ahead so XLA computes while NumPy collects.
-    """
-    enable_compilation_cache()  # JAX is imported by now: registers the cache-hit log too
+def _map_chunks(kernel, frame_arrays, config_arrays, consts, progress=None, target: int | None = None) -> list:
+    """:func:`ineid.identify.chunks.map_chunks` in calls of about ``target`` frames (:func:`_split`) from
+    :data:`WORKERS` threads."""
     n_configs, n_frames = frame_arrays[0].shape[:2]
-    per, frames = _split(n_configs, n_frames, target)
-    starts = list(range(0, n_configs, per))
-    n_workers = max(1, min(WORKERS, len(starts)))
-    results: list = [None] * len(starts)
-    done = [0]
-    lock = threading.Lock()
-    stop_event = threading.Event()
+    shape = _split(n_configs, n_frames, target)
+    return map_chunks(kernel, frame_arrays, config_arrays, consts, shape, WORKERS, progress)
 
-    def pad(piece, shape):
-        if piece.shape[: len(shape)] == shape:
-            return piece
-        out = np.zeros(shape + piece.shape[len(shape) :])
-        out[tuple(slice(0, k) for k in piece.shape[: len(shape)])] = piece
-        return out
 
-    def collect(k, outs):
-        start = starts[k]
-        stop = min(start + per, n_configs)
-        results[k] = [np.asarray(o)[: stop - start] for o in outs]
-        if progress is not None:
-            with lock:
-                done[0] += stop - start
-                progress(done[0], n_configs)
+@dataclass(frozen=True)
+class _Layout:
+    """What a blocks kernel is compiled for (:func:`_blocks_kernel`'s arguments, resolved): the channels'
+    ``structure``, the regressor's ``n_cols``, the unknown ``columns`` it takes (the base ones, or every
+    unknown one with sums, the base ones among them at ``base_pos``), the ``known_columns``, the channels'
+    ``extra_columns`` and their total ``n_extra``, and whether frame sums come too (``sums``)."""
 
-    def work(chunk_ids):
-        pending = []
-        for k in chunk_ids:
-            if stop_event.is_set():
-                return
-            start = starts[k]
-            stop = min(start + per, n_configs)
-            per_config = [pad(a[start:stop], (per,)) for a in config_arrays]
-            total = None
-            for f0 in range(0, n_frames, frames):
-                f1 = min(f0 + frames, n_frames)
-                parts = [pad(a[start:stop, f0:f1], (per, frames)) for a in frame_arrays]
-                mask = np.zeros((per, frames))
-                mask[: stop - start, : f1 - f0] = 1.0
-                outs = kernel(*parts, mask, *per_config, *consts)
-                total = outs if total is None else tuple(t + o for t, o in zip(total, outs, strict=True))
-            pending.append((k, total))
-            if len(pending) > 1:
-                collect(*pending.pop(0))
-        for item in pending:
-            collect(*item)
-
-    # contiguous blocks of chunks per thread; the main thread works too
-    blocks = [list(b) for b in np.array_split(np.arange(len(starts)), n_workers)]
-    if n_workers == 1:
-        work(blocks[0])
-    else:
-        with ThreadPoolExecutor(max_workers=n_workers - 1) as pool:
-            jobs = [pool.submit(work, b) for b in blocks[1:]]
-            try:
-                work(blocks[0])
-                for job in jobs:
-                    job.result()
-            except BaseException:  # Ctrl-C, SIGTERM, an error: the other threads stop at their next chunk
-                stop_event.set()
-                raise
-    return [np.concatenate([r[i] for r in results]) for i in range(len(results[0]))]
+    structure: tuple
+    n_cols: int
+    columns: tuple[int, ...]
+    known_columns: tuple[int, ...]
+    extra_columns: tuple[int, ...]
+    n_extra: int
+    sums: bool
+    base_pos: tuple[int, ...]
 
 
 @functools.cache
@@ -191,7 +132,6 @@ def _blocks_kernel(
     ``10 n_u + n_extra`` columns).
     """
     import jax
-    import jax.numpy as jnp
 
     base_pos = (
         (
@@ -201,90 +141,111 @@ def _blocks_kernel(
         if sum_columns
         else ()
     )
-    columns = sum_columns or base_columns
-    extra_columns = sum_extra if sum_columns else base_extra
-    n_extra = sum(channel.n_extra for channel in structure)
-
-    def extra_rows(q, qd, qdd, mask):
-        """(A, Cc, len(extra_columns), Fc): the block-diagonal ``E`` of the channels at ``extra_columns``."""
-        batch = q.shape[:-1]
-        n_axes = sum(channel.n_axes for channel in structure)
-        e = jnp.zeros(batch + (n_axes, n_extra), dtype=q.dtype)
-        a0 = e0 = 0
-        for channel in structure:
-            if channel.n_extra:
-                e = e.at[..., a0 : a0 + channel.n_axes, e0 : e0 + channel.n_extra].set(channel.extra_rows(q, qd, qdd))
-            a0, e0 = a0 + channel.n_axes, e0 + channel.n_extra
-        e = e[..., jnp.asarray(extra_columns, dtype=jnp.int32)]  # (Cc, Fc, A, k)
-        return jnp.transpose(e, (2, 0, 3, 1)) * mask[None, :, None, :]
-
-    def channel_rows(entries, n_axes, batch, mask, theta_known, dtype):
-        def entry(a, col):
-            return jnp.broadcast_to(entries[a * n_cols + col], batch).astype(dtype) * mask
-
-        # (n_a, Cc, r, Fc): frames last, each entry one contiguous run (XLA:CPU's fast layout)
-        w = jnp.stack([jnp.stack([entry(a, c) for c in columns], axis=1) for a in range(n_axes)])
-        known = jnp.stack(
-            [
-                sum(
-                    (entries[a * n_cols + c] * theta_known[k] for k, c in enumerate(known_columns)),
-                    start=jnp.zeros(batch, dtype),
-                )
-                for a in range(n_axes)
-            ]
-        )  # (n_a, Cc, Fc)
-        return w, known
-
-    def core(q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs, d):
-        batch = q.shape[:-1]  # (Cc, Fc)
-        evaluated: dict = {}  # two channels of one regressor evaluate it once
-        w_parts, known_parts = [], []
-        for channel, x in zip(structure, xs, strict=True):
-            if channel.entries not in evaluated:
-                evaluated[channel.entries] = channel.entries(q, qd, qdd, gravity)
-            w, known = channel_rows(evaluated[channel.entries], channel.n_axes, batch, mask, theta_known, q.dtype)
-            if channel.transformed:  # the channel's axes: T applied to every regressor row and to the known share
-                w = jnp.einsum("ab,bcrf->acrf", x, w)
-                known = jnp.einsum("ab,bcf->acf", x, known)
-            w_parts.append(w)
-            known_parts.append(known)
-        w_b = w_parts[0] if len(w_parts) == 1 else jnp.concatenate(w_parts)  # (A, Cc, r, Fc)
-        if extra_columns:  # [T Phi_u | E]: the extra kept columns after the links'
-            w_b = jnp.concatenate([w_b, extra_rows(q, qd, qdd, mask)], axis=2)
-        known = known_parts[0] if len(known_parts) == 1 else jnp.concatenate(known_parts)
-        y = jnp.stack([(wrench[..., a] - known[a]) * mask for a in range(w_b.shape[0])])  # (A, Cc, Fc)
-        if sum_columns:
-            w_all = w_b - jnp.moveaxis(w_ref, 1, 0)[..., None] * mask[None, :, None, :]
-            y = y - jnp.moveaxis(y_ref, 1, 0)[..., None] * mask[None]
-            w_b = w_all[:, :, base_pos, :]
-        e = jnp.einsum("acf,acf->ca", y, y)
-        if d is not None:  # rows weighted, axes and frames contracted together
-            w_d = w_b * jnp.moveaxis(d, 1, 0)[:, :, None, None]
-            y_d = y * jnp.moveaxis(d, 1, 0)[:, :, None]
-            return jnp.einsum("acrf,acsf->crs", w_d, w_d), jnp.einsum("acrf,acf->cr", w_d, y_d), e
-        g = jnp.einsum("acrf,acsf->cars", w_b, w_b)
-        h = jnp.einsum("acrf,acf->car", w_b, y)
-        if not sum_columns:
-            return g, h, e
-        return g, h, e, jnp.einsum("acpf->cap", w_all), jnp.einsum("acf->ca", y)
-
+    layout = _Layout(
+        structure,
+        n_cols,
+        sum_columns or base_columns,
+        known_columns,
+        sum_extra if sum_columns else base_extra,
+        sum(channel.n_extra for channel in structure),
+        bool(sum_columns),
+        base_pos,
+    )
     if sum_columns:
         return jax.jit(
-            lambda q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs: core(
-                q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs, None
+            lambda q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs: _blocks_core(
+                layout, q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs, None
             )
         )
     if summed:
         return jax.jit(
-            lambda q, qd, qdd, wrench, mask, d, gravity, theta_known, xs: core(
-                q, qd, qdd, wrench, mask, None, None, gravity, theta_known, xs, d
+            lambda q, qd, qdd, wrench, mask, d, gravity, theta_known, xs: _blocks_core(
+                layout, q, qd, qdd, wrench, mask, None, None, gravity, theta_known, xs, d
             )
         )
     return jax.jit(
-        lambda q, qd, qdd, wrench, mask, gravity, theta_known, xs: core(
-            q, qd, qdd, wrench, mask, None, None, gravity, theta_known, xs, None
+        lambda q, qd, qdd, wrench, mask, gravity, theta_known, xs: _blocks_core(
+            layout, q, qd, qdd, wrench, mask, None, None, gravity, theta_known, xs, None
         )
     )
+
+
+def _extra_rows(layout: _Layout, q, qd, qdd, mask):
+    """(A, Cc, len(extra_columns), Fc): the block-diagonal ``E`` of the channels at ``layout.extra_columns``
+    (traced)."""
+    import jax.numpy as jnp
+
+    batch = q.shape[:-1]
+    n_axes = sum(channel.n_axes for channel in layout.structure)
+    e = jnp.zeros(batch + (n_axes, layout.n_extra), dtype=q.dtype)
+    a0 = e0 = 0
+    for channel in layout.structure:
+        if channel.n_extra:
+            e = e.at[..., a0 : a0 + channel.n_axes, e0 : e0 + channel.n_extra].set(channel.extra_rows(q, qd, qdd))
+        a0, e0 = a0 + channel.n_axes, e0 + channel.n_extra
+    e = e[..., jnp.asarray(layout.extra_columns, dtype=jnp.int32)]  # (Cc, Fc, A, k)
+    return jnp.transpose(e, (2, 0, 3, 1)) * mask[None, :, None, :]
+
+
+def _channel_rows(layout: _Layout, entries, n_axes: int, batch, mask, theta_known, dtype):
+    """``(w, known)``: one channel's rows at ``layout.columns`` (n_a, Cc, r, Fc) and the known links' share
+    (n_a, Cc, Fc) from its regressor ``entries`` (traced)."""
+    import jax.numpy as jnp
+
+    n_cols = layout.n_cols
+
+    def entry(a, col):
+        return jnp.broadcast_to(entries[a * n_cols + col], batch).astype(dtype) * mask
+
+    # (n_a, Cc, r, Fc): frames last, each entry one contiguous run (XLA:CPU's fast layout)
+    w = jnp.stack([jnp.stack([entry(a, c) for c in layout.columns], axis=1) for a in range(n_axes)])
+    known = jnp.stack(
+        [
+            sum(
+                (entries[a * n_cols + c] * theta_known[k] for k, c in enumerate(layout.known_columns)),
+                start=jnp.zeros(batch, dtype),
+            )
+            for a in range(n_axes)
+        ]
+    )  # (n_a, Cc, Fc)
+    return w, known
+
+
+def _blocks_core(layout: _Layout, q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs, d):
+    """The blocks of one chunk (traced; :func:`_blocks_kernel`): ``(G, h, e[, s, t])``."""
+    import jax.numpy as jnp
+
+    batch = q.shape[:-1]  # (Cc, Fc)
+    evaluated: dict = {}  # two channels of one regressor evaluate it once
+    w_parts, known_parts = [], []
+    for channel, x in zip(layout.structure, xs, strict=True):
+        if channel.entries not in evaluated:
+            evaluated[channel.entries] = channel.entries(q, qd, qdd, gravity)
+        w, known = _channel_rows(layout, evaluated[channel.entries], channel.n_axes, batch, mask, theta_known, q.dtype)
+        if channel.transformed:  # the channel's axes: T applied to every regressor row and to the known share
+            w = jnp.einsum("ab,bcrf->acrf", x, w)
+            known = jnp.einsum("ab,bcf->acf", x, known)
+        w_parts.append(w)
+        known_parts.append(known)
+    w_b = w_parts[0] if len(w_parts) == 1 else jnp.concatenate(w_parts)  # (A, Cc, r, Fc)
+    if layout.extra_columns:  # [T Phi_u | E]: the extra kept columns after the links'
+        w_b = jnp.concatenate([w_b, _extra_rows(layout, q, qd, qdd, mask)], axis=2)
+    known = known_parts[0] if len(known_parts) == 1 else jnp.concatenate(known_parts)
+    y = jnp.stack([(wrench[..., a] - known[a]) * mask for a in range(w_b.shape[0])])  # (A, Cc, Fc)
+    if layout.sums:
+        w_all = w_b - jnp.moveaxis(w_ref, 1, 0)[..., None] * mask[None, :, None, :]
+        y = y - jnp.moveaxis(y_ref, 1, 0)[..., None] * mask[None]
+        w_b = w_all[:, :, layout.base_pos, :]
+    e = jnp.einsum("acf,acf->ca", y, y)
+    if d is not None:  # rows weighted, axes and frames contracted together
+        w_d = w_b * jnp.moveaxis(d, 1, 0)[:, :, None, None]
+        y_d = y * jnp.moveaxis(d, 1, 0)[:, :, None]
+        return jnp.einsum("acrf,acsf->crs", w_d, w_d), jnp.einsum("acrf,acf->cr", w_d, y_d), e
+    g = jnp.einsum("acrf,acsf->cars", w_b, w_b)
+    h = jnp.einsum("acrf,acf->car", w_b, y)
+    if not layout.sums:
+        return g, h, e
+    return g, h, e, jnp.einsum("acpf->cap", w_all), jnp.einsum("acf->ca", y)
 
 
 def _transforms(channels: ChannelSet, model) -> tuple[np.ndarray, ...]:
@@ -292,6 +253,45 @@ def _transforms(channels: ChannelSet, model) -> tuple[np.ndarray, ...]:
     return tuple(
         np.eye(c.n_axes(model)) if t is None else np.asarray(t, dtype=np.float64)
         for c, t in zip(channels, channels.transforms(), strict=True)
+    )
+
+
+def _no_blocks(n_axes: int, base, n_frames: int, sums: bool, summed: bool) -> InformationBlocks:
+    """The (empty) blocks of no configuration, shaped as :func:`information_blocks` makes them."""
+    r, p = base.rank, base.n_params
+    if summed:
+        return InformationBlocks(
+            np.zeros((0, r, r)), np.zeros((0, r)), np.zeros((0, n_axes)), n_frames, axis_w=np.zeros((0, n_axes))
+        )
+    return InformationBlocks(
+        np.zeros((0, n_axes, r, r)),
+        np.zeros((0, n_axes, r)),
+        np.zeros((0, n_axes)),
+        n_frames,
+        np.zeros((0, n_axes, p)) if sums else None,
+        np.zeros((0, n_axes)) if sums else None,
+    )
+
+
+def _kernel_of(model, base, channels: ChannelSet, sums: bool, summed: bool):
+    """The compiled blocks kernel (:func:`_blocks_kernel`) of ``base``'s columns of ``channels``' rows: with the
+    frame sums of every unknown column (``sums``), or summed over the axes with row weights (``summed``)."""
+    n_link, n_extra = base.n_link_params, channels.n_extra(model)
+    link_base = base.base_index[base.base_index < n_link]
+    columns = tuple(int(c) for c in np.asarray(model.unknown_index)[link_base])
+    sum_columns = tuple(int(c) for c in model.unknown_index) if sums else ()
+    extra_kernel_args = ()
+    if n_extra:  # the extra kept columns: the base ones, and all of them for the sums
+        base_extra = tuple(int(j) - n_link for j in base.base_index[base.base_index >= n_link])
+        extra_kernel_args = (base_extra, tuple(range(n_extra)) if sums else ())
+    return _blocks_kernel(
+        channels.structure(model),
+        10 * model.n_links,
+        columns,
+        tuple(int(c) for c in model.known_index),
+        sum_columns,
+        summed,
+        *extra_kernel_args,
     )
 
 
@@ -333,39 +333,11 @@ def information_blocks(
     n_configs, n_frames = arrays[0].shape[:2]
     if arrays[3].shape[-1] != n_axes:
         raise ValueError(f"the measured values have {arrays[3].shape[-1]} axes, the channels {n_axes}")
-    r, p = base.rank, base.n_params
     if n_configs == 0:
-        if axis_weights is not None:
-            return InformationBlocks(
-                np.zeros((0, r, r)), np.zeros((0, r)), np.zeros((0, n_axes)), n_frames, axis_w=np.zeros((0, n_axes))
-            )
-        return InformationBlocks(
-            np.zeros((0, n_axes, r, r)),
-            np.zeros((0, n_axes, r)),
-            np.zeros((0, n_axes)),
-            n_frames,
-            np.zeros((0, n_axes, p)) if sums else None,
-            np.zeros((0, n_axes)) if sums else None,
-        )
-    n_link = base.n_link_params
-    link_base = base.base_index[base.base_index < n_link]
-    columns = tuple(int(c) for c in np.asarray(model.unknown_index)[link_base])
-    sum_columns = tuple(int(c) for c in model.unknown_index) if sums else ()
-    extra_kernel_args = ()
-    if n_extra:  # the extra kept columns: the base ones, and all of them for the sums
-        base_extra = tuple(int(j) - n_link for j in base.base_index[base.base_index >= n_link])
-        extra_kernel_args = (base_extra, tuple(range(n_extra)) if sums else ())
+        return _no_blocks(n_axes, base, n_frames, sums, axis_weights is not None)
     if sums and axis_weights is not None:
         raise ValueError("centred blocks (sums=True) are per axis; leave axis_weights out")
-    kernel = _blocks_kernel(
-        channels.structure(model),
-        10 * model.n_links,
-        columns,
-        tuple(int(c) for c in model.known_index),
-        sum_columns,
-        axis_weights is not None,
-        *extra_kernel_args,
-    )
+    kernel = _kernel_of(model, base, channels, sums, axis_weights is not None)
     theta_known = np.asarray(theta_known, dtype=np.float64)
     consts = (model.gravity, theta_known, _transforms(channels, model))
     if axis_weights is not None:

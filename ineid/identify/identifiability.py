@@ -210,7 +210,7 @@ def generic_frames(model, n_frames: int = STRUCTURAL_FRAMES, seed: int = 0):
     return model_uniform_states(model, n_frames, np.random.default_rng(seed))
 
 
-def _regressor_unknown(model, q, qd, qdd, channels: ChannelSet | None = None) -> np.ndarray:
+def regressor_unknown(model, q, qd, qdd, channels: ChannelSet | None = None) -> np.ndarray:
     """Stacked ``Phi`` (AF, 10 n_u) of the unknown links through the generated CasADi functions:
     a one-off analysis needs no compilation (milliseconds for hundreds of frames).
 
@@ -247,7 +247,7 @@ def _phi_key(model, channels: ChannelSet | None) -> tuple:
     return phi
 
 
-def _offset_mask(channels: ChannelSet | None, model, bias: bool) -> np.ndarray | None:
+def offset_mask(channels: ChannelSet | None, model, bias: bool) -> np.ndarray | None:
     """The axes centred for offsets: every axis with ``bias`` (the channels'
     :meth:`~ineid.channels.ChannelSet.offset_mask` once they are set up with offsets), none without."""
     return (BASE_WRENCH if channels is None else channels).with_offsets(True).offset_mask(model) if bias else None
@@ -284,11 +284,11 @@ def base_parameters(model, bias: bool = False, channels: ChannelSet | None = Non
     cache = _CACHE.setdefault(model, {})
     if key not in cache:
         q, qd, qdd = generic_frames(model)
-        w = _regressor_unknown(model, q, qd, qdd, channels)
+        w = regressor_unknown(model, q, qd, qdd, channels)
         scales = unknown_scales(model, w, channels)
         chans = BASE_WRENCH if channels is None else channels
         n_axes = chans.n_axes(model)
-        w = centred_regressor(w, n_axes, _offset_mask(channels, model, bias)) if bias else w
+        w = centred_regressor(w, n_axes, offset_mask(channels, model, bias)) if bias else w
         names = (*param_names(model.unknown_links), *chans.extra_names(model))
         cache[key] = base_parameters_from_regressor(w, names, scales, chans.n_extra(model))
     return cache[key]
@@ -303,12 +303,11 @@ def frame_minimum(model, bias: bool = False, channels: ChannelSet | None = None)
     key = ("frame_minimum", tuple(model.unknown_links), bool(bias), _phi_key(model, channels))
     if key not in cache:
         chans = BASE_WRENCH if channels is None else channels
-        w = _regressor_unknown(model, *generic_frames(model), channels) * base.scales
+        w = regressor_unknown(model, *generic_frames(model), channels) * base.scales
         names, units = chans.axes(model), chans.units(model)
         groups = [(n.split(".")[0] if "." in n else "", u) for n, u in zip(names, units, strict=True)]
-        cache[key] = frame_minimum_from_regressor(
-            w, len(names), base.rank, names, groups, _offset_mask(channels, model, bias)
-        )
+        mask = offset_mask(channels, model, bias)
+        cache[key] = frame_minimum_from_regressor(w, len(names), base.rank, names, groups, mask)
     return cache[key]
 
 
@@ -389,8 +388,8 @@ def analyze_frames(
     base = base or base_parameters(model, bias, channels)
     n_axes = (BASE_WRENCH if channels is None else channels).n_axes(model)
     q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (q, qd, qdd))
-    w = _regressor_unknown(model, q, qd, qdd, channels)
-    ws = (centred_regressor(w, n_axes, _offset_mask(channels, model, bias)) if bias else w) * base.scales
+    w = regressor_unknown(model, q, qd, qdd, channels)
+    ws = (centred_regressor(w, n_axes, offset_mask(channels, model, bias)) if bias else w) * base.scales
     sv = np.linalg.svd(ws, compute_uv=False)
     rank = numerical_rank(sv)
     r = base.rank
@@ -449,9 +448,9 @@ def bias_cost(model, q, qd, qdd, channels: ChannelSet | None = None) -> BiasCost
     """
     base, base_c = base_parameters(model, channels=channels), base_parameters(model, bias=True, channels=channels)
     q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (q, qd, qdd))
-    w = _regressor_unknown(model, q, qd, qdd, channels)
+    w = regressor_unknown(model, q, qd, qdd, channels)
     wc = centred_regressor(
-        w, (BASE_WRENCH if channels is None else channels).n_axes(model), _offset_mask(channels, model, True)
+        w, (BASE_WRENCH if channels is None else channels).n_axes(model), offset_mask(channels, model, True)
     )
 
     def cov(a: np.ndarray) -> np.ndarray:

@@ -22,21 +22,19 @@ import time
 import numpy as np
 
 from ineid.errors import IdentificationError
+from ineid.identify.choose import noise_levels, solve_channels
 from ineid.identify.extras import prior_with_extras
 from ineid.identify.fused import InformationBlocks, information_blocks
-from ineid.identify.identifiability import base_parameters, frame_minimum
+from ineid.identify.identifiability import BaseParameters, base_parameters, frame_minimum
 from ineid.identify.known import with_known_uncertainty
-from ineid.identify.linear import fit_base, fit_base_blocks, linear_estimate, linear_theta, with_exact_rss
-from ineid.identify.solve import (
-    SolveResults,
-    _axis_sigma,
-    physical_start,
-    results_meta,
-    solve_channels,
-    truth_with_extras,
-)
-from ineid.identify.steps import _bias_estimate, _offset_dof, _run_nlp, estimate_residual_sums, predicted_wrench
+from ineid.identify.least_squares import BaseFit, fit_base, fit_base_blocks, subtract_offset_dof, with_exact_rss
+from ineid.identify.linear import Estimate, SharedFit, linear_theta
+from ineid.identify.settings import SolveSettings
+from ineid.identify.solve import ESTIMATORS
+from ineid.identify.solve_results import SolveResults, results_meta, truth_with_extras
+from ineid.identify.steps import bias_estimate, estimate_residual_sums, predicted_wrench
 from ineid.identify.systems import check_frames, remove_offsets, stack
+from ineid.progress import Progress
 
 
 def _robot_of(ds) -> tuple:
@@ -96,7 +94,13 @@ def check_same_robot(datasets, validate=None) -> None:
             )
 
 
-def solve_recordings(datasets, settings, model=None, validate=None, progress=None) -> SolveResults:
+JOINT_METHODS = ("linear", "nonlinear", "consistent")
+"""The methods that fit several recordings jointly (with backend ``jax``)."""
+
+
+def solve_recordings(
+    datasets, settings: SolveSettings, model=None, validate=None, progress: Progress | None = None
+) -> SolveResults:
     """Identify from several recordings jointly; optionally report the prediction error on ``validate``.
 
     Args:
@@ -120,86 +124,25 @@ def solve_recordings(datasets, settings, model=None, validate=None, progress=Non
     """
     datasets = list(datasets)
     check_same_robot(datasets, validate)
-    if settings.method not in ("linear", "nonlinear", "consistent") or settings.backend != "jax":
-        raise IdentificationError(
-            "several recordings or --validate are fitted by the linear, nonlinear and "
-            "consistent methods with backend 'jax'",
-            status="unsupported",
-        )
-    if settings.two_step:
-        raise IdentificationError(
-            "--two-step fits one dataset; leave it out with several recordings or --validate", status="unsupported"
-        )
-    if settings.frames is not None:
-        raise IdentificationError(
-            "with several recordings or --validate every frame of the inputs is fitted: "
-            "leave out --fit-frames (--validate holds out a whole recording)",
-            status="unsupported",
-        )
+    _check_joint_settings(settings)
     t_start = time.perf_counter()
     ds0 = datasets[0]
     model = model or ds0.model()
-    with_bias = settings.bias == "estimate"
+    with_bias = settings.estimates_offsets
     channels = solve_channels(ds0, settings, model)
-    n_axes = channels.n_axes(model)
-    mask = channels.offset_mask(model)
+    mask = channels.offset_mask(model) if with_bias else None
     base = base_parameters(model, bias=with_bias, channels=channels)
     prior = prior_with_extras(model, channels)  # [theta_cad_u, 0 for each extra parameter]
-    n_offsets = int(mask.sum()) if with_bias else 0
     n_total = sum(d.n_frames for d in datasets)
     if with_bias:  # each input centred on its own: counting, the per-configuration rank checks do the rest
-        check_frames(n_total, base.rank + n_offsets * len(datasets), n_axes)
+        check_frames(n_total, base.rank + int(mask.sum()) * len(datasets), channels.n_axes(model))
     else:  # the inputs' frames stacked: the structural minimum (ineid.identify.frame_minimum)
         frame_minimum(model, False, channels).require(n_total)
-    axis_sigma = _axis_sigma(ds0, settings, channels, model)
+    axis_sigma = noise_levels(ds0, settings, channels, model)
 
-    # 1. the blocks of each input (centred on its own with offsets), summed
-    total, offsets = None, []
-    for ds in datasets:
-        blocks = information_blocks(
-            model, base, ds.q, ds.qd, ds.qdd, ds.measured(channels), ds.theta_known, sums=with_bias, channels=channels
-        )
-        if with_bias:
-            blocks, off = blocks.centred(base, mask)
-            offsets.append(off)
-        total = (
-            blocks
-            if total is None
-            else InformationBlocks(
-                total.G + blocks.G, total.h + blocks.h, total.e + blocks.e, total.n_frames + blocks.n_frames
-            )
-        )
-    lost = mask.astype(np.float64) * len(datasets) if with_bias else None
-    fit, refit = fit_base_blocks(total, base, settings.weights, axis_sigma, lost)
-    for i in np.flatnonzero(refit):  # ill-conditioned: QR of the stacked, centred frames of every input
-        parts = [
-            stack(
-                model,
-                d.q[i : i + 1],
-                d.qd[i : i + 1],
-                d.qdd[i : i + 1],
-                d.measured(channels)[i : i + 1],
-                d.theta_known,
-                channels,
-            )
-            for d in datasets
-        ]
-        if with_bias:
-            parts = [remove_offsets(w, y, n_axes, mask)[:2] for w, y in parts]
-        ref = fit_base(
-            np.concatenate([w for w, _ in parts], axis=1),
-            np.concatenate([y for _, y in parts], axis=1),
-            base,
-            settings.weights,
-            axis_sigma,
-            n_axes,
-            lost,
-        )
-        for f in dataclasses.fields(type(fit)):
-            if f.name != "dof":
-                getattr(fit, f.name)[i] = getattr(ref, f.name)[0]
-    if with_bias:
-        _offset_dof(fit, n_offsets * len(datasets))
+    # 1. the blocks of each input (centred on its own with offsets), summed, and their base fit
+    total, offsets = _summed_blocks(datasets, model, base, channels, mask)
+    fit = _joint_fit(datasets, model, base, channels, total, settings.weights, axis_sigma, mask)
 
     # 2. the exact residuals of every input at the linear estimate
     def residuals(theta_u):
@@ -211,49 +154,33 @@ def solve_recordings(datasets, settings, model=None, validate=None, progress=Non
     theta_lin = linear_theta(fit, base, prior)
     fit = with_exact_rss(fit, residuals(theta_lin))
     if settings.known_uncertainty:
-        fit = with_known_uncertainty(fit, model, base, datasets, slice(None), channels, settings)
+        fit = with_known_uncertainty(
+            fit, model, base, datasets, slice(None), channels, settings.known_uncertainty, with_bias
+        )
 
-    # 3. standard parameters
-    if settings.method == "linear":
-        est = linear_estimate(fit, base, prior)
-    else:
-        _, _, yy = total.weighted(fit.axis_weights)
-        rms = np.sqrt(yy / (n_axes * total.n_frames))
-        start = prior if settings.start == "prior" else physical_start(theta_lin, prior, base.scales, base.n_extra)
-        est, _ = _run_nlp(fit, base, settings, prior, rms, start, progress)
-    ssr = residuals(est.theta)
-    failed = ~np.all(np.isfinite(est.theta), axis=1)
-    fit_rms = np.sqrt(ssr / n_total)
-    fit_rms[failed] = np.nan
-    recordings = []
-    for k, d in enumerate(datasets):
-        rec = {"path": None if d.path is None else str(d.path), "fingerprint": d.fingerprint(), "n_frames": d.n_frames}
-        if with_bias:
-            b, s = _bias_estimate(offsets[k], est, base)
-            rec.update(bias_hat=b.tolist(), bias_std=s.tolist())
-        recordings.append(rec)
-    bias_hat = bias_std = None
-    if with_bias:
-        bias_hat, bias_std = (np.asarray(recordings[0][k]) for k in ("bias_hat", "bias_std"))
+    # 3. standard parameters, by the method (ineid.identify.solve.ESTIMATORS)
+    _, _, yy = total.weighted(fit.axis_weights)
+    rms = np.sqrt(yy / (channels.n_axes(model) * total.n_frames))
+    est = ESTIMATORS[settings.method](SharedFit(base, prior, fit, theta_lin, rms), settings, progress).estimate
+    fit_rms = np.sqrt(residuals(est.theta) / n_total)
+    fit_rms[~np.all(np.isfinite(est.theta), axis=1)] = np.nan
 
-    # 4. the validation recording
-    c = ds0.n_configs
-    val_rms, val_rel, n_val = np.full((c, n_axes), np.nan), np.full(c, np.nan), 0
+    # 4. the offsets of each input, the validation recording
+    recordings = _recordings_meta(datasets, est, base, offsets)
     meta = results_meta(ds0, 0.0, channels, model)
-    if validate is not None:
-        val_rms, val_rel = validation_error(model, validate, est.theta, channels, mask if with_bias else None)
-        n_val = validate.n_frames
-        ok = est.success
-        meta["validation"] = {
-            "path": None if validate.path is None else str(validate.path),
-            "fingerprint": validate.fingerprint(),
-            "n_frames": n_val,
-            "offsets": "fitted alone on it, parameters fixed" if with_bias else "none",
-            "rms": np.median(val_rms[ok], axis=0).tolist() if ok.any() else None,
-            "rel": float(np.median(val_rel[ok])) if ok.any() else None,
-        }
+    val_rms, val_rel, n_val = _validation(model, validate, est, channels, mask, meta)
     meta["recordings"] = recordings
     meta["total_seconds"] = time.perf_counter() - t_start
+    return _joint_results(settings, ds0, base, prior, est, fit_rms, (val_rms, val_rel, n_val), n_total, meta)
+
+
+def _joint_results(settings, ds0, base: BaseParameters, prior, est: Estimate, fit_rms, validation, n_total, meta):
+    """The :class:`SolveResults` of a joint fit: the estimates, the residual RMS over every input's frames
+    (``fit_rms``), ``validation = (rms, rel, frames)`` of the validation recording, the offsets of the first
+    input (``meta["recordings"]`` holds every input's), the seconds shared out over the configurations."""
+    c = ds0.n_configs
+    first = meta["recordings"][0]
+    val_rms, val_rel, n_val = validation
     return SolveResults(
         settings=settings,
         base=base,
@@ -274,9 +201,131 @@ def solve_recordings(datasets, settings, model=None, validate=None, progress=Non
         theta_prior=prior,
         theta_true=truth_with_extras(ds0, base),
         meta=meta,
-        bias_hat=bias_hat,
-        bias_std=bias_std,
+        bias_hat=np.asarray(first["bias_hat"]) if "bias_hat" in first else None,
+        bias_std=np.asarray(first["bias_std"]) if "bias_std" in first else None,
     )
+
+
+def _check_joint_settings(settings: SolveSettings) -> None:
+    """Refuse what several recordings are not fitted with (``IdentificationError``, status ``unsupported``)."""
+    if settings.method not in JOINT_METHODS or settings.backend != "jax":
+        raise IdentificationError(
+            "several recordings or --validate are fitted by the linear, nonlinear and "
+            "consistent methods with backend 'jax'",
+            status="unsupported",
+        )
+    if settings.two_step:
+        raise IdentificationError(
+            "--two-step fits one dataset; leave it out with several recordings or --validate", status="unsupported"
+        )
+    if settings.frames is not None:
+        raise IdentificationError(
+            "with several recordings or --validate every frame of the inputs is fitted: "
+            "leave out --fit-frames (--validate holds out a whole recording)",
+            status="unsupported",
+        )
+
+
+def _summed_blocks(datasets, model, base: BaseParameters, channels, mask) -> tuple[InformationBlocks, list]:
+    """The sum of each input's :func:`ineid.identify.fused.information_blocks`, and the offsets taken out of each
+    (each centred on its own on ``mask``'s axes; none when ``mask`` is None)."""
+    total, offsets = None, []
+    for ds in datasets:
+        blocks = information_blocks(
+            model,
+            base,
+            ds.q,
+            ds.qd,
+            ds.qdd,
+            ds.measured(channels),
+            ds.theta_known,
+            sums=mask is not None,
+            channels=channels,
+        )
+        if mask is not None:
+            blocks, off = blocks.centred(base, mask)
+            offsets.append(off)
+        total = (
+            blocks
+            if total is None
+            else InformationBlocks(
+                total.G + blocks.G, total.h + blocks.h, total.e + blocks.e, total.n_frames + blocks.n_frames
+            )
+        )
+    return total, offsets
+
+
+def _joint_fit(
+    datasets, model, base: BaseParameters, channels, total: InformationBlocks, weights: str, axis_sigma, mask
+) -> BaseFit:
+    """The base fit of the summed blocks ``total``; ill-conditioned configurations refitted by the QR of every
+    input's stacked frames (each centred on its own on ``mask``'s axes), one residual degree of freedom less
+    per offset and input."""
+    n_axes = channels.n_axes(model)
+    lost = mask.astype(np.float64) * len(datasets) if mask is not None else None
+    fit, refit = fit_base_blocks(total, base, weights, axis_sigma, lost)
+    for i in np.flatnonzero(refit):  # ill-conditioned: QR of the stacked, centred frames of every input
+        parts = [
+            stack(
+                model,
+                d.q[i : i + 1],
+                d.qd[i : i + 1],
+                d.qdd[i : i + 1],
+                d.measured(channels)[i : i + 1],
+                d.theta_known,
+                channels,
+            )
+            for d in datasets
+        ]
+        if mask is not None:
+            parts = [remove_offsets(w, y, n_axes, mask)[:2] for w, y in parts]
+        ref = fit_base(
+            np.concatenate([w for w, _ in parts], axis=1),
+            np.concatenate([y for _, y in parts], axis=1),
+            base,
+            weights,
+            axis_sigma,
+            n_axes,
+            lost,
+        )
+        for f in dataclasses.fields(type(fit)):
+            if f.name != "dof":
+                getattr(fit, f.name)[i] = getattr(ref, f.name)[0]
+    if mask is not None:
+        subtract_offset_dof(fit, int(mask.sum()) * len(datasets))
+    return fit
+
+
+def _recordings_meta(datasets, est: Estimate, base: BaseParameters, offsets: list) -> list[dict]:
+    """``meta["recordings"]``: each input's path, fingerprint and frames, and its offsets and their standard
+    deviations (:func:`ineid.identify.steps.bias_estimate`) when they were fitted."""
+    recordings = []
+    for k, d in enumerate(datasets):
+        rec = {"path": None if d.path is None else str(d.path), "fingerprint": d.fingerprint(), "n_frames": d.n_frames}
+        if offsets:
+            b, s = bias_estimate(offsets[k], est, base)
+            rec.update(bias_hat=b.tolist(), bias_std=s.tolist())
+        recordings.append(rec)
+    return recordings
+
+
+def _validation(model, validate, est: Estimate, channels, mask, meta: dict) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(rms (C, A), rel (C,), frames)`` of ``validate`` (:func:`validation_error`; its offsets on ``mask``'s axes
+    fitted alone on it), recorded in ``meta["validation"]``; NaN and 0 without it."""
+    c = len(est.theta)
+    if validate is None:
+        return np.full((c, channels.n_axes(model)), np.nan), np.full(c, np.nan), 0
+    val_rms, val_rel = validation_error(model, validate, est.theta, channels, mask)
+    ok = est.success
+    meta["validation"] = {
+        "path": None if validate.path is None else str(validate.path),
+        "fingerprint": validate.fingerprint(),
+        "n_frames": validate.n_frames,
+        "offsets": "fitted alone on it, parameters fixed" if mask is not None else "none",
+        "rms": np.median(val_rms[ok], axis=0).tolist() if ok.any() else None,
+        "rel": float(np.median(val_rel[ok])) if ok.any() else None,
+    }
+    return val_rms, val_rel, validate.n_frames
 
 
 def validation_error(model, ds, theta_u, channels, offset_mask=None) -> tuple[np.ndarray, np.ndarray]:

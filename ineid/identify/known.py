@@ -38,8 +38,11 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from ineid.channels import ChannelSet
 from ineid.errors import IdentificationError
 from ineid.identify.extras import unknown_rows
+from ineid.identify.identifiability import BaseParameters
+from ineid.identify.least_squares import BaseFit
 from ineid.identify.systems import parameter_scales
 
 ALL_KNOWN = "*"
@@ -140,16 +143,26 @@ def known_covariance(
     return out, np.maximum(extra, 0.0)
 
 
-def with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings):
-    """``fit`` (a :class:`ineid.identify.linear.BaseFit`) with ``S Sigma_k S^T`` added to the covariance of its
-    full-rank configurations and the CAD errors' share taken out of its noise part (module doc).
+def with_known_uncertainty(
+    fit: BaseFit,
+    model,
+    base: BaseParameters,
+    ds,
+    fit_sl: slice,
+    channels: ChannelSet,
+    uncertainty: Iterable[tuple[str, float]],
+    with_offsets: bool = False,
+) -> BaseFit:
+    """``fit`` with ``S Sigma_k S^T`` added to the covariance of its full-rank configurations and the CAD errors'
+    share taken out of its noise part (module doc).
 
     ``ds``: a dataset, or a list of datasets fitted jointly (``fit_sl`` of each one's frames);
-    ``settings.known_uncertainty`` the fractions; offsets centred when ``settings.bias == "estimate"``.
+    ``uncertainty`` the fractions (``SolveSettings.known_uncertainty``, :func:`known_std`); the rows centred on
+    the offsets' axes ``with_offsets`` (``SolveSettings.bias == "estimate"``).
     """
-    std_k = known_std(model, settings.known_uncertainty)
+    std_k = known_std(model, uncertainty)
     ok = np.flatnonzero(fit.full_rank)
-    mask = channels.offset_mask(model) if settings.bias == "estimate" else None
+    mask = channels.offset_mask(model) if with_offsets else None
     cov, sigma2 = fit.cov_beta.copy(), fit.sigma2.copy()  # sigma2 of the fit itself stays (IPOPT's noise level)
     parts = ds if isinstance(ds, list) else [ds]
     frames = [[getattr(d, k)[ok][:, fit_sl] for d in parts] for k in ("q", "qd", "qdd")]

@@ -59,11 +59,9 @@ from ineid.identify.extras import nonnegative
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.ipopt import nlpsol
 from ineid.identify.linear import BaseFit, Estimate, standard_std
+from ineid.identify.settings import DEFAULT_ENTROPIC, DEFAULT_PULL, NLP_METHODS
 from ineid.params import N_PARAMS_PER_LINK, inertial_from_theta, pseudo_inertia
 
-METHODS = ("nonlinear", "consistent")
-DEFAULT_PULL = 1e-2
-DEFAULT_ENTROPIC = 1e-3
 SIGMA_FLOOR_REL = {"nonlinear": 1e-5, "consistent": 1e-3}
 """Noise-free data: the residual variance is floored at (this x RMS of the data)^2."""
 ACCEPTED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
@@ -199,6 +197,55 @@ def log_cholesky_start(theta: np.ndarray, scales: np.ndarray) -> np.ndarray:
     return np.array(x)
 
 
+def _prior_pseudo_inertia_inverses(prior: np.ndarray, scales: np.ndarray) -> list[np.ndarray]:
+    """The inverses of the prior links' scaled pseudo-inertias ``Jp^-1`` (the entropic term's reference).
+
+    Raises:
+        IdentificationError: the prior is not a rigid body (status ``invalid_prior``).
+    """
+    try:
+        jp_inv = [np.linalg.inv(j) for j in scaled_pseudo_inertia(prior, scales)]
+        log_cholesky_start(prior, scales)
+    except (np.linalg.LinAlgError, IdentificationError):
+        raise IdentificationError(
+            "the prior of the consistent solver is not a rigid body; give physically valid prior parameters",
+            status="invalid_prior",
+        ) from None
+    return jp_inv
+
+
+def _solver_options(ipopt_options: dict | None, compiled: bool) -> dict:
+    """CasADi's options of an IPOPT problem: quiet, the tolerances, ``ipopt_options`` over them; ``compiled``:
+    the problem's functions printed as C and compiled (CasADi's ``jit``).
+
+    Raises:
+        CodegenError: ``compiled`` without a C compiler.
+    """
+    opts = {
+        "ipopt.print_level": 0,
+        "ipopt.sb": "yes",
+        "print_time": False,
+        "show_eval_warnings": False,  # IPOPT backs off from a trial point with inf; no noise
+        "ipopt.tol": 1e-8,
+        "ipopt.acceptable_tol": 1e-5,
+        "ipopt.max_iter": 500,
+    }
+    opts.update({f"ipopt.{k}": v for k, v in (ipopt_options or {}).items()})
+    if compiled:
+        from ineid.identify.casadi_c import c_compiler
+
+        cc = c_compiler()
+        if cc is None:
+            raise CodegenError(
+                "compiled IPOPT problems need a C compiler (cc, gcc or clang on PATH, or $CC); "
+                "install one or use the default backend"
+            )
+        opts.update(
+            {"jit": True, "compiler": "shell", "jit_options": {"compiler": cc, "flags": ["-O2"], "verbose": False}}
+        )
+    return opts
+
+
 @dataclass
 class NlpSolver:
     """A compiled IPOPT problem for one base structure, method and prior; reused for every fit.
@@ -249,8 +296,8 @@ class NlpSolver:
         """
         import casadi as ca
 
-        if method not in METHODS:
-            raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        if method not in NLP_METHODS:
+            raise ValueError(f"method must be one of {NLP_METHODS}, got {method!r}")
         if not pull > 0 or not entropic >= 0:
             raise ValueError(f"pull must be > 0 and entropic >= 0, got {pull} and {entropic}")
         prior = np.asarray(theta_prior, dtype=np.float64)
@@ -275,38 +322,9 @@ class NlpSolver:
             else:
                 f += pull * ca.sumsqr(null_part)
         if method == "consistent" and entropic > 0:
-            try:
-                jp_inv = [np.linalg.inv(j) for j in scaled_pseudo_inertia(prior[:n_lp], base.scales[:n_lp])]
-                log_cholesky_start(prior[:n_lp], base.scales[:n_lp])
-            except (np.linalg.LinAlgError, IdentificationError):
-                raise IdentificationError(
-                    "the prior of the consistent solver is not a rigid body; give physically valid prior parameters",
-                    status="invalid_prior",
-                ) from None
-            f += entropic * _entropic(x, jp_inv)
+            f += entropic * _entropic(x, _prior_pseudo_inertia_inverses(prior[:n_lp], base.scales[:n_lp]))
         p = ca.vertcat(ca.vec(rp), zp, inv_s2)
-        opts = {
-            "ipopt.print_level": 0,
-            "ipopt.sb": "yes",
-            "print_time": False,
-            "show_eval_warnings": False,  # IPOPT backs off from a trial point with inf; no noise
-            "ipopt.tol": 1e-8,
-            "ipopt.acceptable_tol": 1e-5,
-            "ipopt.max_iter": 500,
-        }
-        opts.update({f"ipopt.{k}": v for k, v in (ipopt_options or {}).items()})
-        if compiled:
-            from ineid.identify.casadi_c import c_compiler
-
-            cc = c_compiler()
-            if cc is None:
-                raise CodegenError(
-                    "compiled IPOPT problems need a C compiler (cc, gcc or clang on PATH, or $CC); "
-                    "install one or use the default backend"
-                )
-            opts.update(
-                {"jit": True, "compiler": "shell", "jit_options": {"compiler": cc, "flags": ["-O2"], "verbose": False}}
-            )
+        opts = _solver_options(ipopt_options, compiled)
         solver = nlpsol(f"ineid_{method}", {"x": x, "p": p, "f": f, "g": g}, opts)  # stops on SIGINT, SIGTERM
         theta_fn = ca.Function("theta", [x], [theta])
         return cls(method, base, prior, pull, entropic, solver, theta_fn)

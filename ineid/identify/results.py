@@ -16,7 +16,8 @@ from ineid.channels import WRENCH_AXES
 from ineid.data.dataset.hdf5_audit import audit_hdf5
 from ineid.errors import DatasetError
 from ineid.identify.identifiability import BaseParameters
-from ineid.identify.solve import SolveResults, SolveSettings
+from ineid.identify.settings import SolveSettings
+from ineid.identify.solve_results import SolveResults
 
 FORMAT = "ineid-results"
 VERSION = 2
@@ -36,8 +37,6 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
     """
     import h5py
 
-    from ineid._version import __version__
-
     path = check_output_file(path, overwrite, "results.h5")
     text = h5py.string_dtype()
     # Built in memory, then written by Python: HDF5 writing straight to a disk that fills up
@@ -45,55 +44,8 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
     # (a segmentation fault); a Python write fails with a plain OSError (ENOSPC) instead.
     with h5py.File(f"{path}.in-memory", "w", driver="core", backing_store=False) as f:
         a = f.attrs
-        a["format"], a["version"] = FORMAT, VERSION
-        a["method"] = res.settings.method
-        a["settings"] = json.dumps(res.settings.to_dict(), sort_keys=True)
-        a["ineid_version"] = __version__
-        a["param_names"] = np.array(res.param_names, dtype=text)
-        a["base_names"] = np.array(res.base.names, dtype=text)
-        a["n_frames_fit"], a["n_frames_validation"] = res.n_frames_fit, res.n_frames_validation
-        for key in ("robot", "source", "urdf"):
-            a[key] = res.meta[key]
-        a["unknown_links"] = np.array(res.meta["unknown_links"], dtype=text)
-        a["gravity"] = np.asarray(res.meta["gravity"], dtype=np.float64)
-        a["locked_joints"] = json.dumps(res.meta.get("locked_joints") or {}, sort_keys=True)
-        a["total_seconds"] = float(res.meta.get("total_seconds", np.nan))
-        a["dataset_path"] = str(res.meta.get("dataset_path") or "")
-        a["dataset_fingerprint"] = str(res.meta.get("dataset_fingerprint") or "")
-        a["sensor"] = json.dumps(res.meta.get("sensor"), sort_keys=True)
-        a["channels"] = json.dumps(res.meta.get("channels"), sort_keys=True)
-        a["axes"] = np.array(res.axes, dtype=text)
-        a["units"] = np.array(res.units, dtype=text)
-        for key in ("recordings", "validation"):  # several recordings fitted jointly, a separate one validating
-            if res.meta.get(key) is not None:
-                a[key] = json.dumps(res.meta[key], sort_keys=True)
-        if res.meta.get("warnings") is not None:  # plausibility findings ({code, message}) of ineid solve
-            a["warnings"] = json.dumps(list(res.meta["warnings"]))
-        arrays = {
-            "config_index": res.config_index,
-            "theta_hat": res.theta_hat,
-            "theta_std": res.theta_std,
-            "base_hat": res.base_hat,
-            "base_std": res.base_std,
-            "base_matrix": res.base.B,
-            "base_index": res.base.base_index,
-            "null_basis": res.base.null_basis,
-            "param_scales": res.base.scales,
-            "theta_prior": res.theta_prior,
-            "success": res.success.astype(np.uint8),
-            "seconds": res.seconds,
-            "fit_rms": res.fit_rms,
-            "validation_rms": res.validation_rms,
-            "validation_rel": res.validation_rel,
-        }
-        if res.bias_hat is not None:
-            arrays["bias_hat"], arrays["bias_std"] = res.bias_hat, res.bias_std
-        if res.theta_true is not None:
-            arrays["theta_true"] = res.theta_true
-            arrays["base_true"] = res.base_true
-            arrays["theta_error"] = relative_error(res.theta_hat, res.theta_true)
-            arrays["base_error"] = relative_error(res.base_hat, res.base_true)
-        for name, arr in arrays.items():
+        _write_attributes(a, res, text)
+        for name, arr in _arrays(res).items():
             # uncompressed: estimates are noise-like floats (gzip saved ~20% of the size
             # and cost more time than the rest of the write)
             f.create_dataset(name, data=np.asarray(arr))
@@ -108,6 +60,66 @@ def save_results(res: SolveResults, path: str | Path, overwrite: bool = False) -
     require_disk(path, len(image), "the results file", "solve fewer configurations (--select)")
     atomic_write(path, image)
     return path
+
+
+def _write_attributes(a, res: SolveResults, text) -> None:
+    """The file's attributes (``a``): its format, the settings, the parameters' names, what it records of the
+    dataset and the channels, the joint inputs and the validation, the plausibility findings."""
+    from ineid._version import __version__
+
+    a["format"], a["version"] = FORMAT, VERSION
+    a["method"] = res.settings.method
+    a["settings"] = json.dumps(res.settings.to_dict(), sort_keys=True)
+    a["ineid_version"] = __version__
+    a["param_names"] = np.array(res.param_names, dtype=text)
+    a["base_names"] = np.array(res.base.names, dtype=text)
+    a["n_frames_fit"], a["n_frames_validation"] = res.n_frames_fit, res.n_frames_validation
+    for key in ("robot", "source", "urdf"):
+        a[key] = res.meta[key]
+    a["unknown_links"] = np.array(res.meta["unknown_links"], dtype=text)
+    a["gravity"] = np.asarray(res.meta["gravity"], dtype=np.float64)
+    a["locked_joints"] = json.dumps(res.meta.get("locked_joints") or {}, sort_keys=True)
+    a["total_seconds"] = float(res.meta.get("total_seconds", np.nan))
+    a["dataset_path"] = str(res.meta.get("dataset_path") or "")
+    a["dataset_fingerprint"] = str(res.meta.get("dataset_fingerprint") or "")
+    a["sensor"] = json.dumps(res.meta.get("sensor"), sort_keys=True)
+    a["channels"] = json.dumps(res.meta.get("channels"), sort_keys=True)
+    a["axes"] = np.array(res.axes, dtype=text)
+    a["units"] = np.array(res.units, dtype=text)
+    for key in ("recordings", "validation"):  # several recordings fitted jointly, a separate one validating
+        if res.meta.get(key) is not None:
+            a[key] = json.dumps(res.meta[key], sort_keys=True)
+    if res.meta.get("warnings") is not None:  # plausibility findings ({code, message}) of ineid solve
+        a["warnings"] = json.dumps(list(res.meta["warnings"]))
+
+
+def _arrays(res: SolveResults) -> dict[str, np.ndarray]:
+    """The file's datasets of numbers, by name (the offsets and the truth where ``res`` has them)."""
+    arrays = {
+        "config_index": res.config_index,
+        "theta_hat": res.theta_hat,
+        "theta_std": res.theta_std,
+        "base_hat": res.base_hat,
+        "base_std": res.base_std,
+        "base_matrix": res.base.B,
+        "base_index": res.base.base_index,
+        "null_basis": res.base.null_basis,
+        "param_scales": res.base.scales,
+        "theta_prior": res.theta_prior,
+        "success": res.success.astype(np.uint8),
+        "seconds": res.seconds,
+        "fit_rms": res.fit_rms,
+        "validation_rms": res.validation_rms,
+        "validation_rel": res.validation_rel,
+    }
+    if res.bias_hat is not None:
+        arrays["bias_hat"], arrays["bias_std"] = res.bias_hat, res.bias_std
+    if res.theta_true is not None:
+        arrays["theta_true"] = res.theta_true
+        arrays["base_true"] = res.base_true
+        arrays["theta_error"] = relative_error(res.theta_hat, res.theta_true)
+        arrays["base_error"] = relative_error(res.base_hat, res.base_true)
+    return arrays
 
 
 def load_results(path: str | Path) -> SolveResults:
@@ -233,15 +245,7 @@ class _Reader:
         return value if kind == "O" else np.asarray(value, dtype=np.int64 if kind == "i" else np.float64)
 
     def results(self) -> SolveResults:
-        try:
-            settings = SolveSettings(
-                **{
-                    k: (tuple(v) if k in ("axis_sigma", "known_uncertainty") and v is not None else v)
-                    for k, v in self.json("settings").items()
-                }
-            )
-        except (TypeError, ValueError, AttributeError) as e:
-            raise self.damaged(f"its settings do not parse ({e})") from None
+        settings = self.settings()
         names = self.texts("param_names")
         base_names = self.texts("base_names")
         p, nb = len(names), len(base_names)
@@ -249,50 +253,9 @@ class _Reader:
             raise self.damaged(f"{nb} base parameters for {p} parameters")
         config_index = self.array("config_index", (None,), "i")
         n = len(config_index)
-        base_matrix = self.array("base_matrix", (nb, p))
-        base_index = self.array("base_index", (nb,), "i")
-        if base_index.size and (base_index.min() < 0 or base_index.max() >= p):
-            raise self.damaged("base_index points outside the parameters")
-        null = self.array("null_basis", (p, p - nb))
-        dep = np.array([j for j in range(p) if j not in set(base_index.tolist())], dtype=np.int64)
-        n_links = len(self.texts("unknown_links"))
-        if not 0 <= p - 10 * n_links:
-            raise self.damaged(f"{p} parameters for {n_links} unknown links")
-        base = BaseParameters(
-            param_names=names,
-            base_index=base_index,
-            dependent_index=dep,
-            K=base_matrix[:, dep],
-            B=base_matrix,
-            null_basis=null,
-            identifiable=~np.any(np.abs(null) > 0, axis=1),
-            names=base_names,
-            scales=self.array("param_scales", (p,)),
-            n_extra=p - 10 * n_links,  # the channels' extra parameters after the links' (older files: none)
-        )
+        base = self.base_parameters(names, base_names)
         prior_shape = (n, p) if "theta_prior" in self.f and self.f["theta_prior"].ndim == 2 else (p,)
-        gravity = np.asarray(self.attr("gravity"))
-        if gravity.shape != (3,) or gravity.dtype.kind not in "iuf":
-            raise self.damaged("attribute 'gravity' is not 3 numbers")
-        meta = {
-            "robot": self.text("robot"),
-            "source": self.text("source"),
-            "urdf": self.text("urdf"),
-            "unknown_links": list(self.texts("unknown_links")),
-            "gravity": gravity.astype(np.float64).tolist(),
-            "locked_joints": self.json("locked_joints"),
-            "total_seconds": self.number("total_seconds"),
-            "ineid_version": self.text("ineid_version"),
-            "dataset_path": _attr_text(self.f.attrs.get("dataset_path", "")) or None,
-            "dataset_fingerprint": _attr_text(self.f.attrs.get("dataset_fingerprint", "")) or None,
-            "sensor": self.json("sensor") if "sensor" in self.f.attrs else None,
-            "warnings": _warnings(self.path, self.f.attrs),
-            **{k: self.json(k) for k in ("recordings", "validation") if k in self.f.attrs},
-        }
-        if "axes" in self.f.attrs:  # version 2: the channels fitted and the per-axis columns' names
-            meta.update(channels=self.json("channels"), axes=list(self.texts("axes")), units=list(self.texts("units")))
-            if len(meta["units"]) != len(meta["axes"]):
-                raise self.damaged(f"{len(meta['axes'])} axes but {len(meta['units'])} units")
+        meta = self.meta()
         n_axes = len(meta.get("axes") or WRENCH_AXES)
         status = self.array("status", (n,), "O")
         return SolveResults(
@@ -319,6 +282,69 @@ class _Reader:
             meta=meta,
             payload=self.payload(n),
         )
+
+    def settings(self) -> SolveSettings:
+        """The :class:`SolveSettings` the file was solved with."""
+        try:
+            return SolveSettings(
+                **{
+                    k: (tuple(v) if k in ("axis_sigma", "known_uncertainty") and v is not None else v)
+                    for k, v in self.json("settings").items()
+                }
+            )
+        except (TypeError, ValueError, AttributeError) as e:
+            raise self.damaged(f"its settings do not parse ({e})") from None
+
+    def base_parameters(self, names: tuple[str, ...], base_names: tuple[str, ...]) -> BaseParameters:
+        """The :class:`BaseParameters` of the file's parameters ``names``, base parameters ``base_names``."""
+        p, nb = len(names), len(base_names)
+        base_matrix = self.array("base_matrix", (nb, p))
+        base_index = self.array("base_index", (nb,), "i")
+        if base_index.size and (base_index.min() < 0 or base_index.max() >= p):
+            raise self.damaged("base_index points outside the parameters")
+        null = self.array("null_basis", (p, p - nb))
+        dep = np.array([j for j in range(p) if j not in set(base_index.tolist())], dtype=np.int64)
+        n_links = len(self.texts("unknown_links"))
+        if not 0 <= p - 10 * n_links:
+            raise self.damaged(f"{p} parameters for {n_links} unknown links")
+        return BaseParameters(
+            param_names=names,
+            base_index=base_index,
+            dependent_index=dep,
+            K=base_matrix[:, dep],
+            B=base_matrix,
+            null_basis=null,
+            identifiable=~np.any(np.abs(null) > 0, axis=1),
+            names=base_names,
+            scales=self.array("param_scales", (p,)),
+            n_extra=p - 10 * n_links,  # the channels' extra parameters after the links' (older files: none)
+        )
+
+    def meta(self) -> dict:
+        """What the file records of the dataset, the channels fitted, the joint inputs and the validation."""
+        gravity = np.asarray(self.attr("gravity"))
+        if gravity.shape != (3,) or gravity.dtype.kind not in "iuf":
+            raise self.damaged("attribute 'gravity' is not 3 numbers")
+        meta = {
+            "robot": self.text("robot"),
+            "source": self.text("source"),
+            "urdf": self.text("urdf"),
+            "unknown_links": list(self.texts("unknown_links")),
+            "gravity": gravity.astype(np.float64).tolist(),
+            "locked_joints": self.json("locked_joints"),
+            "total_seconds": self.number("total_seconds"),
+            "ineid_version": self.text("ineid_version"),
+            "dataset_path": _attr_text(self.f.attrs.get("dataset_path", "")) or None,
+            "dataset_fingerprint": _attr_text(self.f.attrs.get("dataset_fingerprint", "")) or None,
+            "sensor": self.json("sensor") if "sensor" in self.f.attrs else None,
+            "warnings": _warnings(self.path, self.f.attrs),
+            **{k: self.json(k) for k in ("recordings", "validation") if k in self.f.attrs},
+        }
+        if "axes" in self.f.attrs:  # version 2: the channels fitted and the per-axis columns' names
+            meta.update(channels=self.json("channels"), axes=list(self.texts("axes")), units=list(self.texts("units")))
+            if len(meta["units"]) != len(meta["axes"]):
+                raise self.damaged(f"{len(meta['axes'])} axes but {len(meta['units'])} units")
+        return meta
 
     def payload(self, n: int) -> dict | None:
         """The ``payload`` section (:mod:`ineid.identify.payload`), or None when the file has none."""

@@ -1,7 +1,10 @@
-"""How to solve: :class:`SolveSettings`, the options of ``ineid solve``, checked when made.
+"""How to solve: :class:`SolveSettings`, the options of ``ineid solve``, and the choices it is checked against.
 
 Every solver step reads its options from here (the method, the weights, IPOPT's start, the backend, the
-offsets, the frames fitted), so the modules of ``identify`` take a typed ``SolveSettings``.
+offsets, the frames fitted, the joint torques' actuation models), so the modules of ``identify`` take a
+typed ``SolveSettings``. This module imports no other module of ``identify``: the choices it checks
+(:data:`WEIGHT_MODES`, :data:`CLASSICAL_METHODS`, :data:`FRICTION_MODELS`, ...) live here, and the
+modules that implement them import them from here.
 """
 
 from __future__ import annotations
@@ -11,16 +14,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ineid.identify.choose import actuation_requested, check_actuation
-from ineid.identify.classical import CLASSICAL_METHODS
-from ineid.identify.linear import WEIGHT_MODES
-from ineid.identify.nlp import DEFAULT_ENTROPIC, DEFAULT_PULL
-
-BUILTIN_METHODS = ("linear", "nonlinear", "consistent", *CLASSICAL_METHODS)
+LINEAR_METHODS = ("linear",)
+"""The base least-squares fit and the null-space rule (:mod:`ineid.identify.linear`)."""
+NLP_METHODS = ("nonlinear", "consistent")
+"""IPOPT's methods (:mod:`ineid.identify.nlp`): the paper's mass / centre of mass / inertia form, log-Cholesky."""
+CLASSICAL_METHODS = ("lsqlin", "lsqnonlin")
+"""The paper's two MATLAB solvers, over every standard parameter of the unknown links
+(:mod:`ineid.identify.classical`)."""
+BUILTIN_METHODS = (*LINEAR_METHODS, *NLP_METHODS, *CLASSICAL_METHODS)
 """The methods identify implements itself; ``lsqlin``, ``lsqnonlin``: the paper's (:mod:`ineid.identify.classical`)."""
 METHODS = (*BUILTIN_METHODS, "network")
 """Every method; ``network`` (a trained run) is implemented by :mod:`ineid.learn.amortized` and passed to
-:func:`solve_dataset` in ``methods`` (:func:`ineid.workflow.solve_dataset` does): identify never imports learn."""
+:func:`ineid.identify.solve.solve_dataset` in ``methods`` (:func:`ineid.workflow.solve_dataset` does): identify
+never imports learn."""
+WEIGHT_MODES = ("estimate", "noise", "none")
+"""Row weights per measured axis: estimated from the residuals (the default), ``1/sigma`` of given noise
+levels, or none (equal noise on every axis assumed)."""
 STARTS = ("prior", "linear")
 """IPOPT's start: the CAD values, or the linear estimate made physical."""
 BACKENDS = ("jax", "casadi", "casadi-c")
@@ -29,8 +38,14 @@ route; linear method only); or the fused blocks through CasADi's C code, compile
 BIAS_MODES = ("none", "estimate")
 """The sensors' constant offsets (six for the base wrench): absent (a tared sensor), or identified with the
 parameters (every channel's, :meth:`ineid.channels.ChannelSet.with_offsets`)."""
+FRICTION_MODELS = ("viscous", "coulomb")
+"""The friction terms of a joint-torque channel, in the order its extra columns take them."""
 HOLDOUT_FRACTION = 0.2
 """Without ``frames``, this share of each configuration's frames is held out for validation."""
+DEFAULT_PULL = 1e-2
+"""The quadratic pull of IPOPT's null-space part towards the prior (:class:`ineid.identify.nlp.NlpSolver`)."""
+DEFAULT_ENTROPIC = 1e-3
+"""The weight of ``consistent``'s log-det divergence from the prior (:class:`ineid.identify.nlp.NlpSolver`)."""
 
 
 @dataclass(frozen=True)
@@ -44,7 +59,7 @@ class SolveSettings:
         frames: frames fitted per configuration (the first ``frames``); the rest are held
             out for validation. ``None``: all but the last 20 % (all, when too few).
         weights: ``"estimate"`` (the default: the noise of each measured axis estimated from the
-            residuals, :mod:`ineid.identify.weighting`), ``"noise"`` (``1/sigma`` per measured axis
+            residuals, :mod:`ineid.identify.least_squares`), ``"noise"`` (``1/sigma`` per measured axis
             from ``axis_sigma``, or from the dataset's recorded noise) or ``"none"`` (equal noise on
             every axis assumed: the standard deviations are wrong where it differs).
         axis_sigma: (A,) noise standard deviations per measured axis (the base wrench: fx..mz)
@@ -60,7 +75,7 @@ class SolveSettings:
             as C and compiled, see :mod:`ineid.identify.casadi_c`, and for ``nonlinear`` /
             ``consistent`` the IPOPT problem compiled too; needs a C compiler).
         workers: processes for the IPOPT solvers (default 1); used from
-            :data:`ineid.identify.steps.PARALLEL_MIN_CONFIGS` configurations on. More than one uses spawned
+            :data:`ineid.identify.nlp_runs.PARALLEL_MIN_CONFIGS` configurations on. More than one uses spawned
             processes (multiprocessing): call from under ``if __name__ == "__main__":``.
         bias: ``"none"`` (the wrench holds no offset) or ``"estimate"``: constant offsets,
             one per sensor axis (six for the base wrench), identified jointly with the parameters (every method;
@@ -110,17 +125,41 @@ class SolveSettings:
     bounds: float | None = None
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        if self.weights not in WEIGHT_MODES:
-            raise ValueError(f"weights must be one of {', '.join(WEIGHT_MODES)}, got {self.weights!r}")
-        if self.start not in STARTS:
-            raise ValueError(f"start must be one of {', '.join(STARTS)}, got {self.start!r}")
-        if self.backend not in BACKENDS:
-            raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
-        if self.bias not in BIAS_MODES:
-            raise ValueError(f"bias must be one of {', '.join(BIAS_MODES)}, got {self.bias!r}")
-        if self.backend == "casadi-c" and self.bias == "estimate":
+        self._check_choices()
+        self._check_options()
+        pairs = tuple((str(link), float(f)) for link, f in self.known_uncertainty)
+        object.__setattr__(self, "known_uncertainty", pairs)  # lists from a results file: hashable pairs
+        for link, f in pairs:
+            if not (np.isfinite(f) and f >= 0):
+                raise ValueError(f"known_uncertainty of {link!r} must be a fraction >= 0, got {f}")
+        if pairs and self.method == "network":
+            raise ValueError("method='network' does not propagate the known links' uncertainty")
+        if self.use is not None:  # lists from a results file: hashable tuples
+            object.__setattr__(self, "use", tuple(str(u) for u in self.use))
+        object.__setattr__(self, "friction", tuple(str(f) for f in self.friction))
+        self._check_actuation()
+        if self.method == "network" and (self.actuation_requested or self.two_step):
+            raise ValueError(
+                "method='network' predicts the links from the channels it was trained on; "
+                "leave the friction, armature, torque-offset and two-step options out"
+            )
+
+    def _check_choices(self) -> None:
+        """Refuse a name that is not among its choices (``ValueError`` naming them)."""
+        for name, choices in (
+            ("method", METHODS),
+            ("weights", WEIGHT_MODES),
+            ("start", STARTS),
+            ("backend", BACKENDS),
+            ("bias", BIAS_MODES),
+        ):
+            value = getattr(self, name)
+            if value not in choices:
+                raise ValueError(f"{name} must be one of {', '.join(choices)}, got {value!r}")
+
+    def _check_options(self) -> None:
+        """Refuse options that do not go together (``ValueError``, one line each)."""
+        if self.backend == "casadi-c" and self.estimates_offsets:
             raise ValueError("backend='casadi-c' does not estimate sensor offsets; use backend 'jax' or 'casadi'")
         if self.backend == "casadi" and self.method not in BUILTIN_METHODS:  # casadi-c serves every method
             raise ValueError("backend='casadi' applies to identify's own methods, not a trained network")
@@ -132,22 +171,47 @@ class SolveSettings:
             raise ValueError("method='network' estimates no sensor offsets; use bias='none'")
         if (self.method == "network") != (self.run is not None):
             raise ValueError("method='network' needs run (a trained run folder), and run goes with method='network'")
-        pairs = tuple((str(link), float(f)) for link, f in self.known_uncertainty)
-        object.__setattr__(self, "known_uncertainty", pairs)  # lists from a results file: hashable pairs
-        for link, f in pairs:
-            if not (np.isfinite(f) and f >= 0):
-                raise ValueError(f"known_uncertainty of {link!r} must be a fraction >= 0, got {f}")
-        if pairs and self.method == "network":
-            raise ValueError("method='network' does not propagate the known links' uncertainty")
-        if self.use is not None:  # lists from a results file: hashable tuples
-            object.__setattr__(self, "use", tuple(str(u) for u in self.use))
-        object.__setattr__(self, "friction", tuple(str(f) for f in self.friction))
-        check_actuation(self)
-        if self.method == "network" and (actuation_requested(self) or self.two_step):
+
+    def _check_actuation(self) -> None:
+        """Refuse inconsistent actuation settings (``ValueError``, one line each)."""
+        bad = [f for f in self.friction if f not in FRICTION_MODELS]
+        if bad or len(set(self.friction)) != len(self.friction):
             raise ValueError(
-                "method='network' predicts the links from the channels it was trained on; "
-                "leave the friction, armature, torque-offset and two-step options out"
+                f"friction must be none or any of {', '.join(FRICTION_MODELS)} (each once), "
+                f"got {','.join(self.friction)}"
             )
+        if not self.coulomb_zone >= 0:
+            raise ValueError(f"coulomb_zone must be >= 0 rad/s, got {self.coulomb_zone}")
+        if self.coulomb_zone and "coulomb" not in self.friction:
+            raise ValueError("coulomb_zone smooths Coulomb friction: add friction 'coulomb' (--friction coulomb)")
+        if self.torque_constant_unknown and not self.two_step:
+            raise ValueError(
+                "torque constants are identified in the second of two steps (the links from the wrench "
+                "first): add --two-step"
+            )
+        if self.asymmetric_friction and not self.friction:
+            raise ValueError(
+                "asymmetric_friction splits the friction coefficients per direction: "
+                "add a friction model (--friction viscous,coulomb)"
+            )
+
+    @property
+    def estimates_offsets(self) -> bool:
+        """Whether the sensors' constant offsets are identified (``bias == "estimate"``)."""
+        return self.bias == "estimate"
+
+    @property
+    def actuation_requested(self) -> bool:
+        """Whether any actuation model of the joint torques is asked for (friction, armature, torque offsets,
+        torque constants)."""
+        return bool(
+            self.friction
+            or self.armature
+            or self.torque_offset
+            or self.asymmetric_friction
+            or self.coulomb_zone
+            or self.torque_constant_unknown
+        )
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)

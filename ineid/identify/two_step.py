@@ -38,88 +38,32 @@ References:
 
 from __future__ import annotations
 
-import dataclasses
 import time
 
 import numpy as np
 
 from ineid.channels import ChannelSet
-from ineid.errors import IdentificationError
-from ineid.identify.choose import actuation_requested, is_actuated, select_channels, solve_channels
+from ineid.identify.choose import solve_channels, torque_noise_levels, two_step_channels
 from ineid.identify.fused import residual_sums
 from ineid.identify.identifiability import (
     BaseParameters,
-    _offset_mask,
-    _regressor_unknown,
     base_parameters_from_regressor,
     centred_regressor,
     generic_frames,
+    offset_mask,
+    regressor_unknown,
     unknown_scales,
 )
-from ineid.identify.linear import fit_base, linear_estimate
+from ineid.identify.least_squares import concat_fits, subtract_offset_dof
+from ineid.identify.linear import Estimate, fit_base, linear_estimate
 from ineid.identify.nlp import NlpSolver, nlp_estimate
-from ineid.identify.steps import _bias_estimate, _concat_fits, _offset_dof
+from ineid.identify.settings import SolveSettings
+from ineid.identify.solve_results import SolveResults, dataset_results
+from ineid.identify.steps import bias_estimate
 from ineid.identify.systems import Offsets, predict_wrench, remove_offsets
 
 CHUNK_ROWS = 20_000_000
 """Numbers of ``E`` (rows x columns) stacked at a time in step 2 (160 MB)."""
-
-
-def _split_channels(channels: ChannelSet) -> tuple[ChannelSet, ChannelSet]:
-    """``(wrench channels, joint-torque channels)``, or :class:`IdentificationError` when either is missing."""
-    wrench = tuple(c for c in channels if not is_actuated(c))
-    torque = tuple(c for c in channels if is_actuated(c))
-    if not wrench or not torque:
-        raise IdentificationError(
-            f"--two-step fits the links from the wrench, then the joint torques' friction; the channels fitted "
-            f"({', '.join(channels.keys)}) lack {'a wrench' if not wrench else 'joint torques'}: use both "
-            "(--use wrench,torque on a dataset with both) or leave --two-step out",
-            status="two_step_channels",
-        )
-    return ChannelSet(wrench), ChannelSet(torque)
-
-
-def _axis_slice(settings, channels: ChannelSet, part: ChannelSet, model) -> tuple[float, ...] | None:
-    """``settings.axis_sigma`` (over ``channels``' stacked axes) at ``part``'s axes."""
-    if settings.axis_sigma is None:
-        return None
-    sigma = np.asarray(settings.axis_sigma, dtype=np.float64)
-    if sigma.shape != (channels.n_axes(model),):
-        raise IdentificationError(
-            f"axis_sigma holds {sigma.size} numbers; the channels measure "
-            f"{channels.n_axes(model)} axes: give one per axis",
-            status="bad_noise_levels",
-        )
-    parts = channels.split(sigma, model)
-    return tuple(float(v) for c in part for v in parts[c.key])
-
-
-def wrench_settings(ds, settings, model):
-    """Step 1's settings: ``settings`` on the wrench channels alone, without actuation models.
-
-    Raises:
-        IdentificationError: no wrench or no joint-torque channel among those chosen, or no actuation model.
-    """
-    channels = select_channels(ds.meta.channels, settings.use)
-    wrench, _ = _split_channels(channels)
-    if not actuation_requested(settings):
-        raise IdentificationError(
-            "--two-step fits the joint torques' friction, armature or offsets after the links: "
-            "give at least one (--friction viscous,coulomb, --armature, --torque-offset)",
-            status="two_step_nothing",
-        )
-    return dataclasses.replace(
-        settings,
-        use=wrench.keys,
-        two_step=False,
-        friction=(),
-        coulomb_zone=0.0,
-        asymmetric_friction=False,
-        armature=False,
-        torque_offset=False,
-        torque_constant_unknown=False,
-        axis_sigma=_axis_slice(settings, channels, wrench, model),
-    )
 
 
 def stacked_bases(a: BaseParameters, b: BaseParameters) -> BaseParameters:
@@ -172,7 +116,7 @@ def extra_base_parameters(model, torque: ChannelSet, bias: bool) -> BaseParamete
     frames, with the scales of :mod:`ineid.identify.extras`; centred per axis with ``bias``. The columns of the
     identified torque constants (module doc) come last, with scale 1 (``d`` is relative)."""
     q, qd, qdd = generic_frames(model)
-    w = _regressor_unknown(model, q, qd, qdd, torque)
+    w = regressor_unknown(model, q, qd, qdd, torque)
     scales = unknown_scales(model, w, torque)
     n_e, n_axes = torque.n_extra(model), torque.n_axes(model)
     e, names, scales = w[:, w.shape[1] - n_e :], torque.extra_names(model), scales[len(scales) - n_e :]
@@ -184,7 +128,7 @@ def extra_base_parameters(model, torque: ChannelSet, bias: bool) -> BaseParamete
         names = (*names, *(n for b, _ in blocks for n in b.channel.k_names(model)))
         scales = np.concatenate([scales, np.ones(k.shape[1])])
     if bias:
-        e = centred_regressor(e, n_axes, _offset_mask(torque, model, True))
+        e = centred_regressor(e, n_axes, offset_mask(torque, model, True))
     return base_parameters_from_regressor(e, names, scales, n_extra=len(names))
 
 
@@ -198,32 +142,90 @@ def _stack_order(channels: ChannelSet, wrench: ChannelSet, torque: ChannelSet, m
     return np.concatenate([where[k] for k in channels.keys])
 
 
-def second_step(first, ds, settings, model) -> dict:
-    """Step 2 on the results ``first`` of step 1: the keyword arguments of
-    :func:`ineid.identify.solve.dataset_results` for the combined estimate (module doc)."""
+def second_step(first: SolveResults, ds, settings: SolveSettings, model, t_start: float) -> SolveResults:
+    """Step 2 on the results ``first`` of step 1: the results of both steps together (module doc), their
+    ``total_seconds`` since ``t_start`` (``time.perf_counter()`` before step 1)."""
     t0 = time.perf_counter()
     channels = solve_channels(ds, settings, model)
-    wrench, torque = _split_channels(channels)
-    with_bias = settings.bias == "estimate"
-    n_fit, n_val = first.n_frames_fit, first.n_frames_validation
-    n_axes, n_e = torque.n_axes(model), torque.n_extra(model)
+    wrench, torque = two_step_channels(channels)
+    axis_sigma = torque_noise_levels(ds, settings, channels, torque, model)
+    with_bias = settings.estimates_offsets
+    n_e = torque.n_extra(model)
     base_x = extra_base_parameters(model, torque, with_bias)
     k_blocks = _k_channels(torque, model)
-    n_x = base_x.n_params  # n_e, then the torque constants' corrections d
     theta = model.full_theta(np.nan_to_num(first.theta_hat), ds.theta_known)
+    fit, offsets, rms = _torque_fit(
+        ds, model, torque, k_blocks, theta, base_x, settings.weights, axis_sigma, with_bias, first.n_frames_fit
+    )
+    prior_x = np.zeros(base_x.n_params)  # n_e, then the torque constants' corrections d
+    est = linear_estimate(fit, base_x, prior_x)
+    if settings.method == "consistent":  # friction and armature >= 0
+        solver = NlpSolver.build("consistent", base_x, prior_x, settings.pull, settings.entropic)
+        est = nlp_estimate(fit, solver, rms, np.where(np.isfinite(est.theta), est.theta, 0.0))
+    gain = np.ones((ds.n_configs, torque.n_axes(model)))  # 1 + d on the axes of identified torque constants
+    if k_blocks:
+        gain[:, np.concatenate([np.arange(b.start, b.stop) for b, _ in k_blocks])] += np.nan_to_num(est.theta[:, n_e:])
+    bias_hat = bias_std = None
+    if with_bias:
+        b_t, s_t = bias_estimate(offsets, est, base_x)
+        parts = {**wrench.split(first.bias_hat, model), **torque.split(b_t / gain, model)}
+        stds = {**wrench.split(first.bias_std, model), **torque.split(s_t / np.abs(gain), model)}
+        bias_hat = np.concatenate([parts[k] for k in channels.keys], axis=1)
+        bias_std = np.concatenate([stds[k] for k in channels.keys], axis=1)
+    gain_all = np.concatenate([np.ones((ds.n_configs, wrench.n_axes(model))), gain], axis=1)
+    gain_all = gain_all[:, _stack_order(channels, wrench, torque, model)]  # over every channel's axes
+    n_fit = first.n_frames_fit
+    values = ds.measured(channels)[:, : n_fit + first.n_frames_validation]
+    sums = _combined_sums(ds, model, channels, values, gain_all, theta, est.theta[:, :n_e], bias_hat, n_fit)
+    if k_blocks:  # (i (1 + d) - prediction)^2 / (1 + d)^2 per axis; the held-out values unscaled
+        sums = (sums[0] / gain_all**2, sums[1] / gain_all**2, (values[:, n_fit:] ** 2).sum(axis=(1, 2)))
+    theta_x, std_x, prior_x = _with_torque_constants(est, prior_x, k_blocks, n_e)
+    status = np.where(first.success, np.asarray(est.status, dtype=object), first.status).astype(object)
+    return dataset_results(
+        ds,
+        settings,
+        stacked_bases(first.base, base_x),
+        np.concatenate([first.theta_prior, prior_x]),
+        sums,
+        first.n_frames_fit,
+        first.n_frames_validation,
+        t_start,
+        channels=channels,
+        model=model,
+        theta_hat=np.concatenate([first.theta_hat, theta_x], axis=1),
+        theta_std=np.concatenate([first.theta_std, std_x], axis=1),
+        base_hat=np.concatenate([first.base_hat, est.beta], axis=1),
+        base_std=np.concatenate([first.base_std, est.beta_std], axis=1),
+        success=first.success & est.success,
+        status=status,
+        seconds=first.seconds + (time.perf_counter() - t0) / max(ds.n_configs, 1),
+        bias_hat=bias_hat,
+        bias_std=bias_std,
+        payload=first.payload,
+    )
+
+
+def _torque_fit(
+    ds,
+    model,
+    torque: ChannelSet,
+    k_blocks: list,
+    theta: np.ndarray,
+    base_x: BaseParameters,
+    weights: str,
+    axis_sigma,
+    with_bias: bool,
+    n_fit: int,
+):
+    """``(fit, offsets, rms)``: the base fit of ``E x`` (and the torque constants' columns, :func:`k_columns`) to
+    the joint torques' residual at ``theta`` (C, 10 n) over the first ``n_fit`` frames, a chunk of
+    configurations at a time; the offsets taken out ``with_bias`` (else None) and the RMS of the weighted data."""
+    n_axes, n_e = torque.n_axes(model), torque.n_extra(model)
     mask = torque.offset_mask(model)
     lost = mask.astype(np.float64) if with_bias else None
-    axis_sigma = None
-    if settings.weights == "noise":
-        axis_sigma = _axis_slice(settings, channels, torque, model) or torque.noise_std(ds.meta.noise, model)
-        if axis_sigma is None:
-            raise IdentificationError(
-                "weights='noise' needs the joint torques' noise per axis: give axis_sigma or use weights='estimate'",
-                status="no_noise_levels",
-            )
     c = ds.n_configs
     fits, parts, rms = [], [], np.empty(c)
-    per = max(1, CHUNK_ROWS // max(n_fit * n_axes * max(n_x, 1), 1))
+    per = max(1, CHUNK_ROWS // max(n_fit * n_axes * max(base_x.n_params, 1), 1))
     for start in range(0, c, per):  # the stacks of E of a chunk of configurations at a time
         sl = slice(start, min(start + per, c))
         q, qd, qdd = (a[sl, :n_fit] for a in (ds.q, ds.qd, ds.qdd))
@@ -236,71 +238,41 @@ def second_step(first, ds, settings, model) -> dict:
         if with_bias:
             w, y, off = remove_offsets(w, y, n_axes, mask)
             parts.append(off)
-        fits.append(fit_base(w, y, base_x, settings.weights, axis_sigma, n_axes, lost))
+        fits.append(fit_base(w, y, base_x, weights, axis_sigma, n_axes, lost))
         rms[sl] = np.sqrt(np.mean((y * np.tile(fits[-1].axis_weights, (1, n_fit))) ** 2, axis=1))
-    fit = _concat_fits(fits)
-    offsets = Offsets.concat(parts) if with_bias else None
+    fit = concat_fits(fits)
     if with_bias:
-        _offset_dof(fit, int(mask.sum()))
-    prior_x = np.zeros(n_x)
-    est = linear_estimate(fit, base_x, prior_x)
-    if settings.method == "consistent":  # friction and armature >= 0
-        solver = NlpSolver.build("consistent", base_x, prior_x, settings.pull, settings.entropic)
-        est = nlp_estimate(fit, solver, rms, np.where(np.isfinite(est.theta), est.theta, 0.0))
-    x = np.nan_to_num(est.theta[:, :n_e])
-    gain = np.ones((c, n_axes))  # 1 + d on the axes of identified torque constants
-    if k_blocks:
-        gain[:, np.concatenate([np.arange(b.start, b.stop) for b, _ in k_blocks])] += np.nan_to_num(est.theta[:, n_e:])
-    gain_all = np.concatenate([np.ones((c, wrench.n_axes(model))), gain], axis=1)
-    bias_hat = bias_std = None
-    if with_bias:
-        b_t, s_t = _bias_estimate(offsets, est, base_x)
-        parts = {**wrench.split(first.bias_hat, model), **torque.split(b_t / gain, model)}
-        stds = {**wrench.split(first.bias_std, model), **torque.split(s_t / np.abs(gain), model)}
-        bias_hat = np.concatenate([parts[k] for k in channels.keys], axis=1)
-        bias_std = np.concatenate([stds[k] for k in channels.keys], axis=1)
-    frames = slice(0, n_fit + n_val)
-    values = ds.measured(channels)[:, frames]
-    order = _stack_order(channels, wrench, torque, model)
-    gain_all = gain_all[:, order]
-    sums = residual_sums(
+        subtract_offset_dof(fit, int(mask.sum()))
+    return fit, Offsets.concat(parts) if with_bias else None, rms
+
+
+def _combined_sums(ds, model, channels: ChannelSet, values, gain, theta, x, bias_hat, n_fit: int):
+    """:func:`ineid.identify.fused.residual_sums` of the combined estimate over every channel's axes on the frames
+    of ``values`` (C, F, A; the first ``n_fit`` fitted): the links' ``theta`` and the extra parameters ``x``
+    (C, n_e), with the offsets ``bias_hat`` (C, A) or None, the values (and the offsets) multiplied by ``gain``
+    (C, A): ``1 + d`` on the axes of identified torque constants, 1 elsewhere."""
+    frames = slice(0, values.shape[1])
+    return residual_sums(
         model,
         ds.q[:, frames],
         ds.qd[:, frames],
         ds.qdd[:, frames],
-        values * gain_all[:, None],
+        values * gain[:, None],
         theta,
         n_fit,
-        None if bias_hat is None else np.nan_to_num(bias_hat) * gain_all,
+        None if bias_hat is None else np.nan_to_num(bias_hat) * gain,
         channels,
-        x,
+        np.nan_to_num(x),
     )
-    if k_blocks:  # (i (1 + d) - prediction)^2 / (1 + d)^2 per axis; the held-out values unscaled
-        sums = (sums[0] / gain_all**2, sums[1] / gain_all**2, (values[:, n_fit:] ** 2).sum(axis=(1, 2)))
-    theta_x, std_x = est.theta.copy(), est.theta_std.copy()
+
+
+def _with_torque_constants(est: Estimate, prior_x: np.ndarray, k_blocks: list, n_e: int):
+    """``(theta_x, std_x, prior_x)`` of step 2's estimate as reported: the torque constants' corrections ``d``
+    as ``k = k0 (1 + d)``, std ``|k0| std(d)``, prior ``k0`` (module doc); the rest as estimated."""
+    theta_x, std_x, prior_x = est.theta.copy(), est.theta_std.copy(), prior_x.copy()
     if k_blocks:  # d -> k = k0 (1 + d)
         k0 = np.concatenate([k for _, k in k_blocks])
         theta_x[:, n_e:] = k0 * (1.0 + est.theta[:, n_e:])
         std_x[:, n_e:] = np.abs(k0) * est.theta_std[:, n_e:]
         prior_x[n_e:] = k0
-    ok = first.success & est.success
-    status = np.where(first.success, np.asarray(est.status, dtype=object), first.status).astype(object)
-    return dict(
-        base=stacked_bases(first.base, base_x),
-        theta_prior=np.concatenate([first.theta_prior, prior_x]),
-        sums=sums,
-        n_fit=n_fit,
-        n_val=n_val,
-        channels=channels,
-        model=model,
-        theta_hat=np.concatenate([first.theta_hat, theta_x], axis=1),
-        theta_std=np.concatenate([first.theta_std, std_x], axis=1),
-        base_hat=np.concatenate([first.base_hat, est.beta], axis=1),
-        base_std=np.concatenate([first.base_std, est.beta_std], axis=1),
-        success=ok,
-        status=status,
-        seconds=first.seconds + (time.perf_counter() - t0) / max(c, 1),
-        bias_hat=bias_hat,
-        bias_std=bias_std,
-        payload=first.payload,
-    )
+    return theta_x, std_x, prior_x
