@@ -1,4 +1,4 @@
-"""Where the formulations study's time goes (issue 21): MuJoCo's simulation, then each formulation's solves.
+"""Where the formulations study's time goes: MuJoCo's simulation, then each formulation's solves.
 
 ``ineid study formulations`` (``ineid.studies.formulations``) simulates every configuration
 in MuJoCo (RK4 at 1 ms, the computed-torque law and the Stribeck term in a Python control callback

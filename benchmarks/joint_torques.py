@@ -1,4 +1,4 @@
-"""The backward pass's cost (issue 21): joint-torque regressor and torques beside Pinocchio's.
+"""The backward pass's cost: joint-torque regressor and torques beside Pinocchio's.
 
 For ``sweaty-arm`` (4 joints) and example-robot-data's Panda (7 joints, fingers locked), N
 random frames (q uniform within the joint limits, qd and qdd within +-bounds, float64,

@@ -10,7 +10,7 @@ Run::
 ``OUT_DIR/<name>_<loss>`` and appends one JSON line with its test errors, the null-space
 floor and the linear least squares to ``OUT_DIR/results.jsonl``.
 
-**The wls rows** (issue 13) train ``--arch wls`` (K = 10 frames per sample, Adam) on three
+**The wls rows** train ``--arch wls`` (K = 10 frames per sample, Adam) on three
 datasets of ``sweaty-arm`` and compare it, on the same held-out configurations and frames,
 with the classical estimators: least squares (unweighted, as ``ineid evaluate`` reports
 it), least squares weighted by per-axis noise estimated from its residuals, and the
@@ -19,9 +19,9 @@ the floor. Datasets:
 
 * ``paper``: the paper's clean data (10,000 configurations x 100 frames; 3,000 training,
   500 validation, 500 test configurations, as the networks above);
-* ``noisy``: issue 3's level-1 noise (force 0.5 N, moment 0.05 N*m, qd 0.01 rad/s,
-  qdd 0.1 rad/s^2), 10 frames per configuration, 12,000 random configurations (the
-  issue's sanity check), 70 / 10 / 20 % split, up to 100 epochs with patience 20;
+* ``noisy``: the noise study's level-1 noise (force 0.5 N, moment 0.05 N*m, qd 0.01 rad/s,
+  qdd 0.1 rad/s^2), 10 frames per configuration, 12,000 random configurations (a
+  sanity check of the wls layer), 70 / 10 / 20 % split, up to 100 epochs with patience 20;
 * ``glitch``: the same with 2 % of frames given 20x force noise.
 
 ``--quick`` uses 4,000 noisy configurations, 30 epochs and 3 on the paper's data: a

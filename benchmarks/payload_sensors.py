@@ -1,4 +1,4 @@
-"""A payload identified from each sensor a lab may have (issue 21 point 5).
+"""A payload identified from each sensor a lab may have.
 
 The built-in arm carries its hand as a payload (``--unknown-links hand``: the hand's 10
 parameters in its own frame, the arm's links known from CAD). The same motions (random

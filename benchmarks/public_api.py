@@ -14,7 +14,7 @@
 Every public call's first frames are checked against the generated CasADi function (1e-10
 relative). Each public row is one call (the compilation of the chunk kernels is excluded:
 warmed on a small call first; with the persistent cache it is loaded from disk anyway);
-the time is the best of ``--repeats``. The floor of issue 10: ``model.regressor`` at least
+the time is the best of ``--repeats``. The floor: ``model.regressor`` at least
 5x Pinocchio's frames/s, aim 10x.
 """
 

@@ -35,14 +35,14 @@ from ineid.identify.choose import noise_levels, solve_channels, wrench_settings
 from ineid.identify.classical import lsqlin_method, lsqnonlin_method
 from ineid.identify.identifiability import base_parameters, frame_minimum
 from ineid.identify.linear import MethodEstimate, SharedFit, linear_method
-from ineid.identify.nlp_runs import (  # noqa: F401  (PARALLEL_MIN_CONFIGS, physical_start, ... were here: still importable)
+from ineid.identify.nlp_runs import (  # noqa: F401  (re-exported from here until ineid 0.3)
     BIAS_MAX_ITER,
     PARALLEL_MIN_CONFIGS,
     nlp_method,
     physical_start,
 )
 from ineid.identify.payload import payload_section
-from ineid.identify.settings import (  # the settings: BACKENDS, ... are still importable from here (__all__)
+from ineid.identify.settings import (  # re-exported from here until ineid 0.3 (__all__)
     BACKENDS,
     BIAS_MODES,
     BUILTIN_METHODS,
@@ -51,14 +51,14 @@ from ineid.identify.settings import (  # the settings: BACKENDS, ... are still i
     STARTS,
     SolveSettings,
 )
-from ineid.identify.solve_results import (  # SolveResults, ... were defined here: still importable
+from ineid.identify.solve_results import (  # re-exported from here until ineid 0.3
     SolveResults,
     dataset_results,
     residual_summary,
     results_meta,
     truth_with_extras,
 )
-from ineid.identify.steps import (  # noqa: F401  (REFERENCE_ROWS, predicted_wrench, ... were here: still importable)
+from ineid.identify.steps import (  # noqa: F401  (re-exported from here until ineid 0.3)
     REFERENCE_ROWS,
     bias_estimate,
     estimate_residual_sums,
