@@ -132,7 +132,11 @@ def lambdify_steps(model, data):
     from ineid.symbolic.newton_euler import derive_base_wrench_regressor
 
     sym = derive_base_wrench_regressor(model.chain)
-    flat = [e for row in sym.Y for e in row]
+    # the derivation is a program of named lines: substitute them, so lambdify sees whole expressions
+    inlined: dict = {}
+    for lhs, rhs in sym.lines:
+        inlined[lhs] = rhs.xreplace(inlined)
+    flat = [sp.sympify(e).xreplace(inlined) for row in sym.Y for e in row]
     fn = sp.lambdify((sym.q, sym.qd, sym.qdd, sym.gravity), flat, modules="numpy", cse=True)
     g, (q, qd, qdd) = tuple(model.gravity), data
 
