@@ -187,10 +187,10 @@ def run_on_device(fn: Callable, per_frame: Sequence, consts: tuple) -> tuple:
         if start == 0 and count == n == size:
             args = list(per_frame)
         else:
-            first = jax.device_put(jnp.asarray(start, dtype=jnp.int32), per_frame[0].devices().pop())
+            first = jax.device_put(np.int32(start), per_frame[0].devices().pop())
             args = [_window(count, size)(x, first) for x in per_frame]
         out = kernel(*args, *consts)
-        parts.append([y if count == size else y[:count] for y in out])
+        parts.append([y if count == size else jax.lax.slice_in_dim(y, 0, count) for y in out])
     if len(parts) == 1:
         return tuple(parts[0])
     return tuple(jnp.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
