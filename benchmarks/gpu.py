@@ -10,7 +10,8 @@ CPU; one row set when they are the same):
 * ``raw``: the generated JAX function, ``jax.jit`` on the whole batch, the same device-resident arrays;
 * ``NumPy``: the public call with NumPy arrays in and out (the host path, chunks streamed from one
   thread per core), once per table;
-* ``Pinocchio`` (regressor only): frame by frame from Python, on a slice of the frames.
+* ``Pinocchio`` (regressor, sweaty-arm): frame by frame from Python, on a slice of the frames
+  (``benchmarks/compile.py`` has Pinocchio's per-frame times of 7-joint chains).
 
 Every row's first frames are checked against ``model.regressor`` on NumPy (1e-10 relative); compile
 time is excluded (each shape warmed first); the time is the best of ``--repeats``. The floors on a
@@ -84,7 +85,7 @@ def robots(quick: bool) -> list[tuple[str, object]]:
     if not quick:
         import importlib.metadata as md
 
-        erd = Path(str(md.distribution("example-robot-data").locate_file(""))) / "share/example-robot-data/robots"
+        erd = md.distribution("example-robot-data").locate_file("cmeel.prefix/share/example-robot-data/robots")
         out.append(("panda", ineid.load_robot(erd / "panda_description/urdf/panda.urdf", locked_joints=PANDA_LOCKED)))
     return out
 
@@ -134,6 +135,8 @@ def host_rows(name: str, model, n: int, peer_n: int, repeats: int) -> list[tuple
     for what, fn in (("base_wrench", model.base_wrench), ("regressor", model.regressor)):
         fn(*(x[:5000] for x in states))
         rows.append((name, what, "NumPy in/out", "host", n, best(lambda fn=fn: fn(*states), repeats)))
+    if model.n_dof != len(model.joint_names) or name != "sweaty-arm":
+        return rows  # the Panda's locked fingers are not Pinocchio's model; benchmarks/compile.py has 7-joint peers
     m = min(peer_n, n)
     step = pinocchio_steps(model, states, "free-flyer")(m)
     check(f"{name} Pinocchio", step(0, 50).copy(), model.regressor(*(x[:50] for x in states)))
@@ -163,15 +166,7 @@ def evaluators_table(args) -> None:
         vs = f"{n / sec / cpu_rate:7.1f}x" if cpu_rate and platform != "host" else ""
         print(f"{robot:11s} {what:12s} {how:16s} {platform:7s} {n:10,d} {n / sec / 1e6:11.3f} {vs:>8s}")
     print()
-    for robot, _ in robots(args.quick):
-        peer = rate[(robot, "regressor", "Pinocchio/frame", "host")]
-        ratio = rate[(robot, "regressor", "NumPy in/out", "host")] / peer
-        best_cpu = rate[(robot, "regressor", "public", "cpu")] / peer
-        verdict = "MET" if max(ratio, best_cpu) >= 10 else "MISSED"
-        print(
-            f"floor: {robot} model.regressor >= 10x Pinocchio per frame: NumPy {ratio:.1f}x, CPU arrays "
-            f"{best_cpu:.1f}x -> {verdict}; aim 20x {'met' if max(ratio, best_cpu) >= 20 else 'not met'}"
-        )
+    for robot in dict.fromkeys(r[0] for r in rows):
         if default.platform != "cpu":
             for what, floor in FLOORS.items():
                 r = rate[(robot, what, "public", default.platform)] / rate[(robot, what, "public", "cpu")]
@@ -179,6 +174,15 @@ def evaluators_table(args) -> None:
                     f"floor: {robot} {what} on {default.platform} >= {floor:.0f}x CPU: {r:.1f}x -> "
                     f"{'MET' if r >= floor else 'MISSED'}"
                 )
+        peer = rate.get((robot, "regressor", "Pinocchio/frame", "host"))
+        if peer is not None:
+            ratio = rate[(robot, "regressor", "NumPy in/out", "host")] / peer
+            best_cpu = rate[(robot, "regressor", "public", "cpu")] / peer
+            verdict = "MET" if max(ratio, best_cpu) >= 10 else "MISSED"
+            print(
+                f"floor: {robot} model.regressor >= 10x Pinocchio per frame: NumPy {ratio:.1f}x, CPU arrays "
+                f"{best_cpu:.1f}x -> {verdict}; aim 20x {'met' if max(ratio, best_cpu) >= 20 else 'not met'}"
+            )
     if default.platform == "cpu":
         print("no accelerator: the device rows are the CPU's; the GPU floors are not measured by this run")
 
