@@ -13,7 +13,9 @@ import ast
 
 from ineid.errors import CodegenError
 
-_IMPORTS = {"jax": ("jax.numpy", "jnp"), "casadi": ("casadi", "ca")}
+_IMPORTS = {"jax": (("jax.numpy", "jnp"), ("jax", None)), "casadi": (("casadi", "ca"),)}
+"""Per kind, the imports allowed, each once (``import module as alias``; ``import module`` where the alias is
+None). ``import jax`` gives the JAX program its ``jax.lax.optimization_barrier``."""
 _CONSTANTS = {
     "ROBOT",
     "N_DOF",
@@ -31,8 +33,8 @@ _FUNCTIONS = {"program"}
 def check_module_source(text: str, kind: str, where: str = "generated module") -> dict[str, object]:
     """Parse a generated module's text (without running it) and check its top level.
 
-    Allowed, each once: the module docstring first; ``import jax.numpy as jnp`` (``kind
-    "jax"``) or ``import casadi as ca`` (``"casadi"``); the constants (``ROBOT``,
+    Allowed, each once: the module docstring first; ``import jax.numpy as jnp`` and ``import
+    jax`` (``kind "jax"``) or ``import casadi as ca`` (``"casadi"``); the constants (``ROBOT``,
     ``JOINT_NAMES``, ...) assigned literal values of the emitter's shape; the emitter's one
     function, ``program``, without decorators, defaults or annotations (they would run on
     import). Nothing else, so importing the module runs no code of its own.
@@ -99,11 +101,17 @@ def _constants_problem(values: dict[str, object]) -> str | None:
     return None
 
 
+def _import_text(module: str, alias: str | None) -> str:
+    return f"import {module}" + ("" if alias is None else f" as {alias}")
+
+
 def _defined_name(node: ast.stmt) -> str | None:
     if isinstance(node, ast.FunctionDef):
         return node.name
     if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
         return node.targets[0].id
+    if isinstance(node, ast.Import) and len(node.names) == 1:
+        return "import " + node.names[0].name
     return None
 
 
@@ -115,9 +123,9 @@ def _problem(
         ok = index == 0 and isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)
         return None if ok else "an expression other than the docstring"
     if isinstance(node, ast.Import):
-        module, alias = _IMPORTS[kind]
-        ok = len(node.names) == 1 and node.names[0].name == module and node.names[0].asname == alias
-        return None if ok else "an import other than " + f"`import {module} as {alias}`"
+        allowed = _IMPORTS[kind]
+        ok = len(node.names) == 1 and (node.names[0].name, node.names[0].asname) in allowed
+        return None if ok else "an import other than " + " or ".join(f"`{_import_text(*a)}`" for a in allowed)
     if isinstance(node, ast.FunctionDef):
         args = node.args
         if node.name not in functions:

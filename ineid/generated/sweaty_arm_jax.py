@@ -6,6 +6,7 @@
 # --------------------------------------------------------------------------------------
 """JAX Newton-Euler program of the robot ``ROBOT``; pure and jit-safe, batched over leading axes."""
 
+import jax
 import jax.numpy as jnp
 
 ROBOT = 'sweaty-arm'
@@ -56,20 +57,20 @@ def program(q, qd, qdd, gravity):
     g0 = gravity[..., 0]
     g1 = gravity[..., 1]
     g2 = gravity[..., 2]
-    _trig = jnp.stack(jnp.broadcast_arrays(jnp.cos(q0), jnp.sin(q0), jnp.cos(q1), jnp.sin(q1), jnp.cos(q2), jnp.sin(q2), jnp.cos(q3), jnp.sin(q3)), axis=-1) @ jnp.eye(8, dtype=q.dtype)
-    c0 = _trig[..., 0]
-    s0 = _trig[..., 1]
-    c1 = _trig[..., 2]
-    s1 = _trig[..., 3]
-    c2 = _trig[..., 4]
-    s2 = _trig[..., 5]
-    c3 = _trig[..., 6]
-    s3 = _trig[..., 7]
+    _trig = jax.lax.optimization_barrier(jnp.stack(jnp.broadcast_arrays(jnp.cos(q0), jnp.sin(q0), jnp.cos(q1), jnp.sin(q1), jnp.cos(q2), jnp.sin(q2), jnp.cos(q3), jnp.sin(q3))))
+    c0 = _trig[0]
+    s0 = _trig[1]
+    c1 = _trig[2]
+    s1 = _trig[3]
+    c2 = _trig[4]
+    s2 = _trig[5]
+    c3 = _trig[6]
+    s3 = _trig[7]
     t2 = -c0*g0 + g2*s0
     t3 = -c0*g2 - g0*s0
-    _b = jnp.stack(jnp.broadcast_arrays(t2, t3), axis=-1) @ jnp.eye(2, dtype=q.dtype)
-    t2 = _b[..., 0]
-    t3 = _b[..., 1]
+    _b = jax.lax.optimization_barrier(jnp.stack(jnp.broadcast_arrays(t2, t3)))
+    t2 = _b[0]
+    t3 = _b[1]
     t4 = -qd0**2
     f5 = c0*t2 + s0*t3
     f6 = c0*t3 - s0*t2
@@ -88,11 +89,11 @@ def program(q, qd, qdd, gravity):
     R21 = c1*s0
     R22 = c0*s1
     R23 = c0*c1
-    _b = jnp.stack(jnp.broadcast_arrays(R20, R21, R22, R23), axis=-1) @ jnp.eye(4, dtype=q.dtype)
-    R20 = _b[..., 0]
-    R21 = _b[..., 1]
-    R22 = _b[..., 2]
-    R23 = _b[..., 3]
+    _b = jax.lax.optimization_barrier(jnp.stack(jnp.broadcast_arrays(R20, R21, R22, R23)))
+    R20 = _b[0]
+    R21 = _b[1]
+    R22 = _b[2]
+    R23 = _b[3]
     t24 = -c1*g1 + s1*t3
     t25 = c1*t3 + g1*s1
     t26 = c1*qd0
@@ -101,14 +102,14 @@ def program(q, qd, qdd, gravity):
     t29 = -qdd0*s1
     t30 = qd1*t27 + t28
     t31 = -qd1*t26 + t29
-    _b = jnp.stack(jnp.broadcast_arrays(t26, t27, t30, t31, t2, t24, t25), axis=-1) @ jnp.eye(7, dtype=q.dtype)
-    t26 = _b[..., 0]
-    t27 = _b[..., 1]
-    t30 = _b[..., 2]
-    t31 = _b[..., 3]
-    t2 = _b[..., 4]
-    t24 = _b[..., 5]
-    t25 = _b[..., 6]
+    _b = jax.lax.optimization_barrier(jnp.stack(jnp.broadcast_arrays(t26, t27, t30, t31, t2, t24, t25)))
+    t26 = _b[0]
+    t27 = _b[1]
+    t30 = _b[2]
+    t31 = _b[3]
+    t2 = _b[4]
+    t24 = _b[5]
+    t25 = _b[6]
     m32 = -0.195*s0
     m33 = 0.4*c0
     m34 = -0.195*c0
@@ -186,18 +187,18 @@ def program(q, qd, qdd, gravity):
     R109 = c1*c2
     R110 = R22*s2 - c2*s0
     R111 = R22*c2 + s0*s2
-    _b = jnp.stack(jnp.broadcast_arrays(p103, p104, p105, R106, R107, R21, R108, R109, R110, R111, R23), axis=-1) @ jnp.eye(11, dtype=q.dtype)
-    p103 = _b[..., 0]
-    p104 = _b[..., 1]
-    p105 = _b[..., 2]
-    R106 = _b[..., 3]
-    R107 = _b[..., 4]
-    R21 = _b[..., 5]
-    R108 = _b[..., 6]
-    R109 = _b[..., 7]
-    R110 = _b[..., 8]
-    R111 = _b[..., 9]
-    R23 = _b[..., 10]
+    _b = jax.lax.optimization_barrier(jnp.stack(jnp.broadcast_arrays(p103, p104, p105, R106, R107, R21, R108, R109, R110, R111, R23)))
+    p103 = _b[0]
+    p104 = _b[1]
+    p105 = _b[2]
+    R106 = _b[3]
+    R107 = _b[4]
+    R21 = _b[5]
+    R108 = _b[6]
+    R109 = _b[7]
+    R110 = _b[8]
+    R111 = _b[9]
+    R23 = _b[10]
     t112 = -0.06*t26
     t113 = 0.06*qd1
     t114 = -t113*t27 + t2 - 0.06*t30
@@ -213,16 +214,16 @@ def program(q, qd, qdd, gravity):
     t124 = qd2*t120 + t121
     t125 = -qd2*t119 + t122
     t126 = qdd2 + t31
-    _b = jnp.stack(jnp.broadcast_arrays(t119, t120, t123, t124, t125, t126, t117, t118, t116), axis=-1) @ jnp.eye(9, dtype=q.dtype)
-    t119 = _b[..., 0]
-    t120 = _b[..., 1]
-    t123 = _b[..., 2]
-    t124 = _b[..., 3]
-    t125 = _b[..., 4]
-    t126 = _b[..., 5]
-    t117 = _b[..., 6]
-    t118 = _b[..., 7]
-    t116 = _b[..., 8]
+    _b = jax.lax.optimization_barrier(jnp.stack(jnp.broadcast_arrays(t119, t120, t123, t124, t125, t126, t117, t118, t116)))
+    t119 = _b[0]
+    t120 = _b[1]
+    t123 = _b[2]
+    t124 = _b[3]
+    t125 = _b[4]
+    t126 = _b[5]
+    t117 = _b[6]
+    t118 = _b[7]
+    t116 = _b[8]
     m127 = R23*p104 + p105*s1
     m128 = R21*p105 - R23*p103
     m129 = -R21*p104 - p103*s1
@@ -307,19 +308,19 @@ def program(q, qd, qdd, gravity):
     R210 = -c3*s1 + s3*t203
     R211 = -R23*s3 + c3*t205
     R212 = R23*c3 + s3*t205
-    _b = jnp.stack(jnp.broadcast_arrays(p198, p199, p200, R207, t202, R208, R209, t204, R210, R211, t206, R212), axis=-1) @ jnp.eye(12, dtype=q.dtype)
-    p198 = _b[..., 0]
-    p199 = _b[..., 1]
-    p200 = _b[..., 2]
-    R207 = _b[..., 3]
-    t202 = _b[..., 4]
-    R208 = _b[..., 5]
-    R209 = _b[..., 6]
-    t204 = _b[..., 7]
-    R210 = _b[..., 8]
-    R211 = _b[..., 9]
-    t206 = _b[..., 10]
-    R212 = _b[..., 11]
+    _b = jax.lax.optimization_barrier(jnp.stack(jnp.broadcast_arrays(p198, p199, p200, R207, t202, R208, R209, t204, R210, R211, t206, R212)))
+    p198 = _b[0]
+    p199 = _b[1]
+    p200 = _b[2]
+    R207 = _b[3]
+    t202 = _b[4]
+    R208 = _b[5]
+    R209 = _b[6]
+    t204 = _b[7]
+    R210 = _b[8]
+    R211 = _b[9]
+    t206 = _b[10]
+    R212 = _b[11]
     t213 = -0.22*t120
     t214 = 0.22*t119 + 0.003*t123
     t215 = -0.003*t120
@@ -342,16 +343,16 @@ def program(q, qd, qdd, gravity):
     t232 = -qd3*t226 + t229
     t233 = qdd3 + t228
     t234 = qd3*t225 + t230
-    _b = jnp.stack(jnp.broadcast_arrays(t225, t231, t226, t232, t233, t234, t221, t220, t222), axis=-1) @ jnp.eye(9, dtype=q.dtype)
-    t225 = _b[..., 0]
-    t231 = _b[..., 1]
-    t226 = _b[..., 2]
-    t232 = _b[..., 3]
-    t233 = _b[..., 4]
-    t234 = _b[..., 5]
-    t221 = _b[..., 6]
-    t220 = _b[..., 7]
-    t222 = _b[..., 8]
+    _b = jax.lax.optimization_barrier(jnp.stack(jnp.broadcast_arrays(t225, t231, t226, t232, t233, t234, t221, t220, t222)))
+    t225 = _b[0]
+    t231 = _b[1]
+    t226 = _b[2]
+    t232 = _b[3]
+    t233 = _b[4]
+    t234 = _b[5]
+    t221 = _b[6]
+    t220 = _b[7]
+    t222 = _b[8]
     m235 = p199*t206 - p200*t204
     m236 = -p198*t206 + p200*t202
     m237 = p198*t204 - p199*t202

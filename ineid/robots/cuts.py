@@ -19,10 +19,9 @@ from __future__ import annotations
 
 import functools
 
-import numpy as np
-
 from ineid.errors import RobotModelError
-from ineid.robots.chunked import entries_kernel, host_array, nonzero_flat, run_chunked, theta_kernel
+from ineid.robots.chunked import nonzero_flat
+from ineid.robots.evaluate import RowsOut, evaluate_contracted, evaluate_rows, tupled_rows
 
 
 def _program():
@@ -90,23 +89,27 @@ class CutRegressors:
             _program().casadi_torque_functions(self._casadi).torques, "joint_torques", "tau", theta=True
         )
 
-    def joint_torque_regressor(self, q, qd, qdd) -> np.ndarray:
+    def joint_torque_regressor(self, q, qd, qdd):
         """``Y_tau(q, qd, qdd)``: ``tau = Y_tau @ theta`` with the model's gravity.
 
         Args:
             q, qd, qdd: (..., n_dof) joint positions, velocities, accelerations (SI); leading shapes broadcast.
 
         Returns:
-            (..., n_dof, 10 n_links) float64 NumPy: row ``j`` times ``theta`` is the torque (N*m;
+            (..., n_dof, 10 n_links) float64: row ``j`` times ``theta`` is the torque (N*m;
             force in N for a prismatic joint) joint ``j``'s actuator applies, the projection on its
             axis of the wrench it transmits to the links beyond it (Pinocchio's ``rnea``).
-            Jitted once per robot, evaluated over chunks like :meth:`regressor`.
+            Jitted once per robot, evaluated like :meth:`regressor`: NumPy, or a ``jax.Array`` on
+            the states' device when they are all JAX arrays.
         """
-        return self._chunked_regressor(self.jax_joint_torque_entries, self.joint_torque_nonzero, q, qd, qdd)
+        return self._chunked_regressor(
+            self.jax_joint_torque_entries, self.joint_torque_nonzero, self.jax_joint_torque_regressor, q, qd, qdd
+        )
 
-    def joint_torques(self, q, qd, qdd, theta=None) -> np.ndarray:
-        """``tau = Y_tau(q, qd, qdd) @ theta`` (..., n_dof) float64 NumPy, never forming ``Y_tau``;
-        ``theta`` (10 n_links,) or per frame (..., 10 n_links), default :attr:`theta_cad`."""
+    def joint_torques(self, q, qd, qdd, theta=None):
+        """``tau = Y_tau(q, qd, qdd) @ theta`` (..., n_dof) float64, never forming ``Y_tau``;
+        ``theta`` (10 n_links,) or per frame (..., 10 n_links), default :attr:`theta_cad`. NumPy, or a
+        ``jax.Array`` on the states' device like :meth:`regressor`."""
         return self._chunked_contracted(self.jax_joint_torques, self.n_dof, q, qd, qdd, theta)
 
     # -- the wrench at a link ---------------------------------------------------------------
@@ -135,19 +138,18 @@ class CutRegressors:
         fns = _program().casadi_link_wrench_functions(self._casadi, self.link_block(link))
         return self._with_gravity(fns.regressor, "link_wrench_regressor", "Y")
 
-    def link_wrench_regressor(self, q, qd, qdd, link: str) -> np.ndarray:
+    def link_wrench_regressor(self, q, qd, qdd, link: str):
         """``Y_L(q, qd, qdd)``: ``[F; M]_L = Y_L @ theta``, the wrench the links beyond ``link`` (and the
         payloads welded to it) exert on it, in its frame, moment about its origin; (..., 6, 10 n_links).
 
         With ``link`` the last link and a payload welded to it, this is what a wrist F/T sensor
         at the link's origin reads (before its mount transform).
         """
-        return self._chunked_regressor(
-            self.jax_link_wrench_functions(link).entries, self.link_wrench_nonzero(link), q, qd, qdd
-        )
+        fns = self.jax_link_wrench_functions(link)
+        return self._chunked_regressor(fns.entries, self.link_wrench_nonzero(link), fns.regressor, q, qd, qdd)
 
-    def link_wrench(self, q, qd, qdd, link: str, theta=None) -> np.ndarray:
-        """``Y_L @ theta`` (..., 6) float64 NumPy without forming ``Y_L`` (see :meth:`link_wrench_regressor`)."""
+    def link_wrench(self, q, qd, qdd, link: str, theta=None):
+        """``Y_L @ theta`` (..., 6) float64 without forming ``Y_L`` (see :meth:`link_wrench_regressor`)."""
         return self._chunked_contracted(self.jax_link_wrench_functions(link).wrench, 6, q, qd, qdd, theta)
 
     # -- shared evaluators ------------------------------------------------------------------
@@ -162,31 +164,11 @@ class CutRegressors:
         y = full(q, qd, qdd, ca.DM(self.gravity), *args[3:])
         return ca.Function(name, args, [y], names, [output])
 
-    def _chunked_regressor(self, entries_fn, nonzero, q, qd, qdd) -> np.ndarray:
-        flat, batch = self._states(q, qd, qdd)
+    def _chunked_regressor(self, entries_fn, nonzero, regressor_fn, q, qd, qdd):
         n_rows, n_cols = len(nonzero), 10 * self.n_links
         order = nonzero_flat(nonzero, n_cols)
-        out = np.zeros((len(flat[0]), n_rows * n_cols))
+        out = RowsOut((n_rows, n_cols), slice(None), order)
+        return evaluate_rows(self, entries_fn, order, [out], tupled_rows(regressor_fn), (q, qd, qdd))[0]
 
-        def write(start, stop, rows):
-            out[start:stop, order] = rows[:, : stop - start].T
-
-        if len(order):
-            run_chunked(entries_kernel(entries_fn, order), flat, (self._gravity_device,), write)
-        return out.reshape(batch + (n_rows, n_cols))
-
-    def _chunked_contracted(self, fn, width: int, q, qd, qdd, theta) -> np.ndarray:
-        theta = host_array("theta", self.theta_cad if theta is None else theta)
-        n_par = 10 * self.n_links
-        if theta.ndim == 0 or theta.shape[-1] != n_par:
-            raise ValueError(f"theta must have shape (..., {n_par}), got {tuple(theta.shape)}")
-        per_frame = theta.ndim > 1
-        flat, batch = self._states(q, qd, qdd, theta if per_frame else None)
-        consts = (self._gravity_device,) if per_frame else (theta, self._gravity_device)
-        out = np.empty((len(flat[0]), width))
-
-        def write(start, stop, rows):
-            out[start:stop] = rows[: stop - start]
-
-        run_chunked(theta_kernel(fn), flat, consts, write)
-        return out.reshape(batch + (width,))
+    def _chunked_contracted(self, fn, width: int, q, qd, qdd, theta):
+        return evaluate_contracted(self, fn, width, (q, qd, qdd), theta)

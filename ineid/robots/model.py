@@ -16,12 +16,10 @@ from ineid.robots.chunked import (  # noqa: F401  (CHUNK_FRAMES, SMALL_FRAMES, S
     CHUNK_FRAMES,
     SMALL_FRAMES,
     SMALL_JOB_FRAMES,
-    entries_kernel,
-    host_array,
     nonzero_flat,
-    run_chunked,
 )
 from ineid.robots.cuts import CutRegressors
+from ineid.robots.evaluate import RowsOut, evaluate_contracted, evaluate_rows, split_columns, tupled_rows
 from ineid.robots.payload import extended_links, extended_theta_cad, payload_modules, resolve_payloads
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
@@ -222,26 +220,6 @@ class RobotModel(CutRegressors):
         """
         return _jax_functions(self._jax).link_poses
 
-    def _states(self, q, qd, qdd, theta=None):
-        """``q, qd, qdd`` (and ``theta`` when per frame) flattened to (N, .) float64 NumPy, and the batch shape."""
-        arrays = []
-        for label, x in (("q", q), ("qd", qd), ("qdd", qdd)):
-            x = host_array(label, x)
-            if x.ndim == 0 or x.shape[-1] != self.n_dof:
-                raise ValueError(f"{label} must have shape (..., {self.n_dof}), got {tuple(x.shape)}")
-            arrays.append(x)
-        if theta is not None:
-            arrays.append(theta)
-        try:
-            batch = np.broadcast_shapes(*(x.shape[:-1] for x in arrays))
-        except ValueError:
-            shapes = ", ".join(str(tuple(x.shape)) for x in arrays)
-            names = "q, qd, qdd" + (" and theta" if theta is not None else "")
-            raise ValueError(f"{names} must broadcast to one leading shape, got {shapes}") from None
-        n = int(np.prod(batch, dtype=np.int64))
-        flat = [np.broadcast_to(x, batch + x.shape[-1:]).reshape(n, x.shape[-1]) for x in arrays]
-        return flat, batch
-
     def _entry_order(self) -> tuple[np.ndarray, int]:
         """Flat indices of the nonzero entries of ``Psi``, unknown links' columns first, and how many of those."""
         n_cols = 10 * self.n_links
@@ -249,7 +227,7 @@ class RobotModel(CutRegressors):
         unknown = np.isin(nonzero % n_cols, self.unknown_index)
         return np.concatenate([nonzero[unknown], nonzero[~unknown]]), int(unknown.sum())
 
-    def regressor(self, q, qd, qdd) -> np.ndarray:
+    def regressor(self, q, qd, qdd):
         """``Psi(q, qd, qdd)``: ``[F; M] = Psi @ theta`` with the model's gravity.
 
         Args:
@@ -257,67 +235,49 @@ class RobotModel(CutRegressors):
                 or JAX arrays; leading shapes broadcast.
 
         Returns:
-            (..., 6, 10 n_links) float64 NumPy array: the wrench the moving links exert on
-            the fixture (base frame, moment about the base origin) is ``Psi @ theta`` for
-            any parameters ``theta`` (Pinocchio's order, about each link origin).
+            (..., 6, 10 n_links) float64: the wrench the moving links exert on the fixture
+            (base frame, moment about the base origin) is ``Psi @ theta`` for any parameters
+            ``theta`` (Pinocchio's order, about each link origin). A NumPy array; a
+            ``jax.Array`` on their device when ``q``, ``qd`` and ``qdd`` are all JAX arrays
+            (traced inside a caller's ``jax.jit``), see :mod:`ineid.robots.device`.
 
-        Evaluated by the generated code, compiled once per robot and link split and run
-        over chunks of :data:`CHUNK_FRAMES` frames written straight into the result, so
-        memory beyond the result stays about one chunk's. Inside ``jax.jit`` use
-        :attr:`jax_regressor`.
+        NumPy states are evaluated by the generated code, compiled once per robot and link
+        split and streamed over chunks of frames from a few threads, written straight into
+        the result (:mod:`ineid.robots.chunked`).
         """
-        flat, batch = self._states(q, qd, qdd)
-        n_cols = 10 * self.n_links
+        fns = _jax_functions(self._jax)
         order, _ = self._entry_order()
-        out = np.zeros((len(flat[0]), 6 * n_cols))
+        out = RowsOut((6, 10 * self.n_links), slice(None), order)
+        return evaluate_rows(self, fns.entries, order, [out], tupled_rows(fns.regressor), (q, qd, qdd))[0]
 
-        def write(start, stop, rows):
-            out[start:stop, order] = rows[:, : stop - start].T
-
-        run_chunked(entries_kernel(_jax_functions(self._jax).entries, order), flat, (self._gravity_device,), write)
-        return out.reshape(batch + (6, n_cols))
-
-    def regressor_split(self, q, qd, qdd) -> tuple[np.ndarray, np.ndarray]:
+    def regressor_split(self, q, qd, qdd):
         """``(Psi_u, Psi_k)``: the regressor's columns of the unknown and of the known links.
 
         ``[F; M] = Psi_u @ theta[unknown_index] + Psi_k @ theta[known_index]``; shapes
-        (..., 6, 10 n_unknown) and (..., 6, 10 n_known), float64 NumPy. Same evaluation as
-        :meth:`regressor`, written into the two results directly.
+        (..., 6, 10 n_unknown) and (..., 6, 10 n_known), float64, NumPy or on the states'
+        device like :meth:`regressor`. Same evaluation, written into the two results directly.
         """
-        flat, batch = self._states(q, qd, qdd)
+        fns = _jax_functions(self._jax)
         n_cols = 10 * self.n_links
         order, n_u = self._entry_order()
-        n = len(flat[0])
-        parts = []
-        for index, entries in ((self.unknown_index, order[:n_u]), (self.known_index, order[n_u:])):
+        outs = []
+        for index, rows in ((self.unknown_index, slice(0, n_u)), (self.known_index, slice(n_u, None))):
             column = {int(c): k for k, c in enumerate(index)}
-            dest = np.array([(e // n_cols) * len(index) + column[int(e % n_cols)] for e in entries], dtype=np.int64)
-            parts.append((np.zeros((n, 6 * len(index))), dest))
-        (out_u, dest_u), (out_k, dest_k) = parts
+            dest = [(e // n_cols) * len(index) + column[int(e % n_cols)] for e in order[rows]]
+            outs.append(RowsOut((6, len(index)), rows, np.array(dest, dtype=np.int64)))
+        groups = (tuple(int(c) for c in self.unknown_index), tuple(int(c) for c in self.known_index))
+        return evaluate_rows(self, fns.entries, order, outs, split_columns(fns.regressor, groups), (q, qd, qdd))
 
-        def write(start, stop, rows):
-            out_u[start:stop, dest_u] = rows[:n_u, : stop - start].T
-            out_k[start:stop, dest_k] = rows[n_u:, : stop - start].T
-
-        run_chunked(entries_kernel(_jax_functions(self._jax).entries, order), flat, (self._gravity_device,), write)
-        return (out_u.reshape(batch + (6, len(self.unknown_index))), out_k.reshape(batch + (6, len(self.known_index))))
-
-    def base_wrench(self, q, qd, qdd, theta=None) -> np.ndarray:
-        """``[F; M] = Psi(q, qd, qdd) @ theta``: the wrench on the fixture, (..., 6) float64 NumPy.
+    def base_wrench(self, q, qd, qdd, theta=None):
+        """``[F; M] = Psi(q, qd, qdd) @ theta``: the wrench on the fixture, (..., 6) float64.
 
         Force (N) and moment about the base origin (N*m), base frame. ``theta`` (10 n_links,)
         or (..., 10 n_links) broadcasting with the states; default :attr:`theta_cad`.
         Evaluated by :attr:`jax_base_wrench`, which contracts with ``theta`` link by link
         instead of forming ``Psi`` (several times faster), compiled once per robot and
-        chunked like :meth:`regressor`. Inside ``jax.jit`` use :attr:`jax_base_wrench`.
+        chunked like :meth:`regressor`; NumPy, or a ``jax.Array`` on the states' device like it.
         """
-        return self._chunked_contracted(_jax_functions(self._jax).wrench, 6, q, qd, qdd, theta)
-
-    @cached_property
-    def _gravity_device(self):
-        import jax.numpy as jnp
-
-        return jnp.asarray(self.gravity)
+        return evaluate_contracted(self, _jax_functions(self._jax).wrench, 6, (q, qd, qdd), theta)
 
     @property
     def jax_base_wrench(self):

@@ -176,10 +176,8 @@ def emit_jax(
     trig = [(lhs, rhs) for lhs, rhs in sym.lines if _is_trig(rhs)]
     if trig:
         stacked = ", ".join(p.doprint(rhs) for _, rhs in trig)
-        body.append(
-            f"_trig = jnp.stack(jnp.broadcast_arrays({stacked}), axis=-1) @ jnp.eye({len(trig)}, dtype=q.dtype)"
-        )
-        body += [f"{lhs} = _trig[..., {k}]" for k, (lhs, _) in enumerate(trig)]
+        body.append(f"_trig = jax.lax.optimization_barrier(jnp.stack(jnp.broadcast_arrays({stacked})))")
+        body += [f"{lhs} = _trig[{k}]" for k, (lhs, _) in enumerate(trig)]
     barriers: dict[int, list] = {}
     for at, names in sym.barriers:
         barriers.setdefault(at, []).append(names)
@@ -188,10 +186,8 @@ def emit_jax(
             body.append(printed[k])
         for names in barriers.get(k + 1, []):
             listed = ", ".join(str(s) for s in names)
-            body.append(
-                f"_b = jnp.stack(jnp.broadcast_arrays({listed}), axis=-1) @ jnp.eye({len(names)}, dtype=q.dtype)"
-            )
-            body += [f"{s} = _b[..., {m}]" for m, s in enumerate(names)]
+            body.append(f"_b = jax.lax.optimization_barrier(jnp.stack(jnp.broadcast_arrays({listed})))")
+            body += [f"{s} = _b[{m}]" for m, s in enumerate(names)]
     body += _outputs(sym, p)
     doc = _DOC.format(
         shape="..., ",
@@ -201,7 +197,7 @@ def emit_jax(
     return (
         _header(robot_name, fingerprint, sym.op_count, len(sym.lines), regenerate)
         + '\n"""JAX Newton-Euler program of the robot ``ROBOT``; pure and jit-safe, batched over leading axes."""\n\n'
-        + "import jax.numpy as jnp\n\n"
+        + "import jax\nimport jax.numpy as jnp\n\n"
         + _constants(sym, robot_name, fingerprint, sym.op_count)
         + "\n"
         + _function(sym, body, doc)
