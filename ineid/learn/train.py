@@ -278,8 +278,9 @@ def _start(ds: Dataset, run: TrialRun, shared: SharedData, model) -> None:
         key = jax.random.key(cfg.seed)
         if cfg.model.uses_regressor:
             params = net.init(key, x, *shared.physics.system(inputs))
-        else:
-            params = net.init(key, x)
+        else:  # drawn in float64 and rounded: a float32 run starts where the float64 run of its seed starts
+            params = cfg.model.build(shared.n_out).init(key, x.astype(np.float64))
+            params = jax.tree_util.tree_map(lambda p: p.astype(cfg.dtype), params)
         state = initial_state(params, make_optimizer(cfg, steps).init(params))
         if resumed is not None:
             state = load_state(run.work, state, cfg.epochs)
