@@ -39,6 +39,12 @@ CHECKPOINT_SECONDS = 5.0
 """On an accelerator, the least time between two checkpoints of a population's trials."""
 MAX_POPULATION = 64
 """The most trials in one program (a larger group is trained as several populations)."""
+CPU_STEP_FLOPS = 1.2e7
+"""On a CPU, the most a step of one trial may cost (forward multiply-adds x 2, about ``2 x parameters x samples``)
+for its trials to train as a population. XLA's CPU runs the trials' stacked (batched) matrix products slower
+than the same products one at a time (about 1.5x at Table 1's wider networks, measured by
+``benchmarks/learn.py``), so a population pays only where a step is small and its fixed costs, shared, dominate;
+the trials of a larger network train one a program there (on an accelerator they always share one)."""
 
 
 class TrialRun:
@@ -148,6 +154,19 @@ def group_runs(runs: list[TrialRun]) -> list[list[TrialRun]]:
     return list(groups.values())
 
 
+def population_limit(run: TrialRun, backend: str | None = None) -> int:
+    """The most trials of ``run``'s program to train at once on ``backend`` (default: JAX's): :data:`MAX_POPULATION`,
+    or on a CPU one where a step costs more than :data:`CPU_STEP_FLOPS`."""
+    import jax
+
+    if (backend or jax.default_backend()) != "cpu":
+        return MAX_POPULATION
+    n_params = sum(int(np.size(p)) for p in jax.tree_util.tree_leaves(run.state["params"]))
+    model = run.trial.cfg.model
+    flops = 2 * n_params * run.batch * (model.frames if model.siamese else 1)
+    return MAX_POPULATION if flops <= CPU_STEP_FLOPS else 1
+
+
 def out_of_memory(err: BaseException) -> bool:
     """Whether ``err`` is the device running out of memory (XLA's ``RESOURCE_EXHAUSTED``)."""
     text = str(err)
@@ -161,10 +180,10 @@ class Population:
         runs: the trials (set up: :meth:`TrialRun.setup`), one :func:`program_key`.
         checkpoint: ``checkpoint(run, state, record, final)`` after an epoch of a run: its metrics ``record``, its
             ``state`` (None: no checkpoint due), the model with ``final``.
-        max_size: the most trials in one program.
+        max_size: the most trials in one program (None: :func:`population_limit`).
     """
 
-    def __init__(self, runs: list[TrialRun], checkpoint: Callable, max_size: int = MAX_POPULATION) -> None:
+    def __init__(self, runs: list[TrialRun], checkpoint: Callable, max_size: int | None = None) -> None:
         self.runs = runs
         self.checkpoint = checkpoint
         self.max_size = max_size
@@ -175,8 +194,9 @@ class Population:
             if not r.going_on:  # a resumed run with nothing left: its model written again, as it was
                 self.checkpoint(r, r.state, None, True)
         going = [r for r in self.runs if r.going_on]
-        for start in range(0, len(going), self.max_size):
-            self._train(going[start : start + self.max_size])
+        size = self.max_size or (population_limit(going[0]) if going else 1)
+        for start in range(0, len(going), size):
+            self._train(going[start : start + size])
 
     def _train(self, runs: list[TrialRun]) -> None:
         """Train ``runs`` (one program) epoch by epoch, the next epoch dispatched before the last is written."""
