@@ -17,7 +17,7 @@ from ineid.learn.trials import populations
 
 from .conftest import SEED
 
-BASE = TrainConfig(model=ModelSpec("simple"), optimizer="sgd", lr=1e-2, batch=32, epochs=4, patience=0)
+BASE = TrainConfig(model=ModelSpec("simple"), optimizer="sgd", lr=1e-2, batch=32, epochs=3, patience=0)
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +55,7 @@ def test_population_trials_equal_their_solo_runs(model, data, tmp_path):
     assert [len(g) for g in populations(cfgs)] == [4, 1]
     got = train_population(data, [Trial(c, tmp_path / f"pop{i}") for i, c in enumerate(cfgs)], model=model)
     assert [r.stopped_early for r in got] == [False, False, False, True, False]
-    assert got[3].epochs_run < 4 and all(r.epochs_run == 4 for i, r in enumerate(got) if i != 3)
+    assert got[3].epochs_run < 3 and all(r.epochs_run == 3 for i, r in enumerate(got) if i != 3)
     for i, cfg in enumerate(cfgs):
         alone = train(data, cfg, tmp_path / f"solo{i}", model=model)
         assert (alone.epochs_run, alone.best_epoch, alone.stopped_early) == (
@@ -88,7 +88,7 @@ def test_population_resumes_each_trial_where_it_stopped(model, data, tmp_path):
     (tmp_path / "c" / "config.json").write_text("{}")  # not a run of these settings
     again = [Trial(c, tmp_path / n, resume=True) for c, n in zip(cfgs, "ab", strict=True)]
     got = train_population(data, [*again, Trial(BASE, tmp_path / "c")], model=model)
-    assert [r.epochs_run for r in got[:2]] == [4, 4] and isinstance(got[2], Exception)
+    assert [r.epochs_run for r in got[:2]] == [3, 3] and isinstance(got[2], Exception)
     for cfg, name in zip(cfgs, "ab", strict=True):
         train(data, cfg, tmp_path / f"solo-{name}", model=model)
         _assert_same_run(tmp_path / name, tmp_path / f"solo-{name}")
@@ -172,3 +172,19 @@ def test_study_and_sweep_group_their_trials():
     cfgs = grid.configs(BASE)
     assert len(cfgs) == 12 and [len(g) for g in populations(cfgs)] == [3, 3, 3, 3]
     assert [len(g) for g in populations(cfgs, max_size=2)] == [2, 1] * 4
+
+
+@pytest.mark.parametrize(
+    ("arch", "frames", "batch", "cpu"), [("simple", 1, 256, 64), ("net6", 1, 1024, 1), ("net1", 10, 256, 1)]
+)
+def test_a_large_step_trains_one_trial_a_program_on_the_cpu(arch, frames, batch, cpu):
+    """On the CPU the trials' stacked products cost more than one at a time: only small steps share a program."""
+    from types import SimpleNamespace
+
+    from ineid.learn.population import MAX_POPULATION, population_limit
+
+    cfg = TrainConfig(model=ModelSpec(arch, frames=frames, siamese=frames > 1), batch=batch)
+    params = cfg.model.build(20).init(jax.random.key(0), np.zeros((1, frames, 18)))
+    run = SimpleNamespace(state={"params": params}, batch=batch, trial=SimpleNamespace(cfg=cfg))
+    assert population_limit(run, "cpu") == cpu
+    assert population_limit(run, "gpu") == MAX_POPULATION
