@@ -316,7 +316,9 @@ def test_train_sigterm_exits_143(data, tmp_path):
 
 
 def test_sweep_resumes(run, data, tmp_path, monkeypatch):
-    sweep_module = sys.modules["ineid.learn.trials"]  # run_trial's module (it calls train and evaluate)
+    import ineid.learn  # noqa: F401  (the modules patched below)
+
+    sweep_module = sys.modules["ineid.learn.trials"]  # run_population's module (it calls train_population, evaluate)
     train_module = sys.modules["ineid.learn.train"]  # (ineid.learn.train is also the function's name)
 
     out = tmp_path / "sweep"
@@ -353,27 +355,33 @@ def test_sweep_resumes(run, data, tmp_path, monkeypatch):
 
     monkeypatch.setattr(train_module, "save_state", interrupted)
     line = last_line(run(*args), 130)
+    # the two trials differ only in their scaler: they train together, so neither had finished
     assert line == (
-        f"ineid: interrupted; 1 of 2 trials in {out} are finished; continue the sweep with `ineid sweep "
+        f"ineid: interrupted; 0 of 2 trials in {out} are finished; continue the sweep with `ineid sweep "
         f"{data} ... --out {out} --resume` (the same settings)"
     )
     monkeypatch.setattr(train_module, "save_state", save_state)
     assert "different run settings" in last_line(run(*args[:-2], "--lr", 0.01, "--out", out, "--resume"), 1)
     calls = []
-    train = sweep_module.train
+    train_population = sweep_module.train_population
 
-    def counted(ds, cfg, run_dir, **kw):
-        calls.append((run_dir.name, kw["resume"]))
-        return train(ds, cfg, run_dir, **kw)
+    def counted(ds, trials, **kw):
+        calls.extend((t.run_dir.name, t.resume) for t in trials)
+        return train_population(ds, trials, **kw)
 
-    monkeypatch.setattr(sweep_module, "train", counted)
+    monkeypatch.setattr(sweep_module, "train_population", counted)
     r = run(*args, "--resume")
     assert r.exit_code == 0, r.output
-    assert calls == [("simple-tanh-single-standard-adam-mse", True)]  # the finished trial kept, the other continued
+    # both continued from their checkpoints (epoch 2 and epoch 1), together
+    assert calls == [("simple-tanh-single-robust-adam-mse", True), ("simple-tanh-single-standard-adam-mse", True)]
     rows = (out / "sweep.csv").read_text().splitlines()
     assert len(rows) == 3 and all(",ok" in row for row in rows[1:])
-    metrics = (out / "simple-tanh-single-standard-adam-mse" / "metrics.jsonl").read_text().splitlines()
-    assert [json.loads(m)["epoch"] for m in metrics] == [1, 2, 3]
+    for scaler in ("robust", "standard"):
+        metrics = (out / f"simple-tanh-single-{scaler}-adam-mse" / "metrics.jsonl").read_text().splitlines()
+        assert [json.loads(m)["epoch"] for m in metrics] == [1, 2, 3]
+    calls.clear()
+    r = run(*args, "--resume")  # a finished sweep: every trial kept
+    assert r.exit_code == 0 and calls == [], r.output
 
 
 def test_a_signal_swallowed_by_a_gc_callback_is_delivered_again():

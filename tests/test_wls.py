@@ -294,16 +294,16 @@ def test_ray_engine_writes_only_run_files_a_worker_sends(tmp_path, monkeypatch):
         ]
     )
 
-    class Ref:
-        def __init__(self, cfg):
-            self.value = (dataclasses.replace(SweepRow.failed(cfg, ""), status="ok"), next(sent))
+    class Ref:  # a task trains a population: a row and the files of each of its trials
+        def __init__(self, cfgs):
+            self.value = [(dataclasses.replace(SweepRow.failed(cfg, ""), status="ok"), next(sent)) for cfg in cfgs]
 
     class Task:
         def options(self, **_):
             return self
 
-        def remote(self, ds, cfg, *_):
-            return Ref(cfg)
+        def remote(self, ds, cfgs, *_):
+            return Ref(cfgs)
 
     fake = types.SimpleNamespace(
         is_initialized=lambda: True,

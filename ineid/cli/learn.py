@@ -96,6 +96,14 @@ _RUN_OPTIONS = (
     ),
     click.option("--seed", type=SEED, cls=LibraryOption, default_from=f"{_CFG}.seed"),
     click.option(
+        "--dtype",
+        type=LibraryChoice("ineid.learn.config:DTYPES"),
+        cls=LibraryOption,
+        default_from=f"{_CFG}.dtype",
+        help="What the network trains in (float32: faster where the arithmetic is the cost, resolving the wrench "
+        "residual to about 1e-7 of its scale; evaluation and identification stay float64).",
+    ),
+    click.option(
         "--physics-mode",
         type=LibraryChoice("ineid.learn.losses:PHYSICS_MODES"),
         default="cached",

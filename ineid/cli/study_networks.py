@@ -105,7 +105,8 @@ def study_networks(
 ):
     """The paper's exploration of its networks, re-run: activations x scalers x optimizers on Table 1's networks
     and Siamese networks at its training size (3,000 configurations) and epochs (100), with its claims (tanh,
-    robust scaler, SGD; the Siamese Network 6) judged beyond the seed-to-seed spread."""
+    robust scaler, SGD; the Siamese Network 6) judged beyond the seed-to-seed spread. A part's trials that share a
+    network (its scalers and seeds) train together as one population."""
     from dataclasses import replace
 
     from ineid.cli.output_files import on_interrupt, prepare_output

@@ -117,7 +117,11 @@ def sweep_cmd(
 ) -> None:
     """Train a grid of networks (here, or on a Ray cluster); write sweep.csv and sweep.png ranked by test error.
 
-    An interrupted sweep keeps its finished trials (and the interrupted one's checkpoint):
+    Trials that share a network (they differ in scaler, learning rate, loss weights, seed) train
+    together as one population, one compiled program (on a Ray cluster: one population a task);
+    each trial's numbers are those of training it alone.
+
+    An interrupted sweep keeps its finished trials (and the interrupted ones' checkpoints):
     continue it with the same command and --resume.
     """
     from ineid._atomic import check_output

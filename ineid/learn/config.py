@@ -10,6 +10,8 @@ from ineid.learn.models import ModelSpec
 from ineid.learn.scalers import SCALERS
 
 OPTIMIZERS = ("sgd", "adam", "adamw")
+DTYPES = ("float64", "float32")
+"""What a network can train in (``--dtype``)."""
 SCHEDULES = ("constant", "cosine")
 
 
@@ -28,6 +30,8 @@ class TrainConfig:
         patience: stop after this many epochs without a better validation MSE (0: never).
         seed: the one seed of the run.
         n_train, n_val, n_test: configurations per split (defaults 70 / 15 / 15 %).
+        dtype: what the network trains in, ``"float64"`` or ``"float32"`` (the data are scaled in it on the
+            device; evaluation and identification stay float64).
     """
 
     model: ModelSpec = field(default_factory=ModelSpec)
@@ -47,6 +51,7 @@ class TrainConfig:
     n_train: int | None = None
     n_val: int | None = None
     n_test: int | None = None
+    dtype: str = "float64"
 
     def __post_init__(self) -> None:
         checks = [
@@ -57,6 +62,11 @@ class TrainConfig:
             (
                 self.lr > 0 and self.epochs >= 1 and self.batch >= 1 and self.patience >= 0,
                 "lr, epochs and batch must be positive and patience >= 0",
+            ),
+            (self.dtype in DTYPES, f"dtype must be one of {', '.join(DTYPES)}"),
+            (
+                self.dtype == "float64" or not self.model.uses_regressor,
+                "the wls network solves least squares inside and trains in float64; drop --dtype float32",
             ),
             (
                 self.alpha >= 0 and self.beta >= 0 and (self.alpha > 0 or (self.loss == "physics" and self.beta > 0)),
@@ -72,8 +82,12 @@ class TrainConfig:
         return self.beta if self.loss == "physics" else 0.0
 
     def to_dict(self) -> dict:
+        """The settings as ``config.json`` records them (``dtype`` only when not float64, so the runs written
+        before it existed still match their settings on ``--resume``)."""
         d = dataclasses.asdict(self)
         d["model"] = dataclasses.asdict(self.model)
+        if self.dtype == "float64":
+            del d["dtype"]
         return d
 
     @classmethod

@@ -7,6 +7,7 @@ network (:mod:`ineid.learn.wls`).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import flax.linen as nn
 import jax.numpy as jnp
@@ -26,10 +27,11 @@ class Encoder(nn.Module):
 
     hidden: Sequence[int]
     activation: str = "tanh"
+    param_dtype: Any = jnp.float64
 
     @nn.compact
     def __call__(self, x):
         act = ACTIVATIONS[self.activation]
         for i, w in enumerate(self.hidden):
-            x = act(nn.Dense(w, param_dtype=jnp.float64, name=f"hidden_{i}")(x))
+            x = act(nn.Dense(w, param_dtype=self.param_dtype, name=f"hidden_{i}")(x))
         return x

@@ -165,18 +165,24 @@ class CompactRegressor:
     def from_frames(psi_u: np.ndarray, y: np.ndarray, base, wrench_scale: np.ndarray):
         """``(compact, rows (..., width))`` from ``psi_u`` (..., A, 10 n_u) and ``y`` (..., A) of every frame."""
         scale = np.asarray(wrench_scale, dtype=np.float64)
-        psi_b = psi_u[..., base.base_index] / scale[:, None]
-        kept = np.any(psi_b != 0, axis=tuple(range(psi_b.ndim - 2)))  # (A, r): not zero in some frame
+        n_axes, n_p = psi_u.shape[-2:]
+        flat = psi_u.reshape(-1, n_axes * n_p)
+        nonzero = np.zeros(n_axes * n_p, dtype=bool)
+        for start in range(0, len(flat), 65536):  # a chunk at a time: no frames-long temporary of booleans
+            nonzero |= np.any(flat[start : start + 65536] != 0, axis=0)
+        kept = nonzero.reshape(n_axes, n_p)[:, base.base_index]  # (A, r): not zero in some frame
         by_cols: dict[tuple[int, ...], list[int]] = {}
-        for a in range(psi_b.shape[-2]):
+        for a in range(n_axes):
             by_cols.setdefault(tuple(int(c) for c in np.flatnonzero(kept[a])), []).append(a)
         groups = tuple((cols, tuple(axes)) for cols, axes in by_cols.items())
         compact = CompactRegressor(np.asarray(base.B, dtype=np.float64), groups)
-        parts = [(y / scale)[..., compact.axis_order]]
-        for cols, axes in groups:
-            block = psi_b[..., list(axes), :][..., list(cols)]  # (..., n_axes, n_cols)
-            parts.append(block.reshape(block.shape[:-2] + (-1,)))
-        return compact, np.concatenate(parts, axis=-1)
+        # the entries of each group, axis-major: Psi_b[a, c] = Psi_u[a, base_index[c]], each divided by s_a
+        entries = [a * n_p + int(base.base_index[c]) for cols, axes in groups for a in axes for c in cols]
+        divisors = np.concatenate([np.repeat(scale[list(axes)], len(cols)) for cols, axes in groups])
+        lead = psi_u.shape[:-2]
+        values = np.take(flat, entries, axis=1) / divisors
+        y_s = (y / scale)[..., compact.axis_order].reshape(-1, n_axes)
+        return compact, np.concatenate([y_s, values], axis=-1).reshape(lead + (-1,))
 
     def residual(self, theta_unknown, inputs):
         """(B, K, A) normalized residual from ``theta_unknown`` (B, 10 n_u) and ``(values, y / s)``."""

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import flax.linen as nn
 import jax.numpy as jnp
@@ -107,11 +108,12 @@ class MLP(nn.Module):
     hidden: Sequence[int]
     n_out: int
     activation: str = "tanh"
+    param_dtype: Any = jnp.float64
 
     @nn.compact
     def __call__(self, x):
-        h = Encoder(self.hidden, self.activation, name="encoder")(x.reshape(x.shape[0], -1))
-        return nn.Dense(self.n_out, param_dtype=jnp.float64, name="out")(h)
+        h = Encoder(self.hidden, self.activation, self.param_dtype, name="encoder")(x.reshape(x.shape[0], -1))
+        return nn.Dense(self.n_out, param_dtype=self.param_dtype, name="out")(h)
 
 
 class Siamese(nn.Module):
@@ -120,15 +122,16 @@ class Siamese(nn.Module):
     hidden: Sequence[int]
     n_out: int
     activation: str = "tanh"
+    param_dtype: Any = jnp.float64
 
     @nn.compact
     def __call__(self, x):
         act = ACTIVATIONS[self.activation]
-        encoder = Encoder(self.hidden, self.activation, name="encoder")
+        encoder = Encoder(self.hidden, self.activation, self.param_dtype, name="encoder")
         emb = encoder(x)  # Dense acts on the last axis: the same weights for every frame
         pooled = emb.mean(axis=1)
-        h = act(nn.Dense(self.hidden[-1], param_dtype=jnp.float64, name="head_hidden")(pooled))
-        return nn.Dense(self.n_out, param_dtype=jnp.float64, name="out")(h)
+        h = act(nn.Dense(self.hidden[-1], param_dtype=self.param_dtype, name="head_hidden")(pooled))
+        return nn.Dense(self.n_out, param_dtype=self.param_dtype, name="out")(h)
 
 
 @dataclass(frozen=True)
@@ -158,8 +161,9 @@ class ModelSpec:
         """Whether the network also takes each frame's regressor and wrench (``wls``)."""
         return self.arch == "wls"
 
-    def build(self, n_out: int, context=None) -> nn.Module:
-        """The Flax module; ``context`` (a :class:`ineid.learn.wls.WlsContext`) is required by ``wls``."""
+    def build(self, n_out: int, context=None, dtype: str = "float64") -> nn.Module:
+        """The Flax module, its parameters of ``dtype``; ``context`` (a :class:`ineid.learn.wls.WlsContext`) is
+        required by ``wls`` (float64 only: it solves least squares inside)."""
         hidden = hidden_widths(self.arch, n_out, self.depth, self.width)
         if self.uses_regressor:
             from ineid.learn.wls import WLS
@@ -168,7 +172,7 @@ class ModelSpec:
                 raise ValueError("the wls network needs the constants fitted on its training split (context)")
             return WLS(hidden=hidden, context=context, activation=self.activation)
         cls = Siamese if self.siamese else MLP
-        return cls(hidden=hidden, n_out=n_out, activation=self.activation)
+        return cls(hidden=hidden, n_out=n_out, activation=self.activation, param_dtype=jnp.dtype(dtype))
 
     @property
     def name(self) -> str:

@@ -1,9 +1,9 @@
 """Train a grid of networks and rank them by test error (``ineid sweep``).
 
-Trials run one after another in this process (``engine="sequential"``, the default) or as
-Ray tasks on a cluster (``engine="ray"``, :mod:`ineid.learn.ray_engine`); either way each
-trial has its own run folder ``OUT/<name>`` and the ranked table goes to ``OUT/sweep.csv``
-and ``OUT/sweep.png``.
+Trials that can share a compiled program train together, one population at a time, in this
+process (``engine="sequential"``, the default) or as Ray tasks on a cluster, one a population
+(``engine="ray"``, :mod:`ineid.learn.ray_engine`); either way each trial has its own run folder
+``OUT/<name>`` and the ranked table goes to ``OUT/sweep.csv`` and ``OUT/sweep.png``.
 """
 
 from __future__ import annotations
@@ -22,7 +22,15 @@ from ineid._inputs import read_json
 from ineid.errors import IneidError, TrainingError
 from ineid.learn.models import SIZED
 from ineid.learn.train import TrainConfig
-from ineid.learn.trials import TRIAL_STATES, SweepRow, run_name, run_trial, trial_state  # noqa: F401  (re-exported)
+from ineid.learn.trials import (  # noqa: F401  (re-exported)
+    TRIAL_STATES,
+    SweepRow,
+    populations,
+    run_name,
+    run_population,
+    run_trial,
+    trial_state,
+)
 
 if TYPE_CHECKING:
     from ineid.data import Dataset
@@ -141,12 +149,16 @@ def sweep(
     """Train and evaluate every configuration of ``grid`` into ``out_dir/<name>``; rows ranked
     by the test median relative error of the standard parameters, failed trials last.
 
+    Trials that share a network's shapes and sizes (they differ in seeds, scalers, learning rates,
+    loss weights) train together as one population (:func:`ineid.learn.trials.populations`); each
+    trial's folder and numbers are those of training it alone.
+
     A trial that fails (an :class:`ineid.IneidError` such as a diverging loss; with Ray, any
     error in the trial) becomes a row with ``status = "failed: <why>"`` and NaN errors; the
     sweep goes on.
 
     The settings go to ``out_dir/sweep.json`` first. An interrupted sweep leaves its
-    finished trials, and the interrupted one up to its last checkpoint (a trial replacing
+    finished trials, and the interrupted ones up to their last checkpoint (a trial replacing
     an older run leaves the older run until it finishes): ``resume`` continues it, keeping
     finished trials (:func:`trial_state`), resuming interrupted ones and running the rest;
     ``sweep.csv`` and ``sweep.png`` are then written over all the trials. The folder's
@@ -162,10 +174,10 @@ def sweep(
         overwrite: replace run folders that hold runs (else refused before any training);
             each is replaced when its new run is finished.
         physics_mode: ``"cached"`` or ``"inline"`` (see :func:`ineid.learn.train`).
-        engine: ``"sequential"`` (this process, one trial after another) or ``"ray"``
-            (:mod:`ineid.learn.ray_engine`: one Ray task per trial).
+        engine: ``"sequential"`` (this process, one population after another) or ``"ray"``
+            (:mod:`ineid.learn.ray_engine`: one Ray task per population).
         address: the Ray cluster to join; None starts a local one for the sweep and stops it.
-        cpus_per_trial, gpus_per_trial: Ray resources each trial reserves.
+        cpus_per_trial, gpus_per_trial: Ray resources each population reserves.
         ray_init: extra keyword arguments of ``ray.init`` for the local cluster (e.g. ``num_cpus``).
         resume: continue the sweep in ``out_dir`` (the same grid, settings and dataset).
 
@@ -176,70 +188,125 @@ def sweep(
         OutputBusyError: another process is writing ``out_dir``.
         OptionalDependencyError: ``engine="ray"`` without Ray installed.
     """
+    ray = dict(address=address, cpus_per_trial=cpus_per_trial, gpus_per_trial=gpus_per_trial, ray_init=ray_init)
+    (rows,) = sweep_many(
+        ds,
+        [SweepSpec(grid, base, Path(out_dir), resume)],
+        dataset_path=dataset_path,
+        model=model,
+        progress=progress,
+        overwrite=overwrite,
+        physics_mode=physics_mode,
+        engine=engine,
+        **ray,
+    )
+    return rows
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """One sweep of :func:`sweep_many`: its grid, run settings, folder, and whether it is resumed."""
+
+    grid: Grid
+    base: TrainConfig
+    out_dir: Path
+    resume: bool = False
+
+
+def sweep_many(
+    ds: Dataset,
+    sweeps: list[SweepSpec],
+    *,
+    dataset_path: str | None = None,
+    model: RobotModel | None = None,
+    progress=None,
+    overwrite: bool = False,
+    physics_mode: str = "cached",
+    engine: str = "sequential",
+    **ray,
+) -> list[list[SweepRow]]:
+    """Several sweeps on one dataset, each as :func:`sweep` runs it, their trials trained together: populations
+    are formed across the sweeps (the seeds of a study, each its own sweep folder, train as one).
+
+    Returns:
+        Each sweep's rows, ranked (:func:`sweep`).
+    """
+    from contextlib import ExitStack
+
     from ineid._atomic import output_lock
 
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
-    out_dir = Path(out_dir)
-    cfgs = grid.configs(base)
-    if not cfgs:
+    cfgs = [sw.grid.configs(sw.base) for sw in sweeps]
+    if not all(cfgs):
         raise ValueError(
             "the grid is empty (a Siamese network needs more than one frame: add --sample-frames values > 1)"
         )
-    names = [run_name(cfg) for cfg in cfgs]
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    with output_lock(out_dir):
-        record = check_sweep_folder(ds, grid, base, out_dir, overwrite=overwrite, resume=resume)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        atomic_write(out_dir / SWEEP_RECORD, json.dumps(record, indent=1))
-        states = {
-            n: trial_state(out_dir / n, cfg, record["dataset"]) if resume else "new"
-            for n, cfg in zip(names, cfgs, strict=True)
-        }
-        ray = dict(address=address, cpus_per_trial=cpus_per_trial, gpus_per_trial=gpus_per_trial, ray_init=ray_init)
-        rows = _run_trials(engine, ds, cfgs, out_dir, states, dataset_path, model, physics_mode, progress, ray)
-        _write_ranked(rows, out_dir)
-    return rows
+    jobs, owner = [], []
+    with ExitStack() as locks:
+        for k, sw in enumerate(sweeps):
+            sw.out_dir.parent.mkdir(parents=True, exist_ok=True)
+            locks.enter_context(output_lock(sw.out_dir))
+            record = check_sweep_folder(ds, sw.grid, sw.base, sw.out_dir, overwrite=overwrite, resume=sw.resume)
+            sw.out_dir.mkdir(parents=True, exist_ok=True)
+            atomic_write(sw.out_dir / SWEEP_RECORD, json.dumps(record, indent=1))
+            for cfg in cfgs[k]:
+                run_dir = sw.out_dir / run_name(cfg)
+                jobs.append((cfg, run_dir, trial_state(run_dir, cfg, record["dataset"]) if sw.resume else "new"))
+                owner.append(k)
+        rows = _run_jobs(engine, ds, jobs, dataset_path, model, physics_mode, progress, ray)
+        out = [[r for r, o in zip(rows, owner, strict=True) if o == k] for k in range(len(sweeps))]
+        for sw, sweep_rows in zip(sweeps, out, strict=True):
+            _write_ranked(sweep_rows, sw.out_dir)
+    return out
 
 
-def _run_trials(
+def _run_jobs(
     engine: str,
     ds: Dataset,
-    cfgs: list[TrainConfig],
-    out_dir: Path,
-    states: dict[str, str],
+    jobs: list[tuple[TrainConfig, Path, str]],
     dataset_path: str | None,
     model: RobotModel | None,
     physics_mode: str,
     progress,
     ray: dict,
 ) -> list[SweepRow]:
-    """Every trial, one row each (a failed one: its status): one Ray task each (``ray``: the cluster's keyword
-    arguments of :func:`ineid.learn.ray_engine.ray_trials`), or one after another in this process."""
+    """Every trial ``(cfg, run folder, state)``, one row each in order (a failed one: its status): one Ray task a
+    population (``ray``: the cluster's keyword arguments of :func:`ineid.learn.ray_engine.ray_trials`), or one
+    population after another in this process, on data held once for all of them."""
+    groups = populations([cfg for cfg, _, _ in jobs])
     if engine == "ray":
-        from ineid.learn.ray_engine import ray_trials
+        from ineid.learn.ray_engine import ray_populations
 
-        return ray_trials(
-            ds,
-            cfgs,
-            out_dir,
-            dataset_path=dataset_path,
-            physics_mode=physics_mode,
-            progress=progress,
-            states=states,
-            **ray,
+        return ray_populations(
+            ds, jobs, groups, dataset_path=dataset_path, physics_mode=physics_mode, progress=progress, **ray
         )
     model = model or ds.model()
-    rows = []
-    for i, cfg in enumerate(cfgs):
-        name = run_name(cfg)
-        try:
-            rows.append(run_trial(ds, cfg, out_dir / name, dataset_path, model, physics_mode, states[name]))
-        except IneidError as e:
-            rows.append(SweepRow.failed(cfg, str(e)))
-        if progress is not None:
-            progress(i + 1, len(cfgs), rows[-1])
+    shared = _shared(ds, model, [cfg for cfg, _, state in jobs if state in ("new", "checkpoint")], physics_mode)
+    rows: list[SweepRow | None] = [None] * len(jobs)
+    done = 0
+    for group in groups:
+        got = run_population(ds, [jobs[i] for i in group], dataset_path, model, physics_mode, shared)
+        for i, row in zip(group, got, strict=True):
+            rows[i] = row
+            done += 1
+            if progress is not None:
+                progress(done, len(jobs), row)
     return rows
+
+
+def _shared(ds: Dataset, model, cfgs: list[TrainConfig], physics_mode: str) -> dict:
+    """The data every trial of ``cfgs`` trains on, held once (:func:`ineid.learn.train.shared_data`); a trial whose
+    split fails is left out (its error is reported when it runs)."""
+    from ineid.learn.train import default_split, shared_data
+
+    pairs = []
+    for cfg in cfgs:
+        try:
+            pairs.append((cfg, default_split(ds, cfg)))
+        except IneidError:
+            continue
+    return shared_data(ds, model, pairs, physics_mode) if pairs else {}
 
 
 def _write_ranked(rows: list[SweepRow], out_dir: Path) -> None:

@@ -1,7 +1,9 @@
-"""One trial of a sweep: its name, its state on disk, running it, and its row in the table.
+"""The trials of a sweep: their names, their state on disk, running them, and their rows in the table.
 
-Shared by the engines that run a sweep's trials: one after another in this process
-(:func:`ineid.learn.sweep.sweep`) or as Ray tasks (:mod:`ineid.learn.ray_engine`).
+Trials that can share a compiled program (:func:`population_key`) are trained together as one
+population (:func:`ineid.learn.train.train_population`, :func:`run_population`); each is then
+evaluated on its test split. Shared by the engines that run a sweep's trials: here
+(:func:`ineid.learn.sweep.sweep`) or one population a Ray task (:mod:`ineid.learn.ray_engine`).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from ineid.learn.evaluate import evaluate
 from ineid.learn.run_checks import damaged, read_metrics
 from ineid.learn.run_checks import read_json as read_run_json
 from ineid.learn.runs import CHECKPOINT, CONFIG, EVALUATION, METRICS, MODEL, load_run
-from ineid.learn.train import TrainConfig, train
+from ineid.learn.train import TrainConfig, Trial, train, train_population
 
 
 def run_name(cfg: TrainConfig) -> str:
@@ -156,6 +158,7 @@ def run_trial(
     """
     if state not in TRIAL_STATES:
         raise ValueError(f"state must be one of {', '.join(TRIAL_STATES)}, got {state!r}")
+    result = None
     if state in ("new", "checkpoint"):
         result = train(
             ds,
@@ -167,6 +170,79 @@ def run_trial(
             model=model,
             physics_mode=physics_mode,
         )
+    return _evaluated(ds, cfg, run_dir, state, result, model)
+
+
+def population_key(cfg: TrainConfig) -> tuple:
+    """What the settings of trials that can train as one population share (the rest of
+    :func:`ineid.learn.population.program_key` follows from them on one dataset): the network, optimizer,
+    schedule (and its epochs), loss form, batch, split sizes, dtype. A wls network trains alone."""
+    unique = id(cfg) if cfg.model.uses_regressor else 0
+    epochs = cfg.epochs if cfg.schedule == "cosine" else 0
+    return (
+        cfg.model,
+        cfg.optimizer,
+        cfg.schedule,
+        epochs,
+        cfg.loss,
+        cfg.batch,
+        cfg.n_train,
+        cfg.n_val,
+        cfg.dtype,
+        unique,
+    )
+
+
+def populations(cfgs: list[TrainConfig], max_size: int | None = None) -> list[list[int]]:
+    """The indices of ``cfgs`` in populations (:func:`population_key`), in the order first met, each of at
+    most ``max_size`` trials (None: :data:`ineid.learn.population.MAX_POPULATION`)."""
+    from ineid.learn.population import MAX_POPULATION
+
+    size = max_size or MAX_POPULATION
+    groups: dict[tuple, list[int]] = {}
+    for i, cfg in enumerate(cfgs):
+        groups.setdefault(population_key(cfg), []).append(i)
+    return [g[s : s + size] for g in groups.values() for s in range(0, len(g), size)]
+
+
+def run_population(
+    ds,
+    jobs: list[tuple[TrainConfig, Path, str]],
+    dataset_path: str | None = None,
+    model=None,
+    physics_mode: str = "cached",
+    shared: dict | None = None,
+    failed_text=str,
+) -> list[SweepRow]:
+    """Train the trials ``(cfg, run folder, state)`` that need it as one population, evaluate each on its test
+    split (``evaluation.json``), and return their rows in order (a trial that failed: its status,
+    ``failed_text(error)``).
+
+    ``state`` (:func:`trial_state`) says how much of each is done, as for :func:`run_trial`; ``shared`` data
+    (:func:`ineid.learn.train.shared_data`) are reused and added to.
+    """
+    for _, _, state in jobs:
+        if state not in TRIAL_STATES:
+            raise ValueError(f"state must be one of {', '.join(TRIAL_STATES)}, got {state!r}")
+    todo = [i for i, (_, _, state) in enumerate(jobs) if state in ("new", "checkpoint")]
+    trials = [Trial(jobs[i][0], jobs[i][1], jobs[i][2] == "checkpoint", True, dataset_path) for i in todo]
+    outcomes = train_population(ds, trials, model=model, physics_mode=physics_mode, shared=shared)
+    trained = dict(zip(todo, outcomes, strict=True))
+    rows = []
+    for i, (cfg, run_dir, state) in enumerate(jobs):
+        result = trained.get(i)
+        if isinstance(result, IneidError):
+            rows.append(SweepRow.failed(cfg, failed_text(result)))
+            continue
+        try:
+            rows.append(_evaluated(ds, cfg, run_dir, state, result, model))
+        except IneidError as e:
+            rows.append(SweepRow.failed(cfg, failed_text(e)))
+    return rows
+
+
+def _evaluated(ds, cfg: TrainConfig, run_dir: Path, state: str, result, model) -> SweepRow:
+    """A trained trial's row: its evaluation (written to ``evaluation.json``, or read back when finished)."""
     if state == "finished":
         ev = read_run_json(run_dir / EVALUATION)
     else:

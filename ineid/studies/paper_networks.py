@@ -10,8 +10,9 @@ of its tools (Keras, scikit-learn): activations :data:`ACTIVATIONS`, scalers
 :data:`SCALERS`, optimizers :data:`OPTIMIZERS`.
 
 A study is a list of :class:`Part` (a :class:`ineid.learn.sweep.Grid` with its epochs and
-batch), each run once per seed by :func:`ineid.learn.sweep.sweep` into
-``OUT/<part>/seed-<seed>`` (resumable), on the paper's dataset (``DatasetSpec()``: 100 x 100
+batch), each run once per seed into ``OUT/<part>/seed-<seed>`` (an ``ineid sweep`` folder,
+resumable; a part's seeds by one :func:`ineid.learn.sweep.sweep_many`, so its trials that
+share a network train as one population), on the paper's dataset (``DatasetSpec()``: 100 x 100
 factorial configurations x 100 frames) split 3,000 / 500 / 500 configurations. Plans:
 
 * ``full``: every activation x scaler x optimizer on the simple network, Table 1's
@@ -36,7 +37,7 @@ from pathlib import Path
 from ineid._atomic import write_csv
 from ineid.data import Combination, DatasetSpec
 from ineid.learn.models import ModelSpec
-from ineid.learn.sweep import SWEEP_RECORD, Grid, SweepRow, check_sweep_folder, sweep
+from ineid.learn.sweep import SWEEP_RECORD, Grid, SweepRow, SweepSpec, check_sweep_folder, sweep_many
 from ineid.learn.train import TrainConfig
 from ineid.learn.trials import run_name
 
@@ -218,7 +219,9 @@ def run_study(
     **engine_kw,
 ) -> list[StudyRow]:
     """Run every part once per seed (part by part, so the first parts' claims are decided first) and write
-    ``OUT/networks.csv`` after each sweep; each sweep folder is an ordinary ``ineid sweep`` folder.
+    ``OUT/networks.csv`` after each part; each sweep folder is an ordinary ``ineid sweep`` folder. A part's seeds
+    run together (:func:`ineid.learn.sweep.sweep_many`): the trials that differ only in their seed, scaler or
+    learning rate train as one population.
 
     Args:
         ds: the dataset (:attr:`Size.dataset` generated, or a user's).
@@ -239,33 +242,24 @@ def run_study(
     model = model or ds.model()
     total, done, rows = trials(parts, size), 0, []
     for part in parts:
+        specs = []
         for seed in size.seeds:
-            base = base_config(size, part, seed)
             folder = out_dir / part.name / f"seed-{seed}"
-            cfgs = part.grid.configs(base)
-            offset = done
-
-            def step(i, _n, row, offset=offset):
-                if progress is not None:
-                    progress(offset + i, total, row)
-
             again = resume and (folder / SWEEP_RECORD).is_file()
-            got = sweep(
-                ds,
-                part.grid,
-                base,
-                folder,
-                model=model,
-                progress=step,
-                overwrite=overwrite,
-                resume=again,
-                engine=engine,
-                **engine_kw,
-            )
-            by_name = {r.name: r for r in got}
+            specs.append(SweepSpec(part.grid, base_config(size, part, seed), folder, again))
+        offset = done
+
+        def step(i, _n, row, offset=offset):
+            if progress is not None:
+                progress(offset + i, total, row)
+
+        got = sweep_many(ds, specs, model=model, progress=step, overwrite=overwrite, engine=engine, **engine_kw)
+        for spec, sweep_rows in zip(specs, got, strict=True):
+            by_name = {r.name: r for r in sweep_rows}
+            cfgs = spec.grid.configs(spec.base)
             rows += [StudyRow.of(by_name[run_name(c)], part.name, c) for c in cfgs]
             done += len(cfgs)
-            write_rows(rows, out_dir / FILE)  # the rows so far: an interrupted study keeps them
+        write_rows(rows, out_dir / FILE)  # the rows so far: an interrupted study keeps them
     return rows
 
 
