@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import ineid
-from ineid.channels import BaseWrench, JointTorque, LinkWrench, MotorCurrent, SensorPose
+from ineid.channels import BaseWrench, ChannelSet, JointTorque, LinkWrench, MotorCurrent, SensorPose
 from ineid.robots import chunked, device
 
 from .conftest import random_states, rel_err
@@ -65,10 +65,14 @@ def _evaluators(arm, theta):
         "rows_current": lambda q, qd, qdd: motor.rows(arm, q, qd, qdd),
         "rows_link_wrench": lambda q, qd, qdd: LinkWrench(key="w", link=link).rows(arm, q, qd, qdd),
         "predict_wrench_at_pose": lambda q, qd, qdd: BaseWrench(sensor=pose).predict(arm, q, qd, qdd, theta),
+        "set_rows_split": lambda q, qd, qdd: ChannelSet((BaseWrench(), motor)).rows_split(arm, q, qd, qdd),
+        "set_predict": lambda q, qd, qdd: ChannelSet((BaseWrench(sensor=pose), JointTorque())).predict(
+            arm, q, qd, qdd, theta
+        ),
     }
 
 
-CORE = ("regressor_split", "base_wrench", "joint_torques", "link_wrench", "rows_current")
+CORE = ("regressor_split", "base_wrench", "joint_torques", "link_wrench", "rows_current", "set_rows_split")
 """A few evaluators covering each shape (several results, theta fixed, torques, a link, a channel's transform):
 the paths that compile the pure functions for themselves take seconds per function."""
 
@@ -127,7 +131,12 @@ def test_inside_a_callers_jit(arm, states):
     theta = arm.theta_cad * 0.9
     q, qd, qdd = (x[:37] for x in states)
     for name, f in _evaluators(arm, theta).items():
-        if name not in ("regressor_split", "base_wrench", "rows_current"):  # tracing: the pure functions, each compiled
+        if name not in (
+            "regressor_split",
+            "base_wrench",
+            "rows_current",
+            "set_predict",
+        ):  # tracing: the pure functions, each compiled
             continue
         expected = f(q, qd, qdd)
         got = jax.jit(f)(jnp.asarray(q), jnp.asarray(qd), jnp.asarray(qdd))

@@ -254,19 +254,19 @@ class ChannelSet:
     def rows(self, model, q, qd, qdd) -> np.ndarray:
         """The stacked ``T Phi`` (..., n_axes, p), float64 NumPy (each channel's :meth:`Channel.rows`)."""
         parts = [c.rows(model, q, qd, qdd) for c in self.channels]
-        return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=-2)
+        return parts[0] if len(parts) == 1 else _join(parts, -2)
 
     def rows_split(self, model, q, qd, qdd) -> tuple[np.ndarray, np.ndarray]:
         """The stacked ``(T Phi_u, T Phi_k)``: (..., n_axes, 10 n_u) and (..., n_axes, 10 n_k)."""
         parts = [c.rows_split(model, q, qd, qdd) for c in self.channels]
         if len(parts) == 1:
             return parts[0]
-        return tuple(np.concatenate([p[i] for p in parts], axis=-2) for i in range(2))  # type: ignore[return-value]
+        return tuple(_join([p[i] for p in parts], -2) for i in range(2))  # type: ignore[return-value]
 
     def predict(self, model, q, qd, qdd, theta) -> np.ndarray:
         """The stacked ``T Phi theta`` (..., n_axes) (each channel's :meth:`Channel.predict`)."""
         parts = [c.predict(model, q, qd, qdd, theta) for c in self.channels]
-        return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=-1)
+        return parts[0] if len(parts) == 1 else _join(parts, -1)
 
     def casadi_rows(self, model, transformed: bool = True):
         """``casadi.Function`` ``(q, qd, qdd) -> Y`` (n_axes x p): the stacked ``T Phi``, the model's gravity;
@@ -327,6 +327,16 @@ class ChannelSet:
         if self.n_extra(model) == 0:
             return None
         return _casadi_cached(self, model, "extra", _build_casadi_extra)
+
+
+def _join(parts: list, axis: int):
+    """The channels' answers stacked in kind: NumPy arrays with NumPy, ``jax.Array``s (on their device, or
+    traced inside a caller's ``jit``) with ``jax.numpy``, as the channels' evaluators answered."""
+    if all(isinstance(p, np.ndarray) for p in parts):
+        return np.concatenate(parts, axis=axis)
+    import jax.numpy as jnp
+
+    return jnp.concatenate(parts, axis=axis)
 
 
 @functools.cache
