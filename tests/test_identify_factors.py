@@ -150,7 +150,7 @@ def test_solve_of_a_long_recording_from_factors_equals_the_normal_equations(mode
     ds = generate_dataset(model, spec)
     ds.wrench += np.array([1.0, -2.0, 0.5, 0.1, 0.0, -0.2])  # an untared sensor
     settings = SolveSettings(bias="estimate")
-    monkeypatch.setattr(steps, "SMALL_JOB_FRAMES", 100)  # 2 x 120 fitted frames: the factors' route
+    monkeypatch.setattr(steps, "FACTOR_MIN_FRAMES", 100)  # 2 x 120 fitted frames: the factors' route
     calls = []
     monkeypatch.setattr(steps, "factor_fit", _counted(steps.factor_fit, calls))
     new = solve_dataset(ds, settings, model=model)

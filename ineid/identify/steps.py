@@ -40,10 +40,12 @@ from ineid.robots.model import SMALL_JOB_FRAMES
 REFERENCE_ROWS = 200_000
 """Frames per batch when configurations are refitted through the stacked QR (reference)."""
 FACTOR_MAX_CONFIGS = 16
-"""At most this many configurations of more than :data:`ineid.robots.model.SMALL_JOB_FRAMES` fitted frames in all
-(a few long recordings) are fitted from their triangular factors (:func:`factor_fit`: exact, one pass over the
-frames, where their normal equations are often too ill-conditioned and would be refitted); more, from the
-normal-equation blocks (:func:`fused_fit`)."""
+"""At most this many configurations of at least :data:`FACTOR_MIN_FRAMES` fitted frames in all (a few long
+recordings) are fitted from their triangular factors (:func:`factor_fit`: exact, one pass over the frames, where
+their normal equations are often too ill-conditioned and would be refitted through the QR of every row); more,
+or fewer frames, from the normal-equation blocks (:func:`fused_fit`)."""
+FACTOR_MIN_FRAMES = 4096
+"""Fitted frames in all from which a few configurations take the factors (:data:`FACTOR_MAX_CONFIGS`)."""
 
 
 @dataclass(frozen=True)
@@ -132,7 +134,7 @@ def fit_dataset(
     fit_sl = slice(0, n_fit)
 
     # 1. base least squares, batched (or per configuration through CasADi)
-    if settings.backend == "jax" and ds.n_configs <= FACTOR_MAX_CONFIGS and ds.n_configs * n_fit > SMALL_JOB_FRAMES:
+    if settings.backend == "jax" and ds.n_configs <= FACTOR_MAX_CONFIGS and ds.n_configs * n_fit >= FACTOR_MIN_FRAMES:
         t0 = time.perf_counter()
         fit_progress = progress if settings.method == "linear" else None
         fit, rms, factors = factor_fit(model, ds, frames, base, settings, axis_sigma, channels, fit_progress)
