@@ -49,7 +49,6 @@ from __future__ import annotations
 import functools
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -57,6 +56,7 @@ from ineid.channels import BASE_WRENCH, ChannelSet
 from ineid.identify.blocks import InformationBlocks  # defined here before: still importable from here
 from ineid.identify.chunks import map_chunks
 from ineid.identify.extras import unknown_rows
+from ineid.identify.rows import RowLayout, chunk_rows, layout_of, transforms
 from ineid.robots.model import SMALL_JOB_FRAMES
 
 TARGET_FRAMES = 2048
@@ -70,88 +70,38 @@ WORKERS = min(os.cpu_count() or 1, 4)
 two threads run on two cores (measured 1.3x on two cores over one dispatching thread)."""
 
 
-def _split(n_configs: int, n_frames: int, target: int | None = None) -> tuple[int, int]:
+def chunk_shape(n_configs: int, n_frames: int, target: int | None = None) -> tuple[int, int]:
     """``(configurations, frames)`` per compiled call of about ``target`` frames (default :data:`TARGET_FRAMES`)."""
     frames = min(n_frames, MAX_FRAME_CHUNK)
     return max(1, (target or TARGET_FRAMES) // frames), frames
 
 
 def _map_chunks(kernel, frame_arrays, config_arrays, consts, progress=None, target: int | None = None) -> list:
-    """:func:`ineid.identify.chunks.map_chunks` in calls of about ``target`` frames (:func:`_split`) from
+    """:func:`ineid.identify.chunks.map_chunks` in calls of about ``target`` frames (:func:`chunk_shape`) from
     :data:`WORKERS` threads."""
     n_configs, n_frames = frame_arrays[0].shape[:2]
-    shape = _split(n_configs, n_frames, target)
+    shape = chunk_shape(n_configs, n_frames, target)
     return map_chunks(kernel, frame_arrays, config_arrays, consts, shape, WORKERS, progress)
 
 
-@dataclass(frozen=True)
-class _Layout:
-    """What a blocks kernel is compiled for (:func:`_blocks_kernel`'s arguments, resolved): the channels'
-    ``structure``, the regressor's ``n_cols``, the unknown ``columns`` it takes (the base ones, or every
-    unknown one with sums, the base ones among them at ``base_pos``), the ``known_columns``, the channels'
-    ``extra_columns`` and their total ``n_extra``, and whether frame sums come too (``sums``)."""
-
-    structure: tuple
-    n_cols: int
-    columns: tuple[int, ...]
-    known_columns: tuple[int, ...]
-    extra_columns: tuple[int, ...]
-    n_extra: int
-    sums: bool
-    base_pos: tuple[int, ...]
-
-
 @functools.cache
-def _blocks_kernel(
-    structure: tuple,
-    n_cols: int,
-    base_columns: tuple[int, ...],
-    known_columns: tuple[int, ...],
-    sum_columns: tuple[int, ...] = (),
-    summed: bool = False,
-    base_extra: tuple[int, ...] = (),
-    sum_extra: tuple[int, ...] = (),
-):
+def _blocks_kernel(layout: RowLayout, summed: bool = False):
     """Jitted ``(q, qd, qdd, values, mask, [w_ref, y_ref,] gravity, theta_known, xs) -> (G, h, e[, s, t])``.
 
-    ``structure``: :meth:`ineid.channels.ChannelSet.structure` of the channels, whose rows
-    are stacked in order; ``xs`` their transforms ``T`` (n_a x n_a each, read where the
-    channel has one): the rows and the known links' share are in the channels' own axes.
+    The rows are ``layout``'s (:func:`ineid.identify.rows.chunk_rows`: the channels' rows stacked in order, in
+    their own axes, ``xs`` their transforms ``T``, the extra kept columns ``E`` after the links').
     ``summed``: ``(q, qd, qdd, values, mask, d, gravity, theta_known, xs)`` with row weights
     ``d`` (Cc, A), and ``G, h`` summed over the axes with weights ``d_a^2`` (see
     :class:`InformationBlocks`): one (AFc x r) product per configuration instead of A.
-    ``sum_columns`` (the unknown columns, base columns among them): the blocks are of the
+    ``layout.sums`` (every unknown column, base columns among them): the blocks are of the
     frames minus a reference row per configuration and axis (``w_ref`` (Cc, A, p), ``y_ref``
     (Cc, A): the first frame's), and the frame sums ``s`` of those columns and ``t`` of ``y``
     come too. Centring is invariant to the shift, and the shift takes the large constant part
     (offsets, the weight of the links) out of the sums before they cancel.
-    ``base_extra``, ``sum_extra``: the channels' extra kept columns (indices into their
-    ``n_extra``) among the base columns and the summed ones: the rows are ``[T Phi_u | E]``,
-    ``E`` from each channel's :meth:`ineid.channels.Channel.extra_rows_function`, block-diagonal,
-    in the channels' own axes (``T`` not applied), after the links' columns (``w_ref`` then has
-    ``10 n_u + n_extra`` columns).
     """
     import jax
 
-    base_pos = (
-        (
-            tuple(sum_columns.index(c) for c in base_columns)
-            + tuple(len(sum_columns) + sum_extra.index(j) for j in base_extra)
-        )
-        if sum_columns
-        else ()
-    )
-    layout = _Layout(
-        structure,
-        n_cols,
-        sum_columns or base_columns,
-        known_columns,
-        sum_extra if sum_columns else base_extra,
-        sum(channel.n_extra for channel in structure),
-        bool(sum_columns),
-        base_pos,
-    )
-    if sum_columns:
+    if layout.sums:
         return jax.jit(
             lambda q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs: _blocks_core(
                 layout, q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs, None
@@ -170,68 +120,11 @@ def _blocks_kernel(
     )
 
 
-def _extra_rows(layout: _Layout, q, qd, qdd, mask):
-    """(A, Cc, len(extra_columns), Fc): the block-diagonal ``E`` of the channels at ``layout.extra_columns``
-    (traced)."""
-    import jax.numpy as jnp
-
-    batch = q.shape[:-1]
-    n_axes = sum(channel.n_axes for channel in layout.structure)
-    e = jnp.zeros(batch + (n_axes, layout.n_extra), dtype=q.dtype)
-    a0 = e0 = 0
-    for channel in layout.structure:
-        if channel.n_extra:
-            e = e.at[..., a0 : a0 + channel.n_axes, e0 : e0 + channel.n_extra].set(channel.extra_rows(q, qd, qdd))
-        a0, e0 = a0 + channel.n_axes, e0 + channel.n_extra
-    e = e[..., jnp.asarray(layout.extra_columns, dtype=jnp.int32)]  # (Cc, Fc, A, k)
-    return jnp.transpose(e, (2, 0, 3, 1)) * mask[None, :, None, :]
-
-
-def _channel_rows(layout: _Layout, entries, n_axes: int, batch, mask, theta_known, dtype):
-    """``(w, known)``: one channel's rows at ``layout.columns`` (n_a, Cc, r, Fc) and the known links' share
-    (n_a, Cc, Fc) from its regressor ``entries`` (traced)."""
-    import jax.numpy as jnp
-
-    n_cols = layout.n_cols
-
-    def entry(a, col):
-        return jnp.broadcast_to(entries[a * n_cols + col], batch).astype(dtype) * mask
-
-    # (n_a, Cc, r, Fc): frames last, each entry one contiguous run (XLA:CPU's fast layout)
-    w = jnp.stack([jnp.stack([entry(a, c) for c in layout.columns], axis=1) for a in range(n_axes)])
-    known = jnp.stack(
-        [
-            sum(
-                (entries[a * n_cols + c] * theta_known[k] for k, c in enumerate(layout.known_columns)),
-                start=jnp.zeros(batch, dtype),
-            )
-            for a in range(n_axes)
-        ]
-    )  # (n_a, Cc, Fc)
-    return w, known
-
-
-def _blocks_core(layout: _Layout, q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs, d):
+def _blocks_core(layout: RowLayout, q, qd, qdd, wrench, mask, w_ref, y_ref, gravity, theta_known, xs, d):
     """The blocks of one chunk (traced; :func:`_blocks_kernel`): ``(G, h, e[, s, t])``."""
     import jax.numpy as jnp
 
-    batch = q.shape[:-1]  # (Cc, Fc)
-    evaluated: dict = {}  # two channels of one regressor evaluate it once
-    w_parts, known_parts = [], []
-    for channel, x in zip(layout.structure, xs, strict=True):
-        if channel.entries not in evaluated:
-            evaluated[channel.entries] = channel.entries(q, qd, qdd, gravity)
-        w, known = _channel_rows(layout, evaluated[channel.entries], channel.n_axes, batch, mask, theta_known, q.dtype)
-        if channel.transformed:  # the channel's axes: T applied to every regressor row and to the known share
-            w = jnp.einsum("ab,bcrf->acrf", x, w)
-            known = jnp.einsum("ab,bcf->acf", x, known)
-        w_parts.append(w)
-        known_parts.append(known)
-    w_b = w_parts[0] if len(w_parts) == 1 else jnp.concatenate(w_parts)  # (A, Cc, r, Fc)
-    if layout.extra_columns:  # [T Phi_u | E]: the extra kept columns after the links'
-        w_b = jnp.concatenate([w_b, _extra_rows(layout, q, qd, qdd, mask)], axis=2)
-    known = known_parts[0] if len(known_parts) == 1 else jnp.concatenate(known_parts)
-    y = jnp.stack([(wrench[..., a] - known[a]) * mask for a in range(w_b.shape[0])])  # (A, Cc, Fc)
+    w_b, y = chunk_rows(layout, q, qd, qdd, wrench, mask, gravity, theta_known, xs)
     if layout.sums:
         w_all = w_b - jnp.moveaxis(w_ref, 1, 0)[..., None] * mask[None, :, None, :]
         y = y - jnp.moveaxis(y_ref, 1, 0)[..., None] * mask[None]
@@ -248,14 +141,6 @@ def _blocks_core(layout: _Layout, q, qd, qdd, wrench, mask, w_ref, y_ref, gravit
     return g, h, e, jnp.einsum("acpf->cap", w_all), jnp.einsum("acf->ca", y)
 
 
-def _transforms(channels: ChannelSet, model) -> tuple[np.ndarray, ...]:
-    """Each channel's ``T`` as a kernel argument (the identity where it has none: not read)."""
-    return tuple(
-        np.eye(c.n_axes(model)) if t is None else np.asarray(t, dtype=np.float64)
-        for c, t in zip(channels, channels.transforms(), strict=True)
-    )
-
-
 def _no_blocks(n_axes: int, base, n_frames: int, sums: bool, summed: bool) -> InformationBlocks:
     """The (empty) blocks of no configuration, shaped as :func:`information_blocks` makes them."""
     r, p = base.rank, base.n_params
@@ -270,28 +155,6 @@ def _no_blocks(n_axes: int, base, n_frames: int, sums: bool, summed: bool) -> In
         n_frames,
         np.zeros((0, n_axes, p)) if sums else None,
         np.zeros((0, n_axes)) if sums else None,
-    )
-
-
-def _kernel_of(model, base, channels: ChannelSet, sums: bool, summed: bool):
-    """The compiled blocks kernel (:func:`_blocks_kernel`) of ``base``'s columns of ``channels``' rows: with the
-    frame sums of every unknown column (``sums``), or summed over the axes with row weights (``summed``)."""
-    n_link, n_extra = base.n_link_params, channels.n_extra(model)
-    link_base = base.base_index[base.base_index < n_link]
-    columns = tuple(int(c) for c in np.asarray(model.unknown_index)[link_base])
-    sum_columns = tuple(int(c) for c in model.unknown_index) if sums else ()
-    extra_kernel_args = ()
-    if n_extra:  # the extra kept columns: the base ones, and all of them for the sums
-        base_extra = tuple(int(j) - n_link for j in base.base_index[base.base_index >= n_link])
-        extra_kernel_args = (base_extra, tuple(range(n_extra)) if sums else ())
-    return _blocks_kernel(
-        channels.structure(model),
-        10 * model.n_links,
-        columns,
-        tuple(int(c) for c in model.known_index),
-        sum_columns,
-        summed,
-        *extra_kernel_args,
     )
 
 
@@ -337,9 +200,9 @@ def information_blocks(
         return _no_blocks(n_axes, base, n_frames, sums, axis_weights is not None)
     if sums and axis_weights is not None:
         raise ValueError("centred blocks (sums=True) are per axis; leave axis_weights out")
-    kernel = _kernel_of(model, base, channels, sums, axis_weights is not None)
+    kernel = _blocks_kernel(layout_of(model, base, channels, sums), axis_weights is not None)
     theta_known = np.asarray(theta_known, dtype=np.float64)
-    consts = (model.gravity, theta_known, _transforms(channels, model))
+    consts = (model.gravity, theta_known, transforms(channels, model))
     if axis_weights is not None:
         d = np.ascontiguousarray(np.broadcast_to(np.asarray(axis_weights, dtype=np.float64), (n_configs, n_axes)))
         return InformationBlocks(*_map_chunks(kernel, arrays, [d], consts, progress), n_frames, axis_w=d)
@@ -440,7 +303,7 @@ def residual_sums(
         kernel,
         [*arrays, fit],
         [theta, bias],
-        (model.gravity, _transforms(channels, model)),
+        (model.gravity, transforms(channels, model)),
         target=RESIDUAL_TARGET_FRAMES,
     )
     return ssr_fit, ssr_held, ss_held

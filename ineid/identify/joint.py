@@ -2,12 +2,14 @@
 
 ``ineid solve a.h5 b.h5 ... --validate c.h5``: configuration ``i`` of every input (the same
 selection of each; a recording has one) is one identification, fitted from the frames of
-all inputs together. The per-axis normal-equation blocks (:mod:`ineid.identify.fused`) are
-sums over frames, so the joint fit is the sum of each input's blocks; with
-``bias="estimate"`` each input is centred on its own first (its own offsets: a sensor tared
-differently, or not at all, per session; Frisch-Waugh-Lovell as in
-:class:`ineid.identify.systems.Offsets`), which costs one residual degree of freedom per
-offset and input. Every frame of the inputs is fitted (no frames held out); the validation
+all inputs together. A factor of stacked rows is the factor of the stacked factors, so each
+input's per-axis triangular factors (:mod:`ineid.identify.qr_blocks`, one compiled kernel for every
+input and the validation recording) are joined, and the fit is the QR of every input's rows to
+round-off, its residuals exact without another pass over the frames; with ``bias="estimate"``
+each input is centred on its own first (its own offsets: a sensor tared differently, or not at
+all, per session; Frisch-Waugh-Lovell as in :class:`ineid.identify.systems.Offsets`), which
+costs one residual degree of freedom per offset and input. Every frame of the inputs is fitted (no
+frames held out); the validation
 recording is predicted with the fitted parameters, its residual RMS per axis and relative
 error ``||w - w_hat|| / ||w||`` reported. With ``bias="estimate"`` its own offsets are
 unknown too: they are fitted alone on it with the parameters fixed (the mean residual per
@@ -16,7 +18,7 @@ axis taken out), so the figures measure the parameters, not the offsets.
 
 from __future__ import annotations
 
-import dataclasses
+import functools
 import time
 
 import numpy as np
@@ -24,16 +26,16 @@ import numpy as np
 from ineid.errors import IdentificationError
 from ineid.identify.choose import noise_levels, solve_channels
 from ineid.identify.extras import prior_with_extras
-from ineid.identify.fused import InformationBlocks, information_blocks
 from ineid.identify.identifiability import BaseParameters, base_parameters, frame_minimum
 from ineid.identify.known import with_known_uncertainty
-from ineid.identify.least_squares import BaseFit, fit_base, fit_base_blocks, subtract_offset_dof, with_exact_rss
+from ineid.identify.least_squares import BaseFit, subtract_offset_dof
 from ineid.identify.linear import Estimate, SharedFit, linear_theta
+from ineid.identify.qr_blocks import FactorBlocks, factor_blocks, fit_base_factors
 from ineid.identify.settings import SolveSettings
 from ineid.identify.solve import ESTIMATORS
 from ineid.identify.solve_results import SolveResults, results_meta, truth_with_extras
-from ineid.identify.steps import bias_estimate, estimate_residual_sums, predicted_wrench
-from ineid.identify.systems import check_frames, remove_offsets, stack
+from ineid.identify.steps import bias_estimate, predicted_wrench
+from ineid.identify.systems import check_frames
 from ineid.progress import Progress
 
 
@@ -140,27 +142,24 @@ def solve_recordings(
         frame_minimum(model, False, channels).require(n_total)
     axis_sigma = noise_levels(ds0, settings, channels, model)
 
-    # 1. the blocks of each input (centred on its own with offsets), summed, and their base fit
-    total, offsets = _summed_blocks(datasets, model, base, channels, mask)
-    fit = _joint_fit(datasets, model, base, channels, total, settings.weights, axis_sigma, mask)
+    # 1. the triangular factors of each input (centred on its own with offsets), joined, and their base fit
+    longest = max(d.n_frames for d in [*datasets, *([] if validate is None else [validate])])
+    factors, offsets = _input_factors(datasets, model, base, channels, mask, longest)
+    fit = _joint_fit(factors, base, settings.weights, axis_sigma, mask)
 
-    # 2. the exact residuals of every input at the linear estimate
-    def residuals(theta_u):
-        return sum(
-            estimate_residual_sums(model, d, d.n_frames, 0, theta_u, channels, offsets[k] if with_bias else None)[0]
-            for k, d in enumerate(datasets)
-        )
+    # 2. the residuals of every input at the linear estimate, from the factors: exact, no pass over the frames
+    def residuals(theta):
+        return _factor_residuals(factors, base, theta)
 
     theta_lin = linear_theta(fit, base, prior)
-    fit = with_exact_rss(fit, residuals(theta_lin))
     if settings.known_uncertainty:
         fit = with_known_uncertainty(
             fit, model, base, datasets, slice(None), channels, settings.known_uncertainty, with_bias
         )
 
     # 3. standard parameters, by the method (ineid.identify.solve.ESTIMATORS)
-    _, _, yy = total.weighted(fit.axis_weights)
-    rms = np.sqrt(yy / (channels.n_axes(model) * total.n_frames))
+    e = _joined(factors).information().e
+    rms = np.sqrt(np.einsum("ca,ca->c", fit.axis_weights**2, e) / (channels.n_axes(model) * n_total))
     est = ESTIMATORS[settings.method](SharedFit(base, prior, fit, theta_lin, rms), settings, progress).estimate
     fit_rms = np.sqrt(residuals(est.theta) / n_total)
     fit_rms[~np.all(np.isfinite(est.theta), axis=1)] = np.nan
@@ -168,7 +167,7 @@ def solve_recordings(
     # 4. the offsets of each input, the validation recording
     recordings = _recordings_meta(datasets, est, base, offsets)
     meta = results_meta(ds0, 0.0, channels, model)
-    val_rms, val_rel, n_val = _validation(model, validate, est, channels, mask, meta)
+    val_rms, val_rel, n_val = _validation(model, base, validate, est, channels, mask, meta, longest)
     meta["recordings"] = recordings
     meta["total_seconds"] = time.perf_counter() - t_start
     return _joint_results(settings, ds0, base, prior, est, fit_rms, (val_rms, val_rel, n_val), n_total, meta)
@@ -226,12 +225,12 @@ def _check_joint_settings(settings: SolveSettings) -> None:
         )
 
 
-def _summed_blocks(datasets, model, base: BaseParameters, channels, mask) -> tuple[InformationBlocks, list]:
-    """The sum of each input's :func:`ineid.identify.fused.information_blocks`, and the offsets taken out of each
-    (each centred on its own on ``mask``'s axes; none when ``mask`` is None)."""
-    total, offsets = None, []
+def _input_factors(datasets, model, base: BaseParameters, channels, mask, longest: int) -> tuple[list, list]:
+    """Each input's :func:`ineid.identify.qr_blocks.factor_blocks` (one compiled shape, for ``longest`` frames),
+    and the offsets taken out of each (each centred on its own on ``mask``'s axes; none when ``mask`` is None)."""
+    factors, offsets = [], []
     for ds in datasets:
-        blocks = information_blocks(
+        f = factor_blocks(
             model,
             base,
             ds.q,
@@ -239,60 +238,36 @@ def _summed_blocks(datasets, model, base: BaseParameters, channels, mask) -> tup
             ds.qdd,
             ds.measured(channels),
             ds.theta_known,
-            sums=mask is not None,
-            channels=channels,
+            channels,
+            offsets=mask is not None,
+            n_frames_max=longest,
         )
         if mask is not None:
-            blocks, off = blocks.centred(base, mask)
+            f, off = f.centred(mask)
             offsets.append(off)
-        total = (
-            blocks
-            if total is None
-            else InformationBlocks(
-                total.G + blocks.G, total.h + blocks.h, total.e + blocks.e, total.n_frames + blocks.n_frames
-            )
-        )
-    return total, offsets
+        factors.append(f)
+    return factors, offsets
 
 
-def _joint_fit(
-    datasets, model, base: BaseParameters, channels, total: InformationBlocks, weights: str, axis_sigma, mask
-) -> BaseFit:
-    """The base fit of the summed blocks ``total``; ill-conditioned configurations refitted by the QR of every
-    input's stacked frames (each centred on its own on ``mask``'s axes), one residual degree of freedom less
-    per offset and input."""
-    n_axes = channels.n_axes(model)
-    lost = mask.astype(np.float64) * len(datasets) if mask is not None else None
-    fit, refit = fit_base_blocks(total, base, weights, axis_sigma, lost)
-    for i in np.flatnonzero(refit):  # ill-conditioned: QR of the stacked, centred frames of every input
-        parts = [
-            stack(
-                model,
-                d.q[i : i + 1],
-                d.qd[i : i + 1],
-                d.qdd[i : i + 1],
-                d.measured(channels)[i : i + 1],
-                d.theta_known,
-                channels,
-            )
-            for d in datasets
-        ]
-        if mask is not None:
-            parts = [remove_offsets(w, y, n_axes, mask)[:2] for w, y in parts]
-        ref = fit_base(
-            np.concatenate([w for w, _ in parts], axis=1),
-            np.concatenate([y for _, y in parts], axis=1),
-            base,
-            weights,
-            axis_sigma,
-            n_axes,
-            lost,
-        )
-        for f in dataclasses.fields(type(fit)):
-            if f.name != "dof":
-                getattr(fit, f.name)[i] = getattr(ref, f.name)[0]
+def _joined(factors: list[FactorBlocks]) -> FactorBlocks:
+    return functools.reduce(FactorBlocks.joined, factors)
+
+
+def _factor_residuals(factors: list[FactorBlocks], base: BaseParameters, theta: np.ndarray) -> np.ndarray:
+    """(C, A) the residual sum of squares per axis of ``theta`` (C, n; NaN rows as zeros) over every input, each
+    with its own offsets ``b = ybar - Wbar theta`` where they were taken out: ``sum_k |Rt_k [beta; -1]|^2``,
+    ``beta = B theta`` (``W theta = W_b B theta`` for every frame)."""
+    beta = np.nan_to_num(np.asarray(theta, dtype=np.float64)[:, : base.n_params]) @ base.B.T
+    return sum(f.axis_rss(beta) for f in factors)
+
+
+def _joint_fit(factors: list[FactorBlocks], base: BaseParameters, weights: str, axis_sigma, mask) -> BaseFit:
+    """The base fit of every input's frames together from their joined factors (the QR of every stacked row, to
+    round-off), one residual degree of freedom less per offset and input."""
+    lost = mask.astype(np.float64) * len(factors) if mask is not None else None
+    fit = fit_base_factors(_joined(factors), base, weights, axis_sigma, lost)
     if mask is not None:
-        subtract_offset_dof(fit, int(mask.sum()) * len(datasets))
+        subtract_offset_dof(fit, int(mask.sum()) * len(factors))
     return fit
 
 
@@ -309,13 +284,23 @@ def _recordings_meta(datasets, est: Estimate, base: BaseParameters, offsets: lis
     return recordings
 
 
-def _validation(model, validate, est: Estimate, channels, mask, meta: dict) -> tuple[np.ndarray, np.ndarray, int]:
-    """``(rms (C, A), rel (C,), frames)`` of ``validate`` (:func:`validation_error`; its offsets on ``mask``'s axes
-    fitted alone on it), recorded in ``meta["validation"]``; NaN and 0 without it."""
+def _validation(
+    model, base: BaseParameters, validate, est: Estimate, channels, mask, meta: dict, longest: int
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(rms (C, A), rel (C,), frames)`` of ``validate`` (as :func:`validation_error`, from its triangular
+    factors: the fit's compiled kernel, its offsets on ``mask``'s axes fitted alone on it by centring), recorded
+    in ``meta["validation"]``; NaN and 0 without it."""
     c = len(est.theta)
     if validate is None:
         return np.full((c, channels.n_axes(model)), np.nan), np.full(c, np.nan), 0
-    val_rms, val_rel = validation_error(model, validate, est.theta, channels, mask)
+    (factors,), _ = _input_factors([validate], model, base, channels, mask, longest)
+    ssr = _factor_residuals([factors], base, est.theta)
+    measured = validate.measured(channels)
+    val_rms = np.sqrt(ssr / validate.n_frames)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        val_rel = np.sqrt(ssr.sum(axis=1)) / np.linalg.norm(measured, axis=(1, 2))
+    failed = ~np.all(np.isfinite(est.theta), axis=1)
+    val_rms[failed], val_rel[failed] = np.nan, np.nan
     ok = est.success
     meta["validation"] = {
         "path": None if validate.path is None else str(validate.path),

@@ -199,30 +199,30 @@ def fit_base(
         # residuals with each axis's own degrees of freedom, refit, a few rounds.
         w4 = w_b.reshape(c, n // n_axes, n_axes, r)
         g = np.einsum("cfar,cfas->cars", w4, w4)
-        frames = _axis_frames(n // n_axes, n_axes, axis_offsets)
+        frames = axis_frames(n // n_axes, n_axes, axis_offsets)
         signal = np.einsum("cfa,cfa->ca", y.reshape(c, -1, n_axes), y.reshape(c, -1, n_axes))
         for _ in range(ESTIMATE_ROUNDS):
             per_axis = resid.reshape(c, n // n_axes, n_axes) / axis_w[:, None, :]
             axis_w = estimated_axis_weights(
-                np.einsum("cfa,cfa->ca", per_axis, per_axis), g, axis_w, _r_inverse(rr), frames, signal
+                np.einsum("cfa,cfa->ca", per_axis, per_axis), g, axis_w, r_inverse(rr), frames, signal
             )
             beta, rr, rss, rank, cond, resid = _weighted_fit(w_b, y, axis_w, scales_b)
     sigma2 = rss / max(dof, 1)
-    a_inv = _r_inverse(rr)
+    a_inv = r_inverse(rr)
     if g is not None:
-        a_inv = a_inv + estimated_weights_inflation(g, axis_w, a_inv, _axis_frames(n // n_axes, n_axes, axis_offsets))
+        a_inv = a_inv + estimated_weights_inflation(g, axis_w, a_inv, axis_frames(n // n_axes, n_axes, axis_offsets))
     cov = sigma2[:, None, None] * a_inv
     cov[rank < r] = np.nan
     return BaseFit(beta, rr, rss, dof, sigma2, cov, rank, cond, axis_w)
 
 
-def _r_inverse(rr: np.ndarray) -> np.ndarray:
+def r_inverse(rr: np.ndarray) -> np.ndarray:
     """``(R^T R)^-1`` of upper-triangular factors (C, r, r)."""
     r_inv = np.linalg.solve(rr, np.broadcast_to(np.eye(rr.shape[-1]), rr.shape))
     return r_inv @ np.swapaxes(r_inv, -1, -2)
 
 
-def _axis_frames(n_frames: int, n_axes: int, axis_offsets: np.ndarray | None) -> np.ndarray:
+def axis_frames(n_frames: int, n_axes: int, axis_offsets: np.ndarray | None) -> np.ndarray:
     """(A,) ``F_a``: the frames of each axis less the offsets taken out of it."""
     frames = np.full(n_axes, float(n_frames))
     return frames if axis_offsets is None else frames - np.asarray(axis_offsets, dtype=np.float64)
@@ -331,7 +331,7 @@ def fit_base_blocks(
     beta, rr, rss, rank, cond, a_inv, refit = _normal_fit(blocks, axis_w, scales_b)
     dof = n - r
     estimated = weights == "estimate" and dof > 0
-    frames = _axis_frames(blocks.n_frames, n_axes, axis_offsets)
+    frames = axis_frames(blocks.n_frames, n_axes, axis_offsets)
     if estimated:
         for _ in range(ESTIMATE_ROUNDS):
             axis_w = estimated_axis_weights(

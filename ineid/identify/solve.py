@@ -129,7 +129,7 @@ def solve_dataset(
     # 4. the residuals of the estimate on the fitted and on the held-out frames, its offsets
     sums = step.sums
     if not out.is_linear:
-        sums = estimate_residual_sums(model, ds, n_fit, n_val, est.theta, channels, step.offsets)
+        sums = step.residual_sums(model, ds, (n_fit, n_val), est.theta, channels)
     bias_hat, bias_std = (None, None) if step.offsets is None else bias_estimate(step.offsets, est, base)
     return dataset_results(
         ds,

@@ -31,6 +31,7 @@ from ineid.identify.least_squares import (
     with_exact_rss,
 )
 from ineid.identify.linear import Estimate, SharedFit, linear_theta, prior_map
+from ineid.identify.qr_blocks import FactorBlocks, factor_blocks, fit_base_factors
 from ineid.identify.settings import SolveSettings
 from ineid.identify.systems import Offsets, predict_wrench, remove_offsets, stack, stack_casadi
 from ineid.progress import Progress
@@ -38,6 +39,13 @@ from ineid.robots.model import SMALL_JOB_FRAMES
 
 REFERENCE_ROWS = 200_000
 """Frames per batch when configurations are refitted through the stacked QR (reference)."""
+FACTOR_MAX_CONFIGS = 16
+"""At most this many configurations of at least :data:`FACTOR_MIN_FRAMES` fitted frames in all (a few long
+recordings) are fitted from their triangular factors (:func:`factor_fit`: exact, one pass over the frames, where
+their normal equations are often too ill-conditioned and would be refitted through the QR of every row); more,
+or fewer frames, from the normal-equation blocks (:func:`fused_fit`)."""
+FACTOR_MIN_FRAMES = 4096
+"""Fitted frames in all from which a few configurations take the factors (:data:`FACTOR_MAX_CONFIGS`)."""
 
 
 @dataclass(frozen=True)
@@ -49,12 +57,55 @@ class DatasetFit:
         offsets: the means taken out for the sensor offsets (``bias="estimate"``), else None.
         sums: :func:`estimate_residual_sums` at the linear estimate ``shared.theta_lin``.
         seconds: (C,) what the base fit took per configuration.
+        factors: the triangular factors of the fitted and held-out frames (:func:`factor_fit`), or None.
     """
 
     shared: SharedFit
     offsets: Offsets | None
     sums: tuple
     seconds: np.ndarray
+    factors: FactorResiduals | None = None
+
+    def residual_sums(self, model, ds, frames: tuple[int, int], theta_unknown, channels: ChannelSet) -> tuple:
+        """:func:`estimate_residual_sums` of ``theta_unknown`` (C, n): from the factors where there are, else by a
+        pass over ``frames = (fitted, held out)`` of ``ds``."""
+        if self.factors is not None:
+            return self.factors.sums(theta_unknown)
+        return estimate_residual_sums(model, ds, *frames, theta_unknown, channels, self.offsets)
+
+
+@dataclass(frozen=True)
+class FactorResiduals:
+    """The triangular factors of a solve's fitted frames (centred where offsets are fitted) and of its held-out
+    ones (:mod:`ineid.identify.qr_blocks`): the residual sums of any estimate without a pass over the frames,
+    ``W theta = W_b B theta`` on every frame (with offsets, the base parameters are the centred frames':
+    ``W theta - W_b B theta`` is then a constant per axis, which the offsets ``ybar - Wbar_b beta`` take).
+
+    Attributes:
+        fitted: the fitted frames' factors; held: the held-out frames' (with the column of ones with offsets),
+            or None; ss_held: (C,) the held-out measured values' sum of squares; base: the base parameters;
+            offsets: the means taken out of the fitted frames, or None.
+    """
+
+    fitted: FactorBlocks
+    held: FactorBlocks | None
+    ss_held: np.ndarray
+    base: BaseParameters
+    offsets: Offsets | None
+
+    def sums(self, theta_unknown: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(ssr_fit (C, A), ssr_held (C, A), ss_held (C,))`` as :func:`estimate_residual_sums` gives them."""
+        theta = np.asarray(theta_unknown, dtype=np.float64)[:, : self.base.n_params]
+        beta = np.nan_to_num(theta) @ self.base.B.T
+        ssr_fit = self.fitted.axis_rss(beta)
+        if self.held is None:
+            return ssr_fit, np.zeros_like(ssr_fit), self.ss_held
+        bias = None
+        if self.offsets is not None:  # b = ybar - Wbar theta; W theta and W_b beta differ by a constant per axis
+            off = self.offsets
+            bias = off.y_mean - np.einsum("car,cr->ca", off.w_mean[..., self.base.base_index], beta)
+            bias = bias if off.mask is None else bias * off.mask
+        return ssr_fit, self.held.axis_rss(beta, bias), self.ss_held
 
 
 def fit_dataset(
@@ -83,6 +134,16 @@ def fit_dataset(
     fit_sl = slice(0, n_fit)
 
     # 1. base least squares, batched (or per configuration through CasADi)
+    if settings.backend == "jax" and ds.n_configs <= FACTOR_MAX_CONFIGS and ds.n_configs * n_fit >= FACTOR_MIN_FRAMES:
+        t0 = time.perf_counter()
+        fit_progress = progress if settings.method == "linear" else None
+        fit, rms, factors = factor_fit(model, ds, frames, base, settings, axis_sigma, channels, fit_progress)
+        seconds = np.full(ds.n_configs, (time.perf_counter() - t0) / max(ds.n_configs, 1))
+        theta_lin = linear_theta(fit, base, prior)  # 2. the residuals from the factors: exact, no pass
+        if settings.known_uncertainty:
+            fit = with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings.known_uncertainty, with_bias)
+        shared = SharedFit(base, prior, fit, theta_lin, rms)
+        return DatasetFit(shared, factors.offsets, factors.sums(theta_lin), seconds, factors)
     if settings.backend == "casadi":
         fit, rms, seconds, offsets = casadi_fits(
             model, ds, fit_sl, base, settings.weights, axis_sigma, with_bias, progress, channels
@@ -107,6 +168,40 @@ def fit_dataset(
     if settings.known_uncertainty:  # the known links' CAD uncertainty (ineid.identify.known)
         fit = with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings.known_uncertainty, with_bias)
     return DatasetFit(SharedFit(base, prior, fit, theta_lin, rms), offsets, sums, seconds)
+
+
+def factor_fit(
+    model,
+    ds,
+    frames: tuple[int, int],
+    base: BaseParameters,
+    settings: SolveSettings,
+    axis_sigma: np.ndarray | None,
+    channels: ChannelSet,
+    progress: Progress | None = None,
+) -> tuple[BaseFit, np.ndarray, FactorResiduals]:
+    """The base fit of every configuration from the triangular factors of its rows (the QR of every stacked row,
+    to round-off; :mod:`ineid.identify.qr_blocks`), the RMS of the weighted data (C,), and the factors of the
+    fitted and held-out ``frames = (fitted, held out)`` for the residual sums of any estimate."""
+    n_fit, n_val = frames
+    with_bias = settings.estimates_offsets
+    mask = channels.offset_mask(model)
+    values = ds.measured(channels)
+
+    def factors(sl: slice, progress=None) -> FactorBlocks:
+        arrays = (ds.q[:, sl], ds.qd[:, sl], ds.qdd[:, sl], values[:, sl])
+        return factor_blocks(model, base, *arrays, ds.theta_known, channels, with_bias, progress, n_fit)
+
+    fitted, offsets = factors(slice(0, n_fit), progress), None
+    if with_bias:
+        fitted, offsets = fitted.centred(mask)
+    lost = mask.astype(np.float64) if with_bias else None  # a residual degree of freedom per offset
+    fit = fit_base_factors(fitted, base, settings.weights, axis_sigma, lost)
+    held = factors(slice(n_fit, n_fit + n_val)) if n_val else None
+    ss_held = np.sum(values[:, n_fit : n_fit + n_val] ** 2, axis=(1, 2))
+    e = fitted.information().e
+    rms = np.sqrt(np.einsum("ca,ca->c", fit.axis_weights**2, e) / (channels.n_axes(model) * n_fit))
+    return fit, rms, FactorResiduals(fitted, held, ss_held, base, offsets)
 
 
 def bias_estimate(off: Offsets, est: Estimate, base: BaseParameters) -> tuple[np.ndarray, np.ndarray]:
