@@ -40,6 +40,7 @@ LOCKED = {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}
 FRICTION_TRUTH = "fv=0.5,fc=0.8,offset=0.1"
 TORQUE_NOISE = 0.3
 SOLVE_ARGS = ["--use", "torque", "--friction", "viscous,coulomb", "--torque-offset"]
+BLAS_THREADS = os.environ.get("OPENBLAS_NUM_THREADS")  # before ineid sets its default: the hand pipeline's own
 
 
 # -- the hand pipeline (its own process: h5py, Pinocchio and NumPy only) ------------------------------------
@@ -154,6 +155,9 @@ def hand_solve(inputs, validate, env: dict, out: Path) -> tuple[float, float]:
     """Wall seconds of the hand pipeline in a fresh process, and its validation error."""
     cmd = [sys.executable, __file__, "--hand", str(out), *map(str, inputs)]
     cmd += ["--hand-validate", str(validate)] if validate is not None else ["--hand-fit-fraction", "0.8"]
+    env = {k: v for k, v in env.items() if k != "OPENBLAS_NUM_THREADS"}  # NumPy's default threads, as a lab runs it
+    if BLAS_THREADS is not None:
+        env["OPENBLAS_NUM_THREADS"] = BLAS_THREADS
     seconds = timed(cmd, env)
     return seconds, json.loads(out.read_text())["rel"]
 

@@ -4,6 +4,11 @@
 throughout: importing it turns on JAX's 64-bit mode (through ``JAX_ENABLE_X64`` before JAX
 is imported, or JAX's config if it already was). Importing ``ineid`` itself is light (no
 JAX); :func:`load_robot` and :class:`RobotModel` load their modules on first use.
+
+Importing ``ineid`` before NumPy also sets ``OPENBLAS_NUM_THREADS=1`` unless it is set: ineid runs its
+batches of small factorizations (NumPy's and JAX's LAPACK calls) from threads of its own, and OpenBLAS's
+threads on top of them wait on each other, a batched QR taking ten to a hundred times longer on busy cores.
+Set the variable yourself to choose otherwise.
 """
 
 from __future__ import annotations
@@ -12,6 +17,8 @@ import os
 import sys
 
 os.environ.setdefault("JAX_ENABLE_X64", "1")
+if "numpy" not in sys.modules:  # read once, when OpenBLAS loads
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 if "jax" in sys.modules:  # imported before ineid: the variable came too late
     sys.modules["jax"].config.update("jax_enable_x64", True)
 

@@ -11,6 +11,7 @@ importing this module (``ineid --help``) loads neither JAX nor Flax.
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 from ineid.data.recordings.settings import ImportSettings
@@ -23,6 +24,19 @@ def methods() -> dict[str, SolveMethod]:
     from ineid.learn.amortized import solve_with_run
 
     return {"network": solve_with_run}
+
+
+class _Methods(Mapping):
+    """:func:`methods`, imported when a method is looked up: a solve by any other method loads no Flax."""
+
+    def __getitem__(self, name: str) -> SolveMethod:
+        return methods()[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(("network",))
+
+    def __len__(self) -> int:
+        return 1
 
 
 def import_recording(path: str | Path, model, settings: ImportSettings | None = None, **options):
@@ -48,4 +62,4 @@ def solve_dataset(
     """:func:`ineid.identify.solve.solve_dataset` with every method, ``network`` included (:func:`methods`)."""
     from ineid.identify.solve import solve_dataset as solve
 
-    return solve(ds, settings or SolveSettings(), model, progress, methods=methods())
+    return solve(ds, settings or SolveSettings(), model, progress, methods=_Methods())

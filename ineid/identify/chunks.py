@@ -100,8 +100,11 @@ def map_chunks(
     results = []
     for k, start in enumerate(starts):
         parts = outputs[k * len(frame_starts) : (k + 1) * len(frame_starts)]
-        merged = (
-            combine(parts) if combine is not None else tuple(sum(p[m] for p in parts) for m in range(len(parts[0])))
-        )
+        if combine is not None:
+            merged = combine(parts)
+        elif len(parts) == 1:  # one frame chunk: nothing to add (no copy)
+            merged = parts[0]
+        else:
+            merged = tuple(sum(p[m] for p in parts) for m in range(len(parts[0])))
         results.append([o[: min(start + per, n_configs) - start] for o in merged])
     return [np.concatenate([r[i] for r in results]) for i in range(len(results[0]))]

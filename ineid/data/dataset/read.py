@@ -324,6 +324,7 @@ def load_dataset(path: str | Path, configs=None, frames=None, clean: bool = True
     n_configs, n_frames = shapes["q"][:2]
     cidx = _index(configs, n_configs, "configuration")
     fidx = _index(frames, n_frames, "frame")
+    every_frame = np.array_equal(fidx, np.arange(n_frames))  # no copy of the arrays to take them all
     where = str(path)
     wanted = [k for k in shapes if k in expected_shapes(meta, 1, 1) and (clean or not k.endswith("_clean"))]
     per_config = sum(int(np.prod(shapes[k][1:])) for k in wanted if k != "theta_known")
@@ -341,7 +342,7 @@ def load_dataset(path: str | Path, configs=None, frames=None, clean: bool = True
                     arr = dset[()]
                 else:
                     arr = _read_rows(dset, cidx)
-                    if arr.ndim == 3 or name == "time":
+                    if (arr.ndim == 3 or name == "time") and not every_frame:
                         arr = arr[:, fidx]
             except (OSError, ValueError) as e:
                 raise DatasetError(
