@@ -46,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 from machine import cpu_description  # benchmarks/machine.py
+from public_api import best  # benchmarks/public_api.py
 from regressor import PANDA_LOCKED, pinocchio_steps, sample  # benchmarks/regressor.py
 
 import ineid  # float64 JAX before jax is used
@@ -67,16 +68,6 @@ def machine_lines() -> list[str]:
         f"JAX {jax.__version__}, default backend {jax.default_backend()}; devices: {devices}",
         f"CPU: {cpu_description()} ({usable} usable); ineid {ineid.__version__}; float64",
     ]
-
-
-def best(fn, repeats: int) -> float:
-    """Seconds of the fastest of ``repeats`` calls of ``fn`` (which waits for its result)."""
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def robots(quick: bool) -> list[tuple[str, object]]:

@@ -31,6 +31,7 @@ import ineid
 
 
 def best(fn, repeats: int) -> float:
+    """Seconds of the fastest of ``repeats`` calls of ``fn`` (which waits for its result)."""
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()

@@ -48,6 +48,7 @@ TOP_LEVEL = {
     "ineid._faults": "foundation",
     "ineid._inputs": "foundation",
     "ineid._interrupts": "foundation",
+    "ineid._threads": "foundation",
     "ineid._version": "foundation",
     "ineid.cache": "foundation",
     "ineid.cache_clear": "foundation",

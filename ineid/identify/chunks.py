@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from ineid._threads import run_blocks
 from ineid.cache import enable_compilation_cache
 
 
@@ -85,18 +85,7 @@ def map_chunks(
     # contiguous blocks of calls per thread; the main thread works too
     n_workers = max(1, min(workers, len(calls)))
     blocks = [list(b) for b in np.array_split(np.arange(len(calls)), n_workers)]
-    if n_workers == 1:
-        work(blocks[0])
-    else:
-        with ThreadPoolExecutor(max_workers=n_workers - 1) as pool:
-            jobs = [pool.submit(work, b) for b in blocks[1:]]
-            try:
-                work(blocks[0])
-                for job in jobs:
-                    job.result()
-            except BaseException:  # Ctrl-C, SIGTERM, an error: the other threads stop at their next chunk
-                stop_event.set()
-                raise
+    run_blocks(work, blocks, stop_event)  # an error or a signal: the other threads stop at their next chunk
     results = []
     for k, start in enumerate(starts):
         parts = outputs[k * len(frame_starts) : (k + 1) * len(frame_starts)]

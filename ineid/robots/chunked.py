@@ -17,10 +17,10 @@ import functools
 import os
 import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from ineid._threads import run_blocks
 from ineid.cache import enable_compilation_cache
 
 CHUNK_FRAMES = 2048
@@ -195,12 +195,4 @@ def run_chunked(kernel, batched: list[np.ndarray], consts: tuple, write, device=
         work(rest)
         return
     blocks = [[rest[i] for i in b] for b in np.array_split(np.arange(len(rest)), n_workers)]
-    with ThreadPoolExecutor(max_workers=n_workers - 1) as pool:
-        jobs = [pool.submit(work, b) for b in blocks[1:]]
-        try:
-            work(blocks[0])
-            for job in jobs:
-                job.result()
-        except BaseException:  # Ctrl-C, SIGTERM, an error: the other threads stop at their next chunk
-            stop_event.set()
-            raise
+    run_blocks(work, blocks, stop_event)  # an error or a signal: the other threads stop at their next chunk
