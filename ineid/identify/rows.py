@@ -103,18 +103,34 @@ def extra_rows(layout: RowLayout, q, qd, qdd, mask):
     return jnp.transpose(e, (2, 0, 3, 1)) * mask[None, :, None, :]
 
 
+def stacked_entries(entries, batch, dtype):
+    """(Cc, len(entries) Fc): ``entries`` (each of the batch shape (Cc, Fc) or a Python number) side by side
+    along the frames, in one ``concatenate`` (traced): the program stays a few operations whatever the count."""
+    import jax.numpy as jnp
+    from jax import lax
+
+    zeros = None
+    parts = []
+    for x in entries:
+        if isinstance(x, (int, float)) and x == 0:  # structurally zero: one array shared by all of them
+            zeros = jnp.zeros(batch, dtype) if zeros is None else zeros
+            x = zeros
+        parts.append(jnp.broadcast_to(x, batch).astype(dtype))
+    if not parts:
+        return jnp.zeros(batch[:-1] + (0,), dtype)
+    return lax.concatenate(parts, dimension=len(batch) - 1)
+
+
 def channel_rows(layout: RowLayout, entries, n_axes: int, batch, mask, theta_known, dtype):
     """``(w, known)``: one channel's rows at ``layout.columns`` (n_a, Cc, r, Fc) and the known links' share
     (n_a, Cc, Fc) from its regressor ``entries`` (traced)."""
     import jax.numpy as jnp
 
     n_cols = layout.n_cols
-
-    def entry(a, col):
-        return jnp.broadcast_to(entries[a * n_cols + col], batch).astype(dtype) * mask
-
+    (cc, fc), r = batch, len(layout.columns)
+    flat = stacked_entries([entries[a * n_cols + c] for a in range(n_axes) for c in layout.columns], batch, dtype)
     # (n_a, Cc, r, Fc): frames last, each entry one contiguous run (XLA:CPU's fast layout)
-    w = jnp.stack([jnp.stack([entry(a, c) for c in layout.columns], axis=1) for a in range(n_axes)])
+    w = jnp.transpose(flat.reshape(cc, n_axes, r, fc), (1, 0, 2, 3)) * mask[None, :, None, :]
     known = jnp.stack(
         [
             sum(
@@ -154,5 +170,5 @@ def chunk_rows(layout: RowLayout, q, qd, qdd, values, mask, gravity, theta_known
     if layout.extra_columns:  # [T Phi_u | E]: the extra kept columns after the links'
         w = jnp.concatenate([w, extra_rows(layout, q, qd, qdd, mask)], axis=2)
     known = known_parts[0] if len(known_parts) == 1 else jnp.concatenate(known_parts)
-    y = jnp.stack([(values[..., a] - known[a]) * mask for a in range(w.shape[0])])  # (A, Cc, Fc)
+    y = (jnp.moveaxis(values, -1, 0) - known) * mask  # (A, Cc, Fc)
     return w, y
