@@ -193,13 +193,13 @@ def fit_base(
     scales_b = base.scales[base.base_index]
     beta, rr, rss, rank, cond, resid = _weighted_fit(w_b, y, axis_w, scales_b)
     dof = n - r
+    frames = axis_frames(n // n_axes, n_axes, axis_offsets)
     g = None
     if weights == "estimate" and dof > 0:
         # Feasible weighted least squares (module doc): per-axis noise from the
         # residuals with each axis's own degrees of freedom, refit, a few rounds.
         w4 = w_b.reshape(c, n // n_axes, n_axes, r)
         g = np.einsum("cfar,cfas->cars", w4, w4)
-        frames = axis_frames(n // n_axes, n_axes, axis_offsets)
         signal = np.einsum("cfa,cfa->ca", y.reshape(c, -1, n_axes), y.reshape(c, -1, n_axes))
         for _ in range(ESTIMATE_ROUNDS):
             per_axis = resid.reshape(c, n // n_axes, n_axes) / axis_w[:, None, :]
@@ -207,12 +207,19 @@ def fit_base(
                 np.einsum("cfa,cfa->ca", per_axis, per_axis), g, axis_w, r_inverse(rr), frames, signal
             )
             beta, rr, rss, rank, cond, resid = _weighted_fit(w_b, y, axis_w, scales_b)
+    return triangular_fit(beta, rr, rss, dof, rank, cond, axis_w, g, frames)
+
+
+def triangular_fit(beta, rr, rss, dof: int, rank, cond, axis_w, g: np.ndarray | None, frames) -> BaseFit:
+    """The :class:`BaseFit` of a weighted fit by its triangular factor ``rr`` (C, r, r): ``sigma2 = rss / dof``,
+    ``cov = sigma2 (R^T R)^-1`` plus, with estimated weights (``g``: the per-axis blocks (C, A, r, r), ``frames``:
+    each axis's degrees of freedom), what estimating them adds; NaN where the rank is short."""
     sigma2 = rss / max(dof, 1)
     a_inv = r_inverse(rr)
     if g is not None:
-        a_inv = a_inv + estimated_weights_inflation(g, axis_w, a_inv, axis_frames(n // n_axes, n_axes, axis_offsets))
+        a_inv = a_inv + estimated_weights_inflation(g, axis_w, a_inv, frames)
     cov = sigma2[:, None, None] * a_inv
-    cov[rank < r] = np.nan
+    cov[rank < rr.shape[-1]] = np.nan
     return BaseFit(beta, rr, rss, dof, sigma2, cov, rank, cond, axis_w)
 
 

@@ -49,8 +49,8 @@ from ineid.identify.least_squares import (
     axis_frames,
     axis_weights,
     estimated_axis_weights,
-    estimated_weights_inflation,
     r_inverse,
+    triangular_fit,
 )
 from ineid.identify.rows import RowLayout, chunk_rows, layout_of, transforms
 from ineid.identify.systems import Offsets
@@ -271,10 +271,4 @@ def fit_base_factors(
             axis_rss = blocks.axis_rss(np.nan_to_num(beta))
             axis_w = estimated_axis_weights(axis_rss, g, axis_w, r_inverse(rr), frames, info.e)
             beta, rr, rss, rank, cond = _factor_fit(rt, axis_w, scales_b)
-    sigma2 = rss / max(dof, 1)
-    a_inv = r_inverse(rr)
-    if g is not None:
-        a_inv = a_inv + estimated_weights_inflation(g, axis_w, a_inv, frames)
-    cov = sigma2[:, None, None] * a_inv
-    cov[rank < r] = np.nan
-    return BaseFit(beta, rr, rss, dof, sigma2, cov, rank, cond, axis_w)
+    return triangular_fit(beta, rr, rss, dof, rank, cond, axis_w, g, frames)

@@ -39,11 +39,6 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
-def make_optimizer(cfg: TrainConfig, steps_per_epoch: int):
-    """The Optax optimizer of ``cfg`` (its schedule over ``cfg.epochs * steps_per_epoch`` steps)."""
-    return make_optimizer_for(cfg, steps_per_epoch)
-
-
 def wls_context(ds, train_rows: np.ndarray, model, y_scaler, wrench_scale: np.ndarray):
     """The constants of a ``wls`` network from the training configurations (:func:`ineid.learn.wls.fit_context`).
 
@@ -281,7 +276,7 @@ def _start(ds: Dataset, run: TrialRun, shared: SharedData, model) -> None:
         else:  # drawn in float64 and rounded: a float32 run starts where the float64 run of its seed starts
             params = cfg.model.build(shared.n_out).init(key, x.astype(np.float64))
             params = jax.tree_util.tree_map(lambda p: p.astype(cfg.dtype), params)
-        state = initial_state(params, make_optimizer(cfg, steps).init(params))
+        state = initial_state(params, make_optimizer_for(cfg, steps).init(params))
         if resumed is not None:
             state = load_state(run.work, state, cfg.epochs)
         else:
