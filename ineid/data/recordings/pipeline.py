@@ -56,6 +56,7 @@ from ineid.data.recordings.limits import MAX_UPSAMPLING
 from ineid.data.recordings.settings import DelayEstimator, ImportSettings
 from ineid.data.recordings.streams import SI_UNITS, Streams, in_si_units, units_note
 from ineid.data.recordings.summary import DelayEstimate, ImportSummary
+from ineid.data.recordings.timing import check_gaps
 from ineid.errors import DatasetError
 from ineid.progress import Progress
 
@@ -96,6 +97,7 @@ def recording_dataset(
         return _at_estimated_delay(streams, model, settings, delay_estimator)
     arrays = checked_arrays(streams, model, settings)
     cut = choose_cutoff(arrays, streams, settings)
+    check_gaps(arrays.timing, cut.hz or signals.CUTOFF_RANGE[1] * arrays.rate, arrays.source)
     prepared = _prepare_imus(streams, model, settings, cut.hz, arrays.tq, cut.priors_hz)
     smooth = smoothed(arrays, cut)
     imu_span = None if prepared is None else (prepared.start, prepared.stop)
@@ -226,6 +228,7 @@ def _summary(
         joint_channels=tuple(RIDER_NAMES[k] for k in arrays.riders),
         sensor_where=arrays.where,
         imu=imu_lines,
+        timing=arrays.timing,
     )
 
 
