@@ -22,7 +22,8 @@ recording (the joints, the wrench) is audited here before it is filtered and res
   count) and a resting arm (left smoothly) are data; a controller logging a held value while the arm moves
   is not. Held rows are dropped before the stream is filtered (treated as missing, not as data).
 * **jitter and gaps**: the steps' extremes and 1st and 99th percentiles, the jitter (the 99th percentile of
-  ``|dt - h| / h``), and the gaps: steps between the rows kept longer than 1.5 nominal steps.
+  ``|dt - h| / h`` over the steps that are not gaps), and the gaps: steps between the rows kept longer than
+  :data:`GAP_STEPS` nominal steps.
 
 A warning (:attr:`TimingReport.warnings`, printed by ``ineid data import``) above :data:`JITTER_WARN`,
 :data:`REPEAT_WARN`, or for a gap longer than one period of the cut-off; an error (:func:`check_gaps`) for a
@@ -130,7 +131,7 @@ class StreamTiming:
         estimate: Hz, the lattice estimate before snapping (the median step's rate when uniform).
         median_rate: Hz, ``1 /`` the median step.
         steps: s, the smallest step, the 1st and 99th percentiles, the largest.
-        jitter: the 99th percentile of ``|dt - h| / h``.
+        jitter: the 99th percentile of ``|dt - h| / h`` over the steps that are not gaps.
         held: rows that hold the previous sample, dropped (0 with ``keep_repeats``).
         repeats: rows equal to the previous one in every value (held or not).
         gaps: steps between the kept rows longer than :data:`GAP_STEPS` nominal steps.
@@ -222,6 +223,7 @@ def audit_stream(
     held = held_rows(values)
     repeats = int(np.sum(~(np.abs(np.diff(np.asarray(values).reshape(len(t), -1), axis=0)) > 0).any(axis=1)))
     keep = np.ones(len(t), dtype=bool) if keep_repeats else ~held
+    steady = dt[dt <= GAP_STEPS * h] if np.any(dt <= GAP_STEPS * h) else dt  # the steps that are not gaps
     kept_dt = np.diff(t[keep])
     k = int(np.argmax(kept_dt))
     timing = StreamTiming(
@@ -232,7 +234,7 @@ def audit_stream(
         estimate=1.0 / estimate,
         median_rate=1.0 / float(np.median(dt)),
         steps=(float(dt.min()), *(float(p) for p in np.percentile(dt, [1, 99])), float(dt.max())),
-        jitter=float(np.percentile(np.abs(dt - h), 99) / h),
+        jitter=float(np.percentile(np.abs(steady - h), 99) / h),
         held=int(np.sum(~keep)),
         repeats=repeats,
         gaps=int(np.sum(kept_dt > GAP_STEPS * h)),
@@ -266,18 +268,23 @@ class TimingReport:
 
     def lines(self) -> list[str]:
         """The import summary's lines: one per stream, and ``--rate`` when it overrides the nominal rates."""
-        out, named = [], []  # streams on one clock with the same rows (a CSV's joints and wrench): one line
+        out = [s.line() for s in self.merged()]
+        if self.rate_given is not None:
+            nominal = ", ".join(f"{s.name} {s.rate:g} Hz" for s in self.merged())
+            out.append(f"frames at {self.rate_given:g} Hz given by --rate (nominal: {nominal})")
+        return out
+
+    def merged(self) -> list[StreamTiming]:
+        """The streams, those on one clock with the same rows (a CSV's joints and wrench) as one, named
+        ``"joint and wrench"``: what the summary and the warnings say once."""
+        named: list[StreamTiming] = []
         for s in self.streams:
             twin = next((k for k, o in enumerate(named) if replace(o, name=s.name) == s), None)
             if twin is None:
                 named.append(s)
             else:
                 named[twin] = replace(named[twin], name=f"{named[twin].name} and {s.name}")
-        out = [s.line() for s in named]
-        if self.rate_given is not None:
-            nominal = ", ".join(f"{s.name}s {s.rate:g} Hz" for s in self.streams)
-            out.append(f"frames at {self.rate_given:g} Hz given by --rate (nominal: {nominal})")
-        return out
+        return named
 
     def to_dict(self) -> dict:
         return {
@@ -323,18 +330,21 @@ def check_gaps(report: TimingReport, cutoff: float, source: str) -> None:
                 f"be interpolated, not measured; split the recording at the gap, give --cutoff at most "
                 f"{signals.EDGE_PERIODS / s.largest_gap:.3g} Hz, or pass --allow-gaps to import it as it is"
             )
-    report.warnings = [w for s in report.streams for w in _stream_warnings(s, cutoff, report.keep_repeats)]
+    report.warnings = [w for s in report.merged() for w in _stream_warnings(s, cutoff, report.keep_repeats)]
 
 
 def _stream_warnings(s: StreamTiming, cutoff: float, keep_repeats: bool) -> list[tuple[str, str]]:
+    """The warnings of one stream (or of streams on one clock, ``s.name`` naming them all)."""
     out = []
-    h_ms = 1e3 / s.rate
+    several = " and " in s.name
+    stream = f"{s.name} stream{'s' if several else ''}"
+    owner = f"{stream}'" if several else f"{stream}'s"
     if s.jitter > JITTER_WARN:
         out.append(
             (
                 "timing_jitter",
-                f"the {s.name} stream's time steps jitter: 1 % of them are more than {100 * s.jitter:.3g} % off the "
-                f"nominal {h_ms:.4g} ms (steps {1e3 * s.steps[0]:.3g}..{1e3 * s.steps[3]:.3g} ms); the samples are "
+                f"the {owner} time steps jitter: 1 % of them are more than {100 * s.jitter:.3g} % off the nominal "
+                f"{1e3 / s.rate:.4g} ms (steps {1e3 * s.steps[0]:.3g}..{1e3 * s.steps[3]:.3g} ms); the samples are "
                 "resampled at their time stamps, which must be when the values were measured, not when the rows "
                 "were logged",
             )
@@ -352,9 +362,10 @@ def _stream_warnings(s: StreamTiming, cutoff: float, keep_repeats: bool) -> list
         out.append(
             (
                 "timing_gaps",
-                f"the {s.name} stream has {s.gaps:,} gap{'s' if s.gaps != 1 else ''} in its samples, the largest "
-                f"{1e3 * s.largest_gap:.4g} ms ending at t = {s.gap_at:.6g} s, longer than a period of the "
-                f"{cutoff:.3g} Hz cut-off: the frames across it are interpolated, not measured",
+                f"the {stream} {'have' if several else 'has'} {s.gaps:,} gap{'s' if s.gaps != 1 else ''} "
+                f"in {'their' if several else 'its'} samples, the largest {1e3 * s.largest_gap:.4g} ms "
+                f"ending at t = {s.gap_at:.6g} s, longer than a period of the {cutoff:.3g} Hz cut-off: the frames "
+                "across it are interpolated, not measured",
             )
         )
     return out
