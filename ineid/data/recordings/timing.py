@@ -107,10 +107,8 @@ def held_rows(values: np.ndarray) -> np.ndarray:
     repeat = np.concatenate([[False], ~(steps > 0).any(axis=1)])  # row k equals row k - 1
     if not repeat.any():
         return held
-    moving = np.where(steps > 0, steps, np.nan)
-    with np.errstate(all="ignore"):
-        quantum = np.nan_to_num(np.nanmin(moving, axis=0), nan=np.inf)
-        typical = np.nan_to_num(np.nanmedian(moving, axis=0), nan=np.inf)
+    quantum = np.where(steps > 0, steps, np.inf).min(axis=0)  # a column that never moves: inf, never left
+    typical = np.array([np.median(c[c > 0]) if (c > 0).any() else np.inf for c in steps.T])
     bound = np.maximum(HELD_QUANTA * quantum, HELD_TYPICAL * typical)
     rows = np.arange(n)
     exit_row = np.minimum.accumulate(np.where(repeat, n, rows)[::-1])[::-1]  # the first fresh row at or after k
