@@ -65,7 +65,20 @@ def _delay(ctx, param, value: str) -> float | None:
     type=FiniteFloatRange(min=0, min_open=True),
     default=None,
     metavar="HZ",
-    help="Rate of the frames (default: the slower stream's).",
+    help="Rate of the frames (default: the slower stream's nominal rate, estimated from its time stamps and "
+    "snapped to a clean value such as 1000 Hz; the summary says how).",
+)
+@click.option(
+    "--allow-gaps",
+    is_flag=True,
+    help="Import a stream with gaps longer than the filter's support (3 periods of the cut-off), interpolating "
+    "across them; without it such a gap is an error naming it.",
+)
+@click.option(
+    "--keep-repeats",
+    is_flag=True,
+    help="Use the rows that repeat every value of their stream's previous row under a new time stamp as data; "
+    "by default rows that hold the previous sample while the stream moves are dropped as missing.",
 )
 @click.option(
     "--delay",
@@ -133,6 +146,8 @@ def data_import(
     sensor_pose,
     cutoff,
     rate,
+    allow_gaps,
+    keep_repeats,
     delay,
     joint_topic,
     wrench_topic,
@@ -181,6 +196,8 @@ def data_import(
         imus=tuple(imus),
         imu_delay=imu_delay,
         imu_noise=imu_noise,
+        allow_gaps=allow_gaps,
+        keep_repeats=keep_repeats,
     )
     with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
         ds, summary = import_recording(

@@ -19,6 +19,7 @@ from ineid.data.recordings.channels import joint_channels, resolve_wrench_channe
 from ineid.data.recordings.limits import check_cutoff, check_delay, check_rate, check_stream
 from ineid.data.recordings.settings import ImportSettings
 from ineid.data.recordings.streams import Streams
+from ineid.data.recordings.timing import TimingReport, audit_stream
 from ineid.errors import DatasetError
 
 
@@ -35,11 +36,14 @@ class RecordingArrays:
         tw: (Nw,) s, the wrench's time stamps minus the delay (the instants it was measured); ``tq`` without
             a wrench.
         wrench: (Nw, 6) N and Nm in the sensor frame, negated when flipped; None without a wrench.
-        hq, hw: s, the joints' and the wrench's median sampling intervals (``hw`` is ``hq`` without a wrench).
+        hq, hw: s, the joints' and the wrench's nominal sampling intervals (``hw`` is ``hq`` without a wrench;
+            :func:`ineid.data.recordings.timing.nominal_interval`).
         wrench_channel: the wrench's channel (it holds the sensor pose); None without a wrench.
         where: where the sensor is, in words, for the summary.
         rate: Hz, the frames' rate: ``settings.rate``, else the slower stream's.
         same_clock: no wrench, or the wrench stamped at the joints' very time stamps.
+        timing: the streams' time stamps as audited (:mod:`ineid.data.recordings.timing`); the rows they
+            hold as the previous sample are dropped from the arrays above.
     """
 
     source: str
@@ -55,6 +59,7 @@ class RecordingArrays:
     where: str
     rate: float
     same_clock: bool
+    timing: TimingReport | None = None
 
     @property
     def measured(self) -> bool:
@@ -80,7 +85,7 @@ def checked_arrays(streams: Streams, model, settings: ImportSettings) -> Recordi
             without a wrench or beyond the streams, NaN or infinite samples, time that does not increase,
             too few samples, a rate that does not fit the sampling.
     """
-    src = streams.source
+    src, keep = streams.source, settings.keep_repeats
     n = model.n_dof
     tq = np.asarray(streams.joint_time, dtype=np.float64)
     q = np.asarray(streams.q, dtype=np.float64)
@@ -105,17 +110,31 @@ def checked_arrays(streams: Streams, model, settings: ImportSettings) -> Recordi
         check_delay(settings.delay, tq, np.asarray(streams.wrench_time, dtype=np.float64), src)
     elif settings.delay:
         raise DatasetError(f"{src}: --delay is how late the wrench is, and the recording has no wrench; drop it")
-    hq = check_stream("joint", tq, {**joint_arrays, **riders}, src)
+    check_stream("joint", tq, {**joint_arrays, **riders}, src)
+    audits = [_audited("joint", tq, {**joint_arrays, **riders}, keep)]
+    tq, kept = audits[0][1:]
+    joint_arrays, riders = {k: kept[k] for k in joint_arrays}, {k: kept[k] for k in riders}
+    hq = audits[0][0].step
     if has_wrench:
-        hw = check_stream("wrench", tw, {"wrench": w}, src)
+        check_stream("wrench", tw, {"wrench": w}, src)
+        audits.append(_audited("wrench", tw, {"wrench": w}, keep))
+        tw, w, hw = audits[1][1], audits[1][2]["wrench"], audits[1][0].step
         wrench_channel, where = resolve_wrench_channel(settings.sensor_pose, streams.frame_id, model)
     else:
         tw, w, hw, wrench_channel, where = tq, None, hq, None, "the base frame"
     rate = settings.rate or min(1.0 / hq, 1.0 / hw)
     same_clock = not has_wrench or (len(tq) == len(tw) and np.array_equal(tq, tw))
     arrays = RecordingArrays(src, n, tq, joint_arrays, riders, tw, w, hq, hw, wrench_channel, where, rate, same_clock)
+    arrays.timing = TimingReport(tuple(a[0] for a in audits), settings.rate, None, settings.allow_gaps, keep)
     check_rate(settings.rate, 1.0 / hq, 1.0 / hw, arrays.overlap, n + sum(a.shape[1] for a in riders.values()))
     return arrays
+
+
+def _audited(name: str, t: np.ndarray, parts: dict[str, np.ndarray], keep_repeats: bool):
+    """``(timing, t, parts)``: the stream's time stamps audited (:func:`ineid.data.recordings.timing.audit_stream`
+    on all its columns) and its rows used as data (those holding the previous sample dropped)."""
+    timing, keep = audit_stream(name, t, np.concatenate(list(parts.values()), axis=1), keep_repeats)
+    return timing, t[keep], {k: a[keep] for k, a in parts.items()}
 
 
 @dataclass

@@ -7,7 +7,9 @@ sensor's wrench with its own time stamps, in the sensor's frame (a recording may
 torques and no wrench). :func:`recording_dataset` turns that into frames ``(q, qd, qdd,``
 each channel's values ``)`` on one uniform time base:
 
-1. checks: finite values, increasing time stamps, each stream with enough samples;
+1. checks: finite values, increasing time stamps, each stream with enough samples; each stream's time
+   stamps audited (its nominal rate, jitter, gaps, and the rows that hold the previous sample dropped:
+   :mod:`ineid.data.recordings.timing`);
 2. the wrench clock is shifted by ``delay`` (a wrench stamped ``t`` was measured at
    ``t - delay``), given or estimated from the model (:mod:`ineid.identify.delay`);
 3. when ``qd``/``qdd`` are missing, joint angles, joint torques *and* wrench go through the
@@ -56,6 +58,7 @@ from ineid.data.recordings.limits import MAX_UPSAMPLING
 from ineid.data.recordings.settings import DelayEstimator, ImportSettings
 from ineid.data.recordings.streams import SI_UNITS, Streams, in_si_units, units_note
 from ineid.data.recordings.summary import DelayEstimate, ImportSummary
+from ineid.data.recordings.timing import check_gaps
 from ineid.errors import DatasetError
 from ineid.progress import Progress
 
@@ -85,7 +88,8 @@ def recording_dataset(
         DatasetError: NaN or infinite samples, time that does not increase, too few
             samples, streams that do not overlap, a cut-off or rate that does not fit the
             sampling, a sensor pose that does not parse, torques for another number of
-            joints, a recording with neither a wrench nor joint torques.
+            joints, a recording with neither a wrench nor joint torques, a gap in a stream longer than
+            the filter's support without ``settings.allow_gaps`` (:mod:`ineid.data.recordings.timing`).
     """
     _refuse_wrench_settings(streams, settings)
     units = {k: getattr(settings, k) for k in SI_UNITS}
@@ -96,6 +100,7 @@ def recording_dataset(
         return _at_estimated_delay(streams, model, settings, delay_estimator)
     arrays = checked_arrays(streams, model, settings)
     cut = choose_cutoff(arrays, streams, settings)
+    check_gaps(arrays.timing, cut.hz or signals.CUTOFF_RANGE[1] * arrays.rate, arrays.source)
     prepared = _prepare_imus(streams, model, settings, cut.hz, arrays.tq, cut.priors_hz)
     smooth = smoothed(arrays, cut)
     imu_span = None if prepared is None else (prepared.start, prepared.stop)
@@ -226,6 +231,7 @@ def _summary(
         joint_channels=tuple(RIDER_NAMES[k] for k in arrays.riders),
         sensor_where=arrays.where,
         imu=imu_lines,
+        timing=arrays.timing,
     )
 
 

@@ -5,7 +5,8 @@ on different clocks. ineid turns them into frames ``(q, qd, qdd, wrench)`` on on
 time base:
 
 1. **Uniform sampling.** A stream whose sample intervals vary (jitter) is interpolated
-   onto a uniform grid at its own median rate by a cubic spline (:func:`to_uniform`).
+   onto a uniform grid at its own nominal rate by a cubic spline (:func:`to_uniform`; the rate:
+   :func:`ineid.data.recordings.timing.nominal_interval`).
 2. **Zero-phase low-pass** (:class:`LowPass`): a Butterworth filter of order 2 run
    forward and backward (``scipy.signal.sosfiltfilt``): ``|H(f)| = 1 / (1 + (f/fc)^4)``,
    no phase shift (the magnitude of a cubic smoothing spline). The *same* filter is
