@@ -154,6 +154,14 @@ def choose_cutoff(arrays: RecordingArrays, streams: Streams, settings: ImportSet
         cut.q_uniform = signals.to_uniform(arrays.tq, arrays.joint_arrays["q"], hq)[1]  # for the priors too
         cut.choice = signals.choose_cutoff(cut.q_uniform, 1.0 / hq)
         cut.hz = min(cut.choice.cutoff, 0.4 * rate)
+        if cut.choice.limited == "motion":
+            c = cut.choice
+            cut.note = (
+                f"chosen from the joint angles: {signals.MOTION_FACTOR:g} x their motion's band "
+                f"({c.motion_hz:.3g} Hz), above the {c.noise_cutoff:.3g} Hz their noise "
+                f"({c.noise_rms.max():.2g} rad RMS) alone allows; "
+                f"{100 * c.acceleration_noise:.2g} % noise in the accelerations"
+            )
         if any("gyro" in s.readings for s in streams.imus):  # the gyros measure qd: imu_cutoff's rule
             from ineid.data.recordings.imus import imu_cutoff
 
