@@ -329,12 +329,7 @@ def import_recording(
             and :func:`ineid.data.recordings.bags.read_bag_streams`.
     """
     streams = read_streams(path, model, joint_topic, wrench_topic, progress, imu_topics)
-    try:
-        return recording_dataset(streams, model, settings, delay_estimator)
-    except DatasetError as e:  # a time column in ms fails the cut-off rules first, whose fix is not the cause's
-        from ineid.data.recordings.plausibility import with_time_unit_hint
-
-        raise with_time_unit_hint(e, streams, model, settings) from None
+    return hinted_recording_dataset(streams, model, settings, delay_estimator)
 
 
 def read_streams(
@@ -369,9 +364,9 @@ def read_streams(
     return read_csv_streams(path, model, progress)
 
 
-def own_cutoff(streams: Streams, model, settings: ImportSettings) -> float | None:
-    """Hz, the cut-off :func:`recording_dataset` would choose for ``streams`` (``settings.cutoff`` when given;
-    None: no filter, measured ``qd``, ``qdd``), without filtering anything.
+def own_cutoff(streams: Streams, model, settings: ImportSettings) -> tuple[Cutoff, RecordingArrays]:
+    """The cut-off :func:`recording_dataset` would choose for ``streams`` (``settings.cutoff`` when given;
+    ``hz`` None: no filter, measured ``qd``, ``qdd``), and the checked arrays it was chosen from; nothing filtered.
 
     Raises:
         DatasetError: as :func:`recording_dataset`'s checks of the streams and the cut-off.
@@ -381,8 +376,21 @@ def own_cutoff(streams: Streams, model, settings: ImportSettings) -> float | Non
         units = {k: getattr(settings, k) for k in SI_UNITS}
         si_streams = in_si_units(streams, model, **units) if units != SI_UNITS else streams
         si = replace(settings, **SI_UNITS, delay=0.0, estimate_delay=False)
-        return choose_cutoff(checked_arrays(si_streams, model, si), si_streams, si).hz
+        arrays = checked_arrays(si_streams, model, si)
+        return choose_cutoff(arrays, si_streams, si), arrays
     except DatasetError as e:
+        from ineid.data.recordings.plausibility import with_time_unit_hint
+
+        raise with_time_unit_hint(e, streams, model, settings) from None
+
+
+def hinted_recording_dataset(
+    streams: Streams, model, settings: ImportSettings, delay_estimator: DelayEstimator | None = None
+) -> tuple[Dataset, ImportSummary]:
+    """:func:`recording_dataset`, its errors led by the time stamps' unit where another unit would mend them."""
+    try:
+        return recording_dataset(streams, model, settings, delay_estimator)
+    except DatasetError as e:  # a time column in ms fails the cut-off rules first, whose fix is not the cause's
         from ineid.data.recordings.plausibility import with_time_unit_hint
 
         raise with_time_unit_hint(e, streams, model, settings) from None
@@ -416,6 +424,7 @@ __all__ = [
     "DelayEstimator",
     "ImportSettings",
     "ImportSummary",
+    "hinted_recording_dataset",
     "import_recording",
     "own_cutoff",
     "read_recording_csv",
