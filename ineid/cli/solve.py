@@ -297,7 +297,7 @@ def _solve_recordings(ds, more_paths, validate_path, idx, settings, model, bar, 
     val = None if validate_path is None else load_dataset(validate_path, configs=idx, clean=False)
     labelled = [(str(ds.path), ds), *((str(p), d) for p, d in zip(more_paths, more, strict=True))]
     if val is not None:
-        labelled.append((f"{validate_path} (--validate)", val))
+        labelled.append((str(validate_path), val))
     mixed = check_filters(labelled, mixed_filters)
     with bar:
         res = solve_recordings([ds, *more], settings, model=model, validate=val, progress=bar)
