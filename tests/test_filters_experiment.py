@@ -23,19 +23,21 @@ from tests.bag_files import write_angles_csv
 RATE, BITS, SECONDS = 500.0, 12, 5.0
 AMPLITUDES = (1.0, 0.45, 0.2)
 """Each run's motion, scaled: smaller motions read by the same encoders call for lower cut-offs."""
+LATE = 0.003
+"""s, how late the wrench of the ``late`` runs is stamped."""
 TOL_FIT = 0.03
 """Base-parameter error of two runs fitted at the experiment's shared cut-off: measured 0.020 (8.6 Hz; each run at
 its own cut-off, 10.1, 7.9 Hz: 0.014; all three at 5.9 Hz, the lowest: 0.11)."""
 
 
-def fourier_states(model, rng, scale: float, f0: float = 0.4, harmonics: int = 4):
-    """``(t, q, qd, qdd)`` of a Fourier motion about the joints' mid-range, exact, at :data:`RATE`."""
+def fourier_states(model, rng, scale: float, f0: float = 0.4, harmonics: int = 4, shift: float = 0.0):
+    """``(t, q, qd, qdd)``: time stamps at :data:`RATE` and a Fourier motion's exact states at ``t - shift``."""
     t = np.arange(int(SECONDS * RATE)) / RATE
     k = np.arange(1, harmonics + 1)
     a = scale * rng.uniform(0.3, 1.0, (model.n_dof, harmonics)) / k
     phase = rng.uniform(0, 2 * np.pi, a.shape)
     w = 2 * np.pi * f0 * k
-    arg = w[None, None, :] * t[:, None, None] + phase[None]
+    arg = w[None, None, :] * (t - shift)[:, None, None] + phase[None]
     q = 0.3 + np.sum(a * np.sin(arg), axis=2)
     qd = np.sum(a * w * np.cos(arg), axis=2)
     qdd = -np.sum(a * w**2 * np.sin(arg), axis=2)
@@ -66,6 +68,11 @@ def runs(model, tmp_path_factory):
         t, q, qd, qdd = fourier_states(model, rng, scale)
         w = np.asarray(model.base_wrench(q, qd, qdd, theta))
         paths.append(write_angles_csv(folder / f"run{k + 1}.csv", t, np.round(q / step) * step, w))
+        if k < 2:  # a run whose wrench is stamped LATE s late: the wrench of the states at t - LATE
+            _, q, _, _ = fourier_states(model, np.random.default_rng(100 + k), scale)
+            late = fourier_states(model, np.random.default_rng(100 + k), scale, shift=LATE)
+            w = np.asarray(model.base_wrench(*late[1:], theta))
+            write_angles_csv(folder / f"late{k + 1}.csv", t, np.round(q / step) * step, w)
     return paths, theta[model.unknown_index]
 
 
@@ -114,6 +121,21 @@ def test_a_given_cutoff_and_an_estimated_delay_are_shared(model, runs):
         labelled.append((f"r{k}", ds))
     assert "wrench delays, each estimated on its own" in mixed_filters(labelled)
     assert "r1 9 Hz (delay 3.1 ms, estimated)" in mixed_filters(labelled)
+
+
+def test_an_estimated_delay_is_the_median_of_the_runs_estimates(model, runs):
+    from ineid.workflow import import_experiment as import_with_delay
+
+    late = [runs[0][0].parent / f"late{k}.csv" for k in (1, 2)]
+    exp = import_with_delay(late, model, ImportSettings(estimate_delay=True))
+    each = [e.delay for e in exp.delay_estimates]
+    assert np.allclose(each, LATE, atol=5e-5) and exp.delay == pytest.approx(np.median(each), abs=1e-15)
+    assert all(d.meta.origin["import"]["delay"] == exp.delay for d in exp.datasets)
+    assert (
+        len({cutoff_of(d) for d in exp.datasets}) == 1
+        and check_filters([("a", exp.datasets[0]), ("b", exp.datasets[1])]) is None
+    )
+    assert exp.lines()[1].startswith(f"one wrench delay for the 2 recordings: {1e3 * exp.delay:.4g} ms, the median")
 
 
 def test_what_is_not_a_filtered_recording_takes_no_part(model, alone, tmp_path):
