@@ -190,6 +190,8 @@ def test_several_recordings_need_a_folder_and_distinct_names(runs, run, tmp_path
     (tmp_path / "file.h5").write_text("")
     r = run("data", "import", *paths[:2], "--robot", "sweaty-arm", "--out", tmp_path / "file.h5")
     assert r.exit_code == 2 and "go to a folder" in r.output
+    r = run("data", "import", *paths[:2], "--robot", "sweaty-arm", "--out", tmp_path / "new.h5")
+    assert r.exit_code == 2 and "go to a folder" in r.output and not (tmp_path / "new.h5").exists()
     r = run("data", "import", paths[0], paths[0], "--robot", "sweaty-arm", "--out", tmp_path / "out")
     assert r.exit_code == 2 and "several recordings are named 'run1'" in r.output
 

@@ -230,9 +230,9 @@ def _outputs(paths: tuple[Path, ...], out: Path, overwrite: bool, robot) -> list
             "import them separately, or rename one",
             param_hint="PATH...",
         )
-    if out.exists() and not out.is_dir():
+    if (out.exists() and not out.is_dir()) or (not out.exists() and out.suffix.lower() == ".h5"):
         raise click.BadParameter(
-            f"{out} is a file; several recordings go to a folder, one STEM.h5 each", param_hint="--out"
+            f"{out} is a file name; several recordings go to a folder, one STEM.h5 each", param_hint="--out"
         )
     out.mkdir(parents=True, exist_ok=True)
     inputs = [x for p in paths for x in folder_inputs(p, "an input recording")] + robot_inputs(robot)
