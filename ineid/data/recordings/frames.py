@@ -144,7 +144,8 @@ class Cutoff:
     Attributes:
         hz: Hz, the cut-off of every stream's filter; None: no filter (measured ``qd``, ``qdd``, no cut-off given).
         choice: the angles' spectrum's choice, when the cut-off was chosen from the angles.
-        note: why the IMUs' gyros moved the cut-off, None when they did not.
+        note: why the cut-off is not the noise rule's (the motion's band raised it, or the IMUs' gyros moved it),
+            None when it is.
         priors_hz: Hz, the angles' own cut-off for the encoders' ``qd``, ``qdd`` priors of the IMU fusion, when
             the gyros raised the filters' above it; None otherwise.
         q_uniform: (M, n_dof) the angles on a uniform grid at the joints' rate, when the cut-off was chosen
@@ -159,7 +160,8 @@ class Cutoff:
 
 
 def choose_cutoff(arrays: RecordingArrays, streams: Streams, settings: ImportSettings) -> Cutoff:
-    """The cut-off: ``settings.cutoff``, else chosen from the angles when they are differentiated (at most
+    """The cut-off: ``settings.cutoff``, else chosen from the angles when they are differentiated
+    (:func:`ineid.data.recordings.signals.choose_cutoff`: their noise, or three times their motion's band; at most
     0.4 times the frames' rate; the IMUs' gyros, which measure ``qd``, move it by
     :func:`ineid.data.recordings.imus.imu_cutoff`), else no filter.
 
@@ -173,6 +175,14 @@ def choose_cutoff(arrays: RecordingArrays, streams: Streams, settings: ImportSet
         cut.q_uniform = signals.to_uniform(arrays.tq, arrays.joint_arrays["q"], hq)[1]  # for the priors too
         cut.choice = signals.choose_cutoff(cut.q_uniform, 1.0 / hq)
         cut.hz = min(cut.choice.cutoff, 0.4 * rate)
+        if cut.choice.limited == "motion":
+            c = cut.choice
+            cut.note = (
+                f"chosen from the joint angles: {signals.MOTION_FACTOR:g} x their motion's band "
+                f"({c.motion_hz:.3g} Hz), above the {c.noise_cutoff:.3g} Hz their noise "
+                f"({c.noise_rms.max():.2g} rad RMS) alone allows; "
+                f"{100 * c.acceleration_noise:.2g} % noise in the accelerations"
+            )
         if any("gyro" in s.readings for s in streams.imus):  # the gyros measure qd: imu_cutoff's rule
             from ineid.data.recordings.imus import imu_cutoff
 

@@ -334,22 +334,66 @@ def import_recording(
         DatasetError: see :func:`recording_dataset`, :func:`ineid.data.recordings.csv_import.read_csv_streams`
             and :func:`ineid.data.recordings.bags.read_bag_streams`.
     """
+    streams = read_streams(path, model, joint_topic, wrench_topic, progress, imu_topics)
+    return hinted_recording_dataset(streams, model, settings, delay_estimator)
+
+
+def read_streams(
+    path: str | Path,
+    model,
+    joint_topic: str = "/joint_states",
+    wrench_topic: str | None = None,
+    progress: Progress | None = None,
+    imu_topics: tuple[str, ...] = (),
+) -> Streams:
+    """The :class:`Streams` of a recording file (CSV, ROS 1 ``.bag``, ROS 2 bag folder or ``.mcap``); the
+    arguments as :func:`import_recording`'s.
+
+    Raises:
+        DatasetError: a file that does not exist, ``imu_topics`` for a CSV, and see
+            :func:`ineid.data.recordings.csv_import.read_csv_streams` and
+            :func:`ineid.data.recordings.bags.read_bag_streams`.
+    """
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path} does not exist")
     if path.is_dir() or path.suffix.lower() in (".bag", ".mcap", ".db3"):
         from ineid.data.recordings.bags import read_bag_streams
 
-        streams = read_bag_streams(path, model.joint_names, joint_topic, wrench_topic, progress, imu_topics)
-    else:
-        if imu_topics:
-            raise DatasetError(
-                f"{path}: --imu-topic names a bag's IMU topics; a CSV gives its IMUs as columns "
-                "imu_<NAME>_wx...: drop it"
-            )
-        from ineid.data.recordings.csv_import import read_csv_streams
+        return read_bag_streams(path, model.joint_names, joint_topic, wrench_topic, progress, imu_topics)
+    if imu_topics:
+        raise DatasetError(
+            f"{path}: --imu-topic names a bag's IMU topics; a CSV gives its IMUs as columns imu_<NAME>_wx...: drop it"
+        )
+    from ineid.data.recordings.csv_import import read_csv_streams
 
-        streams = read_csv_streams(path, model, progress)
+    return read_csv_streams(path, model, progress)
+
+
+def own_cutoff(streams: Streams, model, settings: ImportSettings) -> tuple[Cutoff, RecordingArrays]:
+    """The cut-off :func:`recording_dataset` would choose for ``streams`` (``settings.cutoff`` when given;
+    ``hz`` None: no filter, measured ``qd``, ``qdd``), and the checked arrays it was chosen from; nothing filtered.
+
+    Raises:
+        DatasetError: as :func:`recording_dataset`'s checks of the streams and the cut-off.
+    """
+    try:
+        _refuse_wrench_settings(streams, settings)
+        units = {k: getattr(settings, k) for k in SI_UNITS}
+        si_streams = in_si_units(streams, model, **units) if units != SI_UNITS else streams
+        si = replace(settings, **SI_UNITS, delay=0.0, estimate_delay=False)
+        arrays = checked_arrays(si_streams, model, si)
+        return choose_cutoff(arrays, si_streams, si), arrays
+    except DatasetError as e:
+        from ineid.data.recordings.plausibility import with_time_unit_hint
+
+        raise with_time_unit_hint(e, streams, model, settings) from None
+
+
+def hinted_recording_dataset(
+    streams: Streams, model, settings: ImportSettings, delay_estimator: DelayEstimator | None = None
+) -> tuple[Dataset, ImportSummary]:
+    """:func:`recording_dataset`, its errors led by the time stamps' unit where another unit would mend them."""
     try:
         return recording_dataset(streams, model, settings, delay_estimator)
     except DatasetError as e:  # a time column in ms fails the cut-off rules first, whose fix is not the cause's
@@ -386,7 +430,10 @@ __all__ = [
     "DelayEstimator",
     "ImportSettings",
     "ImportSummary",
+    "hinted_recording_dataset",
     "import_recording",
+    "own_cutoff",
     "read_recording_csv",
+    "read_streams",
     "recording_dataset",
 ]

@@ -127,6 +127,7 @@ class ImportSummary:
             "derived": self.derived,
             "cutoff": self.cutoff,
             "cutoff_rule": None if self.cutoff_choice is None else self.cutoff_choice.limited,
+            "filter": None if self.cutoff is None else f"zero-phase Butterworth, order {signals.FILTER_ORDER}",
             "dropped_start": self.dropped_start,
             "dropped_end": self.dropped_end,
             "delay": self.delay,
