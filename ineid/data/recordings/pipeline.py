@@ -52,7 +52,9 @@ from ineid.data.recordings.frames import (
     split_columns,
     time_base,
 )
+from ineid.data.recordings.imus import unused_imu_lines
 from ineid.data.recordings.limits import MAX_UPSAMPLING
+from ineid.data.recordings.noise_estimate import import_noise
 from ineid.data.recordings.settings import DelayEstimator, ImportSettings
 from ineid.data.recordings.streams import SI_UNITS, Streams, in_si_units, units_note
 from ineid.data.recordings.summary import DelayEstimate, ImportSummary
@@ -109,8 +111,10 @@ def recording_dataset(
         priors = joints[:, n : 3 * n] if cut.priors_hz is None else _encoder_priors(cut, arrays.hq, smooth.tq, grid)
         imu_lines, imu_record = _fuse_imus(prepared, model, settings, grid, joints, priors)
     resampled = tuple(name for name, moved in (("joints", moved_q), ("wrench", moved_w)) if moved)
+    imu_lines = (*imu_lines, *unused_imu_lines(streams.origin))
     summary = _summary(arrays, cut, settings, grid, rate, resampled, units_note(streams.origin), imu_lines)
     origin = {**streams.origin, "import": summary.to_dict(), **({"imu": imu_record} if imu_record else {})}
+    origin["noise"] = import_noise(arrays, cut.hz)
     return _dataset(model, settings, arrays, origin, joints, wrench, grid), summary
 
 
@@ -343,7 +347,7 @@ def import_recording(
             )
         from ineid.data.recordings.csv_import import read_csv_streams
 
-        streams = read_csv_streams(path, model, progress)
+        streams = read_csv_streams(path, model, progress, settings.imus)
     try:
         return recording_dataset(streams, model, settings, delay_estimator)
     except DatasetError as e:  # a time column in ms fails the cut-off rules first, whose fix is not the cause's
@@ -371,7 +375,7 @@ def read_recording_csv(path: str | Path, model, flip_wrench: bool = False, setti
     from ineid.data.recordings.csv_import import read_csv_streams
 
     settings = replace(settings or ImportSettings(), flip_wrench=flip_wrench)
-    return recording_dataset(read_csv_streams(path, model), model, settings)[0]
+    return recording_dataset(read_csv_streams(path, model, imus=settings.imus), model, settings)[0]
 
 
 __all__ = [
