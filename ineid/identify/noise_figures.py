@@ -2,7 +2,9 @@
 
 **Noise per axis** (:func:`axis_noise`), what a model that explains the signal leaves:
 
-* a synthetic dataset: the noise its settings state (``meta.noise``; clean data: 0);
+* a synthetic dataset: the noise its settings state (``meta.noise``; clean data: 0; glitches counted: a share
+  ``r`` of the frames with force noise ``s`` times larger makes the force noise's std ``sqrt(1 - r + r s^2)`` times
+  the rest's), plus what its stated ``q``, ``qd``, ``qdd`` noise does to the prediction (as below);
 * a recording: the import's own estimate (:mod:`ineid.data.recordings.noise_estimate`: the raw streams' part
   above the cut-off, scaled by the filter's noise bandwidth), plus, with estimates given, what the joint
   angles' noise does to the prediction: the frames' ``q``, ``qd``, ``qdd`` noise (the angles' own, through the
@@ -51,10 +53,17 @@ def sensor_noise(meta, channels, model) -> tuple[np.ndarray | None, str]:
     n_axes = channels.n_axes(model)
     if meta.source == "synthetic":
         out = np.zeros(n_axes)
+        stated = meta.noise or {}
+        # glitches: a share r of the frames with force noise s times larger, std sqrt(1 - r + r s^2) times the rest
+        glitch = math.sqrt(
+            1 + float(stated.get("glitch_rate", 0.0)) * (float(stated.get("glitch_scale", 1.0)) ** 2 - 1)
+        )
         for b in channels.blocks(model):
-            values = (meta.noise or {}).get(b.channel.key)
+            values = stated.get(b.channel.key)
             if values is not None:
                 out[b.start : b.stop] = np.broadcast_to(np.asarray(values, dtype=np.float64), (b.stop - b.start,))
+                if "wrench" in b.channel.kind:
+                    out[b.start : b.start + 3] *= glitch
         return out, (
             "stated by the synthetic dataset (its noise settings)" if meta.noise else "none: clean synthetic data"
         )
@@ -70,14 +79,28 @@ def sensor_noise(meta, channels, model) -> tuple[np.ndarray | None, str]:
     return out, f"estimated at import from {method}"
 
 
+def state_noise(meta, n_dof: int) -> dict[str, np.ndarray]:
+    """Per state (``q``, ``qd``, ``qdd``) the frames' noise std per joint: a synthetic dataset's stated, a
+    recording's import estimate (through the filter and the differences); empty when neither says."""
+    if meta.source == "synthetic":
+        record = meta.noise or {}
+    else:
+        record = (frames_noise(meta.origin) if meta.source == "recording" else None) or {}
+    out = {}
+    for k in ("q", "qd", "qdd"):
+        if k in record:
+            values = np.nan_to_num(np.asarray(record[k], dtype=np.float64))
+            out[k] = np.broadcast_to(values, (n_dof,)).copy()
+    return {k: v for k, v in out.items() if np.any(v > 0)}
+
+
 def prediction_noise(model, ds, theta_u, channels, config: int = 0) -> np.ndarray | None:
-    """(A,) the std the joint angles' noise gives the prediction of ``theta_u`` (one configuration's estimates,
-    links and extras) on configuration row ``config`` of a recording ``ds`` (module docstring); None when the
-    import recorded no angle noise."""
+    """(A,) the std the joint states' noise (:func:`state_noise`) gives the prediction of ``theta_u`` (one
+    configuration's estimates, links and extras) on configuration row ``config`` of ``ds`` (module docstring);
+    None when no state noise is known."""
     from ineid.identify.steps import predicted_wrench
 
-    recorded = frames_noise(ds.meta.origin) or {}
-    sigma = {k: np.nan_to_num(np.asarray(recorded[k], dtype=np.float64)) for k in ("q", "qd", "qdd") if k in recorded}
+    sigma = state_noise(ds.meta, ds.n_dof)
     if not sigma or not np.all(np.isfinite(theta_u)):
         return None
     pick = np.unique(np.linspace(0, ds.n_frames - 1, min(SENSITIVITY_FRAMES, ds.n_frames)).astype(int))
@@ -108,15 +131,15 @@ def _known_of(ds, rows):
 
 
 def axis_noise(ds, channels, model, theta_u=None, config: int = 0) -> tuple[np.ndarray | None, str]:
-    """``(noise (A,), source)``: :func:`sensor_noise` and, on a recording with ``theta_u`` given, the angles' noise
+    """``(noise (A,), source)``: :func:`sensor_noise` and, with ``theta_u`` given, the joint states' noise
     through the prediction (:func:`prediction_noise`) added in quadrature."""
     noise, source = sensor_noise(ds.meta, channels, model)
-    if noise is None or theta_u is None or ds.meta.source != "recording":
+    if noise is None or theta_u is None:
         return noise, source
     spread = prediction_noise(model, ds, theta_u, channels, config)
     if spread is None:
         return noise, source
-    return np.sqrt(noise**2 + spread**2), source + ", with the joint angles' noise through the prediction"
+    return np.sqrt(noise**2 + spread**2), source + ", with the joint states' noise through the prediction"
 
 
 def correlation_time(r: np.ndarray) -> float:

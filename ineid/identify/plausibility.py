@@ -10,9 +10,16 @@ estimates of :func:`ineid.identify.solve_dataset`:
   ``--sensor-pose``), or more than :data:`MASS_FACTOR` times above or below the URDF's
   (``total_mass_scale``: the wrench's unit; the units that fix it are suggested);
 * held-out error: the median over the configurations of the relative wrench error on the
-  held-out frames (on the fitted frames when none are held out; with offsets estimated,
-  relative to the wrench less its mean) above :data:`HELD_OUT_ERROR`
+  held-out frames (a ``--validate`` recording's, the held-out frames, or the fitted frames when none
+  are held out; with offsets estimated, relative to the wrench less its mean over the frames the
+  offsets were fitted on) above :data:`HELD_OUT_ERROR` on a residual above the noise
   (``held_out_error``: the model explains almost nothing);
+* unmodelled offsets (:func:`ineid.identify.noise_figures.check_offsets`, ``unmodelled_offsets``): a mean of
+  the fitted frames' residual far above the noise on axes whose offsets were not fitted;
+* residual above the noise (:func:`check_residual_noise`, ``residual_above_noise``): the held-out (else fitted)
+  residual RMS more than ``NOISE_FACTOR`` times the noise of
+  :func:`ineid.identify.noise_figures.axis_noise` (stated by synthetic data, estimated at import for a
+  recording, with the joint angles' noise through the prediction);
 * the fitted static force (the mean of the fitted frames less the estimated offsets, in the
   base frame) against gravity, as :func:`ineid.data.recordings.plausibility.check_static_force`;
 * units only a fit can tell (:mod:`ineid.identify.unit_fits`): where the solve's linear fit
@@ -59,6 +66,7 @@ __all__ = [
     "Finding",
     "check_fitted_units",
     "check_held_out_error",
+    "check_residual_noise",
     "check_solve",
     "check_total_mass",
     "estimated_total_mass",
@@ -460,6 +468,7 @@ def check_solve(ds, res, model=None, validate=None) -> list[Finding]:
     if mass is not None and mass.code == "total_mass_negative":
         return [mass]  # the static force would say the same
     offsets = check_offsets(fit, ds, model, fitted_channels(fit, ds))
-    # offsets the fit lacks leave a residual above the noise: said once, by the offsets
-    residual = None if offsets is not None else check_residual_noise(fit, ds, validate, model)
+    # a mass, static force or offsets the fit gets wrong leave a residual above the noise: said once, by them
+    explained = any(f is not None for f in (mass, static, offsets))
+    residual = None if explained else check_residual_noise(fit, ds, validate, model)
     return [f for f in (mass, static, offsets, residual) if f is not None]

@@ -130,9 +130,9 @@ def _channel_columns(header: list[str], prefix: str, what: str, model, path: Pat
 def read_csv_streams(path: str | Path, model, progress=None, imus: tuple[str, ...] = ()):
     """Read a recording CSV into :class:`ineid.data.recordings.streams.Streams` (no processing yet).
 
-    A link IMU's columns ``imu_<NAME>_...`` are read only when ``imus`` (the ``--imu`` texts) names ``NAME``;
-    the others are left unread and listed in the streams' ``origin["imu_unused"]`` (the import says so in one
-    line: :func:`ineid.data.recordings.imus.unused_imu_lines`).
+    A link IMU's columns ``imu_<NAME>_...`` become a stream only when ``imus`` (the ``--imu`` texts) names
+    ``NAME``; the others are listed in the streams' ``origin["imu_unused"]`` (the import says so in one line:
+    :func:`ineid.data.recordings.imus.unused_imu_lines`).
 
     The file is read within the limits of :mod:`ineid.data.recordings.csv_rows` (size, columns, rows, line
     length; values within :data:`ineid.data.recordings.streams.VALUE_LIMIT`), streamed: memory holds the
@@ -239,7 +239,7 @@ def _recording_columns(header: list[str], model, path: Path, imus: tuple[str, ..
             f"{path}: --imu {absent[0]!r} has no readings in the recording (its IMUs: {', '.join(found) or 'none'}); "
             f"name its columns imu_{absent[0]}_wx... after it, or drop the --imu"
         )
-    imu_kinds = {name: kinds for name, kinds in found.items() if name in named}
+
     deriv = [f"{p}{i}" for p in ("qd", "qdd") for i in range(1, n + 1)]
     present = [c for c in deriv if c in names]
     if present and len(present) != len(deriv):
@@ -249,7 +249,7 @@ def _recording_columns(header: list[str], model, path: Path, imus: tuple[str, ..
             f"qd1..qd{n} and qdd1..qdd{n}, or none (then they are derived from the joint angles)"
         )
     joint_names = csv_columns(n, derivatives=bool(present))[1:-6] + tau_cols + current_cols
-    columns = _Columns(joint_names, bool(present), tau_cols, current_cols, has_wrench_cols, imu_kinds)
+    columns = _Columns(joint_names, bool(present), tau_cols, current_cols, has_wrench_cols, found)
     columns.unused_imus = {name: list(kinds) for name, kinds in found.items() if name not in named}
     return columns
 
@@ -282,6 +282,8 @@ def _streams(table: Table, columns: _Columns, model, path: Path) -> Streams:
     k0 += n if columns.tau else 0
     imus = []
     for name, kinds in columns.imu_kinds.items():
+        if name in columns.unused_imus:  # read (its rows are the file's), not used
+            continue
         r = rows[f"IMU {name!r}"]
         imus.append(
             ImuStream(
