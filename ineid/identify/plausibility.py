@@ -226,10 +226,11 @@ def _held_out_errors(res, ds, validate=None) -> tuple[np.ndarray, str, np.ndarra
     and takes their weight as an offset), so the error is taken relative to the wrench less its mean over the
     frames the offsets were fitted on: a validation recording's, whose offsets are fitted alone on it, its own.
     """
+    if res.bias_hat is None and res.n_frames_validation:
+        rel, rms = np.asarray(res.validation_rel, dtype=np.float64), np.asarray(res.validation_rms, dtype=np.float64)
+        return rel, "held-out", rms, ds if validate is None else validate
     w, rms, frames_of, where = _held_out_frames(res, ds, validate)
     rms = np.asarray(rms, dtype=np.float64)
-    if res.bias_hat is None and where == "held-out":
-        return np.asarray(res.validation_rel, dtype=np.float64), where, rms, frames_of
     ss = np.sum(w**2, axis=(1, 2))
     ssr = np.sum(rms**2, axis=1) * w.shape[1]
     with np.errstate(divide="ignore", invalid="ignore"):
