@@ -48,6 +48,24 @@ def test_derivative_noise_against_filtered_differences():
     assert np.allclose(qdd[1000:-1000].std(axis=0), sd_qdd, rtol=0.05)
 
 
+def test_mean_z_counts_the_correlation_in_time():
+    """Low-passed white noise (no offset): z over 40 draws has a spread near 1 (the naive one, samples taken
+    as independent, about sqrt(tau) = 10 x more); an offset of 3 x the noise is far off zero."""
+    from ineid.identify.noise_figures import mean_z
+
+    rng = np.random.default_rng(2)
+    low = LowPass(5.0, 1000.0)
+    zs, naive = [], []
+    for _ in range(40):
+        r = low.apply(rng.standard_normal((6000, 1)))
+        zs.append(mean_z(r, True)[1][0])
+        naive.append(r.mean() / (r.std() / np.sqrt(len(r))))
+    assert 0.6 < np.std(zs) < 1.5 and np.max(np.abs(zs)) < 4.5, np.std(zs)
+    assert np.std(naive) > 5 * np.std(zs)
+    mean, z = mean_z(r + 3 * r.std(), True)
+    assert z[0] > 20
+
+
 @pytest.fixture(scope="module")
 def noisy(lab, tmp_path_factory):
     """The MuJoCo recording (untared, offsets) with white noise on the wrench and the angles, imported: the first
