@@ -157,3 +157,24 @@ def test_a_wrong_sensor_pose_is_still_warned(noisy, lab, tmp_path):
     assert line.startswith("the held-out frames' residual RMS is more than 3 x the noise on")
     assert "--sensor-pose" in line
     assert "model_error" in [w.code for w in _report_checks(out, noisy["bad_val"], lab.model).warnings]
+
+
+def test_joint_torque_offsets_point_to_torque_offset(tmp_path):
+    """Joint torques with offsets on two joints (0.5 and -0.4 N*m against 0.05 N*m of noise): named, with
+    ``--torque-offset``, which silences them."""
+    import h5py
+
+    data = tmp_path / "tq.h5"
+    r = invoke(
+        "-q", "data", "generate", "--channels", "torque", "--n-configs", "5", "--n-frames", "60", "--seed", "3",
+        "--noise", "tau=0.05", "--out", data,
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    with h5py.File(data, "r+") as f:
+        f["tau"][...] = f["tau"][()] + np.array([0.0, 0.5, -0.4, 0.0])
+    r = invoke("-q", "solve", data, "--out", tmp_path / "r.h5")
+    (line,) = warnings_of(r)
+    assert "on 2 of 4 axes (shoulder_roll +0.49" in line and "upper_arm_yaw -0.40" in line
+    assert line.endswith("(solve --torque-offset)")
+    r = invoke("-q", "solve", data, "--torque-offset", "--out", tmp_path / "r2.h5")
+    assert r.exit_code == 0 and warnings_of(r) == []

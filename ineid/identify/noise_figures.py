@@ -182,11 +182,12 @@ def offset_axes(mean, z, noise, scale) -> np.ndarray:
 
 def offset_hint(channels, model, axes_flagged) -> str:
     """The options that model the offsets of the axes flagged (A,) bool: ``--bias estimate`` for a sensor's,
-    ``--torque-offset`` for joint torques'."""
+    ``--torque-offset`` for joint torques' and motor currents'."""
     hints = []
     for b in channels.blocks(model):
         if axes_flagged[b.start : b.stop].any():
-            hint = "solve --torque-offset" if b.channel.kind == "joint_torque" else "solve --bias estimate"
+            actuated = b.channel.kind in ("joint_torque", "motor_current")
+            hint = "solve --torque-offset" if actuated else "solve --bias estimate"
             if hint not in hints:
                 hints.append(hint)
     return " or ".join(hints)

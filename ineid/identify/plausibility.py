@@ -203,11 +203,8 @@ def _held_out_frames(res, ds, validate):
             w = w - w.mean(axis=1, keepdims=True) * mask
         return w, res.validation_rms, validate, "held-out"
     if res.n_frames_validation and not separate:
-        frames, rms, where = (
-            slice(res.n_frames_fit, res.n_frames_fit + res.n_frames_validation),
-            res.validation_rms,
-            ("held-out"),
-        )
+        frames = slice(res.n_frames_fit, res.n_frames_fit + res.n_frames_validation)
+        rms, where = res.validation_rms, "held-out"
     else:
         frames, rms, where = slice(0, res.n_frames_fit), res.fit_rms, "fitted"
     measured = ds.measured(channels)

@@ -323,8 +323,8 @@ def _offsets(out: ResidualCheck, r, noise, scale, series: bool, blocks) -> None:
     flagged = offset_axes(mean, z, noise, scale)
     if not flagged.any():
         return
-    torque = any(kind == "joint_torque" and flagged[start:stop].any() for _, start, stop, kind in blocks)
-    wrench = any(kind != "joint_torque" and flagged[start:stop].any() for _, start, stop, kind in blocks)
+    torque = any(kind in FRICTION_KINDS and flagged[start:stop].any() for _, start, stop, kind in blocks)
+    wrench = any(kind not in FRICTION_KINDS and flagged[start:stop].any() for _, start, stop, kind in blocks)
     options = " or ".join(o for o, on in (("--bias estimate", wrench), ("--torque-offset", torque)) if on)
     text = ", ".join(
         f"{c.axis} {m:+.3g} {c.unit} (z {abs(zz):.3g})"
