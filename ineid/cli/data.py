@@ -308,6 +308,16 @@ def data_info(path: Path) -> None:
     _print_channel_ranges(con, path, meta)
 
 
+def _noise_line(meta) -> str:
+    """``data info``'s noise line: the stated noise of synthetic data, the import's estimate of a recording."""
+    if meta.source == "recording":
+        from ineid.data.recordings.noise_estimate import noise_line
+
+        line = noise_line(meta.origin)
+        return shown(line) if line else "noise: not estimated (imported by an older ineid; import the recording again)"
+    return f"noise (std): {shown(json.dumps(meta.noise)) if meta.noise else 'none (clean data)'}"
+
+
 def _print_settings(con, path: Path, meta, shapes: dict) -> None:
     """``data info``'s header: the file, sizes, robot, links, gravity, sampling, noise, origin, the channels and
     their sensor frames, the simulated actuation, and the table of the arrays' shapes."""
@@ -333,7 +343,7 @@ def _print_settings(con, path: Path, meta, shapes: dict) -> None:
         con.print(f"locked joints: {shown(meta.locked_joints)}")
     if meta.sampling:
         con.print(f"sampling: {shown(json.dumps(meta.sampling, sort_keys=True))}")
-    con.print(f"noise (std): {shown(json.dumps(meta.noise)) if meta.noise else 'none (clean data)'}")
+    con.print(_noise_line(meta))
     if meta.origin:
         con.print(f"origin: {shown(json.dumps(meta.origin, sort_keys=True))}")
     from ineid.data.recordings.timing import timing_lines

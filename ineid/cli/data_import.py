@@ -174,8 +174,9 @@ def data_import(
 ) -> None:
     """Import a recording: a CSV (time, q1..qn, [qd1..qn, qdd1..qn,] [tau1..taun,] fx fy fz mx my mz; the wrench
     optional with torques), a ROS 1 .bag, or a ROS 2 bag folder or .mcap (sensor_msgs/JointState with its
-    effort as joint torques, geometry_msgs/WrenchStamped). Link IMUs (imu_<NAME>_wx.. columns, sensor_msgs/Imu
-    topics): qd, qdd fused from the encoders and the IMUs (docs/recordings.md).
+    effort as joint torques, geometry_msgs/WrenchStamped). Link IMUs (imu_<NAME>_wx.. columns named by --imu,
+    sensor_msgs/Imu topics named by --imu-topic): qd, qdd fused from the encoders and the IMUs
+    (docs/recordings.md). Each stream's noise is measured from its part above the cut-off (data info shows it).
 
     Several recordings of one experiment (to be fitted and validated together: ineid solve A.h5 B.h5
     --validate C.h5) are imported together into the folder --out, with one filter and one wrench delay: the

@@ -16,7 +16,8 @@ imu_option = click.option(
     metavar="[NAME=]LINK[:X,Y,Z,R,P,Y]|FRAME",
     help="A link IMU (repeatable): on moving link LINK at a pose in its frame (m, rad, URDF rpy; default its "
     "origin), or at a URDF frame welded to a moving link. NAME: the <NAME> of its columns imu_<NAME>_wx... "
-    "or its bag messages' frame_id, when neither the link's nor the frame's name.",
+    "or its bag messages' frame_id, when neither the link's nor the frame's name. A CSV's IMU columns are used "
+    "only when an --imu names them (the import lists those it leaves out).",
 )
 
 

@@ -222,19 +222,20 @@ def solve(
     else:
         with bar:
             res, solved_ds, val = solve_dataset(ds, settings, model=model, progress=bar), ds, None
-    _save_and_show(res, ds, model, out, overwrite, () if mixed is None else (mixed,))
+    _save_and_show(res, ds, model, out, overwrite, () if mixed is None else (mixed,), val)
     write_solve_outputs(
         res, solved_ds, model, method, plot_path, plot_span, report_path, out, validate=val, overwrite=overwrite
     )
 
 
-def _save_and_show(res, ds, model, out: Path, overwrite: bool, more=()) -> None:
-    """The plausibility checks of ``res`` on the frames fitted (``ds``), and the findings ``more``, recorded with
-    it; the results saved to ``out`` and printed, the validation and the findings after them."""
+def _save_and_show(res, ds, model, out: Path, overwrite: bool, more=(), validate=None) -> None:
+    """The plausibility checks of ``res`` on the frames fitted (``ds``) and the validation recording
+    (``validate``, or None), and the findings ``more``, recorded with it; the results saved to ``out`` and
+    printed, the validation and the findings after them."""
     from ineid.identify import save_results
     from ineid.identify.plausibility import check_solve
 
-    findings = [*more, *check_solve(ds, res, model)]
+    findings = [*more, *check_solve(ds, res, model, validate)]
     res.meta["warnings"] = [f.to_dict() for f in findings]
     save_results(res, out, overwrite=overwrite)
     print_results(res, out)

@@ -135,7 +135,7 @@ def _dataset(out: ReportInputs, path, fingerprint, what: str, option: str, given
 def _validation_part(inputs: ReportInputs, i: int, config: int) -> dict | None:
     from ineid.report.figures import data_uri, default_span, spectrum_figure, validation_figure
     from ineid.report.plot import validation, validation_on
-    from ineid.report.residuals import check_residual, stated_noise
+    from ineid.report.residuals import check_residual, validation_noise
 
     res, ds = inputs.res, inputs.ds
     if ds is None or not res.success[i]:
@@ -148,11 +148,7 @@ def _validation_part(inputs: ReportInputs, i: int, config: int) -> dict | None:
     else:
         v = validation(res, ds, inputs.model, config=config)
         frames_of = ds
-    meta = frames_of.meta
-    noise, source = None, ""
-    if meta.source == "synthetic":
-        noise = stated_noise(meta.noise, v.blocks, len(v.axes))
-        source = "stated by the synthetic dataset (its noise settings)" if meta.noise else "none: clean synthetic data"
+    noise, source = validation_noise(res, frames_of, inputs.model, i)
     check = check_residual(
         v.time if v.series else None,
         v.measured,

@@ -4,14 +4,18 @@ The residual ``r = measured - predicted`` of one configuration's validation fram
 or a separate recording), per stacked axis, is compared with the sensor noise and tested for
 structure a white residual does not have:
 
-* **noise**: the stated noise of synthetic data (``meta.noise``, per channel key; 0 for clean
-  data), else for a time series the high-frequency estimate of the *measured* signal,
-  ``sigma ~ 1.4826 MAD(d2 x) / sqrt(6)`` with ``d2 x`` the second differences (a smooth motion
-  sampled fast contributes almost nothing to them; white noise of std ``sigma`` gives
-  ``std(d2 x) = sqrt(6) sigma``). A recording low-pass filtered at import keeps less noise above
-  its cut-off, so there it is a lower bound.
+* **noise** (:func:`validation_noise`): the stated noise of synthetic data (``meta.noise``, per channel key;
+  0 for clean data); for a recording the import's own estimate from the raw streams before the low-pass,
+  scaled by the filter's noise bandwidth, with the joint angles' noise through the prediction added
+  (:func:`ineid.identify.noise_figures.axis_noise`); a recording imported without that estimate: unknown
+  (no model-error test). Other time series given no noise: the high-frequency estimate of the *measured*
+  signal, ``sigma ~ 1.4826 MAD(d2 x) / sqrt(6)`` with ``d2 x`` the second differences (white noise of std
+  ``sigma`` gives ``std(d2 x) = sqrt(6) sigma``; unfiltered samples only).
 * **model error** (``model_error``): residual RMS above :data:`NOISE_FACTOR` times the noise (and above
   :data:`NEGLIGIBLE` of the signal's RMS).
+* **offset** (``offset``): a residual mean far above the noise (:func:`ineid.identify.noise_figures.offset_axes`:
+  more than ``OFFSET_FACTOR`` times the noise and ``OFFSET_Z`` standard errors off zero, the residual's
+  correlation in time counted): an offset the fit does not model (``--bias estimate``, ``--torque-offset``).
 * **delay** (``delay``): measurements stamped ``d`` late do not fit the model of the joints' frames,
   and the fitted parameters absorb part of the mismatch, so the residual alone does not show it.
   :func:`delay_scan` refits the linear model (every unknown column, an offset per axis, each axis
@@ -46,9 +50,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ineid.data.recordings.plausibility import Finding
+from ineid.identify.noise_figures import NOISE_FACTOR, mean_z, offset_axes
 
-NOISE_FACTOR = 3.0
-"""Residual RMS above this multiple of the noise: a model error warning."""
 STRUCTURE_SHARE = 0.25
 """Share of a joint torque's residual variance that friction explains above which it warns."""
 PEAK_SHARE = 0.3
@@ -171,6 +174,21 @@ def stated_noise(noise: dict | None, blocks, n_axes: int) -> np.ndarray:
     return out
 
 
+def validation_noise(res, ds, model, row: int) -> tuple[np.ndarray | None, str]:
+    """``(noise (A,) or None, source)`` of the validation frames of ``ds`` (the solved dataset, or the separate
+    validation recording), for the axes ``res`` was fitted on, with its results row ``row``'s estimates (module
+    doc); a recording imported without a noise estimate: NaN (unknown)."""
+    from ineid.identify.noise_figures import axis_noise
+    from ineid.identify.unit_fits import fitted_channels
+
+    channels = fitted_channels(res, ds)
+    theta = np.asarray(res.theta_hat, dtype=np.float64)[row]
+    noise, source = axis_noise(ds, channels, model, theta, min(row, ds.n_configs - 1))
+    if noise is None:
+        return np.full(channels.n_axes(model), np.nan), source
+    return noise, source
+
+
 def difference_noise(measured: np.ndarray) -> np.ndarray:
     """(A,) noise std from the second differences of ``measured`` (F, A): ``1.4826 MAD(d2 x) / sqrt(6)``."""
     d2 = np.diff(np.asarray(measured, dtype=np.float64), n=2, axis=0)
@@ -225,7 +243,8 @@ def check_residual(
         blocks: ``(key, start, stop, kind)`` per channel among the A axes (kind: the channel's, such as
             ``"wrench"`` or ``"joint_torque"``).
         qd: (F, n_dof) joint velocities of the frames (rad/s), for the friction test.
-        noise: (A,) the stated noise std (synthetic data), or None: estimated from ``measured``.
+        noise: (A,) the noise std (:func:`validation_noise`), or None: estimated from ``measured``'s second
+            differences.
         noise_source: how the stated noise was found (text).
         delay: :func:`delay_scan`'s ``(delay s, gain, chance)`` of these frames' configuration, or None: not
             tested.
@@ -239,7 +258,7 @@ def check_residual(
     if noise is None:
         noise = difference_noise(measured) if series else np.full(n_axes, np.nan)
         noise_source = (
-            "estimated from the measured signal's second differences (a lower bound after a low-pass filter)"
+            "estimated from the measured signal's second differences (right for unfiltered samples)"
             if series
             else "unknown (the frames are no time series; give the noise)"
         )
@@ -272,6 +291,7 @@ def check_residual(
                 extra["friction_share"] = explained_share(c, np.hstack([g, f])) - explained_share(c, g)
         out.axes.append(AxisCheck(axes[a], units[a], float(rms[a]), float(noise[a]), **extra))
     _model_error(out, rms > NEGLIGIBLE * scale)
+    _offsets(out, r, np.asarray(noise, dtype=np.float64), scale, series, blocks)
     if tested:
         _structure(out, r, delay)
     return out
@@ -293,6 +313,31 @@ def _model_error(out: ResidualCheck, above: np.ndarray) -> None:
                 ),
             )
         )
+
+
+def _offsets(out: ResidualCheck, r, noise, scale, series: bool, blocks) -> None:
+    """The ``offset`` warning: the axes whose residual mean is far above the noise (module doc)."""
+    if len(r) < 3:
+        return
+    mean, z = mean_z(r, series)
+    flagged = offset_axes(mean, z, noise, scale)
+    if not flagged.any():
+        return
+    torque = any(kind in FRICTION_KINDS and flagged[start:stop].any() for _, start, stop, kind in blocks)
+    wrench = any(kind not in FRICTION_KINDS and flagged[start:stop].any() for _, start, stop, kind in blocks)
+    options = " or ".join(o for o, on in (("--bias estimate", wrench), ("--torque-offset", torque)) if on)
+    text = ", ".join(
+        f"{c.axis} {m:+.3g} {c.unit} (z {abs(zz):.3g})"
+        for c, m, zz, f in zip(out.axes, mean, z, flagged, strict=True)
+        if f
+    )
+    out.warnings.append(
+        Finding(
+            "offset",
+            f"the residual's mean is far above the noise on {int(flagged.sum())} of {len(out.axes)} axes ({text}): "
+            f"an offset the fit does not model; solve with {options}",
+        )
+    )
 
 
 FRICTION_KINDS = ("joint_torque", "motor_current")

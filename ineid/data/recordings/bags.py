@@ -124,6 +124,7 @@ class _Topics:
     imu_of: dict[str, str]
     wrench_topic: str | None
     available: str
+    unused_imu: tuple[str, ...] = ()
 
 
 def _chosen_topics(
@@ -162,7 +163,8 @@ def _chosen_topics(
     if wconns and wconns[0].msgtype != WRENCH_STAMPED:
         raise DatasetError(f"{path}: topic {wrench_topic!r} holds {wconns[0].msgtype}, not {WRENCH_STAMPED}")
     iconns, imu_of = _imu_connections(path, by_topic, imu_topics, available)
-    return _Topics(jconns, wconns, iconns, imu_of, wrench_topic, available)
+    unused = tuple(sorted(t for t, cs in by_topic.items() if cs[0].msgtype == IMU and t not in imu_topics))
+    return _Topics(jconns, wconns, iconns, imu_of, wrench_topic, available, unused)
 
 
 class _Messages:
@@ -237,6 +239,8 @@ def _bag_streams(path: Path, joint_topic: str, topics: _Topics, read: _Messages)
     imus = _imu_streams(path, imu_data, topics.imu_of, t0)
     if imus:
         origin["imu_topics"] = {s.where: len(s.time) for s in imus}
+    if topics.unused_imu:
+        origin["imu_unused"] = {"topics": list(topics.unused_imu)}
     return Streams(
         joint_time=(tq - t0) * 1e-9,
         q=q,

@@ -127,8 +127,12 @@ def _channel_columns(header: list[str], prefix: str, what: str, model, path: Pat
     return wanted
 
 
-def read_csv_streams(path: str | Path, model, progress=None):
+def read_csv_streams(path: str | Path, model, progress=None, imus: tuple[str, ...] = ()):
     """Read a recording CSV into :class:`ineid.data.recordings.streams.Streams` (no processing yet).
+
+    A link IMU's columns ``imu_<NAME>_...`` become a stream only when ``imus`` (the ``--imu`` texts) names
+    ``NAME``; the others are listed in the streams' ``origin["imu_unused"]`` (the import says so in one line:
+    :func:`ineid.data.recordings.imus.unused_imu_lines`).
 
     The file is read within the limits of :mod:`ineid.data.recordings.csv_rows` (size, columns, rows, line
     length; values within :data:`ineid.data.recordings.streams.VALUE_LIMIT`), streamed: memory holds the
@@ -157,7 +161,7 @@ def read_csv_streams(path: str | Path, model, progress=None):
             )
         numbers, lines = first
         header = parse_header(lines[0], numbers[0], path)
-        columns = _recording_columns(header, model, path)
+        columns = _recording_columns(header, model, path, imus)
         index = {h: k for k, h in enumerate(header)}
         layout = Layout(
             path, len(header), tuple(index[c] for c in columns.names), tuple(columns.names), columns.streams
@@ -183,6 +187,7 @@ class _Columns:
     ) -> None:
         self.joint_names, self.measured, self.tau, self.current = joint_names, measured, tau, current
         self.wrench, self.imu_kinds = wrench, imu_kinds
+        self.unused_imus: dict[str, list[str]] = {}
         self.imu_cols = {name: [c for cols in kinds.values() for c in cols] for name, kinds in imu_kinds.items()}
         self.names = [
             "time",
@@ -198,8 +203,9 @@ class _Columns:
         self.streams = tuple(spans)
 
 
-def _recording_columns(header: list[str], model, path: Path) -> _Columns:
-    """Which of the header's columns a recording of ``model`` reads; the header's mistakes, named."""
+def _recording_columns(header: list[str], model, path: Path, imus: tuple[str, ...] = ()) -> _Columns:
+    """Which of the header's columns a recording of ``model`` reads (the IMUs' of those ``imus``, the ``--imu``
+    texts, names); the header's mistakes, named."""
     n = model.n_dof
     joint_index = [j[1] for h in header if (j := _joint_column(h)) is not None]
     if joint_index and (max(joint_index) != n or min(joint_index) < 1):
@@ -223,9 +229,17 @@ def _recording_columns(header: list[str], model, path: Path) -> _Columns:
             f"a recording of {model.name} needs {','.join(required)} (and optionally qd1..qd{n}, qdd1..qdd{n}; "
             f"the wrench columns may be left out when joint torques tau1..tau{n} are given)"
         )
-    from ineid.data.recordings.imus import imu_column_kinds
+    from ineid.data.recordings.imus import imu_column_kinds, named_imus
 
-    imu_kinds = imu_column_kinds(header, path)
+    found = imu_column_kinds(header, path)
+    named = named_imus(imus, model)
+    absent = sorted(named - set(found))
+    if absent:
+        raise DatasetError(
+            f"{path}: --imu {absent[0]!r} has no readings in the recording (its IMUs: {', '.join(found) or 'none'}); "
+            f"name its columns imu_{absent[0]}_wx... after it, or drop the --imu"
+        )
+
     deriv = [f"{p}{i}" for p in ("qd", "qdd") for i in range(1, n + 1)]
     present = [c for c in deriv if c in names]
     if present and len(present) != len(deriv):
@@ -235,7 +249,9 @@ def _recording_columns(header: list[str], model, path: Path) -> _Columns:
             f"qd1..qd{n} and qdd1..qdd{n}, or none (then they are derived from the joint angles)"
         )
     joint_names = csv_columns(n, derivatives=bool(present))[1:-6] + tau_cols + current_cols
-    return _Columns(joint_names, bool(present), tau_cols, current_cols, has_wrench_cols, imu_kinds)
+    columns = _Columns(joint_names, bool(present), tau_cols, current_cols, has_wrench_cols, found)
+    columns.unused_imus = {name: list(kinds) for name, kinds in found.items() if name not in named}
+    return columns
 
 
 def _streams(table: Table, columns: _Columns, model, path: Path) -> Streams:
@@ -268,6 +284,8 @@ def _streams(table: Table, columns: _Columns, model, path: Path) -> Streams:
     k0 += n if columns.tau else 0
     imus = []
     for name, kinds in columns.imu_kinds.items():
+        if name in columns.unused_imus:  # read (its rows are the file's), not used
+            continue
         r = rows[f"IMU {name!r}"]
         imus.append(
             ImuStream(
@@ -290,7 +308,12 @@ def _streams(table: Table, columns: _Columns, model, path: Path) -> Streams:
         current=jr[:, k0 : k0 + n] if columns.current else None,
         imus=tuple(imus),
         source=str(path),
-        origin={"format": "csv", "file": path.name, "rows": int(len(data))},
+        origin={
+            "format": "csv",
+            "file": path.name,
+            "rows": int(len(data)),
+            **({"imu_unused": {"columns": columns.unused_imus}} if columns.unused_imus else {}),
+        },
     )
 
 

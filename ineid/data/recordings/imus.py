@@ -72,6 +72,33 @@ def imu_column_kinds(header: Sequence[str], path) -> dict[str, dict[str, list[st
     return out
 
 
+def named_imus(texts: Sequence[str], model) -> set[str]:
+    """The IMU names (the ``<NAME>`` of ``imu_<NAME>_wx`` columns) the ``--imu`` texts give.
+
+    Raises:
+        DatasetError: a text that does not parse (:func:`parse_imu_text`).
+    """
+    return {parse_imu_text(text, model).name for text in texts}
+
+
+def unused_imu_lines(origin: Mapping | None) -> tuple[str, ...]:
+    """The import's line on the IMUs a recording holds and the import did not use (``origin["imu_unused"]``:
+    CSV columns no ``--imu`` names, bag ``Imu`` topics no ``--imu-topic`` names), with how to use them."""
+    unused = (origin or {}).get("imu_unused") or {}
+    if unused.get("columns"):
+        found = ", ".join(f"imu_{name}_* ({', '.join(kinds)})" for name, kinds in unused["columns"].items())
+        return (
+            f"IMU columns not used: {found}; to fuse an IMU with the joints name it: --imu NAME (on the link or "
+            "URDF frame NAME) or --imu NAME=LINK[:x,y,z,roll,pitch,yaw]",
+        )
+    if unused.get("topics"):
+        return (
+            f"Imu topics not used: {', '.join(unused['topics'])}; to fuse one with the joints name it: --imu-topic "
+            "TOPIC (and --imu NAME=LINK[:x,y,z,roll,pitch,yaw] where its frame_id names no link)",
+        )
+    return ()
+
+
 def parse_imu_text(text: str, model):
     """An ``--imu`` text (``[NAME=]LINK[:x,y,z,roll,pitch,yaw]`` or a URDF frame) -> an :class:`ImuMount`.
 

@@ -54,7 +54,9 @@ from ineid.data.recordings.frames import (
     split_columns,
     time_base,
 )
+from ineid.data.recordings.imus import unused_imu_lines
 from ineid.data.recordings.limits import MAX_UPSAMPLING
+from ineid.data.recordings.noise_estimate import import_noise
 from ineid.data.recordings.settings import DelayEstimator, ImportSettings
 from ineid.data.recordings.streams import SI_UNITS, Streams, in_si_units, units_note
 from ineid.data.recordings.summary import DelayEstimate, ImportSummary
@@ -114,8 +116,10 @@ def recording_dataset(
         priors = joints[:, n : 3 * n] if cut.priors_hz is None else _encoder_priors(cut, arrays.hq, smooth.tq, grid)
         imu_lines, imu_record = _fuse_imus(prepared, model, settings, grid, joints, priors)
     resampled = tuple(name for name, moved in (("joints", moved_q), ("wrench", moved_w)) if moved)
+    imu_lines = (*imu_lines, *unused_imu_lines(streams.origin))
     summary = _summary(arrays, cut, settings, grid, rate, resampled, units_note(streams.origin), imu_lines)
     origin = {**streams.origin, "import": summary.to_dict(), **({"imu": imu_record} if imu_record else {})}
+    origin["noise"] = import_noise(arrays, cut.hz)
     return _dataset(model, settings, arrays, origin, joints, wrench, grid), summary
 
 
@@ -334,7 +338,7 @@ def import_recording(
         DatasetError: see :func:`recording_dataset`, :func:`ineid.data.recordings.csv_import.read_csv_streams`
             and :func:`ineid.data.recordings.bags.read_bag_streams`.
     """
-    streams = read_streams(path, model, joint_topic, wrench_topic, progress, imu_topics)
+    streams = read_streams(path, model, joint_topic, wrench_topic, progress, imu_topics, settings.imus)
     return hinted_recording_dataset(streams, model, settings, delay_estimator)
 
 
@@ -345,9 +349,11 @@ def read_streams(
     wrench_topic: str | None = None,
     progress: Progress | None = None,
     imu_topics: tuple[str, ...] = (),
+    imus: tuple[str, ...] = (),
 ) -> Streams:
     """The :class:`Streams` of a recording file (CSV, ROS 1 ``.bag``, ROS 2 bag folder or ``.mcap``); the
-    arguments as :func:`import_recording`'s.
+    arguments as :func:`import_recording`'s, ``imus`` its settings' ``--imu`` texts (a CSV's IMU columns
+    are read only where one names them).
 
     Raises:
         DatasetError: a file that does not exist, ``imu_topics`` for a CSV, and see
@@ -367,7 +373,7 @@ def read_streams(
         )
     from ineid.data.recordings.csv_import import read_csv_streams
 
-    return read_csv_streams(path, model, progress)
+    return read_csv_streams(path, model, progress, imus)
 
 
 def own_cutoff(streams: Streams, model, settings: ImportSettings) -> tuple[Cutoff, RecordingArrays]:
@@ -421,7 +427,7 @@ def read_recording_csv(path: str | Path, model, flip_wrench: bool = False, setti
     from ineid.data.recordings.csv_import import read_csv_streams
 
     settings = replace(settings or ImportSettings(), flip_wrench=flip_wrench)
-    return recording_dataset(read_csv_streams(path, model), model, settings)[0]
+    return recording_dataset(read_csv_streams(path, model, imus=settings.imus), model, settings)[0]
 
 
 __all__ = [
