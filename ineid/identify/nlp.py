@@ -398,15 +398,65 @@ def nlp_estimate(
                 theta[i] = th
         if progress is not None:
             progress(i + 1, c)
-    return estimate_from_solves(theta, success, status, fit, base)
+    return estimate_from_solves(
+        theta, success, status, fit, base, solver.method, solver.theta_prior, solver.pull, data_rms
+    )
 
 
-def estimate_from_solves(theta, success, status, fit: BaseFit, base: BaseParameters) -> Estimate:
-    """An :class:`Estimate` of IPOPT solutions: ``beta = B theta``, standard deviations from
-    the base least-squares fit (the linearized uncertainty), NaN where a solve failed."""
+def theta_bounds(method: str, base: BaseParameters) -> tuple[np.ndarray, np.ndarray]:
+    """The solver's bounds (:meth:`NlpSolver.bounds`) on the standard parameters: ``nonlinear``'s masses
+    ``>= 1e-6`` of their scales, ``consistent``'s dissipative extra parameters ``>= 0``."""
+    lb, ub = np.full(base.n_params, -np.inf), np.full(base.n_params, np.inf)
+    n_lp = base.n_link_params
+    if method == "nonlinear":
+        lb[0:n_lp:10] = 1e-6 * base.scales[0:n_lp:10]
+    elif base.n_extra:
+        lb[n_lp:][nonnegative(base.param_names[n_lp:])] = 0.0
+    return lb, ub
+
+
+def estimate_from_solves(
+    theta,
+    success,
+    status,
+    fit: BaseFit,
+    base: BaseParameters,
+    method: str | None = None,
+    prior: np.ndarray | None = None,
+    pull: float = DEFAULT_PULL,
+    data_rms: np.ndarray | None = None,
+) -> Estimate:
+    """An :class:`Estimate` of IPOPT solutions: ``beta = B theta``, NaN where a solve failed; standard
+    deviations from the base fit's covariance, through the active constraints of ``method``
+    (:func:`ineid.identify.constrained_std.constrained_cov`: the linear fit's where none is active, and
+    everywhere when ``method`` is None).
+
+    Args:
+        method: ``"nonlinear"`` or ``"consistent"``; prior: (n,) the solver's prior; pull: its weight;
+            data_rms: (C,) the data's RMS (the floor of the solver's residual variance).
+    """
     beta = theta @ base.B.T
-    std = standard_std(np.nan_to_num(fit.cov_beta), base)
+    cov = np.nan_to_num(fit.cov_beta)
+    if method is not None:
+        from ineid.identify.constrained_std import constrained_cov
+
+        rms = np.ones(len(beta)) if data_rms is None else np.asarray(data_rms, dtype=np.float64)
+        s2 = np.maximum(fit.sigma2, (SIGMA_FLOOR_REL[method] * np.maximum(rms, 1e-300)) ** 2)
+        null = "exact" if method == "nonlinear" else "pull"
+        cov, _ = constrained_cov(
+            theta,
+            success,
+            fit,
+            base,
+            null=null,
+            psd=method == "consistent",
+            prior=prior,
+            pull=pull,
+            data_weight=1.0 / (s2 * base.rank),
+            bounds=theta_bounds(method, base),
+        )
+    std = standard_std(cov, base)
     std[~success] = np.nan
-    beta_std = np.sqrt(np.maximum(np.diagonal(np.nan_to_num(fit.cov_beta), axis1=1, axis2=2), 0.0))
+    beta_std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
     beta_std[~success] = np.nan
     return Estimate(theta, std, beta, beta_std, success, status, fit)

@@ -207,4 +207,5 @@ def _run_in_workers(
             stop.set()
             pool.shutdown(cancel_futures=True)
             raise
-    return estimate_from_solves(theta, success, status, fit, base), seconds
+    method, _, prior, pull = build[:4]
+    return estimate_from_solves(theta, success, status, fit, base, method, prior, pull, data_rms), seconds
