@@ -155,6 +155,7 @@ def constrained_cov(
     pull: float = 0.0,
     data_weight: np.ndarray | None = None,
     bounds: tuple[np.ndarray, np.ndarray] | None = None,
+    gain=None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(cov_c, n_active)``: (C, r, r) the covariance of each configuration's constrained base estimate and
     (C,) how many constraints are active there (module doc). ``cov_c`` is ``fit.cov_beta`` itself where none is.
@@ -172,6 +173,9 @@ def constrained_cov(
         pull: the pull's weight against the data term ``||R (beta - beta_hat)||^2 * data_weight``.
         data_weight: (C,) the data term's weight in the solver's cost, ``1 / (s^2 r)`` (``"pull"`` only).
         bounds: ``(lb, ub)`` (n,) bounds on theta, ``-inf``/``inf`` where none.
+        gain: ``gain(i)``, the estimator's own derivative ``G`` (r, r) of configuration ``i``
+            (:func:`estimator_gain`), or None where it has none: used instead of the quadratic model's
+            where a constraint is active.
     """
     c_n, r = fit.beta.shape
     n = base.n_params
@@ -197,6 +201,35 @@ def constrained_cov(
         act = active_set(h, free, a * s[None, :], b, eq)
         n_active[i] = len(act)
         if len(act):
-            g = sensitivity(h, w * bs.T @ m, np.vstack([eq, a[act] * s[None, :]]), bs)
+            g = None if gain is None else gain(i)
+            if g is None:
+                g = sensitivity(h, w * bs.T @ m, np.vstack([eq, a[act] * s[None, :]]), bs)
             cov[i] = g @ cov[i] @ g.T
     return cov, n_active
+
+
+def estimator_gain(solver, theta: np.ndarray, r_factor: np.ndarray, beta_hat: np.ndarray, inv_s2: float):
+    """``G = d beta_c / d beta_hat`` (r, r) of an unconstrained parameterization's solver at its estimate
+    ``theta`` (``consistent``: the log-Cholesky unknowns, barrier and pull included): the implicit function
+    theorem on its optimality condition, ``dx = -H^-1 H_xz R d beta_hat``, unknowns at a bound held. None
+    where the estimate has no unknowns (a pseudo-inertia not positive definite in floating point).
+
+    Args:
+        solver: an :class:`ineid.identify.nlp.NlpSolver` (``start``, ``bounds``, ``derivatives``).
+        theta: (n,) its estimate; r_factor, beta_hat: the configuration's base fit; inv_s2: the data term's
+            ``1 / s^2``.
+    """
+    from ineid.errors import IdentificationError
+
+    try:
+        x = solver.start(theta)
+    except IdentificationError:
+        return None
+    lb, ub = solver.bounds()
+    x = np.clip(x, lb, ub)
+    h, h_xz, jac = solver.derivatives(x, r_factor, beta_hat, inv_s2)
+    moving = (x > lb + 1e-9) & (x < ub - 1e-9)
+    dx = np.zeros((len(x), len(beta_hat)))
+    dx[moving] = -np.linalg.lstsq(h[np.ix_(moving, moving)], h_xz[moving] @ r_factor, rcond=1e-14)[0]
+    g = solver.base.B @ jac @ dx
+    return g if np.all(np.isfinite(g)) else None
