@@ -233,3 +233,17 @@ def estimator_gain(solver, theta: np.ndarray, r_factor: np.ndarray, beta_hat: np
     dx[moving] = -np.linalg.lstsq(h[np.ix_(moving, moving)], h_xz[moving] @ r_factor, rcond=1e-14)[0]
     g = solver.base.B @ jac @ dx
     return g if np.all(np.isfinite(g)) else None
+
+
+CONSTRAINED_METHODS = ("consistent", "nonlinear", "lsqlin")
+"""The methods whose std runs through their active constraints (``lsqlin`` with bounds)."""
+
+
+def std_note(method: str) -> str:
+    """One line on what a method's standard deviations are (``results info``)."""
+    if method in CONSTRAINED_METHODS:
+        return (
+            "std: the linear fit's covariance through the active constraints of the estimate (the linear fit's "
+            "where none is active; docs/identification.md)"
+        )
+    return "std: the linear fit's covariance"
