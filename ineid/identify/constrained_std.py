@@ -8,8 +8,12 @@ the estimator's derivative,
 
     cov_c = G V G^T,   G = d beta_c / d beta_hat,   V = cov(beta_hat),
 
-with ``G`` from the optimality (KKT) conditions of the quadratic model the solver minimizes, with its
-active constraints held as equalities (:func:`sensitivity`):
+``V`` taken as given. ``consistent`` (an unconstrained log-Cholesky parameterization with a barrier) uses
+its own solver's derivative, the implicit function theorem on its optimality condition
+(:func:`estimator_gain`): it carries the cone's curvature and the coupling of several zero eigenvalues,
+which the half-spaces below leave free (``docs/identification.md`` has the measured difference).
+``nonlinear`` and the bounded ``lsqlin`` (linear bounds) use the optimality (KKT) conditions of the
+quadratic model the solver minimizes, with its active constraints held as equalities (:func:`sensitivity`):
 
     [ H  C^T ] [ d theta ]   [ B^T M ]
     [ C   0  ] [ d mu    ] = [   0   ] d beta_hat,     H = B^T M B + lam Q,
@@ -38,7 +42,7 @@ in about half the configurations. There the error is ``P e`` (``e`` the linear f
 the error across the boundary, with covariance ``cov_c``; in the other half the constraint is inactive and
 the error is ``e`` conditioned on lying inside, whose second moment across the boundary is still ``V``'s.
 So the z-scores' RMS is 1 in both halves, while their distribution across the boundary is a half-normal
-(the estimates lean inwards): calibration is checked on the RMS, per half (``docs/identification.md``).
+(the estimates lean inwards): calibration is checked on the RMS (``docs/identification.md``).
 """
 
 from __future__ import annotations
