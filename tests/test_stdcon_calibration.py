@@ -98,7 +98,7 @@ def test_bounded_lsqlin_std_accounts_for_its_active_bounds(model, base, cases):
     from ineid.identify import fused
     from ineid.identify.classical import lsqlin_theta
     from ineid.identify.constrained_std import constrained_cov
-    from ineid.identify.linear import fit_base_blocks
+    from ineid.identify.linear import fit_base_blocks, prior_map
 
     ds = cases["rod"]
     blocks = fused.information_blocks(model, base, ds.q, ds.qd, ds.qdd, ds.wrench, ds.theta_known)
@@ -116,6 +116,13 @@ def test_bounded_lsqlin_std_accounts_for_its_active_bounds(model, base, cases):
     std = np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
     ratio = std[active] / np.sqrt(np.diagonal(fit.cov_beta[active], axis1=1, axis2=2))
     assert ratio.max() < 1 + 1e-3 and ratio.min() < 1e-6  # the bounded parameter: pinned (the rest: as linear)
+    # an identifiable parameter's bound is a row of base parameters, j = e_k^T T: the projection in the information
+    # metric, P = I - M^-1 j^T (j M^-1 j^T)^-1 j, cov = P V P^T
+    j = prior_map(base)[k][None, :]
+    for i in np.flatnonzero(active)[:3]:
+        m_inv = np.linalg.inv(fit.R[i].T @ fit.R[i])
+        p = np.eye(base.rank) - m_inv @ j.T @ np.linalg.solve(j @ m_inv @ j.T, j)
+        np.testing.assert_allclose(cov[i], p @ fit.cov_beta[i] @ p.T, atol=1e-9 * np.abs(fit.cov_beta[i]).max())
     z = ((theta @ base.B.T - truth @ base.B.T) / std)[ok]
     rms = np.sqrt(np.mean(z**2, axis=0))
     assert 0.8 < rms.mean() < 1.2 and np.all(rms < 1.5), rms.round(2)
