@@ -417,18 +417,6 @@ def nlp_estimate(
     return estimate_from_solves(theta, success, status, fit, base, solver, data_rms)
 
 
-def theta_bounds(method: str, base: BaseParameters) -> tuple[np.ndarray, np.ndarray]:
-    """The solver's bounds (:meth:`NlpSolver.bounds`) on the standard parameters: ``nonlinear``'s masses
-    ``>= 1e-6`` of their scales, ``consistent``'s dissipative extra parameters ``>= 0``."""
-    lb, ub = np.full(base.n_params, -np.inf), np.full(base.n_params, np.inf)
-    n_lp = base.n_link_params
-    if method == "nonlinear":
-        lb[0:n_lp:10] = 1e-6 * base.scales[0:n_lp:10]
-    elif base.n_extra:
-        lb[n_lp:][nonnegative(base.param_names[n_lp:])] = 0.0
-    return lb, ub
-
-
 def estimate_from_solves(
     theta,
     success,
@@ -470,7 +458,7 @@ def estimate_from_solves(
             prior=solver.theta_prior,
             pull=solver.pull,
             data_weight=1.0 / (s2 * base.rank),
-            bounds=theta_bounds(method, base),
+            bounds=tuple(v * base.scales for v in solver.bounds()),  # x's bounds scale to theta's
             gain=gain if method == "consistent" else None,
         )
     std = standard_std(cov, base)
