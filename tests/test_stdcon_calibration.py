@@ -123,6 +123,10 @@ def test_bounded_lsqlin_std_accounts_for_its_active_bounds(model, base, cases):
         m_inv = np.linalg.inv(fit.R[i].T @ fit.R[i])
         p = np.eye(base.rank) - m_inv @ j.T @ np.linalg.solve(j @ m_inv @ j.T, j)
         np.testing.assert_allclose(cov[i], p @ fit.cov_beta[i] @ p.T, atol=1e-9 * np.abs(fit.cov_beta[i]).max())
+    # nonlinear's form (the null-space part held at the prior's) binds the same identifiable bound the same way
+    held, n_held = constrained_cov(theta, ok, fit, base, null="exact", psd=False, prior=truth, bounds=(lb, ub))
+    np.testing.assert_array_equal(n_held, n_active)
+    np.testing.assert_allclose(held, cov, rtol=1e-7, atol=1e-9 * np.abs(cov).max())  # lsqlin: a 1e-10 ridge
     err = theta @ base.B.T - truth @ base.B.T
     lin_std = np.sqrt(np.diagonal(fit.cov_beta, axis1=1, axis2=2))
     pinned = std < 1e-6 * lin_std  # the bound's own direction where it binds: the truth's value, to round-off
