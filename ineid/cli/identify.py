@@ -221,6 +221,7 @@ def results_info(path: Path) -> None:
     import numpy as np
 
     from ineid.identify import load_results
+    from ineid.identify.constrained_std import std_note
 
     res = load_results(path)
     m = res.meta
@@ -238,6 +239,7 @@ def results_info(path: Path) -> None:
         f"unknown links {shown(', '.join(m['unknown_links']))}; gravity {shown(m['gravity'])} m/s^2"
     )
     con.print(f"settings: {shown(json.dumps(res.settings.to_dict(), sort_keys=True))}")
+    con.print(std_note(res.settings.method))
     n_ok = int(res.success.sum())
     con.print(
         f"{n_ok}/{res.n} configurations identified (indices {int(res.config_index.min())}.."

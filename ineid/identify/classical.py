@@ -43,7 +43,9 @@ On clean data both fit the frames exactly (``B theta = beta_hat``, the wrench re
 round-off) and their standard parameters differ from the truth along the null directions only:
 the paper's "wide range of accuracies" of the inertia entries, explained by identifiability.
 The standard deviations reported are those of the identifiable parameters (the same for every
-point of the solution set); NaN elsewhere.
+point of the solution set); NaN elsewhere. ``lsqnonlin`` and the unbounded ``lsqlin`` fit ``beta_hat``
+exactly, so theirs are the linear fit's; the bounded ``lsqlin``'s account for the bounds it stops at
+(:mod:`ineid.identify.constrained_std`).
 
 References:
     MathWorks, ``lsqlin`` and ``lsqnonlin`` (Optimization Toolbox); Coleman & Li (1996), An
@@ -56,6 +58,7 @@ import time
 
 import numpy as np
 
+from ineid.identify.constrained_std import constrained_cov
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.linear import BaseFit, Estimate, MethodEstimate, SharedFit, standard_std
 from ineid.identify.settings import SolveSettings
@@ -381,15 +384,19 @@ def lsqnonlin_theta(fit: BaseFit, base: BaseParameters, start: np.ndarray, progr
     return theta, success, status.astype(object), nfev
 
 
-def _classical_estimate(theta, success, status, shared: SharedFit, t0: float) -> MethodEstimate:
+def _classical_estimate(theta, success, status, shared: SharedFit, t0: float, bounds=None) -> MethodEstimate:
     """The :class:`MethodEstimate` of a classical solver's ``theta`` (C, n), NaN where it failed; the seconds
-    since ``t0`` shared out over the configurations."""
+    since ``t0`` shared out over the configurations. With ``bounds`` (``lsqlin``'s box) the standard
+    deviations are those of the bounded estimate (:func:`ineid.identify.constrained_std.constrained_cov`)."""
     fit, base = shared.fit, shared.base
     c = fit.beta.shape[0]
     theta[~success] = np.nan
-    std = standard_std(np.nan_to_num(fit.cov_beta), base)
+    cov = fit.cov_beta
+    if bounds is not None:
+        cov, _ = constrained_cov(theta, success, fit, base, null="free", psd=False, bounds=bounds)
+    std = standard_std(np.nan_to_num(cov), base)
     std[~success] = np.nan
-    beta_std = np.sqrt(np.maximum(np.diagonal(fit.cov_beta, axis1=1, axis2=2), 0.0))
+    beta_std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
     est = Estimate(theta, std, theta @ base.B.T, beta_std, success, np.asarray(status, dtype=object), fit)
     return MethodEstimate(est, np.full(c, (time.perf_counter() - t0) / max(c, 1)))
 
@@ -401,7 +408,7 @@ def lsqlin_method(shared: SharedFit, settings: SolveSettings, progress: Progress
     fit, base = shared.fit, shared.base
     bounds = None if settings.bounds is None else cad_bounds(shared.prior, base.scales, settings.bounds)
     theta, status = lsqlin_theta(fit, base, bounds, progress)
-    return _classical_estimate(theta, fit.full_rank & (status == "ok"), status, shared, t0)
+    return _classical_estimate(theta, fit.full_rank & (status == "ok"), status, shared, t0, bounds)
 
 
 def lsqnonlin_method(shared: SharedFit, settings: SolveSettings, progress: Progress | None = None) -> MethodEstimate:

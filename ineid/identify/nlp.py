@@ -261,10 +261,26 @@ class NlpSolver:
     entropic: float
     solver: object
     theta_fn: object
+    expressions: tuple = ()
+    """``(x, p, f, theta, z)``: the problem's CasADi expressions, for :meth:`derivatives`."""
+    derivatives_fn: object = None
 
     @property
     def n_params(self) -> int:
         return self.base.n_params
+
+    def derivatives(self, x: np.ndarray, r_factor: np.ndarray, beta_hat: np.ndarray, inv_s2: float):
+        """``(H, H_xz, dtheta/dx)`` at ``x``: the objective's Hessian in the unknowns (n, n), the derivative of its
+        gradient in ``z = R beta_hat`` (n, r), and the parameters' Jacobian (n, n) (the function built on first use)."""
+        import casadi as ca
+
+        if self.derivatives_fn is None:
+            xs, ps, f, theta, zs = self.expressions
+            grad = ca.gradient(f, xs)
+            outs = [ca.jacobian(grad, xs), ca.jacobian(grad, zs), ca.jacobian(theta, xs)]
+            self.derivatives_fn = ca.Function("ineid_derivatives", [xs, ps], outs)
+        p = np.concatenate([r_factor.ravel(order="F"), r_factor @ beta_hat, [inv_s2]])
+        return tuple(np.array(v) for v in self.derivatives_fn(x, p))
 
     @classmethod
     def build(
@@ -327,7 +343,7 @@ class NlpSolver:
         opts = _solver_options(ipopt_options, compiled)
         solver = nlpsol(f"ineid_{method}", {"x": x, "p": p, "f": f, "g": g}, opts)  # stops on SIGINT, SIGTERM
         theta_fn = ca.Function("theta", [x], [theta])
-        return cls(method, base, prior, pull, entropic, solver, theta_fn)
+        return cls(method, base, prior, pull, entropic, solver, theta_fn, (x, p, f, theta, zp))
 
     def start(self, theta: np.ndarray) -> np.ndarray:
         n_lp, scales = self.base.n_link_params, self.base.scales
@@ -398,15 +414,55 @@ def nlp_estimate(
                 theta[i] = th
         if progress is not None:
             progress(i + 1, c)
-    return estimate_from_solves(theta, success, status, fit, base)
+    return estimate_from_solves(theta, success, status, fit, base, solver, data_rms)
 
 
-def estimate_from_solves(theta, success, status, fit: BaseFit, base: BaseParameters) -> Estimate:
-    """An :class:`Estimate` of IPOPT solutions: ``beta = B theta``, standard deviations from
-    the base least-squares fit (the linearized uncertainty), NaN where a solve failed."""
+def estimate_from_solves(
+    theta,
+    success,
+    status,
+    fit: BaseFit,
+    base: BaseParameters,
+    solver: NlpSolver | None = None,
+    data_rms: np.ndarray | None = None,
+) -> Estimate:
+    """An :class:`Estimate` of IPOPT solutions: ``beta = B theta``, NaN where a solve failed; standard
+    deviations from the base fit's covariance, through the active constraints of ``solver``'s method
+    (:func:`ineid.identify.constrained_std.constrained_cov`; ``consistent``: the solver's own derivative
+    where one is active, :func:`ineid.identify.constrained_std.estimator_gain`): the linear fit's where
+    none is active, and everywhere without ``solver``.
+
+    Args:
+        solver: the problem solved (method, prior, pull); data_rms: (C,) the data's RMS (the floor of the
+            solver's residual variance).
+    """
     beta = theta @ base.B.T
-    std = standard_std(np.nan_to_num(fit.cov_beta), base)
+    cov = np.nan_to_num(fit.cov_beta)
+    if solver is not None:
+        from ineid.identify.constrained_std import constrained_cov, estimator_gain
+
+        method = solver.method
+        rms = np.ones(len(beta)) if data_rms is None else np.asarray(data_rms, dtype=np.float64)
+        s2 = np.maximum(fit.sigma2, (SIGMA_FLOOR_REL[method] * np.maximum(rms, 1e-300)) ** 2)
+
+        def gain(i):
+            return estimator_gain(solver, theta[i], fit.R[i], fit.beta[i], 1.0 / s2[i])
+
+        cov, _ = constrained_cov(
+            theta,
+            success,
+            fit,
+            base,
+            null="exact" if method == "nonlinear" else "pull",
+            psd=method == "consistent",
+            prior=solver.theta_prior,
+            pull=solver.pull,
+            data_weight=1.0 / (s2 * base.rank),
+            bounds=tuple(v * base.scales for v in solver.bounds()),  # x's bounds scale to theta's
+            gain=gain if method == "consistent" else None,
+        )
+    std = standard_std(cov, base)
     std[~success] = np.nan
-    beta_std = np.sqrt(np.maximum(np.diagonal(np.nan_to_num(fit.cov_beta), axis1=1, axis2=2), 0.0))
+    beta_std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
     beta_std[~success] = np.nan
     return Estimate(theta, std, beta, beta_std, success, status, fit)

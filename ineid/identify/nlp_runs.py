@@ -207,4 +207,6 @@ def _run_in_workers(
             stop.set()
             pool.shutdown(cancel_futures=True)
             raise
-    return estimate_from_solves(theta, success, status, fit, base), seconds
+    method, _, prior, pull, entropic, options = build[:6]
+    solver = NlpSolver.build(method, base, prior, pull, entropic, options)  # the problem's derivatives, for the std
+    return estimate_from_solves(theta, success, status, fit, base, solver, data_rms), seconds
