@@ -84,7 +84,20 @@ def noisy(lab, tmp_path_factory):
         csv = write_angles_csv(folder / f"{name}.csv", t[part], q[part], w[part])
         for prefix, pose in (("", POSE_TEXT), ("bad_", bad_pose)):
             h5 = folder / f"{prefix}{name}.h5"
-            r = invoke("-q", "data", "import", csv, "--robot", "sweaty-arm", "--sensor-pose", pose, "--out", h5)
+            r = invoke(  # one filter for the fitted and the validation recording, as solve asks
+                "-q",
+                "data",
+                "import",
+                csv,
+                "--robot",
+                "sweaty-arm",
+                "--sensor-pose",
+                pose,
+                "--cutoff",
+                "12",
+                "--out",
+                h5,
+            )
             assert r.exit_code == 0, r.output
             out[prefix + name] = h5
     return out
