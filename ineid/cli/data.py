@@ -221,6 +221,8 @@ def data_generate(
         )
     except ValueError as e:  # a setting the options' own checks let through
         raise click.UsageError(str(e)) from None
+    from ineid.robots.gravity import describe_gravity
+
     t0 = time.perf_counter()
     with ProgressBar("generating", "configurations", quiet(ctx)) as bar:
         write_dataset(model, spec, out, overwrite=overwrite, progress=bar)
@@ -230,7 +232,7 @@ def data_generate(
         f"({plain(', '.join(model.unknown_links))} "
         f"unknown{'; ' + plain(spec.channels.describe()) if spec.channels else ''}) "
         f"in {seconds:.1f} s "
-        f"({total * n_frames / seconds:,.0f} frames/s)"
+        f"({total * n_frames / seconds:,.0f} frames/s); {describe_gravity(model.gravity)}"
     )
 
 
@@ -326,14 +328,15 @@ def _print_settings(con, path: Path, meta, shapes: dict) -> None:
         f"unknown links: {shown(', '.join(meta.unknown_links))}; "
         f"known links: {shown(', '.join(meta.known_links) or '-')}"
     )
-    con.print(
-        f"gravity {np.asarray(meta.gravity).tolist()} m/s^2" + (f"; seed {meta.seed}" if meta.seed is not None else "")
-    )
+    from ineid.robots.gravity import describe_gravity
+
+    con.print(describe_gravity(np.asarray(meta.gravity)) + (f"; seed {meta.seed}" if meta.seed is not None else ""))
     if meta.locked_joints:
         con.print(f"locked joints: {shown(meta.locked_joints)}")
     if meta.sampling:
         con.print(f"sampling: {shown(json.dumps(meta.sampling, sort_keys=True))}")
-    con.print(f"noise (std): {shown(json.dumps(meta.noise)) if meta.noise else 'none (clean data)'}")
+    clean = "none (clean data)" if meta.source == "synthetic" else "none added (a recording)"
+    con.print(f"noise (std): {shown(json.dumps(meta.noise)) if meta.noise else clean}")
     if meta.origin:
         con.print(f"origin: {shown(json.dumps(meta.origin, sort_keys=True))}")
     several = len(meta.channels) > 1

@@ -193,7 +193,9 @@ def data_import(
             imu_topics=tuple(imu_topics),
         )
     ds.save(out, overwrite=overwrite)
-    click.echo(f"wrote {out}: one recording of {plain(model.name)}")
+    from ineid.robots.gravity import describe_gravity
+
+    click.echo(f"wrote {out}: one recording of {plain(model.name)}; {describe_gravity(model.gravity)}")
     for line in summary.lines():
         click.echo(f"  {plain(line)}")
     from ineid.data.recordings.plausibility import check_dataset

@@ -138,8 +138,12 @@ def print_results(res, out) -> None:
 
 
 def _print_solve_summary(con, res, n_ok: int) -> None:
-    """How many configurations were identified, in what time, why the others failed, and the held-out error."""
+    """How many configurations were identified, in what time, why the others failed; what was fitted, under
+    which gravity; the held-out error and RMS per axis."""
     import numpy as np
+
+    from ineid.report.fitted import fitted_channels, held_out_error_name
+    from ineid.robots.gravity import describe_gravity
 
     total = res.meta.get("total_seconds", float("nan"))
     con.print(
@@ -147,6 +151,7 @@ def _print_solve_summary(con, res, n_ok: int) -> None:
         f"in {total:.2f} s ({1e3 * total / max(res.n, 1):.2f} ms each); fitted {res.n_frames_fit} frames each"
         + (f", validated on {res.n_frames_validation}" if res.n_frames_validation else "")
     )
+    con.print(f"fitted: {shown(fitted_channels(res.meta))}; {describe_gravity(res.meta['gravity'])}")
     if n_ok < res.n:
         statuses, counts = np.unique(res.status[~res.success].astype(str), return_counts=True)
         con.print("failed: " + "; ".join(f"{c} x {s}" for s, c in zip(statuses, counts, strict=True)))
@@ -154,13 +159,24 @@ def _print_solve_summary(con, res, n_ok: int) -> None:
         rel = res.validation_rel[res.success]
         with np.errstate(invalid="ignore"):  # inf (a zero wrench) between two values: nan (solve warns)
             median, p95 = np.median(rel), np.percentile(rel, 95)
-        keys = [c.get("key") for c in res.meta.get("channels") or () if isinstance(c, dict)]
-        what = (
-            "wrench error ||w - Psi theta_hat|| / ||w||"
-            if keys in ([], ["wrench"])
-            else f"error of {shown(', '.join(map(str, keys)))} ||y - y_hat|| / ||y||"
-        )
-        con.print(f"held-out {what}: median {median:.3g}, 95th percentile {p95:.3g}")
+        con.print(f"held-out {shown(held_out_error_name(res.meta))}: median {median:.3g}, 95th percentile {p95:.3g}")
+    print_held_out_rms(con, res)
+
+
+def print_held_out_rms(con, res) -> None:
+    """The held-out RMS of every fitted axis, one line per channel in its units (nothing held out: says so)."""
+    from ineid.report.fitted import held_out_rms, rms_lines
+
+    found = held_out_rms(res)
+    if found is None:
+        if not res.n_frames_validation:
+            con.print("held-out RMS: none (no frame held out)")
+        return
+    rms, frames = found
+    lines = rms_lines(res.meta, res.axes, res.units, rms)
+    con.print(f"held-out RMS ({shown(frames)}):")
+    for line in lines:
+        con.print(f"  {shown(line)}")
 
 
 def _print_errors(con, res, n_ok: int, undecided: str) -> None:
