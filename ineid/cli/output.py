@@ -214,8 +214,11 @@ def _print_errors(con, res, n_ok: int, undecided: str) -> None:
 
 
 def _print_estimates(con, res, i: int, undecided: str) -> None:
-    """The standard and base parameters of configuration ``i`` (a successful one), with their std."""
+    """The standard and base parameters of configuration ``i`` (a successful one), with their std; a value below
+    its resolution shown as ``0 (round-off)`` (:mod:`ineid.report.roundoff`)."""
     import numpy as np
+
+    from ineid.report.roundoff import base_scale, parameter_scale, shown_value
 
     tab = table(
         f"Estimates of configuration {int(res.config_index[i])} (SI, about each link origin)",
@@ -223,18 +226,19 @@ def _print_estimates(con, res, i: int, undecided: str) -> None:
         left=("parameter", "identifiable"),
     )
     for k, name in enumerate(res.param_names):
-        std = res.theta_std[i, k]
+        std, scale = res.theta_std[i, k], parameter_scale(res.base, k)
         tab.add_row(
             name,
-            f"{res.theta_hat[i, k]:.6g}",
-            "-" if not np.isfinite(std) else f"{std:.3g}",
+            shown_value(res.theta_hat[i, k], scale, std),
+            "-" if not np.isfinite(std) else shown_value(std, scale, digits=3),
             f"{res.theta_prior[k]:.6g}",
             "yes" if res.base.identifiable[k] else undecided,
         )
     con.print(tab)
     tab = table("Base parameters", ("base parameter", "estimate", "std"), left=("base parameter",))
     for k, name in enumerate(res.base.names):
-        tab.add_row(name, f"{res.base_hat[i, k]:.6g}", f"{res.base_std[i, k]:.3g}")
+        std, scale = res.base_std[i, k], base_scale(res.base, k)
+        tab.add_row(name, shown_value(res.base_hat[i, k], scale, std), shown_value(std, scale, digits=3))
     con.print(tab)
 
 

@@ -27,10 +27,15 @@ def describe_gravity(gravity: Sequence[float]) -> str:
 
     ``"gravity (0, 0, -9.81) m/s^2 (ineid's default; --gravity standard for 9.80665)"``.
     """
+    return "gravity " + gravity_words(gravity)
+
+
+def gravity_words(gravity: Sequence[float]) -> str:
+    """:func:`describe_gravity` without the word ``gravity`` in front (for a table's row named so)."""
     from ineid.robots.model import DEFAULT_GRAVITY
 
     g = tuple(float(x) for x in gravity)
-    text = f"gravity ({', '.join(f'{x + 0.0:.10g}' for x in g)}) m/s^2"
+    text = f"({', '.join(f'{x + 0.0:.10g}' for x in g)}) m/s^2"
     if _same(g, DEFAULT_GRAVITY):
         return text + f" (ineid's default; --gravity standard for {STANDARD_GRAVITY:g})"
     if _same(g, STANDARD_GRAVITY_VECTOR):
