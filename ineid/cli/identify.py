@@ -211,7 +211,7 @@ def export_urdf_cmd(results_path, config, out, overwrite) -> None:
 
 @click.group()
 def results() -> None:
-    """Inspect results files of ``ineid solve``."""
+    """Inspect results files of `ineid solve`."""
 
 
 @results.command("info")

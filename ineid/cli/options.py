@@ -125,8 +125,23 @@ class FiniteFloatRange(click.FloatRange):
 
 FINITE = FiniteFloatRange()
 """Any finite float (``--gravity``)."""
-SEED = click.IntRange(0, 2**63 - 1)
-"""``--seed``: NumPy's and JAX's generators take 64-bit seeds (a larger one was an OverflowError)."""
+
+
+class SeedRange(click.IntRange):
+    """``--seed``: 0 <= seed < 2^63 (NumPy's and JAX's generators take 64-bit seeds; a larger one would be an
+    OverflowError), its range shown as ``0<=x<2^63`` in ``--help``."""
+
+    name = "seed"
+
+    def __init__(self) -> None:
+        super().__init__(0, 2**63 - 1)
+
+    def _describe_range(self) -> str:
+        return "0<=x<2^63"
+
+
+SEED = SeedRange()
+"""``--seed``: an integer in ``[0, 2^63)``."""
 MAX_WORKERS = 4 * (os.cpu_count() or 1)
 WORKERS = click.IntRange(1, MAX_WORKERS)
 """``--workers``: each process loads CasADi and the generated code (about 200 MB); more than four per

@@ -131,8 +131,8 @@ _SOLVE = "ineid.identify.settings"
     type=PlotFile(),
     default=None,
     metavar="FILE",
-    help="Write measured vs predicted wrench of the held-out frames (first solved configuration), "
-    "per axis with the residual and its RMS (.png, .pdf, .svg).",
+    help="Write measured vs predicted values of the fitted channels (the wrench, joint torques) on the held-out "
+    "frames (first solved configuration), per axis with the residual and its RMS (.png, .pdf, .svg).",
 )
 @plot_span_option
 @report_option
