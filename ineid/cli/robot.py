@@ -38,9 +38,9 @@ def robot_show(robot) -> None:
     con.print(f"[bold]{shown(model.name)}[/bold]  {shown(model.model_path)}")
     con.print(
         f"{model.n_dof} moving joints, base link {shown(repr(model.chain.root_link))}, "
-        f"{describe_gravity(model.gravity)}, "
         f"regressor 6 x {10 * model.n_links} ({model.op_count} operations)"
     )
+    con.print(describe_gravity(model.gravity))
     joints = table(
         "Joints (chain order)",
         ("#", "joint", "type", "axis", "q range", "|qd| max", "|qdd| max"),
