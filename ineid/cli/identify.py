@@ -241,7 +241,7 @@ def results_info(path: Path) -> None:
         f"robot {shown(m['robot'])} ({shown(m['source'])}); "
         f"unknown links {shown(', '.join(m['unknown_links']))}; {describe_gravity(m['gravity'])}"
     )
-    con.print(f"fitted: {shown(fitted_channels(m))}")
+    con.print(f"fitted: {shown(fitted_channels(m))}", soft_wrap=True)
     con.print(f"settings: {shown(json.dumps(res.settings.to_dict(), sort_keys=True))}")
     n_ok = int(res.success.sum())
     con.print(
@@ -252,7 +252,7 @@ def results_info(path: Path) -> None:
     if res.n_frames_validation and n_ok:
         with np.errstate(invalid="ignore"):  # inf (a zero wrench) between two values: nan
             median = np.median(res.validation_rel[res.success])
-        con.print(f"held-out {shown(held_out_error_name(m))}: median {median:.3g}")
+        con.print(f"held-out {shown(held_out_error_name(m))}: median {median:.3g}", soft_wrap=True)
     print_held_out_rms(con, res)
     for k, rec in enumerate(m.get("recordings") or []):
         con.print(

@@ -151,7 +151,7 @@ def _print_solve_summary(con, res, n_ok: int) -> None:
         f"in {total:.2f} s ({1e3 * total / max(res.n, 1):.2f} ms each); fitted {res.n_frames_fit} frames each"
         + (f", validated on {res.n_frames_validation}" if res.n_frames_validation else "")
     )
-    con.print(f"fitted: {shown(fitted_channels(res.meta))}; {describe_gravity(res.meta['gravity'])}")
+    con.print(f"fitted: {shown(fitted_channels(res.meta))}; {describe_gravity(res.meta['gravity'])}", soft_wrap=True)
     if n_ok < res.n:
         statuses, counts = np.unique(res.status[~res.success].astype(str), return_counts=True)
         con.print("failed: " + "; ".join(f"{c} x {s}" for s, c in zip(statuses, counts, strict=True)))
@@ -159,7 +159,10 @@ def _print_solve_summary(con, res, n_ok: int) -> None:
         rel = res.validation_rel[res.success]
         with np.errstate(invalid="ignore"):  # inf (a zero wrench) between two values: nan (solve warns)
             median, p95 = np.median(rel), np.percentile(rel, 95)
-        con.print(f"held-out {shown(held_out_error_name(res.meta))}: median {median:.3g}, 95th percentile {p95:.3g}")
+        con.print(
+            f"held-out {shown(held_out_error_name(res.meta))}: median {median:.3g}, 95th percentile {p95:.3g}",
+            soft_wrap=True,
+        )
     print_held_out_rms(con, res)
 
 
@@ -175,8 +178,8 @@ def print_held_out_rms(con, res) -> None:
     rms, frames = found
     lines = rms_lines(res.meta, res.axes, res.units, rms)
     con.print(f"held-out RMS ({shown(frames)}):")
-    for line in lines:
-        con.print(f"  {shown(line)}")
+    for line in lines:  # one line per channel, unwrapped: a joint's name and its value stay together
+        con.print(f"  {shown(line)}", soft_wrap=True)
 
 
 def _print_errors(con, res, n_ok: int, undecided: str) -> None:

@@ -314,7 +314,8 @@ def _print_validation(res) -> None:
         return
     console().print(
         f"validation on {shown(v['path'] or 'the validation recording')} ({v['n_frames']} frames; offsets: "
-        f"{shown(v['offsets'])}): relative error {v['rel']:.3g} (median)"
+        f"{shown(v['offsets'])}): relative error {v['rel']:.3g} (median)",
+        soft_wrap=True,
     )
 
 
