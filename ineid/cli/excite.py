@@ -272,8 +272,9 @@ def print_design(res, model) -> None:
         f"({shown(', '.join(res.settings['unknown_links']))} "
         f"unknown{'; sensor offsets estimated' if res.base.bias else ''}): {res.base.rank} base parameters, "
         f"{len(res.starts)} starts in {res.seconds:.1f} s "
-        f"(of which compilation {res.compile_seconds:.1f} s); {describe_gravity(model.gravity)}"
+        f"(of which compilation {res.compile_seconds:.1f} s)"
     )
+    con.print(describe_gravity(model.gravity))
     channels = res.base.channels
     if len(channels) == 1 and channels.keys == ("wrench",):
         noise = (

@@ -101,7 +101,8 @@ def _print_analysis(con, model, base, a, source: str, channels) -> None:
         f"[bold]{shown(model.name)}[/bold]: unknown links {shown(', '.join(model.unknown_links))} "
         f"({base.n_link_params} standard parameters{f', {base.n_extra} extra' if base.n_extra else ''})"
     )
-    con.print(f"frames: {shown(source)}; {describe_gravity(model.gravity)}")
+    con.print(f"frames: {shown(source)}")
+    con.print(describe_gravity(model.gravity))
     if channels is not None:
         con.print(
             f"channels: {shown(channels.describe())}"
