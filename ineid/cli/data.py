@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -334,11 +335,11 @@ def _print_settings(con, path: Path, meta, shapes: dict) -> None:
     if meta.locked_joints:
         con.print(f"locked joints: {shown(meta.locked_joints)}")
     if meta.sampling:
-        con.print(f"sampling: {shown(json.dumps(meta.sampling, sort_keys=True))}")
+        con.print(f"sampling: {shown(json.dumps(_rounded(meta.sampling), sort_keys=True))}")
     clean = "none (clean data)" if meta.source == "synthetic" else "none added (a recording)"
     con.print(f"noise (std): {shown(json.dumps(meta.noise)) if meta.noise else clean}")
     if meta.origin:
-        con.print(f"origin: {shown(json.dumps(meta.origin, sort_keys=True))}")
+        con.print(f"origin: {shown(json.dumps(_rounded(meta.origin), sort_keys=True))}")
     several = len(meta.channels) > 1
     if several:
         con.print(f"measurement channels: {shown(meta.channels.describe())}")
@@ -356,6 +357,18 @@ def _print_settings(con, path: Path, meta, shapes: dict) -> None:
     for name in sorted(shapes):
         arrays.add_row(name, " x ".join(str(s) for s in shapes[name]) or "scalar")
     con.print(arrays)
+
+
+def _rounded(record):
+    """``record`` (JSON-able) with its floats to 10 significant digits: a rate of 100.00000000000213 Hz (the
+    mean of time steps, round-off and all) reads 100."""
+    if isinstance(record, dict):
+        return {k: _rounded(v) for k, v in record.items()}
+    if isinstance(record, (list, tuple)):
+        return [_rounded(v) for v in record]
+    if isinstance(record, float) and math.isfinite(record):
+        return float(f"{record:.10g}")
+    return record
 
 
 def _ranges(path: Path, name: str, width: int):

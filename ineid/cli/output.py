@@ -124,8 +124,17 @@ def print_results(res, out) -> None:
     if res.bias_hat is not None and n_ok:
         i = int(np.flatnonzero(res.success)[0])
         # the axes and their units are the fitted channels' (the base wrench: fx..mz in N and N*m)
+        from ineid.report.fitted import channel_records, is_wrench_only
+
         units = ", ".join(dict.fromkeys(res.units))
-        frame = "the wrench's frame" if len(res.axes) == 6 else "each sensor's frame"
+        wrenches = any("wrench" in str(r.get("kind")) for r in channel_records(res.meta))
+        frame = (
+            "the wrench's frame"
+            if is_wrench_only(res.meta)
+            else "each wrench in its sensor's frame, torques per joint"
+            if wrenches
+            else "per joint"
+        )
         con.print(
             f"sensor offsets of configuration {int(res.config_index[i])} ({units}, {frame}): "
             + ", ".join(

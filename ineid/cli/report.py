@@ -72,7 +72,7 @@ def write_solve_outputs(
         from ineid.report.fitted import rms_lines
 
         lines = rms_lines(res.meta, v.axes, v.units, v.rms)
-        con.print(f"residual RMS per axis of the plotted {shown(v.source)}: {shown('; '.join(lines))}")
+        con.print(f"residual RMS per axis of the plotted {shown(v.source)}: {shown('; '.join(lines))}", soft_wrap=True)
         con.print(f"wrote {shown(plot_path)}")
     elif plot_path is not None:
         con.print(f"no configuration identified: {shown(plot_path)} not written")

@@ -260,7 +260,7 @@ def data_section(res, ds, validate_ds=None) -> dict:
             }
         )
     if m.get("sensor"):
-        out["sensor"] = "; ".join(f"{k}: {v}" for k, v in flatten(m["sensor"]))
+        out["sensor"] = _pose_words(m["sensor"])
     if ds is not None:
         meta = ds.meta
         loaded = {
@@ -284,6 +284,17 @@ def data_section(res, ds, validate_ds=None) -> dict:
     if validate_ds is not None and out["validation"] is not None:
         out["validation"]["found"] = validate_ds.fingerprint()
     return out
+
+
+def _pose_words(record) -> str:
+    """A sensor pose record in words (``xyz=(0, 0, 0.1) m, rpy=(0, 0, 0) rad (URDF frame 'ft')``); a record that
+    does not read as a pose: its fields."""
+    from ineid.channels.pose import SensorPose
+
+    try:
+        return SensorPose.from_dict(record).describe()
+    except (IneidError, KeyError, TypeError, ValueError):
+        return "; ".join(f"{k}: {v}" for k, v in flatten(record))
 
 
 def excitation_section(res, ds, model, i: int) -> dict | None:
