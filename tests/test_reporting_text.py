@@ -128,3 +128,24 @@ def test_the_validation_figure_names_what_it_shows_above_its_panels():
     import matplotlib.pyplot as plt
 
     plt.close(fig)
+
+
+def test_fitted_channels_and_rms_lines_of_each_kind():
+    from ineid.report.fitted import fitted_channels, held_out_error_name, rms_lines
+
+    old = {}  # a file of ineid 0.1 records no channels: the base wrench
+    assert fitted_channels(old) == "base wrench 'wrench'" and "wrench error" in held_out_error_name(old)
+    current = {"channels": [{"kind": "motor_current", "key": "current"}]}
+    assert fitted_channels(current) == "motor currents 'current'"
+    assert held_out_error_name(current).startswith("relative error of motor currents 'current'")
+    assert rms_lines(current, ("j1", "j2"), ("A", "A"), np.array([0.5, np.nan])) == [
+        "motor currents 'current' (A): j1 0.5, j2 -"
+    ]
+    mixed = {"channels": [{"kind": "wrench", "key": "wrench"}, {"kind": "link_wrench", "key": "w2", "link": "hand"}]}
+    axes = ("wrench.fx", "wrench.mz", "w2.fx", "extra")
+    lines = rms_lines(mixed, axes, ("N", "N*m", "N", "N"), np.array([1.0, 2.0, 3.0, 4.0]))
+    assert lines == [
+        "base wrench 'wrench': fx 1 N, mz 2 N*m",
+        "wrench at link 'hand' 'w2' (N): fx 3",
+        "other axes (N): extra 4",
+    ]

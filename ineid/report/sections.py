@@ -84,7 +84,7 @@ def method_section(res) -> dict:
         "solved": f"{ok} of {res.n} configurations identified in {fmt(m.get('total_seconds'), 3)} s",
         "statuses": ", ".join(statuses[:8]) + (", ..." if len(statuses) > 8 else ""),
         "frames": f"{res.n_frames_fit} frames fitted, {res.n_frames_validation} validated per configuration",
-        "written_by": m.get("ineid_version") or "an unrecorded version",
+        "written_by": f"ineid {m['ineid_version']}" if m.get("ineid_version") else "an unrecorded ineid",
         "fitted": fitted_channels(m),
         "error_name": held_out_error_name(m),
         "held_out": held,
