@@ -5,7 +5,7 @@ networks: what they need from the layers above is passed in, never registered by
 wrench delay of a recording is estimated by fitting the model
 (:func:`ineid.identify.delay.estimate_delay`), and ``method="network"`` solves with a trained run
 (:func:`ineid.learn.amortized.solve_with_run`). :func:`import_recording` and :func:`solve_dataset`
-pass them; the command line calls these two. Each imports what it passes when called, so that
+pass them (:func:`import_experiment` too); the command line calls them. Each imports what it passes when called, so that
 importing this module (``ineid --help``) loads neither JAX nor Flax.
 """
 
@@ -54,6 +54,19 @@ def import_recording(path: str | Path, model, settings: ImportSettings | None = 
     from ineid.identify.delay import estimate_delay
 
     return read_recording(path, model, settings or ImportSettings(), delay_estimator=estimate_delay, **options)
+
+
+def import_experiment(paths, model, settings: ImportSettings | None = None, **options):
+    """:func:`ineid.data.recordings.experiment.import_experiment` (the recordings of one experiment with one
+    cut-off and one wrench delay) with the model-fitted delay estimate, as :func:`import_recording`.
+
+    Returns:
+        The :class:`ineid.data.recordings.experiment.ExperimentImport`.
+    """
+    from ineid.data.recordings.experiment import import_experiment as read_experiment
+    from ineid.identify.delay import estimate_delay
+
+    return read_experiment(paths, model, settings or ImportSettings(), delay_estimator=estimate_delay, **options)
 
 
 def solve_dataset(

@@ -340,6 +340,10 @@ def _print_settings(con, path: Path, meta, shapes: dict) -> None:
     con.print(f"noise (std): {shown(json.dumps(meta.noise)) if meta.noise else clean}")
     if meta.origin:
         con.print(f"origin: {shown(json.dumps(_rounded(meta.origin), sort_keys=True))}")
+    from ineid.data.recordings.timing import timing_lines
+
+    for line in timing_lines(meta.origin):  # a recording's time stamps as the import audited them
+        con.print(shown(line))
     several = len(meta.channels) > 1
     if several:
         con.print(f"measurement channels: {shown(meta.channels.describe())}")

@@ -42,7 +42,7 @@ def _delay(ctx, param, value: str) -> float | None:
 
 
 @click.command("import")
-@click.argument("path", metavar="PATH", type=click.Path(path_type=Path))
+@click.argument("paths", metavar="PATH...", nargs=-1, required=True, type=click.Path(path_type=Path))
 @robot_options(positional="option")
 @click.option(
     "--sensor-pose",
@@ -58,14 +58,27 @@ def _delay(ctx, param, value: str) -> float | None:
     default=None,
     metavar="HZ",
     help="Low-pass cut-off of angles and wrench (default: chosen from the joint angles when qd, qdd "
-    "are derived; no filter when they are measured).",
+    "are derived, from their pooled spectra for several recordings; no filter when they are measured).",
 )
 @click.option(
     "--rate",
     type=FiniteFloatRange(min=0, min_open=True),
     default=None,
     metavar="HZ",
-    help="Rate of the frames (default: the slower stream's).",
+    help="Rate of the frames (default: the slower stream's nominal rate, estimated from its time stamps and "
+    "snapped to a clean value such as 1000 Hz; the summary says how).",
+)
+@click.option(
+    "--allow-gaps",
+    is_flag=True,
+    help="Import a stream with gaps longer than the filter's support (3 periods of the cut-off), interpolating "
+    "across them; without it such a gap is an error naming it.",
+)
+@click.option(
+    "--keep-repeats",
+    is_flag=True,
+    help="Use the rows that repeat every value of their stream's previous row under a new time stamp as data; "
+    "by default rows that hold the previous sample while the stream moves are dropped as missing.",
 )
 @click.option(
     "--delay",
@@ -74,7 +87,7 @@ def _delay(ctx, param, value: str) -> float | None:
     metavar="S|auto",
     callback=_delay,
     help="How late the wrench time stamps are against the joints' (s), or auto: estimated from the "
-    "model within +-50 ms.",
+    "model within +-50 ms (several recordings: the median of their estimates, for all).",
 )
 @click.option("--joint-topic", default="/joint_states", show_default=True, help="Bags: the JointState topic.")
 @click.option("--wrench-topic", default=None, help="Bags: the WrenchStamped topic (needed when there are several).")
@@ -123,16 +136,24 @@ def _delay(ctx, param, value: str) -> float | None:
 @torque_constant_option
 @gear_ratio_option
 @imu_import
-@click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path),
+    required=True,
+    help="The .h5 file to write; for several recordings a folder (made if missing) that receives one STEM.h5 "
+    "per recording.",
+)
 @overwrite_option
 @click.pass_context
 def data_import(
     ctx,
-    path,
+    paths,
     robot,
     sensor_pose,
     cutoff,
     rate,
+    allow_gaps,
+    keep_repeats,
     delay,
     joint_topic,
     wrench_topic,
@@ -154,11 +175,18 @@ def data_import(
     """Import a recording: a CSV (time, q1..qn, [qd1..qn, qdd1..qn,] [tau1..taun,] fx fy fz mx my mz; the wrench
     optional with torques), a ROS 1 .bag, or a ROS 2 bag folder or .mcap (sensor_msgs/JointState with its
     effort as joint torques, geometry_msgs/WrenchStamped). Link IMUs (imu_<NAME>_wx.. columns, sensor_msgs/Imu
-    topics): qd, qdd fused from the encoders and the IMUs (docs/recordings.md)."""
-    from ineid.data.recordings.settings import ImportSettings
-    from ineid.workflow import import_recording
+    topics): qd, qdd fused from the encoders and the IMUs (docs/recordings.md).
 
-    prepare_output(out, overwrite, inputs=[*folder_inputs(path, "the input recording"), *robot_inputs(robot)])
+    Several recordings of one experiment (to be fitted and validated together: ineid solve A.h5 B.h5
+    --validate C.h5) are imported together into the folder --out, with one filter and one wrench delay: the
+    cut-off rule on their pooled spectra (or --cutoff), the median of their delay estimates (or --delay); the
+    summary prints each one's own choice."""
+    from ineid.data.recordings.settings import ImportSettings
+
+    several = len(paths) > 1
+    outs = _outputs(paths, out, overwrite, robot) if several else [out]
+    if not several:
+        prepare_output(out, overwrite, inputs=[*folder_inputs(paths[0], "the input recording"), *robot_inputs(robot)])
     model = robot.load()
     from ineid.data.recordings.imus import parse_imu_text
 
@@ -181,23 +209,49 @@ def data_import(
         imus=tuple(imus),
         imu_delay=imu_delay,
         imu_noise=imu_noise,
+        allow_gaps=allow_gaps,
+        keep_repeats=keep_repeats,
     )
-    with ProgressBar(f"reading {path.name}", "rows/messages", quiet(ctx)) as bar:
-        ds, summary = import_recording(
-            path,
-            model,
-            settings,
-            joint_topic=joint_topic,
-            wrench_topic=wrench_topic,
-            progress=bar,
-            imu_topics=tuple(imu_topics),
-        )
-    ds.save(out, overwrite=overwrite)
+    topics = {"joint_topic": joint_topic, "wrench_topic": wrench_topic, "imu_topics": tuple(imu_topics)}
+    what = f"{len(paths)} recordings" if several else paths[0].name
+    with ProgressBar(f"reading {what}", "rows/messages", quiet(ctx)) as bar:
+        if several:
+            from ineid.workflow import import_experiment
+
+            experiment = import_experiment(paths, model, settings, progress=bar, **topics)
+            imported, lines = list(zip(experiment.datasets, experiment.summaries, strict=True)), experiment.lines()
+        else:
+            from ineid.workflow import import_recording
+
+            imported, lines = [import_recording(paths[0], model, settings, progress=bar, **topics)], []
+    from ineid.data.recordings.plausibility import check_dataset
     from ineid.robots.gravity import describe_gravity
 
-    click.echo(f"wrote {out}: one recording of {plain(model.name)}; {describe_gravity(model.gravity)}")
-    for line in summary.lines():
-        click.echo(f"  {plain(line)}")
-    from ineid.data.recordings.plausibility import check_dataset
+    for line in lines:
+        click.echo(plain(line))
+    for (ds, summary), path in zip(imported, outs, strict=True):
+        ds.save(path, overwrite=overwrite)
+        click.echo(f"wrote {path}: one recording of {plain(model.name)}; {describe_gravity(model.gravity)}")
+        for line in summary.lines():
+            click.echo(f"  {plain(line)}")
+        print_findings(check_dataset(ds, model))
 
-    print_findings(check_dataset(ds, model))
+
+def _outputs(paths: tuple[Path, ...], out: Path, overwrite: bool, robot) -> list[Path]:
+    """``out/STEM.h5`` for each recording of several, each checked and locked (:func:`prepare_output`); the
+    folder made when missing; two recordings of one stem refused (``click.BadParameter``)."""
+    stems = [p.stem if p.suffix else p.name for p in paths]
+    twice = sorted({s for s in stems if stems.count(s) > 1})
+    if twice:
+        raise click.BadParameter(
+            f"several recordings are named {twice[0]!r}, and each is written to --out as STEM.h5; "
+            "import them separately, or rename one",
+            param_hint="PATH...",
+        )
+    if (out.exists() and not out.is_dir()) or (not out.exists() and out.suffix.lower() == ".h5"):
+        raise click.BadParameter(
+            f"{out} is a file name; several recordings go to a folder, one STEM.h5 each", param_hint="--out"
+        )
+    out.mkdir(parents=True, exist_ok=True)
+    inputs = [x for p in paths for x in folder_inputs(p, "an input recording")] + robot_inputs(robot)
+    return [prepare_output(out / f"{s}.h5", overwrite, inputs=inputs) for s in stems]

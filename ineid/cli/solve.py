@@ -134,6 +134,12 @@ _SOLVE = "ineid.identify.settings"
     help="Write measured vs predicted values of the fitted channels (the wrench, joint torques) on the held-out "
     "frames (first solved configuration), per axis with the residual and its RMS (.png, .pdf, .svg).",
 )
+@click.option(
+    "--mixed-filters",
+    is_flag=True,
+    help="Fit (and validate on) recordings imported with different filters (cut-off, filter, an estimated "
+    "delay each) anyway, with a warning naming each one's; without it they are refused.",
+)
 @plot_span_option
 @report_option
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Results file (.h5).")
@@ -155,6 +161,7 @@ def solve(
     workers,
     bias,
     known_uncertainty,
+    mixed_filters,
     plot_path,
     plot_span,
     report_path,
@@ -207,24 +214,27 @@ def solve(
     ds = load_dataset(data_paths[0], configs=idx, clean=False)
     model = ds.model()
     bar = ProgressBar(f"solving ({method})", "configurations", quiet(ctx))
+    mixed = None
     if joint:
-        res, solved_ds, ds, val = _solve_recordings(ds, data_paths[1:], validate_path, idx, settings, model, bar)
+        res, solved_ds, ds, val, mixed = _solve_recordings(
+            ds, data_paths[1:], validate_path, idx, settings, model, bar, mixed_filters
+        )
     else:
         with bar:
             res, solved_ds, val = solve_dataset(ds, settings, model=model, progress=bar), ds, None
-    _save_and_show(res, ds, model, out, overwrite)
+    _save_and_show(res, ds, model, out, overwrite, () if mixed is None else (mixed,))
     write_solve_outputs(
         res, solved_ds, model, method, plot_path, plot_span, report_path, out, validate=val, overwrite=overwrite
     )
 
 
-def _save_and_show(res, ds, model, out: Path, overwrite: bool) -> None:
-    """The plausibility checks of ``res`` on the frames fitted (``ds``), recorded with it; the results saved to
-    ``out`` and printed, the validation and the findings after them."""
+def _save_and_show(res, ds, model, out: Path, overwrite: bool, more=()) -> None:
+    """The plausibility checks of ``res`` on the frames fitted (``ds``), and the findings ``more``, recorded with
+    it; the results saved to ``out`` and printed, the validation and the findings after them."""
     from ineid.identify import save_results
     from ineid.identify.plausibility import check_solve
 
-    findings = check_solve(ds, res, model)
+    findings = [*more, *check_solve(ds, res, model)]
     res.meta["warnings"] = [f.to_dict() for f in findings]
     save_results(res, out, overwrite=overwrite)
     print_results(res, out)
@@ -273,19 +283,25 @@ def _refuse_joint_options(fit_frames, plot_path, method: str, backend: str) -> N
             )
 
 
-def _solve_recordings(ds, more_paths, validate_path, idx, settings, model, bar):
-    """``(results, ds, joined, validate)``: the recordings ``ds`` and ``more_paths`` (configurations ``idx`` of
-    each) fitted jointly (:func:`ineid.identify.joint.solve_recordings`) under the progress ``bar``, validated on
-    the recording ``validate`` of ``validate_path`` (None: none); ``joined`` holds every frame fitted, for the
-    plausibility checks."""
+def _solve_recordings(ds, more_paths, validate_path, idx, settings, model, bar, mixed_filters=False):
+    """``(results, ds, joined, validate, mixed)``: the recordings ``ds`` and ``more_paths`` (configurations ``idx``
+    of each) fitted jointly (:func:`ineid.identify.joint.solve_recordings`) under the progress ``bar``, validated
+    on the recording ``validate`` of ``validate_path`` (None: none); ``joined`` holds every frame fitted, for the
+    plausibility checks; ``mixed`` the warning of recordings imported with different filters, which
+    :func:`ineid.data.recordings.filters.check_filters` refuses unless ``mixed_filters``."""
     from ineid.data import load_dataset
+    from ineid.data.recordings.filters import check_filters
     from ineid.identify.joint import solve_recordings
 
     more = [load_dataset(p, configs=idx, clean=False) for p in more_paths]
     val = None if validate_path is None else load_dataset(validate_path, configs=idx, clean=False)
+    labelled = [(str(ds.path), ds), *((str(p), d) for p, d in zip(more_paths, more, strict=True))]
+    if val is not None:
+        labelled.append((str(validate_path), val))
+    mixed = check_filters(labelled, mixed_filters)
     with bar:
         res = solve_recordings([ds, *more], settings, model=model, validate=val, progress=bar)
-    return res, ds, _joined(ds, more), val
+    return res, ds, _joined(ds, more), val, mixed
 
 
 def _joined(ds, more):

@@ -28,6 +28,7 @@ from ineid.data.recordings import signals
 from ineid.data.recordings.pipeline import recording_dataset
 from ineid.data.recordings.settings import ImportSettings
 from ineid.data.recordings.summary import DelayEstimate
+from ineid.data.recordings.timing import audit_stream
 from ineid.errors import DatasetError
 from ineid.identify.identifiability import base_parameters
 from ineid.identify.systems import remove_offsets, stack
@@ -58,11 +59,12 @@ def estimate_delay(streams, model, settings: ImportSettings, max_delay: float = 
     ds, summary = recording_dataset(streams, model, replace(settings, delay=0.0, estimate_delay=False))
     t = ds.time[0]
     # the wrench stream as recording_dataset filters it, on its own uniform grid, as a spline
+    # (its rows that hold the previous sample dropped, at its nominal step: ineid.data.recordings.timing)
     tw = np.asarray(streams.wrench_time, dtype=np.float64)
-    hw = signals.median_interval(tw, f"{streams.source}: the wrench stream")
-    tw_u, w_u = signals.to_uniform(
-        tw, np.asarray(streams.wrench, dtype=np.float64) * (-1.0 if settings.flip_wrench else 1.0), hw
-    )
+    w = np.asarray(streams.wrench, dtype=np.float64) * (-1.0 if settings.flip_wrench else 1.0)
+    audit, kept = audit_stream("wrench", tw, w, settings.keep_repeats)
+    tw_u, w_u = signals.to_uniform(tw[kept], w[kept], audit.step)
+    hw = audit.step
     edge = 0.0
     if summary.cutoff is not None:
         w_u = signals.LowPass(summary.cutoff, 1.0 / hw).apply(w_u)

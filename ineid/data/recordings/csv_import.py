@@ -256,9 +256,11 @@ def _streams(table: Table, columns: _Columns, model, path: Path) -> Streams:
             )
         bad = np.flatnonzero(np.diff(t) <= 0)
         if bad.size:
-            line = table.lines[np.flatnonzero(mask)[bad[0] + 1]]
+            line, k = table.lines[np.flatnonzero(mask)[bad[0] + 1]], bad[0]
+            how = f"goes back {float(t[k] - t[k + 1]):.6g} s" if t[k + 1] < t[k] else "repeats"
             raise DatasetError(
-                f"{path}: time does not increase at line {line} ({name} samples); sort the rows or fix the time column"
+                f"{path}: time does not increase at line {line} ({name} samples: {float(t[k + 1])!r} s after "
+                f"{float(t[k])!r} s, time {how}); sort the rows or fix the time column"
             )
     jr = rows["joint"]
     k0 = 1 + (3 * n if columns.measured else n)

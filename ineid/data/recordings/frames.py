@@ -19,6 +19,7 @@ from ineid.data.recordings.channels import joint_channels, resolve_wrench_channe
 from ineid.data.recordings.limits import check_cutoff, check_delay, check_rate, check_stream
 from ineid.data.recordings.settings import ImportSettings
 from ineid.data.recordings.streams import Streams
+from ineid.data.recordings.timing import TimingReport, audit_stream
 from ineid.errors import DatasetError
 
 
@@ -35,11 +36,14 @@ class RecordingArrays:
         tw: (Nw,) s, the wrench's time stamps minus the delay (the instants it was measured); ``tq`` without
             a wrench.
         wrench: (Nw, 6) N and Nm in the sensor frame, negated when flipped; None without a wrench.
-        hq, hw: s, the joints' and the wrench's median sampling intervals (``hw`` is ``hq`` without a wrench).
+        hq, hw: s, the joints' and the wrench's nominal sampling intervals (``hw`` is ``hq`` without a wrench;
+            :func:`ineid.data.recordings.timing.nominal_interval`).
         wrench_channel: the wrench's channel (it holds the sensor pose); None without a wrench.
         where: where the sensor is, in words, for the summary.
         rate: Hz, the frames' rate: ``settings.rate``, else the slower stream's.
         same_clock: no wrench, or the wrench stamped at the joints' very time stamps.
+        timing: the streams' time stamps as audited (:mod:`ineid.data.recordings.timing`); the rows they
+            hold as the previous sample are dropped from the arrays above.
     """
 
     source: str
@@ -55,6 +59,7 @@ class RecordingArrays:
     where: str
     rate: float
     same_clock: bool
+    timing: TimingReport | None = None
 
     @property
     def measured(self) -> bool:
@@ -80,7 +85,7 @@ def checked_arrays(streams: Streams, model, settings: ImportSettings) -> Recordi
             without a wrench or beyond the streams, NaN or infinite samples, time that does not increase,
             too few samples, a rate that does not fit the sampling.
     """
-    src = streams.source
+    src, keep = streams.source, settings.keep_repeats
     n = model.n_dof
     tq = np.asarray(streams.joint_time, dtype=np.float64)
     q = np.asarray(streams.q, dtype=np.float64)
@@ -105,17 +110,31 @@ def checked_arrays(streams: Streams, model, settings: ImportSettings) -> Recordi
         check_delay(settings.delay, tq, np.asarray(streams.wrench_time, dtype=np.float64), src)
     elif settings.delay:
         raise DatasetError(f"{src}: --delay is how late the wrench is, and the recording has no wrench; drop it")
-    hq = check_stream("joint", tq, {**joint_arrays, **riders}, src)
+    check_stream("joint", tq, {**joint_arrays, **riders}, src)
+    audits = [_audited("joint", tq, {**joint_arrays, **riders}, keep)]
+    tq, kept = audits[0][1:]
+    joint_arrays, riders = {k: kept[k] for k in joint_arrays}, {k: kept[k] for k in riders}
+    hq = audits[0][0].step
     if has_wrench:
-        hw = check_stream("wrench", tw, {"wrench": w}, src)
+        check_stream("wrench", tw, {"wrench": w}, src)
+        audits.append(_audited("wrench", tw, {"wrench": w}, keep))
+        tw, w, hw = audits[1][1], audits[1][2]["wrench"], audits[1][0].step
         wrench_channel, where = resolve_wrench_channel(settings.sensor_pose, streams.frame_id, model)
     else:
         tw, w, hw, wrench_channel, where = tq, None, hq, None, "the base frame"
     rate = settings.rate or min(1.0 / hq, 1.0 / hw)
     same_clock = not has_wrench or (len(tq) == len(tw) and np.array_equal(tq, tw))
     arrays = RecordingArrays(src, n, tq, joint_arrays, riders, tw, w, hq, hw, wrench_channel, where, rate, same_clock)
+    arrays.timing = TimingReport(tuple(a[0] for a in audits), settings.rate, None, settings.allow_gaps, keep)
     check_rate(settings.rate, 1.0 / hq, 1.0 / hw, arrays.overlap, n + sum(a.shape[1] for a in riders.values()))
     return arrays
+
+
+def _audited(name: str, t: np.ndarray, parts: dict[str, np.ndarray], keep_repeats: bool):
+    """``(timing, t, parts)``: the stream's time stamps audited (:func:`ineid.data.recordings.timing.audit_stream`
+    on all its columns) and its rows used as data (those holding the previous sample dropped)."""
+    timing, keep = audit_stream(name, t, np.concatenate(list(parts.values()), axis=1), keep_repeats)
+    return timing, t[keep], {k: a[keep] for k, a in parts.items()}
 
 
 @dataclass
@@ -125,7 +144,8 @@ class Cutoff:
     Attributes:
         hz: Hz, the cut-off of every stream's filter; None: no filter (measured ``qd``, ``qdd``, no cut-off given).
         choice: the angles' spectrum's choice, when the cut-off was chosen from the angles.
-        note: why the IMUs' gyros moved the cut-off, None when they did not.
+        note: why the cut-off is not the noise rule's (the motion's band raised it, or the IMUs' gyros moved it),
+            None when it is.
         priors_hz: Hz, the angles' own cut-off for the encoders' ``qd``, ``qdd`` priors of the IMU fusion, when
             the gyros raised the filters' above it; None otherwise.
         q_uniform: (M, n_dof) the angles on a uniform grid at the joints' rate, when the cut-off was chosen
@@ -140,7 +160,8 @@ class Cutoff:
 
 
 def choose_cutoff(arrays: RecordingArrays, streams: Streams, settings: ImportSettings) -> Cutoff:
-    """The cut-off: ``settings.cutoff``, else chosen from the angles when they are differentiated (at most
+    """The cut-off: ``settings.cutoff``, else chosen from the angles when they are differentiated
+    (:func:`ineid.data.recordings.signals.choose_cutoff`: their noise, or three times their motion's band; at most
     0.4 times the frames' rate; the IMUs' gyros, which measure ``qd``, move it by
     :func:`ineid.data.recordings.imus.imu_cutoff`), else no filter.
 
@@ -154,6 +175,14 @@ def choose_cutoff(arrays: RecordingArrays, streams: Streams, settings: ImportSet
         cut.q_uniform = signals.to_uniform(arrays.tq, arrays.joint_arrays["q"], hq)[1]  # for the priors too
         cut.choice = signals.choose_cutoff(cut.q_uniform, 1.0 / hq)
         cut.hz = min(cut.choice.cutoff, 0.4 * rate)
+        if cut.choice.limited == "motion":
+            c = cut.choice
+            cut.note = (
+                f"chosen from the joint angles: {signals.MOTION_FACTOR:g} x their motion's band "
+                f"({c.motion_hz:.3g} Hz), above the {c.noise_cutoff:.3g} Hz their noise "
+                f"({c.noise_rms.max():.2g} rad RMS) alone allows; "
+                f"{100 * c.acceleration_noise:.2g} % noise in the accelerations"
+            )
         if any("gyro" in s.readings for s in streams.imus):  # the gyros measure qd: imu_cutoff's rule
             from ineid.data.recordings.imus import imu_cutoff
 

@@ -7,7 +7,9 @@ sensor's wrench with its own time stamps, in the sensor's frame (a recording may
 torques and no wrench). :func:`recording_dataset` turns that into frames ``(q, qd, qdd,``
 each channel's values ``)`` on one uniform time base:
 
-1. checks: finite values, increasing time stamps, each stream with enough samples;
+1. checks: finite values, increasing time stamps, each stream with enough samples; each stream's time
+   stamps audited (its nominal rate, jitter, gaps, and the rows that hold the previous sample dropped:
+   :mod:`ineid.data.recordings.timing`);
 2. the wrench clock is shifted by ``delay`` (a wrench stamped ``t`` was measured at
    ``t - delay``), given or estimated from the model (:mod:`ineid.identify.delay`);
 3. when ``qd``/``qdd`` are missing, joint angles, joint torques *and* wrench go through the
@@ -56,6 +58,7 @@ from ineid.data.recordings.limits import MAX_UPSAMPLING
 from ineid.data.recordings.settings import DelayEstimator, ImportSettings
 from ineid.data.recordings.streams import SI_UNITS, Streams, in_si_units, units_note
 from ineid.data.recordings.summary import DelayEstimate, ImportSummary
+from ineid.data.recordings.timing import check_gaps
 from ineid.errors import DatasetError
 from ineid.progress import Progress
 
@@ -85,7 +88,8 @@ def recording_dataset(
         DatasetError: NaN or infinite samples, time that does not increase, too few
             samples, streams that do not overlap, a cut-off or rate that does not fit the
             sampling, a sensor pose that does not parse, torques for another number of
-            joints, a recording with neither a wrench nor joint torques.
+            joints, a recording with neither a wrench nor joint torques, a gap in a stream longer than
+            the filter's support without ``settings.allow_gaps`` (:mod:`ineid.data.recordings.timing`).
     """
     _refuse_wrench_settings(streams, settings)
     units = {k: getattr(settings, k) for k in SI_UNITS}
@@ -96,6 +100,7 @@ def recording_dataset(
         return _at_estimated_delay(streams, model, settings, delay_estimator)
     arrays = checked_arrays(streams, model, settings)
     cut = choose_cutoff(arrays, streams, settings)
+    check_gaps(arrays.timing, cut.hz or signals.CUTOFF_RANGE[1] * arrays.rate, arrays.source)
     prepared = _prepare_imus(streams, model, settings, cut.hz, arrays.tq, cut.priors_hz)
     smooth = smoothed(arrays, cut)
     imu_span = None if prepared is None else (prepared.start, prepared.stop)
@@ -226,6 +231,7 @@ def _summary(
         joint_channels=tuple(RIDER_NAMES[k] for k in arrays.riders),
         sensor_where=arrays.where,
         imu=imu_lines,
+        timing=arrays.timing,
     )
 
 
@@ -328,22 +334,66 @@ def import_recording(
         DatasetError: see :func:`recording_dataset`, :func:`ineid.data.recordings.csv_import.read_csv_streams`
             and :func:`ineid.data.recordings.bags.read_bag_streams`.
     """
+    streams = read_streams(path, model, joint_topic, wrench_topic, progress, imu_topics)
+    return hinted_recording_dataset(streams, model, settings, delay_estimator)
+
+
+def read_streams(
+    path: str | Path,
+    model,
+    joint_topic: str = "/joint_states",
+    wrench_topic: str | None = None,
+    progress: Progress | None = None,
+    imu_topics: tuple[str, ...] = (),
+) -> Streams:
+    """The :class:`Streams` of a recording file (CSV, ROS 1 ``.bag``, ROS 2 bag folder or ``.mcap``); the
+    arguments as :func:`import_recording`'s.
+
+    Raises:
+        DatasetError: a file that does not exist, ``imu_topics`` for a CSV, and see
+            :func:`ineid.data.recordings.csv_import.read_csv_streams` and
+            :func:`ineid.data.recordings.bags.read_bag_streams`.
+    """
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path} does not exist")
     if path.is_dir() or path.suffix.lower() in (".bag", ".mcap", ".db3"):
         from ineid.data.recordings.bags import read_bag_streams
 
-        streams = read_bag_streams(path, model.joint_names, joint_topic, wrench_topic, progress, imu_topics)
-    else:
-        if imu_topics:
-            raise DatasetError(
-                f"{path}: --imu-topic names a bag's IMU topics; a CSV gives its IMUs as columns "
-                "imu_<NAME>_wx...: drop it"
-            )
-        from ineid.data.recordings.csv_import import read_csv_streams
+        return read_bag_streams(path, model.joint_names, joint_topic, wrench_topic, progress, imu_topics)
+    if imu_topics:
+        raise DatasetError(
+            f"{path}: --imu-topic names a bag's IMU topics; a CSV gives its IMUs as columns imu_<NAME>_wx...: drop it"
+        )
+    from ineid.data.recordings.csv_import import read_csv_streams
 
-        streams = read_csv_streams(path, model, progress)
+    return read_csv_streams(path, model, progress)
+
+
+def own_cutoff(streams: Streams, model, settings: ImportSettings) -> tuple[Cutoff, RecordingArrays]:
+    """The cut-off :func:`recording_dataset` would choose for ``streams`` (``settings.cutoff`` when given;
+    ``hz`` None: no filter, measured ``qd``, ``qdd``), and the checked arrays it was chosen from; nothing filtered.
+
+    Raises:
+        DatasetError: as :func:`recording_dataset`'s checks of the streams and the cut-off.
+    """
+    try:
+        _refuse_wrench_settings(streams, settings)
+        units = {k: getattr(settings, k) for k in SI_UNITS}
+        si_streams = in_si_units(streams, model, **units) if units != SI_UNITS else streams
+        si = replace(settings, **SI_UNITS, delay=0.0, estimate_delay=False)
+        arrays = checked_arrays(si_streams, model, si)
+        return choose_cutoff(arrays, si_streams, si), arrays
+    except DatasetError as e:
+        from ineid.data.recordings.plausibility import with_time_unit_hint
+
+        raise with_time_unit_hint(e, streams, model, settings) from None
+
+
+def hinted_recording_dataset(
+    streams: Streams, model, settings: ImportSettings, delay_estimator: DelayEstimator | None = None
+) -> tuple[Dataset, ImportSummary]:
+    """:func:`recording_dataset`, its errors led by the time stamps' unit where another unit would mend them."""
     try:
         return recording_dataset(streams, model, settings, delay_estimator)
     except DatasetError as e:  # a time column in ms fails the cut-off rules first, whose fix is not the cause's
@@ -380,7 +430,10 @@ __all__ = [
     "DelayEstimator",
     "ImportSettings",
     "ImportSummary",
+    "hinted_recording_dataset",
     "import_recording",
+    "own_cutoff",
     "read_recording_csv",
+    "read_streams",
     "recording_dataset",
 ]

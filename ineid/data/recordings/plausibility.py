@@ -33,6 +33,7 @@ import numpy as np
 
 from ineid.channels import BaseWrench
 from ineid.data.recordings.streams import SI_UNITS, TIME_UNITS, in_si_units
+from ineid.data.recordings.timing import timing_warnings
 from ineid.errors import DatasetError
 
 DEGREE_SHARE = 0.05
@@ -68,7 +69,8 @@ _TIME_NAMES = {"s": "seconds", "ms": "milliseconds", "us": "microseconds", "ns":
 class Finding:
     """One plausibility warning: a stable ``code`` and a one-line ``message`` that names the fix.
 
-    Codes: ``gravity_unit``, ``time_unit``, ``angles_in_degrees``, ``angles_in_radians``, ``wrench_unit``,
+    Codes: ``gravity_unit``, ``time_unit``, ``timing_jitter``, ``timing_repeats``, ``timing_gaps``,
+    ``angles_in_degrees``, ``angles_in_radians``, ``wrench_unit``,
     ``static_wrench_against_gravity``, ``total_mass_negative``, ``total_mass_scale``, ``held_out_error``.
     """
 
@@ -298,14 +300,16 @@ def check_gravity(gravity, what: str = "--gravity", fix: str = "--gravity") -> F
 
 
 def check_dataset(ds, model) -> list[Finding]:
-    """The data-only checks on a dataset: time stamps in another unit, angles in degrees, the raw static
-    force's direction (for each base-wrench channel, in the frame its sensor pose names).
+    """The data-only checks on a dataset: time stamps in another unit, the import's timing warnings (jitter,
+    held rows, gaps: :mod:`ineid.data.recordings.timing`), angles in degrees, the raw static force's direction
+    (for each base-wrench channel, in the frame its sensor pose names).
 
     Args:
         ds: a :class:`ineid.data.Dataset`.
         model: its :class:`ineid.RobotModel`.
     """
     found = [check_recording_time(ds), check_angle_units(model, ds.q)]
+    found += [Finding(code, message) for code, message in timing_warnings(ds.meta.origin)]
     wrenches = [c for c in ds.meta.channels if isinstance(c, BaseWrench)]
     for c in wrenches:
         what = "the mean force over the frames" + (f" of {c.key}" if len(wrenches) > 1 else "")

@@ -55,6 +55,10 @@ class ImportSettings:
         estimation: the :class:`ineid.data.imu.estimation.EstimationSettings` of the fusion, used as
             given except for its noise, scaled by the filter (None: ``imu_noise``, and ``qdd`` from the
             derivative of the fused ``qd`` when a gyro measures, :func:`ineid.data.recordings.imus.qdd_prior`).
+        allow_gaps: import a stream whose gaps are longer than the filter's support (else an error;
+            :mod:`ineid.data.recordings.timing`).
+        keep_repeats: use the rows that repeat the previous sample under a new time stamp as data (else they
+            are dropped as held values; :func:`ineid.data.recordings.timing.held_rows`).
     """
 
     sensor_pose: str | None = None
@@ -75,6 +79,8 @@ class ImportSettings:
     imu_delay: float = 0.0
     imu_noise: dict | None = None
     estimation: object | None = None
+    allow_gaps: bool = False
+    keep_repeats: bool = False
 
     def __post_init__(self) -> None:
         check_import_settings(self)

@@ -5,7 +5,8 @@ on different clocks. ineid turns them into frames ``(q, qd, qdd, wrench)`` on on
 time base:
 
 1. **Uniform sampling.** A stream whose sample intervals vary (jitter) is interpolated
-   onto a uniform grid at its own median rate by a cubic spline (:func:`to_uniform`).
+   onto a uniform grid at its own nominal rate by a cubic spline (:func:`to_uniform`; the rate:
+   :func:`ineid.data.recordings.timing.nominal_interval`).
 2. **Zero-phase low-pass** (:class:`LowPass`): a Butterworth filter of order 2 run
    forward and backward (``scipy.signal.sosfiltfilt``): ``|H(f)| = 1 / (1 + (f/fc)^4)``,
    no phase shift (the magnitude of a cubic smoothing spline). The *same* filter is
@@ -178,6 +179,13 @@ ACCELERATION_NOISE = 0.01
 """The default cut-off lets through joint-angle noise worth at most this share of the accelerations' RMS."""
 CUTOFF_RANGE = (1.0, 0.1)
 """The default cut-off is at least 1 Hz and at most 0.1 x the sampling rate."""
+MOTION_SHARE = 0.999
+"""The motion's band ends where the joint velocities' motion power reaches this share (:func:`motion_band`)."""
+MOTION_SNR = 1000.0
+"""Only spectrum bins this many times above the noise floor count as motion (:func:`motion_band`)."""
+MOTION_FACTOR = 3.0
+"""The default cut-off is at least this many times the motion's band (the regressor's products of angles,
+velocities and sines reach past the motion's own band, and a cut-off below them filters the model away)."""
 
 
 @dataclass(frozen=True)
@@ -189,14 +197,19 @@ class CutoffChoice:
         noise_rms: (n_dof,) the joint angles' white-noise level (rad), from the spectrum's floor.
         acceleration_noise: RMS of the noise the filtered accelerations keep, as a share of
             their signal's RMS (all joints pooled).
-        limited: ``"noise"`` (the rule), ``"rate"`` (the upper bound, 0.1 x the rate: the
-            noise allows more) or ``"floor"`` (the 1 Hz lower bound).
+        limited: ``"noise"`` (the rule), ``"motion"`` (:data:`MOTION_FACTOR` times the motion's band, above
+            what the noise allows), ``"rate"`` (the upper bound, 0.1 x the rate: the noise allows more) or
+            ``"floor"`` (the 1 Hz lower bound).
+        motion_hz: Hz, the motion's band (:func:`motion_band`; 0 when no bin stands out of the noise).
+        noise_cutoff: Hz, what the noise rule alone allows (within :data:`CUTOFF_RANGE`).
     """
 
     cutoff: float
     noise_rms: np.ndarray
     acceleration_noise: float
     limited: str
+    motion_hz: float = 0.0
+    noise_cutoff: float | None = None
 
 
 def choose_cutoff(q: np.ndarray, rate: float) -> CutoffChoice:
@@ -211,32 +224,118 @@ def choose_cutoff(q: np.ndarray, rate: float) -> CutoffChoice:
         noise(fc)  = sum_j sum_f N_j (2 pi f)^4 |H_fc(f)|^2
         motion(fc) = sum_j sum_f max(P_j - N_j, 0) (2 pi f)^4 |H_fc(f)|^2
 
-    and the cut-off is the highest ``fc`` with ``sqrt(noise / motion)`` at most
-    :data:`ACCELERATION_NOISE` (1 %), within :data:`CUTOFF_RANGE`. Noise in the regressor
-    biases least squares; on the MuJoCo recording of the tests (1 kHz, 17-bit encoders) this
-    rule picks 24 Hz, next to the 20 Hz with the smallest identification error of the
-    cut-offs tried (``benchmarks/recordings.py``, ``docs/recordings.md``), and on noise-free
-    data it gives the upper bound, where the error is smallest.
+    and the noise rule's cut-off is the highest ``fc`` with ``sqrt(noise / motion)`` at most
+    :data:`ACCELERATION_NOISE` (1 %). The cut-off is that, or :data:`MOTION_FACTOR` (3) times the
+    motion's band (:func:`motion_band`) where that is higher, within :data:`CUTOFF_RANGE`.
+
+    The noise rule alone bounds only the noise that least squares sees; on fast motion read by coarse
+    encoders it filters the motion itself away, and the model with it (10-bit encoders at 100 Hz, motion
+    up to 2 Hz: base-parameter error 0.20 at its 2.8 Hz, 0.036 at the motion rule's 6.5 Hz;
+    ``docs/recordings.md``). On the MuJoCo recording of the tests (1 kHz, 17-bit encoders) the noise rule
+    decides: 24 Hz, next to the 20 Hz with the smallest identification error of the cut-offs tried
+    (``benchmarks/recordings.py``), and on noise-free data the upper bound, where the error is smallest.
     """
+    return pooled_cutoff([angle_spectrum(q, rate)])
+
+
+@dataclass(frozen=True)
+class AngleSpectrum:
+    """Welch's power spectral density of a recording's joint angles (:func:`angle_spectrum`).
+
+    Attributes:
+        f: (F,) Hz.
+        p: (F, n) each joint's density.
+        floor: (n,) each joint's noise floor, the median density over ``f >= rate / 4``.
+        rate: Hz, the sampling rate.
+        seconds: s, the recording's length (its share of the rows when several are pooled).
+    """
+
+    f: np.ndarray
+    p: np.ndarray
+    floor: np.ndarray
+    rate: float
+    seconds: float
+
+
+def angle_spectrum(q: np.ndarray, rate: float) -> AngleSpectrum:
+    """The :class:`AngleSpectrum` of joint angles ``q`` (N, n) sampled at ``rate`` Hz (linear trend removed,
+    segments of about 4 s)."""
     from scipy.signal import welch
 
     q = np.asarray(q, dtype=np.float64)
-    lo, hi = CUTOFF_RANGE[0], CUTOFF_RANGE[1] * rate
     nper = int(min(len(q), 2 ** int(math.ceil(math.log2(4 * rate)))))
     f, p = welch(q, fs=rate, nperseg=nper, axis=0, detrend="linear")
-    floor = np.median(p[f >= 0.25 * rate], axis=0)
-    w4 = (2 * np.pi * f) ** 4
-    noise_w = (floor[None, :] * w4[:, None]).sum(axis=1)
-    motion_w = (np.maximum(p - floor[None, :], 0.0) * w4[:, None]).sum(axis=1)
-    noise_rms = np.sqrt(floor * rate / 2)
+    return AngleSpectrum(f, p, np.median(p[f >= 0.25 * rate], axis=0), float(rate), len(q) / rate)
+
+
+def pooled_cutoff(spectra) -> CutoffChoice:
+    """The cut-off of :func:`choose_cutoff` for the rows of several recordings fitted together: their
+    accelerations' noise and motion powers summed (each recording weighted by its length), the motion's band
+    of their pooled power, the upper bound that of the slowest rate; one recording's is its own choice.
+
+    Args:
+        spectra: each recording's :class:`AngleSpectrum`.
+    """
+    spectra = list(spectra)
+    total = sum(s.seconds for s in spectra)
+    weights = [s.seconds / total * (s.f[1] - s.f[0]) / (spectra[0].f[1] - spectra[0].f[0]) for s in spectra]
+    w4 = [(2 * np.pi * s.f) ** 4 for s in spectra]
+    noise_w = [(s.floor[None, :] * w[:, None]).sum(axis=1) for s, w in zip(spectra, w4, strict=True)]
+    motion_w = [
+        (np.maximum(s.p - s.floor[None, :], 0.0) * w[:, None]).sum(axis=1) for s, w in zip(spectra, w4, strict=True)
+    ]
+    rate = min(s.rate for s in spectra)
+    lo, hi = CUTOFF_RANGE[0], CUTOFF_RANGE[1] * rate
+    noise_rms = np.max([np.sqrt(s.floor * s.rate / 2) for s in spectra], axis=0)
 
     def ratio(fc: float) -> float:
-        g2 = LowPass(fc, rate).gain(f) ** 2
-        return float(np.sqrt(np.sum(noise_w * g2) / max(np.sum(motion_w * g2), 1e-300)))
+        g2 = [LowPass(fc, rate).gain(s.f) ** 2 for s in spectra]
+        noise = sum(k * np.sum(n * g) for k, n, g in zip(weights, noise_w, g2, strict=True))
+        motion = sum(k * np.sum(m * g) for k, m, g in zip(weights, motion_w, g2, strict=True))
+        return float(np.sqrt(noise / max(motion, 1e-300)))
 
     candidates = np.geomspace(lo, hi, 241)
     ok = [fc for fc in candidates if ratio(fc) <= ACCELERATION_NOISE]
-    if not ok:
-        return CutoffChoice(lo, noise_rms, ratio(lo), "floor")
-    fc = float(max(ok))
-    return CutoffChoice(fc, noise_rms, ratio(fc), "rate" if fc >= hi * (1 - 1e-9) else "noise")
+    by_noise = float(max(ok)) if ok else lo
+    band = motion_band(spectra, weights)
+    fc = min(max(by_noise, MOTION_FACTOR * band), hi)
+    if fc >= hi * (1 - 1e-9):
+        limited = "rate"
+    elif fc > by_noise:
+        limited = "motion"
+    else:
+        limited = "noise" if ok else "floor"
+    return CutoffChoice(fc, noise_rms, ratio(fc), limited, band, by_noise)
+
+
+def motion_band(spectra, weights=None) -> float:
+    """Hz, where the joint angles' motion ends: the lowest frequency below which :data:`MOTION_SHARE` of the
+    joint velocities' motion power ``sum_j (P_j - N_j) (2 pi f)^2`` lies, counting only bins at least
+    :data:`MOTION_SNR` times above their joint's noise floor ``N_j`` (0 when none is).
+
+    Velocities, not accelerations: a recording's accelerations jump where dry friction stops a joint, and
+    their power (weighted by ``f^4``) spreads far past the motion's own band (the tests' MuJoCo arm: 99.9 %
+    below 14 Hz against 3.4 Hz for the velocities); the bins' threshold keeps a coarse encoder's steps, whose
+    harmonics stand out of a flat floor on slow motion, out of the band.
+
+    Args:
+        spectra: each recording's :class:`AngleSpectrum`, their powers pooled.
+        weights: each one's weight in the pool (None: equal).
+    """
+    f = np.concatenate([s.f for s in spectra])
+    power = np.concatenate(
+        [
+            k
+            * (
+                np.where(s.p > MOTION_SNR * s.floor[None, :], s.p - s.floor[None, :], 0.0)
+                * ((2 * np.pi * s.f) ** 2)[:, None]
+            ).sum(axis=1)
+            for s, k in zip(spectra, weights or [1.0] * len(spectra), strict=True)
+        ]
+    )
+    order = np.argsort(f, kind="stable")
+    f, power = f[order], power[order]
+    total = power.sum()
+    if not total > 0:
+        return 0.0
+    return float(f[min(int(np.searchsorted(np.cumsum(power) / total, MOTION_SHARE)), len(f) - 1)])

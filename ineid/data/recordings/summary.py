@@ -8,6 +8,7 @@ import numpy as np
 
 from ineid.channels.pose import SensorPose
 from ineid.data.recordings import signals
+from ineid.data.recordings.timing import TimingReport
 
 
 @dataclass(frozen=True)
@@ -45,9 +46,11 @@ class ImportSummary:
     sensor_where: str = "the base frame"
     """Where :attr:`sensor` is given: the base frame, or a link's frame for an F/T sensor on a link."""
     imu: tuple[str, ...] = ()
+    """The link IMUs' lines: mounts, rates, the fused estimate's gyro biases and residuals."""
     cutoff_note: str | None = None
     """Why the cut-off is what it is when a rule other than the angles' chose it (the IMUs')."""
-    """The link IMUs' lines: mounts, rates, the fused estimate's gyro biases and residuals."""
+    timing: TimingReport | None = None
+    """The streams' time stamps as audited: nominal rates, jitter, gaps, held rows (:mod:`.timing`)."""
 
     def lines(self) -> list[str]:
         wrench = self.wrench_rate is not None
@@ -58,6 +61,8 @@ class ImportSummary:
             + (f"; {' and '.join(self.resampled)} resampled" if self.resampled else "")
             + ")"
         ]
+        if self.timing is not None:
+            out += self.timing.lines()
         if self.joint_channels:
             out.append(
                 f"{' and '.join(self.joint_channels)} on the joints' clock"
@@ -122,10 +127,12 @@ class ImportSummary:
             "derived": self.derived,
             "cutoff": self.cutoff,
             "cutoff_rule": None if self.cutoff_choice is None else self.cutoff_choice.limited,
+            "filter": None if self.cutoff is None else f"zero-phase Butterworth, order {signals.FILTER_ORDER}",
             "dropped_start": self.dropped_start,
             "dropped_end": self.dropped_end,
             "delay": self.delay,
             "delay_estimated": self.delay_estimate is not None,
+            **({} if self.timing is None else {"timing": self.timing.to_dict()}),
         }
 
 
