@@ -98,9 +98,12 @@ def held_out_rms(res) -> tuple[np.ndarray, str] | None:
     ok = np.asarray(res.success, dtype=bool)
     if not res.n_frames_validation or not ok.any():
         return None
+    import warnings
+
     rms = np.asarray(res.validation_rms, dtype=np.float64)[ok]
-    with np.errstate(all="ignore"):
-        median = np.nanmedian(rms, axis=0) if np.isfinite(rms).any() else np.full(rms.shape[1], np.nan)
+    with warnings.catch_warnings():  # an axis NaN in every configuration: NaN, shown as "-"
+        warnings.simplefilter("ignore", RuntimeWarning)
+        median = np.nanmedian(rms, axis=0)
     v = res.meta.get("validation")
     frames = (
         f"{res.n_frames_validation} frames of the validation recording"
