@@ -214,7 +214,7 @@ def test_solve_and_export(run, tmp_path, small_data):
     for text in (
         "6/6 configurations identified",
         "fitted 24 frames each, validated on 6",
-        "held-out wrench error",
+        "held-out relative wrench error",
         "Relative error, standard parameters",
         "base parameters (what the data determine)",
         "no (prior)",

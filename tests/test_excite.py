@@ -187,6 +187,7 @@ def test_cli_excite_writes_csv_json_and_summary(tmp_path):
     assert r.exit_code == 0, r.output
     for text in ("scaled condition number", "random Fourier", "median expected relative std", "white Gaussian wrench"):
         assert text in r.output
+    assert "gravity (0, 0, -9.81) m/s^2 (ineid's default; --gravity standard for 9.80665)" in r.output
     sampled = read_trajectory_csv(out)
     assert sampled.n_frames == 1001 and sampled.n_dof == 4
     # qd and qdd in the CSV are the derivatives of q (central differences, O(dt^2))

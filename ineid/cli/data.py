@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -221,6 +222,8 @@ def data_generate(
         )
     except ValueError as e:  # a setting the options' own checks let through
         raise click.UsageError(str(e)) from None
+    from ineid.robots.gravity import describe_gravity
+
     t0 = time.perf_counter()
     with ProgressBar("generating", "configurations", quiet(ctx)) as bar:
         write_dataset(model, spec, out, overwrite=overwrite, progress=bar)
@@ -230,7 +233,7 @@ def data_generate(
         f"({plain(', '.join(model.unknown_links))} "
         f"unknown{'; ' + plain(spec.channels.describe()) if spec.channels else ''}) "
         f"in {seconds:.1f} s "
-        f"({total * n_frames / seconds:,.0f} frames/s)"
+        f"({total * n_frames / seconds:,.0f} frames/s); {describe_gravity(model.gravity)}"
     )
 
 
@@ -336,16 +339,16 @@ def _print_settings(con, path: Path, meta, shapes: dict) -> None:
         f"unknown links: {shown(', '.join(meta.unknown_links))}; "
         f"known links: {shown(', '.join(meta.known_links) or '-')}"
     )
-    con.print(
-        f"gravity {np.asarray(meta.gravity).tolist()} m/s^2" + (f"; seed {meta.seed}" if meta.seed is not None else "")
-    )
+    from ineid.robots.gravity import describe_gravity
+
+    con.print(describe_gravity(np.asarray(meta.gravity)) + (f"; seed {meta.seed}" if meta.seed is not None else ""))
     if meta.locked_joints:
         con.print(f"locked joints: {shown(meta.locked_joints)}")
     if meta.sampling:
-        con.print(f"sampling: {shown(json.dumps(meta.sampling, sort_keys=True))}")
+        con.print(f"sampling: {shown(json.dumps(_rounded(meta.sampling), sort_keys=True))}")
     con.print(_noise_line(meta))
     if meta.origin:
-        con.print(f"origin: {shown(json.dumps(meta.origin, sort_keys=True))}")
+        con.print(f"origin: {shown(json.dumps(_rounded(meta.origin), sort_keys=True))}")
     from ineid.data.recordings.timing import timing_lines
 
     for line in timing_lines(meta.origin):  # a recording's time stamps as the import audited them
@@ -367,6 +370,18 @@ def _print_settings(con, path: Path, meta, shapes: dict) -> None:
     for name in sorted(shapes):
         arrays.add_row(name, " x ".join(str(s) for s in shapes[name]) or "scalar")
     con.print(arrays)
+
+
+def _rounded(record):
+    """``record`` (JSON-able) with its floats to 10 significant digits: a rate of 100.00000000000213 Hz (the
+    mean of time steps, round-off and all) reads 100."""
+    if isinstance(record, dict):
+        return {k: _rounded(v) for k, v in record.items()}
+    if isinstance(record, (list, tuple)):
+        return [_rounded(v) for v in record]
+    if isinstance(record, float) and math.isfinite(record):
+        return float(f"{record:.10g}")
+    return record
 
 
 def _ranges(path: Path, name: str, width: int):

@@ -226,12 +226,13 @@ def data_import(
 
             imported, lines = [import_recording(paths[0], model, settings, progress=bar, **topics)], []
     from ineid.data.recordings.plausibility import check_dataset
+    from ineid.robots.gravity import describe_gravity
 
     for line in lines:
         click.echo(plain(line))
     for (ds, summary), path in zip(imported, outs, strict=True):
         ds.save(path, overwrite=overwrite)
-        click.echo(f"wrote {path}: one recording of {plain(model.name)}")
+        click.echo(f"wrote {path}: one recording of {plain(model.name)}; {describe_gravity(model.gravity)}")
         for line in summary.lines():
             click.echo(f"  {plain(line)}")
         print_findings(check_dataset(ds, model))

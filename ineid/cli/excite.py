@@ -107,6 +107,7 @@ def _workspace(ctx, param, value):
     "--floor",
     type=FiniteFloatRange(),
     default=None,
+    metavar="FLOOR",
     help="Keep every link frame and the tool frame at z >= FLOOR (m, base frame) at every instant.",
 )
 @click.option(
@@ -261,6 +262,8 @@ def print_design(res, model) -> None:
     """The summary: criterion, scaled condition number and expected std, designed beside random Fourier."""
     import numpy as np
 
+    from ineid.robots.gravity import describe_gravity
+
     con = console()
     opt, rnd = res.optimized, res.random
     sigma = res.sigma
@@ -271,6 +274,7 @@ def print_design(res, model) -> None:
         f"{len(res.starts)} starts in {res.seconds:.1f} s "
         f"(of which compilation {res.compile_seconds:.1f} s)"
     )
+    con.print(describe_gravity(model.gravity))
     channels = res.base.channels
     if len(channels) == 1 and channels.keys == ("wrench",):
         noise = (

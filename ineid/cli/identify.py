@@ -14,7 +14,7 @@ from ineid.cli.options import (
     deprecated_alias,
     robot_options,
 )
-from ineid.cli.output import console, plain, shown, table
+from ineid.cli.output import console, plain, print_held_out_rms, shown, table
 from ineid.cli.output_files import overwrite_option, prepare_output, results_inputs
 
 _SOLVE = "ineid.identify.settings"
@@ -94,12 +94,15 @@ def _print_analysis(con, model, base, a, source: str, channels) -> None:
     :class:`ineid.identify.FrameAnalysis`) against the structure (``base``)."""
     import numpy as np
 
+    from ineid.robots.gravity import describe_gravity
+
     n = base.n_params
     con.print(
         f"[bold]{shown(model.name)}[/bold]: unknown links {shown(', '.join(model.unknown_links))} "
         f"({base.n_link_params} standard parameters{f', {base.n_extra} extra' if base.n_extra else ''})"
     )
     con.print(f"frames: {shown(source)}")
+    con.print(describe_gravity(model.gravity))
     if channels is not None:
         con.print(
             f"channels: {shown(channels.describe())}"
@@ -209,7 +212,7 @@ def export_urdf_cmd(results_path, config, out, overwrite) -> None:
 
 @click.group()
 def results() -> None:
-    """Inspect results files of ``ineid solve``."""
+    """Inspect results files of `ineid solve`."""
 
 
 @results.command("info")
@@ -222,6 +225,8 @@ def results_info(path: Path) -> None:
 
     from ineid.identify import load_results
     from ineid.identify.constrained_std import std_note
+    from ineid.report.fitted import fitted_channels, held_out_error_name
+    from ineid.robots.gravity import describe_gravity
 
     res = load_results(path)
     m = res.meta
@@ -236,8 +241,9 @@ def results_info(path: Path) -> None:
     )
     con.print(
         f"robot {shown(m['robot'])} ({shown(m['source'])}); "
-        f"unknown links {shown(', '.join(m['unknown_links']))}; gravity {shown(m['gravity'])} m/s^2"
+        f"unknown links {shown(', '.join(m['unknown_links']))}; {describe_gravity(m['gravity'])}"
     )
+    con.print(f"fitted: {shown(fitted_channels(m))}", soft_wrap=True)
     con.print(f"settings: {shown(json.dumps(res.settings.to_dict(), sort_keys=True))}")
     con.print(std_note(res.settings.method))
     n_ok = int(res.success.sum())
@@ -249,19 +255,19 @@ def results_info(path: Path) -> None:
     if res.n_frames_validation and n_ok:
         with np.errstate(invalid="ignore"):  # inf (a zero wrench) between two values: nan
             median = np.median(res.validation_rel[res.success])
-        con.print(f"held-out relative wrench error: median {median:.3g}")
+        con.print(f"held-out {shown(held_out_error_name(m))}: median {median:.3g}", soft_wrap=True)
+    print_held_out_rms(con, res)
     for k, rec in enumerate(m.get("recordings") or []):
         con.print(
             f"recording {k + 1}: {shown(rec.get('path') or 'in memory')}, fingerprint "
-            f"{shown(rec.get('fingerprint'))}, {rec.get('n_frames')} frames fitted"
+            f"{shown(rec.get('fingerprint') or '-')}, {rec.get('n_frames')} frames fitted"
         )
     v = m.get("validation")
     if v:
-        rms = " ".join("-" if r is None else f"{r:.3g}" for r in (v.get("rms") or []))
         con.print(
-            f"validation: {shown(v.get('path') or 'in memory')}, fingerprint {shown(v.get('fingerprint'))}, "
-            f"{v.get('n_frames')} frames; offsets {shown(v.get('offsets'))}; RMS per axis ({' '.join(res.axes)}) "
-            f"{rms or '-'}; relative error {'-' if v.get('rel') is None else format(v['rel'], '.3g')} (median)"
+            f"validation: {shown(v.get('path') or 'in memory')}, fingerprint {shown(v.get('fingerprint') or '-')}, "
+            f"{v.get('n_frames')} frames; offsets: {shown(v.get('offsets') or 'none')}; relative error "
+            f"{'-' if v.get('rel') is None else format(v['rel'], '.3g')} (median; RMS per axis above)"
         )
     if res.n_extra:
         con.print(f"extra parameters (after the links'): {shown(', '.join(res.param_names[-res.n_extra :]))}")

@@ -9,7 +9,7 @@ Flag names carry one meaning across commands:
                        recording) takes ``--robot`` (required)
 ``--unknown-links``    comma-separated links to identify
 ``--lock JOINT=POS``   treat a URDF joint as fixed (repeatable)
-``--gravity``          GX GY GZ, m/s^2, base frame
+``--gravity``          GX GY GZ, m/s^2, base frame; or ``standard`` (0 0 -9.80665)
 ``--n-configs N``      how many configurations to make
 ``--n-frames N``       how many frames to make or sample per configuration
 ``--fit-frames K``     frames fitted per configuration (the first K; the rest validate)
@@ -116,11 +116,32 @@ class FiniteFloatRange(click.FloatRange):
             self.fail(f"{value!r} is not a finite number", param, ctx)
         return super().convert(rv, param, ctx)
 
+    def _describe_range(self) -> str:
+        """The range shown in ``--help`` (``[x>=0]``); none for an unbounded one (click would show ``x<=None``)."""
+        if self.min is None and self.max is None:
+            return ""
+        return super()._describe_range()
+
 
 FINITE = FiniteFloatRange()
 """Any finite float (``--gravity``)."""
-SEED = click.IntRange(0, 2**63 - 1)
-"""``--seed``: NumPy's and JAX's generators take 64-bit seeds (a larger one was an OverflowError)."""
+
+
+class SeedRange(click.IntRange):
+    """``--seed``: 0 <= seed < 2^63 (NumPy's and JAX's generators take 64-bit seeds; a larger one would be an
+    OverflowError), its range shown as ``0<=x<2^63`` in ``--help``."""
+
+    name = "seed"
+
+    def __init__(self) -> None:
+        super().__init__(0, 2**63 - 1)
+
+    def _describe_range(self) -> str:
+        return "0<=x<2^63"
+
+
+SEED = SeedRange()
+"""``--seed``: an integer in ``[0, 2^63)``."""
 MAX_WORKERS = 4 * (os.cpu_count() or 1)
 WORKERS = click.IntRange(1, MAX_WORKERS)
 """``--workers``: each process loads CasADi and the generated code (about 200 MB); more than four per
@@ -265,6 +286,53 @@ lock_option = click.option(
 )
 
 
+class GravityType(click.ParamType):
+    """``--gravity``: three finite numbers (m/s^2, base frame) or a name of
+    :data:`ineid.robots.gravity.GRAVITY_WORDS` (``standard``: 9.80665 down the base frame's z)."""
+
+    name = "gravity"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple) and len(value) == 1:
+            value = value[0]
+        if isinstance(value, str):
+            from ineid.robots.gravity import GRAVITY_WORDS
+
+            if value.strip().lower() in GRAVITY_WORDS:
+                return GRAVITY_WORDS[value.strip().lower()]
+            self.fail(f"{value!r}: give GX GY GZ (three numbers, m/s^2) or {' or '.join(GRAVITY_WORDS)}", param, ctx)
+        if not isinstance(value, (tuple, list)) or len(value) != 3:
+            self.fail(f"{value!r}: give GX GY GZ (three numbers, m/s^2) or standard", param, ctx)
+        return tuple(FINITE.convert(v, param, ctx) for v in value)
+
+
+class GravityOption(click.Option):
+    """``--gravity GX GY GZ`` or ``--gravity standard``: three values, or one word.
+
+    click gives an option a fixed number of values; this one reads one, and two more after it unless
+    the first is a word (its parser entry's ``process`` takes them from the arguments still to parse).
+    """
+
+    def add_to_parser(self, parser, ctx) -> None:
+        super().add_to_parser(parser, ctx)
+        for name in self.opts:
+            entry = parser._long_opt.get(name) or parser._short_opt.get(name)
+            if entry is None:
+                continue
+            process = entry.process
+
+            def greedy(value, state, process=process):
+                from ineid.robots.gravity import GRAVITY_WORDS
+
+                if isinstance(value, str) and value.strip().lower() not in GRAVITY_WORDS:
+                    if len(state.rargs) < 2:
+                        raise click.BadOptionUsage(self.opts[0], f"{self.opts[0]} takes GX GY GZ or standard")
+                    value = (value, state.rargs.pop(0), state.rargs.pop(0))
+                process(value, state)
+
+            entry.process = greedy
+
+
 def _gravity(ctx, param, value: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
     """``--gravity`` as given; one warning line when it looks like another unit than m/s^2."""
     if value is not None:
@@ -278,12 +346,12 @@ def _gravity(ctx, param, value: tuple[float, float, float] | None) -> tuple[floa
 
 gravity_option = click.option(
     "--gravity",
-    nargs=3,
-    type=FINITE,
+    cls=GravityOption,
+    type=GravityType(),
     default=None,
-    metavar="GX GY GZ",
+    metavar="GX GY GZ|standard",
     callback=_gravity,
-    help="m/s^2, base frame (default 0 0 -9.81).",
+    help="m/s^2, base frame; standard: 0 0 -9.80665 (standard gravity). Default 0 0 -9.81 (ineid's, the paper's).",
 )
 
 

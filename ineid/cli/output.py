@@ -124,8 +124,17 @@ def print_results(res, out) -> None:
     if res.bias_hat is not None and n_ok:
         i = int(np.flatnonzero(res.success)[0])
         # the axes and their units are the fitted channels' (the base wrench: fx..mz in N and N*m)
+        from ineid.report.fitted import channel_records, is_wrench_only
+
         units = ", ".join(dict.fromkeys(res.units))
-        frame = "the wrench's frame" if len(res.axes) == 6 else "each sensor's frame"
+        wrenches = any("wrench" in str(r.get("kind")) for r in channel_records(res.meta))
+        frame = (
+            "the wrench's frame"
+            if is_wrench_only(res.meta)
+            else "each wrench in its sensor's frame, torques per joint"
+            if wrenches
+            else "per joint"
+        )
         con.print(
             f"sensor offsets of configuration {int(res.config_index[i])} ({units}, {frame}): "
             + ", ".join(
@@ -138,8 +147,12 @@ def print_results(res, out) -> None:
 
 
 def _print_solve_summary(con, res, n_ok: int) -> None:
-    """How many configurations were identified, in what time, why the others failed, and the held-out error."""
+    """How many configurations were identified, in what time, why the others failed; what was fitted, under
+    which gravity; the held-out error and RMS per axis."""
     import numpy as np
+
+    from ineid.report.fitted import fitted_channels, held_out_error_name
+    from ineid.robots.gravity import describe_gravity
 
     total = res.meta.get("total_seconds", float("nan"))
     con.print(
@@ -147,6 +160,7 @@ def _print_solve_summary(con, res, n_ok: int) -> None:
         f"in {total:.2f} s ({1e3 * total / max(res.n, 1):.2f} ms each); fitted {res.n_frames_fit} frames each"
         + (f", validated on {res.n_frames_validation}" if res.n_frames_validation else "")
     )
+    con.print(f"fitted: {shown(fitted_channels(res.meta))}; {describe_gravity(res.meta['gravity'])}", soft_wrap=True)
     if n_ok < res.n:
         statuses, counts = np.unique(res.status[~res.success].astype(str), return_counts=True)
         con.print("failed: " + "; ".join(f"{c} x {s}" for s, c in zip(statuses, counts, strict=True)))
@@ -154,13 +168,27 @@ def _print_solve_summary(con, res, n_ok: int) -> None:
         rel = res.validation_rel[res.success]
         with np.errstate(invalid="ignore"):  # inf (a zero wrench) between two values: nan (solve warns)
             median, p95 = np.median(rel), np.percentile(rel, 95)
-        keys = [c.get("key") for c in res.meta.get("channels") or () if isinstance(c, dict)]
-        what = (
-            "wrench error ||w - Psi theta_hat|| / ||w||"
-            if keys in ([], ["wrench"])
-            else f"error of {shown(', '.join(map(str, keys)))} ||y - y_hat|| / ||y||"
+        con.print(
+            f"held-out {shown(held_out_error_name(res.meta))}: median {median:.3g}, 95th percentile {p95:.3g}",
+            soft_wrap=True,
         )
-        con.print(f"held-out {what}: median {median:.3g}, 95th percentile {p95:.3g}")
+    print_held_out_rms(con, res)
+
+
+def print_held_out_rms(con, res) -> None:
+    """The held-out RMS of every fitted axis, one line per channel in its units (nothing held out: says so)."""
+    from ineid.report.fitted import held_out_rms, rms_lines
+
+    found = held_out_rms(res)
+    if found is None:
+        if not res.n_frames_validation:
+            con.print("held-out RMS: none (no frame held out)")
+        return
+    rms, frames = found
+    lines = rms_lines(res.meta, res.axes, res.units, rms)
+    con.print(f"held-out RMS ({shown(frames)}):")
+    for line in lines:  # one line per channel, unwrapped: a joint's name and its value stay together
+        con.print(f"  {shown(line)}", soft_wrap=True)
 
 
 def _print_errors(con, res, n_ok: int, undecided: str) -> None:
@@ -198,8 +226,11 @@ def _print_errors(con, res, n_ok: int, undecided: str) -> None:
 
 
 def _print_estimates(con, res, i: int, undecided: str) -> None:
-    """The standard and base parameters of configuration ``i`` (a successful one), with their std."""
+    """The standard and base parameters of configuration ``i`` (a successful one), with their std; a value below
+    its resolution shown as ``0 (round-off)`` (:mod:`ineid.report.roundoff`)."""
     import numpy as np
+
+    from ineid.report.roundoff import base_scale, parameter_scale, shown_value
 
     tab = table(
         f"Estimates of configuration {int(res.config_index[i])} (SI, about each link origin)",
@@ -207,18 +238,19 @@ def _print_estimates(con, res, i: int, undecided: str) -> None:
         left=("parameter", "identifiable"),
     )
     for k, name in enumerate(res.param_names):
-        std = res.theta_std[i, k]
+        std, scale = res.theta_std[i, k], parameter_scale(res.base, k)
         tab.add_row(
             name,
-            f"{res.theta_hat[i, k]:.6g}",
-            "-" if not np.isfinite(std) else f"{std:.3g}",
+            shown_value(res.theta_hat[i, k], scale, std),
+            "-" if not np.isfinite(std) else shown_value(std, scale, digits=3),
             f"{res.theta_prior[k]:.6g}",
             "yes" if res.base.identifiable[k] else undecided,
         )
     con.print(tab)
     tab = table("Base parameters", ("base parameter", "estimate", "std"), left=("base parameter",))
     for k, name in enumerate(res.base.names):
-        tab.add_row(name, f"{res.base_hat[i, k]:.6g}", f"{res.base_std[i, k]:.3g}")
+        std, scale = res.base_std[i, k], base_scale(res.base, k)
+        tab.add_row(name, shown_value(res.base_hat[i, k], scale, std), shown_value(std, scale, digits=3))
     con.print(tab)
 
 

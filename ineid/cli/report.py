@@ -69,11 +69,11 @@ def write_solve_outputs(
         plot_validation(
             v, plot_path, title=f"{name if len(name) <= 60 else name[:57] + '...'}, {method}: ", span=plot_span
         )
-        con.print(
-            f"residual RMS per axis ({shown(' '.join(v.axes))}): "
-            + " ".join(f"{r:.3g}" for r in v.rms)
-            + f"; wrote {shown(plot_path)}"
-        )
+        from ineid.report.fitted import rms_lines
+
+        lines = rms_lines(res.meta, v.axes, v.units, v.rms)
+        con.print(f"residual RMS per axis of the plotted {shown(v.source)}: {shown('; '.join(lines))}", soft_wrap=True)
+        con.print(f"wrote {shown(plot_path)}")
     elif plot_path is not None:
         con.print(f"no configuration identified: {shown(plot_path)} not written")
     if report_path is not None:

@@ -31,15 +31,16 @@ def robot_list() -> None:
 def robot_show(robot) -> None:
     """Joints, links (known/unknown) and CAD parameters of ROBOT."""
     from ineid.params import PARAM_NAMES, inertial_from_theta
+    from ineid.robots.gravity import describe_gravity
 
     model = robot.load()
     con = console()
     con.print(f"[bold]{shown(model.name)}[/bold]  {shown(model.model_path)}")
     con.print(
         f"{model.n_dof} moving joints, base link {shown(repr(model.chain.root_link))}, "
-        f"gravity {model.gravity.tolist()} m/s^2, "
         f"regressor 6 x {10 * model.n_links} ({model.op_count} operations)"
     )
+    con.print(describe_gravity(model.gravity))
     joints = table(
         "Joints (chain order)",
         ("#", "joint", "type", "axis", "q range", "|qd| max", "|qdd| max"),

@@ -131,8 +131,8 @@ _SOLVE = "ineid.identify.settings"
     type=PlotFile(),
     default=None,
     metavar="FILE",
-    help="Write measured vs predicted wrench of the held-out frames (first solved configuration), "
-    "per axis with the residual and its RMS (.png, .pdf, .svg).",
+    help="Write measured vs predicted values of the fitted channels (the wrench, joint torques) on the held-out "
+    "frames (first solved configuration), per axis with the residual and its RMS (.png, .pdf, .svg).",
 )
 @click.option(
     "--mixed-filters",
@@ -324,14 +324,15 @@ def _joined(ds, more):
 
 
 def _print_validation(res) -> None:
+    """The separate validation recording: its frames, its offsets, the relative error (the RMS per axis are in the
+    summary's held-out lines)."""
     v = res.meta["validation"]
     if v.get("rel") is None:
         return
     console().print(
-        f"validation on {shown(v['path'] or 'the validation recording')} ({v['n_frames']} frames; offsets "
-        f"{v['offsets']}): residual RMS per axis ({' '.join(res.axes)}) "
-        + " ".join(f"{r:.3g}" for r in v["rms"])
-        + f"; relative error {v['rel']:.3g} (median)"
+        f"validation on {shown(v['path'] or 'the validation recording')} ({v['n_frames']} frames; offsets: "
+        f"{shown(v['offsets'])}): relative error {v['rel']:.3g} (median)",
+        soft_wrap=True,
     )
 
 

@@ -152,7 +152,7 @@ def study_paper(
     """The paper's classical experiments on ROBOT (default sweaty-arm): lsqlin, lsqnonlin, linear and consistent
     on the paper's layout of clean data, per parameter in the paper's terms (share within 5 %, the 50-95 %
     accuracy band), with why each parameter is or is not identifiable, and the paper's claims checked; with
-    --networks, then its network exploration (``ineid study networks``)."""
+    --networks, then its network exploration (`ineid study networks`)."""
     from dataclasses import replace
 
     from ineid.identify.identifiability import frame_minimum

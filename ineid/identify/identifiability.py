@@ -139,6 +139,13 @@ def _coef(c: float, signed: bool = False) -> str:
     return f"{c:+.4g}" if signed else f"{c:.4g}"
 
 
+NAME_RTOL = 1e-6
+"""A base parameter's name leaves out a dependent parameter whose coefficient, in the parameters' scales
+(:func:`ineid.identify.systems.parameter_scales`), is below this: it moves the combination by less than a
+millionth of that parameter's scale against the base parameter's (round-off of the elimination, or a
+CAD-rounded angle's 1e-10). :attr:`BaseParameters.B` and ``K`` keep it: the numbers are unchanged."""
+
+
 def _base_name(name: str, deps: list[tuple[float, str]]) -> str:
     text = name
     for c, dep in deps:
@@ -185,8 +192,9 @@ def base_parameters_from_regressor(w: np.ndarray, names, scales: np.ndarray, n_e
         null[d, col] = 1.0
         null[base, col] = -k[:, col]
     identifiable = ~np.any(np.abs(null) > 0, axis=1)
+    named = np.abs(k_scaled) >= NAME_RTOL if dep.size else np.zeros_like(k, dtype=bool)
     base_names = tuple(
-        _base_name(names[bi], [(k[row, c], names[d]) for c, d in enumerate(dep) if k[row, c] != 0])
+        _base_name(names[bi], [(k[row, c], names[d]) for c, d in enumerate(dep) if k[row, c] != 0 and named[row, c]])
         for row, bi in enumerate(base)
     )
     return BaseParameters(

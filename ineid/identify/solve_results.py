@@ -169,9 +169,12 @@ def truth_with_extras(ds, base: BaseParameters) -> np.ndarray | None:
 def results_meta(ds, total_seconds: float, channels: ChannelSet | None = None, model=None) -> dict:
     """What a results file records of its dataset (robot, URDF, links, gravity, sensor, path and fingerprint)
     and of the channels fitted (their records, the stacked axes' names and units)."""
+    from ineid._version import __version__
+
     channels = ds.meta.channels if channels is None else channels
     names = model or ds.meta
     return {
+        "ineid_version": __version__,
         "robot": ds.meta.robot,
         "source": ds.meta.source,
         "urdf": ds.meta.urdf,

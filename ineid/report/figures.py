@@ -97,12 +97,24 @@ def validation_figure(v, title: str = "", span: tuple[float, float] | None = Non
         if k == 0:
             top.legend(loc="best", fontsize=8)
     which = v.source or ("held-out frames" if v.held_out else "fitted frames (none held out)")
-    # The title holds the robot's name: literal text, never mathtext (a "$" in it would be parsed).
-    fig.suptitle(
-        f"{title}measured vs predicted, {which}, configuration {v.config}, {v.frame} frame ({shown})", parse_math=False
-    )
-    fig.subplots_adjust(left=0.08, right=0.98, top=1 - 0.75 / fig.get_figheight(), bottom=0.5 / fig.get_figheight())
+    _heading(fig, f"{title}measured vs predicted, {which}, configuration {v.config}: {v.measured_text()} ({shown})")
     return fig
+
+
+def _heading(fig, text: str) -> None:
+    """``text`` as the figure's title, wrapped to its width, in a band of its own above the panels' titles.
+
+    The band is sized in inches (lines of the title, then the panels' own titles), so no title overlaps
+    a panel whatever the figure's height. The title may hold the robot's name: literal text, never
+    mathtext (a "$" in it would be parsed).
+    """
+    import textwrap
+
+    height, width = fig.get_figheight(), fig.get_figwidth()
+    lines = textwrap.wrap(text, width=max(40, int(10 * width))) or [""]
+    fig.suptitle("\n".join(lines), parse_math=False, y=1 - 0.12 / height, va="top", fontsize=12)
+    band = 0.12 + 0.24 * len(lines) + 0.4  # inches: the margin, the title's lines, the first panels' titles
+    fig.subplots_adjust(left=0.08, right=0.98, top=1 - band / height, bottom=0.5 / height)
 
 
 def spectrum_figure(v, noise=None, columns: int = 3):

@@ -193,6 +193,7 @@ def _validation_part(inputs: ReportInputs, i: int, config: int) -> dict | None:
         "source": v.source,
         "frames": len(v.time),
         "frame": v.frame,
+        "measured": v.measured_text(),
         "config": v.config,
         "figures": figures,
         "rows": rows,

@@ -57,6 +57,17 @@ class Validation:
     blocks: tuple[tuple[str, int, int, str], ...] = (("wrench", 0, 6, "wrench"),)
     source: str = ""
 
+    def measured_text(self) -> str:
+        """What the axes hold, in words: ``"joint torques 'tau' and base wrench 'wrench' (base frame)"`` (a
+        wrench's frame is named, a joint channel has none)."""
+        from ineid.report.fitted import channel_name
+
+        names = [
+            channel_name({"kind": kind, "key": key}) + (f" ({self.frame} frame)" if "wrench" in kind else "")
+            for key, _, _, kind in self.blocks
+        ]
+        return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
 
 def validation(res, ds, model=None, config: int | None = None) -> Validation:
     """The :class:`Validation` of ``res`` (``ineid solve``'s results) on the dataset it was solved on.

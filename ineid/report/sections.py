@@ -30,18 +30,33 @@ def fmt(x, digits: int = 4) -> str:
     return f"{x:.{digits}g}"
 
 
-def flatten(record, prefix: str = "") -> list[tuple[str, str]]:
-    """``(key.path, value)`` rows of a JSON-able record (lists of numbers kept on one row)."""
-    if isinstance(record, dict):
+def word(value, none: str = "none") -> str:
+    """A record's value for people: ``none`` for None (and an empty list), ``yes``/``no`` for a flag, numbers with
+    6 significant digits, text as it is (never Python's ``None``, ``False``)."""
+    if value is None or (isinstance(value, (list, tuple, dict)) and not value):
+        return none
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return fmt(value, 6)
+    return str(value)
+
+
+def flatten(record, prefix: str = "", none: str = "none") -> list[tuple[str, str]]:
+    """``(key.path, value)`` rows of a JSON-able record (lists of numbers kept on one row), values in words
+    (:func:`word`; None shown as ``none``)."""
+    if isinstance(record, dict) and not record and not prefix:
+        return []
+    if isinstance(record, dict) and record:
         rows = []
         for k in sorted(record, key=str):
-            rows += flatten(record[k], f"{prefix}{k}" if not prefix else f"{prefix}.{k}")
+            rows += flatten(record[k], f"{prefix}{k}" if not prefix else f"{prefix}.{k}", none)
         return rows
     if isinstance(record, (list, tuple)) and any(isinstance(v, (dict, list, tuple)) for v in record):
-        return [r for k, v in enumerate(record) for r in flatten(v, f"{prefix}[{k}]")]
-    if isinstance(record, (list, tuple)):
-        return [(prefix, ", ".join(fmt(v, 6) if isinstance(v, float) else str(v) for v in record))]
-    return [(prefix, fmt(record, 6) if isinstance(record, float) else str(record))]
+        return [r for k, v in enumerate(record) for r in flatten(v, f"{prefix}[{k}]", none)]
+    if isinstance(record, (list, tuple)) and record:
+        return [(prefix, ", ".join(word(v, none) for v in record))]
+    return [(prefix, word(record, none))]
 
 
 def solved_index(res, config: int | None):
@@ -54,26 +69,37 @@ def solved_index(res, config: int | None):
 
 
 def method_section(res) -> dict:
+    """The method, its settings in words, what it fitted, how many configurations it identified, the ineid that
+    wrote the results; the held-out RMS per axis of each fitted channel."""
+    from ineid.report.fitted import fitted_channels, held_out_error_name, held_out_rms, rms_lines
+
     m = res.meta
+    found = held_out_rms(res)
+    held = None if found is None else {"frames": found[1], "lines": rms_lines(m, res.axes, res.units, found[0])}
     ok = int(res.success.sum())
     statuses = sorted({str(s) for s in res.status})
     return {
         "method": res.settings.method,
-        "settings": flatten(res.settings.to_dict()),
+        "settings": flatten(res.settings.to_dict(), none="not set (the default)"),
         "solved": f"{ok} of {res.n} configurations identified in {fmt(m.get('total_seconds'), 3)} s",
         "statuses": ", ".join(statuses[:8]) + (", ..." if len(statuses) > 8 else ""),
         "frames": f"{res.n_frames_fit} frames fitted, {res.n_frames_validation} validated per configuration",
-        "written_by": m.get("ineid_version") or "-",
+        "written_by": f"ineid {m['ineid_version']}" if m.get("ineid_version") else "an unrecorded ineid",
+        "fitted": fitted_channels(m),
+        "error_name": held_out_error_name(m),
+        "held_out": held,
     }
 
 
 def robot_section(res, model) -> dict:
+    from ineid.robots.gravity import gravity_words
+
     m = res.meta
     out = {
         "name": m["robot"],
         "source": m["source"],
         "unknown_links": list(m["unknown_links"]),
-        "gravity": ", ".join(fmt(g) for g in m["gravity"]),
+        "gravity": gravity_words(m["gravity"]),
         "locked": [f"{k} = {fmt(v)} rad" for k, v in sorted((m.get("locked_joints") or {}).items())],
         "joints": None,
         "known_links": None,
@@ -110,17 +136,19 @@ def identifiability_section(res, cost=None) -> dict:
 
 def estimates_section(res, i: int) -> dict:
     """Standard and base parameters of row ``i``: CAD (the prior), estimate, std, truth where known."""
+    from ineid.report.roundoff import base_scale, is_round_off, parameter_scale, shown_value
+
     prior = res.theta_prior[i] if res.theta_prior.ndim == 2 else res.theta_prior
     truth = None if res.theta_true is None else res.theta_true[i]
     rows = []
     for k, name in enumerate(res.param_names):
-        std = res.theta_std[i, k]
+        std, scale = res.theta_std[i, k], parameter_scale(res.base, k)
         rows.append(
             {
                 "name": name,
                 "cad": fmt(prior[k]),
-                "estimate": fmt(res.theta_hat[i, k]),
-                "std": fmt(std, 3) if np.isfinite(std) else "- (prior)",
+                "estimate": shown_value(res.theta_hat[i, k], scale, std, 4),
+                "std": shown_value(std, scale, digits=3) if np.isfinite(std) else "- (prior)",
                 "identifiable": bool(res.base.identifiable[k]),
                 "truth": None if truth is None else fmt(truth[k]),
             }
@@ -128,13 +156,14 @@ def estimates_section(res, i: int) -> dict:
     base_truth = None if res.theta_true is None else res.base_true[i]
     base_rows = []
     for k, name in enumerate(res.base.names):
-        est, std = res.base_hat[i, k], res.base_std[i, k]
-        rel = abs(std / est) if est != 0 and np.isfinite(std) else math.nan
+        est, std, scale = res.base_hat[i, k], res.base_std[i, k], base_scale(res.base, k)
+        zero = is_round_off(est, scale, std)
+        rel = abs(std / est) if est != 0 and np.isfinite(std) and not zero else math.nan
         base_rows.append(
             {
                 "name": name,
-                "estimate": fmt(est),
-                "std": fmt(std, 3),
+                "estimate": shown_value(est, scale, std, 4),
+                "std": shown_value(std, scale, digits=3),
                 "rel": "-" if math.isnan(rel) else f"{100 * rel:.2g} %",
                 "truth": None if base_truth is None else fmt(base_truth[k]),
             }
@@ -219,7 +248,7 @@ def data_section(res, ds, validate_ds=None) -> dict:
             "path": v.get("path") or "in memory",
             "fingerprint": v.get("fingerprint") or "-",
             "frames": v.get("n_frames"),
-            "offsets": v.get("offsets"),
+            "offsets": word(v.get("offsets")),
         }
     for rec in m.get("channels") or []:
         rest = {k: val for k, val in rec.items() if k not in ("kind", "key")}
@@ -227,11 +256,11 @@ def data_section(res, ds, validate_ds=None) -> dict:
             {
                 "key": rec.get("key"),
                 "kind": rec.get("kind"),
-                "record": "; ".join(f"{k} {v}" for k, v in flatten(rest)) or "-",
+                "record": "; ".join(f"{k}: {v}" for k, v in flatten(rest)) or "-",
             }
         )
     if m.get("sensor"):
-        out["sensor"] = "; ".join(f"{k} {v}" for k, v in flatten(m["sensor"]))
+        out["sensor"] = _pose_words(m["sensor"])
     if ds is not None:
         meta = ds.meta
         loaded = {
@@ -255,6 +284,17 @@ def data_section(res, ds, validate_ds=None) -> dict:
     if validate_ds is not None and out["validation"] is not None:
         out["validation"]["found"] = validate_ds.fingerprint()
     return out
+
+
+def _pose_words(record) -> str:
+    """A sensor pose record in words (``xyz=(0, 0, 0.1) m, rpy=(0, 0, 0) rad (URDF frame 'ft')``); a record that
+    does not read as a pose: its fields."""
+    from ineid.channels.pose import SensorPose
+
+    try:
+        return SensorPose.from_dict(record).describe()
+    except (IneidError, KeyError, TypeError, ValueError):
+        return "; ".join(f"{k}: {v}" for k, v in flatten(record))
 
 
 def excitation_section(res, ds, model, i: int) -> dict | None:
