@@ -232,6 +232,13 @@ def solve_searched(ds, settings: SolveSettings, model, solve, progress=None, met
     return dataclasses.replace(res, meta={**res.meta, "channels": records})
 
 
+def _rows(channels: ChannelSet, model, q, qd, qdd) -> np.ndarray:
+    """``T Phi`` (F, A, 10 n) through the generated CasADi functions (no compilation for a one-off evaluation)."""
+    args = [np.asarray(a, dtype=np.float64).T for a in (q, qd, qdd)]
+    phi = np.array(channels.casadi_rows(model).map(len(q))(*args))
+    return phi.reshape(channels.n_axes(model), len(q), -1).transpose(1, 0, 2)
+
+
 def _stride(n_frames: int, n_axes: int, n_cols: int) -> int:
     return max(1, math.ceil(n_frames * n_axes * max(n_cols, 1) / MAX_NUMBERS))
 
@@ -254,7 +261,7 @@ def _one_step_profile(ds, settings: SolveSettings, model) -> Profile:
     frames, fixed, targets = [], [], []
     for c in range(ds.n_configs):
         q, qd, qdd = (a[c, :n_fit:stride] for a in (ds.q, ds.qd, ds.qdd))
-        rows = channels.rows(model, q, qd, qdd)
+        rows = _rows(channels, model, q, qd, qdd)
         targets.append(values[c, :n_fit:stride] - rows[..., model.known_index] @ ds.theta_known)
         fixed.append(np.concatenate([rows[..., model.unknown_index], _offset_columns(mask, len(q), n_axes)], axis=-1))
         frames.append((q, qd, qdd))
@@ -283,7 +290,7 @@ def _two_step_profile(ds, settings: SolveSettings, model, first: SolveResults) -
     for c in range(ds.n_configs):
         q, qd, qdd = (a[c, :n_fit:stride] for a in (ds.q, ds.qd, ds.qdd))
         y = values[c, :n_fit:stride]
-        targets.append(y - torque.predict(model, q, qd, qdd, theta[c]))
+        targets.append(y - _rows(torque, model, q, qd, qdd) @ theta[c])
         parts = [_offset_columns(mask, len(q), n_axes)]
         if blocks:
             parts.append(k_columns(y, blocks, n_axes))
