@@ -150,3 +150,36 @@ def test_cli_friction_options(run, tmp_path, model):
     info = run("results", "info", tmp_path / "r.h5").output
     found = load_results(tmp_path / "r.h5").meta["channels"][0]
     assert f'"stribeck_velocity": {found["stribeck_velocity"]!r}' in info and found["identified"], info
+
+
+def test_mujoco_stribeck_velocity_identified(model):
+    """MuJoCo simulates the arm with viscous damping and its Stribeck term ``fs exp(-(qd / vs)^2) tanh(qd / 0.2 vs)``
+    (:class:`ineid.studies.mujoco_sim.JointFriction`) under its own dynamics: the torques its actuators apply, fitted
+    with the zone ``0.2 vs`` given, give ``vs``, ``fs`` and ``fv`` to their truth."""
+    pytest.importorskip("mujoco")
+    from ineid.studies.mujoco_sim import JointFriction, simulate
+
+    fv, fs, vs = np.array([0.05, 0.04, 0.01, 0.02]), np.array([0.05, 0.04, 0.02, 0.03]), 0.2
+    sim = simulate(
+        model,
+        model.theta_cad,
+        None,
+        2.0,
+        rate=200.0,
+        steps_per_sample=5,
+        seed=2,
+        friction=JointFriction(viscous=fv, stribeck=fs, stribeck_velocity=vs),
+    )
+    n = len(sim.q)
+    spec = DatasetSpec(Combination("random", n_configs=1), n_frames=n, seed=3, channels=ChannelSet.of(JointTorque()))
+    ds = generate_dataset(model, spec)
+    ds = dataclasses.replace(
+        ds, q=sim.q[None], qd=sim.qd[None], qdd=sim.qdd[None], channel_values={"tau": sim.tau[None]}, clean={}
+    )
+    settings = SolveSettings(
+        friction=("viscous", "stribeck"), coulomb_zone=0.2 * vs, stribeck_velocity="identify", backend=CASADI
+    )
+    res = solve_dataset(ds, settings, model=model)
+    (record,) = res.meta["channels"]
+    assert abs(record["stribeck_velocity"] / vs - 1) < 1e-6, record
+    np.testing.assert_allclose(res.theta_hat[0, -8:], np.stack([fv, fs], -1).ravel(), rtol=1e-5)
