@@ -107,13 +107,18 @@ def with_actuation(channels: ChannelSet, settings: SolveSettings) -> ChannelSet:
     out = channels
     for c in actuated:
         k = {"identify_k": bool(settings.torque_constant_unknown)} if _has_torque_constant(c) else {}
+        if _has_field(c, "stribeck_velocity"):
+            k.update(stribeck_velocity=_velocity(settings.stribeck_velocity), identified=())
+        elif settings.stribeck_velocity:
+            raise IdentificationError(
+                f"channel {c.key!r} has no Stribeck friction model; leave --stribeck-velocity out",
+                status="no_torque_channel",
+            )
         out = out.replace(
             dataclasses.replace(
                 c,
                 friction=tuple(f for f in FRICTION_MODELS if f in settings.friction),
                 coulomb_zone=_velocity(settings.coulomb_zone),
-                stribeck_velocity=_velocity(settings.stribeck_velocity),
-                identified=(),
                 asymmetric=bool(settings.asymmetric_friction),
                 armature=bool(settings.armature),
                 torque_offset=bool(settings.torque_offset),
@@ -139,8 +144,16 @@ def with_coupling(channels: ChannelSet, settings: SolveSettings, model) -> Chann
     out = channels
     for c in channels:
         if is_actuated(c):
+            if not _has_field(c, "coupling"):
+                raise IdentificationError(
+                    f"channel {c.key!r} reads no coupled transmission; leave --coupling out", status="unsupported"
+                )
             out = out.replace(dataclasses.replace(c, coupling=matrix, motors=motors))
     return out
+
+
+def _has_field(channel, name: str) -> bool:
+    return name in {f.name for f in dataclasses.fields(channel)}
 
 
 def _has_torque_constant(channel) -> bool:
