@@ -103,7 +103,7 @@ def _coupled(channel: JointTorque) -> dict:
 
 @pytest.fixture(scope="module")
 def wrist(model):
-    return _simulate_wrist(model, 300)
+    return _simulate_wrist(model, 200)
 
 
 def test_the_channel_reads_per_motor(model):
