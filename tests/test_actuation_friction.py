@@ -10,7 +10,7 @@ import pytest
 
 from ineid.channels import BaseWrench, ChannelSet, JointTorque, channel_from_dict
 from ineid.data import Combination, DatasetSpec, generate_dataset
-from ineid.errors import DatasetError
+from ineid.errors import DatasetError, IdentificationError
 from ineid.identify import SolveSettings, load_results, save_results, solve_dataset
 
 from .conftest import random_states
@@ -68,6 +68,16 @@ def test_records_and_bad_values():
         SolveSettings(friction=("stribeck",))
     with pytest.raises(ValueError, match="stribeck_velocity must be >= 0 rad/s or 'identify'"):
         SolveSettings(friction=("stribeck",), stribeck_velocity="fast")
+    with pytest.raises(ValueError, match="coulomb_zone smooths Coulomb friction"):
+        SolveSettings(friction=("viscous",), coulomb_zone="identify")
+
+
+def test_a_still_arm_has_no_friction_velocity(model):
+    ds, _ = _with_friction(model, JointTorque(), 30)
+    still = dataclasses.replace(ds, qd=np.zeros_like(ds.qd))
+    settings = SolveSettings(friction=("coulomb",), coulomb_zone="identify", backend=CASADI)
+    with pytest.raises(IdentificationError, match="the drives do not move .* coulomb_zone cannot be identified"):
+        solve_dataset(still, settings, model=model)
 
 
 def test_stribeck_velocity_identified_exactly_on_clean_torques(model, tmp_path):

@@ -36,6 +36,7 @@ import time
 import numpy as np
 
 from ineid.channels import ChannelSet
+from ineid.errors import IdentificationError
 from ineid.identify.choose import (
     is_actuated,
     noise_levels,
@@ -173,7 +174,14 @@ def search_1d(profile: Profile, values: dict, name: str, grid: np.ndarray) -> tu
 
 def search(profile: Profile, names: tuple[str, ...], values: dict) -> tuple[dict, dict]:
     """``(values, std)``: the velocities ``names`` found (module doc), the others at ``values``."""
-    grid = profile.speed() * np.geomspace(*GRID_RANGE, GRID_POINTS)
+    speed = profile.speed()
+    if not speed > 0:
+        raise IdentificationError(
+            f"the drives do not move in the frames fitted, so {' and '.join(names)} cannot be identified: "
+            "give them (rad/s)",
+            status="no_motion",
+        )
+    grid = speed * np.geomspace(*GRID_RANGE, GRID_POINTS)
     values = {**values, **{n: float(np.sqrt(grid[0] * grid[-1])) for n in names}}
     edges = {}
     estimated = profile.weights is None
