@@ -59,7 +59,7 @@ def test_records_and_bad_values():
     assert d["stribeck_velocity"] == VS and d["identified"] == {"stribeck_velocity": 0.01}
     assert channel_from_dict(d) == ch
     assert "Stribeck velocity 0.3 rad/s (identified, std 0.01)" in ch.describe()
-    assert "stribeck_velocity" not in JointTorque().to_dict()  # older records unchanged
+    assert "stribeck_velocity" not in JointTorque().to_dict()  # written only when set
     with pytest.raises(DatasetError, match="Stribeck friction needs a Stribeck velocity > 0"):
         JointTorque(friction=("stribeck",))
     with pytest.raises(DatasetError, match="identified names coulomb_zone or stribeck_velocity"):
