@@ -16,8 +16,12 @@ rounds of coordinate descent. ``W`` holds ``1 / sigma`` per axis: the noise give
 the residual RMS per axis at the first estimate, refined once at the minimum.
 
 The std is the profile likelihood's: ``S`` is ``-2 log L`` up to a constant, so ``cov(v) = 2 H^-1`` with
-``H`` the Hessian of ``S`` at the minimum (central differences, 0.1 % steps); it assumes independent frames
-(as the linear fit's std does) and is conditional on nothing else: the other parameters are profiled out.
+``H`` the Hessian of ``S`` at the minimum (central differences, 1 % steps); it assumes independent frames
+(as the linear fit's std does) and is conditional on nothing else: the other parameters are profiled out. The
+other parameters' std are those of the fit at the velocities found (conditional on them). On 20 simulated
+torque sets each (``tests/test_actuation_friction.py``'s, 300 frames, 0.02 N*m noise) the RMS error/std is 1.19
+for the zone and 1.10 for the Stribeck velocity (which comes out low by 0.7 std on average), 0.98 and 1.08 for
+the friction coefficients.
 A minimum at the grid's edge (a zone below its range is a sign; a Stribeck velocity above it, a Coulomb
 level) is reported with an infinite std. The solve then runs at the velocities found, by the chosen method;
 the channels' records carry the values and their std (``identified``).
