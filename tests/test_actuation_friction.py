@@ -157,6 +157,10 @@ def test_cli_friction_options(run, tmp_path, model):
         tmp_path / "r.h5",
     )
     assert r.exit_code == 0, r.output
+    r = run("identifiability", "sweaty-arm", "--use", "torque", "--friction", "coulomb", "--coulomb-zone", "identify")
+    assert r.exit_code != 0 and "--coulomb-zone identify is found by the solve of one dataset" in r.output, r.output
+    r = run("solve", path, path, "--friction", "coulomb", "--coulomb-zone", "identify", "--out", tmp_path / "j.h5")
+    assert r.exit_code != 0 and "here give it in rad/s" in r.output and "Traceback" not in r.output, r.output
     info = run("results", "info", tmp_path / "r.h5").output
     found = load_results(tmp_path / "r.h5").meta["channels"][0]
     assert f'"stribeck_velocity": {found["stribeck_velocity"]!r}' in info and found["identified"], info

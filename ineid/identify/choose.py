@@ -108,7 +108,7 @@ def with_actuation(channels: ChannelSet, settings: SolveSettings) -> ChannelSet:
     for c in actuated:
         k = {"identify_k": bool(settings.torque_constant_unknown)} if _has_torque_constant(c) else {}
         if _has_field(c, "stribeck_velocity"):
-            k.update(stribeck_velocity=_velocity(settings.stribeck_velocity), identified=())
+            k.update(stribeck_velocity=_velocity(settings.stribeck_velocity, "stribeck_velocity"), identified=())
         elif settings.stribeck_velocity:
             raise IdentificationError(
                 f"channel {c.key!r} has no Stribeck friction model; leave --stribeck-velocity out",
@@ -118,7 +118,7 @@ def with_actuation(channels: ChannelSet, settings: SolveSettings) -> ChannelSet:
             dataclasses.replace(
                 c,
                 friction=tuple(f for f in FRICTION_MODELS if f in settings.friction),
-                coulomb_zone=_velocity(settings.coulomb_zone),
+                coulomb_zone=_velocity(settings.coulomb_zone, "coulomb_zone"),
                 asymmetric=bool(settings.asymmetric_friction),
                 armature=bool(settings.armature),
                 torque_offset=bool(settings.torque_offset),
@@ -128,9 +128,19 @@ def with_actuation(channels: ChannelSet, settings: SolveSettings) -> ChannelSet:
     return out
 
 
-def _velocity(value) -> float:
-    """A friction velocity of the settings as the channel takes it (one to be identified: 1 rad/s until it is)."""
-    return 1.0 if value == IDENTIFY else float(value)
+def _velocity(value, name: str) -> float:
+    """A friction velocity of the settings as the channel takes it.
+
+    Raises:
+        IdentificationError: ``"identify"``: the search of :mod:`ineid.identify.friction_search` sets it before
+            the channels are chosen, for one dataset; anywhere else (an analysis, several recordings) it is given.
+    """
+    if value == IDENTIFY:
+        option = "--" + name.replace("_", "-")
+        raise IdentificationError(
+            f"{option} identify is found by the solve of one dataset; here give it in rad/s", status="unsupported"
+        )
+    return float(value)
 
 
 def with_coupling(channels: ChannelSet, settings: SolveSettings, model) -> ChannelSet:
