@@ -222,3 +222,52 @@ def test_cli_coupling(run, tmp_path, model):
     assert res.meta["channels"][0]["motors"] == list(MOTORS) and "m1.fv" in res.param_names
     r = run("solve", path, "--coupling", tmp_path / "none.json", "--out", tmp_path / "bad.h5")
     assert r.exit_code != 0 and "cannot be read" in r.output and "Traceback" not in r.output, r.output
+
+
+def test_import_per_motor_torques(run, tmp_path, model):
+    """``data import --coupling``: a CSV's tau1..tau4 are the motors' (in the coupling's order); the dataset's channel
+    carries the coupling, and a solve of it reads per motor without being told again."""
+    t = np.arange(0, 3.0, 1e-3)
+    f = np.array([0.3, 0.5, 0.7, 0.4])
+    q = 0.5 * np.sin(2 * np.pi * f * t[:, None])
+    tau = np.cos(2 * np.pi * f * t[:, None])
+    header = "time," + ",".join(f"q{i}" for i in range(1, 5)) + "," + ",".join(f"tau{i}" for i in range(1, 5))
+    rows = np.column_stack([t, q, tau])
+    (tmp_path / "arm.csv").write_text(header + "\n" + "\n".join(",".join(repr(float(v)) for v in r) for r in rows))
+    (tmp_path / "c.json").write_text(
+        json.dumps({"joints": list(model.joint_names), "motors": list(MOTORS), "matrix": TENDONS.tolist()})
+    )
+    out = tmp_path / "arm.h5"
+    r = run(
+        "-q",
+        "data",
+        "import",
+        tmp_path / "arm.csv",
+        "--robot",
+        "sweaty-arm",
+        "--coupling",
+        tmp_path / "c.json",
+        "--out",
+        out,
+    )
+    assert r.exit_code == 0, r.output
+    from ineid.data import load_dataset
+    from ineid.identify import load_results
+
+    channel = load_dataset(out).meta.channels["tau"]
+    assert channel.motors == MOTORS and np.allclose(channel.coupling, TENDONS)
+    r = run("solve", out, "--friction", "viscous", "--backend", "casadi", "--out", tmp_path / "r.h5")
+    assert r.exit_code == 0, r.output
+    assert load_results(tmp_path / "r.h5").param_names[-4:] == tuple(f"{m}.fv" for m in MOTORS)
+    r = run(
+        "data",
+        "import",
+        tmp_path / "arm.csv",
+        "--robot",
+        "sweaty-arm",
+        "--coupling",
+        tmp_path / "c.txt",
+        "--out",
+        tmp_path / "bad.h5",
+    )
+    assert r.exit_code != 0 and "c.txt: cannot be read" in r.output and not (tmp_path / "bad.h5").exists()

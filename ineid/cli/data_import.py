@@ -122,6 +122,14 @@ def _delay(ctx, param, value: str) -> float | None:
 )
 @torque_constant_option
 @gear_ratio_option
+@click.option(
+    "--coupling",
+    default=None,
+    metavar="FILE",
+    type=click.Path(dir_okay=False),
+    help="The torques or currents are per motor of a coupled transmission (JSON, CSV or a URDF's "
+    "<transmission>s; tau1..taun in the motors' order): stored with the channel (docs/identification.md).",
+)
 @imu_import
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The .h5 file to write.")
 @overwrite_option
@@ -144,6 +152,7 @@ def data_import(
     moment_unit,
     torque_constant,
     gear_ratio,
+    coupling,
     imus,
     imu_topics,
     imu_delay,
@@ -178,6 +187,7 @@ def data_import(
         moment_unit=moment_unit,
         torque_constant=torque_constant,
         gear_ratio=gear_ratio,
+        coupling=None if coupling is None else str(coupling),
         imus=tuple(imus),
         imu_delay=imu_delay,
         imu_noise=imu_noise,
