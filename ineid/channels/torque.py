@@ -15,11 +15,20 @@ prismatic joint). ``c(qd) = sign(qd)``, or ``tanh(qd / zone)`` with a smooth zon
 Coulomb model that does not jump at rest, where the sign of a measured velocity is noise).
 With ``asymmetric``, viscous and Coulomb friction take one coefficient per direction:
 ``fv+ max(qd, 0) + fv- min(qd, 0)`` and ``fc+ [qd > 0] - fc- [qd < 0]`` (smooth: the positive
-and negative parts of ``tanh``), all four positive for a passive drive.
+and negative parts of ``tanh``), all four positive for a passive drive. With ``"stribeck"`` friction a
+Stribeck term ``fs_j exp(-(qd_j / vs)^2) c(qd_j)`` (``<joint>.fs``, N*m: the static friction's excess
+over ``fc``) at the Stribeck velocity ``vs`` (``stribeck_velocity``, rad/s); the columns and their forms are
+:mod:`ineid.channels.friction`'s, and :mod:`ineid.identify.friction_search` finds ``zone`` and ``vs`` when they
+are not given (``identified`` records their std).
+
+With a coupled transmission (``coupling``, :mod:`ineid.channels.transmission`: ``qd_joint = C qd_motor``)
+the channel reads one torque per motor, ``tau_motor = C^T tau_joint + E(C^-1 qd, C^-1 qdd) x``: ``T = C^T``,
+its axes are the motors and the actuation coefficients are the motors' (``<motor>.fv``, ...).
 
 :class:`MotorCurrent` is the same model read through the drive: ``i_j = tau_j / (k_j G_j)``
 with the torque constant ``k_j`` (N*m/A, motor side) and gear ratio ``G_j`` given, so its
-``T = diag(1 / (k G))`` and the actuation coefficients keep their joint-side units. With
+``T = diag(1 / (k G))`` (``diag(1 / (k G)) C^T`` with a coupling, ``k`` and ``G`` then per motor) and the
+actuation coefficients keep their joint-side units. With
 ``identify_k`` the torque constants are identified as well (``<joint>.k``, N*m/A, around the given
 ones), in the second of two steps (:mod:`ineid.identify.two_step`).
 
@@ -30,7 +39,6 @@ References:
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -38,50 +46,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.channels.base import Channel, register
+from ineid.channels.friction import (
+    EXTRA_UNITS,
+    FRICTION_TERMS,
+    actuation_column,
+    actuation_terms,
+    drive_columns,
+    extra_unit,
+    jax_extra,
+)
+from ineid.channels.transmission import check_coupling
 from ineid.errors import DatasetError
 
-FRICTION_TERMS = ("viscous", "coulomb")
-"""The friction models a joint-torque channel knows, in the order of their columns."""
-EXTRA_UNITS = {"fv": "N*m*s/rad", "fc": "N*m", "offset": "N*m", "Ia": "kg*m^2", "k": "N*m/A"}
-"""The units of each actuation coefficient of a revolute joint (:func:`extra_unit`)."""
-_PRISMATIC_UNITS = {"fv": "N*s/m", "fc": "N", "offset": "N", "Ia": "kg", "k": "N/A"}
-
-
-def extra_unit(name: str, joint_type: str = "revolute") -> str:
-    """The unit of an actuation coefficient named ``<joint>.<term>`` (``fv``, ``fv+``, ``fc-``, ``Ia``, ...)."""
-    term = name.rsplit(".", 1)[-1].rstrip("+-")
-    return (_PRISMATIC_UNITS if joint_type == "prismatic" else EXTRA_UNITS)[term]
-
-
-def _terms(friction: tuple[str, ...], asymmetric: bool, torque_offset: bool, armature: bool) -> tuple[str, ...]:
-    """The column terms of one joint, in order."""
-    out: list[str] = []
-    for kind, short in (("viscous", "fv"), ("coulomb", "fc")):
-        if kind in friction:
-            out += [f"{short}+", f"{short}-"] if asymmetric else [short]
-    if torque_offset:
-        out.append("offset")
-    if armature:
-        out.append("Ia")
-    return tuple(out)
-
-
-def _column(xp, term: str, qd, qdd, zone: float):
-    """One actuation column of one joint from its velocity and acceleration (NumPy, jax.numpy or CasADi)."""
-    if term == "fv":
-        return qd
-    if term == "offset":
-        return xp.ones_like(qd) if hasattr(xp, "ones_like") else 1
-    if term == "Ia":
-        return qdd
-    coulomb = xp.tanh(qd / zone) if zone > 0 else xp.sign(qd)
-    base = qd if term.startswith("fv") else coulomb
-    if term == "fc":
-        return coulomb
-    positive = term.endswith("+")
-    if hasattr(xp, "maximum"):
-        return xp.maximum(base, 0) if positive else xp.minimum(base, 0)
-    return xp.fmax(base, 0) if positive else xp.fmin(base, 0)
+__all__ = ["EXTRA_UNITS", "FRICTION_TERMS", "JointTorque", "MotorCurrent", "extra_unit"]
 
 
 @register
@@ -93,22 +70,44 @@ class JointTorque(Channel):
         key: where its values are stored (default ``"tau"``), (C, F, n_dof), N*m or N.
         friction: the friction terms identified, any of :data:`FRICTION_TERMS` (in that order).
         coulomb_zone: rad/s (m/s): 0 gives ``sign(qd)``; above 0, ``tanh(qd / zone)``.
+        stribeck_velocity: ``vs`` of the Stribeck term ``fs exp(-(qd / vs)^2) c(qd)``, rad/s (> 0 with
+            ``"stribeck"`` friction).
+        identified: ``(name, std)`` of the nonlinear friction velocities (``"coulomb_zone"``,
+            ``"stribeck_velocity"``) found by :mod:`ineid.identify.friction_search`, with their std (rad/s).
         asymmetric: one viscous and one Coulomb coefficient per direction of motion.
         armature: the rotor inertia ``<joint>.Ia`` (times ``qdd``) is identified.
         torque_offset: a constant ``<joint>.offset`` per joint is identified (a column of ones; unlike
             ``offsets``, which removes constants by centring, it is reported with its std).
+        coupling: ``C`` (joints x motors, :mod:`ineid.channels.transmission`): the channel reads per motor,
+            ``tau_motor = C^T tau_joint`` plus the actuation terms at the motors' velocities ``C^-1 qd``;
+            empty: one drive per joint.
+        motors: the motors' names (the axes with a coupling), in the order of ``coupling``'s columns.
         offsets: per-axis constants removed by centring (as for a wrench), named ``<key>.<joint>.offset``.
     """
 
     key: str = "tau"
     friction: tuple[str, ...] = ()
     coulomb_zone: float = 0.0
+    stribeck_velocity: float = 0.0
+    identified: tuple[tuple[str, float], ...] = ()
     asymmetric: bool = False
     armature: bool = False
     torque_offset: bool = False
+    coupling: tuple[tuple[float, ...], ...] = ()
+    motors: tuple[str, ...] = ()
 
     kind = "joint_torque"
-    RECORD_FIELDS = ("friction", "coulomb_zone", "asymmetric", "armature", "torque_offset")
+    RECORD_FIELDS = (
+        "friction",
+        "coulomb_zone",
+        "asymmetric",
+        "armature",
+        "torque_offset",
+        "stribeck_velocity",
+        "identified",
+        "coupling",
+        "motors",
+    )
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -123,45 +122,103 @@ class JointTorque(Channel):
                 f"{', '.join(FRICTION_TERMS)}, got {self.friction!r}"
             )
         object.__setattr__(self, "friction", tuple(f for f in FRICTION_TERMS if f in friction))
-        zone = self.coulomb_zone
-        if isinstance(zone, bool) or not isinstance(zone, (int, float)) or not math.isfinite(zone) or zone < 0:
+        for name, what in (("coulomb_zone", "the Coulomb zone"), ("stribeck_velocity", "the Stribeck velocity")):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise DatasetError(
+                    f"joint-torque channel {self.key!r}: {what} must be a finite number >= 0 "
+                    f"(rad/s; 0 for sign(qd)), got {v!r}"
+                )
+            object.__setattr__(self, name, float(v))
+        if ("stribeck" in self.friction) != (self.stribeck_velocity > 0):
             raise DatasetError(
-                f"joint-torque channel {self.key!r}: the Coulomb zone must be a finite number >= 0 "
-                f"(rad/s; 0 for sign(qd)), got {zone!r}"
+                f"joint-torque channel {self.key!r}: Stribeck friction needs a Stribeck velocity > 0 rad/s, "
+                f"and the velocity goes with it (friction {', '.join(self.friction) or 'none'}, "
+                f"velocity {self.stribeck_velocity:g})"
             )
-        object.__setattr__(self, "coulomb_zone", float(zone))
+        self._check_identified()
         for name in ("asymmetric", "armature", "torque_offset"):
             if not isinstance(getattr(self, name), bool):
                 raise DatasetError(
                     f"joint-torque channel {self.key!r}: {name} must be true or false, got {getattr(self, name)!r}"
                 )
+        if self.coupling or self.motors:
+            c, m = check_coupling(self.coupling, self.motors, f"joint-torque channel {self.key!r}")
+            object.__setattr__(self, "coupling", c)
+            object.__setattr__(self, "motors", m)
+
+    def _check_identified(self) -> None:
+        try:
+            pairs = tuple((str(n), float(s)) for n, s in dict(self.identified).items())
+        except (TypeError, ValueError):
+            raise DatasetError(
+                f"joint-torque channel {self.key!r}: identified must map coulomb_zone or stribeck_velocity "
+                f"to a std, got {self.identified!r}"
+            ) from None
+        if any(n not in ("coulomb_zone", "stribeck_velocity") for n, _ in pairs):
+            raise DatasetError(
+                f"joint-torque channel {self.key!r}: identified names coulomb_zone or stribeck_velocity, "
+                f"got {', '.join(n for n, _ in pairs)}"
+            )
+        object.__setattr__(self, "identified", pairs)
 
     # -- what it measures ------------------------------------------------------------------
     def axes(self, model) -> tuple[str, ...]:
+        if self.coupling:
+            self._check_joints_coupled(model)
+            return self.motors
         return tuple(model.joint_names)
 
     def units(self, model) -> tuple[str, ...]:
-        return tuple("N" if t == "prismatic" else "N*m" for t in _joint_types(model))
+        return tuple("N" if t == "prismatic" else "N*m" for t in self._drive_types(model))
+
+    def _drive_types(self, model) -> tuple[str, ...]:
+        """Each drive's joint type (a coupled transmission's motors: revolute)."""
+        return ("revolute",) * len(self.motors) if self.coupling else _joint_types(model)
+
+    def _check_joints_coupled(self, model) -> None:
+        if len(self.coupling) != model.n_dof:
+            raise DatasetError(
+                f"joint-torque channel {self.key!r}: the coupling has {len(self.coupling)} joints' rows and the "
+                f"model {model.n_dof} joints ({', '.join(model.joint_names)}); give one row per joint"
+            )
+
+    def _velocity(self, name: str, label: str) -> str:
+        std = dict(self.identified).get(name)
+        value = getattr(self, name)
+        return f"{label} {value:.4g} rad/s" + ("" if std is None else f" (identified, std {std:.2g})")
 
     def describe(self) -> str:
         parts = []
         if self.friction:
-            zone = (
-                f", smooth zone {self.coulomb_zone:g} rad/s" if self.coulomb_zone and "coulomb" in self.friction else ""
-            )
+            smooth = self.coulomb_zone and ({"coulomb", "stribeck"} & set(self.friction))
+            zone = f", {self._velocity('coulomb_zone', 'smooth zone')}" if smooth else ""
+            if "stribeck" in self.friction:
+                zone += f", {self._velocity('stribeck_velocity', 'Stribeck velocity')}"
             parts.append(("asymmetric " if self.asymmetric else "") + " + ".join(self.friction) + " friction" + zone)
         if self.armature:
             parts.append("armature")
         if self.torque_offset:
             parts.append("torque offsets")
+        if self.coupling:
+            parts.append(f"per motor ({', '.join(self.motors)}) through a coupled transmission")
         if self.offsets:
             parts.append("offsets removed by centring")
         return f"joint torques '{self.key}'" + (f" ({'; '.join(parts)})" if parts else "")
 
     @property
     def terms(self) -> tuple[str, ...]:
-        """The actuation columns of each joint, in order (``"fv"``, ``"fc"``, ``"offset"``, ``"Ia"``, ...)."""
-        return _terms(self.friction, self.asymmetric, self.torque_offset, self.armature)
+        """The actuation columns of each drive, in order (``"fv"``, ``"fc"``, ``"fs"``, ``"offset"``, ``"Ia"``)."""
+        return actuation_terms(self.friction, self.asymmetric, self.torque_offset, self.armature)
+
+    def coupling_matrix(self) -> np.ndarray | None:
+        """``C`` (joints x motors), or None without a coupled transmission."""
+        return np.asarray(self.coupling, dtype=np.float64) if self.coupling else None
+
+    def drive_matrix(self) -> np.ndarray | None:
+        """``C^-1``: the joints' velocities into the motors' (None: the drives are the joints)."""
+        c = self.coupling_matrix()
+        return None if c is None else np.linalg.inv(c)
 
     def with_actuation(
         self,
@@ -170,6 +227,7 @@ class JointTorque(Channel):
         asymmetric: bool = False,
         armature: bool = False,
         torque_offset: bool = False,
+        stribeck_velocity: float = 0.0,
     ) -> JointTorque:
         """The same measurement identified with another actuation model."""
         from dataclasses import replace
@@ -178,6 +236,8 @@ class JointTorque(Channel):
             self,
             friction=tuple(friction),
             coulomb_zone=coulomb_zone,
+            stribeck_velocity=stribeck_velocity,
+            identified=(),
             asymmetric=asymmetric,
             armature=armature,
             torque_offset=torque_offset,
@@ -200,6 +260,11 @@ class JointTorque(Channel):
         """The composed torques (inverse dynamics, O(n), never forming ``Y_tau``)."""
         return model.jax_joint_torques
 
+    def transform(self) -> np.ndarray | None:
+        """``C^T`` with a coupled transmission (joint torques into motor torques), else None (the identity)."""
+        c = self.coupling_matrix()
+        return None if c is None else c.T
+
     def rows(self, model, q, qd, qdd) -> np.ndarray:
         rows = model.joint_torque_regressor(q, qd, qdd)
         t = self.transform()
@@ -212,20 +277,36 @@ class JointTorque(Channel):
 
     # -- the actuation model: extra kept columns --------------------------------------------
     def extra_names(self, model) -> tuple[str, ...]:
-        return tuple(f"{joint}.{term}" for joint in model.joint_names for term in self.terms)
+        return tuple(f"{drive}.{term}" for drive in self.axes(model) for term in self.terms)
 
     def extra_units(self, model) -> tuple[str, ...]:
         """The unit of each extra column's coefficient (:func:`extra_unit`)."""
-        return tuple(extra_unit(term, t) for t in _joint_types(model) for term in self.terms)
+        return tuple(extra_unit(term, t) for t in self._drive_types(model) for term in self.terms)
 
     def _extra_scale(self) -> np.ndarray | None:
-        """Per axis, the factor the reading applies to a joint-side torque (None: 1)."""
+        """Per axis, the factor the reading applies to a drive's torque (None: 1)."""
         return None
 
     def extra_rows_function(self, model):
         if not self.terms:
             return None
-        return _jax_extra(self.terms, self.coulomb_zone, model.n_dof, _tuple_or_none(self._extra_scale()))
+        drives = self.drive_matrix()
+        return jax_extra(
+            self.terms,
+            self.coulomb_zone,
+            self.stribeck_velocity,
+            model.n_dof,
+            _tuple_or_none(self._extra_scale()),
+            None if drives is None else tuple(map(tuple, drives.tolist())),
+        )
+
+    def numpy_extra_rows(self, model, qd, qdd) -> np.ndarray:
+        """``E`` (..., n_a, n_e) in NumPy from the joints' ``qd``, ``qdd`` (no compilation: the friction search
+        evaluates it at many velocities, :mod:`ineid.identify.friction_search`)."""
+        if not self.terms:
+            return np.zeros(np.shape(qd)[:-1] + (self.n_axes(model), 0))
+        args = (self.terms, self.coulomb_zone, self.stribeck_velocity, self._extra_scale(), self.drive_matrix())
+        return drive_columns(np, *args, np.asarray(qd, dtype=np.float64), np.asarray(qdd, dtype=np.float64))
 
     def casadi_extra_function(self, model):
         if not self.terms:
@@ -234,33 +315,44 @@ class JointTorque(Channel):
 
         n, terms = model.n_dof, self.terms
         q, qd, qdd = (ca.SX.sym(s, n) for s in ("q", "qd", "qdd"))
+        drives = self.drive_matrix()
+        vd, ad = (qd, qdd) if drives is None else (ca.DM(drives) @ qd, ca.DM(drives) @ qdd)
         e = ca.SX.zeros(n, n * len(terms))
         scale = self._extra_scale()
         for j in range(n):
             for k, term in enumerate(terms):
-                col = _column(ca, term, qd[j], qdd[j], self.coulomb_zone)
+                col = actuation_column(ca, term, vd[j], ad[j], self.coulomb_zone, self.stribeck_velocity)
                 e[j, j * len(terms) + k] = col if scale is None else scale[j] * col
         return ca.Function("actuation_rows", [q, qd, qdd], [e], ["q", "qd", "qdd"], ["E"])
 
     # -- record ---------------------------------------------------------------------------
     def _record(self) -> dict:
+        """The record; the Stribeck velocity, the identified velocities and the coupling only when set."""
         return {
             "friction": list(self.friction),
             "coulomb_zone": self.coulomb_zone,
             "asymmetric": self.asymmetric,
             "armature": self.armature,
             "torque_offset": self.torque_offset,
+            **({"stribeck_velocity": self.stribeck_velocity} if self.stribeck_velocity else {}),
+            **({"identified": dict(self.identified)} if self.identified else {}),
+            **({"coupling": [list(r) for r in self.coupling], "motors": list(self.motors)} if self.coupling else {}),
         }
 
     @classmethod
     def _parse_record(cls, d: Mapping, where: str) -> dict:
         out = {name: d[name] for name in cls.RECORD_FIELDS if name in d}
-        if "friction" in out:
-            if not isinstance(out["friction"], list):
+        for name in ("friction", "coupling", "motors"):
+            if name in out:
+                if not isinstance(out[name], list):
+                    raise DatasetError(f"{where}: the joint-torque channel's {name} must be a list, got {out[name]!r}")
+                out[name] = tuple(tuple(r) if isinstance(r, list) else r for r in out[name])
+        if "identified" in out:
+            if not isinstance(out["identified"], Mapping):
                 raise DatasetError(
-                    f"{where}: the joint-torque channel's friction must be a list, got {out['friction']!r}"
+                    f"{where}: the joint-torque channel's identified must be a record, got {out['identified']!r}"
                 )
-            out["friction"] = tuple(out["friction"])
+            out["identified"] = tuple(out["identified"].items())
         return out
 
 
@@ -326,7 +418,7 @@ class MotorCurrent(JointTorque):
 
     def k_names(self, model) -> tuple[str, ...]:
         """The names of the identified torque constants, ``<joint>.k`` (none without ``identify_k``)."""
-        return tuple(f"{joint}.k" for joint in model.joint_names) if self.identify_k else ()
+        return tuple(f"{drive}.k" for drive in self.axes(model)) if self.identify_k else ()
 
     def _check_joints(self, model) -> None:
         if len(self.gear_ratio) != model.n_dof:
@@ -339,8 +431,10 @@ class MotorCurrent(JointTorque):
         return 1.0 / (np.asarray(self.torque_constant) * np.asarray(self.gear_ratio))
 
     def transform(self) -> np.ndarray:
-        """``diag(1 / (k G))``: joint torques into motor currents."""
-        return np.diag(self._extra_scale())
+        """``diag(1 / (k G))``: joint torques into motor currents (``diag(1 / (k G)) C^T`` with a coupling)."""
+        c = self.coupling_matrix()
+        scale = np.diag(self._extra_scale())
+        return scale if c is None else scale @ c.T
 
     def rows(self, model, q, qd, qdd) -> np.ndarray:
         self._check_joints(model)
@@ -362,22 +456,3 @@ def _joint_types(model) -> tuple[str, ...]:
 
 def _tuple_or_none(x):
     return None if x is None else tuple(float(v) for v in x)
-
-
-@functools.cache
-def _jax_extra(terms: tuple[str, ...], zone: float, n_dof: int, scale: tuple | None):
-    """``E(q, qd, qdd)`` (..., n_dof, n_dof * len(terms)), jit-safe: row ``j`` holds joint ``j``'s columns."""
-    import jax.numpy as jnp
-
-    def extra(q, qd, qdd):
-        batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1])
-        qd, qdd = jnp.broadcast_to(qd, batch + (n_dof,)), jnp.broadcast_to(qdd, batch + (n_dof,))
-        cols = jnp.stack(
-            [jnp.broadcast_to(_column(jnp, t, qd, qdd, zone), batch + (n_dof,)) for t in terms], -1
-        )  # (..., n_dof, n_terms)
-        if scale is not None:
-            cols = cols * jnp.asarray(scale, dtype=cols.dtype)[:, None]
-        eye = jnp.eye(n_dof, dtype=cols.dtype)
-        return (eye[:, :, None] * cols[..., :, None, :]).reshape(batch + (n_dof, n_dof * len(terms)))
-
-    return extra

@@ -5,8 +5,11 @@ Shared by ``ineid solve`` and ``ineid identifiability`` (defined once, here):
 =========================  ================================================================
 ``--use NAMES``            the channels fitted, comma-separated: ``wrench``, ``torque`` (or a
                            channel's key, ``tau``); default every channel the file has
-``--friction MODEL``       ``none``, ``viscous``, ``coulomb`` or ``viscous,coulomb``
-``--coulomb-zone RAD/S``   smooth Coulomb friction: ``tanh(qd / zone)`` instead of ``sign(qd)``
+``--friction MODEL``       ``none``, or any of ``viscous``, ``coulomb``, ``stribeck`` (comma-separated)
+``--coulomb-zone RAD/S``   smooth Coulomb friction: ``tanh(qd / zone)`` instead of ``sign(qd)``;
+                           ``identify``: the zone found by a 1-D search, with its std
+``--stribeck-velocity V``  ``vs`` of the Stribeck term ``fs exp(-(qd / vs)^2) c(qd)`` (rad/s), or
+                           ``identify``
 ``--asymmetric-friction``  one friction coefficient per direction of motion
 ``--armature``             rotor inertia ``Ia qdd`` per joint
 ``--torque-offset``        a constant torque per joint, identified with its std
@@ -14,6 +17,8 @@ Shared by ``ineid solve`` and ``ineid identifiability`` (defined once, here):
                            joint torques' residual (FloBaRoID)
 ``--torque-constant-unknown``  (``solve``, with ``--two-step``) the motor currents' torque
                            constants identified in step 2 (``<joint>.k``)
+``--coupling FILE``        (``solve``) a coupled transmission (JSON, CSV or URDF
+                           ``<transmission>``s): the torques or currents are per motor
 =========================  ================================================================
 
 They map onto :class:`ineid.identify.solve.SolveSettings` (``use``, ``friction``, ...), which
@@ -26,7 +31,8 @@ from collections.abc import Callable
 
 import click
 
-FRICTION_CHOICES = ("none", "viscous", "coulomb", "viscous,coulomb")
+FRICTION_CHOICES = ("none", "viscous", "coulomb", "stribeck")
+"""``--friction`` takes ``none`` or any of the others, comma-separated (``viscous,coulomb,stribeck``)."""
 
 
 def _names(ctx, param, value: str | None) -> tuple[str, ...] | None:
@@ -42,9 +48,25 @@ def _friction(ctx, param, value: str) -> tuple[str, ...]:
     terms = tuple(v.strip() for v in value.split(",") if v.strip())
     if terms in ((), ("none",)):
         return ()
-    if set(terms) - {"viscous", "coulomb"} or len(set(terms)) != len(terms):
-        raise click.BadParameter(f"{value!r} is not one of {', '.join(FRICTION_CHOICES)}", param_hint="'--friction'")
-    return tuple(t for t in ("viscous", "coulomb") if t in terms)
+    known = FRICTION_CHOICES[1:]
+    if set(terms) - set(known) or len(set(terms)) != len(terms):
+        raise click.BadParameter(
+            f"{value!r} is not none nor any of {', '.join(known)} (comma-separated)", param_hint="'--friction'"
+        )
+    return tuple(t for t in known if t in terms)
+
+
+def _velocity(ctx, param, value: str) -> float | str:
+    """A friction velocity: a number >= 0 (rad/s) or ``identify``."""
+    if value.strip().lower() == "identify":
+        return "identify"
+    try:
+        v = float(value)
+    except ValueError:
+        v = -1.0
+    if not (v >= 0 and v < float("inf")):
+        raise click.BadParameter(f"{value!r} is neither a velocity >= 0 (rad/s) nor 'identify'")
+    return v
 
 
 def channel_options(two_step: bool = False) -> Callable:
@@ -66,6 +88,16 @@ def channel_options(two_step: bool = False) -> Callable:
                 help="Identify the motor currents' torque constants (<joint>.k, around the channel's "
                 "nominal ones) in step 2 of --two-step.",
             )(f)
+            f = click.option(
+                "--coupling",
+                "coupling",
+                default=None,
+                metavar="FILE",
+                type=click.Path(dir_okay=False),
+                help="A coupled transmission, qd_joint = C qd_motor (JSON {joints, motors, matrix}, CSV "
+                "joint,<motor>,..., or a URDF's <transmission>s): the torques or currents are read per motor, "
+                "tau_motor = C^T tau_joint, friction on the motors' velocities (<motor>.fv, ...).",
+            )(f)
         for option in reversed(
             (
                 click.option(
@@ -84,16 +116,26 @@ def channel_options(two_step: bool = False) -> Callable:
                     show_default=True,
                     metavar="MODEL",
                     callback=_friction,
-                    help="Joint friction of the joint torques: none, viscous, coulomb or viscous,coulomb "
-                    "(<joint>.fv, <joint>.fc identified with the links).",
+                    help="Joint friction of the joint torques: none, or any of viscous, coulomb, stribeck, "
+                    "comma-separated (<joint>.fv, <joint>.fc, <joint>.fs identified with the links).",
                 ),
                 click.option(
                     "--coulomb-zone",
                     "coulomb_zone",
-                    type=click.FloatRange(min=0),
-                    default=0.0,
-                    metavar="RAD_PER_S",
-                    help="Smooth Coulomb friction: tanh(qd / zone) instead of sign(qd) (0: sign).",
+                    default="0",
+                    callback=_velocity,
+                    metavar="RAD_PER_S|identify",
+                    help="Smooth Coulomb friction: tanh(qd / zone) instead of sign(qd) (0: sign); identify: the "
+                    "zone minimising the residual (a 1-D search, its std from the residual's curvature).",
+                ),
+                click.option(
+                    "--stribeck-velocity",
+                    "stribeck_velocity",
+                    default="0",
+                    callback=_velocity,
+                    metavar="RAD_PER_S|identify",
+                    help="The Stribeck velocity vs of --friction ...,stribeck: fs exp(-(qd/vs)^2) c(qd), c the "
+                    "Coulomb sign or tanh; identify: found like the zone.",
                 ),
                 click.option(
                     "--asymmetric-friction",
@@ -122,11 +164,13 @@ def settings_flags(flags: dict) -> dict:
         "use",
         "friction",
         "coulomb_zone",
+        "stribeck_velocity",
         "asymmetric_friction",
         "armature",
         "torque_offset",
         "two_step",
         "torque_constant_unknown",
+        "coupling",
     )
     return {k: flags[k] for k in keys if k in flags}
 

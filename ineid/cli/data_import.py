@@ -135,6 +135,14 @@ def _delay(ctx, param, value: str) -> float | None:
 )
 @torque_constant_option
 @gear_ratio_option
+@click.option(
+    "--coupling",
+    default=None,
+    metavar="FILE",
+    type=click.Path(dir_okay=False),
+    help="The torques or currents are per motor of a coupled transmission (JSON, CSV or a URDF's "
+    "<transmission>s; tau1..taun in the motors' order): stored with the channel (docs/identification.md).",
+)
 @imu_import
 @click.option(
     "--out",
@@ -165,6 +173,7 @@ def data_import(
     moment_unit,
     torque_constant,
     gear_ratio,
+    coupling,
     imus,
     imu_topics,
     imu_delay,
@@ -207,6 +216,7 @@ def data_import(
         moment_unit=moment_unit,
         torque_constant=torque_constant,
         gear_ratio=gear_ratio,
+        coupling=None if coupling is None else str(coupling),
         imus=tuple(imus),
         imu_delay=imu_delay,
         imu_noise=imu_noise,

@@ -11,7 +11,8 @@ with every actuation model off. Identification chooses:
   record has the fields ``friction``, ``armature`` and ``torque_offset``, the
   ``JointTorque`` contract): ``friction`` (``"viscous"``, ``"coulomb"``), ``coulomb_zone``
   (rad/s: 0 for ``sign(qd)``, else ``tanh(qd / zone)``), ``asymmetric`` friction,
-  ``armature`` and ``torque_offset``, each set by ``dataclasses.replace`` on the channel, so
+  ``stribeck_velocity``, ``armature`` and ``torque_offset``, and a coupled transmission (``coupling``, a file
+  read against the model's joints, :func:`with_coupling`), each set by ``dataclasses.replace`` on the channel, so
   its extra kept columns (``<joint>.fv``, ...) are identified with the links' parameters
   (:mod:`ineid.identify.extras`).
 
@@ -34,7 +35,7 @@ import numpy as np
 from ineid.channels import BaseWrench, ChannelSet, LinkWrench
 from ineid.channels.link_wrench import refuse_nothing_beyond
 from ineid.errors import IdentificationError
-from ineid.identify.settings import FRICTION_MODELS, SolveSettings
+from ineid.identify.settings import FRICTION_MODELS, IDENTIFY, SolveSettings
 
 ACTUATION_FIELDS = ("friction", "armature", "torque_offset")
 """The record fields that make a channel a joint-torque channel whose actuation can be modelled."""
@@ -106,11 +107,18 @@ def with_actuation(channels: ChannelSet, settings: SolveSettings) -> ChannelSet:
     out = channels
     for c in actuated:
         k = {"identify_k": bool(settings.torque_constant_unknown)} if _has_torque_constant(c) else {}
+        if _has_field(c, "stribeck_velocity"):
+            k.update(stribeck_velocity=_velocity(settings.stribeck_velocity, "stribeck_velocity"), identified=())
+        elif settings.stribeck_velocity:
+            raise IdentificationError(
+                f"channel {c.key!r} has no Stribeck friction model; leave --stribeck-velocity out",
+                status="no_torque_channel",
+            )
         out = out.replace(
             dataclasses.replace(
                 c,
                 friction=tuple(f for f in FRICTION_MODELS if f in settings.friction),
-                coulomb_zone=float(settings.coulomb_zone),
+                coulomb_zone=_velocity(settings.coulomb_zone, "coulomb_zone"),
                 asymmetric=bool(settings.asymmetric_friction),
                 armature=bool(settings.armature),
                 torque_offset=bool(settings.torque_offset),
@@ -118,6 +126,44 @@ def with_actuation(channels: ChannelSet, settings: SolveSettings) -> ChannelSet:
             )
         )
     return out
+
+
+def _velocity(value, name: str) -> float:
+    """A friction velocity of the settings as the channel takes it.
+
+    Raises:
+        IdentificationError: ``"identify"``: the search of :mod:`ineid.identify.friction_search` sets it before
+            the channels are chosen, for one dataset; anywhere else (an analysis, several recordings) it is given.
+    """
+    if value == IDENTIFY:
+        option = "--" + name.replace("_", "-")
+        raise IdentificationError(
+            f"{option} identify is found by the solve of one dataset; here give it in rad/s", status="unsupported"
+        )
+    return float(value)
+
+
+def with_coupling(channels: ChannelSet, settings: SolveSettings, model) -> ChannelSet:
+    """``channels`` with ``settings.coupling`` (a file, :func:`ineid.channels.transmission.read_coupling`) set on
+    each joint-torque channel; unchanged without one."""
+    if not settings.coupling:
+        return channels
+    from ineid.channels.transmission import read_coupling
+
+    matrix, motors = read_coupling(settings.coupling, model.joint_names)
+    out = channels
+    for c in channels:
+        if is_actuated(c):
+            if not _has_field(c, "coupling"):
+                raise IdentificationError(
+                    f"channel {c.key!r} reads no coupled transmission; leave --coupling out", status="unsupported"
+                )
+            out = out.replace(dataclasses.replace(c, coupling=matrix, motors=motors))
+    return out
+
+
+def _has_field(channel, name: str) -> bool:
+    return name in {f.name for f in dataclasses.fields(channel)}
 
 
 def _has_torque_constant(channel) -> bool:
@@ -135,7 +181,7 @@ def solve_channels(ds, settings: SolveSettings, model) -> ChannelSet:
         DatasetError: a wrist sensor with nothing the model moves beyond it (it reads zeros).
     """
     channels = with_actuation(select_channels(ds.meta.channels, settings.use), settings)
-    channels = channels.with_offsets(settings.estimates_offsets)
+    channels = with_coupling(channels, settings, model).with_offsets(settings.estimates_offsets)
     for channel in channels:
         if isinstance(channel, LinkWrench):
             refuse_nothing_beyond(model, channel.link)
@@ -284,10 +330,12 @@ def wrench_settings(ds, settings: SolveSettings, model) -> SolveSettings:
         two_step=False,
         friction=(),
         coulomb_zone=0.0,
+        stribeck_velocity=0.0,
         asymmetric_friction=False,
         armature=False,
         torque_offset=False,
         torque_constant_unknown=False,
+        coupling=None,
         axis_sigma=_axis_slice(settings.axis_sigma, channels, wrench, model),
     )
 

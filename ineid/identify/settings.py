@@ -38,8 +38,13 @@ route; linear method only); or the fused blocks through CasADi's C code, compile
 BIAS_MODES = ("none", "estimate")
 """The sensors' constant offsets (six for the base wrench): absent (a tared sensor), or identified with the
 parameters (every channel's, :meth:`ineid.channels.ChannelSet.with_offsets`)."""
-FRICTION_MODELS = ("viscous", "coulomb")
+FRICTION_MODELS = ("viscous", "coulomb", "stribeck")
 """The friction terms of a joint-torque channel, in the order its extra columns take them."""
+IDENTIFY = "identify"
+"""The value of ``coulomb_zone`` or ``stribeck_velocity`` that has it identified
+(:mod:`ineid.identify.friction_search`)."""
+FRICTION_VELOCITIES = ("coulomb_zone", "stribeck_velocity")
+"""The friction laws' nonlinear parameters (rad/s), given or identified."""
 HOLDOUT_FRACTION = 0.2
 """Without ``frames``, this share of each configuration's frames is held out for validation."""
 DEFAULT_PULL = 1e-2
@@ -90,6 +95,8 @@ class SolveSettings:
             ``("wrench", "torque")``; :mod:`ineid.identify.choose`); None: every channel it has.
         friction: the joint torques' friction model, any of ``"viscous"``, ``"coulomb"``;
             ``coulomb_zone`` (rad/s) smooths ``sign(qd)`` into ``tanh(qd / zone)``;
+            ``"stribeck"`` adds ``fs exp(-(qd / vs)^2) c(qd)`` at ``stribeck_velocity`` (rad/s);
+            either velocity ``"identify"``: found by a 1-D search (:mod:`ineid.identify.friction_search`);
             ``asymmetric_friction``: one coefficient per direction. ``armature``: rotor inertia
             ``Ia qdd``; ``torque_offset``: a constant torque per joint. Each adds extra kept
             columns to the joint-torque channels (``<joint>.fv``, ...), identified with the links'
@@ -100,6 +107,8 @@ class SolveSettings:
             links fixed; needs both channels.
         torque_constant_unknown: the motor-current channels' torque constants are identified too
             (``<joint>.k``, relative to their nominal values), in step 2 of ``two_step`` (needs it).
+        coupling: a coupling file (JSON, CSV or URDF, :mod:`ineid.channels.transmission`): the joint-torque
+            channels read per motor through it.
     """
 
     method: str = "linear"
@@ -116,13 +125,15 @@ class SolveSettings:
     known_uncertainty: tuple[tuple[str, float], ...] = ()
     use: tuple[str, ...] | None = None
     friction: tuple[str, ...] = ()
-    coulomb_zone: float = 0.0
+    coulomb_zone: float | str = 0.0
+    stribeck_velocity: float | str = 0.0
     asymmetric_friction: bool = False
     armature: bool = False
     torque_offset: bool = False
     two_step: bool = False
     torque_constant_unknown: bool = False
     bounds: float | None = None
+    coupling: str | None = None
 
     def __post_init__(self) -> None:
         self._check_choices()
@@ -180,10 +191,17 @@ class SolveSettings:
                 f"friction must be none or any of {', '.join(FRICTION_MODELS)} (each once), "
                 f"got {','.join(self.friction)}"
             )
-        if not self.coulomb_zone >= 0:
-            raise ValueError(f"coulomb_zone must be >= 0 rad/s, got {self.coulomb_zone}")
-        if self.coulomb_zone and "coulomb" not in self.friction:
+        for name in FRICTION_VELOCITIES:
+            v = getattr(self, name)
+            if v != IDENTIFY and not (isinstance(v, (int, float)) and v >= 0 and np.isfinite(v)):
+                raise ValueError(f"{name} must be >= 0 rad/s or {IDENTIFY!r}, got {v!r}")
+        if self.coulomb_zone and not {"coulomb", "stribeck"} & set(self.friction):
             raise ValueError("coulomb_zone smooths Coulomb friction: add friction 'coulomb' (--friction coulomb)")
+        if ("stribeck" in self.friction) != bool(self.stribeck_velocity):
+            raise ValueError(
+                "Stribeck friction needs its velocity, and the velocity goes with it: "
+                "--friction ...,stribeck with --stribeck-velocity RAD_PER_S (or identify)"
+            )
         if self.torque_constant_unknown and not self.two_step:
             raise ValueError(
                 "torque constants are identified in the second of two steps (the links from the wrench "
@@ -211,7 +229,13 @@ class SolveSettings:
             or self.asymmetric_friction
             or self.coulomb_zone
             or self.torque_constant_unknown
+            or self.coupling
         )
+
+    @property
+    def searched_velocities(self) -> tuple[str, ...]:
+        """The friction velocities to identify (:data:`FRICTION_VELOCITIES` set to ``"identify"``)."""
+        return tuple(n for n in FRICTION_VELOCITIES if getattr(self, n) == IDENTIFY)
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)

@@ -33,6 +33,7 @@ from ineid.cache import enable_compilation_cache
 from ineid.errors import IdentificationError
 from ineid.identify.choose import noise_levels, solve_channels, wrench_settings
 from ineid.identify.classical import lsqlin_method, lsqnonlin_method
+from ineid.identify.friction_search import solve_searched
 from ineid.identify.identifiability import base_parameters, frame_minimum
 from ineid.identify.linear import MethodEstimate, SharedFit, linear_method
 from ineid.identify.nlp_runs import (  # noqa: F401  (re-exported from here until ineid 0.3)
@@ -110,6 +111,8 @@ def solve_dataset(
     if estimator is None:  # a trained run as the solver (ineid.learn's, passed in)
         return _passed_method(settings.method, methods)(ds, settings, model, progress)
     model = model or ds.model()
+    if settings.searched_velocities:  # the friction's nonlinear velocities first (ineid.identify.friction_search)
+        return solve_searched(ds, settings, model, solve_dataset, progress, methods)
     t_start = time.perf_counter()
     if settings.two_step:  # the links from the wrench, then the torques' extras (ineid.identify.two_step)
         first = solve_dataset(ds, wrench_settings(ds, settings, model), model, progress, methods)

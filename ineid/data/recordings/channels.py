@@ -81,6 +81,13 @@ def rider_channels(riders, model=None, settings=None) -> list[Channel]:
                     gear_ratio=_per_joint(settings.gear_ratio, model, "gear ratios"),
                 )
             )
+    if out and getattr(settings, "coupling", None):
+        import dataclasses
+
+        from ineid.channels.transmission import read_coupling
+
+        matrix, motors = read_coupling(settings.coupling, model.joint_names)
+        out = [dataclasses.replace(c, coupling=matrix, motors=motors) for c in out]
     return out
 
 

@@ -47,6 +47,8 @@ class ImportSettings:
             (N*m/A at the motor) and ``G_j`` (motor turns per joint turn), one number for every
             joint or one per joint; the currents are stored as a ``motor_current`` channel
             (``i = tau / (k G)``).
+        coupling: a coupling file (:func:`ineid.channels.transmission.read_coupling`): the torques or currents
+            are per motor, in the coupling's order, and their channels carry it.
         imus: ``--imu`` texts, the mounts of the recording's link IMUs (:mod:`ineid.data.recordings.imus`);
             an IMU not given is placed by the link or URDF frame its name names.
         imu_delay: s, how late the IMU time stamps are against the joints'.
@@ -75,6 +77,7 @@ class ImportSettings:
     moment_unit: str = "Nm"
     torque_constant: tuple[float, ...] | None = None
     gear_ratio: tuple[float, ...] | None = None
+    coupling: str | None = None
     imus: tuple[str, ...] = ()
     imu_delay: float = 0.0
     imu_noise: dict | None = None
