@@ -112,10 +112,10 @@ def test_a_mixed_fit_names_both_and_its_report_reads_in_words(recording, run, tm
     assert "gravity (0, 0, -9.81) m/s^2 (ineid's default" in info.output
 
 
-def test_data_info_on_a_recording_says_no_noise_was_added(recording, run):
+def test_data_info_on_a_recording_shows_the_imports_noise_estimate(recording, run):
     r = run("data", "info", recording)
     assert r.exit_code == 0, r.output
-    assert "clean data" not in r.output and "noise (std): none added (a recording)" in r.output
+    assert "clean data" not in r.output and "noise (std, estimated at import above the" in r.output
     assert "gravity (0, 0, -9.81) m/s^2 (ineid's default; --gravity standard for 9.80665)" in r.output
 
 
