@@ -222,12 +222,16 @@ def _save_and_show(res, ds, model, out: Path, overwrite: bool) -> None:
     """The plausibility checks of ``res`` on the frames fitted (``ds``), recorded with it; the results saved to
     ``out`` and printed, the validation and the findings after them."""
     from ineid.identify import save_results
+    from ineid.identify.physical_checks import linear_completion_note
     from ineid.identify.plausibility import check_solve
 
     findings = check_solve(ds, res, model)
     res.meta["warnings"] = [f.to_dict() for f in findings]
     save_results(res, out, overwrite=overwrite)
     print_results(res, out)
+    note = linear_completion_note(res)
+    if note is not None:
+        console().print(f"note: {note}")
     if res.meta.get("validation"):
         _print_validation(res)
     print_findings(findings)

@@ -52,6 +52,7 @@ from ineid.data.recordings.plausibility import (
 )
 from ineid.data.recordings.streams import FORCE_UNITS, MOMENT_UNITS
 from ineid.errors import IdentificationError
+from ineid.identify.physical_checks import check_physical_estimates
 from ineid.identify.unit_fits import fit_error, fitted_channels, refit_units
 
 __all__ = [
@@ -62,6 +63,7 @@ __all__ = [
     "check_total_mass",
     "estimated_total_mass",
     "fitted_channels",
+    "fit_checks",
     "fitted_static_force",
     "linear_counterpart",
 ]
@@ -139,6 +141,25 @@ def linear_counterpart(ds, res, model):
     return solve_dataset(ds, settings, model=model)
 
 
+def _negative_cause(res) -> str:
+    """The likely cause of a negative total mass, by the channels ``res`` fitted (``meta["channels"]``): the
+    wrench's sign or the sensor's pose where a base wrench was fitted, else the fitted channels' sign."""
+    records = res.meta.get("channels") or [{"kind": "wrench", "key": "wrench"}]  # a file of ineid 0.1: the wrench
+    if any(r.get("kind") == "wrench" for r in records):
+        return (
+            "the wrench's sign looks flipped (data import --flip-wrench), or the sensor is turned over and its pose "
+            "not given (data import --sensor-pose)"
+        )
+    names = ", ".join(
+        f"{r.get('kind', '?').removeprefix('joint_').replace('_', ' ')} ({r.get('key', '?')})" for r in records
+    )
+    return (
+        f"only {names} fitted, and their sign looks opposite to the URDF's joint axes (the drive's sign "
+        "convention: negate the columns before data import), or gravity points the wrong way (data import "
+        "--gravity)"
+    )
+
+
 def check_total_mass(res, model) -> Finding | None:
     """A total mass (median over configurations) that is negative or more than :data:`MASS_FACTOR` off the URDF's.
 
@@ -161,9 +182,7 @@ def check_total_mass(res, model) -> Finding | None:
         scale = power_of_ten(-1 / ratio) if -ratio > MASS_FACTOR else None
         unit = f"; its size is {times(-ratio)} the URDF's: also {_wrench_fix(scale, scale)[1]}" if scale else ""
         return Finding(
-            "total_mass_negative",
-            f"{what} is negative (the URDF's: {urdf:.4g} kg): the wrench's sign looks flipped (data import "
-            f"--flip-wrench), or the sensor is turned over and its pose not given (data import --sensor-pose){unit}",
+            "total_mass_negative", f"{what} is negative (the URDF's: {urdf:.4g} kg): {_negative_cause(res)}{unit}"
         )
     if 1 / MASS_FACTOR <= ratio <= MASS_FACTOR:
         return None
@@ -324,8 +343,8 @@ def check_fitted_units(ds, res, linear, model) -> Finding | None:
     return Finding("wrench_unit", f"the wrench looks like {words}: with {change} {evidence}: {options}")
 
 
-def check_solve(ds, res, model=None) -> list[Finding]:
-    """Every plausibility check of a solve, most basic cause first (see the module docstring).
+def fit_checks(ds, res, model=None) -> list[Finding]:
+    """The plausibility checks of a solve's fit to its data, most basic cause first (see the module docstring).
 
     Args:
         ds: the solved :class:`ineid.data.Dataset` (the selected configurations, in order).
@@ -376,3 +395,21 @@ def check_solve(ds, res, model=None) -> list[Finding]:
     if mass is not None and mass.code == "total_mass_negative":
         return [mass]  # the static force would say the same
     return [f for f in (mass, static) if f is not None]
+
+
+def check_solve(ds, res, model=None) -> list[Finding]:
+    """Every plausibility check of a solve: :func:`fit_checks`, and where they find nothing the estimates'
+    physical validity (:func:`ineid.identify.physical_checks.check_physical_estimates`; a fit to data in the
+    wrong units or sign is no rigid body either: that would only repeat a consequence).
+
+    Args:
+        ds: the solved :class:`ineid.data.Dataset` (the selected configurations, in order).
+        res: its :class:`ineid.identify.SolveResults`.
+        model: its :class:`ineid.RobotModel` (default: rebuilt from ``ds``).
+
+    Returns:
+        The findings, at most one per likely mistake; empty when all is plausible.
+    """
+    found = fit_checks(ds, res, model)
+    physical = None if found else check_physical_estimates(res)
+    return found + ([physical] if physical is not None else [])
