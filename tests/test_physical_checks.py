@@ -49,19 +49,30 @@ def heavy_file(heavy, tmp_path_factory):
 
 
 def test_non_physical_estimate_warns_everywhere_naming_the_links(heavy, heavy_file, tmp_path, model):
-    res = solve_dataset(heavy, SolveSettings(method="nonlinear"), model=model)
+    res = solve_dataset(heavy, SolveSettings(method="lsqlin"), model=model)
     assert not all_links_physical(res.theta_links).any()  # the truth this test stands on
-    out = tmp_path / "nl.h5"
-    r = invoke("-q", "solve", heavy_file, "--method", "nonlinear", "--out", out)
+    out = tmp_path / "lsq.h5"
+    r = invoke("-q", "solve", heavy_file, "--method", "lsqlin", "--out", out)
     assert r.exit_code == 0, r.output
     (line,) = [w for w in warnings_of(r) if "rigid body" in w]
-    for text in ("the nonlinear estimate is not a rigid body for upper_arm (", "forearm (", "--method consistent"):
+    for text in ("the lsqlin estimate is not a rigid body for upper_arm (", "forearm (", "--method consistent"):
         assert text in line, line
     assert "smallest pseudo-inertia eigenvalue -" in line and "in 3 of 3 configurations" in line
     recorded = load_results(out).meta["warnings"]
     assert {"code": "non_physical", "message": line} in recorded
     info = invoke("results", "info", out)
     assert info.exit_code == 0 and "forearm (smallest pseudo-inertia eigenvalue" in info.output
+
+
+def test_a_completion_that_is_no_rigid_body_is_a_note(heavy_file, tmp_path):
+    """nonlinear completes the base estimate by the linear rule: its base estimate has physical completions (no
+    warning), its own completion is none (a note in the summary, naming --method consistent)."""
+    r = invoke("solve", heavy_file, "--method", "nonlinear", "--out", tmp_path / "nl.h5")
+    assert r.exit_code == 0 and not [w for w in warnings_of(r) if "rigid body" in w], r.stderr
+    assert "note: the nonlinear method's standard parameters (the base estimate completed nearest the prior)" in (
+        " ".join(r.stdout.split())
+    )
+    assert "--method consistent gives the rigid bodies nearest the data" in " ".join(r.stdout.split())
 
 
 def test_consistent_estimate_is_silent(heavy_file, tmp_path):

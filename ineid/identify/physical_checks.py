@@ -12,17 +12,17 @@ solved configuration, :func:`check_physical_estimates` checks
   ``.Ia``: :func:`ineid.identify.extras.nonnegative`) where they are fitted: not below :data:`EIG_RTOL` times
   their scale below 0.
 
-What is checked is the reported ``theta_hat`` of every method (``nonlinear``, ``consistent``, ``lsqlin``,
-``lsqnonlin``, a trained ``network``) but ``linear``. The ``linear`` method's standard parameters are one
-completion of its base estimate, the one nearest the prior (:mod:`ineid.identify.linear`), and the data
-say nothing of the others: on noise-free data of random links that completion is not a rigid body in most
-configurations although the truth is one. So for ``linear`` the finding is about the base estimate, what
-the data determine: it warns where no completion of it is physical, proven by the certificate that costs
-nothing, a base parameter that is a same-signed sum of masses, diagonal moments about a link origin (``Ixx``,
-``Iyy``, ``Izz``: each ``>= 0`` for any rigid body) and dissipative extras, estimated with the other sign
-by more than :data:`CERTAIN_Z` std (:func:`sign_certificates`); the exact test is a semidefinite feasibility
-problem, which this does not solve, so a base estimate no certificate rules out may still have no physical
-completion. A completion
+What is checked depends on what the method chose. ``consistent``, ``lsqlin``, ``lsqnonlin`` and a trained
+``network`` report standard parameters of their own: those are checked. ``linear`` and ``nonlinear``
+(:data:`COMPLETING_METHODS`) complete the base estimate by the null-space rule, nearest the prior
+(:mod:`ineid.identify.linear`), and the data say nothing of the other completions: on noise-free data of
+random links that completion is not a rigid body in most configurations although the truth is one. For them
+the finding is about what the data determine, the base estimate: it warns where no completion of it is
+physical, proven by the certificate that costs nothing, a base parameter that is a same-signed sum of masses,
+diagonal moments about a link origin (``Ixx``, ``Iyy``, ``Izz``: each ``>= 0`` for any rigid body) and
+dissipative extras, estimated with the other sign by more than :data:`CERTAIN_Z` std
+(:func:`sign_certificates`). The exact test is a semidefinite feasibility problem, which this does not
+solve: a base estimate that no certificate rules out may still have no physical completion. A completion
 that is not a rigid body is said in one line of the summary (:func:`linear_completion_note`), not as a
 warning. ``--method consistent`` finds the rigid bodies nearest the data either way.
 """
@@ -33,13 +33,23 @@ import numpy as np
 
 from ineid.data.recordings.plausibility import Finding
 from ineid.identify.extras import nonnegative
+from ineid.identify.nlp import MAX_ITER
 from ineid.params import pseudo_inertia
 
-__all__ = ["check_physical_estimates", "linear_completion_note", "link_eigenvalues", "sign_certificates"]
+__all__ = [
+    "check_iteration_cap",
+    "check_physical_estimates",
+    "linear_completion_note",
+    "link_eigenvalues",
+    "sign_certificates",
+]
 
 EIG_RTOL = 1e-9
 """A pseudo-inertia eigenvalue below ``-EIG_RTOL x`` the largest (an extra parameter below ``-EIG_RTOL x`` its
 scale) is non-physical; above it, round-off of a body at the boundary of the physical set."""
+COMPLETING_METHODS = ("linear", "nonlinear")
+"""The methods whose standard parameters complete the base estimate by the null-space rule (``nonlinear``: the
+same rule as constraints, the same estimate while its mass bound is inactive): checked on the base estimate."""
 CERTAIN_Z = 3.0
 """A base parameter proves the base estimate non-physical (:func:`sign_certificates`) where it lies more than this
 many standard deviations on the side no rigid body reaches: within them a physical body fits the data as well
@@ -143,12 +153,12 @@ def sign_certificates(res) -> list[str]:
 def check_physical_estimates(res) -> Finding | None:
     """A ``non_physical`` finding naming what is not physical in ``res`` (module docstring), or None.
 
-    Every method but ``linear``: the links whose estimate is not a rigid body (their mass, or their smallest
-    pseudo-inertia eigenvalue, at their worst configuration) and the dissipative extra parameters below 0.
-    ``linear``: the base parameters that prove no completion of the base estimate is physical
-    (:func:`sign_certificates`) and the dissipative extras below 0; its standard parameters are one
-    completion among many, chosen by the prior rule: :func:`linear_completion_note` says when they are not
-    physical.
+    ``consistent``, ``lsqlin``, ``lsqnonlin``, ``network``: the links whose estimate is not a rigid body (their
+    mass, or their smallest pseudo-inertia eigenvalue, at their worst configuration) and the dissipative extra
+    parameters below 0. ``linear``, ``nonlinear`` (:data:`COMPLETING_METHODS`): the base parameters that prove
+    no completion of the base estimate physical (:func:`sign_certificates`) and the dissipative extras below 0;
+    their standard parameters are one completion among many, chosen by the prior rule:
+    :func:`linear_completion_note` says when they are not physical.
 
     Args:
         res: a :class:`ineid.identify.SolveResults` of any method.
@@ -159,7 +169,7 @@ def check_physical_estimates(res) -> Finding | None:
     method = res.settings.method
     extras, bad_extras = _bad_extras(res, ok)
     parts = []
-    if method == "linear":
+    if method in COMPLETING_METHODS:
         proofs = sign_certificates(res)
         if proofs:
             parts.append(
@@ -188,17 +198,34 @@ def check_physical_estimates(res) -> Finding | None:
 
 
 def linear_completion_note(res) -> str | None:
-    """One line when ``linear``'s standard parameters (the completion of the base estimate nearest the prior)
-    are not a rigid body for some link; None otherwise, or for another method."""
+    """One line when the standard parameters of ``linear`` (or ``nonlinear``: :data:`COMPLETING_METHODS`), the
+    completion of the base estimate nearest the prior, are not a rigid body for some link; None otherwise, or for
+    another method."""
     ok = np.asarray(res.success, dtype=bool)
-    if res.settings.method != "linear" or not ok.any():
+    if res.settings.method not in COMPLETING_METHODS or not ok.any():
         return None
     links, bad = _bad_links(res, ok)
     if not links:
         return None
     where = f" in {int(bad.sum())} of {int(ok.sum())} configurations" if ok.sum() > 1 else ""
     return (
-        f"the linear method's standard parameters (the base estimate completed nearest the prior) are not a "
-        f"rigid body for {_listed(links)}{where}; the data determine only the base parameters: "
+        f"the {res.settings.method} method's standard parameters (the base estimate completed nearest the prior) "
+        f"are not a rigid body for {_listed(links)}{where}; the data determine only the base parameters: "
         "--method consistent gives the rigid bodies nearest the data (export-urdf needs them)"
+    )
+
+
+def check_iteration_cap(res) -> Finding | None:
+    """An ``iteration_cap`` finding where IPOPT stopped at its iteration cap (:data:`ineid.identify.nlp.MAX_ITER`)
+    in some configuration: those have no estimate, and the summary's count of failures alone would not say why."""
+    status = np.asarray(res.status).astype(str)
+    capped = np.char.find(status, "Maximum_Iterations_Exceeded") >= 0
+    if not capped.any():
+        return None
+    return Finding(
+        "iteration_cap",
+        f"the {res.settings.method} fit stopped at IPOPT's cap of {MAX_ITER} iterations in {int(capped.sum())} of "
+        f"{len(status)} configurations, which have no estimate: their optimum lies at the edge of what the "
+        "parameterization reaches (a body at the boundary of the physical set, where IPOPT creeps); "
+        "--method linear gives their base parameters",
     )

@@ -52,7 +52,7 @@ from ineid.data.recordings.plausibility import (
 )
 from ineid.data.recordings.streams import FORCE_UNITS, MOMENT_UNITS
 from ineid.errors import IdentificationError
-from ineid.identify.physical_checks import check_physical_estimates
+from ineid.identify.physical_checks import check_iteration_cap, check_physical_estimates
 from ineid.identify.unit_fits import fit_error, fitted_channels, refit_units
 
 __all__ = [
@@ -400,7 +400,8 @@ def fit_checks(ds, res, model=None) -> list[Finding]:
 def check_solve(ds, res, model=None) -> list[Finding]:
     """Every plausibility check of a solve: :func:`fit_checks`, and where they find nothing the estimates'
     physical validity (:func:`ineid.identify.physical_checks.check_physical_estimates`; a fit to data in the
-    wrong units or sign is no rigid body either: that would only repeat a consequence).
+    wrong units or sign is no rigid body either: that would only repeat a consequence); and the configurations
+    where IPOPT stopped at its iteration cap (:func:`ineid.identify.physical_checks.check_iteration_cap`).
 
     Args:
         ds: the solved :class:`ineid.data.Dataset` (the selected configurations, in order).
@@ -412,4 +413,4 @@ def check_solve(ds, res, model=None) -> list[Finding]:
     """
     found = fit_checks(ds, res, model)
     physical = None if found else check_physical_estimates(res)
-    return found + ([physical] if physical is not None else [])
+    return [f for f in (*found, physical, check_iteration_cap(res)) if f is not None]
