@@ -183,3 +183,26 @@ def test_consistent_converges_on_a_ur5_recording(tmp_path):
     assert all_links_physical(res.theta_links).all()
     truth = theta[ds.model().unknown_index] @ res.base.B.T
     assert np.linalg.norm(res.base_hat[0] - truth) < 0.01 * np.linalg.norm(truth)
+
+
+def test_a_recording_defaults_to_consistent(lab, tmp_path):
+    """The session's MuJoCo recording (tared, its first 3 s), imported: solve without --method runs consistent
+    and says so; --method linear is kept, with the note on its completion where it is no rigid body."""
+    from .bag_files import write_angles_csv
+
+    n = 3000
+    csv = write_angles_csv(tmp_path / "lab.csv", lab.sim.time[:n], lab.sim.q[:n], lab.tared[:n])
+    rec = tmp_path / "rec.h5"
+    pose = ",".join(f"{v:g}" for v in (*lab.pose.xyz, *lab.pose.rpy))
+    r = invoke("-q", "data", "import", csv, "--robot", "sweaty-arm", "--sensor-pose", pose, "--out", rec)
+    assert r.exit_code == 0, r.output
+    r = invoke("solve", rec, "--out", tmp_path / "c.h5")
+    assert r.exit_code == 0, r.output
+    assert "method consistent: the default for recordings" in " ".join(r.stdout.split())
+    res = load_results(tmp_path / "c.h5")
+    assert res.settings.method == "consistent" and all_links_physical(res.theta_links).all()
+    truth = lab.theta_unknown @ res.base.B.T
+    assert np.linalg.norm(res.base_hat[0] - truth) < 0.05 * np.linalg.norm(truth), res.base_hat[0] - truth
+    r = invoke("solve", rec, "--method", "linear", "--out", tmp_path / "l.h5")
+    assert r.exit_code == 0 and "the default for recordings" not in r.stdout
+    assert load_results(tmp_path / "l.h5").settings.method == "linear"

@@ -69,7 +69,8 @@ class Finding:
     """One plausibility warning: a stable ``code`` and a one-line ``message`` that names the fix.
 
     Codes: ``gravity_unit``, ``time_unit``, ``angles_in_degrees``, ``angles_in_radians``, ``wrench_unit``,
-    ``static_wrench_against_gravity``, ``total_mass_negative``, ``total_mass_scale``, ``held_out_error``.
+    ``static_wrench_against_gravity``, ``total_mass_negative``, ``total_mass_scale``, ``held_out_error``;
+    ``non_physical``, ``iteration_cap`` (:mod:`ineid.identify.physical_checks`).
     """
 
     code: str
