@@ -255,7 +255,7 @@ def test_lab_recording_stays_silent(lab_files, tmp_path):
         (
             "flipped",
             "points against gravity",
-            "the wrench's sign looks flipped (data import --flip-wrench)",
+            "the mean force over the fitted frames points against gravity",  # consistent, a recording's default
             ("--flip-wrench",),
         ),
     ],

@@ -18,7 +18,7 @@ import numpy as np
 
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.linear import BaseFit, Estimate, MethodEstimate, SharedFit
-from ineid.identify.nlp import NlpSolver, estimate_from_solves, nlp_estimate, scaled_pseudo_inertia
+from ineid.identify.nlp import MAX_ITER, NlpSolver, estimate_from_solves, nlp_estimate, scaled_pseudo_inertia
 from ineid.identify.settings import SolveSettings
 from ineid.progress import Progress
 
@@ -26,10 +26,8 @@ log = logging.getLogger(__name__)
 
 PARALLEL_MIN_CONFIGS = 256
 """Fewer configurations are solved in this process: starting workers costs about a second."""
-BIAS_MAX_ITER = 3000
-"""IPOPT iterations with offsets estimated (500 otherwise): centring the frames worsens the scaled
-problem's conditioning (``sweaty-arm``: 52 -> 279) and the consistent solver from the CAD start
-took 807 iterations on the MuJoCo test recording (a few tenths of a second)."""
+BIAS_MAX_ITER = MAX_ITER
+"""IPOPT iterations with offsets estimated: the cap of every IPOPT solve (:data:`ineid.identify.nlp.MAX_ITER`)."""
 
 
 def physical_start(theta_lin: np.ndarray, prior: np.ndarray, scales: np.ndarray, n_extra: int = 0) -> np.ndarray:

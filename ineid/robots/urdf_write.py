@@ -46,6 +46,7 @@ def urdf_with_inertials(urdf_text: str, theta_by_link: dict[str, np.ndarray], lo
     chain = parse_chain(urdf_text, locked_joints=locked_joints or None)
     moving = {j.link for j in chain.joints}
     payloads = {b.name for b in chain.body_links.values() if b.parent}
+    bad = []
     for link, theta in theta_by_link.items():
         if link not in moving | payloads:
             raise RobotModelError(
@@ -53,11 +54,13 @@ def urdf_with_inertials(urdf_text: str, theta_by_link: dict[str, np.ndarray], lo
             )
         problems = physical_violations(np.asarray(theta, dtype=np.float64), rtol=0.0)
         if problems:
-            raise IdentificationError(
-                f"the estimate of link {link!r} is not a rigid body ({'; '.join(problems)}); a URDF cannot hold it: "
-                "identify with --method consistent",
-                status="non_physical",
-            )
+            bad.append(f"link {link!r} ({'; '.join(problems)})")
+    if bad:
+        raise IdentificationError(
+            f"the estimate is not a rigid body for {len(bad)} of {len(theta_by_link)} links, {', '.join(bad)}; "
+            "a URDF cannot hold it: identify with --method consistent (physically consistent by construction)",
+            status="non_physical",
+        )
     root = ET.fromstring(urdf_text)
     links = {el.get("name"): el for el in root.findall("link")}
     for link, theta in theta_by_link.items():

@@ -71,7 +71,9 @@ class Finding:
 
     Codes: ``gravity_unit``, ``time_unit``, ``timing_jitter``, ``timing_repeats``, ``timing_gaps``,
     ``angles_in_degrees``, ``angles_in_radians``, ``wrench_unit``,
-    ``static_wrench_against_gravity``, ``total_mass_negative``, ``total_mass_scale``, ``held_out_error``.
+    ``static_wrench_against_gravity``, ``total_mass_negative``, ``total_mass_scale``, ``held_out_error``;
+    ``unmodelled_offsets``, ``residual_above_noise`` (:mod:`ineid.identify.noise_figures`);
+    ``non_physical``, ``iteration_cap`` (:mod:`ineid.identify.physical_checks`).
     """
 
     code: str
