@@ -34,6 +34,7 @@ from ineid.identify.linear import Estimate, SharedFit, linear_theta, prior_map
 from ineid.identify.qr_blocks import FactorBlocks, factor_blocks, fit_base_factors
 from ineid.identify.settings import SolveSettings
 from ineid.identify.systems import Offsets, predict_wrench, remove_offsets, stack, stack_casadi
+from ineid.identify.time_correlation import filtered_frames, recording_covariance
 from ineid.progress import Progress
 from ineid.robots.model import SMALL_JOB_FRAMES
 
@@ -140,6 +141,7 @@ def fit_dataset(
         fit, rms, factors = factor_fit(model, ds, frames, base, settings, axis_sigma, channels, fit_progress)
         seconds = np.full(ds.n_configs, (time.perf_counter() - t0) / max(ds.n_configs, 1))
         theta_lin = linear_theta(fit, base, prior)  # 2. the residuals from the factors: exact, no pass
+        fit = _time_correlated(model, ds, fit_sl, base, fit, channels, factors.offsets)
         if settings.known_uncertainty:
             fit = with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings.known_uncertainty, with_bias)
         shared = SharedFit(base, prior, fit, theta_lin, rms)
@@ -165,9 +167,19 @@ def fit_dataset(
     theta_lin = linear_theta(fit, base, prior)
     sums = estimate_residual_sums(model, ds, n_fit, n_val, theta_lin, channels, offsets)
     fit = with_exact_rss(fit, sums[0])
+    fit = _time_correlated(model, ds, fit_sl, base, fit, channels, offsets)
     if settings.known_uncertainty:  # the known links' CAD uncertainty (ineid.identify.known)
         fit = with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings.known_uncertainty, with_bias)
     return DatasetFit(SharedFit(base, prior, fit, theta_lin, rms), offsets, sums, seconds)
+
+
+def _time_correlated(model, ds, fit_sl: slice, base, fit: BaseFit, channels, offsets) -> BaseFit:
+    """``fit`` with the covariance of residuals correlated in time when ``ds`` is a filtered recording
+    (:mod:`ineid.identify.time_correlation`); as it is for independent frames."""
+    filtered = filtered_frames(ds)
+    if filtered is None:
+        return fit
+    return recording_covariance(model, ds, fit_sl, base, fit, channels, offsets, filtered)
 
 
 def factor_fit(

@@ -1,0 +1,139 @@
+"""The covariance of a least-squares fit on a filtered recording: residuals correlated in time.
+
+An imported recording's frames are low-passed (:mod:`ineid.data.recordings.frames`: one zero-phase
+Butterworth at the cut-off ``f_c`` on every channel, the angles differentiated after it). Its residuals are
+then far from independent: white noise at ``f_s`` Hz low-passed at ``f_c`` keeps its correlation over about
+``f_s / (2 f_c)`` frames, and ``sigma^2 (W^T D^2 W)^-1``, which counts every frame as a new draw, is that many
+times too small in variance (RMS z 6.5 at 1 kHz and 10 Hz, 3.3 at 200 Hz; ``docs/identification.md``).
+
+The covariance of ``beta_hat = A^-1 W_b^T D^2 y`` (``A = W_b^T D^2 W_b``) is the sandwich
+
+    cov(beta_hat) = A^-1 Omega A^-1,     Omega = cov(sum_t s_t),     s_t = sum_a d_a^2 w_ta r_ta
+
+over the per-frame scores ``s_t`` (``w_ta`` the base regressor row of axis ``a`` at frame ``t``, ``r_ta`` its
+residual). ``Omega`` is estimated by Newey & West (1987): the autocovariances ``Gamma_l = sum_t s_t s_{t+l}^T``
+weighted by Bartlett's ``1 - |l| / (L + 1)`` up to ``L`` lags, which is exactly
+``(1 / (L + 1)) sum_t S_t S_t^T`` over the moving sums ``S_t`` of ``L + 1`` scores (zero beyond the ends): one
+cumulative sum, no lag loop. The bandwidth comes from the filter: ``L = LAG_PERIODS f_s / f_c``
+(:func:`bandwidth`). The residuals are those of the fit (leverage takes ``r`` of the ``AF`` degrees of
+freedom), so ``Omega`` is scaled by ``AF / dof`` (MacKinnon & White's HC1).
+
+Unlike a scalar effective sample size, the sandwich needs no assumption that the regressor changes slowly
+over the correlation length, and it takes whatever correlation the residuals have (between axes too), not
+only the filter's: it is what a block bootstrap over time estimates, without the resampling.
+
+References:
+    Newey & West (1987), Econometrica 55(3); Andrews (1991), Econometrica 59(3); MacKinnon & White (1985).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ineid.identify.least_squares import BaseFit, r_inverse
+from ineid.identify.systems import Offsets, stack
+
+LAG_PERIODS = 2.0
+"""The Newey-West bandwidth in the filter's cut-off periods: ``L = LAG_PERIODS f_s / f_c`` lags."""
+CHUNK_FRAMES = 4096
+"""Frames per stacked chunk of the pass over the frames (one compiled regressor kernel: the last chunk padded)."""
+
+
+@dataclass(frozen=True)
+class FilteredFrames:
+    """What makes a dataset's frames correlated in time: the low-pass its recording was imported with.
+
+    Attributes:
+        cutoff: Hz, the low-pass cut-off.
+        rate: Hz, the frames' rate.
+    """
+
+    cutoff: float
+    rate: float
+
+    @property
+    def lags(self) -> int:
+        """The Newey-West bandwidth ``L`` (:func:`bandwidth`)."""
+        return bandwidth(self.cutoff, self.rate)
+
+
+def bandwidth(cutoff: float, rate: float) -> int:
+    """``L = ceil(LAG_PERIODS rate / cutoff)`` lags, at least 1."""
+    return max(1, math.ceil(LAG_PERIODS * rate / cutoff))
+
+
+def filtered_frames(ds) -> FilteredFrames | None:
+    """The low-pass of an imported recording (its origin's ``import`` record: cut-off and rate), or None for frames
+    that are independent draws (a synthetic dataset, a recording imported without a filter)."""
+    record = (ds.meta.origin or {}).get("import") or {}
+    cutoff, rate = record.get("cutoff"), record.get("rate")
+    if not cutoff or not rate:
+        return None
+    return FilteredFrames(float(cutoff), float(rate))
+
+
+def moving_sum_covariance(scores: np.ndarray, lags: int) -> np.ndarray:
+    """(r, r) Newey-West ``sum_{|l| <= L} (1 - |l| / (L + 1)) Gamma_l`` of scores (F, r), as the moving sums'
+    second moment ``(1 / (L + 1)) sum_t S_t S_t^T`` (``S_t = s_{t-L} + ... + s_t``, zero beyond the ends)."""
+    f, r = scores.shape
+    cum = np.concatenate([np.zeros((1, r)), np.cumsum(scores, axis=0)])  # cum[k] = s_0 + ... + s_{k-1}
+    t = np.arange(f + lags)
+    total = cum[np.minimum(t + 1, f)] - cum[np.maximum(t - lags, 0)]
+    return total.T @ total / (lags + 1)
+
+
+def frame_scores(
+    model, ds, fit_sl: slice, base, fit: BaseFit, channels, offsets: Offsets | None, config: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The per-frame scores ``s_t = sum_a d_a^2 w_ta r_ta`` (F, r) of configuration ``config`` of ``fit``, and its
+    residuals per axis (F, A), from the frames ``fit_sl`` stacked in chunks of :data:`CHUNK_FRAMES`; with
+    ``offsets`` the centred system's (the offsets' means taken out)."""
+    q, qd, qdd = (a[config, fit_sl] for a in (ds.q, ds.qd, ds.qdd))
+    values = ds.measured(channels)[config, fit_sl]
+    n_frames, n_axes = values.shape
+    idx = base.base_index
+    beta, d2 = np.nan_to_num(fit.beta[config]), fit.axis_weights[config] ** 2
+    if offsets is not None:
+        mask = np.ones(n_axes) if offsets.mask is None else np.asarray(offsets.mask, dtype=np.float64)
+        w_mean, y_mean = offsets.w_mean[config][:, idx] * mask[:, None], offsets.y_mean[config] * mask
+    scores, resid = np.empty((n_frames, len(idx))), np.empty((n_frames, n_axes))
+    size = min(CHUNK_FRAMES, n_frames)
+    for start in range(0, n_frames, size):
+        stop = min(start + size, n_frames)
+        take = np.minimum(np.arange(start, start + size), n_frames - 1)  # the last chunk padded: one kernel
+        w, y = stack(
+            model, q[None, take], qd[None, take], qdd[None, take], values[None, take], ds.theta_known, channels
+        )
+        w_b = w[0][:, idx].reshape(size, n_axes, -1)[: stop - start]
+        y = y[0].reshape(size, n_axes)[: stop - start]
+        if offsets is not None:
+            w_b, y = w_b - w_mean[None], y - y_mean[None]
+        r = y - w_b @ beta
+        resid[start:stop] = r
+        scores[start:stop] = np.einsum("fak,fa->fk", w_b, r * d2)
+    return scores, resid
+
+
+def recording_covariance(
+    model, ds, fit_sl: slice, base, fit: BaseFit, channels, offsets: Offsets | None, filtered: FilteredFrames
+) -> BaseFit:
+    """``fit`` with the Newey-West sandwich as its covariance (module doc), for the frames ``fit_sl`` of a recording
+    low-passed as ``filtered``; what estimating the weights adds (the fit's ``cov_beta - sigma2 A^-1``) is kept,
+    scaled by the square of the variance's growth (fewer effective frames). Rows not full rank stay NaN."""
+    cov = fit.cov_beta.copy()
+    n_rows = fit.dof + base.rank + (0 if offsets is None else offsets.n_offsets)
+    hc1 = n_rows / max(fit.dof, 1)
+    for c in range(ds.n_configs):
+        if not fit.full_rank[c] or not np.all(np.isfinite(fit.cov_beta[c])):
+            continue
+        scores, _ = frame_scores(model, ds, fit_sl, base, fit, channels, offsets, c)
+        a_inv = r_inverse(fit.R[c][None])[0]
+        sandwich = hc1 * a_inv @ moving_sum_covariance(scores, filtered.lags) @ a_inv
+        naive = fit.sigma2[c] * a_inv
+        growth = np.mean(np.diag(sandwich) / np.maximum(np.diag(naive), 1e-300))
+        cov[c] = sandwich + growth**2 * (fit.cov_beta[c] - naive)
+    return dataclasses.replace(fit, cov_beta=cov)
