@@ -106,6 +106,9 @@ class BaseFit:
             normal equations an upper bound at most ``sqrt(r)`` above it; inf when not
             full rank).
         axis_weights: (C, A) the row weights ``D`` per measured axis.
+        axis_long_run: (C, A) each axis's long-run variance (its residuals' autocovariances summed,
+            :mod:`ineid.identify.time_correlation`) over its variance, for frames correlated in time
+            (a filtered recording); None: independent frames.
     """
 
     beta: np.ndarray
@@ -117,6 +120,7 @@ class BaseFit:
     rank: np.ndarray
     cond: np.ndarray
     axis_weights: np.ndarray
+    axis_long_run: np.ndarray | None = None
 
     @property
     def full_rank(self) -> np.ndarray:
@@ -464,6 +468,6 @@ def concat_fits(fits: list[BaseFit]) -> BaseFit:
     cat = {
         f.name: np.concatenate([getattr(x, f.name) for x in fits])
         for f in dataclasses.fields(BaseFit)
-        if f.name != "dof"
+        if f.name != "dof" and getattr(fits[0], f.name) is not None
     }
     return BaseFit(dof=fits[0].dof, **cat)

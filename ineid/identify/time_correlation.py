@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.identify.least_squares import BaseFit, r_inverse
-from ineid.identify.systems import Offsets, stack
+from ineid.identify.systems import Offsets, predict_wrench, stack
 
 LAG_PERIODS = 2.0
 """The Newey-West bandwidth in the filter's cut-off periods: ``L = LAG_PERIODS f_s / f_c`` lags."""
@@ -119,21 +119,80 @@ def frame_scores(
 
 
 def recording_covariance(
-    model, ds, fit_sl: slice, base, fit: BaseFit, channels, offsets: Offsets | None, filtered: FilteredFrames
+    model,
+    ds,
+    fit_sl: slice,
+    base,
+    fit: BaseFit,
+    channels,
+    offsets: Offsets | None,
+    theta: np.ndarray,
+    filtered: FilteredFrames,
 ) -> BaseFit:
-    """``fit`` with the Newey-West sandwich as its covariance (module doc), for the frames ``fit_sl`` of a recording
-    low-passed as ``filtered``; what estimating the weights adds (the fit's ``cov_beta - sigma2 A^-1``) is kept,
-    scaled by the square of the variance's growth (fewer effective frames). Rows not full rank stay NaN."""
+    """``fit`` with the covariance of a filtered recording's frames ``fit_sl`` (module doc): the Newey-West sandwich,
+    plus ``delta delta^T`` for what the filter and the differentiation move the estimate by (:func:`filter_error`,
+    at the fit's estimate ``theta`` (C, n)). What estimating the weights adds (the fit's ``cov_beta - sigma2 A^-1``)
+    is kept, scaled by the square of the variance's growth (fewer effective frames); ``axis_long_run`` set (the
+    offsets' std takes it). Rows not full rank stay NaN."""
     cov = fit.cov_beta.copy()
+    n_axes = fit.axis_weights.shape[1]
+    long_run = np.ones((ds.n_configs, n_axes))
     n_rows = fit.dof + base.rank + (0 if offsets is None else offsets.n_offsets)
     hc1 = n_rows / max(fit.dof, 1)
+    delta = filter_error(model, ds, fit_sl, base, fit, channels, offsets, theta, filtered)
     for c in range(ds.n_configs):
         if not fit.full_rank[c] or not np.all(np.isfinite(fit.cov_beta[c])):
             continue
-        scores, _ = frame_scores(model, ds, fit_sl, base, fit, channels, offsets, c)
+        scores, resid = frame_scores(model, ds, fit_sl, base, fit, channels, offsets, c)
         a_inv = r_inverse(fit.R[c][None])[0]
         sandwich = hc1 * a_inv @ moving_sum_covariance(scores, filtered.lags) @ a_inv
         naive = fit.sigma2[c] * a_inv
         growth = np.mean(np.diag(sandwich) / np.maximum(np.diag(naive), 1e-300))
-        cov[c] = sandwich + growth**2 * (fit.cov_beta[c] - naive)
-    return dataclasses.replace(fit, cov_beta=cov)
+        cov[c] = sandwich + growth**2 * (fit.cov_beta[c] - naive) + np.outer(delta[c], delta[c])
+        plain = np.maximum(np.einsum("fa,fa->a", resid, resid), 1e-300)
+        long_run[c] = np.maximum(np.diag(moving_sum_covariance(resid, filtered.lags)) / plain, 1.0)
+    return dataclasses.replace(fit, cov_beta=cov, axis_long_run=long_run)
+
+
+def filter_error(
+    model, ds, fit_sl: slice, base, fit: BaseFit, channels, offsets: Offsets | None, theta, filtered: FilteredFrames
+) -> np.ndarray:
+    """(C, r) what the low-pass and the differentiation do to the base estimates, estimated from the data.
+
+    The fit reads ``LP(y(q, qd, qdd))`` against the model at the filtered states ``y(LP q, d/dt LP q, ...)``; the two
+    differ where the model is not linear in time (products of rates, the sign of a velocity), and that difference
+    ``e`` moves the estimate by ``A^-1 W_b^T D^2 e``. With the filtered states as a stand-in for the true ones
+    (as :func:`ineid.data.recordings.imus.filter_model_error` does for the link IMUs), ``e`` is estimated as
+    ``LP(y(s_f)) - y(LP s_f)`` with the fit's estimate ``theta`` (C, n) (``[theta_u, x]``), centred on axes with
+    offsets, the filter's start-up at each end left out; the estimate's move is returned.
+    """
+    from ineid.data.recordings.signals import LowPass, edge_seconds
+
+    low = LowPass(filtered.cutoff, filtered.rate)
+    n_u = len(model.unknown_index)
+    out = np.zeros_like(fit.beta)
+    idx = base.base_index
+    edge = int(math.ceil(edge_seconds(filtered.cutoff) * filtered.rate))
+    for c in range(ds.n_configs):
+        if not fit.full_rank[c] or not np.all(np.isfinite(theta[c])):
+            continue
+        s_f = [a[c, fit_sl] for a in (ds.q, ds.qd, ds.qdd)]
+        if len(s_f[0]) <= 4 * edge:
+            continue
+        s_2 = [low.apply(a) for a in s_f]
+        full = model.full_theta(theta[c, :n_u][None], ds.theta_known)
+        x = theta[c, n_u:][None] if theta.shape[1] > n_u else None
+        y_f = predict_wrench(model, *(a[None] for a in s_f), full, channels, x)[0]
+        keep = slice(edge, len(s_f[0]) - edge)
+        values = low.apply(y_f)[keep]
+        s_2 = [a[keep] for a in s_2]
+        n_frames, n_axes = values.shape
+        w, y = stack(model, *(a[None] for a in s_2), values[None], ds.theta_known, channels)
+        w_b = w[0][:, idx].reshape(n_frames, n_axes, -1)
+        e = y[0].reshape(n_frames, n_axes) - w_b @ np.nan_to_num(fit.beta[c])
+        if offsets is not None:
+            mask = np.ones(n_axes, dtype=bool) if offsets.mask is None else np.asarray(offsets.mask, dtype=bool)
+            e[:, mask] -= e[:, mask].mean(axis=0)
+        total = np.einsum("fak,fa->k", w_b, e * fit.axis_weights[c] ** 2)
+        out[c] = r_inverse(fit.R[c][None])[0] @ total * (len(s_f[0]) / n_frames)
+    return out
