@@ -51,9 +51,8 @@ def test_noise_free_recording_std_covers_the_filter_error(short_lab):
 def test_independent_frames_are_unchanged_bit_for_bit(model):
     """A synthetic dataset (no filter) and one whose import record names no cut-off give the same std, bit for bit:
     only a filtered recording's frames are correlated."""
-    ds = generate_dataset(
-        model, DatasetSpec(Combination("random", n_configs=4), n_frames=40, seed=2, noise=NoiseModel(wrench=np.full(6, 0.1)))
-    )
+    noise = NoiseModel(wrench=np.full(6, 0.1))
+    ds = generate_dataset(model, DatasetSpec(Combination("random", n_configs=4), n_frames=40, seed=2, noise=noise))
     assert filtered_frames(ds) is None
     res = solve_dataset(ds, SolveSettings(), model=model)
     raw = dataclasses.replace(ds.meta, origin={"import": {"cutoff": None, "rate": 1000.0}})
