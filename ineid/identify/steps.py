@@ -34,7 +34,7 @@ from ineid.identify.linear import Estimate, SharedFit, linear_theta, prior_map
 from ineid.identify.qr_blocks import FactorBlocks, factor_blocks, fit_base_factors
 from ineid.identify.settings import SolveSettings
 from ineid.identify.systems import Offsets, predict_wrench, remove_offsets, stack, stack_casadi
-from ineid.identify.time_correlation import filtered_frames, recording_covariance
+from ineid.identify.time_correlation import FittedFrames, filtered_frames, recording_covariance
 from ineid.progress import Progress
 from ineid.robots.model import SMALL_JOB_FRAMES
 
@@ -176,10 +176,8 @@ def fit_dataset(
 def _time_correlated(model, ds, fit_sl: slice, base, fit: BaseFit, channels, offsets, theta) -> BaseFit:
     """``fit`` with the covariance of residuals correlated in time when ``ds`` is a filtered recording
     (:mod:`ineid.identify.time_correlation`); as it is for independent frames."""
-    filtered = filtered_frames(ds)
-    if filtered is None:
-        return fit
-    return recording_covariance(model, ds, fit_sl, base, fit, channels, offsets, theta, filtered)
+    parts = [FittedFrames(ds, fit_sl, offsets, filtered_frames(ds))]
+    return recording_covariance(model, parts, base, fit, channels, theta)
 
 
 def factor_fit(

@@ -118,7 +118,56 @@ def frame_scores(
     return scores, resid
 
 
-def recording_covariance(
+@dataclass(frozen=True)
+class FittedFrames:
+    """One dataset's frames in a fit: ``ds``'s frames ``frames``, the offsets taken out of them (or None), and the
+    low-pass they were recorded through (None: independent frames)."""
+
+    ds: object
+    frames: slice
+    offsets: Offsets | None
+    filtered: FilteredFrames | None
+
+
+def recording_covariance(model, parts: list[FittedFrames], base, fit: BaseFit, channels, theta: np.ndarray) -> BaseFit:
+    """``fit`` with the covariance of frames correlated in time (module doc), ``parts`` the datasets fitted together
+    (independent of each other): the Newey-West sandwich over every part's scores (``L = 0`` for a part of
+    independent frames), plus ``delta delta^T`` for what the filter and the differentiation move the estimate by
+    (:func:`filter_error`, at the fit's estimate ``theta`` (C, n)). What estimating the weights adds (the fit's
+    ``cov_beta - sigma2 A^-1``) is kept, scaled by the square of the variance's growth (fewer effective frames);
+    ``axis_long_run`` is set (the offsets' std takes it; the frame-weighted mean over the parts). ``fit`` as it is
+    when no part is filtered; rows not full rank stay NaN."""
+    if all(p.filtered is None for p in parts):
+        return fit
+    c_all, n_axes = fit.axis_weights.shape
+    cov, long_run = fit.cov_beta.copy(), np.ones((c_all, n_axes))
+    n_frames = [len(range(*p.frames.indices(p.ds.n_frames))) for p in parts]
+    hc1 = n_axes * sum(n_frames) / max(fit.dof, 1)
+    for c in range(c_all):
+        if not fit.full_rank[c] or not np.all(np.isfinite(fit.cov_beta[c])):
+            continue
+        a_inv = r_inverse(fit.R[c][None])[0]
+        omega, moved, lr = 0.0, 0.0, 0.0
+        for p, n in zip(parts, n_frames, strict=True):
+            lags = 0 if p.filtered is None else p.filtered.lags
+            scores, resid = frame_scores(model, p.ds, p.frames, base, fit, channels, p.offsets, c)
+            omega = omega + moving_sum_covariance(scores, lags)
+            plain = np.maximum(np.einsum("fa,fa->a", resid, resid), 1e-300)
+            lr = lr + n * np.maximum(np.diag(moving_sum_covariance(resid, lags)) / plain, 1.0)
+            if p.filtered is not None:
+                moved = moved + filter_error(
+                    model, p.ds, p.frames, base, fit, channels, p.offsets, theta, p.filtered, c
+                )
+        sandwich = hc1 * a_inv @ omega @ a_inv
+        naive = fit.sigma2[c] * a_inv
+        growth = np.mean(np.diag(sandwich) / np.maximum(np.diag(naive), 1e-300))
+        delta = a_inv @ moved
+        cov[c] = sandwich + growth**2 * (fit.cov_beta[c] - naive) + np.outer(delta, delta)
+        long_run[c] = lr / sum(n_frames)
+    return dataclasses.replace(fit, cov_beta=cov, axis_long_run=long_run)
+
+
+def filter_error(
     model,
     ds,
     fit_sl: slice,
@@ -128,71 +177,38 @@ def recording_covariance(
     offsets: Offsets | None,
     theta: np.ndarray,
     filtered: FilteredFrames,
-) -> BaseFit:
-    """``fit`` with the covariance of a filtered recording's frames ``fit_sl`` (module doc): the Newey-West sandwich,
-    plus ``delta delta^T`` for what the filter and the differentiation move the estimate by (:func:`filter_error`,
-    at the fit's estimate ``theta`` (C, n)). What estimating the weights adds (the fit's ``cov_beta - sigma2 A^-1``)
-    is kept, scaled by the square of the variance's growth (fewer effective frames); ``axis_long_run`` set (the
-    offsets' std takes it). Rows not full rank stay NaN."""
-    cov = fit.cov_beta.copy()
-    n_axes = fit.axis_weights.shape[1]
-    long_run = np.ones((ds.n_configs, n_axes))
-    n_rows = fit.dof + base.rank + (0 if offsets is None else offsets.n_offsets)
-    hc1 = n_rows / max(fit.dof, 1)
-    delta = filter_error(model, ds, fit_sl, base, fit, channels, offsets, theta, filtered)
-    for c in range(ds.n_configs):
-        if not fit.full_rank[c] or not np.all(np.isfinite(fit.cov_beta[c])):
-            continue
-        scores, resid = frame_scores(model, ds, fit_sl, base, fit, channels, offsets, c)
-        a_inv = r_inverse(fit.R[c][None])[0]
-        sandwich = hc1 * a_inv @ moving_sum_covariance(scores, filtered.lags) @ a_inv
-        naive = fit.sigma2[c] * a_inv
-        growth = np.mean(np.diag(sandwich) / np.maximum(np.diag(naive), 1e-300))
-        cov[c] = sandwich + growth**2 * (fit.cov_beta[c] - naive) + np.outer(delta[c], delta[c])
-        plain = np.maximum(np.einsum("fa,fa->a", resid, resid), 1e-300)
-        long_run[c] = np.maximum(np.diag(moving_sum_covariance(resid, filtered.lags)) / plain, 1.0)
-    return dataclasses.replace(fit, cov_beta=cov, axis_long_run=long_run)
-
-
-def filter_error(
-    model, ds, fit_sl: slice, base, fit: BaseFit, channels, offsets: Offsets | None, theta, filtered: FilteredFrames
-) -> np.ndarray:
-    """(C, r) what the low-pass and the differentiation do to the base estimates, estimated from the data.
+    config: int,
+) -> np.ndarray | float:
+    """(r,) ``W_b^T D^2 e``: what the low-pass and the differentiation do to configuration ``config``'s fit, as a
+    score sum (the estimate moves by ``A^-1`` times it), estimated from the data; 0 for too few frames.
 
     The fit reads ``LP(y(q, qd, qdd))`` against the model at the filtered states ``y(LP q, d/dt LP q, ...)``; the two
-    differ where the model is not linear in time (products of rates, the sign of a velocity), and that difference
-    ``e`` moves the estimate by ``A^-1 W_b^T D^2 e``. With the filtered states as a stand-in for the true ones
-    (as :func:`ineid.data.recordings.imus.filter_model_error` does for the link IMUs), ``e`` is estimated as
-    ``LP(y(s_f)) - y(LP s_f)`` with the fit's estimate ``theta`` (C, n) (``[theta_u, x]``), centred on axes with
-    offsets, the filter's start-up at each end left out; the estimate's move is returned.
+    differ where the model is not linear in time (products of rates, the sign of a velocity), by ``e``. With the
+    filtered states as a stand-in for the true ones (as :func:`ineid.data.recordings.imus.filter_model_error` does
+    for the link IMUs), ``e`` is estimated as ``LP(y(s_f)) - y(LP s_f)`` at the fit's estimate ``theta`` (C, n)
+    (``[theta_u, x]``), centred on the axes with offsets, the filter's start-up at each end left out (the sum
+    scaled back to every frame).
     """
     from ineid.data.recordings.signals import LowPass, edge_seconds
 
     low = LowPass(filtered.cutoff, filtered.rate)
     n_u = len(model.unknown_index)
-    out = np.zeros_like(fit.beta)
-    idx = base.base_index
     edge = int(math.ceil(edge_seconds(filtered.cutoff) * filtered.rate))
-    for c in range(ds.n_configs):
-        if not fit.full_rank[c] or not np.all(np.isfinite(theta[c])):
-            continue
-        s_f = [a[c, fit_sl] for a in (ds.q, ds.qd, ds.qdd)]
-        if len(s_f[0]) <= 4 * edge:
-            continue
-        s_2 = [low.apply(a) for a in s_f]
-        full = model.full_theta(theta[c, :n_u][None], ds.theta_known)
-        x = theta[c, n_u:][None] if theta.shape[1] > n_u else None
-        y_f = predict_wrench(model, *(a[None] for a in s_f), full, channels, x)[0]
-        keep = slice(edge, len(s_f[0]) - edge)
-        values = low.apply(y_f)[keep]
-        s_2 = [a[keep] for a in s_2]
-        n_frames, n_axes = values.shape
-        w, y = stack(model, *(a[None] for a in s_2), values[None], ds.theta_known, channels)
-        w_b = w[0][:, idx].reshape(n_frames, n_axes, -1)
-        e = y[0].reshape(n_frames, n_axes) - w_b @ np.nan_to_num(fit.beta[c])
-        if offsets is not None:
-            mask = np.ones(n_axes, dtype=bool) if offsets.mask is None else np.asarray(offsets.mask, dtype=bool)
-            e[:, mask] -= e[:, mask].mean(axis=0)
-        total = np.einsum("fak,fa->k", w_b, e * fit.axis_weights[c] ** 2)
-        out[c] = r_inverse(fit.R[c][None])[0] @ total * (len(s_f[0]) / n_frames)
-    return out
+    s_f = [a[config, fit_sl] for a in (ds.q, ds.qd, ds.qdd)]
+    if len(s_f[0]) <= 4 * edge or not np.all(np.isfinite(theta[config])):
+        return 0.0
+    full = model.full_theta(theta[config, :n_u][None], ds.theta_known)
+    x = theta[config, n_u:][None] if theta.shape[1] > n_u else None
+    y_f = predict_wrench(model, *(a[None] for a in s_f), full, channels, x)[0]
+    keep = slice(edge, len(s_f[0]) - edge)
+    values = low.apply(y_f)[keep]
+    s_2 = [low.apply(a)[keep] for a in s_f]
+    n_frames, n_axes = values.shape
+    w, y = stack(model, *(a[None] for a in s_2), values[None], ds.theta_known, channels)
+    w_b = w[0][:, base.base_index].reshape(n_frames, n_axes, -1)
+    e = y[0].reshape(n_frames, n_axes) - w_b @ np.nan_to_num(fit.beta[config])
+    if offsets is not None:
+        mask = np.ones(n_axes, dtype=bool) if offsets.mask is None else np.asarray(offsets.mask, dtype=bool)
+        e[:, mask] -= e[:, mask].mean(axis=0)
+    total = np.einsum("fak,fa->k", w_b, e * fit.axis_weights[config] ** 2)
+    return total * (len(s_f[0]) / n_frames)
