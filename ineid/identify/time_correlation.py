@@ -88,10 +88,10 @@ def moving_sum_covariance(scores: np.ndarray, lags: int) -> np.ndarray:
 
 def frame_scores(
     model, ds, fit_sl: slice, base, fit: BaseFit, channels, offsets: Offsets | None, config: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """The per-frame scores ``s_t = sum_a d_a^2 w_ta r_ta`` (F, r) of configuration ``config`` of ``fit``, and its
-    residuals per axis (F, A), from the frames ``fit_sl`` stacked in chunks of :data:`CHUNK_FRAMES`; with
-    ``offsets`` the centred system's (the offsets' means taken out)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The per-frame scores ``s_t = sum_a d_a^2 w_ta r_ta`` (F, r) of configuration ``config`` of ``fit``, its
+    residuals per axis (F, A) and the per-axis blocks ``G_a = sum_t w_ta w_ta^T`` (A, r, r), from the frames ``fit_sl``
+    stacked in chunks of :data:`CHUNK_FRAMES`; with ``offsets`` the centred system's (the offsets' means taken out)."""
     q, qd, qdd = (a[config, fit_sl] for a in (ds.q, ds.qd, ds.qdd))
     values = ds.measured(channels)[config, fit_sl]
     n_frames, n_axes = values.shape
@@ -101,6 +101,7 @@ def frame_scores(
         mask = np.ones(n_axes) if offsets.mask is None else np.asarray(offsets.mask, dtype=np.float64)
         w_mean, y_mean = offsets.w_mean[config][:, idx] * mask[:, None], offsets.y_mean[config] * mask
     scores, resid = np.empty((n_frames, len(idx))), np.empty((n_frames, n_axes))
+    g = np.zeros((n_axes, len(idx), len(idx)))
     size = min(CHUNK_FRAMES, n_frames)
     for start in range(0, n_frames, size):
         stop = min(start + size, n_frames)
@@ -115,7 +116,8 @@ def frame_scores(
         r = y - w_b @ beta
         resid[start:stop] = r
         scores[start:stop] = np.einsum("fak,fa->fk", w_b, r * d2)
-    return scores, resid
+        g += np.einsum("fak,fal->akl", w_b, w_b)
+    return scores, resid, g
 
 
 @dataclass(frozen=True)
@@ -129,40 +131,67 @@ class FittedFrames:
     filtered: FilteredFrames | None
 
 
-def recording_covariance(model, parts: list[FittedFrames], base, fit: BaseFit, channels, theta: np.ndarray) -> BaseFit:
+def filter_gain(filtered: FilteredFrames) -> float:
+    """``kappa = 1 / sum_k g_k^2``: the variance of a mean of white noise after the low-pass over that of the mean
+    of independent frames, ``g`` the zero-phase filter's impulse response (its DC gain 1): white noise of variance
+    ``s^2`` leaves the filter with variance ``s^2 sum g_k^2`` and long-run variance ``s^2``."""
+    from ineid.data.recordings.signals import LowPass
+
+    n = 2 * math.ceil(20 * filtered.rate / filtered.cutoff) + 1
+    impulse = np.zeros((n, 1))
+    impulse[n // 2] = 1.0
+    g = LowPass(filtered.cutoff, filtered.rate).apply(impulse)[:, 0]
+    return float(1.0 / np.sum(g**2))
+
+
+def recording_covariance(
+    model, parts: list[FittedFrames], base, fit: BaseFit, channels, theta: np.ndarray, estimator: str = "filter"
+) -> BaseFit:
     """``fit`` with the covariance of frames correlated in time (module doc), ``parts`` the datasets fitted together
-    (independent of each other): the Newey-West sandwich over every part's scores (``L = 0`` for a part of
-    independent frames), plus ``delta delta^T`` for what the filter and the differentiation move the estimate by
-    (:func:`filter_error`, at the fit's estimate ``theta`` (C, n)). What estimating the weights adds (the fit's
-    ``cov_beta - sigma2 A^-1``) is kept, scaled by the square of the variance's growth (fewer effective frames);
-    ``axis_long_run`` is set (the offsets' std takes it; the frame-weighted mean over the parts). ``fit`` as it is
-    when no part is filtered; rows not full rank stay NaN."""
+    (independent of each other), plus ``delta delta^T`` for what the filter and the differentiation move the
+    estimate by (:func:`filter_error`, at the fit's estimate ``theta`` (C, n)).
+
+    ``estimator="filter"`` (the default): each axis's residual variance counts ``kappa_a`` times,
+    ``cov = sigma2 A^-1 (sum_a kappa_a d_a^2 G_a) A^-1`` with ``kappa_a`` the larger of the filter's
+    (:func:`filter_gain`) and the residuals' own long-run variance over their variance (Bartlett, :data:`LAG_PERIODS`
+    cut-off periods); 1 for a part of independent frames. ``"newey-west"``: the sandwich over the per-frame scores
+    (module doc), which the fit's own projection biases low (measured in ``docs/identification.md``). What estimating
+    the weights adds (the fit's ``cov_beta - sigma2 A^-1``) is kept, scaled by the square of the variance's growth
+    (fewer effective frames); ``axis_long_run`` is set to the frame-weighted mean ``kappa_a`` (the offsets' std takes
+    it). ``fit`` as it is when no part is filtered; rows not full rank stay NaN."""
     if all(p.filtered is None for p in parts):
         return fit
     c_all, n_axes = fit.axis_weights.shape
     cov, long_run = fit.cov_beta.copy(), np.ones((c_all, n_axes))
     n_frames = [len(range(*p.frames.indices(p.ds.n_frames))) for p in parts]
     hc1 = n_axes * sum(n_frames) / max(fit.dof, 1)
+    gains = [1.0 if p.filtered is None else filter_gain(p.filtered) for p in parts]
     for c in range(c_all):
         if not fit.full_rank[c] or not np.all(np.isfinite(fit.cov_beta[c])):
             continue
         a_inv = r_inverse(fit.R[c][None])[0]
-        omega, moved, lr = 0.0, 0.0, 0.0
-        for p, n in zip(parts, n_frames, strict=True):
+        d2 = fit.axis_weights[c] ** 2
+        omega, info, moved, lr = 0.0, 0.0, 0.0, 0.0
+        for p, n, gain in zip(parts, n_frames, gains, strict=True):
             lags = 0 if p.filtered is None else p.filtered.lags
-            scores, resid = frame_scores(model, p.ds, p.frames, base, fit, channels, p.offsets, c)
-            omega = omega + moving_sum_covariance(scores, lags)
+            scores, resid, g = frame_scores(model, p.ds, p.frames, base, fit, channels, p.offsets, c)
             plain = np.maximum(np.einsum("fa,fa->a", resid, resid), 1e-300)
-            lr = lr + n * np.maximum(np.diag(moving_sum_covariance(resid, lags)) / plain, 1.0)
+            kappa = np.maximum(np.diag(moving_sum_covariance(resid, lags)) / plain, gain if lags else 1.0)
+            info = info + np.einsum("a,akl->kl", kappa * d2, g)
+            lr = lr + n * kappa
+            if estimator == "newey-west":
+                omega = omega + moving_sum_covariance(scores, lags)
             if p.filtered is not None:
-                moved = moved + filter_error(
-                    model, p.ds, p.frames, base, fit, channels, p.offsets, theta, p.filtered, c
-                )
-        sandwich = hc1 * a_inv @ omega @ a_inv
+                args = (p.ds, p.frames, base, fit, channels, p.offsets, theta, p.filtered, c)
+                moved = moved + filter_error(model, *args)
+        if estimator == "newey-west":
+            spread = hc1 * a_inv @ omega @ a_inv
+        else:
+            spread = fit.sigma2[c] * a_inv @ info @ a_inv
         naive = fit.sigma2[c] * a_inv
-        growth = np.mean(np.diag(sandwich) / np.maximum(np.diag(naive), 1e-300))
+        growth = np.mean(np.diag(spread) / np.maximum(np.diag(naive), 1e-300))
         delta = a_inv @ moved
-        cov[c] = sandwich + growth**2 * (fit.cov_beta[c] - naive) + np.outer(delta, delta)
+        cov[c] = spread + growth**2 * (fit.cov_beta[c] - naive) + np.outer(delta, delta)
         long_run[c] = lr / sum(n_frames)
     return dataclasses.replace(fit, cov_beta=cov, axis_long_run=long_run)
 
