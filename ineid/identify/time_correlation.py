@@ -86,6 +86,36 @@ def moving_sum_covariance(scores: np.ndarray, lags: int) -> np.ndarray:
     return total.T @ total / (lags + 1)
 
 
+def stacked_chunks(model, arrays, theta_known, channels, base_index):
+    """``(start, stop, W_b, y)`` over chunks of :data:`CHUNK_FRAMES` frames of ``arrays = (q, qd, qdd, values)``
+    (F, .) of one configuration: the base columns ``W_b`` (f, A, r) and the values less the known links' share
+    (f, A); every chunk stacked at one shape (the last one padded), so one regressor kernel serves them all."""
+    n_frames, n_axes = arrays[3].shape
+    size = min(CHUNK_FRAMES, n_frames)
+    for start in range(0, n_frames, size):
+        stop = min(start + size, n_frames)
+        take = np.minimum(np.arange(start, start + size), n_frames - 1)
+        w, y = stack(model, *(a[None, take] for a in arrays), theta_known, channels)
+        yield (
+            start,
+            stop,
+            w[0][:, base_index].reshape(size, n_axes, -1)[: stop - start],
+            y[0].reshape(size, n_axes)[: stop - start],
+        )
+
+
+def _predicted(model, states, theta, channels, extra) -> np.ndarray:
+    """(F, A) :func:`ineid.identify.systems.predict_wrench` of one configuration's ``states = (q, qd, qdd)``, in
+    chunks of :data:`CHUNK_FRAMES` frames at one shape (the last one padded)."""
+    n_frames = len(states[0])
+    size = min(CHUNK_FRAMES, n_frames)
+    parts = []
+    for start in range(0, n_frames, size):
+        take = np.minimum(np.arange(start, start + size), n_frames - 1)
+        parts.append(predict_wrench(model, *(a[None, take] for a in states), theta, channels, extra)[0])
+    return np.concatenate(parts)[:n_frames]
+
+
 def frame_scores(
     model, ds, fit_sl: slice, base, fit: BaseFit, channels, offsets: Offsets | None, config: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -102,15 +132,7 @@ def frame_scores(
         w_mean, y_mean = offsets.w_mean[config][:, idx] * mask[:, None], offsets.y_mean[config] * mask
     scores, resid = np.empty((n_frames, len(idx))), np.empty((n_frames, n_axes))
     g = np.zeros((n_axes, len(idx), len(idx)))
-    size = min(CHUNK_FRAMES, n_frames)
-    for start in range(0, n_frames, size):
-        stop = min(start + size, n_frames)
-        take = np.minimum(np.arange(start, start + size), n_frames - 1)  # the last chunk padded: one kernel
-        w, y = stack(
-            model, q[None, take], qd[None, take], qdd[None, take], values[None, take], ds.theta_known, channels
-        )
-        w_b = w[0][:, idx].reshape(size, n_axes, -1)[: stop - start]
-        y = y[0].reshape(size, n_axes)[: stop - start]
+    for start, stop, w_b, y in stacked_chunks(model, (q, qd, qdd, values), ds.theta_known, channels, idx):
         if offsets is not None:
             w_b, y = w_b - w_mean[None], y - y_mean[None]
         r = y - w_b @ beta
@@ -228,16 +250,20 @@ def filter_error(
         return 0.0
     full = model.full_theta(theta[config, :n_u][None], ds.theta_known)
     x = theta[config, n_u:][None] if theta.shape[1] > n_u else None
-    y_f = predict_wrench(model, *(a[None] for a in s_f), full, channels, x)[0]
+    y_f = _predicted(model, s_f, full, channels, x)
     keep = slice(edge, len(s_f[0]) - edge)
     values = low.apply(y_f)[keep]
     s_2 = [low.apply(a)[keep] for a in s_f]
     n_frames, n_axes = values.shape
-    w, y = stack(model, *(a[None] for a in s_2), values[None], ds.theta_known, channels)
-    w_b = w[0][:, base.base_index].reshape(n_frames, n_axes, -1)
-    e = y[0].reshape(n_frames, n_axes) - w_b @ np.nan_to_num(fit.beta[config])
+    mask = np.zeros(n_axes, dtype=bool)
     if offsets is not None:
         mask = np.ones(n_axes, dtype=bool) if offsets.mask is None else np.asarray(offsets.mask, dtype=bool)
-        e[:, mask] -= e[:, mask].mean(axis=0)
-    total = np.einsum("fak,fa->k", w_b, e * fit.axis_weights[config] ** 2)
+    beta = np.nan_to_num(fit.beta[config])
+    sum_we, sum_w, sum_e = 0.0, 0.0, 0.0
+    for _, _, w_b, y in stacked_chunks(model, (*s_2, values), ds.theta_known, channels, base.base_index):
+        e = y - w_b @ beta
+        sum_we = sum_we + np.einsum("fak,fa->ak", w_b, e)
+        sum_w, sum_e = sum_w + w_b.sum(axis=0), sum_e + e.sum(axis=0)
+    centred = sum_we - mask[:, None] * sum_w * (sum_e / n_frames)[:, None]  # sum_t w_t (e_t - mean e) per axis
+    total = np.einsum("a,ak->k", fit.axis_weights[config] ** 2, centred)
     return total * (len(s_f[0]) / n_frames)
