@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ineid.identify.least_squares import BaseFit, r_inverse
+from ineid.identify.least_squares import BaseFit, axis_leverage, r_inverse
 from ineid.identify.systems import Offsets, predict_wrench, stack
 
 LAG_PERIODS = 2.0
@@ -166,21 +166,57 @@ def filter_gain(filtered: FilteredFrames) -> float:
     return float(1.0 / np.sum(g**2))
 
 
+BAND = 0.25
+"""The band of the residuals' spectrum that stands for the parameters' frequencies: ``[0, BAND f_c]``, where the
+zero-phase filter passes 99 % of the power (``(1 + BAND^4)^-2``)."""
+
+
+def band_long_run(resid: np.ndarray, filtered: FilteredFrames, removed: np.ndarray) -> np.ndarray:
+    """(A,) each axis's residual power density in ``[0, BAND f_c]`` over its mean density: the variance of a mean
+    over that of the mean of independent frames, the density taken where the motion and the parameters are, and
+    below the filter's edge (a white noise's ``kappa``, not a differentiated noise's, which has none there).
+
+    The fit takes ``removed`` (A,) degrees of freedom of each axis out of that band (its leverage ``h_a``, and the
+    offset at zero frequency): the band's ``n`` degrees of freedom hold ``n - removed`` of the noise, scaled back.
+
+    Args:
+        resid: (F, A) the residuals on a uniform grid at ``filtered.rate``.
+    """
+    n = len(resid)
+    power = np.abs(np.fft.rfft(resid, axis=0)) ** 2
+    dof = np.full(len(power), 2.0)
+    dof[0] = 1.0
+    if n % 2 == 0:
+        dof[-1] = 1.0
+    band = np.fft.rfftfreq(n, 1.0 / filtered.rate) <= BAND * filtered.cutoff
+    n_band = dof[band].sum()
+    density = (dof[band] @ power[band]) / np.maximum(n_band - removed, 1.0)
+    mean = (dof @ power) / np.maximum(dof.sum() - removed, 1.0)
+    return density / np.maximum(mean, 1e-300)
+
+
+ESTIMATORS = ("band", "filter", "newey-west")
+"""What :func:`recording_covariance` can take the time correlation from (``docs/identification.md`` measures them)."""
+
+
 def recording_covariance(
-    model, parts: list[FittedFrames], base, fit: BaseFit, channels, theta: np.ndarray, estimator: str = "filter"
+    model, parts: list[FittedFrames], base, fit: BaseFit, channels, theta: np.ndarray, estimator: str = "band"
 ) -> BaseFit:
     """``fit`` with the covariance of frames correlated in time (module doc), ``parts`` the datasets fitted together
     (independent of each other), plus ``delta delta^T`` for what the filter and the differentiation move the
     estimate by (:func:`filter_error`, at the fit's estimate ``theta`` (C, n)).
 
-    ``estimator="filter"`` (the default): each axis's residual variance counts ``kappa_a`` times,
-    ``cov = sigma2 A^-1 (sum_a kappa_a d_a^2 G_a) A^-1`` with ``kappa_a`` the larger of the filter's
-    (:func:`filter_gain`) and the residuals' own long-run variance over their variance (Bartlett, :data:`LAG_PERIODS`
-    cut-off periods); 1 for a part of independent frames. ``"newey-west"``: the sandwich over the per-frame scores
-    (module doc), which the fit's own projection biases low (measured in ``docs/identification.md``). What estimating
-    the weights adds (the fit's ``cov_beta - sigma2 A^-1``) is kept, scaled by the square of the variance's growth
-    (fewer effective frames); ``axis_long_run`` is set to the frame-weighted mean ``kappa_a`` (the offsets' std takes
-    it). ``fit`` as it is when no part is filtered; rows not full rank stay NaN."""
+    Each axis's residual variance counts ``kappa_a`` times: ``cov = sigma2 A^-1 (sum_a kappa_a d_a^2 G_a) A^-1``,
+    ``kappa_a`` by ``estimator`` (:data:`ESTIMATORS`): ``"band"`` (the default) the residuals' own power density
+    where the parameters are (:func:`band_long_run`); ``"filter"`` the larger of the filter's
+    (:func:`filter_gain`, exact for white noise before the filter) and the residuals' Bartlett long-run ratio;
+    ``"newey-west"`` replaces the whole by the sandwich over the per-frame scores. A part of independent frames
+    counts 1. What estimating the weights adds (the fit's ``cov_beta - sigma2 A^-1``) is kept, scaled by the
+    square of the variance's growth (fewer effective frames); ``axis_long_run`` is set to the frame-weighted mean
+    ``kappa_a`` (the offsets' std takes it). ``fit`` as it is when no part is filtered; rows not full rank stay
+    NaN."""
+    if estimator not in ESTIMATORS:
+        raise ValueError(f"estimator must be one of {ESTIMATORS}, got {estimator!r}")
     if all(p.filtered is None for p in parts):
         return fit
     c_all, n_axes = fit.axis_weights.shape
@@ -197,8 +233,14 @@ def recording_covariance(
         for p, n, gain in zip(parts, n_frames, gains, strict=True):
             lags = 0 if p.filtered is None else p.filtered.lags
             scores, resid, g = frame_scores(model, p.ds, p.frames, base, fit, channels, p.offsets, c)
-            plain = np.maximum(np.einsum("fa,fa->a", resid, resid), 1e-300)
-            kappa = np.maximum(np.diag(moving_sum_covariance(resid, lags)) / plain, gain if lags else 1.0)
+            if p.filtered is None:
+                kappa = np.ones(n_axes)
+            elif estimator == "band":
+                removed = axis_leverage(g[None], fit.axis_weights[c][None], a_inv[None])[0]
+                kappa = band_long_run(resid, p.filtered, removed + _offset_axes(p.offsets, n_axes))
+            else:
+                plain = np.maximum(np.einsum("fa,fa->a", resid, resid), 1e-300)
+                kappa = np.maximum(np.diag(moving_sum_covariance(resid, lags)) / plain, gain)
             info = info + np.einsum("a,akl->kl", kappa * d2, g)
             lr = lr + n * kappa
             if estimator == "newey-west":
@@ -216,6 +258,13 @@ def recording_covariance(
         cov[c] = spread + growth**2 * (fit.cov_beta[c] - naive) + np.outer(delta, delta)
         long_run[c] = lr / sum(n_frames)
     return dataclasses.replace(fit, cov_beta=cov, axis_long_run=long_run)
+
+
+def _offset_axes(offsets: Offsets | None, n_axes: int) -> np.ndarray:
+    """(A,) 1 on the axes whose offset was taken out, else 0."""
+    if offsets is None:
+        return np.zeros(n_axes)
+    return np.ones(n_axes) if offsets.mask is None else np.asarray(offsets.mask, dtype=np.float64)
 
 
 def filter_error(
