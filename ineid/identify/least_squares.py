@@ -52,6 +52,10 @@ the inverse of the REML information ``I_ab = (delta_ab (F_a - 2 h_a) + tr(P_a V 
 Everything comes from the per-axis blocks ``G_a`` (:mod:`ineid.identify.fused`): nothing
 new is read from the frames.
 
+All of this assumes independent frames. A filtered recording's residuals are correlated in time, and the
+covariance of its fits comes from :mod:`ineid.identify.time_correlation` (each axis's long-run variance, and
+the filter's own error), which sets :attr:`BaseFit.axis_long_run`.
+
 What remains is that a standard deviation estimated from ``nu`` residual degrees of freedom
 makes ``error / std`` a Student-t variable, whose spread is ``sqrt(nu / (nu - 2))``: about
 1.015 at 80 frames, 1.15 at 20 (``docs/identification.md`` has the Monte Carlo).

@@ -1,26 +1,23 @@
-"""The covariance of a least-squares fit on a filtered recording: residuals correlated in time.
+"""The covariance of a least-squares fit on a filtered recording: residuals correlated in time, the filter's error.
 
-An imported recording's frames are low-passed (:mod:`ineid.data.recordings.frames`: one zero-phase
-Butterworth at the cut-off ``f_c`` on every channel, the angles differentiated after it). Its residuals are
-then far from independent: white noise at ``f_s`` Hz low-passed at ``f_c`` keeps its correlation over about
-``f_s / (2 f_c)`` frames, and ``sigma^2 (W^T D^2 W)^-1``, which counts every frame as a new draw, is that many
-times too small in variance (RMS z 6.5 at 1 kHz and 10 Hz, 3.3 at 200 Hz; ``docs/identification.md``).
+An imported recording's frames are low-passed (:mod:`ineid.data.recordings.frames`: one zero-phase Butterworth at
+the cut-off ``f_c`` on every channel, the angles differentiated after it). Its residuals are then far from
+independent: white noise at ``f_s`` Hz low-passed at ``f_c`` keeps its correlation over about ``f_s / (2 f_c)``
+frames, and ``sigma^2 (W^T D^2 W)^-1``, which counts every frame as a new draw, is that many times too small in
+variance (RMS z 8.4 at 1 kHz and 10 Hz, 3.2 at 200 Hz; ``docs/identification.md``).
 
-The covariance of ``beta_hat = A^-1 W_b^T D^2 y`` (``A = W_b^T D^2 W_b``) is the sandwich
+:func:`recording_covariance` counts each axis's residual variance ``kappa_a`` times,
 
-    cov(beta_hat) = A^-1 Omega A^-1,     Omega = cov(sum_t s_t),     s_t = sum_a d_a^2 w_ta r_ta
+    cov(beta_hat) = sigma^2 A^-1 (sum_a kappa_a d_a^2 G_a) A^-1,     A = sum_a d_a^2 G_a,
 
-over the per-frame scores ``s_t`` (``w_ta`` the base regressor row of axis ``a`` at frame ``t``, ``r_ta`` its
-residual). ``Omega`` is estimated by Newey & West (1987): the autocovariances ``Gamma_l = sum_t s_t s_{t+l}^T``
-weighted by Bartlett's ``1 - |l| / (L + 1)`` up to ``L`` lags, which is exactly
-``(1 / (L + 1)) sum_t S_t S_t^T`` over the moving sums ``S_t`` of ``L + 1`` scores (zero beyond the ends): one
-cumulative sum, no lag loop. The bandwidth comes from the filter: ``L = LAG_PERIODS f_s / f_c``
-(:func:`bandwidth`). The residuals are those of the fit (leverage takes ``r`` of the ``AF`` degrees of
-freedom), so ``Omega`` is scaled by ``AF / dof`` (MacKinnon & White's HC1).
-
-Unlike a scalar effective sample size, the sandwich needs no assumption that the regressor changes slowly
-over the correlation length, and it takes whatever correlation the residuals have (between axes too), not
-only the filter's: it is what a block bootstrap over time estimates, without the resampling.
+``kappa_a`` the variance of a mean of the axis's residuals over that of a mean of independent frames, taken from
+the residuals' power density where the motion and the parameters are, ``[0, f_c / 4]``, with the fit's leverage
+taken out of that band (:func:`band_long_run`); and adds ``delta delta^T``, ``delta`` what the filter and the
+differentiation themselves move the estimate by, estimated from the data (:func:`filter_error`). The Newey-West
+sandwich over the per-frame scores ``A^-1 (sum_l w_l Gamma_l) A^-1`` (:func:`moving_sum_covariance`) and the
+filter's own gain (:func:`filter_gain`) are the alternatives measured: the first is biased low (the residuals lack
+exactly the noise at the regressor's frequencies, which the fit absorbed), the second counts a differentiated
+angle noise, which has no power at low frequencies, as white.
 
 References:
     Newey & West (1987), Econometrica 55(3); Andrews (1991), Econometrica 59(3); MacKinnon & White (1985).
