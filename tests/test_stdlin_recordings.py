@@ -111,7 +111,7 @@ def test_several_recordings_fitted_jointly_take_their_correlation(short_lab):
     assert before > 3.0 and 0.6 < after < 1.6, (before, after)
 
 
-@pytest.mark.slow  # 24 solves of 10 s simulated recordings at three rates and cut-offs: about two minutes
+@pytest.mark.slow  # 24 solves of 10 s simulated recordings at three rates and cut-offs: about a minute
 @pytest.mark.parametrize(("step", "cutoff"), [(1, 10.0), (1, 5.0), (5, 10.0), (2, 20.0)])
 def test_calibration_over_rates_and_cutoffs(step, cutoff):
     """RMS z per group within 0.75-1.3 (the table in ``docs/identification.md``: 0.82-1.29 at six draws)."""

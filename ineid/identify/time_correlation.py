@@ -168,6 +168,11 @@ BAND = 0.25
 zero-phase filter passes 99 % of the power (``(1 + BAND^4)^-2``)."""
 
 
+MIN_BAND_DOF = 16
+"""Fewest degrees of freedom left in the band for :func:`band_long_run` (a recording of a few seconds at a low
+cut-off has fewer); below them an axis takes the filter's rule (:func:`recording_covariance`)."""
+
+
 def band_long_run(resid: np.ndarray, filtered: FilteredFrames, removed: np.ndarray) -> np.ndarray:
     """(A,) each axis's residual power density in ``[0, BAND f_c]`` over its mean density: the variance of a mean
     over that of the mean of independent frames, the density taken where the motion and the parameters are, and
@@ -178,6 +183,9 @@ def band_long_run(resid: np.ndarray, filtered: FilteredFrames, removed: np.ndarr
 
     Args:
         resid: (F, A) the residuals on a uniform grid at ``filtered.rate``.
+
+    Returns:
+        (A,) the ratio; NaN where fewer than :data:`MIN_BAND_DOF` degrees of freedom are left in the band.
     """
     n = len(resid)
     power = np.abs(np.fft.rfft(resid, axis=0)) ** 2
@@ -189,7 +197,8 @@ def band_long_run(resid: np.ndarray, filtered: FilteredFrames, removed: np.ndarr
     n_band = dof[band].sum()
     density = (dof[band] @ power[band]) / np.maximum(n_band - removed, 1.0)
     mean = (dof @ power) / np.maximum(dof.sum() - removed, 1.0)
-    return density / np.maximum(mean, 1e-300)
+    ratio = density / np.maximum(mean, 1e-300)
+    return np.where(n_band - removed >= MIN_BAND_DOF, ratio, np.nan)
 
 
 ESTIMATORS = ("band", "filter", "newey-west")
@@ -205,7 +214,8 @@ def recording_covariance(
 
     Each axis's residual variance counts ``kappa_a`` times: ``cov = sigma2 A^-1 (sum_a kappa_a d_a^2 G_a) A^-1``,
     ``kappa_a`` by ``estimator`` (:data:`ESTIMATORS`): ``"band"`` (the default) the residuals' own power density
-    where the parameters are (:func:`band_long_run`); ``"filter"`` the larger of the filter's
+    where the parameters are (:func:`band_long_run`), at least 1, the filter's rule where the band holds too few
+    degrees of freedom; ``"filter"`` the larger of the filter's
     (:func:`filter_gain`, exact for white noise before the filter) and the residuals' Bartlett long-run ratio;
     ``"newey-west"`` replaces the whole by the sandwich over the per-frame scores. A part of independent frames
     counts 1. What estimating the weights adds (the fit's ``cov_beta - sigma2 A^-1``) is kept, scaled by the
@@ -230,14 +240,14 @@ def recording_covariance(
         for p, n, gain in zip(parts, n_frames, gains, strict=True):
             lags = 0 if p.filtered is None else p.filtered.lags
             scores, resid, g = frame_scores(model, p.ds, p.frames, base, fit, channels, p.offsets, c)
+            plain = np.maximum(np.einsum("fa,fa->a", resid, resid), 1e-300)
+            kappa = np.maximum(np.diag(moving_sum_covariance(resid, lags)) / plain, gain)  # the filter's rule
             if p.filtered is None:
                 kappa = np.ones(n_axes)
-            elif estimator == "band":
+            elif estimator == "band":  # never below independent frames' 1
                 removed = axis_leverage(g[None], fit.axis_weights[c][None], a_inv[None])[0]
-                kappa = band_long_run(resid, p.filtered, removed + _offset_axes(p.offsets, n_axes))
-            else:
-                plain = np.maximum(np.einsum("fa,fa->a", resid, resid), 1e-300)
-                kappa = np.maximum(np.diag(moving_sum_covariance(resid, lags)) / plain, gain)
+                band = band_long_run(resid, p.filtered, removed + _offset_axes(p.offsets, n_axes))
+                kappa = np.where(np.isnan(band), kappa, np.maximum(band, 1.0))
             info = info + np.einsum("a,akl->kl", kappa * d2, g)
             lr = lr + n * kappa
             if estimator == "newey-west":
