@@ -169,8 +169,9 @@ zero-phase filter passes 99 % of the power (``(1 + BAND^4)^-2``)."""
 
 
 MIN_BAND_DOF = 16
-"""Fewest degrees of freedom left in the band for :func:`band_long_run` (a recording of a few seconds at a low
-cut-off has fewer); below them an axis takes the filter's rule (:func:`recording_covariance`)."""
+"""Fewest degrees of freedom left in the band of :func:`band_long_run`: where ``[0, BAND f_c]`` holds fewer (a
+short recording at a low cut-off, many parameters), the band widens up to ``f_c / 2`` until it holds them, and
+beyond that the axis takes the filter's rule (:func:`recording_covariance`)."""
 
 
 def band_long_run(resid: np.ndarray, filtered: FilteredFrames, removed: np.ndarray) -> np.ndarray:
@@ -179,13 +180,14 @@ def band_long_run(resid: np.ndarray, filtered: FilteredFrames, removed: np.ndarr
     below the filter's edge (a white noise's ``kappa``, not a differentiated noise's, which has none there).
 
     The fit takes ``removed`` (A,) degrees of freedom of each axis out of that band (its leverage ``h_a``, and the
-    offset at zero frequency): the band's ``n`` degrees of freedom hold ``n - removed`` of the noise, scaled back.
+    offset at zero frequency): the band's ``n`` degrees of freedom hold ``n - removed`` of the noise, scaled back;
+    the band widens (up to ``f_c / 2``) until ``n - removed`` is at least :data:`MIN_BAND_DOF`.
 
     Args:
         resid: (F, A) the residuals on a uniform grid at ``filtered.rate``.
 
     Returns:
-        (A,) the ratio; NaN where fewer than :data:`MIN_BAND_DOF` degrees of freedom are left in the band.
+        (A,) the ratio; NaN where fewer than :data:`MIN_BAND_DOF` degrees of freedom are left up to ``f_c / 2``.
     """
     n = len(resid)
     power = np.abs(np.fft.rfft(resid, axis=0)) ** 2
@@ -193,12 +195,18 @@ def band_long_run(resid: np.ndarray, filtered: FilteredFrames, removed: np.ndarr
     dof[0] = 1.0
     if n % 2 == 0:
         dof[-1] = 1.0
-    band = np.fft.rfftfreq(n, 1.0 / filtered.rate) <= BAND * filtered.cutoff
-    n_band = dof[band].sum()
-    density = (dof[band] @ power[band]) / np.maximum(n_band - removed, 1.0)
-    mean = (dof @ power) / np.maximum(dof.sum() - removed, 1.0)
-    ratio = density / np.maximum(mean, 1e-300)
-    return np.where(n_band - removed >= MIN_BAND_DOF, ratio, np.nan)
+    freq = np.fft.rfftfreq(n, 1.0 / filtered.rate)
+    cum_dof, cum_power = np.cumsum(dof), np.cumsum(dof[:, None] * power, axis=0)
+    widest = np.searchsorted(freq, 0.5 * filtered.cutoff, side="right") - 1  # the band's widest edge
+    ratio = np.full(power.shape[1], np.nan)
+    mean = cum_power[-1] / np.maximum(cum_dof[-1] - removed, 1.0)
+    for a in range(power.shape[1]):
+        edge = max(np.searchsorted(freq, BAND * filtered.cutoff, side="right") - 1, 0)
+        short = np.flatnonzero(cum_dof - removed[a] >= MIN_BAND_DOF)
+        edge = max(edge, short[0] if len(short) else len(freq))
+        if edge <= widest:
+            ratio[a] = cum_power[edge, a] / (cum_dof[edge] - removed[a]) / max(mean[a], 1e-300)
+    return ratio
 
 
 ESTIMATORS = ("band", "filter", "newey-west")
