@@ -99,6 +99,7 @@ def test_several_recordings_fitted_jointly_take_their_correlation(short_lab):
     for _ in range(2):
         streams = noisy_streams(short_lab, 2, rng)
         ds, _ = recording_dataset(streams, short_lab.model, ImportSettings(sensor_pose=POSE_TEXT, cutoff=10.0))
+        assert filtered_frames(ds.select(frames=slice(None, None, 5))).rate == pytest.approx(100.0)  # every 5th frame
         halves = [ds.select(frames=slice(0, ds.n_frames // 2)), ds.select(frames=slice(ds.n_frames // 2, None))]
         res = solve_recordings(halves, SolveSettings(bias="estimate"), model=short_lab.model)
         truth = short_lab.theta_unknown @ res.base.B.T

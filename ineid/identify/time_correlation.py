@@ -36,6 +36,8 @@ from ineid.identify.systems import Offsets, predict_wrench, stack
 
 LAG_PERIODS = 2.0
 """The Newey-West bandwidth in the filter's cut-off periods: ``L = LAG_PERIODS f_s / f_c`` lags."""
+NYQUIST_SHARE = 0.45
+"""The highest cut-off, as a share of the frames' rate, that :class:`ineid.data.recordings.signals.LowPass` takes."""
 CHUNK_FRAMES = 4096
 """Frames per stacked chunk of the pass over the frames (one compiled regressor kernel: the last chunk padded)."""
 
@@ -65,10 +67,18 @@ def bandwidth(cutoff: float, rate: float) -> int:
 
 def filtered_frames(ds) -> FilteredFrames | None:
     """The low-pass of an imported recording (its origin's ``import`` record: cut-off and rate), or None for frames
-    that are independent draws (a synthetic dataset, a recording imported without a filter)."""
+    that are independent draws (a synthetic dataset, a recording imported without a filter). The frames' rate is
+    their time stamps' where the dataset has them (a selection of every k-th frame is at ``rate / k``); a cut-off at
+    or above :data:`NYQUIST_SHARE` of it leaves successive frames as good as independent (None)."""
     record = (ds.meta.origin or {}).get("import") or {}
     cutoff, rate = record.get("cutoff"), record.get("rate")
     if not cutoff or not rate:
+        return None
+    time = getattr(ds, "time", None)
+    if time is not None and time.shape[-1] > 1:
+        step = float(np.median(np.diff(np.asarray(time[0], dtype=np.float64))))
+        rate = 1.0 / step if step > 0 else rate
+    if cutoff >= NYQUIST_SHARE * rate:
         return None
     return FilteredFrames(float(cutoff), float(rate))
 
