@@ -36,6 +36,7 @@ from ineid.identify.solve import ESTIMATORS
 from ineid.identify.solve_results import SolveResults, results_meta, truth_with_extras
 from ineid.identify.steps import bias_estimate, predicted_wrench
 from ineid.identify.systems import check_frames
+from ineid.identify.time_correlation import FittedFrames, filtered_frames, recording_covariance
 from ineid.progress import Progress
 
 
@@ -152,6 +153,9 @@ def solve_recordings(
         return _factor_residuals(factors, base, theta)
 
     theta_lin = linear_theta(fit, base, prior)
+    taken = offsets or [None] * len(datasets)
+    parts = [FittedFrames(d, slice(None), o, filtered_frames(d)) for d, o in zip(datasets, taken, strict=True)]
+    fit = recording_covariance(model, parts, base, fit, channels, theta_lin)  # filtered recordings' frames
     if settings.known_uncertainty:
         fit = with_known_uncertainty(
             fit, model, base, datasets, slice(None), channels, settings.known_uncertainty, with_bias

@@ -52,6 +52,10 @@ the inverse of the REML information ``I_ab = (delta_ab (F_a - 2 h_a) + tr(P_a V 
 Everything comes from the per-axis blocks ``G_a`` (:mod:`ineid.identify.fused`): nothing
 new is read from the frames.
 
+All of this assumes independent frames. A filtered recording's residuals are correlated in time, and the
+covariance of its fits comes from :mod:`ineid.identify.time_correlation` (each axis's long-run variance, and
+the filter's own error), which sets :attr:`BaseFit.axis_long_run`.
+
 What remains is that a standard deviation estimated from ``nu`` residual degrees of freedom
 makes ``error / std`` a Student-t variable, whose spread is ``sqrt(nu / (nu - 2))``: about
 1.015 at 80 frames, 1.15 at 20 (``docs/identification.md`` has the Monte Carlo).
@@ -106,6 +110,9 @@ class BaseFit:
             normal equations an upper bound at most ``sqrt(r)`` above it; inf when not
             full rank).
         axis_weights: (C, A) the row weights ``D`` per measured axis.
+        axis_long_run: (C, A) each axis's long-run variance (its residuals' autocovariances summed,
+            :mod:`ineid.identify.time_correlation`) over its variance, for frames correlated in time
+            (a filtered recording); None: independent frames.
     """
 
     beta: np.ndarray
@@ -117,6 +124,7 @@ class BaseFit:
     rank: np.ndarray
     cond: np.ndarray
     axis_weights: np.ndarray
+    axis_long_run: np.ndarray | None = None
 
     @property
     def full_rank(self) -> np.ndarray:
@@ -464,6 +472,6 @@ def concat_fits(fits: list[BaseFit]) -> BaseFit:
     cat = {
         f.name: np.concatenate([getattr(x, f.name) for x in fits])
         for f in dataclasses.fields(BaseFit)
-        if f.name != "dof"
+        if f.name != "dof" and getattr(fits[0], f.name) is not None
     }
     return BaseFit(dof=fits[0].dof, **cat)

@@ -34,6 +34,7 @@ from ineid.identify.linear import Estimate, SharedFit, linear_theta, prior_map
 from ineid.identify.qr_blocks import FactorBlocks, factor_blocks, fit_base_factors
 from ineid.identify.settings import SolveSettings
 from ineid.identify.systems import Offsets, predict_wrench, remove_offsets, stack, stack_casadi
+from ineid.identify.time_correlation import FittedFrames, filtered_frames, recording_covariance
 from ineid.progress import Progress
 from ineid.robots.model import SMALL_JOB_FRAMES
 
@@ -140,6 +141,7 @@ def fit_dataset(
         fit, rms, factors = factor_fit(model, ds, frames, base, settings, axis_sigma, channels, fit_progress)
         seconds = np.full(ds.n_configs, (time.perf_counter() - t0) / max(ds.n_configs, 1))
         theta_lin = linear_theta(fit, base, prior)  # 2. the residuals from the factors: exact, no pass
+        fit = _time_correlated(model, ds, fit_sl, base, fit, channels, factors.offsets, theta_lin)
         if settings.known_uncertainty:
             fit = with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings.known_uncertainty, with_bias)
         shared = SharedFit(base, prior, fit, theta_lin, rms)
@@ -165,9 +167,17 @@ def fit_dataset(
     theta_lin = linear_theta(fit, base, prior)
     sums = estimate_residual_sums(model, ds, n_fit, n_val, theta_lin, channels, offsets)
     fit = with_exact_rss(fit, sums[0])
+    fit = _time_correlated(model, ds, fit_sl, base, fit, channels, offsets, theta_lin)
     if settings.known_uncertainty:  # the known links' CAD uncertainty (ineid.identify.known)
         fit = with_known_uncertainty(fit, model, base, ds, fit_sl, channels, settings.known_uncertainty, with_bias)
     return DatasetFit(SharedFit(base, prior, fit, theta_lin, rms), offsets, sums, seconds)
+
+
+def _time_correlated(model, ds, fit_sl: slice, base, fit: BaseFit, channels, offsets, theta) -> BaseFit:
+    """``fit`` with the covariance of residuals correlated in time when ``ds`` is a filtered recording
+    (:mod:`ineid.identify.time_correlation`); as it is for independent frames."""
+    parts = [FittedFrames(ds, fit_sl, offsets, filtered_frames(ds))]
+    return recording_covariance(model, parts, base, fit, channels, theta)
 
 
 def factor_fit(
@@ -215,7 +225,8 @@ def bias_estimate(off: Offsets, est: Estimate, base: BaseParameters) -> tuple[np
     bias = off.bias(est.theta)
     g = np.einsum("cap,pr->car", off.w_mean, prior_map(base))
     var = np.einsum("car,crs,cas->ca", g, np.nan_to_num(est.fit.cov_beta), g)
-    var += est.fit.sigma2[:, None] / (est.fit.axis_weights**2 * off.n_frames)
+    long_run = 1.0 if est.fit.axis_long_run is None else est.fit.axis_long_run  # frames correlated in time
+    var += long_run * est.fit.sigma2[:, None] / (est.fit.axis_weights**2 * off.n_frames)
     std = np.sqrt(np.maximum(var, 0.0))
     bad = ~est.success
     bias[bad], std[bad] = np.nan, np.nan
@@ -274,7 +285,7 @@ def fused_fit(
             w, y, _ = remove_offsets(w, y, n_axes, mask)
         ref = fit_base(w, y, base, weights, axis_sigma, n_axes, lost)
         for f in dataclasses.fields(BaseFit):
-            if f.name != "dof":
+            if f.name != "dof" and getattr(fit, f.name) is not None:
                 getattr(fit, f.name)[idx] = getattr(ref, f.name)
     _, _, yy = blocks.weighted(fit.axis_weights)
     return fit, np.sqrt(yy / (n_axes * blocks.n_frames)), offsets
