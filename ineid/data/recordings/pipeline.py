@@ -104,6 +104,9 @@ def recording_dataset(
     cut = choose_cutoff(arrays, streams, settings)
     check_gaps(arrays.timing, cut.hz or signals.CUTOFF_RANGE[1] * arrays.rate, arrays.source)
     prepared = _prepare_imus(streams, model, settings, cut.hz, arrays.tq, cut.priors_hz)
+    if prepared is not None:  # the IMU streams audited like the joints and the wrench
+        arrays.timing.streams = (*arrays.timing.streams, *prepared.timing)
+        check_gaps(arrays.timing, cut.hz or signals.CUTOFF_RANGE[1] * arrays.rate, arrays.source)
     smooth = smoothed(arrays, cut)
     imu_span = None if prepared is None else (prepared.start, prepared.stop)
     grid, rate = time_base(arrays, smooth, imu_span, settings, cut.hz)
@@ -306,6 +309,7 @@ def _prepare_imus(
             settings.imu_delay,
             (float(tq[0]), float(tq[-1])),
             streams.source,
+            settings.keep_repeats,
         ),
         priors_cutoff=priors_cutoff,
     )
