@@ -81,3 +81,44 @@ def test_imu_gap_longer_than_the_filter_is_an_error_unless_allowed(model):
     ds, _ = imu_import(model, t, r, allow_gaps=True)
     warnings = {w["code"]: w["message"] for w in ds.meta.origin["import"]["timing"]["warnings"]}
     assert "IMU 'forearm'" in warnings["timing_gaps"]
+
+
+# -- the mixed-filters check on the library path ----------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def two_filters(model, tmp_path_factory):
+    """``(a, b, c)``: two Fourier runs of the arm (CAD parameters, 12-bit encoders, 500 Hz) imported at 6 Hz, and
+    the second imported again at 9 Hz."""
+    from ineid.data.recordings.pipeline import import_recording
+    from ineid.data.recordings.settings import ImportSettings
+    from tests.bag_files import write_angles_csv
+    from tests.test_filters_experiment import fourier_states
+
+    folder = tmp_path_factory.mktemp("filters")
+    rng = np.random.default_rng(8)
+    step = 2 * np.pi / 2**12
+    paths = []
+    for k in range(2):
+        t, q, qd, qdd = fourier_states(model, rng, 0.8)
+        w = np.asarray(model.base_wrench(q, qd, qdd, model.theta_cad))
+        paths.append(write_angles_csv(folder / f"run{k + 1}.csv", t, np.round(q / step) * step, w))
+    a, b = (import_recording(p, model, ImportSettings(cutoff=6.0))[0] for p in paths)
+    c = import_recording(paths[1], model, ImportSettings(cutoff=9.0))[0]
+    return a, b, c
+
+
+def test_solve_recordings_from_python_refuses_mixed_filters(model, two_filters):
+    from ineid.identify import SolveSettings
+    from ineid.identify.joint import solve_recordings
+
+    a, b, c = two_filters
+    settings = SolveSettings(method="linear")
+    with pytest.raises(DatasetError, match=r"different cut-offs: .*run1.csv 6 Hz, .*run2.csv 9 Hz.*--mixed-filters"):
+        solve_recordings([a, c], settings, model=model)
+    with pytest.raises(DatasetError, match=r"different cut-offs: .*run2.csv 6 Hz, .*run2.csv 9 Hz"):
+        solve_recordings([a, b], settings, model=model, validate=c)
+    res = solve_recordings([a, b], settings, model=model, validate=c, mixed_filters=True)
+    assert "different cut-offs" in res.meta["mixed_filters"] and np.isfinite(res.validation_rel).all()
+    res = solve_recordings([a, b], settings, model=model)
+    assert "mixed_filters" not in res.meta
