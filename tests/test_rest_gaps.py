@@ -122,3 +122,138 @@ def test_solve_recordings_from_python_refuses_mixed_filters(model, two_filters):
     assert "different cut-offs" in res.meta["mixed_filters"] and np.isfinite(res.validation_rel).all()
     res = solve_recordings([a, b], settings, model=model)
     assert "mixed_filters" not in res.meta
+
+
+# -- a coupling's per-motor columns by name ------------------------------------------------------------------
+
+
+def test_per_motor_columns_named_after_the_coupling_motors(model, tmp_path):
+    """``tau_<motor>`` and ``i_<motor>`` columns, in any order, read as the numbered columns in the motors' order."""
+    import json
+
+    from ineid.data.recordings.pipeline import import_recording
+    from ineid.data.recordings.settings import ImportSettings
+    from tests.test_actuation_coupling import MOTORS, TENDONS
+
+    t = np.arange(0, 2.0, 2e-3)
+    f = np.array([0.3, 0.5, 0.7, 0.4])
+    q = 0.5 * np.sin(2 * np.pi * f * t[:, None])
+    per_motor = np.cos(2 * np.pi * f * t[:, None]) * np.array([1.0, 2.0, 3.0, 4.0])
+    coupling = tmp_path / "c.json"
+    coupling.write_text(
+        json.dumps({"joints": list(model.joint_names), "motors": list(MOTORS), "matrix": TENDONS.tolist()})
+    )
+
+    def write(name: str, columns: list[str], order: list[int]) -> str:
+        header = "time," + ",".join(f"q{i}" for i in range(1, 5)) + "," + ",".join(columns[k] for k in order)
+        rows = np.column_stack([t, q, per_motor[:, order]])
+        (tmp_path / name).write_text(header + "\n" + "\n".join(",".join(repr(float(v)) for v in r) for r in rows))
+        return tmp_path / name
+
+    order = [2, 0, 3, 1]
+    settings = ImportSettings(cutoff=10.0, coupling=str(coupling))
+    numbered = import_recording(write("n.csv", [f"tau{i}" for i in range(1, 5)], [0, 1, 2, 3]), model, settings)[0]
+    named = import_recording(write("t.csv", [f"tau_{m.upper()}" for m in MOTORS], order), model, settings)[0]
+    assert named.meta.channels["tau"].motors == MOTORS
+    assert np.array_equal(named.channel_values["tau"], numbered.channel_values["tau"])
+    truth = np.stack([np.interp(named.time[0], t, c) for c in per_motor.T], axis=1)  # each motor's column, by name
+    assert np.abs(named.channel_values["tau"][0] - truth).max() < 1e-3 * np.abs(truth).max()
+
+    drives = ImportSettings(cutoff=10.0, coupling=str(coupling), torque_constant=(0.1,), gear_ratio=(50.0,))
+    current = import_recording(write("i.csv", [f"i_{m}" for m in MOTORS], order), model, drives)[0]
+    (key,) = [k for k in current.channel_values if k != "tau"]
+    assert current.meta.channels[key].motors == MOTORS
+    assert np.array_equal(current.channel_values[key], numbered.channel_values["tau"])
+
+    joints = write("j.csv", [f"tau_{j}" for j in model.joint_names], [0, 1, 2, 3])
+    with pytest.raises(DatasetError, match=r"names no motor of the coupling \(--coupling\); .*\(tau_m1, tau_m2"):
+        import_recording(joints, model, settings)
+    assert import_recording(joints, model, ImportSettings(cutoff=10.0))[0].channel_values["tau"].shape[-1] == 4
+
+
+# -- small mends ------------------------------------------------------------------------------------------------
+
+
+def test_mjcf_export_names_every_non_physical_link_as_the_urdf_export(tmp_path):
+    import ineid
+    from ineid.errors import IdentificationError
+    from ineid.robots.mjcf_write import mjcf_with_inertials
+    from ineid.robots.urdf_write import urdf_with_inertials
+    from tests.test_mjcf import MENAGERIE
+
+    path = tmp_path / "menagerie.xml"
+    path.write_text(MENAGERIE)
+    model = ineid.load_robot(path, unknown_links=["link2", "link3"])
+    bad = {}
+    for link, k in (("link2", 4), ("link3", 0)):  # Ixx < 0; a negative mass
+        i = model.link_names.index(link)
+        bad[link] = model.theta_cad[10 * i : 10 * i + 10].copy()
+        bad[link][k] = -1.0
+    messages = []
+    for write in (lambda: mjcf_with_inertials(path, bad), lambda: urdf_with_inertials(model.urdf_text, bad)):
+        with pytest.raises(IdentificationError) as e:
+            write()
+        messages.append(str(e.value))
+        assert e.value.status == "non_physical"
+    for m in messages:
+        assert "not a rigid body for 2 of 2 links, link 'link2' (" in m and "link 'link3' (" in m
+        assert "--method consistent" in m
+    assert messages[0].replace("an MJCF", "a URDF") == messages[1]
+
+
+def test_friction_check_of_a_coupled_channel_follows_the_motors_velocities():
+    """A differential (``qd_joint = C qd_motor``) whose motors' Coulomb friction the model lacks: each motor axis's
+    residual follows its motor's velocity ``C^-1 qd_joint``, which the check finds with the coupling given; paired
+    with the joints' velocities by position it explains far less."""
+    from ineid.report.residuals import check_residual
+
+    rng = np.random.default_rng(2)
+    t = np.arange(600) / 100.0
+    qd = np.column_stack([np.cos(1.3 * t), 0.8 * np.cos(0.7 * t + 1)])
+    c = np.array([[0.5, 0.5], [0.5, -0.5]])
+    motors = np.linalg.solve(c, qd.T).T
+    pred = np.column_stack([np.sin(2.9 * t) + t / 6, 0.5 * np.sin(0.4 * t + 1)])
+    meas = pred + 0.05 * rng.standard_normal(pred.shape) + 0.3 * np.sign(motors)
+    args = (t, meas, pred, ("m1", "m2"), ("N*m", "N*m"), (("tau", 0, 2, "joint_torque"),), qd, np.full(2, 0.05))
+    coupled = check_residual(*args, couplings={"tau": c})
+    by_position = check_residual(*args)
+    assert all(a.friction_share > 0.9 for a in coupled.axes) and "friction" in {w.code for w in coupled.warnings}
+    shares = [a.friction_share for a in by_position.axes]  # measured 0.71, 0.13
+    assert max(shares) < 0.8 and min(shares) < 0.2
+
+
+def test_generate_with_stribeck_truth_and_identify_it_back(run, tmp_path):
+    """``data generate --friction-truth ...,fs=,vs=``: the joint torques carry ``fs exp(-(qd/vs)^2) sign(qd)``; a solve
+    with the Stribeck term at the given velocity finds fs (clean data: to round-off), and with the velocity
+    identified finds it too."""
+    from ineid.data import load_dataset
+    from ineid.identify import load_results
+
+    out = tmp_path / "stribeck.h5"
+    truth = "fv=0.05,fc=0.2,fs=0.15,elbow.fs=0.1,vs=0.4"
+    r = run(*r_args(out, truth))
+    assert r.exit_code == 0, r.output
+    extra = load_dataset(out).meta.extra_truth
+    assert extra["stribeck_velocity"] == 0.4 and extra["elbow.fs"] == 0.1 and extra["shoulder_pitch.fs"] == 0.15
+    solve = ("-q", "solve", out, "--use", "torque", "--friction", "viscous,coulomb,stribeck", "--method", "linear")
+    r = run(*solve, "--stribeck-velocity", "0.4", "--out", tmp_path / "given.h5")
+    assert r.exit_code == 0, r.output
+    res = load_results(tmp_path / "given.h5")
+    got = dict(zip(res.param_names, res.theta_hat[0], strict=True))
+    for name, value in extra.items():
+        if name != "stribeck_velocity":
+            assert abs(got[name] - value) < 1e-6, (name, got[name], value)
+    r = run(*solve, "--stribeck-velocity", "identify", "--backend", "casadi", "--out", tmp_path / "found.h5")
+    assert r.exit_code == 0, r.output
+    (record,) = load_results(tmp_path / "found.h5").meta["channels"]
+    assert abs(record["stribeck_velocity"] / 0.4 - 1) < 1e-4, record
+    bad = run(*r_args(tmp_path / "bad.h5", "fs=0.1"))
+    assert bad.exit_code != 0 and "need the Stribeck velocity: vs=" in bad.output
+    bad = run(*r_args(tmp_path / "bad.h5", "elbow.vs=0.1"))
+    assert bad.exit_code != 0 and "one positive value (rad/s) for every joint" in bad.output
+
+
+def r_args(out, truth: str) -> tuple:
+    """``data generate`` of sweaty-arm's joint torques (one configuration, 150 frames) with ``--friction-truth``."""
+    return ("-q", "data", "generate", "--n-configs", "1", "--n-frames", "150", "--channels", "torque",
+            "--friction-truth", truth, "--seed", "4", "--out", out)  # fmt: skip
