@@ -141,7 +141,8 @@ def _delay(ctx, param, value: str) -> float | None:
     metavar="FILE",
     type=click.Path(dir_okay=False),
     help="The torques or currents are per motor of a coupled transmission (JSON, CSV or a URDF's "
-    "<transmission>s; tau1..taun in the motors' order): stored with the channel (docs/identification.md).",
+    "<transmission>s): the CSV's columns tau1..taun (i1..in) in the motors' order, or tau_<motor> (i_<motor>) "
+    "by the motors' names; stored with the channel (docs/identification.md).",
 )
 @imu_import
 @click.option(

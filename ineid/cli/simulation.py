@@ -252,8 +252,13 @@ FRICTION_TERMS = {
     "fv-": "fv-",
     "fc+": "fc+",
     "fc-": "fc-",
+    "fs": "fs",
+    "vs": "stribeck_velocity",
 }
-"""``--friction-truth`` terms (case-insensitive) and their extra-parameter names (``<joint>.<term>``)."""
+"""``--friction-truth`` terms (case-insensitive) and their extra-parameter names (``<joint>.<term>``); ``vs``, the
+Stribeck velocity, is one for every joint (``extra_truth["stribeck_velocity"]``)."""
+TERM_SPELLING = ("fv", "fc", "offset", "Ia", "fv+", "fv-", "fc+", "fc-", "fs", "vs")
+"""The ``--friction-truth`` terms as the help and the messages spell them."""
 
 
 def _parse_friction_truth(ctx, param, value: str | None) -> dict[tuple[str | None, str], float] | None:
@@ -270,9 +275,14 @@ def _parse_friction_truth(ctx, param, value: str | None) -> dict[tuple[str | Non
             number = float(val)
             if not sep or term is None or (dot and not joint) or not math.isfinite(number) or abs(number) > NOISE_MAX:
                 raise ValueError
+            if term == "stribeck_velocity" and (dot or not number > 0):
+                raise click.BadParameter(
+                    f"vs, the Stribeck velocity, is one positive value (rad/s) for every joint, got {item.strip()!r}",
+                    param_hint="--friction-truth",
+                )
         except ValueError:
             raise click.BadParameter(
-                f"expected TERM=VALUE or JOINT.TERM=VALUE with TERM in {', '.join(FRICTION_TERMS.values())} and a "
+                f"expected TERM=VALUE or JOINT.TERM=VALUE with TERM in {', '.join(TERM_SPELLING)} and a "
                 f"finite VALUE of at most {NOISE_MAX:g} in size, got {item.strip()!r}",
                 param_hint="--friction-truth",
             ) from None
@@ -286,7 +296,8 @@ friction_truth_option = click.option(
     metavar="TERM=VALUE,...",
     callback=_parse_friction_truth,
     help="The simulated actuation that joint torques add: fv (viscous, N*m*s/rad), fc (Coulomb, N*m), offset "
-    "(N*m), Ia (armature, kg*m^2); fv+, fv-, fc+, fc- per direction. TERM=VALUE sets every joint, "
+    "(N*m), Ia (armature, kg*m^2); fv+, fv-, fc+, fc- per direction; fs (Stribeck, N*m: fs exp(-(qd/vs)^2) "
+    "sign(qd)) with vs (its velocity, rad/s, one for every joint). TERM=VALUE sets every joint, "
     "JOINT.TERM=VALUE one joint (it wins). Needs --channels ...,torque.",
 )
 
@@ -305,6 +316,9 @@ def friction_truth(parsed: dict[tuple[str | None, str], float] | None, joint_nam
         raise click.BadParameter(
             f"the robot has no moving joint {bad[0]!r}; its joints: {', '.join(joints)}", param_hint="--friction-truth"
         )
+    vs = parsed.get((None, "stribeck_velocity"))
+    parsed = {k: v for k, v in parsed.items() if k[1] != "stribeck_velocity"}
     out = {f"{j}.{term}": v for (joint, term), v in parsed.items() if joint is None for j in joints}
     out.update({f"{joint}.{term}": v for (joint, term), v in parsed.items() if joint is not None})
-    return {f"{j}.{t}": out[f"{j}.{t}"] for j in joints for t in FRICTION_TERMS.values() if f"{j}.{t}" in out}
+    out = {f"{j}.{t}": out[f"{j}.{t}"] for j in joints for t in FRICTION_TERMS.values() if f"{j}.{t}" in out}
+    return out if vs is None else {**out, "stribeck_velocity": vs}

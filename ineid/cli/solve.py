@@ -314,19 +314,19 @@ def _solve_recordings(ds, more_paths, validate_path, idx, settings, model, bar, 
     of each) fitted jointly (:func:`ineid.identify.joint.solve_recordings`) under the progress ``bar``, validated
     on the recording ``validate`` of ``validate_path`` (None: none); ``joined`` holds every frame fitted, for the
     plausibility checks; ``mixed`` the warning of recordings imported with different filters, which
-    :func:`ineid.data.recordings.filters.check_filters` refuses unless ``mixed_filters``."""
+    :func:`ineid.identify.joint.solve_recordings` refuses unless ``mixed_filters``."""
     from ineid.data import load_dataset
-    from ineid.data.recordings.filters import check_filters
+    from ineid.data.recordings.plausibility import Finding
     from ineid.identify.joint import solve_recordings
 
     more = [load_dataset(p, configs=idx, clean=False) for p in more_paths]
     val = None if validate_path is None else load_dataset(validate_path, configs=idx, clean=False)
-    labelled = [(str(ds.path), ds), *((str(p), d) for p, d in zip(more_paths, more, strict=True))]
-    if val is not None:
-        labelled.append((str(validate_path), val))
-    mixed = check_filters(labelled, mixed_filters)
     with bar:
-        res = solve_recordings([ds, *more], settings, model=model, validate=val, progress=bar)
+        res = solve_recordings(
+            [ds, *more], settings, model=model, validate=val, progress=bar, mixed_filters=mixed_filters
+        )
+    differ = res.meta.get("mixed_filters")
+    mixed = None if differ is None else Finding("mixed_filters", differ)
     return res, ds, _joined(ds, more), val, mixed
 
 

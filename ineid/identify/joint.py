@@ -49,6 +49,14 @@ def _label(ds, i: int) -> str:
     return str(ds.path) if ds.path is not None else f"input {i + 1}"
 
 
+def _file_label(ds, fallback: str) -> str:
+    """What names a dataset in a message: its path, else the file it was imported from, else ``fallback``."""
+    if ds.path is not None:
+        return str(ds.path)
+    origin = getattr(ds.meta, "origin", None)
+    return str(origin["file"]) if isinstance(origin, dict) and origin.get("file") else fallback
+
+
 def check_same_robot(datasets, validate=None) -> None:
     """Refuse recordings of different robots (URDF, unknown links, gravity, locked joints, channels) in one line.
 
@@ -102,7 +110,12 @@ JOINT_METHODS = ("linear", "nonlinear", "consistent")
 
 
 def solve_recordings(
-    datasets, settings: SolveSettings, model=None, validate=None, progress: Progress | None = None
+    datasets,
+    settings: SolveSettings,
+    model=None,
+    validate=None,
+    progress: Progress | None = None,
+    mixed_filters: bool = False,
 ) -> SolveResults:
     """Identify from several recordings jointly; optionally report the prediction error on ``validate``.
 
@@ -113,6 +126,9 @@ def solve_recordings(
         model: the robot (default: rebuilt from the first dataset).
         validate: a dataset of the same robot (same configurations count), or None.
         progress: ``progress(done, total)`` over configurations of the IPOPT methods.
+        mixed_filters: fit (and validate on) recordings imported with different filters
+            (:func:`ineid.data.recordings.filters.check_filters`); their difference, in words, is then
+            ``meta["mixed_filters"]`` (``ineid solve --mixed-filters``).
 
     Returns:
         :class:`SolveResults` whose ``fit_rms`` is over all inputs' frames and whose
@@ -124,9 +140,17 @@ def solve_recordings(
     Raises:
         IdentificationError: recordings of different robots, different configuration counts,
             too few frames, or settings this route does not take.
+        DatasetError: recordings imported with different filters (cut-off, filter, an estimated wrench delay)
+            fitted or validated together, without ``mixed_filters``.
     """
+    from ineid.data.recordings.filters import check_filters
+
     datasets = list(datasets)
     check_same_robot(datasets, validate)
+    labelled = [(_file_label(d, f"input {i + 1}"), d) for i, d in enumerate(datasets)]
+    if validate is not None:
+        labelled.append((_file_label(validate, "the validation recording"), validate))
+    mixed = check_filters(labelled, mixed_filters)
     _check_joint_settings(settings)
     t_start = time.perf_counter()
     ds0 = datasets[0]
@@ -173,6 +197,8 @@ def solve_recordings(
     meta = results_meta(ds0, 0.0, channels, model)
     val_rms, val_rel, n_val = _validation(model, base, validate, est, channels, mask, meta, longest)
     meta["recordings"] = recordings
+    if mixed is not None:
+        meta["mixed_filters"] = mixed.message
     meta["total_seconds"] = time.perf_counter() - t_start
     return _joint_results(settings, ds0, base, prior, est, fit_rms, (val_rms, val_rel, n_val), n_total, meta)
 

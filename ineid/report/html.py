@@ -160,6 +160,7 @@ def _validation_part(inputs: ReportInputs, i: int, config: int) -> dict | None:
         noise,
         source,
         _delay(res, frames_of, inputs.model, i),
+        v.couplings,
     )
     sigma = np.array([c.noise for c in check.axes])
     figures = [

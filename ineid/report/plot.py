@@ -14,7 +14,7 @@ RMS always over all of it. :func:`validation_on` is the same for a separate reco
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +40,7 @@ class Validation:
         series: ``time`` holds time stamps of a time series (else frame numbers of independent frames).
         qd: (F, n_dof) the frames' joint velocities, rad/s (None when unknown).
         blocks: ``(channel key, start, stop, channel kind)`` of each channel among the A axes.
+        couplings: ``{channel key: C}`` of the channels read per motor of a coupled transmission.
         source: where the frames come from (text: "held-out frames", "the recording X").
     """
 
@@ -56,6 +57,7 @@ class Validation:
     qd: np.ndarray | None = None
     blocks: tuple[tuple[str, int, int, str], ...] = (("wrench", 0, 6, "wrench"),)
     source: str = ""
+    couplings: dict = field(default_factory=dict)
 
     def measured_text(self) -> str:
         """What the axes hold, in words: ``"joint torques 'tau' and base wrench 'wrench' (base frame)"`` (a
@@ -161,6 +163,11 @@ def _validation(model, channels, meas, pred, t, one, frames, held_out, config, s
         qd=np.asarray(one.qd[0, frames]),
         blocks=blocks,
         source=source,
+        couplings={
+            b.channel.key: c
+            for b in channels.blocks(model)
+            if (c := getattr(b.channel, "coupling_matrix", lambda: None)()) is not None
+        },
     )
 
 

@@ -25,8 +25,10 @@ structure a white residual does not have:
   residual's sum of squares by more than :data:`DELAY_GAIN` (and 10 x the columns over the rows, what
   white noise lowers it by chance) warns, with ``d = s dt``.
 * **friction** (``friction``): joint friction ``fc sign(qd_j) + fv qd_j`` that the model lacks
-  leaves joint j's torque (or current) residual following its velocity. Per such axis, the share
-  of the residual's variance (less its mean) that least squares on ``sign(qd_j), qd_j`` explains
+  leaves joint j's torque (or current) residual following its velocity; a channel read per motor of a
+  coupled transmission (``qd_joint = C qd_motor``) follows each motor's velocity ``qd_motor = C^-1 qd_joint``
+  instead. Per such axis, the share
+  of the residual's variance (less its mean) that least squares on ``sign(v), v`` (``v`` its velocity) explains
   beyond the delay column ``dp/dt`` above :data:`STRUCTURE_SHARE` warns. Channels of a wrench do
   not feel joint friction (internal torques): not tested. (Beyond ``dp/dt``: on a slow trajectory a
   delayed torque's residual, ``-d dp/dt``, also follows the velocity's sign.)
@@ -233,6 +235,7 @@ def check_residual(
     noise=None,
     noise_source: str = "",
     delay: tuple[float, float] | None = None,
+    couplings=None,
 ) -> ResidualCheck:
     """Test one validation's residual (module doc).
 
@@ -248,6 +251,8 @@ def check_residual(
         noise_source: how the stated noise was found (text).
         delay: :func:`delay_scan`'s ``(delay s, gain, chance)`` of these frames' configuration, or None: not
             tested.
+        couplings: ``{channel key: C}`` of the channels read per motor of a coupled transmission (joints x
+            motors, ``qd_joint = C qd_motor``): their friction test uses the motors' velocities.
     """
     measured, predicted = np.asarray(measured, dtype=np.float64), np.asarray(predicted, dtype=np.float64)
     r = measured - predicted
@@ -276,8 +281,7 @@ def check_residual(
     )
     dt = float(np.median(np.diff(time))) if series else math.nan
     rate = np.gradient(predicted, time, axis=0) if tested else None
-    qd = None if qd is None else np.asarray(qd, dtype=np.float64)
-    joint_of = _joint_axes(blocks, None if qd is None else qd.shape[1])
+    velocity = _axis_velocities(blocks, qd, couplings or {})
     for a in range(n_axes):
         ra = r[:, a]
         extra = {}
@@ -285,9 +289,9 @@ def check_residual(
             c = ra - ra.mean()
             extra["lag1"] = float((c[1:] @ c[:-1]) / (c @ c)) if c @ c > 0 else math.nan
             extra["peak_hz"], extra["peak_share"], _ = periodogram_peak(ra, dt)
-            if a in joint_of:  # beyond what a delay explains (module doc)
+            if a in velocity:  # beyond what a delay explains (module doc)
                 g = rate[:, a : a + 1] - rate[:, a].mean()
-                f = _friction_columns(qd[:, joint_of[a]])
+                f = _friction_columns(velocity[a])
                 extra["friction_share"] = explained_share(c, np.hstack([g, f])) - explained_share(c, g)
         out.axes.append(AxisCheck(axes[a], units[a], float(rms[a]), float(noise[a]), **extra))
     _model_error(out, rms > NEGLIGIBLE * scale)
@@ -344,21 +348,27 @@ FRICTION_KINDS = ("joint_torque", "motor_current")
 """Channels that feel joint friction (a wrench sensor measures the links' motion, whatever the joints' torques)."""
 
 
-def _joint_axes(blocks, n_dof: int | None) -> dict[int, int]:
-    """Stacked axis -> its joint, for the channels of :data:`FRICTION_KINDS` (one axis per joint)."""
-    if n_dof is None:
+def _axis_velocities(blocks, qd, couplings) -> dict[int, np.ndarray]:
+    """Stacked axis -> (F,) the velocity its friction follows, for the channels of :data:`FRICTION_KINDS` (one axis
+    per joint or motor): joint j's ``qd_j``, or with a coupling ``C`` (``couplings[key]``) motor m's
+    ``(C^-1 qd_joint)_m``."""
+    if qd is None:
         return {}
-    return {
-        start + j: j
-        for _, start, stop, kind in blocks
-        if kind in FRICTION_KINDS and stop - start == n_dof
-        for j in range(n_dof)
-    }
+    qd = np.asarray(qd, dtype=np.float64)
+    out = {}
+    for key, start, stop, kind in blocks:
+        if kind not in FRICTION_KINDS or stop - start != qd.shape[1]:
+            continue
+        c = couplings.get(key)
+        v = qd if c is None else np.linalg.solve(np.asarray(c, dtype=np.float64), qd.T).T
+        out.update({start + j: v[:, j] for j in range(qd.shape[1])})
+    return out
 
 
-def _friction_columns(qd_j: np.ndarray) -> np.ndarray:
-    """(F, 2) Coulomb and viscous friction of one joint, mean removed: ``sign(qd_j)``, ``qd_j``."""
-    f = np.column_stack([np.sign(qd_j), qd_j])
+def _friction_columns(v: np.ndarray) -> np.ndarray:
+    """(F, 2) Coulomb and viscous friction of one joint (or motor) of velocity ``v``, mean removed: ``sign(v)``,
+    ``v``."""
+    f = np.column_stack([np.sign(v), v])
     return f - f.mean(axis=0)
 
 

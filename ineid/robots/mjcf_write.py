@@ -92,7 +92,7 @@ def _expected_inertials(robot, chain, theta_by_link: dict[str, np.ndarray]) -> d
     """
     moving = {j.link for j in chain.joints}
     payloads = {b.name for b in chain.body_links.values() if b.parent}
-    expected: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
+    bad = []
     for link, theta in theta_by_link.items():
         if link not in moving | payloads:
             raise RobotModelError(
@@ -101,11 +101,15 @@ def _expected_inertials(robot, chain, theta_by_link: dict[str, np.ndarray]) -> d
             )
         problems = physical_violations(np.asarray(theta, dtype=np.float64), rtol=0.0)
         if problems:
-            raise IdentificationError(
-                f"the estimate of link {link!r} is not a rigid body ({'; '.join(problems)}); an MJCF cannot hold it: "
-                "identify with --method consistent",
-                status="non_physical",
-            )
+            bad.append(f"link {link!r} ({'; '.join(problems)})")
+    if bad:
+        raise IdentificationError(
+            f"the estimate is not a rigid body for {len(bad)} of {len(theta_by_link)} links, {', '.join(bad)}; "
+            "an MJCF cannot hold it: identify with --method consistent (physically consistent by construction)",
+            status="non_physical",
+        )
+    expected: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
+    for link, theta in theta_by_link.items():
         m, c, ic = inertial_from_theta(np.asarray(theta, dtype=np.float64))
         expected[link] = (float(m), c - robot.bodies[link].link_p_body, ic)
         if link in moving:

@@ -8,7 +8,8 @@ are ignored; units SI):
     qd1 .. qn            joint velocities, rad/s        } optional, together: without them
     qdd1 .. qn           joint accelerations, rad/s^2   } they are derived from q1 .. qn
     tau1 .. taun         joint torques, N*m (N), optional; or tau_<joint> by joint name
-    i1 .. in             motor currents, A, optional; or i_<joint> (not identified yet: refused)
+    i1 .. in             motor currents, A, optional; or i_<joint>
+                         (with a coupling, per motor: tau_<motor>, i_<motor>, or numbered in the motors' order)
     fx fy fz             force, N         } what the sensor reads: the load of the robot on
     mx my mz             moment, N*m      } it, sensor frame, moment about the sensor origin;
                                             optional when joint torques are given
@@ -82,32 +83,35 @@ def csv_columns(n_dof: int, derivatives: bool = True) -> list[str]:
     return ["time", *joints, *WRENCH_COLUMNS]
 
 
-def _channel_columns(header: list[str], prefix: str, what: str, model, path: Path) -> list[str]:
+def _channel_columns(header: list[str], prefix: str, what: str, model, path: Path, motors=()) -> list[str]:
     """The header's columns of a per-joint channel (``tau``: ``tau1..tauN`` or ``tau_<joint>``), in chain order;
-    [] when it has none.
+    [] when it has none. With ``motors`` (a coupling's motors, :mod:`ineid.channels.transmission`) the channel
+    reads per motor: ``tau1..tauN`` in the motors' order or ``tau_<motor>``, in the motors' order.
 
     Raises:
-        DatasetError: columns for another number of joints, a joint the robot does not have,
-            some joints missing, or both spellings.
+        DatasetError: columns for another number of joints, a joint (motor) the robot (coupling) does not
+            have, some joints (motors) missing, or both spellings.
     """
     n = model.n_dof
     numbered = sorted(int(h[len(prefix) :]) for h in header if h.startswith(prefix) and h[len(prefix) :].isdigit())
     named = [h for h in header if h.startswith(f"{prefix}_")]
     if not numbered and not named:
         return []
-    joints = [j.lower() for j in model.joint_names]
-    spelled = f"{prefix}1..{prefix}{n} or {prefix}_<joint> ({', '.join(f'{prefix}_{j}' for j in joints)})"
+    axes = [a.lower() for a in (motors or model.joint_names)]
+    noun = "motor" if motors else "joint"
+    spelled = f"{prefix}1..{prefix}{n} or {prefix}_<{noun}> ({', '.join(f'{prefix}_{a}' for a in axes)})"
     if numbered and named:
         raise DatasetError(
-            f"{path}: the {what} columns mix {prefix}<k> and {prefix}_<joint>; use one spelling: {spelled}"
+            f"{path}: the {what} columns mix {prefix}<k> and {prefix}_<{noun}>; use one spelling: {spelled}"
         )
     if named:
-        unknown = [h for h in named if h[len(prefix) + 1 :] not in joints]
+        unknown = [h for h in named if h[len(prefix) + 1 :] not in axes]
         if unknown:
+            owner = "the coupling (--coupling)" if motors else model.name
             raise DatasetError(
-                f"{path}: column {unknown[0]!r} names no joint of {model.name}; its {what} columns are {spelled}"
+                f"{path}: column {unknown[0]!r} names no {noun} of {owner}; its {what} columns are {spelled}"
             )
-        wanted = [f"{prefix}_{j}" for j in joints]
+        wanted = [f"{prefix}_{a}" for a in axes]
     else:
         if min(numbered) < 1:
             raise DatasetError(f"{path}: {what} columns count from 1 ({prefix}1), found {prefix}0")
@@ -122,17 +126,18 @@ def _channel_columns(header: list[str], prefix: str, what: str, model, path: Pat
     if missing:
         raise DatasetError(
             f"{path}: missing {what} column{'s' if len(missing) > 1 else ''} {', '.join(missing)}; "
-            f"give one per joint: {spelled}"
+            f"give one per {noun}: {spelled}"
         )
     return wanted
 
 
-def read_csv_streams(path: str | Path, model, progress=None, imus: tuple[str, ...] = ()):
+def read_csv_streams(path: str | Path, model, progress=None, imus: tuple[str, ...] = (), motors: tuple[str, ...] = ()):
     """Read a recording CSV into :class:`ineid.data.recordings.streams.Streams` (no processing yet).
 
     A link IMU's columns ``imu_<NAME>_...`` become a stream only when ``imus`` (the ``--imu`` texts) names
     ``NAME``; the others are listed in the streams' ``origin["imu_unused"]`` (the import says so in one line:
-    :func:`ineid.data.recordings.imus.unused_imu_lines`).
+    :func:`ineid.data.recordings.imus.unused_imu_lines`). With ``motors`` (the motors of a coupling,
+    ``--coupling``) the torque and current columns may be named after them: ``tau_<motor>``, ``i_<motor>``.
 
     The file is read within the limits of :mod:`ineid.data.recordings.csv_rows` (size, columns, rows, line
     length; values within :data:`ineid.data.recordings.streams.VALUE_LIMIT`), streamed: memory holds the
@@ -161,7 +166,7 @@ def read_csv_streams(path: str | Path, model, progress=None, imus: tuple[str, ..
             )
         numbers, lines = first
         header = parse_header(lines[0], numbers[0], path)
-        columns = _recording_columns(header, model, path, imus)
+        columns = _recording_columns(header, model, path, imus, motors)
         index = {h: k for k, h in enumerate(header)}
         layout = Layout(
             path, len(header), tuple(index[c] for c in columns.names), tuple(columns.names), columns.streams
@@ -203,7 +208,7 @@ class _Columns:
         self.streams = tuple(spans)
 
 
-def _recording_columns(header: list[str], model, path: Path, imus: tuple[str, ...] = ()) -> _Columns:
+def _recording_columns(header: list[str], model, path: Path, imus: tuple[str, ...] = (), motors=()) -> _Columns:
     """Which of the header's columns a recording of ``model`` reads (the IMUs' of those ``imus``, the ``--imu``
     texts, names); the header's mistakes, named."""
     n = model.n_dof
@@ -218,8 +223,8 @@ def _recording_columns(header: list[str], model, path: Path, imus: tuple[str, ..
             else f"{path}: joint columns count from 1 (q1, qd1, qdd1), found index 0"
         )
     names = set(header)
-    tau_cols = _channel_columns(header, "tau", "joint torque", model, path)
-    current_cols = _channel_columns(header, "i", "motor current", model, path)
+    tau_cols = _channel_columns(header, "tau", "joint torque", model, path, motors)
+    current_cols = _channel_columns(header, "i", "motor current", model, path, motors)
     has_wrench_cols = any(c in names for c in WRENCH_COLUMNS) or not (tau_cols or current_cols)
     required = ["time", *(f"q{i}" for i in range(1, n + 1)), *(WRENCH_COLUMNS if has_wrench_cols else ())]
     missing = [c for c in required if c not in names]

@@ -118,7 +118,10 @@ def import_experiment(
     if not paths:
         raise DatasetError("no recording to import")
     names = tuple(Path(p).name for p in paths)
-    every = [read_streams(p, model, joint_topic, wrench_topic, progress, imu_topics, settings.imus) for p in paths]
+    every = [
+        read_streams(p, model, joint_topic, wrench_topic, progress, imu_topics, settings.imus, settings.coupling)
+        for p in paths
+    ]
     cuts = [own_cutoff(s, model, replace(settings, cutoff=None)) for s in every]
     cutoff, rule = _shared_cutoff(cuts, every, settings)
     at = replace(settings, cutoff=cutoff)

@@ -26,6 +26,7 @@ import numpy as np
 
 from ineid.data.recordings import signals
 from ineid.data.recordings.streams import ImuStream
+from ineid.data.recordings.timing import audit_stream
 from ineid.errors import DatasetError
 
 IMU_AXES = {"gyro": ("wx", "wy", "wz"), "accel": ("ax", "ay", "az"), "alpha": ("alx", "aly", "alz")}
@@ -180,6 +181,7 @@ class PreparedImus:
     delay: float
     cutoff: float | None = None
     priors_cutoff: float | None = None  # Hz: the priors' cut-off (:func:`encoder_priors`), below ``cutoff``
+    timing: tuple = ()  # each stream's :class:`ineid.data.recordings.timing.StreamTiming`, named ``IMU 'NAME'``
 
     def fuse(
         self,
@@ -354,8 +356,14 @@ def prepare_imus(
     delay: float,
     joint_span: tuple[float, float],
     src: str,
+    keep_repeats: bool = False,
 ) -> PreparedImus:
     """Match, check, delay and filter the IMU streams (see the module docstring).
+
+    Each stream's time stamps are audited as the joints' and the wrench's are
+    (:func:`ineid.data.recordings.timing.audit_stream`): it is resampled at its nominal rate, its rows that
+    hold the previous sample dropped (kept with ``keep_repeats``); the audits are :attr:`PreparedImus.timing`,
+    for the import's summary, origin and warnings (:func:`ineid.data.recordings.timing.check_gaps`).
 
     Args:
         imus: the streams read from the file.
@@ -366,6 +374,7 @@ def prepare_imus(
             ``t - delay``).
         joint_span: the joint stream's first and last time stamps.
         src: the file, for messages.
+        keep_repeats: use rows that repeat the previous sample as data (``--keep-repeats``).
 
     Raises:
         DatasetError: see :func:`resolve_mounts`; NaN, infinite or non-increasing samples; a stream that does
@@ -374,9 +383,9 @@ def prepare_imus(
     mounts = resolve_mounts(imus, texts, model, src)
     edge = signals.edge_seconds(cutoff) if cutoff is not None else 0.0
     start, stop = -np.inf, np.inf
-    out, rates = [], {}
+    out, rates, timings = [], {}, []
     for s in imus:
-        t = np.asarray(s.time, dtype=np.float64) - delay
+        t = np.asarray(s.time, dtype=np.float64)
         parts = {k: np.asarray(v, dtype=np.float64) for k, v in s.readings.items()}
         label = f"IMU {s.name!r}" + (f" ({s.where})" if s.where else "")
         for k, v in parts.items():
@@ -394,7 +403,10 @@ def prepare_imus(
                 f"{src}: {label} holds NaN or an infinite value at sample {int(np.flatnonzero(bad)[0])} "
                 f"({int(bad.sum())} in all); values must be finite: drop or repair those samples"
             )
-        h = signals.median_interval(t, f"{src}: {label}")
+        signals.median_interval(t, f"{src}: {label}")
+        timing, kept = audit_stream(f"IMU {s.name!r}", t, np.concatenate(list(parts.values()), axis=1), keep_repeats)
+        t, parts, h = t[kept] - delay, {k: v[kept] for k, v in parts.items()}, timing.step
+        timings.append(timing)
         lo, hi = max(t[0], joint_span[0]), min(t[-1], joint_span[1])
         if not hi - lo > 2 * edge + h:
             raise DatasetError(
@@ -417,7 +429,7 @@ def prepare_imus(
         start, stop = max(start, t[0] + edge), min(stop, t[-1] - edge)
         out.append((s.name, t, parts))
         rates[f"{s.name}.{'+'.join(parts)}"] = float(1.0 / h)
-    return PreparedImus(mounts, out, rates, float(start), float(stop), float(delay), cutoff)
+    return PreparedImus(mounts, out, rates, float(start), float(stop), float(delay), cutoff, timing=tuple(timings))
 
 
 def imu_summary_lines(prepared: PreparedImus, summary) -> list[str]:

@@ -104,6 +104,9 @@ def recording_dataset(
     cut = choose_cutoff(arrays, streams, settings)
     check_gaps(arrays.timing, cut.hz or signals.CUTOFF_RANGE[1] * arrays.rate, arrays.source)
     prepared = _prepare_imus(streams, model, settings, cut.hz, arrays.tq, cut.priors_hz)
+    if prepared is not None:  # the IMU streams audited like the joints and the wrench
+        arrays.timing.streams = (*arrays.timing.streams, *prepared.timing)
+        check_gaps(arrays.timing, cut.hz or signals.CUTOFF_RANGE[1] * arrays.rate, arrays.source)
     smooth = smoothed(arrays, cut)
     imu_span = None if prepared is None else (prepared.start, prepared.stop)
     grid, rate = time_base(arrays, smooth, imu_span, settings, cut.hz)
@@ -306,6 +309,7 @@ def _prepare_imus(
             settings.imu_delay,
             (float(tq[0]), float(tq[-1])),
             streams.source,
+            settings.keep_repeats,
         ),
         priors_cutoff=priors_cutoff,
     )
@@ -338,7 +342,9 @@ def import_recording(
         DatasetError: see :func:`recording_dataset`, :func:`ineid.data.recordings.csv_import.read_csv_streams`
             and :func:`ineid.data.recordings.bags.read_bag_streams`.
     """
-    streams = read_streams(path, model, joint_topic, wrench_topic, progress, imu_topics, settings.imus)
+    streams = read_streams(
+        path, model, joint_topic, wrench_topic, progress, imu_topics, settings.imus, settings.coupling
+    )
     return hinted_recording_dataset(streams, model, settings, delay_estimator)
 
 
@@ -350,10 +356,12 @@ def read_streams(
     progress: Progress | None = None,
     imu_topics: tuple[str, ...] = (),
     imus: tuple[str, ...] = (),
+    coupling: str | None = None,
 ) -> Streams:
     """The :class:`Streams` of a recording file (CSV, ROS 1 ``.bag``, ROS 2 bag folder or ``.mcap``); the
     arguments as :func:`import_recording`'s, ``imus`` its settings' ``--imu`` texts (a CSV's IMU columns
-    are read only where one names them).
+    are read only where one names them), ``coupling`` its coupling file (a CSV's torque and current columns
+    may then be named after its motors).
 
     Raises:
         DatasetError: a file that does not exist, ``imu_topics`` for a CSV, and see
@@ -373,7 +381,16 @@ def read_streams(
         )
     from ineid.data.recordings.csv_import import read_csv_streams
 
-    return read_csv_streams(path, model, progress, imus)
+    return read_csv_streams(path, model, progress, imus, coupling_motors(coupling, model))
+
+
+def coupling_motors(coupling: str | None, model) -> tuple[str, ...]:
+    """The motors of the coupling file ``coupling`` (:func:`ineid.channels.transmission.read_coupling`), () without."""
+    if not coupling:
+        return ()
+    from ineid.channels.transmission import read_coupling
+
+    return read_coupling(coupling, model.joint_names)[1]
 
 
 def own_cutoff(streams: Streams, model, settings: ImportSettings) -> tuple[Cutoff, RecordingArrays]:
@@ -427,7 +444,8 @@ def read_recording_csv(path: str | Path, model, flip_wrench: bool = False, setti
     from ineid.data.recordings.csv_import import read_csv_streams
 
     settings = replace(settings or ImportSettings(), flip_wrench=flip_wrench)
-    return recording_dataset(read_csv_streams(path, model, imus=settings.imus), model, settings)[0]
+    streams = read_csv_streams(path, model, imus=settings.imus, motors=coupling_motors(settings.coupling, model))
+    return recording_dataset(streams, model, settings)[0]
 
 
 __all__ = [

@@ -2,8 +2,9 @@
 
 A lab's log is rarely sampled like a simulation: a controller's loop jitters, misses cycles, and a logger
 that runs beside it may write the last value it holds again under a new time stamp. Each stream of a
-recording (the joints, the wrench) is audited here before it is filtered and resampled
-(:func:`audit_stream`, called by :func:`ineid.data.recordings.frames.checked_arrays`):
+recording (the joints, the wrench, each link IMU) is audited here before it is filtered and resampled
+(:func:`audit_stream`, called by :func:`ineid.data.recordings.frames.checked_arrays` and
+:func:`ineid.data.recordings.imus.prepare_imus`):
 
 * **the nominal rate** (:func:`nominal_interval`): the rate the log was taken at, not the mean of its
   jitter or of its missing samples. A stream whose steps all equal their median (within
@@ -122,7 +123,7 @@ class StreamTiming:
     """One stream's time stamps as audited (module docstring).
 
     Attributes:
-        name: ``"joint"`` or ``"wrench"``.
+        name: ``"joint"``, ``"wrench"`` or ``"IMU 'NAME'"``.
         samples: rows read.
         rate: Hz, the nominal rate (``1 / h``).
         how: ``"uniform"``, ``"snapped"`` or ``"estimated"`` (:func:`nominal_interval`).

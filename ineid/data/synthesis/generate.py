@@ -63,7 +63,8 @@ class DatasetSpec:
         extra_truth: the simulated actuation ``{name: value}``: joint friction, armature and
             torque offsets by the joint-torque channel's extra-parameter names
             (``"<joint>.fv"``, ``"<joint>.fc"``, ``"<joint>.offset"``, ``"<joint>.Ia"``, or
-            the asymmetric ``"<joint>.fv+"``, ...; :func:`actuation_names`). Each channel that
+            the asymmetric ``"<joint>.fv+"``, ...; :func:`actuation_names`), and with ``"stribeck_velocity"``
+            (``vs``, rad/s, :data:`STRIBECK_TRUTH`) the Stribeck terms ``"<joint>.fs"``. Each channel that
             takes them reads ``Phi theta + E x`` (``E`` its extra rows with every term on,
             ``x`` these values, 0 where not named). Stored as the dataset's ``extra_truth``.
         imu: link IMUs and encoders to rehearse (:class:`ineid.data.synthesis.imu_rehearsal.ImuRehearsal`, the
@@ -316,37 +317,54 @@ class GenerationPlan:
 
 ACTUATION_FIELDS = ("friction", "armature", "torque_offset", "asymmetric")
 """The fields of a channel with actuation terms (the joint-torque channel): what :func:`actuation_plan` turns on."""
+STRIBECK_TRUTH = "stribeck_velocity"
+"""The ``extra_truth`` entry of the simulated Stribeck velocity ``vs`` (rad/s, shared by every joint): with it the
+channels take the Stribeck terms ``<joint>.fs`` (``fs exp(-(qd / vs)^2) sign(qd)``)."""
 
 
-def actuated(channel, asymmetric: bool = False):
+def actuated(channel, asymmetric: bool = False, stribeck_velocity: float = 0.0):
     """``channel`` with every actuation term as an extra column (viscous and Coulomb friction, torque
-    offset, armature; per direction with ``asymmetric``), or None for a channel without them."""
+    offset, armature; per direction with ``asymmetric``; the Stribeck term with a ``stribeck_velocity``), or None
+    for a channel without them."""
     if not {f.name for f in dataclasses.fields(channel)} >= set(ACTUATION_FIELDS):
         return None
+    stribeck = {"stribeck_velocity": float(stribeck_velocity)} if stribeck_velocity > 0 else {}
     return dataclasses.replace(
-        channel, friction=("viscous", "coulomb"), armature=True, torque_offset=True, asymmetric=asymmetric
+        channel,
+        friction=("viscous", "coulomb", *(("stribeck",) if stribeck else ())),
+        armature=True,
+        torque_offset=True,
+        asymmetric=asymmetric,
+        **stribeck,
     )
 
 
-def actuation_names(model, channels: ChannelSet, asymmetric: bool = False) -> tuple[str, ...]:
+def actuation_names(
+    model, channels: ChannelSet, asymmetric: bool = False, stribeck_velocity: float = 0.0
+) -> tuple[str, ...]:
     """The names ``extra_truth`` may give for ``channels`` (``"<joint>.fv"``, ...), in the channels' order."""
-    full = [actuated(c, asymmetric) for c in channels]
+    full = [actuated(c, asymmetric, stribeck_velocity) for c in channels]
     return tuple(n for c in full if c is not None for n in c.extra_names(model))
 
 
 def actuation_plan(
     model, channels: ChannelSet, truth: Mapping[str, float] | None
 ) -> list[tuple[str, object, np.ndarray]]:
-    """``[(key, channel with every actuation term, x)]``: what adds ``E x`` to each channel's values.
+    """``[(key, channel with every actuation term, x)]``: what adds ``E x`` to each channel's values
+    (``truth[STRIBECK_TRUTH]``, when given, the Stribeck velocity of the simulated law, :data:`STRIBECK_TRUTH`).
 
     Raises:
         DatasetError: a name no channel takes (listing those it may take), or actuation truth
             with no channel that has actuation.
     """
+    truth = dict(truth or {})
+    vs = float(truth.pop(STRIBECK_TRUTH, 0.0))
+    if vs < 0:
+        raise DatasetError(f"the simulated Stribeck velocity must be positive (rad/s), got {vs:g}")
     if not truth:
         return []
     asymmetric = any(name.endswith(("+", "-")) for name in truth)
-    names = actuation_names(model, channels, asymmetric)
+    names = actuation_names(model, channels, asymmetric, vs)
     if not names:
         raise DatasetError(
             f"actuation values ({', '.join(truth)}) are for joint torques, and the channels are "
@@ -358,10 +376,11 @@ def actuation_plan(
             f"no simulated extra parameter {unknown[0]!r}; the channels take {', '.join(names[:8])}"
             + (", ..." if len(names) > 8 else "")
             + (" (one model per direction: fv+, fv-, fc+, fc- instead of fv, fc)" if asymmetric else "")
+            + (" (the Stribeck terms fs need the Stribeck velocity: vs=...)" if unknown[0].endswith(".fs") else "")
         )
     plan = []
     for c in channels:
-        full = actuated(c, asymmetric)
+        full = actuated(c, asymmetric, vs)
         if full is not None:
             x = np.array([truth.get(n, 0.0) for n in full.extra_names(model)], dtype=np.float64)
             if np.any(x != 0):
