@@ -60,8 +60,11 @@ class Scenario:
         return self.theta[self.model.unknown_index]
 
 
-def scenario(torque: bool = False, duration: float = 10.0, seed: int = 11) -> Scenario:
-    """Simulate ``sweaty-arm`` for ``duration`` s at 1 kHz, its unknown links' parameters drawn around CAD."""
+def scenario(
+    torque: bool = False, duration: float = 10.0, seed: int = 11, links: dict[str, np.ndarray] | None = None
+) -> Scenario:
+    """Simulate ``sweaty-arm`` for ``duration`` s at 1 kHz, its unknown links' parameters drawn around CAD
+    (``links``: those named given instead, ``{link: (10,) theta}``)."""
     from ineid.data.synthesis.sampling import sample_link_parameters
     from ineid.robots.load import load_robot
 
@@ -72,6 +75,9 @@ def scenario(torque: bool = False, duration: float = 10.0, seed: int = 11) -> Sc
         i = model.link_names.index(link)
         idx = np.arange(10 * i, 10 * i + 10)
         theta[idx] = sample_link_parameters(model.theta_cad[idx], 1, rng)[0]
+    for link, value in (links or {}).items():
+        i = model.link_names.index(link)
+        theta[10 * i : 10 * i + 10] = value
     friction = FRICTION if torque else JointFriction()
     sim = simulate(model, theta, POSE, duration, friction=friction)
     x = POSE.transform()
@@ -127,9 +133,10 @@ def _truth_extra(sc: Scenario, names) -> dict[str, float]:
 def z_scores(sc: Scenario, ds, res) -> dict[str, np.ndarray]:
     """``(estimate - truth) / std`` per group (``links``, ``friction``, ``offsets``) of one solve's first row.
 
-    The offsets' truth is the sensor's offsets plus the mean wrench of what the null-space rule cannot tell from
-    the data (the weight of mass that never moves): ``b + Wbar (I - T B)(theta - theta_prior)``, the quantity whose
-    std :func:`ineid.identify.steps.bias_estimate` gives."""
+    The offsets' truth is the sensor's offsets plus the mean wrench of what the data cannot tell from them (the
+    weight of mass that never moves), as the estimate split it: ``b + Wbar (I - T B)(theta - theta_hat)``, the
+    quantity whose std :func:`ineid.identify.steps.bias_estimate` gives (``linear``: ``(I - T B) theta_hat`` is the
+    prior's; the IPOPT methods take their own null-space part)."""
     from ineid.identify.linear import prior_map
 
     base, model = res.base, sc.model
@@ -141,8 +148,7 @@ def z_scores(sc: Scenario, ds, res) -> dict[str, np.ndarray]:
     out = {k: z[m] for k, m in _groups(names).items() if m.any()}
     if res.bias_hat is not None:
         n_u = base.n_link_params
-        prior = np.concatenate([model.theta_cad[model.unknown_index], np.zeros(len(theta_u) - n_u)])
-        hidden = (np.eye(len(theta_u)) - prior_map(base) @ base.B) @ (theta_u - prior)
+        hidden = (np.eye(len(theta_u)) - prior_map(base) @ base.B) @ (theta_u - res.theta_hat[0])
         fit = slice(0, res.n_frames_fit)
         theta = model.full_theta(hidden[:n_u], np.zeros_like(ds.theta_known))
         moved = wrench_in_sensor(
@@ -153,9 +159,11 @@ def z_scores(sc: Scenario, ds, res) -> dict[str, np.ndarray]:
     return out
 
 
-def solve_draw(sc: Scenario, step: int, cutoff: float, rng, scale: float = 1.0) -> tuple[dict, dict]:
-    """One noise draw imported at ``1000 / step`` Hz and ``cutoff`` Hz and solved: the z-scores per group with the
-    corrected std and with the std of independent frames."""
+def solve_draw(
+    sc: Scenario, step: int, cutoff: float, rng, scale: float = 1.0, method: str = "linear"
+) -> tuple[dict, dict]:
+    """One noise draw imported at ``1000 / step`` Hz and ``cutoff`` Hz and solved by ``method``: the z-scores per
+    group with the corrected std and with the std of independent frames."""
     from ineid.data.recordings.pipeline import recording_dataset
     from ineid.data.recordings.settings import ImportSettings
     from ineid.identify import SolveSettings, solve_dataset
@@ -164,7 +172,7 @@ def solve_draw(sc: Scenario, step: int, cutoff: float, rng, scale: float = 1.0) 
         noisy_streams(sc, step, rng, scale), sc.model, ImportSettings(sensor_pose=POSE_TEXT, cutoff=cutoff)
     )
     extra = {"friction": ("viscous", "coulomb")} if sc.torque else {}
-    settings = SolveSettings(bias="estimate", **extra)
+    settings = SolveSettings(method=method, bias="estimate", **extra)
     after = z_scores(sc, ds, solve_dataset(ds, settings, model=sc.model))
     origin = ds.meta.origin
     ds.meta = dataclasses.replace(ds.meta, origin={k: v for k, v in origin.items() if k != "import"})
