@@ -130,8 +130,9 @@ def _truth_extra(sc: Scenario, names) -> dict[str, float]:
     return out
 
 
-def z_scores(sc: Scenario, ds, res) -> dict[str, np.ndarray]:
-    """``(estimate - truth) / std`` per group (``links``, ``friction``, ``offsets``) of one solve's first row.
+def z_scores(sc: Scenario, ds, res, row: int = 0) -> dict[str, np.ndarray]:
+    """``(estimate - truth) / std`` per group (``links``, ``friction``, ``offsets``) of one solve's row ``row`` (a
+    configuration: one noise draw of the same recording).
 
     The offsets' truth is the sensor's offsets plus the mean wrench of what the data cannot tell from them (the
     weight of mass that never moves), as the estimate split it: ``b + Wbar (I - T B)(theta - theta_hat)``, the
@@ -143,19 +144,19 @@ def z_scores(sc: Scenario, ds, res) -> dict[str, np.ndarray]:
     extra = _truth_extra(sc, base.param_names[base.n_link_params :])
     theta_u = np.concatenate([sc.theta_unknown, [extra.get(n, 0.0) for n in base.param_names[base.n_link_params :]]])
     truth = base.B @ theta_u
-    z = (res.base_hat[0] - truth) / res.base_std[0]
+    z = (res.base_hat[row] - truth) / res.base_std[row]
     names = base.names
     out = {k: z[m] for k, m in _groups(names).items() if m.any()}
     if res.bias_hat is not None:
         n_u = base.n_link_params
-        hidden = (np.eye(len(theta_u)) - prior_map(base) @ base.B) @ (theta_u - res.theta_hat[0])
+        hidden = (np.eye(len(theta_u)) - prior_map(base) @ base.B) @ (theta_u - res.theta_hat[row])
         fit = slice(0, res.n_frames_fit)
         theta = model.full_theta(hidden[:n_u], np.zeros_like(ds.theta_known))
         moved = wrench_in_sensor(
-            POSE.transform(), np.asarray(model.base_wrench(ds.q[0, fit], ds.qd[0, fit], ds.qdd[0, fit], theta))
+            POSE.transform(), np.asarray(model.base_wrench(ds.q[row, fit], ds.qd[row, fit], ds.qdd[row, fit], theta))
         )
         b_true = sc.bias + moved.mean(axis=0)
-        out["offsets"] = (res.bias_hat[0, :6] - b_true) / res.bias_std[0, :6]
+        out["offsets"] = (res.bias_hat[row, :6] - b_true) / res.bias_std[row, :6]
     return out
 
 
