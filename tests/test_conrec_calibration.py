@@ -12,7 +12,7 @@ import pytest
 
 from ineid.data.recordings.pipeline import recording_dataset
 from ineid.data.recordings.settings import ImportSettings
-from ineid.identify import SolveSettings, solve_dataset
+from ineid.identify import SolveSettings, load_results, save_results, solve_dataset
 from ineid.identify.constrained_std import std_note
 from ineid.studies.std_recordings import POSE_TEXT, noisy_streams, rms_z, scenario, z_scores
 
@@ -56,7 +56,7 @@ def rod_arm():
     return scenario(torque=False, duration=3.0, links={"forearm": thin_rod(1.2, 0.3)})
 
 
-def test_consistent_std_calibrated_on_30_filtered_recordings(rod_arm):
+def test_consistent_std_calibrated_on_30_filtered_recordings(rod_arm, tmp_path):
     """30 recordings at 200 Hz, 10 Hz cut-off, constraints active in every one: RMS z over the 16 base parameters
     and over the 6 offsets within 0.8..1.25 and 0.7..1.3 (``docs/identification.md``); the std of independent frames
     on the first three gives 2.7 and 2.5. The results say how the std was computed."""
@@ -71,6 +71,7 @@ def test_consistent_std_calibrated_on_30_filtered_recordings(rod_arm):
     note = std_note("consistent", res.meta["std"])
     assert f"active in {N_RECORDINGS} of {N_RECORDINGS} configurations, up to {max(active)}" in note
     assert "frames correlated over the 10 Hz cut-off at 200 Hz" in note
+    assert load_results(save_results(res, tmp_path / "r.h5")).meta["std"] == res.meta["std"]  # results info reads it
 
 
 @pytest.mark.slow  # 30 recordings at 1 kHz and at 500 Hz, each rate one solve of 30 configurations: about two minutes
