@@ -15,7 +15,12 @@ filter's and the differentiation's error. An honest std gives an RMS z near 1 (0
 ``p`` parameters each the RMS itself scatters by about ``1 / sqrt(2 N p)`` (more: a draw's parameters are
 correlated).
 
-Usage: ``python benchmarks/std_recordings.py [--draws 6] [--scenario wrench|torque|both]``. The load average is
+``--method consistent`` (or ``nonlinear``) solves each draw by that method instead: the linear fit's covariance through
+the active constraints (:mod:`ineid.identify.constrained_std`); ``--rod`` makes the forearm a thin rod (two zero
+principal moments: on the physical set's boundary, constraints active) and ``--noise 10`` scales the noise.
+
+Usage: ``python benchmarks/std_recordings.py [--draws 6] [--scenario wrench|torque|both] [--method consistent]
+[--rod] [--noise 1]``. The load average is
 printed before and after (timings are not the point here).
 """
 
@@ -39,20 +44,27 @@ def _row(label: str, before: dict, after: dict, seconds: float) -> str:
     return f"| {label:<24} | " + " | ".join(cells) + f" | {seconds:6.0f} |"
 
 
-def table(torque: bool, draws: int, duration: float) -> None:
-    sc = scenario(torque=torque, duration=duration)
-    print(f"\nscenario: {'wrench and joint torques, friction' if torque else 'wrench'} ({draws} draws per row)")
+def thin_rod(mass: float = 1.2, length: float = 0.3) -> np.ndarray:
+    """A thin rod along the link's -z axis (1e-7 kg m^2 about it: MuJoCo needs a positive inertia)."""
+    i = mass * length**2 / 3
+    return np.array([mass, 0.0, 0.0, -mass * length / 2, i, 0.0, i, 0.0, 0.0, 1e-7])
+
+
+def table(torque: bool, draws: int, duration: float, method: str = "linear", rod: bool = False, noise=1.0) -> None:
+    sc = scenario(torque=torque, duration=duration, links={"forearm": thin_rod()} if rod else None)
+    what = "wrench and joint torques, friction" if torque else "wrench"
+    print(f"\nscenario: {what}, {method}{', forearm a rod' if rod else ''}, noise x{noise:g} ({draws} draws per row)")
     print("| rate, cut-off            | links before after | friction before after | offsets before after |      s |")
     print("|---|---|---|---|---|")
     for step, cutoff in GRID:
         t0 = time.perf_counter()
         rng = np.random.default_rng(100 + step)
-        out = [solve_draw(sc, step, cutoff, rng) for _ in range(draws)]
+        out = [solve_draw(sc, step, cutoff, rng, noise, method=method) for _ in range(draws)]
         before, after = rms_z([o[0] for o in out]), rms_z([o[1] for o in out])
         print(_row(f"{1000 / step:g} Hz, {cutoff:g} Hz", before, after, time.perf_counter() - t0), flush=True)
     for step, cutoff in ((1, 10.0), (5, 10.0)):
         t0 = time.perf_counter()
-        before, after = solve_draw(sc, step, cutoff, None)
+        before, after = solve_draw(sc, step, cutoff, None, method=method)
         label = f"{1000 / step:g} Hz, {cutoff:g} Hz, noise-free"
         print(_row(label, rms_z([before]), rms_z([after]), time.perf_counter() - t0), flush=True)
 
@@ -62,10 +74,13 @@ def main() -> None:
     parser.add_argument("--draws", type=int, default=6, help="noise draws per row (default 6)")
     parser.add_argument("--scenario", choices=("wrench", "torque", "both"), default="both")
     parser.add_argument("--duration", type=float, default=10.0, help="seconds simulated (default 10)")
+    parser.add_argument("--method", choices=("linear", "consistent", "nonlinear"), default="linear")
+    parser.add_argument("--rod", action="store_true", help="the forearm a thin rod (constraints active)")
+    parser.add_argument("--noise", type=float, default=1.0, help="times the default noise (default 1)")
     args = parser.parse_args()
     print(f"load average before: {os.getloadavg()[0]:.1f}")
     for torque in {"wrench": (False,), "torque": (True,), "both": (False, True)}[args.scenario]:
-        table(torque, args.draws, args.duration)
+        table(torque, args.draws, args.duration, args.method, args.rod, args.noise)
     print(f"\nload average after: {os.getloadavg()[0]:.1f}")
 
 

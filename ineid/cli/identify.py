@@ -245,7 +245,7 @@ def results_info(path: Path) -> None:
     )
     con.print(f"fitted: {shown(fitted_channels(m))}", soft_wrap=True)
     con.print(f"settings: {shown(json.dumps(res.settings.to_dict(), sort_keys=True))}")
-    con.print(std_note(res.settings.method))
+    con.print(std_note(res.settings.method, m.get("std")), soft_wrap=True)
     n_ok = int(res.success.sum())
     con.print(
         f"{n_ok}/{res.n} configurations identified (indices {int(res.config_index.min())}.."

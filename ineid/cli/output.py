@@ -151,6 +151,7 @@ def _print_solve_summary(con, res, n_ok: int) -> None:
     which gravity; the held-out error and RMS per axis."""
     import numpy as np
 
+    from ineid.identify.constrained_std import std_note
     from ineid.report.fitted import fitted_channels, held_out_error_name
     from ineid.robots.gravity import describe_gravity
 
@@ -161,6 +162,7 @@ def _print_solve_summary(con, res, n_ok: int) -> None:
         + (f", validated on {res.n_frames_validation}" if res.n_frames_validation else "")
     )
     con.print(f"fitted: {shown(fitted_channels(res.meta))}; {describe_gravity(res.meta['gravity'])}", soft_wrap=True)
+    con.print(std_note(res.settings.method, res.meta.get("std")), soft_wrap=True)
     if n_ok < res.n:
         statuses, counts = np.unique(res.status[~res.success].astype(str), return_counts=True)
         con.print("failed: " + "; ".join(f"{c} x {s}" for s, c in zip(statuses, counts, strict=True)))

@@ -391,13 +391,13 @@ def _classical_estimate(theta, success, status, shared: SharedFit, t0: float, bo
     fit, base = shared.fit, shared.base
     c = fit.beta.shape[0]
     theta[~success] = np.nan
-    cov = fit.cov_beta
+    cov, n_active = fit.cov_beta, None
     if bounds is not None:
-        cov, _ = constrained_cov(theta, success, fit, base, null="free", psd=False, bounds=bounds)
+        cov, n_active = constrained_cov(theta, success, fit, base, null="free", psd=False, bounds=bounds)
     std = standard_std(np.nan_to_num(cov), base)
     std[~success] = np.nan
     beta_std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
-    est = Estimate(theta, std, theta @ base.B.T, beta_std, success, np.asarray(status, dtype=object), fit)
+    est = Estimate(theta, std, theta @ base.B.T, beta_std, success, np.asarray(status, dtype=object), fit, n_active)
     return MethodEstimate(est, np.full(c, (time.perf_counter() - t0) / max(c, 1)))
 
 

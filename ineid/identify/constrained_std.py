@@ -255,11 +255,55 @@ CONSTRAINED_METHODS = ("consistent", "nonlinear", "lsqlin")
 """The methods whose std runs through their active constraints (``lsqlin`` with bounds)."""
 
 
-def std_note(method: str) -> str:
-    """One line on what a method's standard deviations are (``results info``)."""
+def std_record(datasets, est) -> dict:
+    """What a result's standard deviations were computed from (the results file's ``std``): ``filtered``, the
+    low-pass of each filtered recording fitted (``{"cutoff", "rate"}`` Hz; empty: independent frames), and
+    ``active``, (C,) how many constraints each configuration's std runs through (None: an unconstrained method)."""
+    from ineid.identify.time_correlation import filtered_frames
+
+    found = [filtered_frames(ds) for ds in datasets]
+    filtered = [{"cutoff": f.cutoff, "rate": f.rate} for f in found if f is not None]
+    active = None if est.n_active is None else [int(a) for a in est.n_active]
+    return {"filtered": filtered, "active": active}
+
+
+def _numbers(values) -> str:
+    return "/".join(f"{v:.3g}" for v in sorted(set(values)))
+
+
+def frames_note(record: dict | None) -> str:
+    """How the std takes the frames (:func:`std_record`): correlated over a filter's cut-off, or independent; empty
+    without a record (an older results file)."""
+    if not record:
+        return ""
+    filtered = record.get("filtered") or []
+    if not filtered:
+        return "; frames independent"
+    cut, rate = _numbers(f["cutoff"] for f in filtered), _numbers(f["rate"] for f in filtered)
+    return (
+        f"; a filtered recording: frames correlated over the {cut} Hz cut-off at {rate} Hz (band density of the "
+        "residuals per axis, the filter's and differentiation's error included)"
+    )
+
+
+def active_note(record: dict | None) -> str:
+    """How many constraints the std runs through (:func:`std_record`), or empty without a count."""
+    active = (record or {}).get("active")
+    if not active:
+        return ""
+    if len(active) == 1:
+        return f"{active[0]} active; "
+    bound = sum(a > 0 for a in active)
+    return f"active in {bound} of {len(active)} configurations, up to {max(active)}; "
+
+
+def std_note(method: str, record: dict | None = None) -> str:
+    """One line on what a method's standard deviations are (``results info``, the ``solve`` summary, the report),
+    from the results' ``std`` record (:func:`std_record`) where it has one."""
+    frames = frames_note(record)
     if method in CONSTRAINED_METHODS:
         return (
-            "std: the linear fit's covariance through the active constraints of the estimate (the linear fit's "
-            "where none is active; docs/identification.md)"
+            "std: the linear fit's covariance through the active constraints of the estimate ("
+            f"{active_note(record)}the linear fit's where none is active; docs/identification.md){frames}"
         )
-    return "std: the linear fit's covariance"
+    return f"std: the linear fit's covariance{frames}"

@@ -25,6 +25,7 @@ import numpy as np
 
 from ineid.errors import IdentificationError
 from ineid.identify.choose import noise_levels, solve_channels
+from ineid.identify.constrained_std import std_record
 from ineid.identify.extras import prior_with_extras
 from ineid.identify.identifiability import BaseParameters, base_parameters, frame_minimum
 from ineid.identify.known import with_known_uncertainty
@@ -199,6 +200,7 @@ def solve_recordings(
     meta["recordings"] = recordings
     if mixed is not None:
         meta["mixed_filters"] = mixed.message
+    meta["std"] = std_record(datasets, est)
     meta["total_seconds"] = time.perf_counter() - t_start
     return _joint_results(settings, ds0, base, prior, est, fit_rms, (val_rms, val_rel, n_val), n_total, meta)
 

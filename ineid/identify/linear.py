@@ -79,6 +79,7 @@ class Estimate:
         success: (C,) bool.
         status: (C,) text: "ok", or why not (solver status, rank deficiency).
         fit: the base least-squares fit behind them.
+        n_active: (C,) how many constraints the std runs through (the constrained methods), or None.
     """
 
     theta: np.ndarray
@@ -88,6 +89,7 @@ class Estimate:
     success: np.ndarray
     status: np.ndarray
     fit: BaseFit
+    n_active: np.ndarray | None = None
 
 
 def linear_theta(fit: BaseFit, base: BaseParameters, theta_prior: np.ndarray) -> np.ndarray:

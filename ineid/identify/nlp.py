@@ -444,7 +444,7 @@ def estimate_from_solves(
             solver's residual variance).
     """
     beta = theta @ base.B.T
-    cov = np.nan_to_num(fit.cov_beta)
+    cov, n_active = np.nan_to_num(fit.cov_beta), None
     if solver is not None:
         from ineid.identify.constrained_std import constrained_cov, estimator_gain
 
@@ -455,7 +455,7 @@ def estimate_from_solves(
         def gain(i):
             return estimator_gain(solver, theta[i], fit.R[i], fit.beta[i], 1.0 / s2[i])
 
-        cov, _ = constrained_cov(
+        cov, n_active = constrained_cov(
             theta,
             success,
             fit,
@@ -472,4 +472,4 @@ def estimate_from_solves(
     std[~success] = np.nan
     beta_std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
     beta_std[~success] = np.nan
-    return Estimate(theta, std, beta, beta_std, success, status, fit)
+    return Estimate(theta, std, beta, beta_std, success, status, fit, n_active)

@@ -33,6 +33,7 @@ from ineid.cache import enable_compilation_cache
 from ineid.errors import IdentificationError
 from ineid.identify.choose import noise_levels, solve_channels, wrench_settings
 from ineid.identify.classical import lsqlin_method, lsqnonlin_method
+from ineid.identify.constrained_std import std_record
 from ineid.identify.friction_search import solve_searched
 from ineid.identify.identifiability import base_parameters, frame_minimum
 from ineid.identify.linear import MethodEstimate, SharedFit, linear_method
@@ -134,7 +135,7 @@ def solve_dataset(
     if not out.is_linear:
         sums = step.residual_sums(model, ds, (n_fit, n_val), est.theta, channels)
     bias_hat, bias_std = (None, None) if step.offsets is None else bias_estimate(step.offsets, est, base)
-    return dataset_results(
+    res = dataset_results(
         ds,
         settings,
         base,
@@ -156,6 +157,8 @@ def solve_dataset(
         bias_std=bias_std,
         payload=payload_section(model, base, est.theta[:, : base.n_link_params], est.fit.cov_beta, est.success),
     )
+    res.meta["std"] = std_record([ds], est)  # what the std was computed from (results info, the report)
+    return res
 
 
 def _passed_method(name: str, methods: Mapping[str, SolveMethod] | None) -> SolveMethod:

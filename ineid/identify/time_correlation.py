@@ -279,7 +279,7 @@ def recording_covariance(
             spread = fit.sigma2[c] * a_inv @ info @ a_inv
         naive = fit.sigma2[c] * a_inv
         growth = np.mean(np.diag(spread) / np.maximum(np.diag(naive), 1e-300))
-        delta = a_inv @ moved
+        delta = a_inv @ np.broadcast_to(moved, a_inv.shape[:1])  # 0 where every part is too short
         cov[c] = spread + growth**2 * (fit.cov_beta[c] - naive) + np.outer(delta, delta)
         long_run[c] = lr / sum(n_frames)
     return dataclasses.replace(fit, cov_beta=cov, axis_long_run=long_run)

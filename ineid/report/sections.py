@@ -71,6 +71,7 @@ def solved_index(res, config: int | None):
 def method_section(res) -> dict:
     """The method, its settings in words, what it fitted, how many configurations it identified, the ineid that
     wrote the results; the held-out RMS per axis of each fitted channel."""
+    from ineid.identify.constrained_std import std_note
     from ineid.report.fitted import fitted_channels, held_out_error_name, held_out_rms, rms_lines
 
     m = res.meta
@@ -86,6 +87,7 @@ def method_section(res) -> dict:
         "frames": f"{res.n_frames_fit} frames fitted, {res.n_frames_validation} validated per configuration",
         "written_by": f"ineid {m['ineid_version']}" if m.get("ineid_version") else "an unrecorded ineid",
         "fitted": fitted_channels(m),
+        "std": std_note(res.settings.method, m.get("std")),
         "error_name": held_out_error_name(m),
         "held_out": held,
     }

@@ -60,8 +60,11 @@ class Scenario:
         return self.theta[self.model.unknown_index]
 
 
-def scenario(torque: bool = False, duration: float = 10.0, seed: int = 11) -> Scenario:
-    """Simulate ``sweaty-arm`` for ``duration`` s at 1 kHz, its unknown links' parameters drawn around CAD."""
+def scenario(
+    torque: bool = False, duration: float = 10.0, seed: int = 11, links: dict[str, np.ndarray] | None = None
+) -> Scenario:
+    """Simulate ``sweaty-arm`` for ``duration`` s at 1 kHz, its unknown links' parameters drawn around CAD
+    (``links``: those named given instead, ``{link: (10,) theta}``)."""
     from ineid.data.synthesis.sampling import sample_link_parameters
     from ineid.robots.load import load_robot
 
@@ -72,6 +75,9 @@ def scenario(torque: bool = False, duration: float = 10.0, seed: int = 11) -> Sc
         i = model.link_names.index(link)
         idx = np.arange(10 * i, 10 * i + 10)
         theta[idx] = sample_link_parameters(model.theta_cad[idx], 1, rng)[0]
+    for link, value in (links or {}).items():
+        i = model.link_names.index(link)
+        theta[10 * i : 10 * i + 10] = value
     friction = FRICTION if torque else JointFriction()
     sim = simulate(model, theta, POSE, duration, friction=friction)
     x = POSE.transform()
@@ -124,38 +130,41 @@ def _truth_extra(sc: Scenario, names) -> dict[str, float]:
     return out
 
 
-def z_scores(sc: Scenario, ds, res) -> dict[str, np.ndarray]:
-    """``(estimate - truth) / std`` per group (``links``, ``friction``, ``offsets``) of one solve's first row.
+def z_scores(sc: Scenario, ds, res, row: int = 0) -> dict[str, np.ndarray]:
+    """``(estimate - truth) / std`` per group (``links``, ``friction``, ``offsets``) of one solve's row ``row`` (a
+    configuration: one noise draw of the same recording).
 
-    The offsets' truth is the sensor's offsets plus the mean wrench of what the null-space rule cannot tell from
-    the data (the weight of mass that never moves): ``b + Wbar (I - T B)(theta - theta_prior)``, the quantity whose
-    std :func:`ineid.identify.steps.bias_estimate` gives."""
+    The offsets' truth is the sensor's offsets plus the mean wrench of what the data cannot tell from them (the
+    weight of mass that never moves), as the estimate split it: ``b + Wbar (I - T B)(theta - theta_hat)``, the
+    quantity whose std :func:`ineid.identify.steps.bias_estimate` gives (``linear``: ``(I - T B) theta_hat`` is the
+    prior's; the IPOPT methods take their own null-space part)."""
     from ineid.identify.linear import prior_map
 
     base, model = res.base, sc.model
     extra = _truth_extra(sc, base.param_names[base.n_link_params :])
     theta_u = np.concatenate([sc.theta_unknown, [extra.get(n, 0.0) for n in base.param_names[base.n_link_params :]]])
     truth = base.B @ theta_u
-    z = (res.base_hat[0] - truth) / res.base_std[0]
+    z = (res.base_hat[row] - truth) / res.base_std[row]
     names = base.names
     out = {k: z[m] for k, m in _groups(names).items() if m.any()}
     if res.bias_hat is not None:
         n_u = base.n_link_params
-        prior = np.concatenate([model.theta_cad[model.unknown_index], np.zeros(len(theta_u) - n_u)])
-        hidden = (np.eye(len(theta_u)) - prior_map(base) @ base.B) @ (theta_u - prior)
+        hidden = (np.eye(len(theta_u)) - prior_map(base) @ base.B) @ (theta_u - res.theta_hat[row])
         fit = slice(0, res.n_frames_fit)
         theta = model.full_theta(hidden[:n_u], np.zeros_like(ds.theta_known))
         moved = wrench_in_sensor(
-            POSE.transform(), np.asarray(model.base_wrench(ds.q[0, fit], ds.qd[0, fit], ds.qdd[0, fit], theta))
+            POSE.transform(), np.asarray(model.base_wrench(ds.q[row, fit], ds.qd[row, fit], ds.qdd[row, fit], theta))
         )
         b_true = sc.bias + moved.mean(axis=0)
-        out["offsets"] = (res.bias_hat[0, :6] - b_true) / res.bias_std[0, :6]
+        out["offsets"] = (res.bias_hat[row, :6] - b_true) / res.bias_std[row, :6]
     return out
 
 
-def solve_draw(sc: Scenario, step: int, cutoff: float, rng, scale: float = 1.0) -> tuple[dict, dict]:
-    """One noise draw imported at ``1000 / step`` Hz and ``cutoff`` Hz and solved: the z-scores per group with the
-    corrected std and with the std of independent frames."""
+def solve_draw(
+    sc: Scenario, step: int, cutoff: float, rng, scale: float = 1.0, method: str = "linear"
+) -> tuple[dict, dict]:
+    """One noise draw imported at ``1000 / step`` Hz and ``cutoff`` Hz and solved by ``method``: the z-scores per
+    group with the corrected std and with the std of independent frames."""
     from ineid.data.recordings.pipeline import recording_dataset
     from ineid.data.recordings.settings import ImportSettings
     from ineid.identify import SolveSettings, solve_dataset
@@ -164,7 +173,7 @@ def solve_draw(sc: Scenario, step: int, cutoff: float, rng, scale: float = 1.0) 
         noisy_streams(sc, step, rng, scale), sc.model, ImportSettings(sensor_pose=POSE_TEXT, cutoff=cutoff)
     )
     extra = {"friction": ("viscous", "coulomb")} if sc.torque else {}
-    settings = SolveSettings(bias="estimate", **extra)
+    settings = SolveSettings(method=method, bias="estimate", **extra)
     after = z_scores(sc, ds, solve_dataset(ds, settings, model=sc.model))
     origin = ds.meta.origin
     ds.meta = dataclasses.replace(ds.meta, origin={k: v for k, v in origin.items() if k != "import"})
