@@ -101,20 +101,44 @@ def _groups(names) -> dict[str, np.ndarray]:
     return {"links": ~friction, "friction": friction}
 
 
-def model_friction(sim: Simulation) -> np.ndarray:
-    """(n_dof, 2) ``(fv, fc)`` per joint that ineid's model ``fv qd + fc sign(qd)`` fits MuJoCo's friction torque
-    with, on the exact states: the friction the model can represent. MuJoCo's dry friction is a soft constraint,
-    smaller near rest than ``fc sign(qd)``, so these differ from the simulated ``FRICTION`` (``fc`` 0.21-0.27
-    against 0.3 on the study's arm)."""
+def model_friction(sim: Simulation, zone: float = 0.0) -> np.ndarray:
+    """(n_dof, 2) ``(fv, fc)`` per joint that ineid's model ``fv qd + fc c(qd)`` fits MuJoCo's friction torque
+    with, on the exact states: the friction the model can represent; ``c = sign``, or ``tanh(qd / zone)`` with a
+    smooth ``zone`` (rad/s). MuJoCo's dry friction is a soft constraint, smaller near rest than ``fc sign(qd)``, so
+    with ``sign`` these differ from the simulated ``FRICTION`` (``fc`` 0.21-0.27 against 0.3 on the study's arm)."""
     out = np.empty((sim.qd.shape[1], 2))
     for j in range(sim.qd.shape[1]):
-        columns = np.stack([sim.qd[:, j], np.sign(sim.qd[:, j])], axis=1)
+        qd = sim.qd[:, j]
+        columns = np.stack([qd, np.tanh(qd / zone) if zone > 0 else np.sign(qd)], axis=1)
         out[j] = np.linalg.lstsq(columns, sim.friction[:, j], rcond=None)[0]
     return out
 
 
-def _truth_extra(sc: Scenario, names) -> dict[str, float]:
-    fr = model_friction(sc.sim)
+def friction_zone(sim: Simulation) -> float:
+    """The smooth Coulomb zone (rad/s) whose ``fv qd + fc tanh(qd / zone)`` fits MuJoCo's friction torque best on
+    the exact states (every joint one zone; a log-spaced grid refined once)."""
+
+    def rss(zone: float) -> float:
+        fr = model_friction(sim, zone)
+        pred = fr[:, 0] * sim.qd + fr[:, 1] * np.tanh(sim.qd / zone)
+        return float(np.sum((sim.friction - pred) ** 2))
+
+    grid = np.geomspace(1e-4, 1.0, 41)
+    best = grid[int(np.argmin([rss(z) for z in grid]))]
+    fine = best * np.geomspace(0.8, 1.25, 21)
+    return float(fine[int(np.argmin([rss(z) for z in fine]))])
+
+
+def _zone_used(res) -> float:
+    """The Coulomb zone a solve ran at (its joint-torque channel's record; 0: ``sign``)."""
+    for record in res.meta.get("channels", []):
+        if "friction" in record:
+            return float(record.get("coulomb_zone") or 0.0)
+    return 0.0
+
+
+def _truth_extra(sc: Scenario, names, zone: float = 0.0) -> dict[str, float]:
+    fr = model_friction(sc.sim, zone)
     joints = list(sc.model.joint_names)
     out = {}
     for n in names:
@@ -129,11 +153,12 @@ def z_scores(sc: Scenario, ds, res) -> dict[str, np.ndarray]:
 
     The offsets' truth is the sensor's offsets plus the mean wrench of what the null-space rule cannot tell from
     the data (the weight of mass that never moves): ``b + Wbar (I - T B)(theta - theta_prior)``, the quantity whose
-    std :func:`ineid.identify.steps.bias_estimate` gives."""
+    std :func:`ineid.identify.steps.bias_estimate` gives. The friction's truth is at the Coulomb zone the solve ran
+    at (:func:`model_friction`)."""
     from ineid.identify.linear import prior_map
 
     base, model = res.base, sc.model
-    extra = _truth_extra(sc, base.param_names[base.n_link_params :])
+    extra = _truth_extra(sc, base.param_names[base.n_link_params :], _zone_used(res))
     theta_u = np.concatenate([sc.theta_unknown, [extra.get(n, 0.0) for n in base.param_names[base.n_link_params :]]])
     truth = base.B @ theta_u
     z = (res.base_hat[0] - truth) / res.base_std[0]
@@ -153,9 +178,13 @@ def z_scores(sc: Scenario, ds, res) -> dict[str, np.ndarray]:
     return out
 
 
-def solve_draw(sc: Scenario, step: int, cutoff: float, rng, scale: float = 1.0) -> tuple[dict, dict]:
+def solve_draw(
+    sc: Scenario, step: int, cutoff: float, rng, scale: float = 1.0, zone: float | str = 0.0, two_step: bool = False
+) -> tuple[dict, dict]:
     """One noise draw imported at ``1000 / step`` Hz and ``cutoff`` Hz and solved: the z-scores per group with the
-    corrected std and with the std of independent frames."""
+    corrected std and with the std of independent frames. With torques, the Coulomb friction at ``zone``
+    (``SolveSettings.coulomb_zone``: 0 ``sign(qd)``, a zone in rad/s, or ``"identify"``); ``two_step``: the links
+    from the wrench, then the friction from the torques (``SolveSettings.two_step``)."""
     from ineid.data.recordings.pipeline import recording_dataset
     from ineid.data.recordings.settings import ImportSettings
     from ineid.identify import SolveSettings, solve_dataset
@@ -163,7 +192,7 @@ def solve_draw(sc: Scenario, step: int, cutoff: float, rng, scale: float = 1.0) 
     ds, _ = recording_dataset(
         noisy_streams(sc, step, rng, scale), sc.model, ImportSettings(sensor_pose=POSE_TEXT, cutoff=cutoff)
     )
-    extra = {"friction": ("viscous", "coulomb")} if sc.torque else {}
+    extra = {"friction": ("viscous", "coulomb"), "coulomb_zone": zone, "two_step": two_step} if sc.torque else {}
     settings = SolveSettings(bias="estimate", **extra)
     after = z_scores(sc, ds, solve_dataset(ds, settings, model=sc.model))
     origin = ds.meta.origin
