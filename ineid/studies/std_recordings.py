@@ -60,6 +60,10 @@ class Scenario:
         return self.theta[self.model.unknown_index]
 
 
+LAW_ZONE = 0.05
+"""rad/s: the smooth Coulomb zone of the friction law :func:`with_friction_law` puts in the joints."""
+
+
 def scenario(torque: bool = False, duration: float = 10.0, seed: int = 11) -> Scenario:
     """Simulate ``sweaty-arm`` for ``duration`` s at 1 kHz, its unknown links' parameters drawn around CAD."""
     from ineid.data.synthesis.sampling import sample_link_parameters
@@ -79,6 +83,16 @@ def scenario(torque: bool = False, duration: float = 10.0, seed: int = 11) -> Sc
     root = x @ np.concatenate([rt[0] * g, np.cross(rt[1:4], g)])
     bias = root + OFFSETS
     return Scenario(model, theta, sim, sim.wrench_sensor - root + bias, bias, torque)
+
+
+def with_friction_law(sc: Scenario, zone: float = LAW_ZONE) -> Scenario:
+    """``sc`` with MuJoCo's joint friction replaced by the law ``fv qd + fc tanh(qd / zone)`` of ``FRICTION``'s
+    coefficients, one that ineid's smooth Coulomb model represents exactly: the joint torques less MuJoCo's friction
+    torque plus the law's, on the same motion (the base wrench does not see how a joint's torque splits between
+    actuator and friction)."""
+    sim = sc.sim
+    law = FRICTION.viscous * sim.qd + FRICTION.coulomb * np.tanh(sim.qd / zone)
+    return dataclasses.replace(sc, sim=dataclasses.replace(sim, tau=sim.tau - sim.friction + law, friction=law))
 
 
 def noisy_streams(sc: Scenario, step: int, rng: np.random.Generator | None, scale: float = 1.0):
