@@ -10,7 +10,7 @@ import pytest
 
 from ineid.channels import ChannelSet, JointTorque
 from ineid.data.recordings.signals import LowPass
-from ineid.identify.friction_search import Profile, long_run_factors
+from ineid.identify.friction_search import Profile, filter_shifts, long_run_factors, search_1d
 from ineid.identify.identifiability import base_parameters_from_regressor
 from ineid.identify.least_squares import fit_base
 from ineid.identify.step_two_covariance import StepTwoFrames, step_two_covariance
@@ -101,3 +101,27 @@ def test_step_two_covariance_counts_filtered_noise_by_the_filter_gain():
     assert np.all(np.abs(growth / gain - 1) < 0.25), growth
     assert np.all(np.abs(np.diag(out.cov_beta[0]) / spread - 1) < 0.4), (np.diag(out.cov_beta[0]), spread)
     assert np.all(np.abs(out.axis_long_run[0] / gain - 1) < 0.25)
+
+
+def test_filter_shift_of_the_zone_matches_what_the_filter_does(model):
+    """A smooth Coulomb law recorded through the low-pass (5 Hz of 200 Hz, the states filtered alike): the zone
+    found on the filtered frames is off by what the filter does to ``tanh``, and :func:`filter_shifts` estimates that
+    move from the filtered data alone (same sign, within a factor of two)."""
+    n, dof = 2400, model.n_dof
+    t = np.arange(n) / 200.0
+    q = np.stack([0.8 * np.sin(2 * np.pi * (0.4 + 0.15 * j) * t + j) for j in range(dof)], axis=1)
+    qd = np.gradient(q, t, axis=0)
+    low = LowPass(5.0, 200.0)
+    zone = 0.05
+    y = low.apply(0.05 * qd + 0.3 * np.tanh(qd / zone))
+    states = tuple(low.apply(a) for a in (q, qd, np.zeros_like(q)))
+    channels = ChannelSet((JointTorque().with_actuation(friction=("viscous", "coulomb"), coulomb_zone=zone),))
+    profile = Profile(channels, model, [states], [None], [y], 1)
+    profile.rebuild = lambda c, q, qd, qdd: (np.zeros(q.shape), None)
+    profile.set_weights(np.ones((1, dof)))
+    grid = zone * np.geomspace(0.2, 5.0, 41)
+    found, _ = search_1d(profile, {}, "coulomb_zone", grid)
+    shift = filter_shifts(profile, ("coulomb_zone",), {"coulomb_zone": found}, FilteredFrames(5.0, 200.0))
+    moved = found - zone
+    assert abs(moved) > 0.02 * zone, moved
+    assert 0.5 < shift["coulomb_zone"] / moved < 2.0, (shift, moved)
