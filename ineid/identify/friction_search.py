@@ -16,8 +16,13 @@ rounds of coordinate descent. ``W`` holds ``1 / sigma`` per axis: the noise give
 the residual RMS per axis at the first estimate, refined once at the minimum.
 
 The std is the profile likelihood's: ``S`` is ``-2 log L`` up to a constant, so ``cov(v) = 2 H^-1`` with
-``H`` the Hessian of ``S`` at the minimum (central differences, 1 % steps); it assumes independent frames
-(as the linear fit's std does) and is conditional on nothing else: the other parameters are profiled out. The
+``H`` the Hessian of ``S`` at the minimum (central differences, 1 % steps), for independent frames; it is
+conditional on nothing else: the other parameters are profiled out. On a filtered recording
+(:func:`ineid.identify.time_correlation.filtered_frames`) the frames are correlated in time, and each axis's
+residual counts ``kappa_a`` times (its band density, as the linear fit's std takes it): the variance grows by
+``sum_a kappa_a H_a / sum_a H_a`` (:func:`long_run_factors`), ``H_a`` the axis's share of the curvature; and the
+low-pass and the differentiation move the velocity themselves (a filtered ``tanh`` looks like a wider zone), by
+``delta`` estimated from the data (:func:`filter_shifts`), added as ``delta^2``. The
 other parameters' std are those of the fit at the velocities found (conditional on them). On 20 simulated
 torque sets each (``tests/test_actuation_friction.py``'s, 300 frames, 0.02 N*m noise) the RMS error/std is 1.19
 for the zone and 1.10 for the Stribeck velocity (which comes out low by 0.7 std on average), 0.98 and 1.08 for
@@ -52,6 +57,13 @@ from ineid.identify.choose import (
 from ineid.identify.identifiability import frame_minimum
 from ineid.identify.settings import FRICTION_VELOCITIES, SolveSettings
 from ineid.identify.solve_results import SolveResults
+from ineid.identify.time_correlation import (
+    NYQUIST_SHARE,
+    FilteredFrames,
+    band_long_run,
+    filter_gain,
+    filtered_frames,
+)
 from ineid.identify.two_step import k_columns, second_step
 
 GRID_POINTS = 25
@@ -78,6 +90,8 @@ class Profile:
         fixed: per configuration, ``A`` (F, A, p) or None.
         targets: per configuration, the values less what is known (F, A).
         stride: every ``stride``-th frame is searched.
+        rebuild: ``f(c, q, qd, qdd) -> (known (F, A), fixed)``: configuration ``c``'s known share of the values and
+            its fixed columns at other states (:func:`filter_shifts`), or None.
     """
 
     channels: ChannelSet
@@ -88,6 +102,7 @@ class Profile:
     stride: int
     weights: np.ndarray | None = None
     bases: list = dataclasses.field(default_factory=list)
+    rebuild: object = None
 
     def set_weights(self, weights: np.ndarray) -> None:
         """``1 / sigma`` per configuration and axis (C, A); the orthonormal bases of the weighted ``A``."""
@@ -221,6 +236,83 @@ def _profile_std(profile: Profile, names: tuple[str, ...], values: dict, edges: 
     return {n: (math.inf if edges[n] else float(std[i])) for i, n in enumerate(names)}
 
 
+def long_run_factors(profile: Profile, names: tuple[str, ...], values: dict, filtered: FilteredFrames) -> dict:
+    """Per velocity, what its variance grows by on a filtered recording: ``sum_a kappa_a H_a / sum_a H_a``, with
+    ``H_a`` axis ``a``'s share of the Gauss-Newton curvature of ``S`` (the residual's derivative by the velocity,
+    weighted, squared) and ``kappa_a`` its residual band density at the minimum
+    (:func:`ineid.identify.time_correlation.band_long_run`, the frames' rate divided by the stride; the fit's
+    leverage in the axis taken out; the filter's gain where the band is too short), at least 1."""
+    frames_at = FilteredFrames(filtered.cutoff, filtered.rate / profile.stride)
+    gain = filter_gain(frames_at) if filtered.cutoff < NYQUIST_SHARE * frames_at.rate else 1.0
+    resid = profile.residuals(values)
+    num, den = dict.fromkeys(names, 0.0), dict.fromkeys(names, 0.0)
+    for c, (r, w) in enumerate(zip(resid, profile.weights, strict=True)):
+        kappa = np.ones(r.shape[1])
+        if filtered.cutoff < NYQUIST_SHARE * frames_at.rate:
+            band = band_long_run(r, frames_at, _axis_leverage(profile, values, c))
+            kappa = np.where(np.isnan(band), gain, np.maximum(band, 1.0))
+        for n in names:
+            step = HESSIAN_STEP * values[n]
+            up = profile.residuals({**values, n: values[n] + step})[c]
+            down = profile.residuals({**values, n: values[n] - step})[c]
+            h = np.sum(((up - down) * w) ** 2, axis=0)
+            num[n], den[n] = num[n] + float(kappa @ h), den[n] + float(h.sum())
+    return {n: max(num[n] / den[n], 1.0) if den[n] > 0 else 1.0 for n in names}
+
+
+SHIFT_GRID = (1 / 3, 3.0, 15)
+"""The grid of :func:`filter_shifts`' search: this range times the velocity found, log-spaced, this many points."""
+
+
+def filter_shifts(profile: Profile, names: tuple[str, ...], values: dict, filtered: FilteredFrames) -> dict:
+    """Per velocity, what the low-pass and the differentiation move it by, estimated from the data as the linear
+    fit's filter error is (:func:`ineid.identify.time_correlation.filter_error`): the fitted model ``m(s_f)`` at the
+    filtered states, low-passed again, searched against the model at the twice-filtered states ``LP s_f`` (the
+    filter's start-up at each end left out); the velocity found there less the one at ``s_f``. 0 where the profile
+    cannot rebuild its columns (``Profile.rebuild`` None) or the frames are too few."""
+    from ineid.data.recordings.signals import LowPass, edge_seconds
+
+    rate = filtered.rate / profile.stride
+    zero = dict.fromkeys(names, 0.0)
+    edge = int(math.ceil(edge_seconds(filtered.cutoff) * rate))
+    if profile.rebuild is None or filtered.cutoff >= NYQUIST_SHARE * rate:
+        return zero
+    if any(len(f[0]) <= 4 * edge for f in profile.frames):
+        return zero
+    low = LowPass(filtered.cutoff, rate)
+    frames, fixed, targets = [], [], []
+    data = zip(profile.frames, profile.targets, profile.residuals(values), strict=True)
+    for c, ((q, qd, qdd), y, r) in enumerate(data):
+        known, _ = profile.rebuild(c, q, qd, qdd)
+        keep = slice(edge, len(q) - edge)
+        states = tuple(low.apply(a)[keep] for a in (q, qd, qdd))
+        known_2, fixed_2 = profile.rebuild(c, *states)
+        targets.append(low.apply(y - r + known)[keep] - known_2)
+        frames.append(states)
+        fixed.append(fixed_2)
+    shifted = Profile(profile.channels, profile.model, frames, fixed, targets, profile.stride)
+    shifted.set_weights(profile.weights)
+    found = dict(values)
+    for _ in range(ROUNDS if len(names) > 1 else 1):
+        for n in names:
+            grid = values[n] * np.geomspace(SHIFT_GRID[0], SHIFT_GRID[1], SHIFT_GRID[2])
+            found[n], _ = search_1d(shifted, found, n, grid)
+    return {n: found[n] - values[n] for n in names}
+
+
+def _axis_leverage(profile: Profile, values: dict, c: int) -> np.ndarray:
+    """(A,) configuration ``c``'s linear fit's leverage in each axis at ``values``: the fixed columns' and the
+    actuation columns' (weighted, orthonormalised) squared norms summed over the axis's rows."""
+    _, qd, qdd = profile.frames[c]
+    w = profile.weights[c]
+    e = profile.columns(values, qd, qdd) * w[:, None]
+    parts = [e] if profile.fixed[c] is None else [profile.fixed[c] * w[:, None], e]
+    a = np.concatenate(parts, axis=-1)
+    u, s, _ = np.linalg.svd(a.reshape(-1, a.shape[-1]), full_matrices=False)
+    u = u[:, s > s[0] * max(u.shape) * np.finfo(float).eps]
+    return np.sum(u.reshape(*a.shape[:2], -1) ** 2, axis=(0, 2))
+
+
 def solve_searched(ds, settings: SolveSettings, model, solve, progress=None, methods=None) -> SolveResults:
     """The solve of ``settings`` (``solve``: :func:`ineid.identify.solve.solve_dataset`) at the friction velocities
     found by :func:`search`, their std in the channels' records (module doc)."""
@@ -235,6 +327,11 @@ def solve_searched(ds, settings: SolveSettings, model, solve, progress=None, met
     else:
         profile = _one_step_profile(ds, start, model)
     values, std = search(profile, names, given)
+    filtered = filtered_frames(ds)
+    if filtered is not None:  # frames correlated in time: each axis's residual counts kappa_a times
+        factors = long_run_factors(profile, names, values, filtered)
+        shifts = filter_shifts(profile, names, values, filtered)
+        std = {n: math.sqrt(std[n] ** 2 * factors[n] + shifts[n] ** 2) for n in names}
     fixed = dataclasses.replace(settings, **{n: values[n] for n in names})
     if first is not None:
         res = second_step(first, ds, fixed, model, t_start)
@@ -277,7 +374,13 @@ def _one_step_profile(ds, settings: SolveSettings, model) -> Profile:
         targets.append(values[c, :n_fit:stride] - rows[..., model.known_index] @ ds.theta_known)
         fixed.append(np.concatenate([rows[..., model.unknown_index], _offset_columns(mask, len(q), n_axes)], axis=-1))
         frames.append((q, qd, qdd))
-    profile = Profile(channels, model, frames, fixed, targets, stride)
+
+    def rebuild(c, q, qd, qdd):
+        rows = _rows(channels, model, q, qd, qdd)
+        unknown = np.concatenate([rows[..., model.unknown_index], _offset_columns(mask, len(q), n_axes)], axis=-1)
+        return rows[..., model.known_index] @ ds.theta_known, unknown
+
+    profile = Profile(channels, model, frames, fixed, targets, stride, rebuild=rebuild)
     sigma = noise_levels(ds, settings, channels, model)
     if sigma is not None:
         profile.set_weights(np.broadcast_to(1.0 / np.asarray(sigma), (ds.n_configs, n_axes)))
@@ -308,7 +411,11 @@ def _two_step_profile(ds, settings: SolveSettings, model, first: SolveResults) -
             parts.append(k_columns(y, blocks, n_axes))
         fixed.append(np.concatenate(parts, axis=-1))
         frames.append((q, qd, qdd))
-    profile = Profile(torque, model, frames, fixed, targets, stride)
+
+    def rebuild(c, q, qd, qdd):
+        return _rows(torque, model, q, qd, qdd) @ theta[c], _offset_columns(mask, len(q), n_axes)
+
+    profile = Profile(torque, model, frames, fixed, targets, stride, rebuild=None if blocks else rebuild)
     sigma = torque_noise_levels(ds, settings, channels, torque, model)
     if sigma is not None:
         profile.set_weights(np.broadcast_to(1.0 / np.asarray(sigma), (ds.n_configs, n_axes)))

@@ -29,7 +29,9 @@ constants: the prediction ``(T (Y theta + E x) + b) / (1 + d)``, and the offsets
 The results hold ``[theta_u, x]`` as a one-step solve does, with block-diagonal base
 parameters (those of step 1, then those of ``E``). The standard deviations of ``x`` are
 conditional on ``theta_hat`` (its uncertainty is not propagated into step 2); the residual
-RMS runs over every channel's axes at the combined estimate.
+RMS runs over every channel's axes at the combined estimate. On a filtered recording both steps take the
+covariance of frames correlated in time and the filter's own error (step 1 as every solve does, step 2 by
+:mod:`ineid.identify.step_two_covariance`).
 
 References:
     Bethge, Malzahn, Tsagarakis, Caldwell (2017), FloBaRoID -- a software package for the
@@ -59,8 +61,10 @@ from ineid.identify.linear import Estimate, fit_base, linear_estimate
 from ineid.identify.nlp import NlpSolver, nlp_estimate
 from ineid.identify.settings import SolveSettings
 from ineid.identify.solve_results import SolveResults, dataset_results
+from ineid.identify.step_two_covariance import StepTwoFrames, step_two_covariance
 from ineid.identify.steps import bias_estimate
 from ineid.identify.systems import Offsets, predict_wrench, remove_offsets
+from ineid.identify.time_correlation import filtered_frames
 
 CHUNK_ROWS = 20_000_000
 """Numbers of ``E`` (rows x columns) stacked at a time in step 2 (160 MB)."""
@@ -219,13 +223,20 @@ def _torque_fit(
 ):
     """``(fit, offsets, rms)``: the base fit of ``E x`` (and the torque constants' columns, :func:`k_columns`) to
     the joint torques' residual at ``theta`` (C, 10 n) over the first ``n_fit`` frames, a chunk of
-    configurations at a time; the offsets taken out ``with_bias`` (else None) and the RMS of the weighted data."""
+    configurations at a time; the offsets taken out ``with_bias`` (else None) and the RMS of the weighted data.
+    On a filtered recording the fit's covariance is a recording's (:mod:`ineid.identify.step_two_covariance`)."""
     n_axes, n_e = torque.n_axes(model), torque.n_extra(model)
     mask = torque.offset_mask(model)
     lost = mask.astype(np.float64) if with_bias else None
     c = ds.n_configs
     fits, parts, rms = [], [], np.empty(c)
     per = max(1, CHUNK_ROWS // max(n_fit * n_axes * max(base_x.n_params, 1), 1))
+    filtered = filtered_frames(ds)
+
+    def columns(q, qd, qdd, values):  # the stacked columns at other states, for the filter's error
+        e = torque.extra_rows(model, q[None], qd[None], qdd[None])[0]
+        return np.concatenate([e, k_columns(values, k_blocks, n_axes)], axis=-1) if k_blocks else e
+
     for start in range(0, c, per):  # the stacks of E of a chunk of configurations at a time
         sl = slice(start, min(start + per, c))
         q, qd, qdd = (a[sl, :n_fit] for a in (ds.q, ds.qd, ds.qdd))
@@ -239,6 +250,9 @@ def _torque_fit(
             w, y, off = remove_offsets(w, y, n_axes, mask)
             parts.append(off)
         fits.append(fit_base(w, y, base_x, weights, axis_sigma, n_axes, lost))
+        if filtered is not None:  # frames correlated in time, the filter's own error
+            chunk = StepTwoFrames((q, qd, qdd), w, y, columns, theta[sl], mask if with_bias else np.zeros_like(mask))
+            fits[-1] = step_two_covariance(model, torque, base_x, fits[-1], chunk, filtered)
         rms[sl] = np.sqrt(np.mean((y * np.tile(fits[-1].axis_weights, (1, n_fit))) ** 2, axis=1))
     fit = concat_fits(fits)
     if with_bias:

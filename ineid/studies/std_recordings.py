@@ -60,6 +60,10 @@ class Scenario:
         return self.theta[self.model.unknown_index]
 
 
+LAW_ZONE = 0.05
+"""rad/s: the smooth Coulomb zone of the friction law :func:`with_friction_law` puts in the joints."""
+
+
 def scenario(
     torque: bool = False, duration: float = 10.0, seed: int = 11, links: dict[str, np.ndarray] | None = None
 ) -> Scenario:
@@ -87,6 +91,16 @@ def scenario(
     return Scenario(model, theta, sim, sim.wrench_sensor - root + bias, bias, torque)
 
 
+def with_friction_law(sc: Scenario, zone: float = LAW_ZONE) -> Scenario:
+    """``sc`` with MuJoCo's joint friction replaced by the law ``fv qd + fc tanh(qd / zone)`` of ``FRICTION``'s
+    coefficients, one that ineid's smooth Coulomb model represents exactly: the joint torques less MuJoCo's friction
+    torque plus the law's, on the same motion (the base wrench does not see how a joint's torque splits between
+    actuator and friction)."""
+    sim = sc.sim
+    law = FRICTION.viscous * sim.qd + FRICTION.coulomb * np.tanh(sim.qd / zone)
+    return dataclasses.replace(sc, sim=dataclasses.replace(sim, tau=sim.tau - sim.friction + law, friction=law))
+
+
 def noisy_streams(sc: Scenario, step: int, rng: np.random.Generator | None, scale: float = 1.0):
     """The recording every ``step``-th sample (``1000 / step`` Hz), with white noise (``scale`` times the defaults;
     ``rng`` None: none)."""
@@ -107,20 +121,44 @@ def _groups(names) -> dict[str, np.ndarray]:
     return {"links": ~friction, "friction": friction}
 
 
-def model_friction(sim: Simulation) -> np.ndarray:
-    """(n_dof, 2) ``(fv, fc)`` per joint that ineid's model ``fv qd + fc sign(qd)`` fits MuJoCo's friction torque
-    with, on the exact states: the friction the model can represent. MuJoCo's dry friction is a soft constraint,
-    smaller near rest than ``fc sign(qd)``, so these differ from the simulated ``FRICTION`` (``fc`` 0.21-0.27
-    against 0.3 on the study's arm)."""
+def model_friction(sim: Simulation, zone: float = 0.0) -> np.ndarray:
+    """(n_dof, 2) ``(fv, fc)`` per joint that ineid's model ``fv qd + fc c(qd)`` fits MuJoCo's friction torque
+    with, on the exact states: the friction the model can represent; ``c = sign``, or ``tanh(qd / zone)`` with a
+    smooth ``zone`` (rad/s). MuJoCo's dry friction is a soft constraint, smaller near rest than ``fc sign(qd)``, so
+    with ``sign`` these differ from the simulated ``FRICTION`` (``fc`` 0.21-0.27 against 0.3 on the study's arm)."""
     out = np.empty((sim.qd.shape[1], 2))
     for j in range(sim.qd.shape[1]):
-        columns = np.stack([sim.qd[:, j], np.sign(sim.qd[:, j])], axis=1)
+        qd = sim.qd[:, j]
+        columns = np.stack([qd, np.tanh(qd / zone) if zone > 0 else np.sign(qd)], axis=1)
         out[j] = np.linalg.lstsq(columns, sim.friction[:, j], rcond=None)[0]
     return out
 
 
-def _truth_extra(sc: Scenario, names) -> dict[str, float]:
-    fr = model_friction(sc.sim)
+def friction_zone(sim: Simulation) -> float:
+    """The smooth Coulomb zone (rad/s) whose ``fv qd + fc tanh(qd / zone)`` fits MuJoCo's friction torque best on
+    the exact states (every joint one zone; a log-spaced grid refined once)."""
+
+    def rss(zone: float) -> float:
+        fr = model_friction(sim, zone)
+        pred = fr[:, 0] * sim.qd + fr[:, 1] * np.tanh(sim.qd / zone)
+        return float(np.sum((sim.friction - pred) ** 2))
+
+    grid = np.geomspace(1e-4, 1.0, 41)
+    best = grid[int(np.argmin([rss(z) for z in grid]))]
+    fine = best * np.geomspace(0.8, 1.25, 21)
+    return float(fine[int(np.argmin([rss(z) for z in fine]))])
+
+
+def _zone_used(res) -> float:
+    """The Coulomb zone a solve ran at (its joint-torque channel's record; 0: ``sign``)."""
+    for record in res.meta.get("channels", []):
+        if "friction" in record:
+            return float(record.get("coulomb_zone") or 0.0)
+    return 0.0
+
+
+def _truth_extra(sc: Scenario, names, zone: float = 0.0) -> dict[str, float]:
+    fr = model_friction(sc.sim, zone)
     joints = list(sc.model.joint_names)
     out = {}
     for n in names:
@@ -137,11 +175,12 @@ def z_scores(sc: Scenario, ds, res, row: int = 0) -> dict[str, np.ndarray]:
     The offsets' truth is the sensor's offsets plus the mean wrench of what the data cannot tell from them (the
     weight of mass that never moves), as the estimate split it: ``b + Wbar (I - T B)(theta - theta_hat)``, the
     quantity whose std :func:`ineid.identify.steps.bias_estimate` gives (``linear``: ``(I - T B) theta_hat`` is the
-    prior's; the IPOPT methods take their own null-space part)."""
+    prior's; the IPOPT methods take their own null-space part). The friction's truth is at the Coulomb zone the
+    solve ran at (:func:`model_friction`)."""
     from ineid.identify.linear import prior_map
 
     base, model = res.base, sc.model
-    extra = _truth_extra(sc, base.param_names[base.n_link_params :])
+    extra = _truth_extra(sc, base.param_names[base.n_link_params :], _zone_used(res))
     theta_u = np.concatenate([sc.theta_unknown, [extra.get(n, 0.0) for n in base.param_names[base.n_link_params :]]])
     truth = base.B @ theta_u
     z = (res.base_hat[row] - truth) / res.base_std[row]
@@ -161,10 +200,19 @@ def z_scores(sc: Scenario, ds, res, row: int = 0) -> dict[str, np.ndarray]:
 
 
 def solve_draw(
-    sc: Scenario, step: int, cutoff: float, rng, scale: float = 1.0, method: str = "linear"
+    sc: Scenario,
+    step: int,
+    cutoff: float,
+    rng,
+    scale: float = 1.0,
+    method: str = "linear",
+    zone: float | str = 0.0,
+    two_step: bool = False,
 ) -> tuple[dict, dict]:
     """One noise draw imported at ``1000 / step`` Hz and ``cutoff`` Hz and solved by ``method``: the z-scores per
-    group with the corrected std and with the std of independent frames."""
+    group with the corrected std and with the std of independent frames. With torques, the Coulomb friction at
+    ``zone`` (``SolveSettings.coulomb_zone``: 0 ``sign(qd)``, a zone in rad/s, or ``"identify"``); ``two_step``: the
+    links from the wrench, then the friction from the torques (``SolveSettings.two_step``)."""
     from ineid.data.recordings.pipeline import recording_dataset
     from ineid.data.recordings.settings import ImportSettings
     from ineid.identify import SolveSettings, solve_dataset
@@ -172,7 +220,7 @@ def solve_draw(
     ds, _ = recording_dataset(
         noisy_streams(sc, step, rng, scale), sc.model, ImportSettings(sensor_pose=POSE_TEXT, cutoff=cutoff)
     )
-    extra = {"friction": ("viscous", "coulomb")} if sc.torque else {}
+    extra = {"friction": ("viscous", "coulomb"), "coulomb_zone": zone, "two_step": two_step} if sc.torque else {}
     settings = SolveSettings(method=method, bias="estimate", **extra)
     after = z_scores(sc, ds, solve_dataset(ds, settings, model=sc.model))
     origin = ds.meta.origin
