@@ -73,6 +73,10 @@ def test_a_completion_that_is_no_rigid_body_is_a_note(heavy_file, tmp_path):
         " ".join(r.stdout.split())
     )
     assert "--method consistent gives the rigid bodies nearest the data" in " ".join(r.stdout.split())
+    (note,) = load_results(tmp_path / "nl.h5").meta["notes"]  # kept with the results, and shown by results info
+    assert note.startswith("the nonlinear method's standard parameters") and "forearm" in note
+    info = invoke("results", "info", tmp_path / "nl.h5")
+    assert info.exit_code == 0 and f"note: {note}" in info.output
 
 
 def test_consistent_estimate_is_silent(heavy_file, tmp_path):

@@ -280,6 +280,8 @@ def results_info(path: Path) -> None:
         con.print(f"plausibility warnings: {len(warnings) or 'none'}")
         for w in warnings:
             con.print(f"  warning: {w['message']}", markup=False, soft_wrap=True)
+    for note in m.get("notes") or ():  # what the data leave open (the linear completion's rigid bodies)
+        con.print(f"note: {note}", markup=False, soft_wrap=True)
 
 
 def _print_payload(con, res) -> None:

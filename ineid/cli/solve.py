@@ -245,9 +245,10 @@ def _save_and_show(res, ds, model, out: Path, overwrite: bool, more=(), validate
 
     findings = [*more, *check_solve(ds, res, model, validate)]
     res.meta["warnings"] = [f.to_dict() for f in findings]
+    note = linear_completion_note(res)
+    res.meta["notes"] = [] if note is None else [note]
     save_results(res, out, overwrite=overwrite)
     print_results(res, out)
-    note = linear_completion_note(res)
     if note is not None:
         console().print(f"note: {note}")
     if res.meta.get("validation"):

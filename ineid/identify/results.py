@@ -86,7 +86,7 @@ def _write_attributes(a, res: SolveResults, text) -> None:
     a["channels"] = json.dumps(res.meta.get("channels"), sort_keys=True)
     a["axes"] = np.array(res.axes, dtype=text)
     a["units"] = np.array(res.units, dtype=text)
-    for key in ("recordings", "validation", "std"):  # recordings fitted jointly, one validating; the std's source
+    for key in ("recordings", "validation", "std", "notes"):  # joint recordings, a validation, the std's source, notes
         if res.meta.get(key) is not None:
             a[key] = json.dumps(res.meta[key], sort_keys=True)
     if res.meta.get("warnings") is not None:  # plausibility findings ({code, message}) of ineid solve
@@ -338,7 +338,7 @@ class _Reader:
             "dataset_fingerprint": _attr_text(self.f.attrs.get("dataset_fingerprint", "")) or None,
             "sensor": self.json("sensor") if "sensor" in self.f.attrs else None,
             "warnings": _warnings(self.path, self.f.attrs),
-            **{k: self.json(k) for k in ("recordings", "validation", "std") if k in self.f.attrs},
+            **{k: self.json(k) for k in ("recordings", "validation", "std", "notes") if k in self.f.attrs},
         }
         if "axes" in self.f.attrs:  # version 2: the channels fitted and the per-axis columns' names
             meta.update(channels=self.json("channels"), axes=list(self.texts("axes")), units=list(self.texts("units")))
