@@ -88,3 +88,10 @@ def test_recording_too_short_for_the_filter_error_still_has_a_std(rod_arm):
     std is the band density's alone, finite (not an error)."""
     z, res = z_per_draw(rod_arm, recordings(rod_arm, 1, 5, 5.0), "linear")
     assert np.all(np.isfinite(res.base_std)) and np.all(np.isfinite(z[0]["links"]))
+
+
+def test_the_std_line_writes_rates_as_numbers():
+    from ineid.identify.constrained_std import frames_note
+
+    note = frames_note({"filtered": [{"cutoff": 11.894, "rate": 999.9996}, {"cutoff": 11.9, "rate": 1000.0}]})
+    assert "over the 11.9 Hz cut-off at 1000 Hz" in note and "e+" not in note

@@ -268,7 +268,8 @@ def std_record(datasets, est) -> dict:
 
 
 def _numbers(values) -> str:
-    return "/".join(f"{v:.3g}" for v in sorted(set(values)))
+    """``a/b/...``: the distinct values to 3 significant digits, without an exponent below 1e6 (1000, not 1e+03)."""
+    return "/".join(f"{v:g}" for v in sorted({float(f"{v:.3g}") for v in values}))
 
 
 def frames_note(record: dict | None) -> str:
