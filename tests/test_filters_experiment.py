@@ -97,6 +97,7 @@ def test_an_experiment_imported_together_shares_one_filter_and_fits_the_truth(mo
     head = exp.lines()[0]
     assert f"at {exp.cutoff:.3g} Hz" in head and all(f"run{k + 1}.csv {c:.3g} Hz" in head for k, c in enumerate(own))
     assert any("shared by the experiment's 3 recordings" in line for line in exp.summaries[1].lines())
+    assert "shared by the experiment's 3 recordings" in exp.datasets[1].meta.origin["import"]["cutoff_note"]
     labelled = [(p.name, d) for p, d in zip(paths, exp.datasets, strict=True)]
     assert check_filters(labelled) is None
     res = solve_recordings(exp.datasets[:2], SolveSettings(), model=model, validate=exp.datasets[2])

@@ -127,6 +127,7 @@ class ImportSummary:
             "derived": self.derived,
             "cutoff": self.cutoff,
             "cutoff_rule": None if self.cutoff_choice is None else self.cutoff_choice.limited,
+            **({} if self.cutoff_note is None else {"cutoff_note": self.cutoff_note}),  # shared, or the IMUs' rule
             "filter": None if self.cutoff is None else f"zero-phase Butterworth, order {signals.FILTER_ORDER}",
             "dropped_start": self.dropped_start,
             "dropped_end": self.dropped_end,
