@@ -133,11 +133,12 @@ def import_experiment(
         delay = float(np.median([e.delay for e in estimates]))
     imported = [hinted_recording_dataset(s, model, replace(at, delay=delay, estimate_delay=False)) for s in every]
     own = tuple(c.hz for c, _ in cuts)
-    for (_, summary), c in zip(imported, own, strict=True):
+    for (ds, summary), c in zip(imported, own, strict=True):
         if rule != "given" and cutoff is not None:
             summary.cutoff_note = f"shared by the experiment's {len(every)} recordings: {CUTOFF_RULES[rule]}; " + (
                 "this one alone: no filter" if c is None else f"this one alone: {c:.3g} Hz"
             )
+            ds.meta.origin["import"]["cutoff_note"] = summary.cutoff_note  # the file says it too
     return ExperimentImport(
         names,
         [ds for ds, _ in imported],
