@@ -268,6 +268,8 @@ def test_cli_help_lists_the_choices():
         assert r.exit_code == 0, r.output
     assert "d-opt|cond" in _run("excite", "--help").output
     assert "uniform|fourier|trajectory" in _run("data", "generate", "--help").output
+    words = " ".join(_run("excite", "--help").output.split())
+    assert "Default: the base wrench (excite reads no file)" in words and "the file has" not in words
 
 
 def test_cli_excite_one_line_errors(tmp_path):
@@ -276,3 +278,24 @@ def test_cli_excite_one_line_errors(tmp_path):
     assert not (tmp_path / "t.csv").exists() and not (tmp_path / "t.json").exists()
     r = _run("data", "generate", "--frame-mode", "trajectory", "--out", tmp_path / "x.h5")
     assert r.exit_code == 2 and "--trajectory" in r.output
+
+
+def test_each_collision_pair_of_bodies_is_named_once(capsys):
+    from types import SimpleNamespace
+
+    from ineid.cli.excite import print_limits
+
+    model = ineid.load_robot("sweaty-arm")
+    pairs = ["'hand' and 'base'"] * 4 + ["'forearm' and 'base'"]
+    capsules = [{"body": b, "shape": "capsule", "radius": 0.05} for b in ("hand", "forearm", "base")]
+    res = SimpleNamespace(
+        settings={"velocity_scale": 1.0, "acceleration_scale": 1.0},
+        bounds=SimpleNamespace(
+            q_lower=model.q_lower, q_upper=model.q_upper, qd_max=model.qd_max, qdd_max=model.qdd_max
+        ),
+        safety={"floor": None, "workspace": None, "self_collision": {"pairs": pairs, "capsules": capsules}},
+    )
+    print_limits(res, model)
+    words = " ".join(capsys.readouterr().out.split())
+    assert "'hand' and 'base' (4 capsule pairs); 'forearm' and 'base';" in words
+    assert words.count("'hand' and 'base'") == 1

@@ -69,8 +69,9 @@ def _velocity(ctx, param, value: str) -> float | str:
     return v
 
 
-def channel_options(two_step: bool = False) -> Callable:
-    """Decorator: ``--use`` and the actuation options (``--two-step`` too when ``two_step``)."""
+def channel_options(two_step: bool = False, use_default: str = "every channel the file has") -> Callable:
+    """Decorator: ``--use`` (its help ending "Default: ``use_default``.") and the actuation options (``--two-step``
+    too when ``two_step``)."""
 
     def decorate(f: Callable) -> Callable:
         if two_step:
@@ -107,7 +108,7 @@ def channel_options(two_step: bool = False) -> Callable:
                     metavar="NAMES",
                     callback=_names,
                     help="Channels to fit, comma-separated: wrench, torque (or a channel's key). "
-                    "Default: every channel the file has.",
+                    f"Default: {use_default}.",
                 ),
                 click.option(
                     "--friction",

@@ -135,7 +135,7 @@ def _workspace(ctx, param, value):
 )
 @noise_option
 @imu_excite
-@channel_options()
+@channel_options(use_default="the base wrench (excite reads no file)")
 @click.option(
     "--out",
     type=click.Path(path_type=Path),
@@ -422,9 +422,13 @@ def print_limits(res, model) -> None:
         )
     else:
         shapes = ", ".join(f"{c['body']} ({c['shape']}, r {c['radius']:.3g} m)" for c in col["capsules"])
+        counts = dict.fromkeys(col["pairs"], 0)  # a body with several capsules: its pair of bodies said once
+        for pair in col["pairs"]:
+            counts[pair] += 1
+        named = "; ".join(pair if n == 1 else f"{pair} ({n} capsule pairs)" for pair, n in counts.items())
         con.print(
             f"self-collision: {len(col['pairs'])} pairs of bounding capsules kept apart at every instant: "
-            f"{'; '.join(col['pairs'])}; capsules: {shapes}",
+            f"{named}; capsules: {shapes}",
             markup=False,
         )
     for note in (col or {}).get("notes", []):

@@ -46,7 +46,7 @@ _SOLVE = "ineid.identify.settings"
     default_from=f"{_SOLVE}:SolveSettings.bias",
     help="estimate: six constant sensor offsets are identified too; shows what they cost.",
 )
-@channel_options()
+@channel_options(use_default="a dataset's channels, else the base wrench")
 def identifiability(robot, n_frames, seed, data_path, config, bias, **channel_flags) -> None:
     """Which parameters of ROBOT's unknown links the base wrench (or the channels of --use) determines.
 
