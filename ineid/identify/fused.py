@@ -309,17 +309,28 @@ def residual_sums(
     return ssr_fit, ssr_held, ss_held
 
 
-def _residual_sums_casadi(model, channels: ChannelSet, arrays, theta, bias, n_fit: int):
-    """:func:`residual_sums` of a small job through CasADi's stacked rows ``T Phi`` (no compilation)."""
-    q, qd, qdd, wrench = arrays
-    n_configs, n_frames, n_axes = wrench.shape
-    n = n_configs * n_frames
-    flat = [a.reshape(n, -1).T for a in (q, qd, qdd)]
+def casadi_predictions(model, channels: ChannelSet, states, theta: np.ndarray) -> np.ndarray:
+    """(C, F, A) ``[T Phi | E] [theta, x]`` of a small job through CasADi's stacked rows (no compilation; the
+    kernels' values to round-off).
+
+    Args:
+        states: ``(q, qd, qdd)``, each (C, F, n_dof).
+        theta: (C, 10 n_links [+ n_extra]) every link's parameters, then the channels' extra parameters ``x``
+            where the channels have extra columns.
+    """
+    n_configs, n_frames = states[0].shape[:2]
+    n, n_axes = n_configs * n_frames, channels.n_axes(model)
+    flat = [np.asarray(a, dtype=np.float64).reshape(n, -1).T for a in states]
     rows = np.array(channels.casadi_rows(model).map(n)(*flat)).reshape(n_axes, n, -1).transpose(1, 0, 2)
-    n_extra = channels.n_extra(model)
-    if n_extra:  # [T Phi | E] against [theta, x]
+    if channels.n_extra(model):  # [T Phi | E] against [theta, x]
         e = np.array(channels.casadi_extra_rows(model).map(n)(*flat)).reshape(n_axes, n, -1).transpose(1, 0, 2)
         rows = np.concatenate([rows, e], axis=-1)
-    predicted = np.einsum("cfap,cp->cfa", rows.reshape(n_configs, n_frames, n_axes, -1), theta) + bias[:, None, :]
+    return np.einsum("cfap,cp->cfa", rows.reshape(n_configs, n_frames, n_axes, -1), theta)
+
+
+def _residual_sums_casadi(model, channels: ChannelSet, arrays, theta, bias, n_fit: int):
+    """:func:`residual_sums` of a small job through CasADi's stacked rows ``T Phi`` (no compilation)."""
+    *states, wrench = arrays
+    predicted = casadi_predictions(model, channels, states, theta) + bias[:, None, :]
     r2 = (wrench - predicted) ** 2
     return r2[:, :n_fit].sum(axis=1), r2[:, n_fit:].sum(axis=1), (wrench[:, n_fit:] ** 2).sum(axis=(1, 2))

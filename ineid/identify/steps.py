@@ -19,7 +19,7 @@ import numpy as np
 
 from ineid.channels import ChannelSet
 from ineid.identify.extras import prior_with_extras, split
-from ineid.identify.fused import information_blocks, residual_sums
+from ineid.identify.fused import casadi_predictions, information_blocks, residual_sums
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.known import with_known_uncertainty
 from ineid.identify.least_squares import (
@@ -423,25 +423,13 @@ def predicted_wrench(
     theta = model.full_theta(links, ds.theta_known)
     q, qd, qdd = (np.asarray(a[:, frames], dtype=np.float64) for a in (ds.q, ds.qd, ds.qdd))
     if q.shape[0] * q.shape[1] <= SMALL_JOB_FRAMES:  # a few frames: CasADi's rows, no kernel compiled for them
-        w = _predicted_casadi(model, channels, (q, qd, qdd), theta, extra)
+        n_configs = q.shape[0]
+        links = np.broadcast_to(np.asarray(theta, dtype=np.float64), (n_configs, theta.shape[-1]))
+        both = np.concatenate([links, np.asarray(extra, dtype=np.float64).reshape(n_configs, -1)], axis=1)
+        w = casadi_predictions(model, channels, (q, qd, qdd), both)
     else:
         w = predict_wrench(model, q, qd, qdd, theta, channels, extra if extra.shape[-1] else None)
     gain = _torque_constant_gain(model, theta_u, channels)
     if gain is not None:
         w = w * gain[:, None, :]
     return w if bias is None else w + np.nan_to_num(bias)[:, None, :]
-
-
-def _predicted_casadi(model, channels: ChannelSet, states, theta: np.ndarray, extra: np.ndarray) -> np.ndarray:
-    """(C, F, A) ``T Phi theta + E x`` of a small job through CasADi's stacked rows (the kernels' values to
-    round-off), ``theta`` (C, 10 n_links) every link's parameters, ``extra`` (C, n_e) the channels' ``x``."""
-    n_configs, n_frames = states[0].shape[:2]
-    n, n_axes = n_configs * n_frames, channels.n_axes(model)
-    flat = [a.reshape(n, -1).T for a in states]
-    rows = np.array(channels.casadi_rows(model).map(n)(*flat)).reshape(n_axes, n, -1).transpose(1, 0, 2)
-    theta = np.broadcast_to(np.asarray(theta, dtype=np.float64), (n_configs, rows.shape[-1]))
-    if extra.shape[-1]:  # [T Phi | E] against [theta, x]
-        e = np.array(channels.casadi_extra_rows(model).map(n)(*flat)).reshape(n_axes, n, -1).transpose(1, 0, 2)
-        rows = np.concatenate([rows, e], axis=-1)
-        theta = np.concatenate([theta, np.asarray(extra, dtype=np.float64).reshape(n_configs, -1)], axis=1)
-    return np.einsum("cfap,cp->cfa", rows.reshape(n_configs, n_frames, n_axes, -1), theta)
