@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ineid.data.recordings.noise_estimate import difference_noise
 from ineid.data.recordings.plausibility import Finding
 from ineid.identify.noise_figures import NOISE_FACTOR, mean_z, offset_axes
 
@@ -191,15 +192,6 @@ def validation_noise(res, ds, model, row: int) -> tuple[np.ndarray | None, str]:
     return noise, source
 
 
-def difference_noise(measured: np.ndarray) -> np.ndarray:
-    """(A,) noise std from the second differences of ``measured`` (F, A): ``1.4826 MAD(d2 x) / sqrt(6)``."""
-    d2 = np.diff(np.asarray(measured, dtype=np.float64), n=2, axis=0)
-    if len(d2) < 3:
-        return np.full(measured.shape[1], np.nan)
-    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
-    return 1.4826 * mad / math.sqrt(6.0)
-
-
 def explained_share(r: np.ndarray, columns: np.ndarray) -> float:
     """Share of ``r``'s (F,) sum of squares that least squares on ``columns`` (F, k) explains (0 if none)."""
     ss = float(r @ r)
@@ -261,7 +253,7 @@ def check_residual(
     scale = np.sqrt(np.mean(measured**2, axis=0))
     series = time is not None and n_frames >= 3 and bool(np.all(np.diff(time) > 0))
     if noise is None:
-        noise = difference_noise(measured) if series else np.full(n_axes, np.nan)
+        noise = difference_noise(measured, min_samples=3) if series else np.full(n_axes, np.nan)
         noise_source = (
             "estimated from the measured signal's second differences (right for unfiltered samples)"
             if series

@@ -48,6 +48,15 @@ def robust_std(x: np.ndarray) -> np.ndarray:
     return 1.4826 * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
 
 
+def difference_noise(x: np.ndarray, min_samples: int = MIN_SAMPLES) -> np.ndarray:
+    """(A,) white-noise std of ``x`` (N, A) from its second differences, ``1.4826 MAD(d2 x) / sqrt 6``; NaN with
+    fewer than ``min_samples`` differences."""
+    d2 = np.diff(np.asarray(x, dtype=np.float64), n=2, axis=0)
+    if len(d2) < min_samples:
+        return np.full(np.shape(x)[1], np.nan)
+    return robust_std(d2) / math.sqrt(6.0)
+
+
 def stream_noise(t: np.ndarray, x: np.ndarray, cutoff: float | None) -> tuple[np.ndarray, np.ndarray]:
     """``(raw, frames)`` (A,) noise std of one stream ``x(t)`` (N, A): of its raw samples, and what a filter at
     ``cutoff`` Hz (None: no filter) leaves of it (module docstring); NaN where the stream is too short."""
@@ -56,8 +65,7 @@ def stream_noise(t: np.ndarray, x: np.ndarray, cutoff: float | None) -> tuple[np
     _, xu = signals.to_uniform(t, x, h)
     rate = 1.0 / h
     if cutoff is None or cutoff >= 0.45 * rate:
-        d2 = np.diff(xu, n=2, axis=0)
-        raw = robust_std(d2) / math.sqrt(6.0) if len(d2) >= MIN_SAMPLES else np.full(x.shape[1], np.nan)
+        raw = difference_noise(xu)
         return raw, raw if cutoff is None else raw * math.sqrt(min(1.0, _noise_bandwidth() * cutoff / (rate / 2)))
     low = signals.LowPass(cutoff, rate)
     high = (xu - low.apply(xu))[low.edge_samples : len(xu) - low.edge_samples]
