@@ -84,6 +84,20 @@ def test_no_pose_keeping_the_box_and_the_others_names_the_bound_that_fails(arm):
     hand = safety.names.index("hand")
     others = np.delete(inside, hand, axis=1).all(axis=(1, 2)) & inside[:, hand, [0, 2]].all(axis=1)
     assert others.sum() == 10 and np.all(pts[others, hand, 1] > 0.43 - safety.margin[hand])
+    # no pose keeps the others either: the bounds failing most, with their counts
+    limits = SafetyLimits(workspace=(-0.08, 0.03, -0.25, 0.2, 0.01, 0.52))
+    with pytest.raises(ExcitationError) as err:
+        check_feasibility(sample, _constraints(arm, limits))
+    counts = (pts[..., 1] > 0.2 - safety.margin).sum(axis=0)
+    named = ", ".join(
+        f"{p!r} is outside workspace y <= 0.2 in {counts[safety.names.index(p)]:,}"
+        for p in ("forearm", "upper_arm", "hand")
+    )
+    assert (
+        str(err.value)
+        == f"no one of the 2,050 sampled poses keeps every bound at once: {named}; widen the --workspace box"
+    )
+    assert counts[safety.names.index("forearm")] == 1934
 
 
 def test_the_rest_pose_is_reported_with_what_it_breaks(arm):
@@ -179,6 +193,11 @@ def test_so101_pairs_touching_at_every_angle_are_left_out_and_named_once():
     assert pairs.n == full.n - left.sum() == 78
     feas = check_feasibility(sample, _constraints(model, SafetyLimits(floor=0.0), pairs), pairs)
     assert feas.rest_violations == () and feas.share > 0.3 and feas.excluded == tuple(pairs.excluded)
+    # kept, that pair is refused in a second, where IPOPT took half an hour to give up
+    t0 = time.perf_counter()
+    with pytest.raises(ExcitationError, match="^'lower_arm_link' and 'gripper_link' self-collision: the bounding "):
+        check_feasibility(sample, _constraints(model, SafetyLimits(), full), full)
+    assert time.perf_counter() - t0 < 1.0
 
 
 def test_a_pair_overlapping_at_the_middle_of_the_ranges_but_apart_elsewhere_is_kept():

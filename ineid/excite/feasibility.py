@@ -204,10 +204,15 @@ def _everywhere(safety, r: int, raw: np.ndarray, n: int) -> str:
     margin = float(safety.margins()[r])
     within = f", and the grid keeps {margin:.2g} m from it" if best >= 0 else ""
     if kind == "pair":
+        fix = "pass --no-self-collision if those shapes are too coarse"
+        if best < 0:
+            return (
+                f"{what[0]} self-collision: the bounding capsules overlap (by {-best:.2g} m or more) in every one of "
+                f"the {n:,} sampled poses; {fix}"
+            )
         return (
-            f"{what[0]} self-collision: the bounding capsules are never {margin:.2g} m apart (kept between grid "
-            f"points) in any of the {n:,} sampled poses (at most {best:.3g} m); pass --no-self-collision if those "
-            "shapes are too coarse"
+            f"{what[0]} self-collision: the bounding capsules are never {margin:.2g} m apart (the margin kept between "
+            f"grid points) in any of the {n:,} sampled poses (at most {best:.2g} m); {fix}"
         )
     name, axis, sign, bound, label = what
     extreme = f"{'xyz'[axis]} at {'most' if sign > 0 else 'least'} {bound + sign * best:.3g} m"
