@@ -222,3 +222,31 @@ def test_without_self_collision_or_bounds_every_pose_is_feasible(arm, collision_
     assert len(feas.poses) == 2050 and feas.rest_violations == () and feas.excluded == ()
     pairs = always_touching(CollisionPairs(collision_arm, collision_arm.qd_max), sample)
     assert pairs.n == 6 and pairs.excluded == []  # the sweaty arm's shapes are apart somewhere, every pair
+
+
+def test_the_design_at_rest_in_a_feasible_pose_keeps_every_bound_on_its_grid(collision_arm):  # noqa: F811
+    """What the starts rely on: the trajectory at rest in a feasible pose keeps the floor and every pair on the
+    design's dense grid, so a start about it is made safe by scaling its amplitudes (and in no infeasible one)."""
+    from ineid.excite.design import design_base, design_noise
+    from ineid.excite.safety import make_safe
+    from ineid.excite.trajectory import DesignProblem
+
+    b = design_bounds(collision_arm)
+    prob = DesignProblem(collision_arm, design_base(collision_arm), design_noise(None), "d-opt", b, 0.2, 3, 96, 96)
+    sample = sample_poses(collision_arm, prob.q_lo, prob.q_hi, np.random.default_rng(0))
+    pairs = always_touching(CollisionPairs(collision_arm, b.qd_max), sample)
+    args = (b.qd_max, b.qdd_max, 0.2, 3, prob.rest, prob.mid, prob.half, prob.v_scale, pairs)
+    safety = SafetyConstraints(collision_arm, SafetyLimits(floor=0.25), *args)
+    feas = check_feasibility(sample, safety, pairs)
+    rng = np.random.default_rng(1)
+    feasible = {p.tobytes() for p in feas.poses}
+    moved = 0
+    for q in sample.poses[:20]:
+        at_rest = np.concatenate([((q - prob.mid) / prob.half)[:, None], np.zeros((prob.n, prob.nz - 1))], 1).ravel()
+        assert (safety.grid_slack(at_rest).min() >= 0) == (q.tobytes() in feasible)
+        if q.tobytes() in feasible and moved < 3:
+            moved += 1
+            moving = at_rest.reshape(prob.n, prob.nz).copy()
+            moving[:, 1:] = prob.random_start(rng).reshape(prob.n, prob.nz)[:, 1:]
+            safe = make_safe(safety, moving.ravel())
+            assert safe is not None and safety.grid_slack(safe).min() >= 0
