@@ -14,9 +14,9 @@ the joint space to move in, or none, while the links themselves need not touch a
 Such pairs are left out, one line per pair of bodies. A pair that is that far apart
 somewhere is kept wherever the middle of the ranges puts it: the design can avoid it.
 Measured with the default design (10 s, 5 harmonics, ``--floor 0``): on xArm7 two pairs
-are never 1.7 cm apart; keeping them leaves 1.3 % of the sampled poses feasible, leaving
-them out 28.6 %; on SO-101 (gripper locked) ``lower_arm_link`` and ``gripper_link`` are
-never 0.1 cm apart and no pose kept them.
+are never 1.7 cm apart; keeping them leaves about 1 % of the sampled poses feasible,
+leaving them out 28 %; on SO-101 (gripper locked) a capsule pair of ``lower_arm_link`` and
+``gripper_link`` is never 1.2 mm apart, and kept, it leaves no pose feasible.
 
 **Feasible poses** (:func:`check_feasibility`). A pose is feasible when every kept row of
 :class:`ineid.excite.safety.SafetyConstraints` holds with the margin its grid keeps
