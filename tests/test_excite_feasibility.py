@@ -139,8 +139,9 @@ def test_feasible_poses_keep_every_constraint_by_hpp_fcl_and_pinocchio():
     pmodel = pinocchio_model(example_robot_data_dir() / "panda_description/urdf/panda.urdf", locked_joints=locked)
     data = pmodel.createData()
     order = [pmodel.joints[pmodel.getJointId(j)].idx_q for j in model.joint_names]
-    root = pmodel.frames[pmodel.getFrameId("panda_link0")].name
-    frames = [pmodel.getFrameId(root if c.link < 0 else model.chain.joints[c.link].link) for c in pairs.capsules]
+    frames = [
+        pmodel.getFrameId("panda_link0" if c.link < 0 else model.chain.joints[c.link].link) for c in pairs.capsules
+    ]
 
     def fcl_capsule(cap, placement):
         a, b = placement.act(cap.a), placement.act(cap.b)
