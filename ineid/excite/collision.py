@@ -3,8 +3,10 @@
 Bodies are the root (the fixture, index -1) and the moving links, each with the bounding
 capsules of its URDF collision geometry (:func:`ineid.robots.collision.body_capsules`).
 A pair of capsules is checked when their bodies are not adjacent (chain indices two or
-more apart), unless they already overlap at the middle of the joint ranges: such shapes
-are too coarse to tell a collision from a joint's neighbourhood (said in the summary).
+more apart). Pairs whose capsules are never apart in a sample of the joint space (a link
+two joints on, fingers on a palm: the shapes are too coarse to tell a collision from a
+joint's neighbourhood) are left out by :func:`ineid.excite.feasibility.always_touching`
+through :meth:`CollisionPairs.without`, one line each in the notes.
 
 **Between samples.** With ``D(t) = min |P1 - P2|^2`` over the points ``P1, P2`` of the two
 segments, the pair is clear when ``D >= (r1 + r2)^2``. ``D`` is the minimum of a family of smooth
@@ -23,6 +25,7 @@ a few millimetres on a grid of about a thousand points per period.
 
 from __future__ import annotations
 
+import copy
 from itertools import product
 
 import numpy as np
@@ -33,7 +36,8 @@ class CollisionPairs:
 
     Attributes:
         capsules: every capsule; ``pairs`` (C, 2) indices into it.
-        notes: one line per body without geometry, mesh skipped, or pair left out.
+        notes: one line per body without geometry, mesh skipped, or pair of bodies left out.
+        excluded: of those, the lines of the pairs left out (:meth:`without`).
         speed: (C,) ``V1 + V2`` per pair, m/s.
     """
 
@@ -44,24 +48,13 @@ class CollisionPairs:
         self.chain = model.chain
         found = body_capsules(model.urdf_text, self.chain, model.urdf_path, model.locked_joints)
         self.capsules, self.notes = found.capsules, list(found.notes)
+        self.excluded: list[str] = []
         caps = self.capsules
         n = self.chain.n_dof
-        mid = 0.5 * (
-            np.array([j.q_lower for j in self.chain.joints]) + np.array([j.q_upper for j in self.chain.joints])
-        )
         pairs = [
             (i, k) for i, k in product(range(len(caps)), repeat=2) if i < k and abs(caps[i].link - caps[k].link) >= 2
         ]
-        self.pairs = np.zeros((0, 2), dtype=int)
-        if pairs:
-            clear = self._clearance(mid[None, :], np.array(pairs))[0][0]
-            for (i, k), c in zip(pairs, clear, strict=True):
-                if c <= 0:
-                    self.notes.append(
-                        f"{caps[i].name!r} and {caps[k].name!r} overlap at the middle of the joint "
-                        "ranges (bounding shapes too coarse): not checked"
-                    )
-            self.pairs = np.array([p for p, c in zip(pairs, clear, strict=True) if c > 0], dtype=int).reshape(-1, 2)
+        self.pairs = np.array(pairs, dtype=int).reshape(-1, 2)
         w = np.asarray(qd_max, dtype=np.float64)
         origin_reach = reach(self.chain)  # (n, n)
         revolute = np.array([j.type == "revolute" for j in self.chain.joints])
@@ -77,6 +70,15 @@ class CollisionPairs:
             speed[c] = float(w @ ell)
         self.speed = speed[self.pairs].sum(axis=1) if len(self.pairs) else np.zeros(0)
         self.radii = np.array([caps[i].radius + caps[k].radius for i, k in self.pairs]).reshape(-1)
+
+    def without(self, drop, lines) -> CollisionPairs:
+        """These pairs less those where ``drop`` (C,) is true, with ``lines`` (why) added to the notes and
+        to :attr:`excluded`."""
+        keep = ~np.asarray(drop, dtype=bool)
+        out = copy.copy(self)
+        out.pairs, out.speed = self.pairs[keep], self.speed[keep]
+        out.notes, out.excluded = [*self.notes, *lines], [*self.excluded, *lines]
+        return out
 
     @property
     def n(self) -> int:
@@ -149,4 +151,5 @@ class CollisionPairs:
             "pairs": self.labels(),
             "capsules": [{"body": c.name, "shape": c.shape, "radius": c.radius} for c in self.capsules],
             "notes": self.notes,
+            "excluded": self.excluded,
         }
