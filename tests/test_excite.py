@@ -281,7 +281,7 @@ def test_cli_excite_one_line_errors(tmp_path):
 def test_each_collision_pair_of_bodies_is_named_once(capsys):
     from types import SimpleNamespace
 
-    from ineid.cli.excite import print_limits
+    from ineid.cli.excite_summary import print_limits
 
     model = ineid.load_robot("sweaty-arm")
     pairs = ["'hand' and 'base'"] * 4 + ["'forearm' and 'base'"]

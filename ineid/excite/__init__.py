@@ -2,10 +2,12 @@
 
 Data flow: a :class:`ineid.RobotModel` and :class:`ExcitationSettings` -> Fourier trajectories
 within the joints' bounds (:mod:`.trajectory`) and the safety limits (floor, workspace,
-self-collision: :mod:`.safety`, :mod:`.collision`) -> the information criterion of their frames
-(:mod:`.criterion`; with link IMUs, the joint states' errors: :mod:`.states`) optimised by IPOPT
-(:mod:`.callbacks`) -> :func:`design_excitation` -> an :class:`ExcitationResult` (the design against
-the random trajectories it was compared with, each a :class:`DesignEvaluation`). Never imports sympy.
+self-collision: :mod:`.safety`, :mod:`.collision`), checked first on a sample of the joint space
+(:mod:`.feasibility`) -> the information criterion of their frames (:mod:`.criterion`, CasADi rows and
+their pull-back; with link IMUs, the joint states' errors: :mod:`.states`) -> random feasible candidates
+and IPOPT from the best of them (:mod:`.search`, :mod:`.callbacks`) -> :func:`design_excitation` -> an
+:class:`ExcitationResult` (the design against the best and a typical random candidate, each a
+:class:`DesignEvaluation`). Never imports sympy.
 
 A trajectory of one's own is judged the same way: :func:`design_base`, :func:`design_noise` and
 :func:`evaluate_design` on its samples.
