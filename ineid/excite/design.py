@@ -319,12 +319,12 @@ def _problem_setup(model, s: ExcitationSettings, noise: NoiseModel | None, timin
     sample = sample_poses(
         model, problem.q_lo, problem.q_hi, np.random.default_rng(np.random.SeedSequence([s.seed, 34]))
     )
-    safety = None
     pairs = CollisionPairs(model, bounds.qd_max) if s.self_collision else None
-    if pairs is not None:
-        pairs = always_touching(pairs, sample)  # left out, one line each in pairs.notes
-    if limits.active or (pairs is not None and pairs.n):
-        safety = SafetyConstraints(
+
+    def constraints(pairs):
+        if not (limits.active or (pairs is not None and pairs.n)):
+            return None
+        return SafetyConstraints(
             model,
             limits,
             bounds.qd_max,
@@ -337,6 +337,11 @@ def _problem_setup(model, s: ExcitationSettings, noise: NoiseModel | None, timin
             problem.v_scale,
             pairs,
         )
+
+    safety = constraints(pairs)
+    if pairs is not None and pairs.n:  # left out, one line each in pairs.notes; the grid then chosen again
+        pairs = always_touching(pairs, sample, safety.pair_margin)
+        safety = constraints(pairs)
     feasibility = check_feasibility(sample, safety, pairs)  # refuses an ask no sampled pose keeps
     return _Setup(bounds, limits, pairs, safety, sigma, base, design_points, constraint_points, problem, feasibility)
 

@@ -70,13 +70,16 @@ def sample_poses(model, q_lo, q_hi, rng: np.random.Generator, n: int = SAMPLES) 
     return PoseSample(poses, clipped, started)
 
 
-def always_touching(pairs, sample: PoseSample):
+def always_touching(pairs, sample: PoseSample, margins=None):
     """``pairs`` (:class:`ineid.excite.collision.CollisionPairs`) less those whose capsules are less than
-    :data:`APART` apart in every sampled pose, with one line per pair of bodies left out (module doc)."""
+    :data:`APART` apart in every sampled pose, or less than twice the margin their grid keeps (``margins`` (C,),
+    m, :meth:`ineid.excite.safety.SafetyConstraints.margins` of the pairs: a small capsule moving fast keeps more),
+    with one line per pair of bodies left out (module doc)."""
     if not pairs.n:
         return pairs
     clear = pairs.clearances(sample.poses)  # (T, C)
-    drop = clear.max(axis=0) < APART
+    apart = np.maximum(APART, 2.0 * np.asarray(margins)) if margins is not None else np.full(pairs.n, APART)
+    drop = clear.max(axis=0) < apart
     t = len(sample.poses)
     labels = pairs.labels()
     groups: dict[str, list[int]] = {}
@@ -91,7 +94,8 @@ def always_touching(pairs, sample: PoseSample):
         where = (
             f"overlap in every one of the {t:,} sampled poses"
             if overlap == t
-            else f"overlap in {overlap:,} of the {t:,} sampled poses and are never {APART * 100:g} cm apart"
+            else f"overlap in {overlap:,} of the {t:,} sampled poses and are never "
+            f"{apart[members].max() * 100:.2g} cm apart"
         )
         lines.append(f"{bodies}{count}: {where} (bounding shapes too coarse to tell): not checked")
     return pairs.without(drop, lines)

@@ -348,7 +348,7 @@ def acceleration_bounds(chain, reach_m: np.ndarray, point_link: np.ndarray, qd_m
     return out
 
 
-def make_safe(safety: SafetyConstraints, x: np.ndarray, steps: int = 12) -> np.ndarray | None:
+def make_safe(safety: SafetyConstraints, x: np.ndarray, steps: int = 8) -> np.ndarray | None:
     """``x`` if its constraints' smooth lower bounds are positive (:meth:`SafetyConstraints.values`: then every
     grid clearance keeps its margin), else the largest scaling of its amplitudes about its mean pose that makes
     them so (bisection to ``2^-steps``; the joint bounds and rest stay kept), or None when the mean pose fails."""

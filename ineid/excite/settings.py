@@ -178,7 +178,7 @@ class ExcitationSettings:
     seed: int = 0
     design_points: int | None = None
     constraint_points: int | None = None
-    max_iter: int = 100
+    max_iter: int = 60
     tol: float = 1e-6
     channels: ChannelSet | None = None
     floor: float | None = None
