@@ -26,21 +26,23 @@ Table 2, the excitation bar (one block per arm), over the samples at 100 Hz of t
 
 * ``designed``: the returned trajectory (coefficients from ``traj.json``);
 * ``random Fourier``: random Fourier trajectories of the same period, harmonics and joint bounds
-  (:func:`random_fourier`: the median of each column over ``--random`` draws), each kept only if every
-  frame origin stays above the floor and in the box at every sample (self-collision not checked: it
-  leaves them more room than the design has; a draw that keeps neither after ``--tries`` is marked);
+  (:func:`random_fourier`: the median of each column over ``--random`` draws), their amplitudes scaled
+  down about their mean pose until every frame origin stays above the floor and in the box at every
+  sample (self-collision not checked: it leaves them more room than the design has; a draw that keeps
+  neither after ``--tries`` is marked);
 
 with the columns: the scaled condition number of the samples' regressor; the median expected relative
-standard deviation of the base parameters; the expected workspace wrench-prediction error:
+standard deviation of the base parameters; the expected workspace wrench-prediction error,
 ``sqrt(mean_k trace(Phi_k C Phi_k^T) / A)`` over ``--states`` independent uniform states within the
 joint bounds (``model_uniform_states``), ``Phi_k`` the scaled regressor of :mod:`ineid.excite.criterion`
 (each axis divided by its noise, so the figure is the predicted wrench's standard deviation in units of
 the sensor noise) and ``C = (sum Phi^T Phi)^-1`` of the trajectory's samples; and the identification
-error: the median relative error of the base parameters (CAD truth), linear least squares on simulated
-data along the trajectory with the noise study's reference noise (wrench 0.5 N, 0.05 N*m; qd 0.01 rad/s,
-qdd 0.1 rad/s^2 in the regressor's states), over ``--draws`` noise draws. The regressors here are
-evaluated through CasADi (no compilation), and the designed row's condition number and relative stds
-are checked against the record's.
+error, the median relative error of the base parameters (CAD truth; those whose CAD value is zero left
+out), linear least squares on simulated data along the trajectory with the noise study's reference
+noise (wrench 0.5 N, 0.05 N*m; qd 0.01 rad/s, qdd 0.1 rad/s^2 in the regressor's states), over
+``--draws`` noise draws. The regressors here are evaluated through CasADi (no compilation); the
+designed row's condition number and median relative std are checked against the record's (the
+largest relative difference is printed).
 """
 
 from __future__ import annotations
@@ -163,9 +165,13 @@ def scaled_phi(model, base, sigma, q, qd, qdd) -> tuple[np.ndarray, np.ndarray]:
 
 def random_fourier(model, arm: Arm, design: FourierTrajectory, rng, tries: int, rate: float):
     """A random Fourier trajectory of ``design``'s period, harmonics and duration within the joint bounds less the
-    margin, at rest at both ends, each joint scaled to its tightest bound on a grid 4x the rate; its mean drawn
-    where its swing fits. Drawn until every frame origin keeps the floor and box at every sample (at most
-    ``tries``). Returns ``(trajectory, kept)``."""
+    margin, at rest at both ends, each joint scaled to its tightest bound on a grid 4x the rate, its mean drawn
+    where its swing fits; where a frame origin leaves the floor or box at a sample, its amplitudes are scaled
+    by 0.85 about the mean (at most 16 times), else drawn again (at most ``tries`` draws).
+
+    Returns:
+        ``(trajectory, kept)``: ``kept`` False when no draw kept the floor and box (the last draw, unscaled).
+    """
     margin = ExcitationSettings.margin
     lo, hi = np.asarray(model.q_lower, float), np.asarray(model.q_upper, float)
     lo, hi = lo + margin * (hi - lo), hi - margin * (hi - lo)
@@ -175,6 +181,11 @@ def random_fourier(model, arm: Arm, design: FourierTrajectory, rng, tries: int, 
     pq, pqd, pqdd = state_matrices(grid, f0, h)
     welded = welded_frames(model.urdf_text, model.chain, model.locked_joints)
     box = np.asarray(arm.workspace).reshape(3, 2)
+
+    def keeps(traj: FourierTrajectory) -> bool:
+        pts = frame_points(model.chain, traj.sample(rate)[1], welded)
+        return bool(pts[..., 2].min() >= arm.floor and np.all((pts >= box[:, 0]) & (pts <= box[:, 1])))
+
     for _ in range(tries):
         a = rng.uniform(-1, 1, (model.n_dof, h))
         b = rng.uniform(-1, 1, (model.n_dof, h))
@@ -188,12 +199,12 @@ def random_fourier(model, arm: Arm, design: FourierTrajectory, rng, tries: int, 
         ) * (1 - 1e-9)
         q_lo, q_hi = lo - s * e.min(0), hi - s * e.max(0)
         q0 = q_lo + (q_hi - q_lo) * rng.random(model.n_dof)
-        traj = FourierTrajectory(f0, q0, a * s[:, None], b * s[:, None], design.duration, design.joint_names)
-        pts = frame_points(model.chain, traj.sample(rate)[1], welded)
-        kept = pts[..., 2].min() >= arm.floor and np.all((pts >= box[:, 0]) & (pts <= box[:, 1]))
-        if kept:
-            return traj, True
-    return traj, False
+        first = FourierTrajectory(f0, q0, a * s[:, None], b * s[:, None], design.duration, design.joint_names)
+        for k in range(17):  # scaled about the mean pose, within the joint bounds still
+            traj = FourierTrajectory(f0, q0, first.a * 0.85**k, first.b * 0.85**k, first.duration, first.joint_names)
+            if keeps(traj):
+                return traj, True
+    return first, False
 
 
 def identification_error(model, base, sigma, q, qd, qdd, psi, rng, draws: int) -> float:
@@ -202,6 +213,7 @@ def identification_error(model, base, sigma, q, qd, qdd, psi, rng, draws: int) -
     wrench = psi @ theta
     known = np.asarray(model.known_index, dtype=int)
     noise_w = np.array([REFERENCE_NOISE["force"]] * 3 + [REFERENCE_NOISE["moment"]] * 3)
+    nonzero = np.abs(base.cad) > 1e-12 * base.scales  # a relative error of a zero is undefined
     errors = []
     for _ in range(draws):
         y = wrench + noise_w * rng.standard_normal(wrench.shape)
@@ -210,7 +222,7 @@ def identification_error(model, base, sigma, q, qd, qdd, psi, rng, draws: int) -
         psi_n, phi_n = scaled_phi(model, base, sigma, q, qd_n, qdd_n)
         y = (y - psi_n[..., known] @ theta[known]) / sigma
         x = np.linalg.lstsq(phi_n.reshape(-1, base.rank), y.ravel(), rcond=None)[0]
-        errors.append(np.abs(x * base.scales - base.cad) / np.abs(base.cad))
+        errors.append(np.abs(x * base.scales - base.cad)[nonzero] / np.abs(base.cad[nonzero]))
     return float(np.median(errors))
 
 
