@@ -229,6 +229,13 @@ def identification_error(model, base, sigma, q, qd, qdd, psi, rng, draws: int) -
     return float(np.median(errors))
 
 
+def wrench_prediction_error(phi_states: np.ndarray, cov: np.ndarray) -> float:
+    """``sqrt(mean_k trace(Phi_k C Phi_k^T) / A)``: the RMS over states and axes of the predicted wrench's std
+    (units of the noise) under the parameter covariance ``C`` (r, r); ``phi_states`` (K, A, r)."""
+    chol = np.linalg.cholesky(cov)
+    return float(np.sqrt(np.mean(np.sum((phi_states @ chol) ** 2, axis=(1, 2)) / phi_states.shape[1])))
+
+
 def bar_row(model, base, sigma, traj: FourierTrajectory, phi_states: np.ndarray, rng, rate: float, draws: int):
     """(scaled cond, median rel std, wrench-prediction error, identification error) of ``traj``'s samples."""
     _, q, qd, qdd = traj.sample(rate)
@@ -236,8 +243,7 @@ def bar_row(model, base, sigma, traj: FourierTrajectory, phi_states: np.ndarray,
     a = phi.reshape(-1, base.rank)
     sv = np.linalg.svd(a, compute_uv=False)
     cov = np.linalg.inv(a.T @ a)
-    chol = np.linalg.cholesky(cov)
-    wrench = np.sqrt(np.mean(np.sum((phi_states @ chol) ** 2, axis=(1, 2)) / base.n_axes))
+    wrench = wrench_prediction_error(phi_states, cov)
     ident = identification_error(model, base, sigma, q, qd, qdd, psi, rng, draws)
     return np.array([sv[0] / sv[-1], np.median(np.sqrt(np.diag(cov))), wrench, ident])
 
