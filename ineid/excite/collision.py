@@ -3,20 +3,29 @@
 Bodies are the root (the fixture, index -1) and the moving links, each with the bounding
 capsules of its URDF collision geometry (:func:`ineid.robots.collision.body_capsules`).
 A pair of capsules is checked when their bodies are not adjacent (chain indices two or
-more apart), unless they already overlap at the middle of the joint ranges: such shapes
-are too coarse to tell a collision from a joint's neighbourhood (said in the summary).
+more apart). Pairs whose capsules are never apart in a sample of the joint space (a link
+two joints on, fingers on a palm: the shapes are too coarse to tell a collision from a
+joint's neighbourhood) are left out by :func:`ineid.excite.feasibility.always_touching`
+through :meth:`CollisionPairs.without`, one line each in the notes.
 
-**Between samples.** The clearance ``d(t) - r1 - r2`` (``d`` the distance of the two
-segments) changes no faster than the speeds of the segments' points, ``V1 + V2`` with
-``V = sum_j w_j l_j`` (``w_j`` the velocity bound of joint ``j`` before the body, ``l_j``
-the reach from joint ``j`` to the body's origin plus the segment's farthest end, 1 for a
-prismatic joint), so a clearance of ``(V1 + V2) dt / 2`` at every grid point keeps it
-non-negative at every instant (a first-order bound: the distance of two segments is not
-smooth where the closest points jump).
+**Between samples.** With ``D(t) = min |P1 - P2|^2`` over the points ``P1, P2`` of the two
+segments, the pair is clear when ``D >= (r1 + r2)^2``. ``D`` is the minimum of a family of smooth
+functions of ``t`` (one per pair of segment parameters), so at its smallest instant ``t*`` the
+member that attains it has zero slope too, and between ``t*`` and the nearest grid point (within
+``dt / 2``) it grows by at most ``A_D dt^2 / 8`` with ``A_D = 2 V^2 + 2 (r1 + r2 + V dt / 2) A``
+(its second derivative ``2 |v|^2 + 2 p . a``, with ``|p| < r1 + r2 + V dt / 2`` wherever a violation
+could hide): ``V`` bounds the relative speed of the two points (``V1 + V2``, ``V = sum_j w_j l_j``
+with ``w_j`` the velocity bound of joint ``j`` before the body and ``l_j`` the reach from joint ``j``
+to the body's origin plus the segment's farthest end, 1 for a prismatic joint) and ``A`` their
+relative acceleration (:func:`ineid.excite.safety.acceleration_bounds` at the same reach). So a grid
+clearance of ``sqrt((r1 + r2)^2 + A_D dt^2 / 8) - (r1 + r2)`` at every grid point
+(:meth:`CollisionPairs.margins`) keeps the capsules apart at every instant: a second-order bound,
+a few millimetres on a grid of about a thousand points per period.
 """
 
 from __future__ import annotations
 
+import copy
 from itertools import product
 
 import numpy as np
@@ -27,7 +36,8 @@ class CollisionPairs:
 
     Attributes:
         capsules: every capsule; ``pairs`` (C, 2) indices into it.
-        notes: one line per body without geometry, mesh skipped, or pair left out.
+        notes: one line per body without geometry, mesh skipped, or pair of bodies left out.
+        excluded: of those, the lines of the pairs left out (:meth:`without`).
         speed: (C,) ``V1 + V2`` per pair, m/s.
     """
 
@@ -38,40 +48,59 @@ class CollisionPairs:
         self.chain = model.chain
         found = body_capsules(model.urdf_text, self.chain, model.urdf_path, model.locked_joints)
         self.capsules, self.notes = found.capsules, list(found.notes)
+        self.excluded: list[str] = []
         caps = self.capsules
         n = self.chain.n_dof
-        mid = 0.5 * (
-            np.array([j.q_lower for j in self.chain.joints]) + np.array([j.q_upper for j in self.chain.joints])
-        )
         pairs = [
             (i, k) for i, k in product(range(len(caps)), repeat=2) if i < k and abs(caps[i].link - caps[k].link) >= 2
         ]
-        self.pairs = np.zeros((0, 2), dtype=int)
-        if pairs:
-            clear = self._clearance(mid[None, :], np.array(pairs))[0][0]
-            for (i, k), c in zip(pairs, clear, strict=True):
-                if c <= 0:
-                    self.notes.append(
-                        f"{caps[i].name!r} and {caps[k].name!r} overlap at the middle of the joint "
-                        "ranges (bounding shapes too coarse): not checked"
-                    )
-            self.pairs = np.array([p for p, c in zip(pairs, clear, strict=True) if c > 0], dtype=int).reshape(-1, 2)
+        self.pairs = np.array(pairs, dtype=int).reshape(-1, 2)
         w = np.asarray(qd_max, dtype=np.float64)
         origin_reach = reach(self.chain)  # (n, n)
         revolute = np.array([j.type == "revolute" for j in self.chain.joints])
         speed = np.zeros(len(caps))
+        self._reach = np.zeros((len(caps), n))  # m, from each joint to the capsule's farthest point
         for c, cap in enumerate(caps):
             if cap.link < 0:
                 continue
             ends = max(np.linalg.norm(cap.a), np.linalg.norm(cap.b))
             moved = np.arange(n) <= cap.link
-            ell = np.where(revolute, origin_reach[cap.link] + ends, 1.0) * moved
+            self._reach[c] = (origin_reach[cap.link] + ends) * moved
+            ell = np.where(revolute, self._reach[c], 1.0) * moved
             speed[c] = float(w @ ell)
         self.speed = speed[self.pairs].sum(axis=1) if len(self.pairs) else np.zeros(0)
+        self.radii = np.array([caps[i].radius + caps[k].radius for i, k in self.pairs]).reshape(-1)
+
+    def without(self, drop, lines) -> CollisionPairs:
+        """These pairs less those where ``drop`` (C,) is true, with ``lines`` (why) added to the notes and
+        to :attr:`excluded`."""
+        keep = ~np.asarray(drop, dtype=bool)
+        out = copy.copy(self)
+        out.pairs, out.speed = self.pairs[keep], self.speed[keep]
+        out.notes, out.excluded = [*self.notes, *lines], [*self.excluded, *lines]
+        return out
 
     @property
     def n(self) -> int:
         return len(self.pairs)
+
+    def accelerations(self, qd_max, qdd_max) -> np.ndarray:
+        """(C,) a bound of the relative acceleration of any two points of each pair's segments, m/s^2."""
+        from ineid.excite.safety import acceleration_bounds
+
+        links = np.array([c.link for c in self.capsules], dtype=int)
+        moving = links >= 0
+        acc = np.zeros(len(self.capsules))
+        if moving.any():
+            acc[moving] = acceleration_bounds(self.chain, self._reach[moving], links[moving], qd_max, qdd_max)
+        return acc[self.pairs].sum(axis=1) if len(self.pairs) else np.zeros(0)
+
+    def margins(self, dt: float, accel: np.ndarray) -> np.ndarray:
+        """(C,) the clearance each pair keeps on a grid of step ``dt`` s (module doc), m; ``accel`` from
+        :meth:`accelerations`."""
+        r, v = self.radii, self.speed
+        a_d = 2.0 * v * v + 2.0 * (r + v * dt / 2.0) * accel
+        return np.sqrt(r * r + a_d * dt * dt / 8.0) - r
 
     def labels(self) -> list[str]:
         return [f"{self.capsules[i].name!r} and {self.capsules[k].name!r}" for i, k in self.pairs]
@@ -122,4 +151,5 @@ class CollisionPairs:
             "pairs": self.labels(),
             "capsules": [{"body": c.name, "shape": c.shape, "radius": c.radius} for c in self.capsules],
             "notes": self.notes,
+            "excluded": self.excluded,
         }

@@ -80,7 +80,6 @@ from ineid.errors import ExcitationError
 from ineid.excite.collision import CollisionPairs
 from ineid.excite.criterion import (  # noqa: F401  (also the names of the old path ineid.identify.excite, until ineid 0.3)
     CRITERIA,
-    DEFAULT_CHUNK,
     DESIGN_NOISE,
     DesignBase,
     DesignEvaluation,
@@ -89,7 +88,6 @@ from ineid.excite.criterion import (  # noqa: F401  (also the names of the old p
     design_base,
     design_noise,
     evaluate_design,
-    regressor_and_derivatives,
     scaled_regressor,
 )
 from ineid.excite.safety import (
@@ -285,7 +283,7 @@ def _problem_setup(model, s: ExcitationSettings, noise: NoiseModel | None, timin
         check_limits(model, limits)
     sigma = design_noise(noise, s.channels, model)
     harmonics = s.harmonics
-    design_points = s.design_points or DEFAULT_CHUNK * math.ceil(32 * harmonics / DEFAULT_CHUNK)
+    design_points = s.design_points or 32 * harmonics
     constraint_points = s.constraint_points or 32 * harmonics
     base = design_base(model, s.bias, s.channels)
     samples = timing.n_rate + 1

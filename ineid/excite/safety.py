@@ -29,11 +29,11 @@ smooth constraint, the Kreisselmeier-Steinhauser lower bound of their minimum,
 ``KS = -(1/rho) log sum_k exp(-rho g_k) <= min_k g_k`` (within ``log(N) / rho`` =
 :data:`KS_SLACK` of it), with its exact gradient (the softmax weights times the point
 Jacobians, :func:`ineid.robots.kinematics.point_jacobians`, through the linear map from
-the design variables to ``q``), on at most :data:`OPTIMIZER_POINTS` of the grid points (every
-``stride``-th, with the whole grid's margins) so that an iteration stays cheap. After IPOPT,
-the values on the whole grid are checked; a design that misses them (IPOPT's tolerance, or
-an instant between the points IPOPT saw) has its amplitudes scaled towards its mean pose
-until they hold (or the start is rejected).
+the design variables to ``q``), on the whole grid: what IPOPT keeps is what the design is
+checked against. The capsule pairs of self-collision are kept the same way, with a second-order
+margin of their own (:mod:`ineid.excite.collision`). After IPOPT, the values on the grid are
+checked; a design that misses them (IPOPT's tolerance) has its amplitudes scaled towards its
+mean pose until they hold (or the start is rejected).
 """
 
 from __future__ import annotations
@@ -50,12 +50,11 @@ STEP_TOLERANCE = 0.005
 """m: the largest clearance kept between grid points (sets the grid of the floor and the box)."""
 KS_SLACK = 0.001
 """m: how much the smooth aggregate may undershoot the smallest grid clearance."""
-COLLISION_TOLERANCE = 0.01
-"""m: the largest gap kept between capsules between grid points (a first-order bound, so coarser)."""
-MAX_GRID = 8192
-OPTIMIZER_POINTS = 1024
-"""Grid points per period that IPOPT's constraints see, at most (the design is then checked on the whole grid)."""
-"""Grid points per period of the floor and workspace constraints, at most."""
+COLLISION_TOLERANCE = 0.005
+"""m: the largest gap kept between capsules between grid points."""
+MAX_GRID = 4096
+"""Grid points per period of the floor, workspace and self-collision constraints, at most (beyond it the margins
+grow past the tolerances: still kept, only more conservative)."""
 _AXES = "xyz"
 
 
@@ -189,20 +188,21 @@ class SafetyConstraints:
         )
         period = 1.0 / f0
         grid = math.ceil(period * math.sqrt(max(self.accel.max(initial=0.0), 0.0) / (8.0 * STEP_TOLERANCE)))
-        if self.pairs is not None:
-            grid = max(grid, math.ceil(period * self.pairs.speed.max() / (2.0 * COLLISION_TOLERANCE)))
-        self.grid = int(min(max(grid, 32 * harmonics), MAX_GRID))
+        grid = int(min(max(grid, 32 * harmonics), MAX_GRID))
+        pair_accel = self.pairs.accelerations(qd_max, qdd_max) if self.pairs is not None else np.zeros(0)
+        while self.pairs is not None and grid < MAX_GRID:
+            if self.pairs.margins(period / grid, pair_accel).max() <= COLLISION_TOLERANCE:
+                break
+            grid = min(math.ceil(grid * 1.25), MAX_GRID)
+        self.grid = grid
         dt = period / self.grid
         self.margin = self.accel * dt * dt / 8.0  # (P,) m
-        self.pair_margin = self.pairs.speed * dt / 2.0 if self.pairs is not None else np.zeros(0)
+        self.pair_margin = self.pairs.margins(dt, pair_accel) if self.pairs is not None else np.zeros(0)
         self.rho = math.log(self.grid) / KS_SLACK
         self.n, self.nz = n, 2 * harmonics - 1
         self.mid, self.half, self.v_scale = mid, half, v_scale
         self.pq = state_matrices(np.arange(self.grid) * dt, f0, harmonics)[0] @ rest  # (N, 2H-2)
-        # IPOPT sees every stride-th grid point (with the dense grid's margins): the cost of an
-        # iteration stays bounded; the dense grid itself is what make_safe and the design check
-        self.stride = max(1, math.ceil(self.grid / OPTIMIZER_POINTS))
-        self._last: dict[bool, tuple[bytes, tuple]] = {}
+        self._last: tuple[bytes, tuple] | None = None
 
     @property
     def n_constraints(self) -> int:
@@ -213,10 +213,9 @@ class SafetyConstraints:
         out = [f"{p!r} {s[3]}" for p in self.names for s in self.spaces]
         return out + ([f"{p} self-collision" for p in self.pairs.labels()] if self.pairs is not None else [])
 
-    def grid_q(self, x: np.ndarray, dense: bool = True) -> np.ndarray:
+    def grid_q(self, x: np.ndarray) -> np.ndarray:
         z = np.asarray(x, dtype=np.float64).reshape(self.n, self.nz)
-        pq = self.pq if dense else self.pq[:: self.stride]
-        return self.mid + self.half * z[:, 0] + pq @ (z[:, 1:].T * self.v_scale)
+        return self.mid + self.half * z[:, 0] + self.pq @ (z[:, 1:].T * self.v_scale)
 
     def clearances(self, q: np.ndarray) -> np.ndarray:
         """(T, C) every row's clearance at ``q`` (T, n_dof), m, no margins: ``sign * (p[axis] - bound)``
@@ -236,33 +235,39 @@ class SafetyConstraints:
         """(C,) the clearance each row keeps on the grid (module doc), m."""
         return np.r_[np.repeat(self.margin, len(self.spaces)), self.pair_margin]
 
-    def _evaluate(self, x: np.ndarray, dense: bool = False):
+    def _evaluate(self, x: np.ndarray):
         key = np.asarray(x, dtype=np.float64).tobytes()
-        if dense in self._last and self._last[dense][0] == key:
-            return self._last[dense][1]
-        q = self.grid_q(x, dense)
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        q = self.grid_q(x)
         g = self.clearances(q) - self.margins()  # (N, C)
         gmin = g.min(axis=0)
         e = np.exp(-self.rho * (g - gmin))
         total = e.sum(axis=0)
         ks = gmin - np.log(total) / self.rho
-        self._last[dense] = (key, (q, g, ks, e / total))
-        return self._last[dense][1]
+        self._last = (key, (q, g, ks, e / total))
+        return self._last[1]
 
     def values(self, x: np.ndarray) -> np.ndarray:
-        """(C,) the smooth lower bounds of the smallest clearance less margin on every ``stride``-th grid
-        point (what IPOPT keeps >= 0)."""
+        """(C,) the smooth lower bounds of the smallest clearance less margin on the grid (what IPOPT keeps >= 0;
+        positive implies :meth:`grid_slack` positive)."""
         return self._evaluate(x)[2]
 
     def grid_slack(self, x: np.ndarray) -> np.ndarray:
         """(C,) the smallest grid clearance less margin of each constraint (>= 0: kept at every instant)."""
-        return self._evaluate(x, dense=True)[1].min(axis=0)
+        return self._evaluate(x)[1].min(axis=0)
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
-        """(C, n_dof (2H - 1)) the exact derivative of :meth:`values` (where the closest points are unique)."""
+        """(C, n_dof (2H - 1)) the exact derivative of :meth:`values` (where the closest points are unique).
+
+        Only the grid points whose softmax weight is not negligible (``> 1e-15``) are differentiated: the
+        others contribute below round-off.
+        """
         from ineid.robots.kinematics import frame_points, point_jacobians
 
         q, _, _, w = self._evaluate(x)
+        active = np.flatnonzero((w > 1e-15).any(axis=1))
+        q, w = q[active], w[active]
         parts = []
         if self.spaces:
             pts = frame_points(self.chain, q, self.welded)
@@ -274,7 +279,7 @@ class SafetyConstraints:
             parts.append(self.pairs.gradient(q))
         dq = w[..., None] * np.concatenate(parts, axis=1)  # (N, C, n) d ks / d q(t_k)
         du = self.half * dq.sum(axis=0)  # (C, n)
-        dalpha = np.einsum("kl,kcj->cjl", self.pq[:: self.stride], dq) * self.v_scale[:, None]  # (C, n, 2H-2)
+        dalpha = np.einsum("kl,kcj->cjl", self.pq[active], dq) * self.v_scale[:, None]  # (C, n, 2H-2)
         return np.concatenate([du[..., None], dalpha], axis=-1).reshape(self.n_constraints, self.n * self.nz)
 
     def describe(self) -> dict:

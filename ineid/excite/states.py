@@ -6,8 +6,7 @@ will estimate, not for exact ones. To first order, an error ``dx_k`` in the stat
 
     J_k = d(Psi theta) / dx  at the CAD parameters ``theta`` (every link's; extras such as friction 0),
 
-from the regressor's exact derivatives along every state coordinate
-(:func:`ineid.excite.criterion.regressor_and_derivatives`). The state errors' per-joint RMS
+from the channels' CasADi rows differentiated along every state coordinate (:func:`prediction_jacobian`). The state errors' per-joint RMS
 ``s_x`` (3 n_dof) comes from rehearsing the trajectory (:func:`ineid.data.synthesis.imu_rehearsal.rehearse`:
 quantized encoders, the import's low-pass and cut-off rule, central differences, the fusion with the
 IMUs' simulated readings) against its exact states, over one whole trajectory (it is periodic). Taking
@@ -26,19 +25,19 @@ quadratic terms in ``dx``.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
 
 from ineid.data.synthesis.imu_rehearsal import ImuRehearsal, rehearse
 from ineid.errors import ExcitationError
-from ineid.excite.criterion import DEFAULT_CHUNK, regressor_and_derivatives
 
 STREAM = 22
 """The random stream of the rehearsal's IMU noise (``SeedSequence([seed, STREAM])``): the same draws for the
 design and its random comparison."""
-BLOCK = 8 * DEFAULT_CHUNK
-"""Samples per call of the regressor's derivatives (their array is ``3 n_dof x BLOCK x A x 10 n_links``)."""
+BLOCK = 1280
+"""Samples per call of the prediction's Jacobian (its array is ``BLOCK x A x 3 n_dof``)."""
 MIN_SAMPLES = 8
 """The fewest samples the rehearsal filters and differentiates
 (:func:`ineid.data.synthesis.imu_rehearsal.rehearse`'s)."""
@@ -82,19 +81,39 @@ def rehearsed_rms(model, sensors: ImuRehearsal, trajectory, rate: float, seed: i
     return np.stack([np.sqrt(np.mean((e - x) ** 2, axis=0)) for e, x in zip(est, (q, qd, qdd), strict=True)])
 
 
+_JACOBIANS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def prediction_jacobian(model, channels=None):
+    """``casadi.Function`` ``(q, qd, qdd) -> J`` (A x 3 n_dof): ``d(T Phi theta_cad)/d(q, qd, qdd)``, the channels'
+    rows (default: the base wrench) at the CAD parameters of every link (extra columns at their prior, 0);
+    built once per model and channels."""
+    import casadi as ca
+
+    from ineid.channels import BASE_WRENCH
+
+    channels = BASE_WRENCH if channels is None else channels
+    per_model = _JACOBIANS.setdefault(model, {})
+    key = channels.key_tuple()
+    if key not in per_model:
+        q, qd, qdd = (ca.SX.sym(s, model.n_dof) for s in ("q", "qd", "qdd"))
+        w = ca.mtimes(channels.casadi_rows(model)(q, qd, qdd), ca.DM(np.asarray(model.theta_cad, dtype=np.float64)))
+        per_model[key] = ca.Function("prediction_jacobian", [q, qd, qdd], [ca.jacobian(w, ca.vertcat(q, qd, qdd))])
+    return per_model[key]
+
+
 def inflated_noise(model, q, qd, qdd, sigma: np.ndarray, rms: np.ndarray, channels=None) -> np.ndarray:
     """(A,) ``sigma_eff`` (module doc) over samples ``q, qd, qdd`` (F, n_dof) for state errors of RMS ``rms``."""
     q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (q, qd, qdd))
-    s2 = np.asarray(rms, dtype=np.float64).reshape(-1) ** 2  # q_1..q_n, qd_1..qd_n, qdd_1..qdd_n: dPsi's order
-    theta_cad = np.asarray(model.theta_cad, dtype=np.float64)
+    s2 = np.asarray(rms, dtype=np.float64).reshape(-1) ** 2  # q_1..q_n, qd_1..qd_n, qdd_1..qdd_n: J's columns
+    jac_fn = prediction_jacobian(model, channels)
+    n_a = jac_fn.size1_out(0)
     added = np.zeros(len(sigma))
     for start in range(0, len(q), BLOCK):
         part = slice(start, start + BLOCK)
-        _, dpsi = regressor_and_derivatives(model, q[part], qd[part], qdd[part], channels=channels)
-        theta = np.zeros(dpsi.shape[-1])  # the extra columns (friction, armature, offsets) at their prior, 0
-        theta[: len(theta_cad)] = theta_cad
-        jac = dpsi @ theta  # (3 n_dof, m, A): J_k transposed
-        added += np.einsum("dka,d->a", jac**2, s2)
+        m = len(q[part])
+        jac = np.asarray(jac_fn.map(m)(q[part].T, qd[part].T, qdd[part].T)).reshape(n_a, m, -1)  # (A, m, 3 n_dof)
+        added += np.einsum("akd,d->a", jac**2, s2)
     return np.sqrt(np.asarray(sigma, dtype=np.float64) ** 2 + added / len(q))
 
 

@@ -19,13 +19,7 @@ import numpy as np
 from ineid.data.synthesis.trajectory import FourierTrajectory, state_matrices
 from ineid.errors import ExcitationError
 from ineid.excite.callbacks import numpy_function
-from ineid.excite.criterion import (
-    DesignBase,
-    centred,
-    criterion_and_gradient,
-    regressor_and_derivatives,
-    scaled_regressor,
-)
+from ineid.excite.criterion import DesignBase, centred, criterion_and_gradient, design_phi, design_rows
 from ineid.excite.safety import casadi_constraint
 from ineid.identify.ipopt import nlpsol
 
@@ -148,39 +142,49 @@ class DesignProblem:
         return q, self.dqd @ ca, self.dqdd @ ca
 
     # -- objective -------------------------------------------------------------------------
-    def _evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(Phi, dPhi)`` on the design grid: (N, A, r) and (3 n_dof, N, A, r) (last one cached)."""
+    def _phi(self, x: np.ndarray) -> np.ndarray:
+        """``Phi`` (N, A, r) on the design grid, centred with offsets (the last one cached)."""
         key = np.asarray(x, dtype=np.float64).tobytes()
         if self._last is not None and self._last[0] == key:
             return self._last[1]
-        q, qd, qdd = self.design_states(x)
-        psi, dpsi = regressor_and_derivatives(self.model, q, qd, qdd, channels=self.base.channels)
+        phi = design_phi(self.model, self.base, self.sigma, *self.design_states(x))
         self.n_evals += 1
-        phi = scaled_regressor(psi, self.base, self.sigma)
-        # centring: df/dPhi_k = G_k - mean(G) = G_k, as G_k = (2/N) Phi_c_k dM sums to zero
         phi = centred(phi) if self.base.bias else phi
-        a = self.base.n_axes
-        sel = self.base.columns >= a  # every column (the offsets are profiled out, not columns)
-        weight = self.base.scales[sel] / self.sigma[:, None]  # (A, r)
-        dphi = dpsi[..., self.base.columns[sel] - a] * weight
-        self._last = (key, (phi, dphi, sel))
-        return self._last[1]
+        self._last = (key, phi)
+        return phi
 
     def reweigh(self, sigma: np.ndarray) -> None:
         """Weigh the axes by ``sigma`` from now on (the noise inflated by the state errors)."""
         self.sigma, self._last = np.asarray(sigma, dtype=np.float64), None
 
     def value(self, x: np.ndarray) -> float:
-        return criterion_and_gradient(self._evaluate(x)[0], self.criterion, gradient=False)[0]
+        return criterion_and_gradient(self._phi(x), self.criterion, gradient=False)[0]
+
+    def values(self, xs: np.ndarray) -> np.ndarray:
+        """(K,) the criterion of designs ``xs`` (K, n_dof (2H - 1)), their samples in one CasADi call."""
+        xs = np.atleast_2d(xs)
+        states = [self.design_states(x) for x in xs]
+        q, qd, qdd = (np.concatenate([s[i] for s in states]) for i in range(3))
+        phi = design_phi(self.model, self.base, self.sigma, q, qd, qdd)
+        phi = phi.reshape(len(xs), -1, *phi.shape[1:])
+        return np.array(
+            [criterion_and_gradient(centred(p) if self.base.bias else p, self.criterion, gradient=False)[0] for p in phi]
+        )
 
     def gradient(self, x: np.ndarray) -> tuple[float, np.ndarray]:
-        """``(f, df/dx)`` exactly: ``df/dPhi`` contracted with ``dPhi/dstate`` (forward-mode AD of the
-        generated regressor), then the linear map from the variables ``x`` to the states."""
-        phi, dphi, sel = self._evaluate(x)
+        """``(f, df/dx)`` exactly: ``df/dPhi`` pulled back through the rows to the states (reverse-mode AD
+        of the generated regressor, :class:`ineid.excite.criterion.DesignRows`), then the linear map from the
+        variables ``x`` to the states."""
+        phi = self._phi(x)
         f, g_phi = criterion_and_gradient(phi, self.criterion)
         if g_phi is None:
             return f, np.full(self.n * self.nz, np.nan)
-        g_state = np.einsum("dkij,kij->kd", dphi, g_phi[..., sel])  # (N, 3 n_dof)
+        # centring: df/dPhi_k = G_k - mean(G) = G_k, as G_k = (2/N) Phi_c_k dM sums to zero
+        a = self.base.n_axes
+        sel = self.base.columns >= a  # the offsets' identity columns do not move
+        g_y = g_phi[..., sel] * (self.base.scales[sel] / self.sigma[:, None])
+        q, qd, qdd = self.design_states(x)
+        g_state = design_rows(self.model, self.base).pullback(q, qd, qdd, g_y)  # (N, 3 n_dof)
         n = self.n
         gq, gqd, gqdd = g_state[:, :n], g_state[:, n : 2 * n], g_state[:, 2 * n :]
         self.n_grads += 1
