@@ -65,7 +65,7 @@ from machine import cpu_description  # benchmarks/machine.py
 import ineid
 from ineid.data.synthesis.sampling import model_uniform_states
 from ineid.data.synthesis.trajectory import FourierTrajectory, read_trajectory_json, state_matrices
-from ineid.excite.criterion import design_base, design_noise, scaled_regressor
+from ineid.excite.criterion import design_base, design_noise, design_phi, scaled_regressor
 from ineid.excite.settings import ExcitationSettings
 from ineid.robots.kinematics import frame_points, welded_frames
 from ineid.studies.noise import REFERENCE_NOISE
@@ -254,7 +254,7 @@ def excitation_bar(name: str, arm: Arm, traj: FourierTrajectory, design: dict, a
     base, sigma = design_base(model), design_noise()
     rng = np.random.default_rng(args.seed)
     q, qd, qdd = model_uniform_states(model, args.states, rng)
-    _, phi_states = scaled_phi(model, base, sigma, q, qd, qdd)
+    phi_states = design_phi(model, base, sigma, q, qd, qdd)
     rate = float(design["rate"])
     designed = bar_row(model, base, sigma, traj, phi_states, rng, rate, args.draws)
     opt = design["optimized"] if design.get("answer", "optimized") == "optimized" else design["best_random"]

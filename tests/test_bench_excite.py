@@ -1,6 +1,6 @@
 """``benchmarks/excite.py``'s measures against simulation: the random Fourier trajectories it compares with keep
 what they claim, the wrench-prediction error is the RMS error of wrenches predicted by least-squares fits, and the
-CasADi regressor it evaluates is the model's."""
+CasADi regressor it evaluates is the model's and the design's."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 
 import ineid
 from ineid.data.synthesis.trajectory import FourierTrajectory
-from ineid.excite.criterion import design_base, design_noise, scaled_regressor
+from ineid.excite.criterion import design_base, design_noise, design_phi, scaled_regressor
 from ineid.robots.kinematics import frame_points, welded_frames
 
 BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
@@ -82,9 +82,10 @@ def test_wrench_prediction_error_is_the_rms_error_of_fitted_predictions(bench, a
     assert bench.wrench_prediction_error(phi_states, cov) == pytest.approx(measured, rel=0.05)
 
 
-def test_casadi_regressor_is_the_models(bench, arm):
+def test_casadi_regressor_is_the_models_and_the_designs(bench, arm):
     model, base, sigma = arm
     q, qd, qdd = bench.model_uniform_states(model, 7, np.random.default_rng(1))
     psi, phi = bench.scaled_phi(model, base, sigma, q, qd, qdd)
     np.testing.assert_allclose(psi, model.regressor(q, qd, qdd), rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(phi, scaled_regressor(psi, base, sigma))
+    np.testing.assert_allclose(phi, design_phi(model, base, sigma, q, qd, qdd), rtol=1e-12, atol=1e-12)
