@@ -71,6 +71,7 @@ from ineid.robots.kinematics import frame_points, welded_frames
 from ineid.studies.noise import REFERENCE_NOISE
 
 EXAMPLES = "cmeel.prefix/share/example-robot-data/robots"
+BAR_ROWS = ("designed", "random")
 
 
 @dataclass(frozen=True)
@@ -308,11 +309,12 @@ def print_design(rows: dict) -> None:
         )
         if r.get("failed"):
             print(f"{'':<11} the warm run failed: {r['failed']}")
-    short = [n for n, r in rows.items() if "ratio_median" in r and r["ratio_median"] < 2]
-    if short:
-        print(f"median std ratio below 2x on: {', '.join(short)}")
-    else:
-        print("median std ratio at least 2x on every arm that ran")
+    ran = [n for n, r in rows.items() if "ratio_median" in r]
+    short = [n for n in ran if rows[n]["ratio_median"] < 2]
+    failed = [n for n in rows if n not in ran]
+    print(f"median std ratio below 2x on: {', '.join(short) or 'none'} (of {', '.join(ran) or 'none'})")
+    if failed:
+        print(f"no design on: {', '.join(failed)}")
 
 
 def print_bar(rows: dict) -> None:
@@ -356,7 +358,10 @@ def main() -> None:
     rows = {}
     for name in args.arms.split(","):
         rows[name] = run_arm(name, ARMS[name], folder, args)
-        print(f"  {name} done ({json.dumps({k: v for k, v in rows[name].items() if k != 'bar'})})", flush=True)
+        shown = {k: v for k, v in rows[name].items() if k != "bar"}
+        if "bar" in rows[name]:
+            shown.update({k: np.round(v, 6).tolist() for k, v in rows[name]["bar"].items() if k in BAR_ROWS})
+        print(f"  {name} done ({json.dumps(shown)})", flush=True)
     print()
     print_design(rows)
     print()
