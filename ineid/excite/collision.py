@@ -30,6 +30,10 @@ from itertools import product
 
 import numpy as np
 
+FAR = 0.1
+"""m: pairs whose bounding spheres are this far apart at a grid point take that distance there (a lower bound of
+their gap: cheaper, and far from where the aggregate of the grid values is decided)."""
+
 
 class CollisionPairs:
     """The checked capsule pairs of a model, their clearances and derivatives (module doc).
@@ -70,13 +74,16 @@ class CollisionPairs:
             speed[c] = float(w @ ell)
         self.speed = speed[self.pairs].sum(axis=1) if len(self.pairs) else np.zeros(0)
         self.radii = np.array([caps[i].radius + caps[k].radius for i, k in self.pairs]).reshape(-1)
+        self._links = np.array([c.link for c in caps], dtype=int)
+        self._local = [np.array([getattr(c, e) for c in caps]).reshape(-1, 3) for e in ("a", "b")]
+        self._sphere = np.array([np.linalg.norm(c.b - c.a) / 2.0 + c.radius for c in caps])  # about the middle
 
     def without(self, drop, lines) -> CollisionPairs:
         """These pairs less those where ``drop`` (C,) is true, with ``lines`` (why) added to the notes and
         to :attr:`excluded`."""
         keep = ~np.asarray(drop, dtype=bool)
         out = copy.copy(self)
-        out.pairs, out.speed = self.pairs[keep], self.speed[keep]
+        out.pairs, out.speed, out.radii = self.pairs[keep], self.speed[keep], self.radii[keep]
         out.notes, out.excluded = [*self.notes, *lines], [*self.excluded, *lines]
         return out
 
@@ -105,46 +112,76 @@ class CollisionPairs:
     def labels(self) -> list[str]:
         return [f"{self.capsules[i].name!r} and {self.capsules[k].name!r}" for i, k in self.pairs]
 
-    def _segments(self, q: np.ndarray, idx: np.ndarray):
-        """Segment ends (T, len(idx), 3) twice, base frame, of capsules ``idx`` at ``q`` (T, n_dof)."""
+    def _ends(self, q: np.ndarray, poses=None):
+        """Every capsule's segment ends (T, K, 3) twice, base frame, at ``q`` (T, n_dof); ``poses``: the links'
+        ``(R, p)`` at ``q`` when already computed (:func:`ineid.robots.kinematics.link_poses`)."""
         from ineid.robots.kinematics import link_poses
 
-        r, p = link_poses(self.chain, q)
+        r, p = link_poses(self.chain, q) if poses is None else poses
+        link = self._links
+        moving = link >= 0
         ends = []
-        for which in ("a", "b"):
-            local = np.array([getattr(self.capsules[i], which) for i in idx]).reshape(-1, 3)
-            link = np.array([self.capsules[i].link for i in idx], dtype=int)
-            moving = link >= 0
-            out = np.broadcast_to(local, (len(q), len(idx), 3)).copy()
-            out[:, moving] = p[:, link[moving]] + (r[:, link[moving]] @ local[moving][:, :, None])[..., 0]
+        for local in self._local:
+            out = np.broadcast_to(local, (len(q), len(local), 3)).copy()
+            out[:, moving] = p[:, link[moving]] + np.einsum("tkij,kj->tki", r[:, link[moving]], local[moving])
             ends.append(out)
         return ends
 
-    def _clearance(self, q: np.ndarray, pairs: np.ndarray, closest: bool = False):
+    def _clearance(self, q: np.ndarray, pairs: np.ndarray, closest: bool = False, poses=None):
+        """The gap of each pair at ``q`` (T, C), or a lower bound of it for a pair far apart at every ``q`` (broad
+        phase: the bounding spheres of the two capsules, centre the segment's middle, more than :data:`FAR` apart
+        throughout), and with ``closest`` the two points whose distance it is (the closest points, or the
+        spheres' centres)."""
         from ineid.robots.collision import segment_distance
 
-        a1, b1 = self._segments(q, pairs[:, 0])
-        a2, b2 = self._segments(q, pairs[:, 1])
-        d, c1, c2 = segment_distance(a1, b1, a2, b2)
-        radii = np.array([self.capsules[i].radius + self.capsules[k].radius for i, k in pairs])
-        return (d - radii, c1, c2) if closest else (d - radii,)
+        a, b = self._ends(q, poses)
+        i, k = pairs[:, 0], pairs[:, 1]
+        half = self._sphere
+        m1, m2 = (a[:, i] + b[:, i]) / 2.0, (a[:, k] + b[:, k]) / 2.0
+        gap = np.linalg.norm(m1 - m2, axis=-1) - (half[i] + half[k])  # (T, C) <= the capsules' gap
+        c1, c2 = m1.copy(), m2.copy()
+        near = np.flatnonzero((gap < FAR).any(axis=0))  # whole pairs: smooth in the trajectory
+        if len(near):
+            i, k = i[near], k[near]
+            d, n1, n2 = segment_distance(a[:, i], b[:, i], a[:, k], b[:, k])
+            gap[:, near] = d - (self.radii if pairs is self.pairs else self.radii_of(pairs))[near]
+            c1[:, near], c2[:, near] = n1, n2
+        return (gap, c1, c2) if closest else (gap,)
 
-    def clearances(self, q: np.ndarray) -> np.ndarray:
-        """(T, C) the gap between the two capsules of each pair at ``q`` (T, n_dof), m (negative: they overlap)."""
-        return self._clearance(np.atleast_2d(q), self.pairs)[0]
+    def radii_of(self, pairs: np.ndarray) -> np.ndarray:
+        """(C,) ``r1 + r2`` of each pair of capsule indices ``pairs`` (C, 2)."""
+        return np.array([self.capsules[i].radius + self.capsules[k].radius for i, k in pairs]).reshape(-1)
+
+    def clearances(self, q: np.ndarray, poses=None) -> np.ndarray:
+        """(T, C) the gap between the two capsules of each pair at ``q`` (T, n_dof), m (negative: they overlap);
+        ``poses``: the links' ``(R, p)`` at ``q`` when already computed."""
+        return self._clearance(np.atleast_2d(q), self.pairs, poses=poses)[0]
 
     def gradient(self, q: np.ndarray) -> np.ndarray:
         """(T, C, n_dof) ``d clearance / d q``: the unit vector between the closest points along their Jacobians."""
-        from ineid.robots.kinematics import point_jacobians
-
         _, c1, c2 = self._clearance(q, self.pairs, closest=True)
+        t, c = np.meshgrid(np.arange(len(q)), np.arange(self.n), indexing="ij")
+        return self.entry_gradient(q[t.ravel()], c.ravel(), c1.reshape(-1, 3), c2.reshape(-1, 3)).reshape(
+            len(q), self.n, -1
+        )
+
+    def entry_gradient(self, q: np.ndarray, pair: np.ndarray, c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
+        """(E, n_dof) ``d clearance / d q`` of pair ``pair[e]`` at ``q[e]`` (E, n_dof), its two points ``c1[e]``,
+        ``c2[e]`` (E, 3) those :meth:`clearances` measured between (the unit vector between them along their
+        Jacobians)."""
+        from ineid.robots.kinematics import entry_jacobians
+
         diff = c1 - c2
         norm = np.linalg.norm(diff, axis=-1, keepdims=True)
         unit = np.where(norm > 0, diff / np.where(norm > 0, norm, 1.0), 0.0)
-        links = np.array([[self.capsules[i].link, self.capsules[k].link] for i, k in self.pairs]).T  # (2, C)
-        j1 = point_jacobians(self.chain, q, links[0], c1)  # (T, C, 3, n); zero for the root body
-        j2 = point_jacobians(self.chain, q, links[1], c2)
-        return np.einsum("tci,tcij->tcj", unit, j1 - j2)
+        links = self._links[self.pairs[pair]]  # (E, 2)
+        j1 = entry_jacobians(self.chain, q, links[:, 0], c1)  # (E, 3, n); zero for the root body
+        j2 = entry_jacobians(self.chain, q, links[:, 1], c2)
+        return np.einsum("ei,eij->ej", unit, j1 - j2)
+
+    def closest(self, q: np.ndarray, poses=None):
+        """``(gap (T, C), c1, c2 (T, C, 3))``: :meth:`clearances` and the two points each gap is measured between."""
+        return self._clearance(np.atleast_2d(q), self.pairs, closest=True, poses=poses)
 
     def describe(self) -> dict:
         return {

@@ -3,8 +3,8 @@
 The base parameters a design is for (:class:`DesignBase`), the scaled regressor
 ``Phi_k = D^-1 Psi_k[:, base columns] S`` and its exact pull-back along the states
 (:class:`DesignRows`: reverse-mode AD of the measurement channels' CasADi rows,
-:meth:`ineid.channels.ChannelSet.casadi_rows`: the generated regressor of the base wrench by default), the criteria ``-log det M``
-(D-optimality) and ``log cond Phi`` with their gradients ``df/dPhi``, and the evaluation of
+:meth:`ineid.channels.ChannelSet.casadi_rows`: the generated regressor of the base wrench by default),
+the criteria ``-log det M`` (D-optimality) and ``log cond Phi`` with their gradients ``df/dPhi``, and the evaluation of
 a finished trajectory (:class:`DesignEvaluation`). The maths is in :mod:`ineid.excite.design`.
 """
 

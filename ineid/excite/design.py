@@ -90,16 +90,12 @@ from ineid.excite.criterion import (  # noqa: F401  (also the names of the old p
     evaluate_design,
     scaled_regressor,
 )
-from ineid.excite.safety import (
-    SafetyConstraints,
-    SafetyLimits,
-    check_limits,
-    make_safe,
-    verify,
-)
+from ineid.excite.feasibility import Feasibility, always_touching, check_feasibility, sample_poses
+from ineid.excite.safety import SafetyConstraints, SafetyLimits, check_limits, verify
+from ineid.excite.search import Status, random_candidates, solve_starts
 from ineid.excite.settings import MAX_SAMPLES, MAX_STARTS, ExcitationResult, ExcitationSettings, StartRecord
 from ineid.excite.states import state_errors, states_record
-from ineid.excite.trajectory import Bounds, DesignProblem, design_bounds, ipopt_solver
+from ineid.excite.trajectory import Bounds, DesignProblem, design_bounds
 from ineid.progress import Progress
 
 log = logging.getLogger(__name__)
@@ -113,49 +109,64 @@ def design_excitation(
     settings: ExcitationSettings,
     noise: NoiseModel | None = None,
     progress: Progress | None = None,
+    status: Status | None = None,
 ) -> ExcitationResult:
     """Design a periodic excitation trajectory for ``model``'s unknown links (module doc).
 
     Args:
         model: the :class:`ineid.RobotModel`; its unknown links and gravity set the design.
-        settings: duration, harmonics, criterion, bounds, starts (:class:`ExcitationSettings`).
+        settings: duration, harmonics, criterion, bounds, candidates, starts (:class:`ExcitationSettings`).
         noise: the wrench noise of the expected standard deviations (default
             :data:`DESIGN_NOISE`); it also weights the axes in the criterion.
         progress: ``progress(starts_done, starts)``.
+        status: ``status(line)``, what the design is doing (the candidates, each start's evaluations and
+            criterion), called often: the caller shows it as often as it likes.
 
     Returns:
-        The :class:`ExcitationResult`: the best design over the starts and, for
-        comparison, the random start with the median criterion.
+        The :class:`ExcitationResult`: the best design over the starts, or the best random candidate when
+        no start beats it, with the best and a typical (median) random candidate for comparison.
 
     Raises:
-        ExcitationError: infeasible bounds, a duration that is too short or not a whole
-            number of periods (or of samples), too few harmonics, or a design that leaves
-            base parameters undetermined (rank deficient); each with what to change.
+        ExcitationError: infeasible bounds (refused before any optimisation: no sampled pose keeps the floor,
+            box and self-collision), a duration that is too short or not a whole number of periods (or of
+            samples), too few harmonics, or a design that leaves base parameters undetermined (rank
+            deficient); each with what to change.
     """
     s = settings
     t_start = time.perf_counter()
     timing = _checked_timing(model, s)
+    if status is not None:
+        status("checking the bounds on a sample of the joint space")
     setup = _problem_setup(model, s, noise, timing)
     problem = setup.problem
     rng = np.random.default_rng(np.random.SeedSequence([int(s.seed), 12]))
-    x0s = [problem.random_start(rng) for _ in range(s.starts)]
     t_compile = time.perf_counter()
-    problem.gradient(x0s[0])  # the first call of the compiled regressor and its derivatives
+    problem.gradient(problem.random_start(np.random.default_rng(0)))  # the CasADi functions built
     compile_seconds = time.perf_counter() - t_compile
     weights = None
-    if s.sensors is not None:  # the state errors' noise, once, on the first start: IPOPT's objective stays as is
-        first = problem.trajectory(x0s[0], timing.duration, model.joint_names)
+    if s.sensors is not None:  # the state errors' noise, once, on a random start: IPOPT's objective stays as is
+        first = problem.trajectory(problem.random_start(rng), timing.duration, model.joint_names)
         weights = state_errors(model, s.sensors, first, s.rate, setup.sigma, setup.base.channels, s.seed)
         problem.reweigh(weights.sigma)
-    starts = _solve_starts(setup, x0s, s.max_iter, s.tol, progress)
-    if starts.best_x is None:
-        raise _no_design_error(starts.unsafe, setup.base)
+    poses = setup.feasibility.poses if setup.safety is not None else None
+    cands = random_candidates(problem, setup.safety, poses, s.candidates, rng, status)
+    usable = np.isfinite(cands.values)
+    if not usable.any():
+        raise _no_candidate_error(cands.drawn, len(cands.xs), setup.base)
+    starts = solve_starts(
+        problem, setup.safety, list(cands.xs[usable][: s.starts]), s.max_iter, s.tol, progress, status
+    )
+    best_random_x, best_random_f = cands.xs[0], float(cands.values[0])
+    answer = "optimized" if starts.best_x is not None and starts.best_f < best_random_f else "best random"
+    best_x, best_f = (starts.best_x, starts.best_f) if answer == "optimized" else (best_random_x, best_random_f)
     names = model.joint_names
-    traj = problem.trajectory(starts.best_x, timing.duration, names)
-    start_values = np.array([r.start_value for r in starts.records])
-    median_start = int(np.argsort(start_values)[(len(start_values) - 1) // 2])
-    random_traj = problem.trajectory(x0s[median_start], timing.duration, names)
+    traj = problem.trajectory(best_x, timing.duration, names)
+    finite = np.flatnonzero(usable)
+    median = int(finite[(len(finite) - 1) // 2])
+    random_traj = problem.trajectory(cands.xs[median], timing.duration, names)
+    best_random_traj = problem.trajectory(best_random_x, timing.duration, names)
     optimized, random, states, q = _evaluate_pair(model, s, setup, traj, random_traj, weights)
+    best_random = _evaluate(model, s, setup, best_random_traj)
     safety = _safety_record(setup, traj, q, timing)
     record = dict(
         s.to_dict(),
@@ -168,7 +179,7 @@ def design_excitation(
     return ExcitationResult(
         trajectory=traj,
         criterion=s.criterion,
-        value=starts.best_f,
+        value=best_f,
         optimized=optimized,
         random=random,
         random_trajectory=random_traj,
@@ -182,6 +193,11 @@ def design_excitation(
         settings=record,
         safety=safety,
         states=states,
+        best_random=best_random,
+        best_random_trajectory=best_random_traj,
+        n_candidates=len(cands.xs),
+        answer=answer,
+        feasibility=setup.feasibility.to_dict() if setup.safety is not None else None,
     )
 
 
@@ -252,6 +268,8 @@ def _checked_timing(model, s: ExcitationSettings) -> _Timing:
         )
     if not 1 <= s.starts <= MAX_STARTS:
         raise ExcitationError(f"starts must be in 1..{MAX_STARTS:,}, got {s.starts}", reason="settings")
+    if not 1 <= s.candidates <= MAX_STARTS:
+        raise ExcitationError(f"candidates must be in 1..{MAX_STARTS:,}, got {s.candidates}", reason="settings")
     return _Timing(duration, f0, periods, n_rate)
 
 
@@ -269,6 +287,7 @@ class _Setup:
     design_points: int
     constraint_points: int
     problem: DesignProblem
+    feasibility: Feasibility
 
 
 def _problem_setup(model, s: ExcitationSettings, noise: NoiseModel | None, timing: _Timing) -> _Setup:
@@ -284,7 +303,7 @@ def _problem_setup(model, s: ExcitationSettings, noise: NoiseModel | None, timin
     sigma = design_noise(noise, s.channels, model)
     harmonics = s.harmonics
     design_points = s.design_points or 32 * harmonics
-    constraint_points = s.constraint_points or 32 * harmonics
+    constraint_points = s.constraint_points or 16 * harmonics
     base = design_base(model, s.bias, s.channels)
     samples = timing.n_rate + 1
     if base.n_axes * samples < base.rank:
@@ -297,8 +316,13 @@ def _problem_setup(model, s: ExcitationSettings, noise: NoiseModel | None, timin
     problem = DesignProblem(
         model, base, sigma, s.criterion, bounds, timing.f0, harmonics, design_points, constraint_points
     )
+    sample = sample_poses(
+        model, problem.q_lo, problem.q_hi, np.random.default_rng(np.random.SeedSequence([s.seed, 34]))
+    )
     safety = None
     pairs = CollisionPairs(model, bounds.qd_max) if s.self_collision else None
+    if pairs is not None:
+        pairs = always_touching(pairs, sample)  # left out, one line each in pairs.notes
     if limits.active or (pairs is not None and pairs.n):
         safety = SafetyConstraints(
             model,
@@ -313,72 +337,22 @@ def _problem_setup(model, s: ExcitationSettings, noise: NoiseModel | None, timin
             problem.v_scale,
             pairs,
         )
-    return _Setup(bounds, limits, pairs, safety, sigma, base, design_points, constraint_points, problem)
+    feasibility = check_feasibility(sample, safety, pairs)  # refuses an ask no sampled pose keeps
+    return _Setup(bounds, limits, pairs, safety, sigma, base, design_points, constraint_points, problem, feasibility)
 
 
-@dataclass
-class _Starts:
-    """What the starts gave: one record each, the best safe design ``best_x`` (None: none) and its criterion,
-    and the smallest grid slack (m) of the best rejected start with its constraint (None: none rejected)."""
-
-    records: list[StartRecord]
-    best_x: np.ndarray | None = None
-    best_f: float = math.inf
-    unsafe: tuple[float, str] | None = None
-
-
-def _solve_starts(setup: _Setup, x0s: list[np.ndarray], max_iter: int, tol: float, progress) -> _Starts:
-    """IPOPT from each start, projected onto the grid bounds and made safe; the best design kept."""
-    problem, safety = setup.problem, setup.safety
-    solver, _keep, bnds = ipopt_solver(problem, max_iter, tol, safety)
-    out = _Starts([])
-    log.info("IPOPT: %d start%s of %d variables", len(x0s), "" if len(x0s) == 1 else "s", len(x0s[0]))
-    for k, x0 in enumerate(x0s):
-        t0 = time.perf_counter()
-        f_start = problem.value(x0)
-        if not math.isfinite(f_start):
-            out.records.append(StartRecord(f_start, f_start, "rank_deficient_start", 0, time.perf_counter() - t0))
-        else:
-            sol = solver(x0=x0, **bnds)
-            stats = solver.stats()
-            x = problem.project(np.asarray(sol["x"]).ravel())
-            status = str(stats.get("return_status"))
-            if safety is not None:
-                safe = make_safe(safety, x)
-                if safe is None:
-                    slack = safety.grid_slack(x)
-                    worst = int(np.argmin(slack))
-                    if out.unsafe is None or slack[worst] > out.unsafe[0]:
-                        out.unsafe = (float(slack[worst]), safety.labels()[worst])
-                    status = f"unsafe ({status})"
-                x = safe
-            f = problem.value(x) if x is not None else math.inf
-            iterations = int(stats.get("iter_count", 0))
-            out.records.append(StartRecord(f_start, f, status, iterations, time.perf_counter() - t0))
-            if x is not None and f < out.best_f:
-                out.best_x, out.best_f = x, f
-        if progress is not None:
-            progress(k + 1, len(x0s))
-    return out
-
-
-def _no_design_error(unsafe: tuple[float, str] | None, base: DesignBase) -> ExcitationError:
-    """Why no start gave a design: a safety constraint none kept (``unsafe``), else a singular information."""
-    if unsafe is not None:
+def _no_candidate_error(drawn: int, found: int, base: DesignBase) -> ExcitationError:
+    """Why no random candidate is usable: none could be made to keep the grid bounds (``found`` 0 of ``drawn``),
+    else every one leaves base parameters undetermined (a singular information)."""
+    if found == 0:
         return ExcitationError(
-            f"IPOPT found no design that keeps every bound: {unsafe[1]} stays violated (by {-unsafe[0]:.3g} m "
-            "on the grid, margin between samples included); "
-            + (
-                "pass --no-self-collision if those shapes are too coarse"
-                if unsafe[1].endswith("self-collision")
-                else "relax that bound"
-            )
-            + ", or lower --velocity-scale and --acceleration-scale (smaller motions), "
-            "or try more --starts",
+            f"none of {drawn} random trajectories about the feasible poses keeps the floor, box and self-collision "
+            "with their margins between samples; relax the bound that the summary of a design with fewer bounds "
+            "shows closest, or pass --no-self-collision if the bounding shapes are too coarse",
             reason="infeasible_workspace",
         )
     return ExcitationError(
-        f"every random start leaves base parameters undetermined (the information matrix of the "
+        f"every random candidate leaves base parameters undetermined (the information matrix of the "
         f"{base.rank} base parameters is singular); widen the bounds (--margin), add --harmonics or lengthen "
         "--duration",
         reason="rank_deficient",
@@ -418,6 +392,15 @@ def _evaluate_pair(
             reason="rank_deficient",
         )
     return optimized, random, states, q
+
+
+def _evaluate(model, s: ExcitationSettings, setup: _Setup, traj: FourierTrajectory) -> DesignEvaluation:
+    """One trajectory evaluated on its samples at the rate, with its own state errors when ``s.sensors`` are given."""
+    sigma = setup.sigma
+    if s.sensors is not None:
+        sigma = state_errors(model, s.sensors, traj, s.rate, setup.sigma, setup.base.channels, s.seed).sigma
+    _, q, qd, qdd = traj.sample(s.rate)
+    return evaluate_design(model, q, qd, qdd, setup.base, sigma)
 
 
 def _safety_record(setup: _Setup, traj: FourierTrajectory, q: np.ndarray, timing: _Timing) -> dict | None:

@@ -34,12 +34,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ineid.errors import ExcitationError
-from ineid.excite.safety import COLLISION_TOLERANCE
 
 SAMPLES = 2048
 """Uniform poses of the sample (the rest pose and the middle of the ranges come on top)."""
-APART = 2.0 * COLLISION_TOLERANCE
-"""m: a capsule pair never this far apart in the sample is left out (module doc)."""
+APART = 0.02
+"""m: a capsule pair never this far apart in the sample is left out (module doc; four times
+:data:`ineid.excite.safety.COLLISION_TOLERANCE`, the most a grid point keeps between capsules)."""
 
 
 @dataclass(frozen=True)

@@ -52,7 +52,7 @@ KS_SLACK = 0.001
 """m: how much the smooth aggregate may undershoot the smallest grid clearance."""
 COLLISION_TOLERANCE = 0.005
 """m: the largest gap kept between capsules between grid points."""
-MAX_GRID = 4096
+MAX_GRID = 2048
 """Grid points per period of the floor, workspace and self-collision constraints, at most (beyond it the margins
 grow past the tolerances: still kept, only more conservative)."""
 _AXES = "xyz"
@@ -220,16 +220,27 @@ class SafetyConstraints:
     def clearances(self, q: np.ndarray) -> np.ndarray:
         """(T, C) every row's clearance at ``q`` (T, n_dof), m, no margins: ``sign * (p[axis] - bound)``
         of each point and half-space, then each capsule pair's gap."""
-        from ineid.robots.kinematics import frame_points
+        return self._measured(np.atleast_2d(q))[0]
 
-        q = np.atleast_2d(q)
-        parts = []
+    def _measured(self, q: np.ndarray):
+        """``(clearances (T, C), points (T, P, 3) or None, pair points (c1, c2) or None)``: the clearances and the
+        points they were measured at (the frames' origins; each pair's two points)."""
+        from ineid.robots.kinematics import link_poses
+
+        poses = link_poses(self.chain, q)  # shared by the points and the capsules
+        parts, pts, pair_points = [], None, None
         if self.spaces:
-            pts = frame_points(self.chain, q, self.welded)
+            r, p = poses
+            w = self.welded
+            pts = p
+            if len(w.names):
+                pts = np.concatenate([p, p[:, w.link] + np.einsum("tkij,kj->tki", r[:, w.link], w.offset)], axis=1)
             parts.append(np.stack([s * (pts[..., a] - b) for a, s, b, _ in self.spaces], axis=-1).reshape(len(q), -1))
         if self.pairs is not None:
-            parts.append(self.pairs.clearances(q))
-        return np.concatenate(parts, axis=1)
+            gap, c1, c2 = self.pairs.closest(q, poses)
+            parts.append(gap)
+            pair_points = (c1, c2)
+        return np.concatenate(parts, axis=1), pts, pair_points
 
     def margins(self) -> np.ndarray:
         """(C,) the clearance each row keeps on the grid (module doc), m."""
@@ -240,13 +251,23 @@ class SafetyConstraints:
         if self._last is not None and self._last[0] == key:
             return self._last[1]
         q = self.grid_q(x)
-        g = self.clearances(q) - self.margins()  # (N, C)
+        clear, pts, pair_points = self._measured(q)
+        g = clear - self.margins()  # (N, C)
         gmin = g.min(axis=0)
         e = np.exp(-self.rho * (g - gmin))
         total = e.sum(axis=0)
         ks = gmin - np.log(total) / self.rho
-        self._last = (key, (q, g, ks, e / total))
+        self._last = (key, (q, g, ks, e / total, pts, pair_points))
         return self._last[1]
+
+    def breaks(self, x: np.ndarray, every: int = 8) -> bool:
+        """True when a grid clearance of ``x`` is already below its margin on every ``every``-th grid point: then
+        :meth:`values` is negative too (it is below every grid value), found at a fraction of the cost."""
+        if self._last is not None and self._last[0] == np.asarray(x, dtype=np.float64).tobytes():
+            return bool(np.any(self._last[1][2] <= 0))
+        z = np.asarray(x, dtype=np.float64).reshape(self.n, self.nz)
+        q = self.mid + self.half * z[:, 0] + self.pq[::every] @ (z[:, 1:].T * self.v_scale)
+        return bool(np.any(self.clearances(q) - self.margins() < 0))
 
     def values(self, x: np.ndarray) -> np.ndarray:
         """(C,) the smooth lower bounds of the smallest clearance less margin on the grid (what IPOPT keeps >= 0;
@@ -260,26 +281,32 @@ class SafetyConstraints:
     def jacobian(self, x: np.ndarray) -> np.ndarray:
         """(C, n_dof (2H - 1)) the exact derivative of :meth:`values` (where the closest points are unique).
 
-        Only the grid points whose softmax weight is not negligible (``> 1e-15``) are differentiated: the
-        others contribute below round-off.
+        Only the (grid point, row) pairs whose softmax weight exceeds ``1e-10`` are differentiated: the others
+        change the derivative by less than that fraction of a grid point's.
         """
-        from ineid.robots.kinematics import frame_points, point_jacobians
+        from ineid.robots.kinematics import entry_jacobians
 
-        q, _, _, w = self._evaluate(x)
-        active = np.flatnonzero((w > 1e-15).any(axis=1))
-        q, w = q[active], w[active]
-        parts = []
-        if self.spaces:
-            pts = frame_points(self.chain, q, self.welded)
-            jac = point_jacobians(self.chain, q, self.point_link, pts)  # (N, P, 3, n)
-            axes = np.array([a for a, _, _, _ in self.spaces])
-            signs = np.array([s for _, s, _, _ in self.spaces])
-            parts.append((signs[None, None, :, None] * jac[:, :, axes, :]).reshape(len(q), -1, self.n))
-        if self.pairs is not None:
-            parts.append(self.pairs.gradient(q))
-        dq = w[..., None] * np.concatenate(parts, axis=1)  # (N, C, n) d ks / d q(t_k)
-        du = self.half * dq.sum(axis=0)  # (C, n)
-        dalpha = np.einsum("kl,kcj->cjl", self.pq[active], dq) * self.v_scale[:, None]  # (C, n, 2H-2)
+        q, _, _, w, pts, pair_points = self._evaluate(x)
+        t, c = np.nonzero(w > 1e-10)  # (E,) entries: grid point, row
+        dq = np.zeros((len(t), self.n))
+        n_points = len(self.names) * len(self.spaces)
+        on_point = c < n_points
+        if on_point.any():
+            tp, cp = t[on_point], c[on_point]
+            point, space = np.divmod(cp, len(self.spaces))
+            axes = np.array([a for a, _, _, _ in self.spaces])[space]
+            signs = np.array([s for _, s, _, _ in self.spaces])[space]
+            jac = entry_jacobians(self.chain, q[tp], self.point_link[point], pts[tp, point])  # (E, 3, n)
+            dq[on_point] = signs[:, None] * jac[np.arange(len(tp)), axes]
+        if (~on_point).any():
+            tc, pair = t[~on_point], c[~on_point] - n_points
+            c1, c2 = pair_points
+            dq[~on_point] = self.pairs.entry_gradient(q[tc], pair, c1[tc, pair], c2[tc, pair])
+        dq *= w[t, c][:, None]  # d ks_c / d q(t_k), weighted
+        du = np.zeros((self.n_constraints, self.n))
+        np.add.at(du, c, self.half * dq)
+        dalpha = np.zeros((self.n_constraints, self.n, self.nz - 1))
+        np.add.at(dalpha, c, dq[:, :, None] * self.pq[t][:, None, :] * self.v_scale[None, :, None])
         return np.concatenate([du[..., None], dalpha], axis=-1).reshape(self.n_constraints, self.n * self.nz)
 
     def describe(self) -> dict:
@@ -320,22 +347,26 @@ def acceleration_bounds(chain, reach_m: np.ndarray, point_link: np.ndarray, qd_m
     return out
 
 
-def make_safe(safety: SafetyConstraints, x: np.ndarray, steps: int = 16) -> np.ndarray | None:
-    """``x`` if its grid constraints hold, else the largest scaling of its amplitudes about its mean pose
-    that keeps them (bisection; the joint bounds and rest stay kept), or None when the mean pose fails."""
+def make_safe(safety: SafetyConstraints, x: np.ndarray, steps: int = 12) -> np.ndarray | None:
+    """``x`` if its constraints' smooth lower bounds are positive (:meth:`SafetyConstraints.values`: then every
+    grid clearance keeps its margin), else the largest scaling of its amplitudes about its mean pose that makes
+    them so (bisection to ``2^-steps``; the joint bounds and rest stay kept), or None when the mean pose fails."""
     z = np.asarray(x, dtype=np.float64).reshape(safety.n, safety.nz)
 
     def scaled(s: float) -> np.ndarray:
         return np.concatenate([z[:, :1], z[:, 1:] * s], axis=1).ravel()
 
-    if np.all(safety.grid_slack(x) >= 0):
+    def keeps(y: np.ndarray) -> bool:
+        return bool(np.all(safety.values(y) > 0))
+
+    if keeps(x):
         return np.asarray(x, dtype=np.float64)
-    if not np.all(safety.grid_slack(scaled(0.0)) >= 0):
+    if not keeps(scaled(0.0)):
         return None
     lo, hi = 0.0, 1.0
     for _ in range(steps):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if np.all(safety.grid_slack(scaled(mid)) >= 0) else (lo, mid)
+        lo, hi = (mid, hi) if keeps(scaled(mid)) else (lo, mid)
     return scaled(lo)
 
 

@@ -25,13 +25,15 @@ regressor of each, about 1 KB), and the trajectory CSV has one row each."""
 
 @dataclass(frozen=True)
 class StartRecord:
-    """One random start: its criterion before and after, IPOPT's status, iterations, seconds."""
+    """One start: its criterion before and after, IPOPT's status, iterations, seconds, and whether it converged
+    (IPOPT's optimality test passed, to its tolerance or the acceptable one, and the design keeps every bound)."""
 
     start_value: float
     final_value: float
     status: str
     iterations: int
     seconds: float
+    converged: bool = False
 
 
 @dataclass
@@ -61,6 +63,12 @@ class ExcitationResult:
             denser (:func:`ineid.excite.safety.verify`).
         states: with ``settings.sensors``: the sensors, the state errors each trajectory's rehearsal gives and
             the inflated noise (:func:`ineid.excite.states.states_record`); None: joint states exact.
+        best_random, best_random_trajectory: the best of the ``n_candidates`` random feasible trajectories
+            (the same criterion and bounds; :mod:`ineid.excite.search`), evaluated like the design.
+        answer: ``"optimized"``, or ``"best random"`` when no start beat the best candidate (the trajectory
+            is then that candidate).
+        feasibility: the up-front check of the floor, box and self-collision on a sample of the joint space
+            (:meth:`ineid.excite.feasibility.Feasibility.to_dict`); None when nothing bounds the poses.
     """
 
     trajectory: FourierTrajectory
@@ -79,6 +87,16 @@ class ExcitationResult:
     settings: dict = field(default_factory=dict)
     safety: dict | None = None
     states: dict | None = None
+    best_random: DesignEvaluation | None = None
+    best_random_trajectory: FourierTrajectory | None = None
+    n_candidates: int = 0
+    answer: str = "optimized"
+    feasibility: dict | None = None
+
+    @property
+    def converged(self) -> int:
+        """Starts that converged (:attr:`StartRecord.converged`)."""
+        return sum(1 for r in self.starts if r.converged)
 
     def to_dict(self) -> dict:
         """The design record a ``traj.json`` carries beside the coefficients."""
@@ -94,6 +112,10 @@ class ExcitationResult:
             "bounds": self.bounds.to_dict(),
             "optimized": self.optimized.to_dict(),
             "random_fourier": self.random.to_dict(),
+            "best_random": None if self.best_random is None else self.best_random.to_dict(),
+            "n_candidates": self.n_candidates,
+            "answer": self.answer,
+            "feasibility": self.feasibility,
             "starts": [vars(s) for s in self.starts],
             "seconds": self.seconds,
             "settings": self.settings,
@@ -113,7 +135,9 @@ class ExcitationSettings:
         harmonics: ``H >= 2`` per joint (two are the fewest that can start and stop at rest).
         base_frequency: ``f0`` Hz; None: ``1 / duration`` (one period).
         criterion: ``"d-opt"`` (``-log det M``) or ``"cond"`` (``log cond Phi``).
-        starts: random starts; the best design is kept.
+        candidates: random feasible trajectories drawn and compared (the best ``starts`` of them start
+            IPOPT, and the best of them is the comparison a design must beat).
+        starts: IPOPT starts from the best candidates; the best design is kept.
         rate: Hz of the samples (the CSV rows, and the reported evaluations).
         margin: fraction of each joint's range kept free at each end, in [0, 0.5).
         velocity_scale, acceleration_scale: fractions of the model's bounds, positive (above 1:
@@ -142,7 +166,8 @@ class ExcitationSettings:
     harmonics: int = 5
     base_frequency: float | None = None
     criterion: str = "d-opt"
-    starts: int = 4
+    candidates: int = 32
+    starts: int = 3
     rate: float = 100.0
     margin: float = 0.05
     velocity_scale: float = 1.0
@@ -151,7 +176,7 @@ class ExcitationSettings:
     seed: int = 0
     design_points: int | None = None
     constraint_points: int | None = None
-    max_iter: int = 150
+    max_iter: int = 60
     tol: float = 1e-6
     channels: ChannelSet | None = None
     floor: float | None = None

@@ -6,7 +6,8 @@ will estimate, not for exact ones. To first order, an error ``dx_k`` in the stat
 
     J_k = d(Psi theta) / dx  at the CAD parameters ``theta`` (every link's; extras such as friction 0),
 
-from the channels' CasADi rows differentiated along every state coordinate (:func:`prediction_jacobian`). The state errors' per-joint RMS
+from the channels' CasADi rows differentiated along every state coordinate (:func:`prediction_jacobian`).
+The state errors' per-joint RMS
 ``s_x`` (3 n_dof) comes from rehearsing the trajectory (:func:`ineid.data.synthesis.imu_rehearsal.rehearse`:
 quantized encoders, the import's low-pass and cut-off rule, central differences, the fusion with the
 IMUs' simulated readings) against its exact states, over one whole trajectory (it is periodic). Taking

@@ -23,6 +23,11 @@ from ineid.excite.criterion import DesignBase, centred, criterion_and_gradient, 
 from ineid.excite.safety import casadi_constraint
 from ineid.identify.ipopt import nlpsol
 
+ACCEPTABLE_TOL = 1e-3
+"""IPOPT's ``acceptable_tol``: a start whose optimality error stays below it for 5 iterations while the
+criterion changes by less than :data:`ACCEPTABLE_CHANGE` (relative) has converged ("acceptable")."""
+ACCEPTABLE_CHANGE = 1e-5
+
 
 def _rest_basis(harmonics: int) -> np.ndarray:
     """(2H, 2H - 2) orthonormal basis of ``{[a; b]: sum_l a_l = 0, sum_l l b_l = 0}``."""
@@ -168,7 +173,10 @@ class DesignProblem:
         phi = design_phi(self.model, self.base, self.sigma, q, qd, qdd)
         phi = phi.reshape(len(xs), -1, *phi.shape[1:])
         return np.array(
-            [criterion_and_gradient(centred(p) if self.base.bias else p, self.criterion, gradient=False)[0] for p in phi]
+            [
+                criterion_and_gradient(centred(p) if self.base.bias else p, self.criterion, gradient=False)[0]
+                for p in phi
+            ]
         )
 
     def gradient(self, x: np.ndarray) -> tuple[float, np.ndarray]:
@@ -226,6 +234,13 @@ class DesignProblem:
             np.concatenate(hi),
         )
 
+    def linear_constraints(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(A, lower, upper)`` of :meth:`constraint_matrix` with ``A`` dense (rows, n_dof (2H - 1))."""
+        rows, cols, vals, n_rows, lo, hi = self.constraint_matrix()
+        a = np.zeros((n_rows, self.n * self.nz))
+        np.add.at(a, (rows, cols), vals)
+        return a, lo, hi
+
     def project(self, x: np.ndarray) -> np.ndarray:
         """The nearest design along each joint's amplitude that meets the tightened grid bounds.
 
@@ -251,21 +266,28 @@ class DesignProblem:
         s = np.maximum(s, 0.0) * (1.0 - 1e-12)
         return np.concatenate([u[:, None], alpha * s[:, None]], axis=1).ravel()
 
-    def random_start(self, rng: np.random.Generator) -> np.ndarray:
-        """A random feasible design: ``alpha ~ U(-1, 1)``, each joint scaled to its tightest
-        bound, its mean drawn uniformly where the swing fits (like ``--frame-mode fourier``,
-        but scaled on the grid instead of by the coarser amplitude sum)."""
+    def random_start(self, rng: np.random.Generator, pose: np.ndarray | None = None) -> np.ndarray:
+        """A random design that keeps the joint bounds: ``alpha ~ U(-1, 1)``, each joint scaled to its tightest
+        bound on the grid; its mean ``pose`` (n_dof,) when given (the swing then scaled to fit around it), else
+        drawn uniformly where the swing fits (like ``--frame-mode fourier``, but scaled on the grid instead of
+        by the coarser amplitude sum)."""
         alpha = rng.uniform(-1.0, 1.0, (self.n, self.nz - 1))
         ca = alpha.T * self.v_scale
         e, v, acc = self.cq @ ca, self.cqd @ ca, self.cqdd @ ca
-        swing = e.max(0) - e.min(0)
-        s = np.minimum.reduce(
-            [self.qd_bound / np.abs(v).max(0), self.qdd_bound / np.abs(acc).max(0), (self.q_hi - self.q_lo) / swing]
-        ) * (1.0 - 1e-9)
-        lo = self.q_lo - s * e.min(0)
-        hi = self.q_hi - s * e.max(0)
-        q0 = lo + (hi - lo) * rng.random(self.n)
-        u = (q0 - self.mid) / self.half
+        with np.errstate(divide="ignore", invalid="ignore"):
+            limits = [self.qd_bound / np.abs(v).max(0), self.qdd_bound / np.abs(acc).max(0)]
+            if pose is None:
+                limits.append((self.q_hi - self.q_lo) / (e.max(0) - e.min(0)))
+            else:
+                pose = np.clip(pose, self.q_lo, self.q_hi)
+                limits += [np.where(e.min(0) < 0, (pose - self.q_lo) / -e.min(0), np.inf)]
+                limits += [np.where(e.max(0) > 0, (self.q_hi - pose) / e.max(0), np.inf)]
+        s = np.minimum.reduce(limits) * (1.0 - 1e-9)
+        if pose is None:
+            lo = self.q_lo - s * e.min(0)
+            hi = self.q_hi - s * e.max(0)
+            pose = lo + (hi - lo) * rng.random(self.n)
+        u = (pose - self.mid) / self.half
         return np.concatenate([u[:, None], alpha * s[:, None]], axis=1).ravel()
 
 
@@ -295,10 +317,15 @@ def design_bounds(model, margin: float = 0.05, velocity_scale: float = 1.0, acce
     )
 
 
-def ipopt_solver(problem: DesignProblem, max_iter: int, tol: float, safety=None):
-    """A CasADi nlpsol (IPOPT) for ``problem``: linear constraints, callback objective, and the
-    floor, box and self-collision constraints of ``safety`` (:class:`ineid.excite.safety.SafetyConstraints`)
-    when given.
+def ipopt_solver(problem: DesignProblem, max_iter: int, tol: float, safety=None, barrier: float = 0.0, on_value=None):
+    """A CasADi nlpsol (IPOPT) for ``problem``: linear constraints, callback objective, and the floor, box and
+    self-collision of ``safety`` (:class:`ineid.excite.safety.SafetyConstraints`) when given.
+
+    With ``barrier > 0`` the floor, box and self-collision enter the objective as the barrier
+    ``-barrier * sum_c log g_c(x)`` of their smooth lower bounds (:mod:`ineid.excite.search`): the objective is
+    infinite outside, IPOPT backs off, and every iterate keeps them; with 0 they are IPOPT's constraints
+    ``g_c(x) >= 1e-6``. ``on_value(f, x)`` is called with the criterion at every evaluation (progress, and the
+    best feasible point seen).
 
     Returns:
         ``(solver, callbacks, bounds)``: the solver (:func:`ineid.identify.ipopt.nlpsol`: stops on SIGINT and
@@ -308,13 +335,35 @@ def ipopt_solver(problem: DesignProblem, max_iter: int, tol: float, safety=None)
     import casadi as ca
 
     nx = problem.n * problem.nz
-    objective = numpy_function("excitation_criterion", nx, 1, problem.value, lambda x: problem.gradient(x)[1])
+    inside = barrier > 0 and safety is not None
+
+    def value(x):
+        if inside and safety.breaks(x):  # outside, found on a sparse subset of the grid: no criterion needed
+            return math.inf
+        f = problem.value(x)
+        if on_value is not None:
+            on_value(f, x)
+        if not inside:
+            return f
+        g = safety.values(x)
+        return f - barrier * float(np.sum(np.log(g))) if np.all(g > 0) else math.inf
+
+    def gradient(x):
+        f, df = problem.gradient(x)
+        if not inside:
+            return df
+        g = safety.values(x)
+        if not np.all(g > 0):
+            return np.full(nx, np.nan)
+        return df - barrier * (safety.jacobian(x) / g[:, None]).sum(axis=0)
+
+    objective = numpy_function("excitation_criterion", nx, 1, value, gradient)
     rows, cols, vals, nrows, lo, hi = problem.constraint_matrix()
     a = ca.DM.triplet(rows.tolist(), cols.tolist(), vals.tolist(), nrows, nx)
     x = ca.MX.sym("x", nx)
     g = ca.mtimes(a, x)
     extra = None
-    if safety is not None:
+    if safety is not None and not inside:
         extra = casadi_constraint(safety)
         g = ca.vertcat(g, extra(x))
         # a little inside the bound, so that IPOPT's constraint tolerance lands on the safe side
@@ -323,13 +372,27 @@ def ipopt_solver(problem: DesignProblem, max_iter: int, tol: float, safety=None)
     nlp = {"x": x, "f": objective(x), "g": g}
     opts = {
         "print_time": False,
+        "show_eval_warnings": False,  # the barrier's infinite values are expected: IPOPT backs off
         "ipopt.print_level": 0,
         "ipopt.sb": "yes",
         "ipopt.max_iter": int(max_iter),
         "ipopt.tol": float(tol),
+        "ipopt.acceptable_tol": ACCEPTABLE_TOL,
+        "ipopt.acceptable_iter": 5,
+        "ipopt.acceptable_obj_change_tol": ACCEPTABLE_CHANGE,
         "ipopt.hessian_approximation": "limited-memory",
-        "ipopt.jac_d_constant": "no" if safety is not None else "yes",
+        "ipopt.jac_d_constant": "no" if extra is not None else "yes",
         "ipopt.jac_c_constant": "yes",
+        # the starts keep every bound: stay near them instead of pushing into the interior first
+        "ipopt.mu_strategy": "adaptive",
+        "ipopt.mu_init": 1e-3,
+        "ipopt.bound_push": 1e-8,
+        "ipopt.bound_frac": 1e-8,
+        "ipopt.slack_bound_push": 1e-8,
+        "ipopt.slack_bound_frac": 1e-8,
+        # a step out of the floor, box and self-collision is an infinite barrier: back off fast (measured on UR5:
+        # half the rejected trial points of IPOPT's default 0.5, the same criteria)
+        "ipopt.alpha_red_factor": 0.2,
     }
     solver = nlpsol("excitation", nlp, opts, keep=(objective, extra))  # stops on SIGINT, SIGTERM
     lbx = np.concatenate([np.r_[-1.0, np.full(problem.nz - 1, -np.inf)] for _ in range(problem.n)])

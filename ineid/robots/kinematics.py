@@ -225,3 +225,19 @@ def reach(chain: Chain, welded: WeldedFrames | None = None) -> np.ndarray:
         for j in range(i + 1):
             out[k, j] = travel[j] + offsets[j + 1 : i + 1].sum() + travel[j + 1 : i + 1].sum() + e
     return out
+
+
+def entry_jacobians(chain: Chain, q: np.ndarray, link: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """:func:`point_jacobians` of one point per configuration: ``q`` (E, n_dof), ``link`` (E,) the moving link each
+    point is fixed in (-1: the root, zero Jacobian), ``points`` (E, 3) base frame -> (E, 3, n_dof)."""
+    q = np.atleast_2d(np.asarray(q, dtype=np.float64))
+    r, p = link_poses(chain, q)
+    e, n = q.shape
+    jac = np.zeros((e, 3, n))
+    for i, j in enumerate(chain.joints):
+        moved = link >= i
+        if not np.any(moved):
+            continue
+        s = r[moved, i] @ j.axis  # (E', 3): joint i's axis in the base frame
+        jac[moved, :, i] = np.cross(s, points[moved] - p[moved, i]) if j.type == "revolute" else s
+    return jac
