@@ -140,14 +140,13 @@ def converged(start: dict) -> bool:
 
 def design_figures(design: dict) -> dict:
     """Answer, candidates, converged starts, and the best random candidate's std over the answer's (median, min)."""
-    answer = design.get("answer", "optimized")
-    best = design.get("best_random", design["random_fourier"])  # a record without candidates: the median start
-    returned = best if answer == "best random" else design["optimized"]
+    best = design.get("best_random") or design["random_fourier"]  # a record without candidates: the median start
+    returned = design["optimized"]  # the returned trajectory's evaluation, whichever the answer
     ratio = np.asarray(best["std"]) / np.asarray(returned["std"])
     typical = np.asarray(design["random_fourier"]["std"]) / np.asarray(returned["std"])
     starts = design["starts"]
     return {
-        "answer": answer,
+        "answer": design.get("answer", "optimized"),
         "candidates": design.get("n_candidates", len(starts)),
         "converged": sum(converged(s) for s in starts),
         "starts": len(starts),
@@ -258,7 +257,7 @@ def excitation_bar(name: str, arm: Arm, traj: FourierTrajectory, design: dict, a
     phi_states = design_phi(model, base, sigma, q, qd, qdd)
     rate = float(design["rate"])
     designed = bar_row(model, base, sigma, traj, phi_states, rng, rate, args.draws)
-    opt = design["optimized"] if design.get("answer", "optimized") == "optimized" else design["best_random"]
+    opt = design["optimized"]
     check = max(
         abs(designed[0] / opt["condition_number"] - 1),
         abs(designed[1] / np.median(opt["rel_std"]) - 1),
