@@ -335,7 +335,7 @@ def print_bar(rows: dict) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--arms", default=",".join(ARMS), help=f"comma-separated, of {', '.join(ARMS)}")
-    ap.add_argument("--excite", default="", help="extra options of ineid excite, e.g. '--harmonics 3 --starts 1'")
+    ap.add_argument("--excite", default="", help="more options of ineid excite, e.g. --excite='--starts 1'")
     ap.add_argument("--random", type=int, default=5, help="random Fourier trajectories per arm")
     ap.add_argument("--tries", type=int, default=200, help="draws per random Fourier trajectory to keep the limits")
     ap.add_argument("--states", type=int, default=2000, help="uniform states of the wrench-prediction error")
@@ -344,11 +344,8 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None, help="folder of the files and logs (default: temp)")
     args = ap.parse_args()
     print(f"machine: {cpu_description()}; load average at start {os.getloadavg()[0]:.1f}")
-    print(
-        "ineid excite ROBOT --duration 10 --floor F --workspace BOX (self-collision on; defaults otherwise"
-        + (f"; {args.excite}" if args.excite else "")
-        + ")"
-    )
+    given = f" {args.excite}" if args.excite else ""
+    print(f"ineid excite ROBOT --duration 10 --floor F --workspace BOX{given} (every other option its default)")
     for name in args.arms.split(","):
         arm = ARMS[name]
         print(f"  {name}: {' '.join(arm.cli_args()[1:])}")
