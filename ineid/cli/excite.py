@@ -69,11 +69,19 @@ def _workspace(ctx, param, value):
     help="d-opt: -log det of the scaled information; cond: log of the scaled condition number.",
 )
 @click.option(
+    "--candidates",
+    type=click.IntRange(1, 10_000),
+    cls=LibraryOption,
+    default_from=f"{_SETTINGS}.candidates",
+    help="Random feasible trajectories compared (at most 10,000): the best of them starts IPOPT, and the design "
+    "must beat the best one or that one is returned.",
+)
+@click.option(
     "--starts",
     type=click.IntRange(1, 10_000),
     cls=LibraryOption,
     default_from=f"{_SETTINGS}.starts",
-    help="Random starts (at most 10,000); the best design is kept.",
+    help="IPOPT starts, from the best candidates (at most 10,000); the best design is kept.",
 )
 @click.option(
     "--rate",
@@ -157,6 +165,7 @@ def excite(
     harmonics,
     base_frequency,
     criterion,
+    candidates,
     starts,
     rate,
     margin,
@@ -203,6 +212,7 @@ def excite(
         harmonics=harmonics,
         base_frequency=base_frequency,
         criterion=criterion,
+        candidates=candidates,
         starts=starts,
         rate=rate,
         margin=margin,
@@ -219,7 +229,9 @@ def excite(
     _warn_beyond_bounds(velocity_scale, acceleration_scale)
     with ProgressBar("designing", "starts", quiet(ctx)) as bar:
         wrench = {k: v for k, v in (noise or {}).items() if k not in IMU_NOISE_KEYS}  # the IMUs': in sensors
-        res = design_excitation(model, settings, noise=noise_model(wrench or None, model.n_dof), progress=bar)
+        res = design_excitation(
+            model, settings, noise=noise_model(wrench or None, model.n_dof), progress=bar, status=bar.status
+        )
     n_samples = _write_design(res, model, rate, out, coefficients, overwrite)
     print_design(res, model)
     print_limits(res, model)
@@ -271,8 +283,8 @@ def print_design(res, model) -> None:
         f"[bold]{res.criterion}[/bold] design of {shown(res.settings['robot'])} "
         f"({shown(', '.join(res.settings['unknown_links']))} "
         f"unknown{'; sensor offsets estimated' if res.base.bias else ''}): {res.base.rank} base parameters, "
-        f"{len(res.starts)} starts in {res.seconds:.1f} s "
-        f"(of which compilation {res.compile_seconds:.1f} s)"
+        f"{len(res.starts)} starts from the best of {res.n_candidates} random feasible trajectories in "
+        f"{res.seconds:.1f} s"
     )
     con.print(describe_gravity(model.gravity))
     channels = res.base.channels
@@ -303,37 +315,90 @@ def print_design(res, model) -> None:
         else f"joint states from {shown(res.states['described'])}: their errors add to the noise (below)"
     )
     con.print(f"noise model: {noise} per sample, {opt.n_samples} samples at {res.rate:g} Hz; {states}")
+    best = res.best_random
     t = table(
-        "Design vs a random Fourier trajectory (same period, harmonics and bounds)",
-        ("", "designed", "random Fourier", "ratio"),
+        f"Design vs the best of {res.n_candidates} random feasible trajectories (same period, harmonics and bounds; "
+        "the median one: a typical random Fourier trajectory)",
+        ("", "designed", "best random", "ratio", "median random Fourier"),
         left=("",),
     )
-    t.add_row("-log det M (d-opt)", f"{opt.d_opt:.4g}", f"{rnd.d_opt:.4g}", f"{rnd.d_opt - opt.d_opt:+.3g} (diff)")
+    t.add_row(
+        "-log det M (d-opt)",
+        f"{opt.d_opt:.4g}",
+        f"{best.d_opt:.4g}",
+        f"{best.d_opt - opt.d_opt:+.3g} (diff)",
+        f"{rnd.d_opt:.4g}",
+    )
     t.add_row(
         "scaled condition number",
         f"{opt.condition_number:.4g}",
+        f"{best.condition_number:.4g}",
+        f"{best.condition_number / opt.condition_number:.3g}x",
         f"{rnd.condition_number:.4g}",
-        f"{rnd.condition_number / opt.condition_number:.3g}x",
     )
     t.add_row(
         "median expected relative std",
         f"{np.median(opt.rel_std):.3g}",
+        f"{np.median(best.rel_std):.3g}",
+        f"{np.median(best.rel_std) / np.median(opt.rel_std):.3g}x",
         f"{np.median(rnd.rel_std):.3g}",
-        f"{np.median(rnd.rel_std) / np.median(opt.rel_std):.3g}x",
     )
     con.print(t)
+    print_answer(res)
     t = table(
         "Expected standard deviation of each base parameter (SI units of the parameter)",
-        ("base parameter", "CAD value", "std designed", "std random", "ratio"),
+        ("base parameter", "CAD value", "std designed", "std best random", "ratio"),
         left=("base parameter",),
     )
     for k, name in enumerate(res.base.names):
         t.add_row(
-            name, f"{res.base.cad[k]:.5g}", f"{opt.std[k]:.3g}", f"{rnd.std[k]:.3g}", f"{rnd.std[k] / opt.std[k]:.3g}x"
+            name,
+            f"{res.base.cad[k]:.5g}",
+            f"{opt.std[k]:.3g}",
+            f"{best.std[k]:.3g}",
+            f"{best.std[k] / opt.std[k]:.3g}x",
         )
     con.print(t)
     if res.states is not None:
         print_states(res.states, model)
+
+
+def print_answer(res) -> None:
+    """Which trajectory is the answer and by how much it beats the best random candidate; how each start ended."""
+    import numpy as np
+
+    con = console()
+    ratio = res.best_random.std / res.optimized.std
+    if res.answer == "optimized":
+        con.print(
+            f"the design beats the best of {res.n_candidates} random feasible trajectories: its expected std is "
+            f"{np.median(ratio):.3g}x smaller in the median over the base parameters (smallest ratio "
+            f"{np.min(ratio):.3g}x)",
+            markup=False,
+        )
+    else:
+        con.print(
+            f"no start beat the best of {res.n_candidates} random feasible trajectories: that trajectory is the one "
+            "written (more --starts or --harmonics may find a better one)",
+            markup=False,
+        )
+    records = res.starts
+    converged = sum(r.converged for r in records)
+    settled = sum(r.settled for r in records)
+    unsafe = sum(r.status.startswith("unsafe") for r in records)
+    capped = sum(r.status.startswith("Maximum_Iterations") for r in records)
+    con.print(
+        f"starts: {len(records)} IPOPT runs from the best candidates: {converged} converged, {settled} settled at "
+        f"the cap of {res.settings['max_iter']} iterations, {capped - settled} still improving at the cap, "
+        f"{unsafe} unsafe",
+        markup=False,
+    )
+    for k, r in enumerate(records, 1):
+        con.print(
+            f"  start {k}: criterion {r.start_value:.5g} -> {r.final_value:.5g}, {r.iterations} iterations, "
+            f"{r.seconds:.1f} s, {r.status}",
+            markup=False,
+        )
 
 
 def print_states(states: dict, model) -> None:
@@ -433,12 +498,27 @@ def print_limits(res, model) -> None:
         )
     for note in (col or {}).get("notes", []):
         con.print(f"  {note}", markup=False)
+    if getattr(res, "feasibility", None) is not None:
+        print_feasibility(res.feasibility)
     for where, label in (("samples", "the written samples"), ("dense", "a grid 10x denser")):
         if where in s:
             v = s[where]
             con.print(
                 f"smallest clearance on {label}: {v['min_clearance'] * 1000:.4g} mm ({v['constraint']})", markup=False
             )
+
+
+def print_feasibility(feas: dict) -> None:
+    """The up-front check: how many sampled poses keep every bound, and what the rest pose breaks."""
+    con = console()
+    con.print(
+        f"feasibility, checked before the design: {feas['feasible']:,} of {feas['sampled']:,} sampled poses keep "
+        f"the floor, box and self-collision ({feas['seconds']:.2g} s); the rest pose (q = 0"
+        + (f", {', '.join(feas['rest_clipped'])} clipped into the bounds" if feas["rest_clipped"] else "")
+        + ") "
+        + (f"breaks {'; '.join(feas['rest_violations'])}" if feas["rest_violations"] else "keeps them"),
+        markup=False,
+    )
 
 
 def register(main: click.Group) -> None:

@@ -65,8 +65,13 @@ def table(title: str, columns, left=()):
     return t
 
 
+STATUS_SECONDS = 5.0
+"""Seconds between two status lines of a :class:`ProgressBar` whose stderr is not a terminal."""
+
+
 class ProgressBar:
-    """A rich progress bar driven by ``callback(done, total)``; silent with ``-q``."""
+    """A rich progress bar driven by ``callback(done, total)`` and, for what it is doing, :meth:`status`; silent
+    with ``-q``."""
 
     def __init__(self, description: str, unit: str, quiet: bool) -> None:
         from rich.progress import (
@@ -90,6 +95,8 @@ class ProgressBar:
         )
         self._task = None
         self._description = shown(description)
+        self._quiet, self._terminal = quiet, console_err().is_terminal
+        self._last_line: float | None = None
 
     def __enter__(self):
         self._progress.__enter__()
@@ -106,6 +113,21 @@ class ProgressBar:
         if self._task is None:
             self._task = self._progress.add_task(self._description, total=total)
         self._progress.update(self._task, completed=done, total=total)
+
+    def status(self, text: str) -> None:
+        """What the work is doing now: the bar's description on a terminal; elsewhere (a log file, a pipe) a line
+        ``ineid: TEXT`` on stderr at most every :data:`STATUS_SECONDS`, so a long run is never silent."""
+        if self._quiet:
+            return
+        if self._terminal:
+            if self._task is None:
+                self._task = self._progress.add_task(self._description, total=None)
+            self._progress.update(self._task, description=f"{self._description}: {shown(text)}")
+            return
+        now = time.monotonic()
+        if self._last_line is None or now - self._last_line >= STATUS_SECONDS:
+            self._last_line = now
+            click.echo(f"ineid: {plain(text)}", err=True)
 
 
 def print_results(res, out) -> None:

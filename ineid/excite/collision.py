@@ -127,11 +127,11 @@ class CollisionPairs:
             ends.append(out)
         return ends
 
-    def _clearance(self, q: np.ndarray, pairs: np.ndarray, closest: bool = False, poses=None):
-        """The gap of each pair at ``q`` (T, C), or a lower bound of it for a pair far apart at every ``q`` (broad
-        phase: the bounding spheres of the two capsules, centre the segment's middle, more than :data:`FAR` apart
-        throughout), and with ``closest`` the two points whose distance it is (the closest points, or the
-        spheres' centres)."""
+    def _clearance(self, q: np.ndarray, pairs: np.ndarray, closest: bool = False, poses=None, broad: bool = False):
+        """The gap of each pair at ``q`` (T, C), or with ``broad`` a lower bound of it for a pair far apart at
+        every ``q`` (broad phase: the bounding spheres of the two capsules, centre the segment's middle, more than
+        :data:`FAR` apart throughout), and with ``closest`` the two points whose distance it is (the closest
+        points, or the spheres' centres)."""
         from ineid.robots.collision import segment_distance
 
         a, b = self._ends(q, poses)
@@ -140,7 +140,7 @@ class CollisionPairs:
         m1, m2 = (a[:, i] + b[:, i]) / 2.0, (a[:, k] + b[:, k]) / 2.0
         gap = np.linalg.norm(m1 - m2, axis=-1) - (half[i] + half[k])  # (T, C) <= the capsules' gap
         c1, c2 = m1.copy(), m2.copy()
-        near = np.flatnonzero((gap < FAR).any(axis=0))  # whole pairs: smooth in the trajectory
+        near = np.flatnonzero((gap < FAR).any(axis=0) | (not broad))  # whole pairs: smooth in the trajectory
         if len(near):
             i, k = i[near], k[near]
             d, n1, n2 = segment_distance(a[:, i], b[:, i], a[:, k], b[:, k])
@@ -179,9 +179,10 @@ class CollisionPairs:
         j2 = entry_jacobians(self.chain, q, links[:, 1], c2)
         return np.einsum("ei,eij->ej", unit, j1 - j2)
 
-    def closest(self, q: np.ndarray, poses=None):
-        """``(gap (T, C), c1, c2 (T, C, 3))``: :meth:`clearances` and the two points each gap is measured between."""
-        return self._clearance(np.atleast_2d(q), self.pairs, closest=True, poses=poses)
+    def closest(self, q: np.ndarray, poses=None, broad: bool = False):
+        """``(gap (T, C), c1, c2 (T, C, 3))``: :meth:`clearances` and the two points each gap is measured between;
+        with ``broad``, a lower bound of the gap of pairs far apart at every ``q`` (their spheres' distance)."""
+        return self._clearance(np.atleast_2d(q), self.pairs, closest=True, poses=poses, broad=broad)
 
     def describe(self) -> dict:
         return {

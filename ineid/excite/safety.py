@@ -222,9 +222,10 @@ class SafetyConstraints:
         of each point and half-space, then each capsule pair's gap."""
         return self._measured(np.atleast_2d(q))[0]
 
-    def _measured(self, q: np.ndarray):
+    def _measured(self, q: np.ndarray, broad: bool = False):
         """``(clearances (T, C), points (T, P, 3) or None, pair points (c1, c2) or None)``: the clearances and the
-        points they were measured at (the frames' origins; each pair's two points)."""
+        points they were measured at (the frames' origins; each pair's two points); with ``broad`` a capsule pair
+        far apart throughout takes its bounding spheres' distance, a lower bound (what the optimizer keeps)."""
         from ineid.robots.kinematics import link_poses
 
         poses = link_poses(self.chain, q)  # shared by the points and the capsules
@@ -237,7 +238,7 @@ class SafetyConstraints:
                 pts = np.concatenate([p, p[:, w.link] + np.einsum("tkij,kj->tki", r[:, w.link], w.offset)], axis=1)
             parts.append(np.stack([s * (pts[..., a] - b) for a, s, b, _ in self.spaces], axis=-1).reshape(len(q), -1))
         if self.pairs is not None:
-            gap, c1, c2 = self.pairs.closest(q, poses)
+            gap, c1, c2 = self.pairs.closest(q, poses, broad)
             parts.append(gap)
             pair_points = (c1, c2)
         return np.concatenate(parts, axis=1), pts, pair_points
@@ -251,7 +252,7 @@ class SafetyConstraints:
         if self._last is not None and self._last[0] == key:
             return self._last[1]
         q = self.grid_q(x)
-        clear, pts, pair_points = self._measured(q)
+        clear, pts, pair_points = self._measured(q, broad=True)
         g = clear - self.margins()  # (N, C)
         gmin = g.min(axis=0)
         e = np.exp(-self.rho * (g - gmin))
@@ -267,7 +268,7 @@ class SafetyConstraints:
             return bool(np.any(self._last[1][2] <= 0))
         z = np.asarray(x, dtype=np.float64).reshape(self.n, self.nz)
         q = self.mid + self.half * z[:, 0] + self.pq[::every] @ (z[:, 1:].T * self.v_scale)
-        return bool(np.any(self.clearances(q) - self.margins() < 0))
+        return bool(np.any(self._measured(q, broad=True)[0] - self.margins() < 0))
 
     def values(self, x: np.ndarray) -> np.ndarray:
         """(C,) the smooth lower bounds of the smallest clearance less margin on the grid (what IPOPT keeps >= 0;

@@ -38,6 +38,9 @@ BARRIER = 1e-2
 """``mu`` of the floor, box and self-collision barrier (criterion units: ``-log det`` or ``log cond``)."""
 CONVERGED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 """IPOPT's statuses of a start that converged."""
+SETTLED = 0.05
+"""A start stopped by the iteration cap has settled when its best criterion improved by less than this over its
+last quarter of evaluations (criterion units, natural logarithms: 5 % of ``det M``, or of the condition number)."""
 
 Status = Callable[[str], None]
 """``status(line)``: what the search is doing, called often (the caller decides how often to show it)."""
@@ -116,7 +119,12 @@ def solve_starts(problem, safety, x0s, max_iter: int, tol: float, progress=None,
             status_text = f"unsafe ({status_text})"
         iterations = int(stats.get("iter_count", 0))
         converged = x is not None and status_text in CONVERGED
-        out.records.append(StartRecord(f_start, f, status_text, iterations, time.perf_counter() - t0, converged))
+        settled = x is not None and not converged and watch.settled()
+        if settled:
+            status_text += " (settled)"
+        out.records.append(
+            StartRecord(f_start, f, status_text, iterations, time.perf_counter() - t0, converged, settled)
+        )
         if x is not None and f < out.best_f:
             out.best_x, out.best_f = x, f
         if progress is not None:
@@ -145,6 +153,7 @@ class _Watch:
     def begin(self, k: int, f_start: float, best: float, x0: np.ndarray) -> None:
         self.k, self.evals, self.best, self.t0 = k, 0, best, time.perf_counter()
         self.best_x, self.best_f = np.asarray(x0, dtype=np.float64).copy(), f_start
+        self.history = [(0, f_start)]  # (evaluation, best feasible criterion) at each improvement
         if self.status is not None:
             self.status(f"start {k + 1} of {self.starts}: criterion {f_start:.5g} at the start")
 
@@ -152,12 +161,19 @@ class _Watch:
         self.evals += 1
         if f < self.best_f and self._feasible(x):
             self.best_x, self.best_f = np.asarray(x, dtype=np.float64).copy(), f
+            self.history.append((self.evals, f))
         if self.status is not None and math.isfinite(self.best_f):
             self.status(
                 f"start {self.k + 1} of {self.starts}: {self.evals} evaluations, criterion {self.best_f:.5g}"
                 + (f" (best start so far {self.best:.5g})" if math.isfinite(self.best) else "")
                 + f", {time.perf_counter() - self.t0:.0f} s"
             )
+
+    def settled(self) -> bool:
+        """The best criterion improved by less than :data:`SETTLED` over the last quarter of the evaluations."""
+        cut = 0.75 * self.evals
+        before = [f for e, f in self.history if e <= cut]
+        return bool(before) and before[-1] - self.best_f < SETTLED
 
     def _feasible(self, x: np.ndarray) -> bool:
         a, lo, hi = self.linear

@@ -25,8 +25,9 @@ regressor of each, about 1 KB), and the trajectory CSV has one row each."""
 
 @dataclass(frozen=True)
 class StartRecord:
-    """One start: its criterion before and after, IPOPT's status, iterations, seconds, and whether it converged
-    (IPOPT's optimality test passed, to its tolerance or the acceptable one, and the design keeps every bound)."""
+    """One start: its criterion before and after, IPOPT's status, iterations, seconds, whether it converged
+    (IPOPT's optimality test passed, to its tolerance or the acceptable one, and the design keeps every bound) and,
+    stopped by the iteration cap, whether its criterion had settled (:data:`ineid.excite.search.SETTLED`)."""
 
     start_value: float
     final_value: float
@@ -34,6 +35,7 @@ class StartRecord:
     iterations: int
     seconds: float
     converged: bool = False
+    settled: bool = False
 
 
 @dataclass
@@ -52,10 +54,10 @@ class ExcitationResult:
         sigma: (A,) noise std per measured axis of the expected standard deviations (the wrench: N, N*m).
         bounds: the bounds the design keeps at every instant.
         rate: Hz of the samples that the evaluations use (and a CSV has).
-        starts: one record per random start.
-        seconds: wall time of the design, compilation included.
-        compile_seconds: of that, the first call of the compiled regressor and its derivatives
-            (compilation, unless the same robot was designed for before in this process).
+        starts: one record per IPOPT start.
+        seconds: wall time of the design.
+        compile_seconds: of that, the first evaluation of the criterion and its gradient (building the CasADi
+            functions of the rows and their pull-back: milliseconds; nothing is compiled).
         settings: the arguments, JSON-able.
         safety: the floor, box and self-collision pairs kept (None: ``self_collision`` off and no
             floor or box): their settings, the grid and margins, the capsules and what had none,
@@ -176,7 +178,7 @@ class ExcitationSettings:
     seed: int = 0
     design_points: int | None = None
     constraint_points: int | None = None
-    max_iter: int = 60
+    max_iter: int = 100
     tol: float = 1e-6
     channels: ChannelSet | None = None
     floor: float | None = None

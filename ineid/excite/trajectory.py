@@ -393,6 +393,9 @@ def ipopt_solver(problem: DesignProblem, max_iter: int, tol: float, safety=None,
         # a step out of the floor, box and self-collision is an infinite barrier: back off fast (measured on UR5:
         # half the rejected trial points of IPOPT's default 0.5, the same criteria)
         "ipopt.alpha_red_factor": 0.2,
+        # a longer memory of the L-BFGS Hessian: measured on UR5 (150 iterations, 3 starts), every start reached
+        # -log det -317 to -320 with 20 pairs where IPOPT's default 6 left them between -269 and -308
+        "ipopt.limited_memory_max_history": 20,
     }
     solver = nlpsol("excitation", nlp, opts, keep=(objective, extra))  # stops on SIGINT, SIGTERM
     lbx = np.concatenate([np.r_[-1.0, np.full(problem.nz - 1, -np.inf)] for _ in range(problem.n)])
