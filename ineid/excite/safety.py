@@ -357,8 +357,8 @@ def make_safe(safety: SafetyConstraints, x: np.ndarray, steps: int = 8) -> np.nd
     def scaled(s: float) -> np.ndarray:
         return np.concatenate([z[:, :1], z[:, 1:] * s], axis=1).ravel()
 
-    def keeps(y: np.ndarray) -> bool:
-        return bool(np.all(safety.values(y) > 0))
+    def keeps(y: np.ndarray) -> bool:  # a sparse subset of the grid first: most failing scales fail there
+        return not safety.breaks(y) and bool(np.all(safety.values(y) > 0))
 
     if keeps(x):
         return np.asarray(x, dtype=np.float64)
