@@ -118,5 +118,6 @@ def test_cli_says_the_comparison_the_starts_and_progress_on_a_non_terminal(tmp_p
     assert "the design beats the best of 8 random feasible trajectories" in r.stdout
     assert "starts: 2 IPOPT runs from the best candidates:" in r.stdout
     assert "feasibility, checked before the design:" in r.stdout and "sampled poses keep" in r.stdout
-    quiet = _run("-q", *args, "--out", tmp_path / "q.csv")
+    quiet = _run("-q", *args, "--max-iter", 0, "--out", tmp_path / "q.csv")
     assert quiet.exit_code == 0 and "ineid: start" not in quiet.stderr
+    assert "no start beat the best of 8 random feasible trajectories" in quiet.stdout  # 0 iterations: the candidate

@@ -85,6 +85,13 @@ def _workspace(ctx, param, value):
     help="IPOPT starts, from the best candidates (at most 10,000); the best design is kept.",
 )
 @click.option(
+    "--max-iter",
+    type=click.IntRange(0, 100_000),
+    cls=LibraryOption,
+    default_from=f"{_SETTINGS}.max_iter",
+    help="IPOPT iterations a start, at most: more gives a better design, slower (each start stops there safe).",
+)
+@click.option(
     "--rate",
     type=FiniteFloatRange(min=0, min_open=True),
     cls=LibraryOption,
@@ -168,6 +175,7 @@ def excite(
     criterion,
     candidates,
     starts,
+    max_iter,
     rate,
     margin,
     velocity_scale,
@@ -215,6 +223,7 @@ def excite(
         criterion=criterion,
         candidates=candidates,
         starts=starts,
+        max_iter=max_iter,
         rate=rate,
         margin=margin,
         velocity_scale=velocity_scale,
