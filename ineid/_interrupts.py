@@ -81,8 +81,8 @@ def interruptible() -> Iterator[None]:
         yield
         return
     previous = signal.getsignal(signal.SIGINT)
-    own_sigint = previous is signal.default_int_handler
-    if own_sigint:
+    own_sigint = previous is signal.default_int_handler or previous is _on_signal
+    if own_sigint:  # installed again even when already ours: a C library may have taken SIGINT behind Python's back
         signal.signal(signal.SIGINT, _on_signal)
     if not _holding:
         _pending = None
@@ -140,6 +140,6 @@ def terminate_on_sigterm() -> None:
     except ValueError:  # not the main thread
         print("ineid: SIGTERM handler not installed (not the main thread)", file=sys.stderr)
         return
-    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+    if signal.getsignal(signal.SIGINT) in (signal.default_int_handler, _on_signal):  # again: see interruptible
         signal.signal(signal.SIGINT, _on_signal)
     sys.unraisablehook = redeliver_ignored_interrupt

@@ -166,6 +166,24 @@ def test_nested_blocks_raise_once_at_the_outermost_end(ineid_handlers):
         pass
 
 
+def test_a_sigint_taken_by_a_c_library_is_taken_back(ineid_handlers):
+    """A C library that installs its own SIGINT handler (sigaction, behind Python's back: Python still reports its
+    own) would swallow Ctrl-C; ineid's blocks install Python's again, so the signal is recorded and raised."""
+    import ctypes
+
+    from ineid._interrupts import interruptible, stop_requested
+
+    libc = ctypes.CDLL(None)
+    libc.signal.restype = ctypes.c_void_p
+    libc.signal.argtypes = (ctypes.c_int, ctypes.c_void_p)
+    libc.signal(signal.SIGINT, 1)  # SIG_IGN, where Python's handler is still reported
+    with pytest.raises(KeyboardInterrupt):
+        with interruptible():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.01)
+            assert stop_requested()
+
+
 # -- the command, in a real process --------------------------------------------------------------------------
 
 
