@@ -64,6 +64,13 @@ def stop_requested() -> bool:
     return _pending is not None
 
 
+def _deliverable() -> None:
+    """Unblock SIGINT and SIGTERM in the calling (main) thread: a C library that blocked them there (its threads
+    inherit the mask) would leave them pending, never delivered, and Ctrl-C would do nothing."""
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+
+
 @contextmanager
 def interruptible() -> Iterator[None]:
     """Run a solver that catches the exceptions of the Python code it calls: SIGINT and SIGTERM are recorded
@@ -80,6 +87,7 @@ def interruptible() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    _deliverable()
     previous = signal.getsignal(signal.SIGINT)
     own_sigint = previous is signal.default_int_handler or previous is _on_signal
     if own_sigint:  # installed again even when already ours: a C library may have taken SIGINT behind Python's back
@@ -140,6 +148,7 @@ def terminate_on_sigterm() -> None:
     except ValueError:  # not the main thread
         print("ineid: SIGTERM handler not installed (not the main thread)", file=sys.stderr)
         return
+    _deliverable()
     if signal.getsignal(signal.SIGINT) in (signal.default_int_handler, _on_signal):  # again: see interruptible
         signal.signal(signal.SIGINT, _on_signal)
     sys.unraisablehook = redeliver_ignored_interrupt

@@ -182,6 +182,15 @@ def test_a_sigint_taken_by_a_c_library_is_taken_back(ineid_handlers):
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.01)
             assert stop_requested()
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})  # blocked in this thread: it would stay pending
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with interruptible():
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.01)
+                assert stop_requested()
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 # -- the command, in a real process --------------------------------------------------------------------------
