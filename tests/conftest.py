@@ -22,6 +22,20 @@ def _private_cache(tmp_path_factory):
     mp.undo()
 
 
+@pytest.fixture(autouse=True)
+def _signal_handlers_as_they_were():
+    """Every test starts with SIGINT and SIGTERM handled as the test process started: a test that ran the command in
+    this process (it installs ineid's handlers) or a library that ignored SIGINT leaves nothing behind, so the
+    signal tests do not depend on what ran before them on the same worker."""
+    import signal
+
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for s, handler in saved.items():
+        if handler is not None and signal.getsignal(s) is not handler:
+            signal.signal(s, handler)
+
+
 @pytest.fixture(scope="session")
 def model():
     """The built-in sweaty-arm (links upper_arm and forearm unknown); tests must not mutate it."""
