@@ -63,7 +63,7 @@ def callback_problem(n: int = 20, signal_at: int | None = None, signum: int = si
         def eval(self, arg):
             calls.append(1)
             if len(calls) == signal_at:
-                os.kill(os.getpid(), signum)  # the handler runs here, inside IPOPT's evaluation
+                signal.raise_signal(signum)  # to this (main) thread: the handler runs here, inside IPOPT's evaluation
             x = np.asarray(arg[0]).ravel()
             return [float(np.sum((x - 1.0) ** 4) + np.sum(x[:-1] * x[1:]) ** 2)]
 
@@ -157,7 +157,7 @@ def test_nested_blocks_raise_once_at_the_outermost_end(ineid_handlers):
     with pytest.raises(KeyboardInterrupt):
         with interruptible():
             with interruptible():
-                os.kill(os.getpid(), signal.SIGINT)
+                signal.raise_signal(signal.SIGINT)  # to this (main) thread
                 time.sleep(0.01)  # the handler runs, records
                 assert stop_requested()
             assert stop_requested()  # the inner block's end raised nothing
@@ -179,14 +179,14 @@ def test_a_sigint_taken_by_a_c_library_is_taken_back(ineid_handlers):
     libc.signal(signal.SIGINT, 1)  # SIG_IGN, where Python's handler is still reported
     with pytest.raises(KeyboardInterrupt):
         with interruptible():
-            os.kill(os.getpid(), signal.SIGINT)
+            signal.raise_signal(signal.SIGINT)  # to this (main) thread
             time.sleep(0.01)
             assert stop_requested()
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})  # blocked in this thread: it would stay pending
     try:
         with pytest.raises(KeyboardInterrupt):
             with interruptible():
-                os.kill(os.getpid(), signal.SIGINT)
+                signal.raise_signal(signal.SIGINT)  # to this (main) thread
                 time.sleep(0.01)
                 assert stop_requested()
     finally:

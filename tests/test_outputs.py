@@ -281,7 +281,7 @@ def test_train_overwrite_interrupted_during_the_swap_ends_with_the_new_run(run, 
 
     def signalled(path, kind="tmp"):  # the folder the old run is set aside in is made inside the swap
         if kind == "old":
-            os.kill(os.getpid(), signal.SIGINT)
+            signal.raise_signal(signal.SIGINT)  # to this (main) thread
         return make(path, kind)
 
     monkeypatch.setattr(atomic, "create_temporary_folder", signalled)
@@ -490,7 +490,7 @@ def test_generate_interrupted_leaves_modules_that_match_their_manifest(run, tmp_
 
     def interrupted(path, data):
         write(path, data)
-        os.kill(os.getpid(), signal.SIGINT)
+        signal.raise_signal(signal.SIGINT)  # to this (main) thread
 
     monkeypatch.setattr(emit, "atomic_write", interrupted)
     line = last_line(run("generate", "sweaty-arm", "--out", gen), 130)
