@@ -157,14 +157,6 @@ class CollisionPairs:
         ``poses``: the links' ``(R, p)`` at ``q`` when already computed."""
         return self._clearance(np.atleast_2d(q), self.pairs, poses=poses)[0]
 
-    def gradient(self, q: np.ndarray) -> np.ndarray:
-        """(T, C, n_dof) ``d clearance / d q``: the unit vector between the closest points along their Jacobians."""
-        _, c1, c2 = self._clearance(q, self.pairs, closest=True)
-        t, c = np.meshgrid(np.arange(len(q)), np.arange(self.n), indexing="ij")
-        return self.entry_gradient(q[t.ravel()], c.ravel(), c1.reshape(-1, 3), c2.reshape(-1, 3)).reshape(
-            len(q), self.n, -1
-        )
-
     def entry_gradient(self, q: np.ndarray, pair: np.ndarray, c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
         """(E, n_dof) ``d clearance / d q`` of pair ``pair[e]`` at ``q[e]`` (E, n_dof), its two points ``c1[e]``,
         ``c2[e]`` (E, 3) those :meth:`clearances` measured between (the unit vector between them along their
