@@ -128,3 +128,19 @@ def lab(tmp_path_factory):
     from tests.mujoco_arm import LabRecording
 
     return LabRecording(tmp_path_factory.mktemp("lab"))
+
+
+def regressor_in_another_process(model, q: np.ndarray) -> np.ndarray:
+    """``model.regressor(q, q, q)`` computed by a fresh Python that unpickled ``model`` (what a worker process gets)."""
+    import io
+    import pickle
+    import subprocess
+    import sys
+
+    code = (
+        "import pickle, sys, numpy as np\n"
+        "m, q = pickle.load(sys.stdin.buffer)\n"
+        "np.save(sys.stdout.buffer, m.regressor(q, q, q))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], input=pickle.dumps((model, q)), capture_output=True, check=True)
+    return np.load(io.BytesIO(done.stdout))

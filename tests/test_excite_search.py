@@ -111,13 +111,53 @@ def test_cli_says_the_comparison_the_starts_and_progress_on_a_non_terminal(tmp_p
     monkeypatch.setattr(output, "STATUS_SECONDS", 0.0)  # every status line (the runner's stderr is no terminal)
     out = tmp_path / "t.csv"
     args = ["excite", "sweaty-arm", "--duration", 5, "--harmonics", 3, "--starts", 2, "--candidates", 8]
-    r = _run(*args, "--floor", 0, "--out", out)
+    r = _run(*args, "--floor", 0, "--workers", 1, "--out", out)
     assert r.exit_code == 0, r.output
     assert "ineid: checking the bounds on a sample of the joint space" in r.stderr
     assert "ineid: start 1 of 2:" in r.stderr and "ineid: start 2 of 2:" in r.stderr and "evaluations" in r.stderr
+    assert "worker process" not in r.stderr
     assert "the design beats the best of 8 random feasible trajectories" in r.stdout
     assert "starts: 2 IPOPT runs from the best candidates:" in r.stdout
     assert "feasibility, checked before the design:" in r.stdout and "sampled poses keep" in r.stdout
     quiet = _run("-q", *args, "--max-iter", 0, "--out", tmp_path / "q.csv")
     assert quiet.exit_code == 0 and "ineid: start" not in quiet.stderr
     assert "no start beat the best of 8 random feasible trajectories" in quiet.stdout  # 0 iterations: the candidate
+
+
+def test_starts_in_worker_processes_give_the_same_design(arm, design):
+    """Two processes (a worker solving the first start, :mod:`ineid.excite.lanes`) give the design of one, start for
+    start and bit for bit; the status says what runs where."""
+    lines = []
+    res = design_excitation(arm, ExcitationSettings(**FAST, floor=0.0), status=lines.append, workers=2)
+    one = design_excitation(arm, ExcitationSettings(**FAST, floor=0.0), workers=1)
+    assert [vars(r) | {"seconds": 0} for r in res.starts] == [vars(r) | {"seconds": 0} for r in one.starts]
+    assert res.value == one.value and res.answer == one.answer
+    np.testing.assert_array_equal(res.trajectory.a, one.trajectory.a)
+    np.testing.assert_array_equal(res.trajectory.b, one.trajectory.b)
+    assert any(line.startswith("start 2 of 2 (1 more in a worker process)") for line in lines)
+    assert not any(line.startswith("start 1 of 2") for line in lines)  # the worker's start prints nothing
+
+
+def test_a_worker_that_fails_is_named_and_stopped():
+    """A worker process whose problem cannot be built answers its start with the error; the caller raises it in
+    one line and no worker is left running."""
+    from ineid.excite.lanes import Lanes
+
+    with pytest.raises(RuntimeError, match=r"worker process failed on start 1: .*Error"):
+        with Lanes(_broken_problem, ("not a model",), 1) as lanes:
+            procs = [lane[0] for lane in lanes._lanes]
+            lanes.submit(0, np.zeros(3), np.ones(6))
+            lanes.collect(timeout=60.0)
+    assert all(p.poll() is not None for p in procs)
+
+
+def test_workers_must_be_positive(arm):
+    from ineid.errors import ExcitationError
+
+    with pytest.raises(ExcitationError, match="workers must be at least 1"):
+        design_excitation(arm, ExcitationSettings(**FAST), workers=0)
+
+
+def _broken_problem(model):
+    """A worker's problem that cannot be built (module level: sent to the worker by name)."""
+    return model.nothing

@@ -210,7 +210,7 @@ def child(args, cwd):
     )
 
 
-def interrupt_in_ipopt(args, cwd, signum, outputs, after=0.3, group=False):
+def interrupt_in_ipopt(args, cwd, signum, outputs, after=0.3, group=False, before_signal=None):
     """Run ``args``, send ``signum`` ``after`` seconds into its IPOPT solves (the ``-v`` line ``IPOPT: ...``;
     to its whole process group with ``group``, as a terminal's Ctrl-C), and check that it stops with the one
     line and exit status, ``outputs`` byte for byte as before and no temporary file beside them. Returns the
@@ -225,6 +225,8 @@ def interrupt_in_ipopt(args, cwd, signum, outputs, after=0.3, group=False):
     else:
         pytest.fail(f"the solver never started: {proc.communicate()}\n{''.join(seen)}")
     time.sleep(after)
+    if before_signal is not None:
+        before_signal(proc.pid)
     if group:
         os.killpg(proc.pid, signum)
     else:
@@ -256,15 +258,46 @@ def previous(folder: Path, *names: str) -> list[Path]:
 EXCITE = ("excite", "sweaty-arm", "--duration", 4, "--harmonics", 3, "--starts", 4, "--out", "t.csv", "--overwrite")
 
 
-@pytest.mark.slow  # an excitation design in a process of its own: ~15 s of CPU, most of it compiling its kernels
-def test_excite_sigterm_in_ipopt_keeps_the_previous_design(tmp_path):
-    seconds = interrupt_in_ipopt(EXCITE, tmp_path, signal.SIGTERM, previous(tmp_path, "t.csv", "t.json"))
+def _children(pid: int) -> list[int]:
+    """The processes whose parent is ``pid`` (Linux /proc)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        try:
+            stat = (entry / "stat").read_text()
+        except (OSError, ValueError):
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+            out.append(int(entry.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_excite_interrupted_in_ipopt_keeps_the_previous_design_and_stops_its_workers(tmp_path, signum):
+    """Interrupted while its starts run here and in a worker process (Ctrl-C reaches the whole process group, SIGTERM
+    only the command): the previous design stays, and the worker is gone with the command."""
+    lanes = []
+    seconds = interrupt_in_ipopt(
+        (*EXCITE, "--workers", 2),
+        tmp_path,
+        signum,
+        previous(tmp_path, "t.csv", "t.json"),
+        group=signum == signal.SIGINT,
+        before_signal=lambda pid: lanes.extend(_children(pid)),
+    )
     assert seconds < 10  # within an iteration (plus the exit), not after every start
-
-
-@pytest.mark.slow  # as SIGTERM's
-def test_excite_sigint_in_ipopt_keeps_the_previous_design(tmp_path):
-    interrupt_in_ipopt(EXCITE, tmp_path, signal.SIGINT, previous(tmp_path, "t.csv", "t.json"))
+    assert lanes, "no worker process was running"
+    deadline = time.monotonic() + 10
+    while any(_alive(p) for p in lanes) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_alive(p) for p in lanes)
 
 
 @pytest.fixture(scope="module")

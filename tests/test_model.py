@@ -3,6 +3,8 @@ splitting, gradients."""
 
 from __future__ import annotations
 
+import pickle
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -13,7 +15,7 @@ from jax.test_util import check_grads
 
 import ineid
 
-from .conftest import random_states, rel_err
+from .conftest import random_states, real_robot, regressor_in_another_process, rel_err
 
 
 @pytest.fixture(scope="module")
@@ -78,3 +80,25 @@ def test_shape_errors_name_the_argument(arm):
         arm.regressor(np.zeros(4), np.zeros(3), np.zeros(4))
     with pytest.raises(ValueError, match="theta must have shape"):
         arm.base_wrench(np.zeros(4), np.zeros(4), np.zeros(4), np.zeros(20))
+
+
+@pytest.mark.parametrize("name", ["sweaty-arm", "panda"])
+def test_a_pickled_model_is_the_same_model_in_another_process(name, rng):
+    """A model sent to a worker process (pickled: the chain, its settings and its generated code by reference) has the
+    same regressor there, a built-in's and a URDF's derived into the cache alike (its code travels as the bytes that
+    were checked, not read again)."""
+    if name == "sweaty-arm":
+        model = ineid.load_robot(name, unknown_links=["forearm"], gravity=(0.0, 9.81, 0.0))
+    else:
+        path, locked = real_robot(name)
+        model = ineid.load_robot(path, locked_joints=locked)
+    q = rng.uniform(-1.0, 1.0, (4, model.n_dof))
+    there = regressor_in_another_process(model, q)
+    np.testing.assert_array_equal(there, model.regressor(q, q, q))
+    copy = pickle.loads(pickle.dumps(model))
+    assert (copy.unknown_links, copy.locked_joints, copy.urdf_text) == (
+        model.unknown_links,
+        model.locked_joints,
+        model.urdf_text,
+    )
+    np.testing.assert_array_equal(copy.gravity, model.gravity)

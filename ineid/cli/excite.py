@@ -13,6 +13,7 @@ from ineid.cli.excite_summary import print_design, print_limits
 from ineid.cli.imu_options import excite_sensors, imu_excite
 from ineid.cli.options import (
     SEED,
+    WORKERS,
     FiniteFloatRange,
     LibraryChoice,
     LibraryOption,
@@ -149,6 +150,13 @@ def _workspace(ctx, param, value):
 @click.option(
     "--seed", type=SEED, cls=LibraryOption, default_from=f"{_SETTINGS}.seed", help="Seed of the random starts."
 )
+@click.option(
+    "--workers",
+    type=WORKERS,
+    default=None,
+    help="Processes solving the starts, this one included (default: one per CPU, at most one per start); "
+    "the design is the same with any number.",
+)
 @noise_option
 @imu_excite
 @channel_options(use_default="the base wrench (excite reads no file)")
@@ -185,6 +193,7 @@ def excite(
     workspace,
     bias,
     seed,
+    workers,
     noise,
     imus,
     encoder_bits,
@@ -240,7 +249,12 @@ def excite(
     with ProgressBar("designing", "starts", quiet(ctx)) as bar:
         wrench = {k: v for k, v in (noise or {}).items() if k not in IMU_NOISE_KEYS}  # the IMUs': in sensors
         res = design_excitation(
-            model, settings, noise=noise_model(wrench or None, model.n_dof), progress=bar, status=bar.status
+            model,
+            settings,
+            noise=noise_model(wrench or None, model.n_dof),
+            progress=bar,
+            status=bar.status,
+            workers=workers,
         )
     n_samples = _write_design(res, model, rate, out, coefficients, overwrite)
     print_design(res, model)

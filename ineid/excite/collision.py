@@ -75,7 +75,8 @@ class CollisionPairs:
         self.speed = speed[self.pairs].sum(axis=1) if len(self.pairs) else np.zeros(0)
         self.radii = np.array([caps[i].radius + caps[k].radius for i, k in self.pairs]).reshape(-1)
         self._links = np.array([c.link for c in caps], dtype=int)
-        self._local = [np.array([getattr(c, e) for c in caps]).reshape(-1, 3) for e in ("a", "b")]
+        # each capsule's segment ends and middle in its link's frame (K, 3 points, 3)
+        self._local3 = np.array([[c.a, c.b, (c.a + c.b) / 2.0] for c in caps], dtype=np.float64).reshape(-1, 3, 3)
         self._sphere = np.array([np.linalg.norm(c.b - c.a) / 2.0 + c.radius for c in caps])  # about the middle
 
     def without(self, drop, lines) -> CollisionPairs:
@@ -113,40 +114,45 @@ class CollisionPairs:
         return [f"{self.capsules[i].name!r} and {self.capsules[k].name!r}" for i, k in self.pairs]
 
     def _ends(self, q: np.ndarray, poses=None):
-        """Every capsule's segment ends (T, K, 3) twice, base frame, at ``q`` (T, n_dof); ``poses``: the links'
-        ``(R, p)`` at ``q`` when already computed (:func:`ineid.robots.kinematics.link_poses`)."""
+        """Every capsule's segment ends and middle (T, K, 3) each, base frame, at ``q`` (T, n_dof); ``poses``: the
+        links' ``(R, p)`` at ``q`` when already computed (:func:`ineid.robots.kinematics.link_poses`)."""
         from ineid.robots.kinematics import link_poses
 
         r, p = link_poses(self.chain, q) if poses is None else poses
         link = self._links
-        moving = link >= 0
-        ends = []
-        for local in self._local:
-            out = np.broadcast_to(local, (len(q), len(local), 3)).copy()
-            out[:, moving] = p[:, link[moving]] + np.einsum("tkij,kj->tki", r[:, link[moving]], local[moving])
-            ends.append(out)
-        return ends
+        moving = np.flatnonzero(link >= 0)
+        local = self._local3[moving]  # (K', 3 points, 3)
+        rk = r[:, link[moving]]  # (T, K', 3, 3)
+        # R @ local, column by column (three broadcast products beat a batched product of 3 x 3 matrices)
+        moved = p[:, link[moving], None, :] + sum(rk[:, :, None, :, j] * local[None, :, :, j, None] for j in range(3))
+        if len(moving) == len(link):
+            out = moved
+        else:  # capsules of the root body stay where they are
+            out = np.broadcast_to(self._local3, (len(q), *self._local3.shape)).copy()  # (T, K, 3 points, 3)
+            out[:, moving] = moved
+        return out[:, :, 0], out[:, :, 1], out[:, :, 2]
 
     def _clearance(self, q: np.ndarray, pairs: np.ndarray, closest: bool = False, poses=None, broad: bool = False):
         """The gap of each pair at ``q`` (T, C), or with ``broad`` a lower bound of it for a pair far apart at
         every ``q`` (broad phase: the bounding spheres of the two capsules, centre the segment's middle, more than
         :data:`FAR` apart throughout), and with ``closest`` the two points whose distance it is (the closest
         points, or the spheres' centres)."""
-        from ineid.robots.collision import segment_distance
+        from ineid.robots.collision import closest_on_segments
 
-        a, b = self._ends(q, poses)
+        a, b, middle = self._ends(q, poses)
         i, k = pairs[:, 0], pairs[:, 1]
-        half = self._sphere
-        m1, m2 = (a[:, i] + b[:, i]) / 2.0, (a[:, k] + b[:, k]) / 2.0
-        gap = np.linalg.norm(m1 - m2, axis=-1) - (half[i] + half[k])  # (T, C) <= the capsules' gap
-        c1, c2 = m1.copy(), m2.copy()
+        m1, m2 = middle[:, i], middle[:, k]
+        diff = m1 - m2
+        gap = np.sqrt(np.einsum("tci,tci->tc", diff, diff)) - (self._sphere[i] + self._sphere[k])  # <= the gap
         near = np.flatnonzero((gap < FAR).any(axis=0) | (not broad))  # whole pairs: smooth in the trajectory
         if len(near):
             i, k = i[near], k[near]
-            d, n1, n2 = segment_distance(a[:, i], b[:, i], a[:, k], b[:, k])
+            direction = b - a  # (T, K, 3), each capsule once
+            d, n1, n2 = closest_on_segments(a[:, i], direction[:, i], a[:, k], direction[:, k])
             gap[:, near] = d - (self.radii if pairs is self.pairs else self.radii_of(pairs))[near]
-            c1[:, near], c2[:, near] = n1, n2
-        return (gap, c1, c2) if closest else (gap,)
+            if closest:
+                m1[:, near], m2[:, near] = n1, n2
+        return (gap, m1, m2) if closest else (gap,)
 
     def radii_of(self, pairs: np.ndarray) -> np.ndarray:
         """(C,) ``r1 + r2`` of each pair of capsule indices ``pairs`` (C, 2)."""
@@ -157,18 +163,20 @@ class CollisionPairs:
         ``poses``: the links' ``(R, p)`` at ``q`` when already computed."""
         return self._clearance(np.atleast_2d(q), self.pairs, poses=poses)[0]
 
-    def entry_gradient(self, q: np.ndarray, pair: np.ndarray, c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
+    def entry_gradient(self, q: np.ndarray, pair: np.ndarray, c1: np.ndarray, c2: np.ndarray, poses=None) -> np.ndarray:
         """(E, n_dof) ``d clearance / d q`` of pair ``pair[e]`` at ``q[e]`` (E, n_dof), its two points ``c1[e]``,
         ``c2[e]`` (E, 3) those :meth:`clearances` measured between (the unit vector between them along their
-        Jacobians)."""
-        from ineid.robots.kinematics import entry_jacobians
+        Jacobians); ``poses``: the links' poses at ``q`` when already computed."""
+        from ineid.robots.kinematics import entry_jacobians, link_poses
 
         diff = c1 - c2
         norm = np.linalg.norm(diff, axis=-1, keepdims=True)
         unit = np.where(norm > 0, diff / np.where(norm > 0, norm, 1.0), 0.0)
         links = self._links[self.pairs[pair]]  # (E, 2)
-        j1 = entry_jacobians(self.chain, q, links[:, 0], c1)  # (E, 3, n); zero for the root body
-        j2 = entry_jacobians(self.chain, q, links[:, 1], c2)
+        if poses is None:
+            poses = link_poses(self.chain, q)
+        j1 = entry_jacobians(self.chain, q, links[:, 0], c1, poses)  # (E, 3, n); zero for the root body
+        j2 = entry_jacobians(self.chain, q, links[:, 1], c2, poses)
         return np.einsum("ei,eij->ej", unit, j1 - j2)
 
     def closest(self, q: np.ndarray, poses=None, broad: bool = False):

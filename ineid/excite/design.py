@@ -67,6 +67,7 @@ References:
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import time
@@ -91,6 +92,7 @@ from ineid.excite.criterion import (  # noqa: F401  (also the names of the old p
     scaled_regressor,
 )
 from ineid.excite.feasibility import Feasibility, always_touching, check_feasibility, sample_poses
+from ineid.excite.lanes import Lanes, default_workers
 from ineid.excite.safety import SafetyConstraints, SafetyLimits, check_limits, verify
 from ineid.excite.search import Status, random_candidates, solve_starts
 from ineid.excite.settings import MAX_SAMPLES, MAX_STARTS, ExcitationResult, ExcitationSettings, StartRecord
@@ -110,6 +112,7 @@ def design_excitation(
     noise: NoiseModel | None = None,
     progress: Progress | None = None,
     status: Status | None = None,
+    workers: int | None = None,
 ) -> ExcitationResult:
     """Design a periodic excitation trajectory for ``model``'s unknown links (module doc).
 
@@ -121,6 +124,9 @@ def design_excitation(
         progress: ``progress(starts_done, starts)``.
         status: ``status(line)``, what the design is doing (the candidates, each start's evaluations and
             criterion), called often: the caller shows it as often as it likes.
+        workers: processes solving the starts, this one included (None: one per usable CPU, at most one per
+            start, :func:`ineid.excite.lanes.default_workers`); the design does not depend on it
+            (:mod:`ineid.excite.lanes`).
 
     Returns:
         The :class:`ExcitationResult`: the best design over the starts, or the best random candidate when
@@ -135,6 +141,22 @@ def design_excitation(
     s = settings
     t_start = time.perf_counter()
     timing = _checked_timing(model, s)
+    workers = default_workers(s.starts) if workers is None else int(workers)
+    if workers < 1:
+        raise ExcitationError(f"workers must be at least 1, got {workers}", reason="settings")
+    lanes = min(workers, s.starts) - 1
+    with Lanes(_lane_problem, (model, s, noise, timing), lanes) if lanes else contextlib.nullcontext() as running:
+        return _design(model, s, noise, timing, t_start, progress, status, running)
+
+
+def _lane_problem(model, s: ExcitationSettings, noise: NoiseModel | None, timing: _Timing):
+    """A worker process's copy of the problem (:mod:`ineid.excite.lanes`): ``(problem, safety, max_iter, tol)``."""
+    setup = _problem_setup(model, s, noise, timing)
+    return setup.problem, setup.safety, s.max_iter, s.tol
+
+
+def _design(model, s, noise, timing, t_start, progress, status, lanes) -> ExcitationResult:
+    """:func:`design_excitation` once the settings are checked and the worker processes (``lanes``) started."""
     if status is not None:
         status("checking the bounds on a sample of the joint space")
     setup = _problem_setup(model, s, noise, timing)
@@ -154,7 +176,7 @@ def design_excitation(
     if not usable.any():
         raise _no_candidate_error(cands.drawn, len(cands.xs), setup.base)
     starts = solve_starts(
-        problem, setup.safety, list(cands.xs[usable][: s.starts]), s.max_iter, s.tol, progress, status
+        problem, setup.safety, list(cands.xs[usable][: s.starts]), s.max_iter, s.tol, progress, status, lanes
     )
     best_random_x, best_random_f = cands.xs[0], float(cands.values[0])
     answer = "optimized" if starts.best_x is not None and starts.best_f < best_random_f else "best random"

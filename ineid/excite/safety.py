@@ -202,7 +202,23 @@ class SafetyConstraints:
         self.n, self.nz = n, 2 * harmonics - 1
         self.mid, self.half, self.v_scale = mid, half, v_scale
         self.pq = state_matrices(np.arange(self.grid) * dt, f0, harmonics)[0] @ rest  # (N, 2H-2)
+        n_pairs = self.pairs.n if self.pairs is not None else 0
+        self._moves = np.r_[np.repeat(~self._static_points(), len(self.spaces)), np.ones(n_pairs, dtype=bool)]
         self._last: tuple[bytes, tuple] | None = None
+
+    def _static_points(self, samples: int = 16) -> np.ndarray:
+        """(P,) True for a point no joint moves (it lies on the axis of every joint before it, as the first links'
+        origins often do): its rows' Jacobian is zero, so :meth:`jacobian` skips them. Found on ``samples``
+        random configurations within the joint limits (the same every time)."""
+        from ineid.robots.kinematics import frame_points
+
+        if not self.spaces:
+            return np.zeros(0, dtype=bool)
+        lo = np.clip([j.q_lower for j in self.chain.joints], -math.pi, None)  # continuous joints: one turn
+        hi = np.clip([j.q_upper for j in self.chain.joints], None, math.pi)
+        q = lo + (hi - lo) * np.random.default_rng(0).random((samples, self.n))
+        pts = frame_points(self.chain, q, self.welded)[:, : len(self.names)]
+        return np.ptp(pts, axis=0).max(axis=1) <= 1e-12 * max(1.0, float(np.abs(pts).max()))
 
     @property
     def n_constraints(self) -> int:
@@ -223,9 +239,10 @@ class SafetyConstraints:
         return self._measured(np.atleast_2d(q))[0]
 
     def _measured(self, q: np.ndarray, broad: bool = False):
-        """``(clearances (T, C), points (T, P, 3) or None, pair points (c1, c2) or None)``: the clearances and the
-        points they were measured at (the frames' origins; each pair's two points); with ``broad`` a capsule pair
-        far apart throughout takes its bounding spheres' distance, a lower bound (what the optimizer keeps)."""
+        """``(clearances (T, C), points (T, P, 3) or None, pair points (c1, c2) or None, poses)``: the clearances,
+        the points they were measured at (the frames' origins; each pair's two points) and the links' poses at
+        ``q``; with ``broad`` a capsule pair far apart throughout takes its bounding spheres' distance, a lower
+        bound (what the optimizer keeps)."""
         from ineid.robots.kinematics import link_poses
 
         poses = link_poses(self.chain, q)  # shared by the points and the capsules
@@ -241,7 +258,7 @@ class SafetyConstraints:
             gap, c1, c2 = self.pairs.closest(q, poses, broad)
             parts.append(gap)
             pair_points = (c1, c2)
-        return np.concatenate(parts, axis=1), pts, pair_points
+        return np.concatenate(parts, axis=1), pts, pair_points, poses
 
     def margins(self) -> np.ndarray:
         """(C,) the clearance each row keeps on the grid (module doc), m."""
@@ -252,13 +269,13 @@ class SafetyConstraints:
         if self._last is not None and self._last[0] == key:
             return self._last[1]
         q = self.grid_q(x)
-        clear, pts, pair_points = self._measured(q, broad=True)
+        clear, pts, pair_points, poses = self._measured(q, broad=True)
         g = clear - self.margins()  # (N, C)
         gmin = g.min(axis=0)
         e = np.exp(-self.rho * (g - gmin))
         total = e.sum(axis=0)
         ks = gmin - np.log(total) / self.rho
-        self._last = (key, (q, g, ks, e / total, pts, pair_points))
+        self._last = (key, (q, g, ks, e / total, pts, pair_points, poses))
         return self._last[1]
 
     def breaks(self, x: np.ndarray, every: int = 8) -> bool:
@@ -287,8 +304,8 @@ class SafetyConstraints:
         """
         from ineid.robots.kinematics import entry_jacobians
 
-        q, _, _, w, pts, pair_points = self._evaluate(x)
-        t, c = np.nonzero(w > 1e-10)  # (E,) entries: grid point, row
+        q, _, _, w, pts, pair_points, (r, p) = self._evaluate(x)
+        t, c = np.nonzero((w > 1e-10) & self._moves)  # (E,) entries: grid point, row (a row no joint moves: zero)
         dq = np.zeros((len(t), self.n))
         n_points = len(self.names) * len(self.spaces)
         on_point = c < n_points
@@ -297,12 +314,12 @@ class SafetyConstraints:
             point, space = np.divmod(cp, len(self.spaces))
             axes = np.array([a for a, _, _, _ in self.spaces])[space]
             signs = np.array([s for _, s, _, _ in self.spaces])[space]
-            jac = entry_jacobians(self.chain, q[tp], self.point_link[point], pts[tp, point])  # (E, 3, n)
+            jac = entry_jacobians(self.chain, q[tp], self.point_link[point], pts[tp, point], (r[tp], p[tp]))
             dq[on_point] = signs[:, None] * jac[np.arange(len(tp)), axes]
         if (~on_point).any():
             tc, pair = t[~on_point], c[~on_point] - n_points
             c1, c2 = pair_points
-            dq[~on_point] = self.pairs.entry_gradient(q[tc], pair, c1[tc, pair], c2[tc, pair])
+            dq[~on_point] = self.pairs.entry_gradient(q[tc], pair, c1[tc, pair], c2[tc, pair], (r[tc], p[tc]))
         dq *= w[t, c][:, None]  # d ks_c / d q(t_k), weighted
         du = np.zeros((self.n_constraints, self.n))
         np.add.at(du, c, self.half * dq)

@@ -91,17 +91,42 @@ def load_from_directory(
 def load_sources(directory: str | Path, robot_name: str, sources: dict[str, bytes]) -> tuple[ModuleType, ModuleType]:
     """``(jax module, casadi module)`` compiled from ``sources`` (``{file name: bytes}``, as
     :func:`file_names` names them), which are the contents of those files in ``directory``."""
-    modules = []
-    for name in file_names(robot_name):
-        path = Path(directory) / name
-        key = f"ineid._user_generated.{abs(hash(str(path.resolve())))}_{path.stem}"
-        spec = importlib.util.spec_from_loader(key, loader=None, origin=str(path))
-        module = importlib.util.module_from_spec(spec)
-        module.__file__ = str(path)
-        try:
-            exec(compile(sources[name], str(path), "exec", dont_inherit=True), module.__dict__)
-        except Exception as e:  # e.g. a module ineid generated from an unusable URDF
-            raise CodegenError(f"generated module {str(path)!r} fails to import ({e}); regenerate it") from None
-        sys.modules[key] = module
-        modules.append(module)
+    modules = [_module_from_source(Path(directory) / name, sources[name]) for name in file_names(robot_name)]
     return modules[0], modules[1]
+
+
+_SOURCES: dict[str, bytes] = {}
+"""The bytes each module of :func:`load_sources` was compiled from, by module name (:func:`module_reference`)."""
+
+
+def _module_from_source(path: Path, source: bytes) -> ModuleType:
+    """The module of generated code ``source`` (already checked), as if imported from ``path``."""
+    key = f"ineid._user_generated.{abs(hash(str(path.resolve())))}_{path.stem}"
+    spec = importlib.util.spec_from_loader(key, loader=None, origin=str(path))
+    module = importlib.util.module_from_spec(spec)
+    module.__file__ = str(path)
+    try:
+        exec(compile(source, str(path), "exec", dont_inherit=True), module.__dict__)
+    except Exception as e:  # e.g. a module ineid generated from an unusable URDF
+        raise CodegenError(f"generated module {str(path)!r} fails to import ({e}); regenerate it") from None
+    sys.modules[key] = module
+    _SOURCES[key] = source
+    return module
+
+
+def module_reference(module: ModuleType) -> tuple:
+    """What rebuilds a generated module in another process (:func:`module_from_reference`): a built-in's
+    name, or the path and the very bytes (checked when first read) of one loaded by :func:`load_sources`."""
+    if module.__name__ in _SOURCES:
+        return ("source", module.__file__, _SOURCES[module.__name__])
+    if module.__name__.startswith(f"{__name__}."):
+        return ("import", module.__name__)
+    raise CodegenError(f"module {module.__name__!r} is not generated code ineid loaded; it cannot be sent to a worker")
+
+
+def module_from_reference(reference: tuple) -> ModuleType:
+    """The module :func:`module_reference` describes: imported again, or compiled from the same bytes."""
+    if reference[0] == "import":
+        return importlib.import_module(reference[1])
+    key_path, source = Path(reference[1]), reference[2]
+    return _module_from_source(key_path, source)

@@ -126,25 +126,36 @@ def segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndar
 
     Returns:
         ``(d, c1, c2)``: (...,) distances and (..., 3) the closest points on each segment
-        (Ericson, Real-Time Collision Detection, 5.1.9, vectorised).
+        (:func:`closest_on_segments`).
     """
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    return closest_on_segments(p1, q1 - p1, p2, q2 - p2)
+
+
+def closest_on_segments(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray):
+    """Closest points of the segments ``p1 + s d1`` and ``p2 + t d2``, ``s, t`` in [0, 1] ((..., 3) each).
+
+    Ericson (Real-Time Collision Detection, 5.1.9), vectorised: the minimiser of
+    ``|p1 + s d1 - p2 - t d2|^2`` without bounds, ``s`` clamped to [0, 1], the best ``t`` for it clamped,
+    then the best ``s`` for that ``t`` clamped (which leaves ``s`` as it is unless ``t`` was clamped). A
+    degenerate segment (a point) takes parameter 0; parallel segments take ``s = 0`` first.
+
+    Returns:
+        ``(d, c1, c2)``: (...,) distances and (..., 3) the closest points on each segment.
+    """
+    r = p1 - p2
     a = np.einsum("...i,...i", d1, d1)
     e = np.einsum("...i,...i", d2, d2)
-    f = np.einsum("...i,...i", d2, r)
-    c = np.einsum("...i,...i", d1, r)
     b = np.einsum("...i,...i", d1, d2)
+    c = np.einsum("...i,...i", d1, r)
+    f = np.einsum("...i,...i", d2, r)
     tiny = 1e-18
+    on_a, on_e = a > tiny, e > tiny  # not points
     denom = a * e - b * b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(denom > tiny * np.maximum(a * e, tiny), np.clip((b * f - c * e) / denom, 0.0, 1.0), 0.0)
-        s_point = np.where(a > tiny, np.clip(-c / np.where(a > tiny, a, 1.0), 0.0, 1.0), 0.0)
-        s = np.where(a > tiny, np.where(e > tiny, s, s_point), 0.0)  # the second segment a point: project it
-        t = np.where(e > tiny, (b * s + f) / np.where(e > tiny, e, 1.0), 0.0)
-        # t outside [0, 1]: clamp it and recompute s for the clamped t
-        s = np.where(t < 0.0, np.where(a > tiny, np.clip(-c / np.where(a > tiny, a, 1.0), 0.0, 1.0), 0.0), s)
-        s = np.where(t > 1.0, np.where(a > tiny, np.clip((b - c) / np.where(a > tiny, a, 1.0), 0.0, 1.0), 0.0), s)
-        t = np.clip(t, 0.0, 1.0)
+    crossing = denom > tiny * np.maximum(a * e, tiny)  # not parallel
+    s = np.where(crossing, np.clip((b * f - c * e) / np.where(crossing, denom, 1.0), 0.0, 1.0), 0.0)
+    t = np.where(on_e, np.clip((b * s + f) / np.where(on_e, e, 1.0), 0.0, 1.0), 0.0)
+    s = np.where(on_a, np.clip((b * t - c) / np.where(on_a, a, 1.0), 0.0, 1.0), 0.0)
     c1 = p1 + d1 * s[..., None]
     c2 = p2 + d2 * t[..., None]
-    return np.linalg.norm(c1 - c2, axis=-1), c1, c2
+    diff = c1 - c2
+    return np.sqrt(np.einsum("...i,...i", diff, diff)), c1, c2

@@ -25,16 +25,35 @@ import numpy as np
 from ineid.chain import Chain
 
 
-def _rotation(xp, axis: np.ndarray, angle):
-    """(..., 3, 3) rotation by ``angle`` (...,) about the unit ``axis`` (3,) (Rodrigues)."""
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    kk = k @ k
-    s, c = xp.sin(angle)[..., None, None], xp.cos(angle)[..., None, None]
-    return np.eye(3) + s * k + (1.0 - c) * kk
+def _cross_matrix(axis: np.ndarray) -> np.ndarray:
+    """(3, 3) ``K`` with ``K v = axis x v``."""
+    return np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+
+
+def axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    """(3, 3) the rotation by ``angle`` rad about the unit ``axis`` (3,): ``I + sin(angle) K + (1 - cos(angle)) K^2``
+    (Rodrigues)."""
+    k = _cross_matrix(axis)
+    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
+
+
+def _joint_basis(joint) -> np.ndarray:
+    """(3, 10) the constant columns of one joint's step, ``[P, P K, P K^2, p]`` (``P = parent_R_joint``, ``K`` the
+    axis' cross matrix, ``p = parent_p_joint``), so that ``R_parent @ basis`` gives every product the step needs."""
+    k = _cross_matrix(joint.axis)
+    rot = joint.parent_R_joint
+    return np.concatenate([rot, rot @ k, rot @ k @ k, joint.parent_p_joint[:, None]], axis=1)
 
 
 def link_poses(chain: Chain, q, xp=np):
     """Every moving link's frame in the base frame.
+
+    Link ``i``'s rotation is ``R_i = R_{i-1} P_i Rot(axis_i, q_i)`` with Rodrigues' formula
+    ``Rot = I + sin(q) K + (1 - cos(q)) K^2``, so ``R_i = (R_{i-1} P_i) + sin(q_i) (R_{i-1} P_i K) + (1 - cos(q_i))
+    (R_{i-1} P_i K^2)``: one matrix product of the parent's rotations with the joint's constant columns
+    (:func:`_joint_basis`, which also carries the joint's offset ``p_i = p_{i-1} + R_{i-1} parent_p_joint``)
+    per joint, for every sample at once. A prismatic joint: ``R_i = R_{i-1} P_i``, ``p_i`` moved by
+    ``R_i axis_i q_i``.
 
     Args:
         chain: the arm.
@@ -46,19 +65,26 @@ def link_poses(chain: Chain, q, xp=np):
         base_p_link, m, in chain order.
     """
     q = xp.asarray(q)
+    lead = q.shape[:-1]
     r_acc = None
     p_acc = None
     rs, ps = [], []
     for i, j in enumerate(chain.joints):
         qi = q[..., i]
-        r_joint = j.parent_R_joint if r_acc is None else r_acc @ j.parent_R_joint
-        p_joint = j.parent_p_joint if p_acc is None else p_acc + (r_acc @ j.parent_p_joint[:, None])[..., 0]
+        basis = _joint_basis(j)
+        if r_acc is None:  # the first joint: the parent is the base frame itself
+            b = xp.broadcast_to(basis, lead + (3, 10))
+            p_joint = xp.broadcast_to(j.parent_p_joint, lead + (3,))
+        else:  # rows of every parent rotation times the constant columns: one (3 T, 3) x (3, 10) product
+            b = (r_acc.reshape(-1, 3) @ basis).reshape(lead + (3, 10))
+            p_joint = p_acc + b[..., 9]
         if j.type == "revolute":
-            r_acc = r_joint @ _rotation(xp, j.axis, qi)
-            p_acc = xp.broadcast_to(p_joint, qi.shape + (3,)) if p_acc is None else p_joint
+            s, c = xp.sin(qi)[..., None, None], xp.cos(qi)[..., None, None]
+            r_acc = b[..., 0:3] + s * b[..., 3:6] + (1.0 - c) * b[..., 6:9]
+            p_acc = p_joint
         else:
-            r_acc = xp.broadcast_to(r_joint, qi.shape + (3, 3)) if r_acc is None else r_joint
-            p_acc = p_joint + (r_joint @ j.axis) * qi[..., None]
+            r_acc = b[..., 0:3]
+            p_acc = p_joint + (r_acc @ j.axis) * qi[..., None]
         rs.append(r_acc)
         ps.append(p_acc)
     return xp.stack(rs, axis=-3), xp.stack(ps, axis=-2)
@@ -125,7 +151,7 @@ def welded_poses(urdf_text: str, chain: Chain, locked_joints: Mapping[str, float
         if name in locked:
             axis = axis / np.linalg.norm(axis)
             if j.get("type") in ("revolute", "continuous"):
-                r = r @ _rotation(np, axis, np.asarray(float(locked[name])))
+                r = r @ axis_rotation(axis, float(locked[name]))
             elif j.get("type") == "prismatic":
                 p = p + r @ axis * float(locked[name])
         by_child[child.get("link")] = (parent.get("link"), r, p)
@@ -227,11 +253,12 @@ def reach(chain: Chain, welded: WeldedFrames | None = None) -> np.ndarray:
     return out
 
 
-def entry_jacobians(chain: Chain, q: np.ndarray, link: np.ndarray, points: np.ndarray) -> np.ndarray:
+def entry_jacobians(chain: Chain, q: np.ndarray, link: np.ndarray, points: np.ndarray, poses=None) -> np.ndarray:
     """:func:`point_jacobians` of one point per configuration: ``q`` (E, n_dof), ``link`` (E,) the moving link each
-    point is fixed in (-1: the root, zero Jacobian), ``points`` (E, 3) base frame -> (E, 3, n_dof)."""
+    point is fixed in (-1: the root, zero Jacobian), ``points`` (E, 3) base frame -> (E, 3, n_dof); ``poses``: the
+    links' ``(R (E, n_dof, 3, 3), p (E, n_dof, 3))`` at ``q`` when already computed (:func:`link_poses`)."""
     q = np.atleast_2d(np.asarray(q, dtype=np.float64))
-    r, p = link_poses(chain, q)
+    r, p = link_poses(chain, q) if poses is None else poses
     e, n = q.shape
     jac = np.zeros((e, 3, n))
     for i, j in enumerate(chain.joints):

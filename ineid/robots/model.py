@@ -75,10 +75,30 @@ class RobotModel(CutRegressors):
                     f"generated code {module.__name__} is stale for {name} (fingerprint "
                     f"{module.KINEMATIC_FINGERPRINT}, model {chain.kinematic_fingerprint()}); regenerate it"
                 )
+        self._generated = (jax_module, casadi_module)  # as loaded: what a copy in another process loads again
         if self.payloads:  # the regressor's columns seen through theta = M theta_ext
             jax_module, casadi_module = payload_modules(jax_module, casadi_module, chain, self.payloads)
         self._jax = jax_module
         self._casadi = casadi_module
+
+    def __reduce__(self):
+        """Pickled for a worker process (spawned, as :mod:`ineid.excite.lanes` does): the chain, the settings and the
+        generated modules by reference (:func:`ineid.generated.module_reference`: a built-in's name, or the bytes
+        ineid checked when it loaded them), so the copy is the same model without deriving or reading anything."""
+        from ineid.generated import module_reference
+
+        state = dict(
+            chain=self.chain,
+            urdf_path=self.urdf_path,
+            name=self.name,
+            gravity=self.gravity.tolist(),
+            unknown_links=list(self.unknown_links),
+            modules=tuple(module_reference(m) for m in self._generated),
+            locked_joints=self.locked_joints,
+            urdf_text=self._urdf_text,
+            model_path=self.model_path,
+        )
+        return _model_from_state, (state,)
 
     def __repr__(self) -> str:
         return (
@@ -337,3 +357,22 @@ def _casadi_functions(module):
     from ineid.robots.program import casadi_functions
 
     return casadi_functions(module)
+
+
+def _model_from_state(state: dict) -> RobotModel:
+    """The :class:`RobotModel` that :meth:`RobotModel.__reduce__` pickled."""
+    from ineid.generated import module_from_reference
+
+    jax_module, casadi_module = (module_from_reference(r) for r in state["modules"])
+    return RobotModel(
+        state["chain"],
+        state["urdf_path"],
+        state["name"],
+        state["gravity"],
+        state["unknown_links"],
+        jax_module,
+        casadi_module,
+        state["locked_joints"],
+        urdf_text=state["urdf_text"],
+        model_path=state["model_path"],
+    )
