@@ -346,6 +346,9 @@ def main() -> None:
     print(f"machine: {cpu_description()}; load average at start {os.getloadavg()[0]:.1f}")
     given = f" {args.excite}" if args.excite else ""
     print(f"ineid excite ROBOT --duration 10 --floor F --workspace BOX{given} (every other option its default)")
+    from ineid.excite.lanes import default_workers
+
+    print(f"workers by default here: {default_workers(3)} (one per usable CPU, at most one per start; 3 starts)")
     for name in args.arms.split(","):
         arm = ARMS[name]
         print(f"  {name}: {' '.join(arm.cli_args()[1:])}")
