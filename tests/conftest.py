@@ -130,8 +130,14 @@ def lab(tmp_path_factory):
     return LabRecording(tmp_path_factory.mktemp("lab"))
 
 
+def casadi_regressor_frames(model, q: np.ndarray) -> np.ndarray:
+    """(T, 6, 10 n_links) ``model.casadi_regressor`` at ``(q_t, q_t, q_t)`` for each row of ``q`` (no compilation)."""
+    return np.stack([np.asarray(model.casadi_regressor(qt, qt, qt)) for qt in q])
+
+
 def regressor_in_another_process(model, q: np.ndarray) -> np.ndarray:
-    """``model.regressor(q, q, q)`` computed by a fresh Python that unpickled ``model`` (what a worker process gets)."""
+    """:func:`casadi_regressor_frames` computed by a fresh Python that unpickled ``model`` (what a worker process
+    gets: its generated code travels with it)."""
     import io
     import pickle
     import subprocess
@@ -140,7 +146,8 @@ def regressor_in_another_process(model, q: np.ndarray) -> np.ndarray:
     code = (
         "import pickle, sys, numpy as np\n"
         "m, q = pickle.load(sys.stdin.buffer)\n"
-        "np.save(sys.stdout.buffer, m.regressor(q, q, q))\n"
+        "y = np.stack([np.asarray(m.casadi_regressor(qt, qt, qt)) for qt in q])\n"
+        "np.save(sys.stdout.buffer, y)\n"
     )
     done = subprocess.run([sys.executable, "-c", code], input=pickle.dumps((model, q)), capture_output=True, check=True)
     return np.load(io.BytesIO(done.stdout))
