@@ -161,3 +161,19 @@ def test_workers_must_be_positive(arm):
 def _broken_problem(model):
     """A worker's problem that cannot be built (module level: sent to the worker by name)."""
     return model.nothing
+
+
+def test_a_problem_that_cannot_be_sent_runs_in_this_process(arm, design, caplog):
+    """A model whose generated code ineid did not load itself does not pickle: the starts run here, with the same
+    answer, and an INFO line says why."""
+    import copy
+    import logging
+    import types
+
+    odd = copy.copy(arm)
+    odd._generated = (types.ModuleType("hand_made_jax"), types.ModuleType("hand_made_casadi"))
+    with caplog.at_level(logging.INFO, logger="ineid.excite.design"):
+        res = design_excitation(odd, ExcitationSettings(**FAST, floor=0.0), workers=2)
+    assert res.value == design.value
+    assert "every start in this process: the problem cannot be sent to a worker process" in caplog.text
+    assert "is not generated code ineid loaded" in caplog.text

@@ -92,7 +92,7 @@ from ineid.excite.criterion import (  # noqa: F401  (also the names of the old p
     scaled_regressor,
 )
 from ineid.excite.feasibility import Feasibility, always_touching, check_feasibility, sample_poses
-from ineid.excite.lanes import Lanes, default_workers
+from ineid.excite.lanes import Lanes, LanesUnavailable, default_workers
 from ineid.excite.safety import SafetyConstraints, SafetyLimits, check_limits, verify
 from ineid.excite.search import Status, random_candidates, solve_starts
 from ineid.excite.settings import MAX_SAMPLES, MAX_STARTS, ExcitationResult, ExcitationSettings, StartRecord
@@ -144,9 +144,20 @@ def design_excitation(
     workers = default_workers(s.starts) if workers is None else int(workers)
     if workers < 1:
         raise ExcitationError(f"workers must be at least 1, got {workers}", reason="settings")
-    lanes = min(workers, s.starts) - 1
-    with Lanes(_lane_problem, (model, s, noise, timing), lanes) if lanes else contextlib.nullcontext() as running:
-        return _design(model, s, noise, timing, t_start, progress, status, running)
+    with _started_lanes(model, s, noise, timing, min(workers, s.starts) - 1) as lanes:
+        return _design(model, s, noise, timing, t_start, progress, status, lanes)
+
+
+def _started_lanes(model, s: ExcitationSettings, noise: NoiseModel | None, timing: _Timing, count: int):
+    """``count`` worker processes for the starts (:mod:`ineid.excite.lanes`), or a context of None when there are
+    none to start or they cannot run here (then the starts run in this process, with an INFO line saying why)."""
+    if count < 1:
+        return contextlib.nullcontext()
+    try:
+        return Lanes(_lane_problem, (model, s, noise, timing), count)
+    except LanesUnavailable as e:
+        log.info("every start in this process: %s", e)
+        return contextlib.nullcontext()
 
 
 def _lane_problem(model, s: ExcitationSettings, noise: NoiseModel | None, timing: _Timing):

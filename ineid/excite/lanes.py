@@ -48,6 +48,11 @@ def default_workers(starts: int) -> int:
     return max(1, min(starts, usable_cpus()))
 
 
+class LanesUnavailable(RuntimeError):
+    """The lanes cannot run here (the problem does not pickle, or no process starts): the starts run in the calling
+    process instead."""
+
+
 _BOOT = (
     "import sys\n"
     "from multiprocessing.connection import Connection\n"
@@ -71,11 +76,16 @@ class Lanes:
     """
 
     def __init__(self, build: Callable, args: tuple, count: int) -> None:
+        import pickle
         import socket
         import subprocess
         from multiprocessing.connection import Connection
 
         self._lanes = []
+        try:
+            job = pickle.dumps((build, args))
+        except Exception as e:  # a model whose generated code ineid did not load itself, say: no lanes
+            raise LanesUnavailable(f"the problem cannot be sent to a worker process ({type(e).__name__}: {e})") from e
         try:
             for _ in range(count):
                 mine, theirs = socket.socketpair()
@@ -90,7 +100,10 @@ class Lanes:
                 conn = Connection(mine.detach())
                 self._lanes.append([proc, conn, None])  # process, connection, the start it solves (None: idle)
                 conn.send(list(sys.path))
-                conn.send((build, args))
+                conn.send_bytes(job)
+        except OSError as e:  # no process could be started (resources, no executable)
+            self.close()
+            raise LanesUnavailable(f"no worker process could be started ({e})") from e
         except BaseException:
             self.close()
             raise
