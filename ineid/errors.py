@@ -45,7 +45,7 @@ class OutputExistsError(IneidError):
 
 class ExcitationError(IneidError):
     """An excitation trajectory cannot be designed as asked; ``reason`` says which check failed
-    (``infeasible_bounds``, ``duration``, ``harmonics``, ``rank_deficient``, ``noise``, ``settings``)."""
+    (``infeasible_bounds``, ``duration``, ``harmonics``, ``rank_deficient``, ``noise``, ``settings``, ``workers``)."""
 
     def __init__(self, message: str, reason: str | None = None) -> None:
         super().__init__(message)

@@ -141,9 +141,10 @@ def test_starts_in_worker_processes_give_the_same_design(arm, design):
 def test_a_worker_that_fails_is_named_and_stopped():
     """A worker process whose problem cannot be built answers its start with the error; the caller raises it in
     one line and no worker is left running."""
+    from ineid.errors import ExcitationError
     from ineid.excite.lanes import Lanes
 
-    with pytest.raises(RuntimeError, match=r"worker process failed on start 1: .*Error"):
+    with pytest.raises(ExcitationError, match=r"worker process failed on start 1: .*Error.*--workers 1"):
         with Lanes(_broken_problem, ("not a model",), 1) as lanes:
             procs = [lane[0] for lane in lanes._lanes]
             lanes.submit(0, np.zeros(3), np.ones(6))
@@ -177,3 +178,26 @@ def test_a_problem_that_cannot_be_sent_runs_in_this_process(arm, design, caplog)
     assert res.value == design.value
     assert "every start in this process: the problem cannot be sent to a worker process" in caplog.text
     assert "is not generated code ineid loaded" in caplog.text
+
+
+def test_a_worker_that_dies_is_named_with_its_last_words():
+    """A worker process that dies (here: its problem's builder exits the interpreter) ends the design with one line
+    saying so and what to do, not a hang or a traceback."""
+    from ineid.errors import ExcitationError
+    from ineid.excite.lanes import Lanes
+
+    with pytest.raises(ExcitationError, match=r"worker process exited \(status 3: dying on purpose\).*--workers 1"):
+        with Lanes(_dying_problem, (), 1) as lanes:
+            lanes._lanes[0][0].wait(60)  # dead before it is given a start: the start goes nowhere, and that is said
+            lanes.submit(0, np.zeros(3), np.ones(6))
+            lanes.collect(timeout=60.0)
+
+
+def _dying_problem():
+    """A worker's problem builder that writes a last line and exits (module level: sent by name)."""
+    import os
+    import sys
+
+    sys.stderr.write("dying on purpose\n")
+    sys.stderr.flush()
+    os._exit(3)

@@ -28,6 +28,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ineid.errors import ExcitationError
+
 JOIN_SECONDS = 2.0
 """How long a lane may take to exit once told to, before it is terminated."""
 
@@ -94,6 +96,7 @@ class Lanes:
                     pass_fds=(theirs.fileno(),),
                     stdin=subprocess.DEVNULL,
                     stdout=subprocess.DEVNULL,  # IPOPT and CasADi print nothing there; the caller's output is its own
+                    stderr=subprocess.PIPE,  # empty unless the lane dies: then its last line names why (collect)
                     start_new_session=True,  # a terminal's Ctrl-C is the caller's to handle, even while Python starts
                 )
                 theirs.close()
@@ -127,14 +130,17 @@ class Lanes:
     def submit(self, k: int, x0: np.ndarray, sigma: np.ndarray) -> None:
         """Send start ``k`` from ``x0`` (the axes weighed by ``sigma``) to an idle lane."""
         lane = next(lane for lane in self._lanes if lane[2] is None)
-        lane[1].send((k, np.asarray(x0, dtype=np.float64), np.asarray(sigma, dtype=np.float64)))
         lane[2] = k
+        try:
+            lane[1].send((k, np.asarray(x0, dtype=np.float64), np.asarray(sigma, dtype=np.float64)))
+        except OSError:  # the lane is gone: :meth:`collect` finds its socket closed and says why
+            pass
 
     def collect(self, timeout: float) -> list[tuple]:
         """The outcomes that came back, waiting at most ``timeout`` s for one, as ``(start, outcome)``.
 
         Raises:
-            RuntimeError: a lane failed (its error named) or exited without an answer.
+            ExcitationError: a lane failed (its error named) or exited without an answer (``reason`` "workers").
         """
         from multiprocessing.connection import wait
 
@@ -149,12 +155,16 @@ class Lanes:
             try:
                 kind, payload = lane[1].recv()
             except (EOFError, OSError):
-                raise RuntimeError(
-                    f"an excitation worker process exited (status {lane[0].poll()}) while solving start "
-                    f"{lane[2] + 1}; rerun with --workers 1"
+                raise ExcitationError(
+                    f"an excitation worker process exited (status {lane[0].wait()}{_last_words(lane[0])}) while "
+                    f"solving start {lane[2] + 1}; rerun with --workers 1",
+                    reason="workers",
                 ) from None
             if kind == "error":
-                raise RuntimeError(f"an excitation worker process failed on start {lane[2] + 1}: {payload}")
+                raise ExcitationError(
+                    f"an excitation worker process failed on start {lane[2] + 1}: {payload}; rerun with --workers 1",
+                    reason="workers",
+                )
             out.append((lane[2], payload))
             lane[2] = None
         return out
@@ -179,7 +189,18 @@ class Lanes:
                 proc.terminate()
                 proc.wait()
             conn.close()
+            proc.stderr.close()
         self._lanes = []
+
+
+def _last_words(proc) -> str:
+    """``": <the last line>"`` of a lane's stderr once it has exited (a traceback's last line names the error), or
+    nothing."""
+    try:
+        lines = proc.stderr.read().decode(errors="replace").strip().splitlines()
+    except (OSError, ValueError):
+        return ""
+    return f": {lines[-1]}" if lines else ""
 
 
 def _lane_main(conn) -> None:
