@@ -263,13 +263,17 @@ def _tree(robot, source: str, links: dict, locked: dict[str, float]) -> tuple[di
                 raise RobotModelError(f"{source}: joint {j.name!r} refers to link {end!r}, which is not defined")
         if j.child in child_seen:
             raise RobotModelError(
-                f"{source}: link {j.child!r} is the child of two joints ({child_seen[j.child]!r}, {j.name!r})"
+                f"{source}: link {j.child!r} is the child of two joints ({child_seen[j.child]!r}, {j.name!r}): "
+                "a closed loop; ineid models kinematic trees: remove one of the two joints"
             )
         child_seen[j.child] = j.name
         children[j.parent].append(j)
     roots = [name for name in links if name not in child_seen]
     if len(roots) != 1:
-        raise RobotModelError(f"{source}: the URDF must have exactly one root link, found {len(roots)}: {roots}")
+        raise RobotModelError(
+            f"{source}: the URDF must have exactly one root link, found {len(roots)}: {roots}; join them "
+            "with fixed joints or remove the links that are not part of the robot"
+        )
     return children, roots[0]
 
 
