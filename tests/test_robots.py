@@ -86,8 +86,10 @@ def test_locked_joints_cut_a_tree_to_a_chain():
     from .conftest import real_robot
 
     path, locked = real_robot("panda")
-    tree = load_chain(path)  # the two fingers branch off the hand
-    assert tree.n_dof == 9 and tree.parents == (-1, 0, 1, 2, 3, 4, 5, 6, 6) and not tree.is_serial
+    with pytest.raises(RobotModelError, match="'panda_finger_joint2' mimics 'panda_finger_joint1'.*--lock"):
+        load_chain(path)  # the two fingers branch off the hand, one mimicking the other
+    tree = load_chain(path, locked_joints={"panda_finger_joint2": 0.0})  # one finger left: a chain again
+    assert tree.n_dof == 8 and tree.parents == (-1, 0, 1, 2, 3, 4, 5, 6) and tree.is_serial
     chain = load_chain(path, locked_joints=locked)
     assert chain.n_dof == 7 and chain.is_serial
     with pytest.raises(RobotModelError, match="locked joint 'nope' is not in the URDF"):

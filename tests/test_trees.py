@@ -298,3 +298,21 @@ def test_parse_of_a_tree_is_cached_with_its_parents(tmp_path, monkeypatch):
 def test_no_moving_link_mass_and_loop_errors_are_robot_model_errors():
     with pytest.raises(RobotModelError, match="closed loop"):
         parse_chain(torso_urdf(_joint("closing", "fixed", "l_fore", "r_fore", "0 0 0", "0 0 0")))
+
+
+def test_mujoco_simulation_nests_the_tree(torso):
+    """:func:`ineid.studies.mujoco_sim.arm_mjcf` nests the bodies as the tree: MuJoCo's inverse dynamics of it
+    (an independent engine) equals ineid's joint torques, its joints in chain order."""
+    mujoco = pytest.importorskip("mujoco")
+    from ineid.studies.mujoco_sim import arm_mjcf
+
+    model = ineid.load_robot(torso.gen.parent / "torso.urdf", codegen_dir=torso.gen)  # MuJoCo's gravity, -9.81 z
+    fixture = np.r_[1.0, 0, 0, 0, 0.1, 0, 0.1, 0, 0, 0.1]  # the root body: welded, not in the joint torques
+    m = mujoco.MjModel.from_xml_string(arm_mjcf(model.chain, model.theta_cad, fixture, None, 0.001))
+    assert [m.joint(i).name for i in range(m.njnt)] == list(model.joint_names)
+    d = mujoco.MjData(m)
+    tau = _casadi_frames(model.casadi_joint_torques, torso.states, model.theta_cad)
+    for t, (q, qd, qdd) in enumerate(zip(*torso.states, strict=True)):
+        d.qpos[:], d.qvel[:], d.qacc[:] = q, qd, qdd
+        mujoco.mj_inverse(m, d)
+        assert rel_err(d.qfrc_inverse, tau[t]) < 1e-10
