@@ -39,7 +39,8 @@ N_STATES = 6
 
 _INERTIAL = (
     '<link name="{n}"><inertial><origin xyz="{c}" rpy="0.1 -0.2 0.3"/><mass value="{m}"/>'
-    '<inertia ixx="{i}" ixy="{o}" ixz="{o}" iyy="{i}" iyz="{o}" izz="{i}"/></inertial></link>'
+    '<inertia ixx="{i}" ixy="{o}" ixz="{o}" iyy="{i}" iyz="{o}" izz="{i}"/></inertial>'
+    '<collision><origin xyz="{c}"/><geometry><sphere radius="0.03"/></geometry></collision></link>'
 )
 
 
@@ -316,3 +317,71 @@ def test_mujoco_simulation_nests_the_tree(torso):
         d.qpos[:], d.qvel[:], d.qacc[:] = q, qd, qdd
         mujoco.mj_inverse(m, d)
         assert rel_err(d.qfrc_inverse, tau[t]) < 1e-10
+
+
+def test_a_payload_on_a_branch(torso):
+    """The hand welded to the left forearm identified on its own: a block after its body, carried by the left
+    branch only (the torques of the right arm do not see it), the torques and cuts still Pinocchio's."""
+    model = ineid.load_robot(
+        torso.gen.parent / "torso.urdf",
+        gravity=GRAVITY,
+        codegen_dir=torso.gen,
+        unknown_links=["l_upper", "l_hand", "r_upper"],
+    )
+    assert "l_hand" in model.link_names and model.n_links == 6
+    ps = torso.pin_states()
+    theta = model.theta_cad
+    tau = _casadi_frames(model.casadi_joint_torques, torso.states, theta)
+    assert rel_err(tau, pinocchio_joint_torques(torso.pin, *ps)[:, torso.perm]) < torso.tol
+    hand = model.link_names.index("l_hand")
+    y_tau = _casadi_frames(model.casadi_joint_torque_regressor, torso.states).reshape(N_STATES, model.n_dof, -1)
+    right = [model.joint_names.index(n) for n in ("r_shoulder", "r_elbow")]
+    assert not np.any(y_tau[:, right, 10 * hand : 10 * hand + 10])
+    y_cut = _casadi_frames(model.casadi_link_wrench_regressor("l_upper"), torso.states).reshape(N_STATES, 6, -1)
+    shoulder = model.joint_names.index("l_shoulder")  # l_upper's joint; l_fore and its hand lie beyond
+    assert rel_err(y_cut @ theta, pinocchio_link_wrench(torso.pin, *ps, torso.perm[shoulder] + 1)) < torso.tol
+
+
+def test_robot_show_names_each_joints_parent(run, torso):
+    r = run("robot", "show", torso.gen.parent / "torso.urdf")
+    assert r.exit_code == 0, r.output
+    assert "each parent before its children" in r.output
+    rows = {line.split("│")[2].strip(): line.split("│")[3].strip() for line in r.output.splitlines() if "│" in line}
+    assert rows["waist"] == "(base)" and rows["l_slide"] == "l_shoulder" and rows["r_shoulder"] == "waist"
+
+
+def test_collision_pairs_follow_the_tree(torso):
+    """Bodies are adjacent when one is the other's parent: the two arms' links are checked against each other
+    (the two shoulders, siblings on the torso, included), a link against its parent's never."""
+    from ineid.excite.collision import CollisionPairs
+
+    model = torso.model
+    pairs = CollisionPairs(model, model.qd_max)
+    index = {c.name: c.link for c in pairs.capsules}
+    assert index == {"torso": 0, "l_upper": 1, "l_fore": 2, "l_hand": 2, "r_upper": 3, "r_fore": 4}
+    checked = {tuple(sorted((pairs.capsules[i].link, pairs.capsules[k].link))) for i, k in pairs.pairs}
+    assert checked == {(0, 2), (0, 4), (1, 3), (1, 4), (2, 3), (2, 4)}
+
+
+def test_acceleration_bounds_hold_on_a_tree(torso):
+    """The bound of each link origin's acceleration (its ancestors' speeds and accelerations only) holds at random
+    states within the joint bounds; the second derivative by central differences along q + qd t + qdd t^2 / 2."""
+    from ineid.excite.safety import acceleration_bounds
+    from ineid.robots.kinematics import link_poses, reach
+
+    model = torso.model
+    chain = model.chain
+    bound = acceleration_bounds(chain, reach(chain), np.arange(chain.n_dof), model.qd_max, model.qdd_max)
+    rng = np.random.default_rng(5)
+    h = 1e-4
+    worst = np.zeros(chain.n_dof)
+    for _ in range(200):
+        q = rng.uniform(model.q_lower, model.q_upper)
+        qd = model.qd_max * rng.choice([-1.0, 1.0], chain.n_dof)
+        qdd = model.qdd_max * rng.choice([-1.0, 1.0], chain.n_dof)
+        p = link_poses(chain, np.stack([q + qd * t + qdd * t * t / 2 for t in (-h, 0.0, h)]))[1]
+        worst = np.maximum(worst, np.linalg.norm((p[0] - 2 * p[1] + p[2]) / h**2, axis=-1))
+    assert np.all(worst <= bound) and np.all(worst >= 0.2 * bound), (worst, bound)  # the torso's origin: on the axis
+    # the right arm's bound is the right arm's own: moving the left arm faster changes nothing there
+    faster = acceleration_bounds(chain, reach(chain), np.arange(5), model.qd_max * [1, 9, 9, 1, 1], model.qdd_max)
+    assert np.array_equal(faster[[0, 3, 4]], bound[[0, 3, 4]]) and faster[2] > bound[2]
