@@ -385,3 +385,16 @@ def test_acceleration_bounds_hold_on_a_tree(torso):
     # the right arm's bound is the right arm's own: moving the left arm faster changes nothing there
     faster = acceleration_bounds(chain, reach(chain), np.arange(5), model.qd_max * [1, 9, 9, 1, 1], model.qdd_max)
     assert np.array_equal(faster[[0, 3, 4]], bound[[0, 3, 4]]) and faster[2] > bound[2]
+
+
+def test_an_excitation_design_on_a_tree_keeps_its_floor_and_branches_apart(torso):
+    """``ineid excite`` on the tree: a short design with a floor and self-collision, checked on a dense grid."""
+    from ineid.excite.design import design_excitation
+    from ineid.excite.settings import ExcitationSettings
+
+    settings = ExcitationSettings(
+        duration=5.0, harmonics=3, starts=1, seed=3, max_iter=25, floor=-0.2, self_collision=True
+    )
+    design = design_excitation(torso.model, settings)
+    assert "'l_upper' and 'r_upper'" in design.safety["self_collision"]["pairs"]
+    assert design.safety["samples"]["min_clearance"] >= 0 and design.safety["dense"]["min_clearance"] >= 0
