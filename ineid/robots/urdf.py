@@ -177,9 +177,6 @@ def _fold(theta: np.ndarray, parent_R: np.ndarray, parent_p: np.ndarray) -> np.n
     return theta_from_inertial(m, parent_R @ c + parent_p, parent_R @ ic @ parent_R.T)
 
 
-_LOCK_HINT = "lock the joints of the other branches with --lock JOINT=POS (Python: locked_joints={name: position})"
-
-
 def _mimic_locks(robot, locked: dict[str, float]) -> tuple[dict[str, float], list[str]]:
     """``locked`` with every joint that mimics a locked joint locked too, at ``multiplier * q + offset``
     (followers of followers included); and one note per leader. An explicit position wins."""
