@@ -398,3 +398,21 @@ def test_an_excitation_design_on_a_tree_keeps_its_floor_and_branches_apart(torso
     design = design_excitation(torso.model, settings)
     assert "'l_upper' and 'r_upper'" in design.safety["self_collision"]["pairs"]
     assert design.safety["samples"]["min_clearance"] >= 0 and design.safety["dense"]["min_clearance"] >= 0
+
+
+def test_export_urdf_of_a_tree_reads_back():
+    """``export-urdf`` writes each identified link of any branch; the file reads back as the same tree with them."""
+    from ineid.params import theta_from_inertial
+    from ineid.robots.urdf_write import urdf_with_inertials
+
+    text = torso_urdf()
+    chain = parse_chain(text)
+    new = {
+        "l_fore": theta_from_inertial(2.0, np.array([0.1, 0.02, 0.0]), np.diag([0.02, 0.03, 0.04])),
+        "r_upper": theta_from_inertial(1.1, np.array([0.05, 0.0, 0.01]), np.diag([0.01, 0.01, 0.015])),
+    }
+    back = parse_chain(urdf_with_inertials(text, new))
+    assert back.parents == chain.parents and back.kinematic_fingerprint() == chain.kinematic_fingerprint()
+    for i, j in enumerate(back.joints):
+        want = new.get(j.link, chain.joints[i].theta)
+        assert np.allclose(j.theta, want, rtol=1e-12, atol=1e-15), j.link
