@@ -416,3 +416,15 @@ def test_export_urdf_of_a_tree_reads_back():
     for i, j in enumerate(back.joints):
         want = new.get(j.link, chain.joints[i].theta)
         assert np.allclose(j.theta, want, rtol=1e-12, atol=1e-15), j.link
+
+
+def test_a_tree_model_travels_to_a_worker_process(torso):
+    """What an excitation worker gets: the pickled tree, its generated code and topology with it."""
+    from .conftest import casadi_regressor_frames, regressor_in_another_process
+
+    import pickle
+
+    q = torso.states[0][:2]
+    assert np.array_equal(regressor_in_another_process(torso.model, q), casadi_regressor_frames(torso.model, q))
+    copy = pickle.loads(pickle.dumps(torso.model))
+    assert copy.chain.parents == (-1, 0, 1, 0, 3) and copy.chain.subtree(3) == (3, 4)
