@@ -420,9 +420,9 @@ def test_export_urdf_of_a_tree_reads_back():
 
 def test_a_tree_model_travels_to_a_worker_process(torso):
     """What an excitation worker gets: the pickled tree, its generated code and topology with it."""
-    from .conftest import casadi_regressor_frames, regressor_in_another_process
-
     import pickle
+
+    from .conftest import casadi_regressor_frames, regressor_in_another_process
 
     q = torso.states[0][:2]
     assert np.array_equal(regressor_in_another_process(torso.model, q), casadi_regressor_frames(torso.model, q))
