@@ -109,7 +109,8 @@ class WeldedFrames:
 
     @property
     def tool(self) -> tuple[str, ...]:
-        """The frames welded to the last moving link (the tool frame and its parents)."""
+        """The frames welded to the last moving link in chain order (the tool frame and its parents; in a tree,
+        the last branch's)."""
         last = int(self.link.max()) if len(self.link) else -1
         return tuple(n for n, k in zip(self.names, self.link, strict=True) if k == last)
 
