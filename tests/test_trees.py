@@ -298,7 +298,7 @@ def test_parse_of_a_tree_is_cached_with_its_parents(tmp_path, monkeypatch):
     assert again is not first and again.parents == first.parents == (-1, 0, 1, 0, 3)
 
 
-def test_no_moving_link_mass_and_loop_errors_are_robot_model_errors():
+def test_a_loop_closed_by_a_fixed_joint_is_refused_too():
     with pytest.raises(RobotModelError, match="closed loop"):
         parse_chain(torso_urdf(_joint("closing", "fixed", "l_fore", "r_fore", "0 0 0", "0 0 0")))
 
