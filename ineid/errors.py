@@ -12,7 +12,8 @@ class IneidError(Exception):
 
 
 class RobotModelError(IneidError):
-    """A robot description (URDF or built-in name) cannot be used as a serial-chain model."""
+    """A robot description (URDF or built-in name) cannot be used as a model (a tree of moving joints on a fixed
+    base)."""
 
 
 class PhysicalConsistencyError(IneidError):

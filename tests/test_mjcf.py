@@ -263,11 +263,6 @@ BAD = {
         '<tendon><fixed name="t"><joint joint="j1" coef="1"/><joint joint="j3" coef="1"/></fixed></tendon><actuator>',
         "<tendon> t",
     ),
-    "branch": (
-        '<body name="tool" pos="0.2 0 0" euler="0 90 0">',
-        '<body name="tool" pos="0.2 0 0" euler="0 90 0"><joint name="jt" axis="0 0 1"/>',
-        "branching tree: body 'link3' has 2 moving child joints",
-    ),
     "equality": (
         "<actuator>",
         '<equality><joint name="couple" joint1="j1" joint2="j3"/></equality><actuator>',

@@ -82,15 +82,16 @@ def test_fixed_joints_fold_like_pinocchio():
     )
 
 
-def test_locked_joints_turn_a_tree_into_a_chain():
+def test_locked_joints_cut_a_tree_to_a_chain():
     from .conftest import real_robot
 
     path, locked = real_robot("panda")
-    with pytest.raises(
-        RobotModelError, match="branching tree.*panda_finger_joint1, panda_finger_joint2.*--lock JOINT=POS"
-    ):
-        load_chain(path)
-    assert load_chain(path, locked_joints=locked).n_dof == 7
+    with pytest.raises(RobotModelError, match="'panda_finger_joint2' mimics 'panda_finger_joint1'.*--lock"):
+        load_chain(path)  # the two fingers branch off the hand, one mimicking the other
+    tree = load_chain(path, locked_joints={"panda_finger_joint2": 0.0})  # one finger left: a chain again
+    assert tree.n_dof == 8 and tree.parents == (-1, 0, 1, 2, 3, 4, 5, 6) and tree.is_serial
+    chain = load_chain(path, locked_joints=locked)
+    assert chain.n_dof == 7 and chain.is_serial
     with pytest.raises(RobotModelError, match="locked joint 'nope' is not in the URDF"):
         load_chain(path, locked_joints={"nope": 0.0})
 
@@ -120,10 +121,11 @@ def test_locked_joints_turn_a_tree_into_a_chain():
         ),
         (
             urdf(
-                extra='<link name="c"/><joint name="j3" type="revolute"><parent link="a"/><child link="c"/>'
+                extra='<joint name="j3" type="revolute"><parent link="a"/><child link="b"/>'
                 '<axis xyz="1 0 0"/><limit lower="-1" upper="1" velocity="1" effort="1"/></joint>'
             ),
-            "branching tree: body 'a' has 2 moving child joints \\(j2, j3\\)",
+            "link 'b' is the child of two joints \\('j2', 'j3'\\): a closed loop; ineid models kinematic trees: "
+            "remove one of the two joints$",
         ),
         (
             urdf(extra='<joint name="j9" type="fixed"><parent link="b"/><child link="ghost"/></joint>'),

@@ -105,7 +105,8 @@ def configure_logging(verbosity: int) -> None:
 def main(ctx: click.Context, verbose: int, quiet: int) -> None:
     """Identify a robot arm's inertial parameters from its base force/torque sensor.
 
-    ROBOT is a built-in name (sweaty-arm) or a path to a serial-chain URDF or MJCF (.xml, needs ineid[mujoco]) file.
+    ROBOT is a built-in name (sweaty-arm) or a path to a URDF or MJCF (.xml, needs ineid[mujoco]) file of a serial
+    arm or a kinematic tree on a fixed base.
     """
     ctx.obj = {"verbosity": verbose - quiet}
     configure_logging(verbose - quiet)

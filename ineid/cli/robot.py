@@ -41,16 +41,19 @@ def robot_show(robot) -> None:
         f"regressor 6 x {10 * model.n_links} ({model.op_count} operations)"
     )
     con.print(describe_gravity(model.gravity))
+    tree = not model.chain.is_serial  # a tree names each joint's parent joint
     joints = table(
-        "Joints (chain order)",
-        ("#", "joint", "type", "axis", "q range", "|qd| max", "|qdd| max"),
-        left=("joint", "type", "axis", "q range"),
+        "Joints (chain order: depth first, each parent before its children)" if tree else "Joints (chain order)",
+        ("#", "joint", *(("after",) if tree else ()), "type", "axis", "q range", "|qd| max", "|qdd| max"),
+        left=("joint", "after", "type", "axis", "q range") if tree else ("joint", "type", "axis", "q range"),
     )
     for i, j in enumerate(model.chain.joints):
         kind = "continuous" if j.continuous else j.type
         axis = " ".join(f"{v:g}" for v in j.axis)
+        parent = model.chain.parents[i]
+        after = (model.chain.joints[parent].name if parent >= 0 else "(base)",) if tree else ()
         joints.add_row(
-            str(i + 1), j.name, kind, axis, f"[{j.q_lower:g}, {j.q_upper:g}]", f"{j.qd_max:g}", f"{j.qdd_max:g}"
+            str(i + 1), j.name, *after, kind, axis, f"[{j.q_lower:g}, {j.q_upper:g}]", f"{j.qd_max:g}", f"{j.qdd_max:g}"
         )
     con.print(joints)
     links = table(

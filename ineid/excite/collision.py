@@ -2,25 +2,28 @@
 
 Bodies are the root (the fixture, index -1) and the moving links, each with the bounding
 capsules of its URDF collision geometry (:func:`ineid.robots.collision.body_capsules`).
-A pair of capsules is checked when their bodies are not adjacent (chain indices two or
-more apart). Pairs whose capsules are never apart in a sample of the joint space (a link
-two joints on, fingers on a palm: the shapes are too coarse to tell a collision from a
-joint's neighbourhood) are left out by :func:`ineid.excite.feasibility.always_touching`
-through :meth:`CollisionPairs.without`, one line each in the notes.
+A pair of capsules is checked when their bodies are not adjacent: not the same body, and neither the
+other's parent in the tree (for a serial chain, chain indices two or more apart; in a tree, two
+branches' links are checked against each other, siblings included). Pairs whose capsules are never
+apart in a sample of the joint space (a link two joints on, fingers on a palm: the shapes are too
+coarse to tell a collision from a joint's neighbourhood) are left out by
+:func:`ineid.excite.feasibility.always_touching` through :meth:`CollisionPairs.without`, one line
+each in the notes.
 
-**Between samples.** With ``D(t) = min |P1 - P2|^2`` over the points ``P1, P2`` of the two
-segments, the pair is clear when ``D >= (r1 + r2)^2``. ``D`` is the minimum of a family of smooth
-functions of ``t`` (one per pair of segment parameters), so at its smallest instant ``t*`` the
-member that attains it has zero slope too, and between ``t*`` and the nearest grid point (within
-``dt / 2``) it grows by at most ``A_D dt^2 / 8`` with ``A_D = 2 V^2 + 2 (r1 + r2 + V dt / 2) A``
-(its second derivative ``2 |v|^2 + 2 p . a``, with ``|p| < r1 + r2 + V dt / 2`` wherever a violation
-could hide): ``V`` bounds the relative speed of the two points (``V1 + V2``, ``V = sum_j w_j l_j``
-with ``w_j`` the velocity bound of joint ``j`` before the body and ``l_j`` the reach from joint ``j``
-to the body's origin plus the segment's farthest end, 1 for a prismatic joint) and ``A`` their
-relative acceleration (:func:`ineid.excite.safety.acceleration_bounds` at the same reach). So a grid
-clearance of ``sqrt((r1 + r2)^2 + A_D dt^2 / 8) - (r1 + r2)`` at every grid point
-(:meth:`CollisionPairs.margins`) keeps the capsules apart at every instant: a second-order bound,
-a few millimetres on a grid of about a thousand points per period.
+**Between samples.** With ``D(t) = min |P1 - P2|^2`` over the points ``P1, P2`` of the two segments,
+the pair is clear when ``D >= (r1 + r2)^2``. ``D`` is the minimum of a family of smooth functions of
+``t`` (one per pair of segment parameters), so at its smallest instant ``t*`` the member that
+attains it has zero slope too, and between ``t*`` and the nearest grid point (within ``dt / 2``) it
+grows by at most ``A_D dt^2 / 8`` with ``A_D = 2 V^2 + 2 (r1 + r2 + V dt / 2) A`` (its second
+derivative ``2 |v|^2 + 2 p . a``, with ``|p| < r1 + r2 + V dt / 2`` wherever a violation could
+hide): ``V`` bounds the relative speed of the two points (``V1 + V2``, ``V = sum_j w_j l_j`` with
+``w_j`` the velocity bound of joint ``j`` that moves the body (before it; an ancestor in a tree) and
+``l_j`` the reach from joint ``j`` to the body's origin plus the segment's farthest end, 1 for a
+prismatic joint) and ``A`` their relative acceleration
+(:func:`ineid.excite.safety.acceleration_bounds` at the same reach). So a grid clearance of
+``sqrt((r1 + r2)^2 + A_D dt^2 / 8) - (r1 + r2)`` at every grid point
+(:meth:`CollisionPairs.margins`) keeps the capsules apart at every instant: a second-order bound, a
+few millimetres on a grid of about a thousand points per period.
 """
 
 from __future__ import annotations
@@ -55,20 +58,26 @@ class CollisionPairs:
         self.excluded: list[str] = []
         caps = self.capsules
         n = self.chain.n_dof
+        parents = (*self.chain.parents, -2)  # parents[-1]: the root body's, none
+
+        def adjacent(a: int, b: int) -> bool:  # the same body, or parent and child in the tree
+            return a == b or parents[a] == b or parents[b] == a
+
         pairs = [
-            (i, k) for i, k in product(range(len(caps)), repeat=2) if i < k and abs(caps[i].link - caps[k].link) >= 2
+            (i, k) for i, k in product(range(len(caps)), repeat=2) if i < k and not adjacent(caps[i].link, caps[k].link)
         ]
         self.pairs = np.array(pairs, dtype=int).reshape(-1, 2)
         w = np.asarray(qd_max, dtype=np.float64)
         origin_reach = reach(self.chain)  # (n, n)
         revolute = np.array([j.type == "revolute" for j in self.chain.joints])
+        moves = self.chain.moved_by()  # [i, j]: joint j moves link i
         speed = np.zeros(len(caps))
         self._reach = np.zeros((len(caps), n))  # m, from each joint to the capsule's farthest point
         for c, cap in enumerate(caps):
             if cap.link < 0:
                 continue
             ends = max(np.linalg.norm(cap.a), np.linalg.norm(cap.b))
-            moved = np.arange(n) <= cap.link
+            moved = moves[cap.link]
             self._reach[c] = (origin_reach[cap.link] + ends) * moved
             ell = np.where(revolute, self._reach[c], 1.0) * moved
             speed[c] = float(w @ ell)

@@ -21,7 +21,8 @@ distance from joint ``j`` to the point in every configuration). Differentiating
     D_Pj = W_{j-1}                                     revolute joints before j, a bound of
                                                        the angular speed of the axis)
 
-with ``l_Pj = L_Pj`` (revolute) or 1 (prismatic). ``N`` is chosen so that the largest
+with ``l_Pj = L_Pj`` (revolute) or 1 (prismatic), the sums over the joints that move the point
+(in a tree, its link's ancestors: "before j" is j's ancestors). ``N`` is chosen so that the largest
 ``A_P dt^2 / 8`` is at most :data:`STEP_TOLERANCE` (at most :data:`MAX_GRID` points).
 
 **In IPOPT.** The grid values of each (point, half-space) pair are aggregated into one
@@ -95,9 +96,9 @@ def check_limits(model, limits: SafetyLimits) -> None:
 
     Raises:
         ExcitationError: a box whose minimum is not below its maximum, a non-finite number,
-            or a floor or box that excludes where a point must be: the first link's origin
-            when the first joint is revolute (it never moves), or every place a point can
-            reach (a ball about the first joint's origin of radius its reach).
+            or a floor or box that excludes where a point must be: the origin of a link on the
+            root when its joint is revolute (it never moves), or every place a point can reach
+            (a ball about the origin of the joint on the root that carries it, of radius its reach).
     """
     from ineid.robots.kinematics import reach, welded_frames
 
@@ -120,23 +121,27 @@ def check_limits(model, limits: SafetyLimits) -> None:
     chain = model.chain
     welded = welded_frames(model.urdf_text, chain, model.locked_joints)
     names = [*model.link_names, *welded.names]
-    radius = reach(chain, welded)[:, 0]
-    first = chain.joints[0]
-    o1 = first.parent_p_joint
+    # per point, the joint on the root that carries it (joint 0 for a serial chain): its origin never moves
+    top = np.array([chain.ancestors(int(i))[0] for i in [*range(chain.n_dof), *welded.link]])
+    radius = reach(chain, welded)[np.arange(len(top)), top]
+    origin = np.array([chain.joints[j].parent_p_joint for j in top])
     for axis, sign, bound, label in limits.half_spaces():
-        if first.type == "revolute" and sign * (o1[axis] - bound) < 0:
-            raise ExcitationError(
-                f"{label} excludes the origin of link {names[0]!r}, fixed at {_AXES[axis]} = {o1[axis]:.4g} m by joint "
-                f"{first.name!r} (the mount; base frame, origin at the base link): "
-                f"{'lower --floor' if label.startswith('--floor') else 'widen the --workspace box'} to include it",
-                reason="workspace",
-            )
-        reach_max = sign * (o1[axis] - bound) + radius
+        for first in (chain.joints[j] for j in chain.children(-1)):
+            o1 = first.parent_p_joint
+            if first.type == "revolute" and sign * (o1[axis] - bound) < 0:
+                raise ExcitationError(
+                    f"{label} excludes the origin of link {first.link!r}, fixed at {_AXES[axis]} = {o1[axis]:.4g} m "
+                    f"by joint {first.name!r} (the mount; base frame, origin at the base link): "
+                    f"{'lower --floor' if label.startswith('--floor') else 'widen the --workspace box'} to include it",
+                    reason="workspace",
+                )
+        reach_max = sign * (origin[:, axis] - bound) + radius
         worst = int(np.argmin(reach_max))
         if reach_max[worst] < 0:
+            first = chain.joints[top[worst]]
             raise ExcitationError(
                 f"{label} excludes everywhere link frame {names[worst]!r} can reach ({_AXES[axis]} within "
-                f"{o1[axis]:.4g} +- {radius[worst]:.4g} m of joint {first.name!r}'s origin, base frame); "
+                f"{origin[worst, axis]:.4g} +- {radius[worst]:.4g} m of joint {first.name!r}'s origin, base frame); "
                 f"{'lower --floor' if label.startswith('--floor') else 'widen the --workspace box'}",
                 reason="workspace",
             )
@@ -349,13 +354,15 @@ def acceleration_bounds(chain, reach_m: np.ndarray, point_link: np.ndarray, qd_m
     doc)."""
     w, a = np.asarray(qd_max, float), np.asarray(qdd_max, float)
     revolute = np.array([j.type == "revolute" for j in chain.joints])
-    omega_before = np.concatenate([[0.0], np.cumsum(np.where(revolute, w, 0.0))[:-1]])
+    moves = chain.moved_by()  # [i, j]: joint j moves link i (an ancestor in a tree, j <= i in a serial chain)
+    spin = np.where(revolute, w, 0.0)
+    omega_before = np.array([spin[moves[j]].sum() - spin[j] for j in range(chain.n_dof)])  # over j's ancestors
     out = np.zeros(len(point_link))
     for k, i in enumerate(point_link):
-        moved = np.arange(chain.n_dof) <= i
+        moved = moves[int(i)] if i >= 0 else np.zeros(chain.n_dof, dtype=bool)
         ell = np.where(revolute, reach_m[k], 1.0) * moved
         total = float(a @ ell)
-        for j in range(int(i) + 1):
+        for j in np.flatnonzero(moved):
             if revolute[j]:
                 d = 2.0 * omega_before[j] * reach_m[k, j] + float(w[j:] @ ell[j:])
             else:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ast
 
+from ineid.chain import check_parents
 from ineid.errors import CodegenError
 
 _IMPORTS = {"jax": (("jax.numpy", "jnp"), ("jax", None)), "casadi": (("casadi", "ca"),)}
@@ -27,6 +28,8 @@ _CONSTANTS = {
     "SHAPE",
     "NONZERO",
 }
+_OPTIONAL = {"PARENTS"}
+"""Constants a module may lack: without ``PARENTS`` the chain is serial, ``(-1, 0, 1, ...)``."""
 _FUNCTIONS = {"program"}
 
 
@@ -55,7 +58,7 @@ def check_module_source(text: str, kind: str, where: str = "generated module") -
     values: dict[str, object] = {}
     defined: set[str] = set()
     for k, node in enumerate(tree.body):
-        problem = _problem(node, k, kind, constants, functions, values)
+        problem = _problem(node, k, kind, constants | _OPTIONAL, functions, values)
         name = _defined_name(node)
         if problem is None and name is not None and name in defined:
             problem = f"{name} is defined twice"
@@ -98,6 +101,9 @@ def _constants_problem(values: dict[str, object]) -> str | None:
     )
     if not ok or not isinstance(values["OP_COUNT"], int):
         return "a NONZERO or OP_COUNT of the wrong shape"
+    parents = values.get("PARENTS", tuple(range(-1, n - 1)))
+    if not isinstance(parents, tuple) or check_parents(parents, n) is not None:
+        return "PARENTS that are not a joint before each joint (or -1)"
     return None
 
 

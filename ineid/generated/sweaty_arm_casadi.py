@@ -13,6 +13,8 @@ N_DOF = 4
 JOINT_NAMES = ('shoulder_pitch', 'shoulder_roll', 'upper_arm_yaw', 'elbow')
 LINK_NAMES = ('shoulder_pitch_link', 'shoulder_roll_link', 'upper_arm', 'forearm')
 JOINT_TYPES = ('revolute', 'revolute', 'revolute', 'revolute')
+# Per joint, its parent joint (-1: the root body).
+PARENTS = (-1, 0, 1, 2)
 KINEMATIC_FINGERPRINT = 'a2c1ef3faae29d59'
 OP_COUNT = 1173
 SHAPE = (6, 40)
@@ -29,7 +31,8 @@ def program(q, qd, qdd, gravity):
 
     Returns:
         ``{name: per link (or joint) tuple}``, each entry a CasADi scalar expression or a Python number, links and joints in the
-        order of ``LINK_NAMES`` and ``JOINT_NAMES``:
+        order of ``LINK_NAMES`` and ``JOINT_NAMES`` (joint ``i`` moves link ``i``; ``PARENTS[i]`` is
+        the joint whose link carries it, -1 for the root body):
 
         - ``"R"``: ``base_R_i`` (3 x 3, row-major), ``"p"``: ``base_p_i`` (3), the link frame's
           placement in the base frame;

@@ -3,7 +3,8 @@
 Frames (all in the base frame, the root link's): link ``i``'s frame is the frame of moving
 joint ``i`` moved by ``q_i`` (:class:`ineid.chain.JointSpec`), so its pose is the
 product ``prod_j (parent_R_joint_j, parent_p_joint_j) (Rot(axis_j, q_j) | axis_j q_j)``
-along the chain. :func:`link_poses` evaluates it with array operations of the module it is
+over the joints that move it, root first (its ancestors in the tree, :attr:`Chain.parents`; the
+joints before it in a serial chain). :func:`link_poses` evaluates it with array operations of the module it is
 given (NumPy by default, ``jax.numpy`` works the same: n small 3x3 products per sample,
 vectorised over samples, cheap to compile). :func:`welded_frames` reads from the URDF the
 frames welded by fixed (or locked) joints to each moving link (the tool flange, a hand,
@@ -48,12 +49,12 @@ def _joint_basis(joint) -> np.ndarray:
 def link_poses(chain: Chain, q, xp=np):
     """Every moving link's frame in the base frame.
 
-    Link ``i``'s rotation is ``R_i = R_{i-1} P_i Rot(axis_i, q_i)`` with Rodrigues' formula
-    ``Rot = I + sin(q) K + (1 - cos(q)) K^2``, so ``R_i = (R_{i-1} P_i) + sin(q_i) (R_{i-1} P_i K) + (1 - cos(q_i))
-    (R_{i-1} P_i K^2)``: one matrix product of the parent's rotations with the joint's constant columns
-    (:func:`_joint_basis`, which also carries the joint's offset ``p_i = p_{i-1} + R_{i-1} parent_p_joint``)
-    per joint, for every sample at once. A prismatic joint: ``R_i = R_{i-1} P_i``, ``p_i`` moved by
-    ``R_i axis_i q_i``.
+    Link ``i``'s rotation is ``R_i = R_k P_i Rot(axis_i, q_i)`` (``k`` its parent joint, the base frame
+    for -1) with Rodrigues' formula ``Rot = I + sin(q) K + (1 - cos(q)) K^2``, so ``R_i = (R_k P_i) +
+    sin(q_i) (R_k P_i K) + (1 - cos(q_i)) (R_k P_i K^2)``: one matrix product of the parent's rotations
+    with the joint's constant columns (:func:`_joint_basis`, which also carries the joint's offset
+    ``p_i = p_k + R_k parent_p_joint``) per joint, for every sample at once. A prismatic joint:
+    ``R_i = R_k P_i``, ``p_i`` moved by ``R_i axis_i q_i``.
 
     Args:
         chain: the arm.
@@ -66,13 +67,13 @@ def link_poses(chain: Chain, q, xp=np):
     """
     q = xp.asarray(q)
     lead = q.shape[:-1]
-    r_acc = None
-    p_acc = None
     rs, ps = [], []
     for i, j in enumerate(chain.joints):
         qi = q[..., i]
         basis = _joint_basis(j)
-        if r_acc is None:  # the first joint: the parent is the base frame itself
+        parent = chain.parents[i]
+        r_acc, p_acc = (None, None) if parent < 0 else (rs[parent], ps[parent])
+        if r_acc is None:  # a joint on the root: the parent is the base frame itself
             b = xp.broadcast_to(basis, lead + (3, 10))
             p_joint = xp.broadcast_to(j.parent_p_joint, lead + (3,))
         else:  # rows of every parent rotation times the constant columns: one (3 T, 3) x (3, 10) product
@@ -108,7 +109,8 @@ class WeldedFrames:
 
     @property
     def tool(self) -> tuple[str, ...]:
-        """The frames welded to the last moving link (the tool frame and its parents)."""
+        """The frames welded to the last moving link in chain order (the tool frame and its parents; in a tree,
+        the last branch's)."""
         last = int(self.link.max()) if len(self.link) else -1
         return tuple(n for n, k in zip(self.names, self.link, strict=True) if k == last)
 
@@ -198,6 +200,13 @@ def frame_points(chain: Chain, q, welded: WeldedFrames | None = None, xp=np):
     return xp.concatenate([p, extra], axis=-2)
 
 
+def _moves(chain: Chain, link: np.ndarray) -> np.ndarray:
+    """(P, n_dof) bool: whether joint ``j`` moves each point's link (``link`` (P,), -1: the root, moved by none)."""
+    link = np.asarray(link, dtype=int)
+    table = np.vstack([chain.moved_by(), np.zeros((1, chain.n_dof), dtype=bool)])  # row -1: the root
+    return table[link]
+
+
 def point_jacobians(chain: Chain, q: np.ndarray, link: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Exact ``d point / d q`` of points fixed in links (NumPy).
 
@@ -208,18 +217,19 @@ def point_jacobians(chain: Chain, q: np.ndarray, link: np.ndarray, points: np.nd
 
     Returns:
         (T, P, 3, n_dof): column ``j`` is ``s_j x (point - o_j)`` for a revolute joint ``j``
-        at or before the point's link, ``s_j`` for a prismatic one, zero after it
-        (``s_j``, ``o_j`` the joint's axis and origin in the base frame).
+        that moves the point's link (the link's or an ancestor's), ``s_j`` for a prismatic one, zero
+        for the others (``s_j``, ``o_j`` the joint's axis and origin in the base frame).
     """
     q = np.atleast_2d(np.asarray(q, dtype=np.float64))
     r, p = link_poses(chain, q)
     t, n = q.shape
     jac = np.zeros((t, len(link), 3, n))
+    moves = _moves(chain, link)
     for i, j in enumerate(chain.joints):
         # joint i's axis in the base frame: the link frame's rotation (the joint rotates about its own axis)
         s = r[:, i] @ j.axis  # (T, 3)
         o = p[:, i] if j.type == "revolute" else None
-        moved = link >= i
+        moved = moves[:, i]
         if not np.any(moved):
             continue
         if j.type == "revolute":
@@ -235,8 +245,9 @@ def reach(chain: Chain, welded: WeldedFrames | None = None) -> np.ndarray:
 
     Row ``k`` is a point of :func:`frame_points`, column ``j`` a joint; zero where the joint
     does not move the point. The bound adds the lengths of the joint offsets from joint
-    ``j`` to the point, the largest travel ``max(|q_lower|, |q_upper|)`` of every prismatic
-    joint on the way, and the welded frame's offset.
+    ``j`` to the point (along the tree's path, the point's link's ancestors after ``j``), the
+    largest travel ``max(|q_lower|, |q_upper|)`` of every prismatic joint on the way, and the
+    welded frame's offset.
     """
     n = chain.n_dof
     offsets = np.array([np.linalg.norm(j.parent_p_joint) for j in chain.joints])
@@ -248,8 +259,10 @@ def reach(chain: Chain, welded: WeldedFrames | None = None) -> np.ndarray:
         extra += [float(np.linalg.norm(o)) for o in welded.offset]
     out = np.zeros((len(links), n))
     for k, (i, e) in enumerate(zip(links, extra, strict=True)):
-        for j in range(i + 1):
-            out[k, j] = travel[j] + offsets[j + 1 : i + 1].sum() + travel[j + 1 : i + 1].sum() + e
+        path = chain.ancestors(i)
+        for at, j in enumerate(path):
+            after = list(path[at + 1 :])
+            out[k, j] = travel[j] + offsets[after].sum() + travel[after].sum() + e
     return out
 
 
@@ -261,8 +274,9 @@ def entry_jacobians(chain: Chain, q: np.ndarray, link: np.ndarray, points: np.nd
     r, p = link_poses(chain, q) if poses is None else poses
     e, n = q.shape
     jac = np.zeros((e, 3, n))
+    moves = _moves(chain, link)
     for i, j in enumerate(chain.joints):
-        moved = link >= i
+        moved = moves[:, i]
         if not np.any(moved):
             continue
         s = r[moved, i] @ j.axis  # (E', 3): joint i's axis in the base frame

@@ -45,7 +45,7 @@ def load_robot(
     locked_joints: Mapping[str, float] | None = None,
     codegen_dir: str | Path | None = None,
 ) -> RobotModel:
-    """Load a built-in robot by name or any serial-chain URDF or MJCF by path.
+    """Load a built-in robot by name or any URDF or MJCF by path (a serial arm or a kinematic tree on a fixed base).
 
     Args:
         robot: a built-in name (``"sweaty-arm"``), a path to a ``.urdf`` file, or to an MJCF

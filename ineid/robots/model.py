@@ -1,4 +1,5 @@
-"""RobotModel: a serial arm, its parameters, and its generated Newton-Euler program and regressors."""
+"""RobotModel: a robot on a fixed base (a serial arm or a kinematic tree), its parameters, and its generated
+Newton-Euler program and regressors."""
 
 from __future__ import annotations
 
@@ -27,7 +28,8 @@ DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 
 
 class RobotModel(CutRegressors):
-    """A serial arm on a force/torque sensor, with the regressor of its base wrench.
+    """A robot on a force/torque sensor (a serial arm, or a tree of branches on one base), with the regressor
+    of its base wrench.
 
     ``[F; M] = Psi(q, qd, qdd) @ theta``: ``[F; M]`` the wrench the moving links exert on
     the fixture (the sensor reading), base frame, moment about the base origin; ``theta``

@@ -160,6 +160,8 @@ def _welded_outputs(out: dict, body: int, rotation, t, fold) -> dict:
 
 @functools.cache
 def _wrapped(jax_module, casadi_module, spec: tuple, links: tuple[str, ...], m_rows: tuple):
+    from ineid.robots.program import parents_of
+
     m = np.array(m_rows)
     n, n_ext = m.shape
     after = {}
@@ -200,6 +202,7 @@ def _wrapped(jax_module, casadi_module, spec: tuple, links: tuple[str, ...], m_r
             NONZERO=nonzero,
             JOINT_TYPES=module.JOINT_TYPES,
             BODY_OF=body_of,
+            PARENTS=parents_of(module),
             program=extended(module.program),
         )
 

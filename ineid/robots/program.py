@@ -17,8 +17,9 @@ and CasADi ``SX`` (the Python numbers are folded here: ``0 * x`` is never formed
 - :func:`link_poses`: every link frame's placement.
 
 The backward pass of the recursion composes from the same outputs: the wrench a joint
-transmits to everything beyond it is the sum of the net wrenches of the links beyond
-(``sum_{i >= j} Yn_i theta_i``, base frame, about the base origin), so
+transmits to everything beyond it is the sum of the net wrenches of the links it moves, its
+subtree (``sum_{i in sub(j)} Yn_i theta_i``, base frame, about the base origin; ``sub(j)`` is
+``j`` and its descendants in the module's ``PARENTS``, ``i >= j`` for a serial chain), so
 
 - :func:`joint_torque_entries`: the joint-torque regressor ``tau = Y_tau theta``,
   ``Y_tau[j, 10 i + k] = z_j . M_ik + (p_j x z_j) . F_ik`` for links ``i`` beyond joint ``j``
@@ -26,12 +27,14 @@ transmits to everything beyond it is the sum of the net wrenches of the links be
   torques without forming ``Y_tau`` (inverse dynamics, O(n));
 - :func:`link_wrench_entries`: the wrench the links beyond link ``L`` exert on it, in ``L``'s
   frame, moment about ``L``'s origin: ``-X_L sum_{i > L} Yn_i`` with ``X_L`` the wrench transform
-  of ``L``'s placement (:func:`link_wrench` without forming the regressor). With ``L`` the root
-  (no link) it is the base wrench.
+  of ``L``'s placement (:func:`link_wrench` without forming the regressor), the sum over the
+  links below ``L`` in the tree. With ``L`` the root (no link) it is the base wrench.
 
 A parameter block ``i`` belongs to the moving body ``body_of[i]`` (a payload welded to a body
 is a block of its own after it, :mod:`ineid.robots.payload`); a block is beyond joint ``j`` when
-its body is ``>= j``, beyond link ``L`` when its body is ``> L`` or it is a payload welded to ``L``.
+its body is in ``sub(j)``, beyond link ``L`` when its body is in ``sub(L)`` but not ``L``, or it
+is a payload welded to ``L``. ``parents``: per joint its parent joint (-1: the root), the
+module's ``PARENTS`` (:func:`parents_of`); None is a serial chain.
 
 :func:`jax_functions` and :func:`casadi_functions` wrap these for one generated module,
 once per module (the same function objects on every call, so they can key compile caches).
@@ -43,6 +46,8 @@ import functools
 from collections.abc import Sequence
 from types import ModuleType
 from typing import NamedTuple
+
+from ineid.chain import serial_parents, subtree
 
 OUTPUTS = ("R", "p", "w", "wd", "a", "axis", "moment", "Yn")
 """The keys of a program's outputs (see the module docstring)."""
@@ -153,21 +158,30 @@ def _project(kind: str, axis: Sequence, moment: Sequence, force: Sequence, torqu
     return add(dot(axis, torque), dot(moment, force))
 
 
-def joint_torque_entries(out: dict, joint_types: Sequence[str], body_of: Sequence[int]) -> tuple:
+def _subtrees(parents: Sequence[int] | None, n: int) -> list[set[int]]:
+    """Per joint, the set of bodies it moves (its subtree)."""
+    parents = serial_parents(n) if parents is None else parents
+    return [set(subtree(parents, j)) for j in range(n)]
+
+
+def joint_torque_entries(
+    out: dict, joint_types: Sequence[str], body_of: Sequence[int], parents: Sequence[int] | None = None
+) -> tuple:
     """The ``n_dof x 10 n`` entries of the joint-torque regressor ``Y_tau``, row-major: ``tau = Y_tau theta``.
 
     ``tau_j`` is what joint ``j``'s actuator applies (Pinocchio's ``rnea``): the projection on its
-    axis of the wrench it transmits to the blocks beyond it, ``sum_{body_of[i] >= j} Yn_i theta_i``
-    (gravity folded into the accelerations, so the weight is in it). Entries of blocks before
-    the joint are the number 0.
+    axis of the wrench it transmits to the blocks beyond it, ``sum_{body_of[i] in sub(j)} Yn_i theta_i``
+    (gravity folded into the accelerations, so the weight is in it). Entries of blocks the joint
+    does not move are the number 0.
     """
     yn = out["Yn"]
+    moves = _subtrees(parents, len(joint_types))
     entries = []
     for j, kind in enumerate(joint_types):
         z, m = out["axis"][j], out["moment"][j]
         for i, block in enumerate(yn):
             for k in range(10):
-                if body_of[i] < j:
+                if body_of[i] not in moves[j]:
                     entries.append(0)
                     continue
                 entries.append(
@@ -176,22 +190,30 @@ def joint_torque_entries(out: dict, joint_types: Sequence[str], body_of: Sequenc
     return tuple(entries)
 
 
-def joint_torques(out: dict, theta: Sequence, joint_types: Sequence[str], body_of: Sequence[int]) -> tuple:
-    """``Y_tau theta`` without forming ``Y_tau``: each block's wrench once, summed from the tip
-    (the backward pass of inverse dynamics), projected on each joint's axis."""
+def joint_torques(
+    out: dict,
+    theta: Sequence,
+    joint_types: Sequence[str],
+    body_of: Sequence[int],
+    parents: Sequence[int] | None = None,
+) -> tuple:
+    """``Y_tau theta`` without forming ``Y_tau``: each block's wrench once, summed over each joint's
+    subtree (the backward pass of inverse dynamics), projected on each joint's axis."""
     wrenches = [_block_wrench(out, i, theta[10 * i : 10 * i + 10]) for i in range(len(out["R"]))]
+    moves = _subtrees(parents, len(joint_types))
     taus = []
     for j, kind in enumerate(joint_types):
-        force, torque = _sum_wrenches(w for w, body in zip(wrenches, body_of, strict=True) if body >= j)
+        force, torque = _sum_wrenches(w for w, body in zip(wrenches, body_of, strict=True) if body in moves[j])
         taus.append(_project(kind, out["axis"][j], out["moment"][j], force, torque))
     return tuple(taus)
 
 
-def beyond_link(body_of: Sequence[int], link_block: int) -> tuple[int, ...]:
-    """The blocks beyond an F/T sensor on block ``link_block``'s body: the bodies after it and the
-    payloads welded to it (the blocks after it with the same body)."""
+def beyond_link(body_of: Sequence[int], link_block: int, parents: Sequence[int] | None = None) -> tuple[int, ...]:
+    """The blocks beyond an F/T sensor on block ``link_block``'s body: the bodies below it in the tree
+    (after it, for a serial chain) and the payloads welded to it (the blocks after it with the same body)."""
     body = body_of[link_block]
-    return tuple(i for i, b in enumerate(body_of) if b > body or (b == body and i > link_block))
+    below = set(subtree(serial_parents(max(body_of) + 1) if parents is None else parents, body)) - {body}
+    return tuple(i for i, b in enumerate(body_of) if b in below or (b == body and i > link_block))
 
 
 def _to_link(out: dict, link_block: int, force: Sequence, torque: Sequence) -> tuple:
@@ -203,11 +225,13 @@ def _to_link(out: dict, link_block: int, force: Sequence, torque: Sequence) -> t
     return tuple(neg(x) for x in matvec(rt, force)) + tuple(neg(x) for x in matvec(rt, about))
 
 
-def link_wrench_entries(out: dict, link_block: int, body_of: Sequence[int]) -> tuple:
+def link_wrench_entries(
+    out: dict, link_block: int, body_of: Sequence[int], parents: Sequence[int] | None = None
+) -> tuple:
     """The ``6 x 10 n`` entries, row-major, of the regressor of the wrench that the blocks beyond
     link ``link_block`` (:func:`beyond_link`) exert on it, in its frame, moment about its origin.
     The columns of the other blocks are the number 0."""
-    beyond = set(beyond_link(body_of, link_block))
+    beyond = set(beyond_link(body_of, link_block, parents))
     cols = []
     for i, block in enumerate(out["Yn"]):
         for k in range(10):
@@ -220,10 +244,12 @@ def link_wrench_entries(out: dict, link_block: int, body_of: Sequence[int]) -> t
     return tuple(col[r] for r in range(6) for col in cols)
 
 
-def link_wrench(out: dict, theta: Sequence, link_block: int, body_of: Sequence[int]) -> tuple:
+def link_wrench(
+    out: dict, theta: Sequence, link_block: int, body_of: Sequence[int], parents: Sequence[int] | None = None
+) -> tuple:
     """The wrench of :func:`link_wrench_entries` for ``theta`` without forming the regressor."""
     force, torque = _sum_wrenches(
-        _block_wrench(out, i, theta[10 * i : 10 * i + 10]) for i in beyond_link(body_of, link_block)
+        _block_wrench(out, i, theta[10 * i : 10 * i + 10]) for i in beyond_link(body_of, link_block, parents)
     )
     return _to_link(out, link_block, force, torque)
 
@@ -236,6 +262,11 @@ def link_poses(out: dict) -> tuple[tuple, tuple]:
 def body_of(module: ModuleType) -> tuple[int, ...]:
     """Per parameter block of a generated module (or its payload view), the index of its moving body."""
     return tuple(getattr(module, "BODY_OF", range(len(module.LINK_NAMES))))
+
+
+def parents_of(module: ModuleType) -> tuple[int, ...]:
+    """Per joint of a generated module, its parent joint (-1: the root body): its ``PARENTS``, serial without one."""
+    return tuple(getattr(module, "PARENTS", serial_parents(module.N_DOF)))
 
 
 # -- JAX ---------------------------------------------------------------------------------------------
@@ -304,13 +335,13 @@ def jax_functions(module: ModuleType) -> JaxFunctions:
 
     program = module.program
     n = len(module.LINK_NAMES)  # parameter blocks (payload views add links after their body)
-    types, owners = tuple(module.JOINT_TYPES), body_of(module)
+    types, owners, parents = tuple(module.JOINT_TYPES), body_of(module), parents_of(module)
 
     def entries(q, qd, qdd, gravity):
         return base_entries(program(q, qd, qdd, gravity))
 
     def torque_entries(q, qd, qdd, gravity):
-        return joint_torque_entries(program(q, qd, qdd, gravity), types, owners)
+        return joint_torque_entries(program(q, qd, qdd, gravity), types, owners, parents)
 
     def poses(q):
         q = jnp.asarray(q)
@@ -330,7 +361,7 @@ def jax_functions(module: ModuleType) -> JaxFunctions:
         poses,
         torque_entries,
         _jax_rows(torque_entries, len(types), 10 * n),
-        _jax_contracted(program, lambda out, th: joint_torques(out, th, types, owners), 10 * n),
+        _jax_contracted(program, lambda out, th: joint_torques(out, th, types, owners, parents), 10 * n),
     )
 
 
@@ -351,16 +382,16 @@ class LinkWrenchFunctions(NamedTuple):
 @functools.cache
 def jax_link_wrench_functions(module: ModuleType, link_block: int) -> LinkWrenchFunctions:
     """The cut wrench at parameter block ``link_block``'s link, for one generated JAX module (cached)."""
-    program, owners = module.program, body_of(module)
+    program, owners, parents = module.program, body_of(module), parents_of(module)
     n = len(module.LINK_NAMES)
 
     def entries(q, qd, qdd, gravity):
-        return link_wrench_entries(program(q, qd, qdd, gravity), link_block, owners)
+        return link_wrench_entries(program(q, qd, qdd, gravity), link_block, owners, parents)
 
     return LinkWrenchFunctions(
         entries,
         _jax_rows(entries, 6, 10 * n),
-        _jax_contracted(program, lambda out, th: link_wrench(out, th, link_block, owners), 10 * n),
+        _jax_contracted(program, lambda out, th: link_wrench(out, th, link_block, owners, parents), 10 * n),
     )
 
 
@@ -434,15 +465,15 @@ def casadi_torque_functions(module: ModuleType) -> CasadiTorqueFunctions:
     import casadi as ca
 
     n = len(module.LINK_NAMES)
-    types, owners = tuple(module.JOINT_TYPES), body_of(module)
+    types, owners, parents = tuple(module.JOINT_TYPES), body_of(module), parents_of(module)
     args, names, theta, th = _casadi_symbols(module)
     out = module.program(*args)
-    y_tau = _casadi_matrix(ca, joint_torque_entries(out, types, owners), len(types), 10 * n)
+    y_tau = _casadi_matrix(ca, joint_torque_entries(out, types, owners, parents), len(types), 10 * n)
     torque_regressor = ca.Function("joint_torque_regressor", args, [y_tau], names, ["Y"])
     torques = ca.Function(
         "joint_torques",
         [*args, theta],
-        [_casadi_vector(ca, joint_torques(out, th, types, owners))],
+        [_casadi_vector(ca, joint_torques(out, th, types, owners, parents))],
         [*names, "theta"],
         ["tau"],
     )
@@ -454,11 +485,11 @@ def casadi_link_wrench_functions(module: ModuleType, link_block: int) -> LinkWre
     """The cut wrench at parameter block ``link_block``'s link as ``casadi.Function`` objects (cached)."""
     import casadi as ca
 
-    n, owners = len(module.LINK_NAMES), body_of(module)
+    n, owners, parents = len(module.LINK_NAMES), body_of(module), parents_of(module)
     args, names, theta, th = _casadi_symbols(module)
     out = module.program(*args)
-    y = _casadi_matrix(ca, link_wrench_entries(out, link_block, owners), 6, 10 * n)
-    w = _casadi_vector(ca, link_wrench(out, th, link_block, owners))
+    y = _casadi_matrix(ca, link_wrench_entries(out, link_block, owners, parents), 6, 10 * n)
+    w = _casadi_vector(ca, link_wrench(out, th, link_block, owners, parents))
     return LinkWrenchFunctions(
         None,
         ca.Function("link_wrench_regressor", args, [y], names, ["Y"]),

@@ -1,7 +1,13 @@
-"""URDF -> :class:`Chain`: the numeric description of a serial arm that ineid works on.
+"""URDF -> :class:`Chain`: the numeric description of a robot that ineid works on.
 
 Parsing is yourdfpy's (once per URDF text: the result is kept in the cache folder, see
-:func:`parse_chain`); this module turns its tree into a chain of moving joints:
+:func:`parse_chain`); this module turns its tree into a chain of moving joints, a tree on the
+fixed root body (a serial arm, a torso with two arms, a hand with fingers; a closed loop or a
+second root is refused):
+
+* moving joints are in chain order: depth first from the root, each body's moving child joints
+  in URDF order, so every parent precedes its children (:attr:`Chain.parents`), each subtree is a
+  run of consecutive joints, and a serial chain keeps its URDF order;
 
 * fixed joints are merged into their parent body, their inertia folded in (as Pinocchio
   does); links welded to the root belong to the fixture and are tared away;
@@ -64,7 +70,7 @@ def load_chain(path: str | Path, locked_joints: Mapping[str, float] | None = Non
     Raises:
         InputFileError: the file is not a regular file, or is over :data:`~ineid.robots.robot_files.URDF_MAX_BYTES`
             (or its links and joints over their limits).
-        RobotModelError: the file is unreadable, malformed, not a serial chain, or has
+        RobotModelError: the file is unreadable, malformed, not a tree (a loop, two roots), or has
             an unsupported joint, a number that is not finite or a negative limit, or a non-physical inertial.
     """
     path = regular_file(path, "the URDF", max_bytes=URDF_MAX_BYTES, limit_name="URDF_MAX_BYTES")
@@ -171,9 +177,6 @@ def _fold(theta: np.ndarray, parent_R: np.ndarray, parent_p: np.ndarray) -> np.n
     return theta_from_inertial(m, parent_R @ c + parent_p, parent_R @ ic @ parent_R.T)
 
 
-_LOCK_HINT = "lock the joints of the other branches with --lock JOINT=POS (Python: locked_joints={name: position})"
-
-
 def _mimic_locks(robot, locked: dict[str, float]) -> tuple[dict[str, float], list[str]]:
     """``locked`` with every joint that mimics a locked joint locked too, at ``multiplier * q + offset``
     (followers of followers included); and one note per leader. An explicit position wins."""
@@ -202,7 +205,7 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
 
     Raises:
         RobotModelError: no links, a locked joint not in the URDF, a joint of an unsupported type, a link
-            missing or the child of two joints, not one root, a branching tree, a mimic joint, an axis of zero
+            missing or the child of two joints (a loop), not one root, a mimic joint, an axis of zero
             length, no moving joint, no moving link with mass (and :func:`_joint_spec`'s errors).
     """
     links = {link.name: link for link in robot.links}
@@ -217,7 +220,7 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
     locked, mimic_notes = _mimic_locks(robot, locked)
     children, root = _tree(robot, source, links, locked)
     bodies = _Bodies(source, links, children, locked, [*notes, *mimic_notes])
-    specs, merged = _moving_joints(bodies, root, qdd_bounds)
+    specs, merged, parents = _moving_joints(bodies, root, qdd_bounds, {j.name: k for k, j in enumerate(robot.joints)})
     if not specs:
         raise RobotModelError(
             f"{source}: the URDF has no moving joint (every joint is fixed or locked); nothing "
@@ -235,6 +238,7 @@ def _build_chain(robot, source: str, locked: dict[str, float], qdd_bounds: dict[
         merged_links=merged,
         body_links=bodies.body_links,
         notes=tuple(bodies.notes),
+        parents=tuple(parents),
     )
 
 
@@ -256,13 +260,17 @@ def _tree(robot, source: str, links: dict, locked: dict[str, float]) -> tuple[di
                 raise RobotModelError(f"{source}: joint {j.name!r} refers to link {end!r}, which is not defined")
         if j.child in child_seen:
             raise RobotModelError(
-                f"{source}: link {j.child!r} is the child of two joints ({child_seen[j.child]!r}, {j.name!r})"
+                f"{source}: link {j.child!r} is the child of two joints ({child_seen[j.child]!r}, {j.name!r}): "
+                "a closed loop; ineid models kinematic trees: remove one of the two joints"
             )
         child_seen[j.child] = j.name
         children[j.parent].append(j)
     roots = [name for name in links if name not in child_seen]
     if len(roots) != 1:
-        raise RobotModelError(f"{source}: the URDF must have exactly one root link, found {len(roots)}: {roots}")
+        raise RobotModelError(
+            f"{source}: the URDF must have exactly one root link, found {len(roots)}: {roots}; join them "
+            "with fixed joints or remove the links that are not part of the robot"
+        )
     return children, roots[0]
 
 
@@ -320,22 +328,25 @@ class _Bodies:
         return theta, moving_out, names
 
 
-def _moving_joints(bodies: _Bodies, root: str, qdd_bounds: dict[str, str]) -> tuple[list[JointSpec], dict]:
-    """Walk from the root's body out along the moving joints, one body at a time: ``(specs, merged)``, each
-    moving joint's :class:`JointSpec` in chain order and each body's link names (the root's first)."""
+def _moving_joints(
+    bodies: _Bodies, root: str, qdd_bounds: dict[str, str], order: dict[str, int]
+) -> tuple[list[JointSpec], dict, list[int]]:
+    """Walk the tree of bodies from the root's out along the moving joints: ``(specs, merged, parents)``, each
+    moving joint's :class:`JointSpec` in chain order, each body's link names (the root's first) and each
+    joint's parent joint (-1: the root).
+
+    Chain order is depth first: a joint, then the whole subtree of its first moving child joint (URDF
+    order, ``order``), then its next one's; every parent precedes its children, each subtree is a run of
+    consecutive joints, and a serial chain is in its URDF order."""
     source = bodies.source
     merged: dict[str, tuple[str, ...]] = {}
     _, moving_out, names = bodies.collect(root, tared=True)
     merged[root] = tuple(names)
     specs: list[JointSpec] = []
-    while moving_out:
-        if len(moving_out) > 1:
-            where = specs[-1].link if specs else root
-            raise RobotModelError(
-                f"{source}: branching tree: body {where!r} has {len(moving_out)} moving child joints "
-                f"({', '.join(j.name for j, _, _ in moving_out)}); ineid needs a serial chain: {_LOCK_HINT}"
-            )
-        j, body_R, body_p = moving_out[0]
+    parents: list[int] = []
+    stack = [(-1, out) for out in sorted(moving_out, key=lambda o: order[o[0].name], reverse=True)]
+    while stack:
+        parent, (j, body_R, body_p) = stack.pop()
         if j.mimic is not None:
             raise RobotModelError(
                 f"{source}: joint {j.name!r} mimics {j.mimic.joint!r}; coupled joints are not supported: lock "
@@ -356,8 +367,11 @@ def _moving_joints(bodies: _Bodies, root: str, qdd_bounds: dict[str, str]) -> tu
                 f"moving link {j.child!r} has no mass (no <inertial>, and nothing with mass is welded "
                 "to it): a known link contributing nothing"
             )
+        index = len(specs)
         specs.append(_joint_spec(j, source, body_R @ r, body_R @ p + body_p, axis / norm, theta, qdd_bounds))
-    return specs, merged
+        parents.append(parent)
+        stack += [(index, out) for out in sorted(moving_out, key=lambda o: order[o[0].name], reverse=True)]
+    return specs, merged, parents
 
 
 def _joint_transform(j, locked: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:

@@ -83,6 +83,7 @@ def cached_chain(key: str) -> Chain | None:
             {k: tuple(v) for k, v in doc["merged_links"].items()},
             links,
             tuple(doc["notes"]),
+            tuple(doc["parents"]),
         )
     except Untrusted as e:  # e.reason: "has a file that is writable by group or others (<file>)"
         # logged under the parser's name: the warning is what a URDF's parse meets
@@ -146,6 +147,7 @@ def store_chain(key: str, chain: Chain) -> None:
         "merged_links": {k: list(v) for k, v in chain.merged_links.items()},
         "body_links": links,
         "notes": list(chain.notes),
+        "parents": list(chain.parents),
     }
     path = chain_file(key)
     try:

@@ -114,29 +114,36 @@ def arm_mjcf(
 ) -> str:
     """MJCF of ``chain`` with link parameters ``theta`` (10 n_links) on a sensor at ``sensor`` (None: the root frame).
 
-    Body frames are the URDF link frames: body ``i`` sits at the joint origin in its parent
-    (``parent_R_joint, parent_p_joint``), its hinge (slide, prismatic) at the body origin about
-    ``axis``, so MuJoCo's ``qpos`` is ineid's ``q``. Inertials are given about the centre of mass
-    (``fullinertia``), the values ineid's ``theta`` stands for. The joints get ``friction``'s
-    damping, frictionloss and armature (its Stribeck term is :func:`simulate`'s).
+    Bodies nest as the chain's tree (:attr:`ineid.chain.Chain.parents`), each body's children in chain order,
+    so MuJoCo's joint order is the chain's. Body frames are the URDF link frames: body ``i`` sits at the joint
+    origin in its parent (``parent_R_joint, parent_p_joint``), its hinge (slide, prismatic) at the body origin
+    about ``axis``, so MuJoCo's ``qpos`` is ineid's ``q``. Inertials are given about the centre of mass
+    (``fullinertia``), the values ineid's ``theta`` stands for. The joints get ``friction``'s damping,
+    frictionloss and armature (its Stribeck term is :func:`simulate`'s).
     """
     theta = np.asarray(theta, dtype=np.float64).reshape(-1, 10)
     sensor = sensor or SensorPose((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     f = friction.per_joint(len(chain.joints))
     root = chain.root_link if chain.root_link != "world" else "ineid_root"  # MuJoCo's world body owns "world"
+    if len(theta) != chain.n_dof:
+        raise ValueError(f"theta holds {len(theta)} links' parameters, the chain has {chain.n_dof} moving links")
+
+    def subtree(i: int) -> str:  # body i and, nested in it, its children's (depth first: MuJoCo's qpos is q)
+        j, kind = chain.joints[i], "slide" if chain.joints[i].type == "prismatic" else "hinge"
+        return (
+            f'<body name="{j.link}" pos="{_fmt(j.parent_p_joint)}" quat="{_fmt(_quat(j.parent_R_joint))}">'
+            f'<joint name="{j.name}" type="{kind}" axis="{_fmt(j.axis)}" damping="{float(f["viscous"][i])!r}" '
+            f'frictionloss="{float(f["coulomb"][i])!r}" armature="{float(f["armature"][i])!r}"/>{_inertial(theta[i])}'
+            + "".join(subtree(c) for c in chain.children(i))
+            + "</body>"
+        )
+
     body = (
         f'<body name="{root}">{_inertial(root_theta)}'
         f'<site name="ft" pos="{_fmt(sensor.base_p_sensor)}" quat="{_fmt(_quat(sensor.base_R_sensor))}"/>'
+        + "".join(subtree(c) for c in chain.children(-1))
     )
     close = "</body>"
-    for i, (j, th) in enumerate(zip(chain.joints, theta, strict=True)):
-        kind = "slide" if j.type == "prismatic" else "hinge"
-        body += (
-            f'<body name="{j.link}" pos="{_fmt(j.parent_p_joint)}" quat="{_fmt(_quat(j.parent_R_joint))}">'
-            f'<joint name="{j.name}" type="{kind}" axis="{_fmt(j.axis)}" damping="{float(f["viscous"][i])!r}" '
-            f'frictionloss="{float(f["coulomb"][i])!r}" armature="{float(f["armature"][i])!r}"/>{_inertial(th)}'
-        )
-        close += "</body>"
     motors = "".join(f'<motor joint="{j.name}" gear="1"/>' for j in chain.joints)
     return (
         '<mujoco model="ineid-fixture">'

@@ -92,6 +92,8 @@ def _constants(sym: SymbolicRegressor, robot_name: str, fingerprint: str, ops: i
             f"JOINT_NAMES = {ascii(tuple(j.name for j in chain.joints))}",
             f"LINK_NAMES = {ascii(tuple(j.link for j in chain.joints))}",
             f"JOINT_TYPES = {tuple(j.type for j in chain.joints)!r}",
+            "# Per joint, its parent joint (-1: the root body).",
+            f"PARENTS = {chain.parents!r}",
             f"KINEMATIC_FINGERPRINT = {fingerprint!r}",
             f"OP_COUNT = {ops}",
             f"SHAPE = {sym.shape!r}",
@@ -110,7 +112,8 @@ _DOC = """The Newton-Euler program of the robot ``ROBOT``, its values named as t
 
     Returns:
         ``{{name: per link (or joint) tuple}}``, each entry {entry}, links and joints in the
-        order of ``LINK_NAMES`` and ``JOINT_NAMES``:
+        order of ``LINK_NAMES`` and ``JOINT_NAMES`` (joint ``i`` moves link ``i``; ``PARENTS[i]`` is
+        the joint whose link carries it, -1 for the root body):
 
         - ``"R"``: ``base_R_i`` (3 x 3, row-major), ``"p"``: ``base_p_i`` (3), the link frame's
           placement in the base frame;

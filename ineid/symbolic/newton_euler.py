@@ -1,6 +1,7 @@
-"""The Newton-Euler recursion of a serial chain as a straight-line program, derived with SymPy.
+"""The Newton-Euler recursion of a chain (a tree on a fixed base) as a straight-line program, derived with SymPy.
 
-For each moving link ``i`` the forward pass propagates, in the link frame, the angular
+For each moving link ``i`` the forward pass propagates from its parent link's motion (the parent
+joint's, :attr:`Chain.parents`; the root body's for a joint on it), in the link frame, the angular
 velocity ``w_i``, angular acceleration ``wd_i`` and the acceleration of the link origin
 ``a_i`` with gravity folded in (the base moves with ``a_0 = -g``, so weight appears as an
 inertial force), plus the placement ``base_R_i``, ``base_p_i``. Newton and Euler about the
@@ -12,7 +13,7 @@ link origin give the net wrench on the link, in its frame, linear in its paramet
 
 Rotated into the base frame, moment about the base origin, its 10 columns are
 ``Yn_i`` (6 x 10, rows ``[F; M]``): ``[F; M]_i = Yn_i theta_i``. The fixture supplies the sum
-over the moving links (joint forces are internal), so the wrench the robot exerts on its
+over the moving links of every branch (joint forces are internal), so the wrench the robot exerts on its
 fixture, base frame, about its origin, is ``[F; M] = Psi theta`` with ``Psi = -[Yn_1 ... Yn_n]``.
 
 The program mirrors the recursion: per joint, the joint transform and the link's ``w, wd, a,
@@ -365,11 +366,14 @@ def derive_base_wrench_regressor(chain: Chain) -> SymbolicRegressor:
     qdd = sp.symbols(f"qdd0:{n}", real=True)
     g = sp.symbols("g0:3", real=True)
     b = _Builder()
-    link = _LinkMotion(_eye(), [ZERO] * 3, [ZERO] * 3, [ZERO] * 3, [-g[0], -g[1], -g[2]])
+    root = _LinkMotion(_eye(), [ZERO] * 3, [ZERO] * 3, [ZERO] * 3, [-g[0], -g[1], -g[2]])
+    motions: list[_LinkMotion] = []
     out: dict[str, list] = {k: [] for k in ("R", "p", "w", "wd", "a", "axis", "moment", "Yn")}
     for i, joint in enumerate(chain.joints):
         derivation_step(i + 1, total, "Newton-Euler terms of joint %d of %d, %s", i + 1, n, ascii(joint.name))
-        link = _next_link(b, joint, i, q[i], qd[i], qdd[i], link)
+        parent = chain.parents[i]
+        link = _next_link(b, joint, i, q[i], qd[i], qdd[i], root if parent < 0 else motions[parent])
+        motions.append(link)
         R, p, w, wd, a = link.R, link.p, link.w, link.wd, link.a
         # the joint axis (constant in the link frame), base frame
         z = b.vec(_matvec(R, [_num(x) for x in joint.axis]), "z")
@@ -421,7 +425,7 @@ class _LinkMotion:
 
 
 def _next_link(b: _Builder, joint, i: int, q_i: sp.Symbol, qd_i: sp.Symbol, qdd_i: sp.Symbol, parent: _LinkMotion):
-    """The motion of joint ``i``'s child link from its parent's (the forward Newton-Euler recursion), each
+    """The motion of joint ``i``'s child link from its parent link's (the forward Newton-Euler recursion), each
     stage bound to a name in ``b`` and the pose and the motion marked as barriers."""
     w, wd, a, R, p = parent.w, parent.wd, parent.a, parent.R, parent.p
     P = [[_num(joint.parent_R_joint[r, c]) for c in range(3)] for r in range(3)]
@@ -434,7 +438,7 @@ def _next_link(b: _Builder, joint, i: int, q_i: sp.Symbol, qd_i: sp.Symbol, qdd_
     else:  # prismatic: translation along the axis, no rotation
         rq = _eye()
         offset = b.vec(_add(r_, _scale(_matvec(P, k), q_i)))
-    # the pose: base_p_i at the joint origin, base_R_i = base_R_{i-1} P Rq
+    # the pose: base_p_i at the joint origin, base_R_i = base_R_parent P Rq
     p_new = b.vec(_add(p, _matvec(R, offset)), "p")
     ident = _is_identity(P)
     r_p = R if ident else b.mat(_matmul(R, P))
