@@ -235,11 +235,16 @@ def timed(cmd: list[str], cache: str) -> dict:
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if out.returncode:
         raise SystemExit(f"ineid {' '.join(cmd[:2])} failed: {out.stderr.strip().splitlines()[-1]}")
-    derive = sum(float(x) for x in DERIVE_RE.findall(out.stderr))
-    compiles = [float(x) for x in COMPILE_RE.findall(out.stderr)]
-    hits = out.stderr.count("Persistent compilation cache hit")
     cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
-    return {"wall": wall, "cpu": cpu, "derive": derive, "xla": sum(compiles), "kernels": len(compiles), "hits": hits}
+    return {"wall": wall, "cpu": cpu, **read_log(out.stderr)}
+
+
+def read_log(stderr: str) -> dict:
+    """Derivation seconds, XLA compile seconds, kernels compiled and persistent-cache hits of a command's log."""
+    compiles = [float(x) for x in COMPILE_RE.findall(stderr)]
+    derive = sum(float(x) for x in DERIVE_RE.findall(stderr))
+    hits = stderr.count("Persistent compilation cache hit")
+    return {"derive": derive, "xla": sum(compiles), "kernels": len(compiles), "hits": hits}
 
 
 def solve_rows(name: str, methods: list[str], folder: Path) -> list[tuple[str, str, dict]]:
