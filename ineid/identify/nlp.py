@@ -342,7 +342,8 @@ class NlpSolver:
             else:
                 pull_term = pull * ca.sumsqr(null_part)
         if method == "consistent" and entropic > 0:
-            entropic_term = entropic * entropic_divergence(xs, _prior_pseudo_inertia_inverses(prior[:n_lp], base.scales[:n_lp]))
+            jp_inv = _prior_pseudo_inertia_inverses(prior[:n_lp], base.scales[:n_lp])
+            entropic_term = entropic * entropic_divergence(xs, jp_inv)
         theta_fn = ca.Function("theta", [xs], [theta])
         opts = _solver_options(ipopt_options, compiled)
         null_map = nb / base.scales[:, None] if method == "nonlinear" else np.zeros((n, 0))
