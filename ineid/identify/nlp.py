@@ -39,8 +39,12 @@ scales): the extra parameters are free linear unknowns in both methods, except t
 ``consistent`` bounds the dissipative ones (friction, armature) below by 0
 (:func:`ineid.identify.extras.nonnegative`).
 
-Exact first and second derivatives come from CasADi; IPOPT's status is reported per
-configuration, and a failed solve never passes as an estimate.
+The problem is a CasADi ``MX`` graph: the factor ``R`` one matrix symbol applied to the scalar (``SX``)
+graph of the links' ``theta(x)``, so building it grows about as the unknowns, not as ``r^2 n``
+(:mod:`ineid.identify.nlp_matrix`). Exact first derivatives come from CasADi, the exact Hessian of
+the Lagrangian from its pieces (``theta(x)``'s Jacobian and second derivatives, and the data's
+``(R B)^T (R B)`` given per configuration); IPOPT's status is reported per configuration, and a failed
+solve never passes as an estimate.
 
 References:
     Wensing, Kim, Slotine (2017), Linear matrix inequalities for physically consistent
