@@ -274,7 +274,7 @@ class NlpSolver:
     solver: object
     theta_fn: object
     expressions: tuple = ()
-    """``(x, p, f, theta, z)``: the problem's CasADi expressions, for :meth:`derivatives`."""
+    """``(x, p, f, theta, z)``: the problem's CasADi expressions."""
     derivatives_fn: object = None
 
     @property
@@ -286,13 +286,16 @@ class NlpSolver:
         gradient in ``z = R beta_hat`` (n, r), and the parameters' Jacobian (n, n) (the function built on first use)."""
         import casadi as ca
 
-        if self.derivatives_fn is None:
-            xs, ps, f, theta, zs = self.expressions
-            grad = ca.gradient(f, xs)
-            outs = [ca.jacobian(grad, xs), ca.jacobian(grad, zs), ca.jacobian(theta, xs)]
-            self.derivatives_fn = ca.Function("ineid_derivatives", [xs, ps], outs)
+        if self.derivatives_fn is None:  # the solver's Hessian of the Lagrangian; theta's Jacobian
+            xs = ca.SX.sym("x", self.n_params)
+            jac_fn = ca.Function("theta_jacobian", [xs], [ca.jacobian(self.theta_fn(xs), xs)])
+            self.derivatives_fn = (self.solver.solver.get_function("nlp_hess_l"), jac_fn)
+        hess, jac_fn = self.derivatives_fn
         p = data_parameters(r_factor, beta_hat, inv_s2, self.base.B)
-        return tuple(np.array(v) for v in self.derivatives_fn(x, p))
+        h = np.array(hess(x, p, 1.0, np.zeros(hess.size1_in(3))))  # the objective's: lam_f = 1, lam_g = 0
+        jac = np.array(jac_fn(x))
+        h_xz = -2 * inv_s2 / self.base.rank * jac.T @ (r_factor @ self.base.B).T  # the data term's gradient in z
+        return h + np.triu(h, 1).T, h_xz, jac
 
     @classmethod
     def build(
