@@ -39,8 +39,12 @@ scales): the extra parameters are free linear unknowns in both methods, except t
 ``consistent`` bounds the dissipative ones (friction, armature) below by 0
 (:func:`ineid.identify.extras.nonnegative`).
 
-Exact first and second derivatives come from CasADi; IPOPT's status is reported per
-configuration, and a failed solve never passes as an estimate.
+The problem is a CasADi ``MX`` graph: the factor ``R`` one matrix symbol applied to the scalar (``SX``)
+graph of the links' ``theta(x)``, so building it grows about as the unknowns, not as ``r^2 n``
+(:mod:`ineid.identify.nlp_matrix`). Exact first derivatives come from CasADi, the exact Hessian of
+the Lagrangian from its pieces (``theta(x)``'s Jacobian and second derivatives, and the data's
+``(R B)^T (R B)`` given per configuration); IPOPT's status is reported per configuration, and a failed
+solve never passes as an estimate.
 
 References:
     Wensing, Kim, Slotine (2017), Linear matrix inequalities for physically consistent
@@ -59,6 +63,7 @@ from ineid.identify.extras import nonnegative
 from ineid.identify.identifiability import BaseParameters
 from ineid.identify.ipopt import nlpsol
 from ineid.identify.linear import BaseFit, Estimate, standard_std
+from ineid.identify.nlp_matrix import data_parameters, matrix_problem
 from ineid.identify.settings import DEFAULT_ENTROPIC, DEFAULT_PULL, NLP_METHODS
 from ineid.params import N_PARAMS_PER_LINK, inertial_from_theta, pseudo_inertia
 
@@ -125,7 +130,7 @@ def _log_cholesky_factor(x, k):
     return ca.exp(a) * u, 2 * (4 * a + d1 + d2 + d3)  # U, log det(U U^T)
 
 
-def _entropic(x, prior_j_inv: list[np.ndarray]):
+def entropic_divergence(x, prior_j_inv: list[np.ndarray]):
     """sum over links of tr(Jp^-1 J) - log det(Jp^-1 J) - 4 (scaled units; zero at the prior)."""
     import casadi as ca
 
@@ -269,7 +274,7 @@ class NlpSolver:
     solver: object
     theta_fn: object
     expressions: tuple = ()
-    """``(x, p, f, theta, z)``: the problem's CasADi expressions, for :meth:`derivatives`."""
+    """``(x, p, f, theta, z)``: the problem's CasADi expressions."""
     derivatives_fn: object = None
 
     @property
@@ -281,13 +286,16 @@ class NlpSolver:
         gradient in ``z = R beta_hat`` (n, r), and the parameters' Jacobian (n, n) (the function built on first use)."""
         import casadi as ca
 
-        if self.derivatives_fn is None:
-            xs, ps, f, theta, zs = self.expressions
-            grad = ca.gradient(f, xs)
-            outs = [ca.jacobian(grad, xs), ca.jacobian(grad, zs), ca.jacobian(theta, xs)]
-            self.derivatives_fn = ca.Function("ineid_derivatives", [xs, ps], outs)
-        p = np.concatenate([r_factor.ravel(order="F"), r_factor @ beta_hat, [inv_s2]])
-        return tuple(np.array(v) for v in self.derivatives_fn(x, p))
+        if self.derivatives_fn is None:  # the solver's Hessian of the Lagrangian; theta's Jacobian
+            xs = ca.SX.sym("x", self.n_params)
+            jac_fn = ca.Function("theta_jacobian", [xs], [ca.jacobian(self.theta_fn(xs), xs)])
+            self.derivatives_fn = (self.solver.solver.get_function("nlp_hess_l"), jac_fn)
+        hess, jac_fn = self.derivatives_fn
+        p = data_parameters(r_factor, beta_hat, inv_s2, self.base.B)
+        h = np.array(hess(x, p, 1.0, np.zeros(hess.size1_in(3))))  # the objective's: lam_f = 1, lam_g = 0
+        jac = np.array(jac_fn(x))
+        h_xz = -2 * inv_s2 / self.base.rank * jac.T @ (r_factor @ self.base.B).T  # the data term's gradient in z
+        return h + np.triu(h, 1).T, h_xz, jac
 
     @classmethod
     def build(
@@ -326,31 +334,34 @@ class NlpSolver:
         prior = np.asarray(theta_prior, dtype=np.float64)
         if prior.shape != (base.n_params,) or not np.all(np.isfinite(prior)):
             raise ValueError(f"theta_prior must be {base.n_params} finite numbers, got shape {prior.shape}")
-        n, r, n_lp = base.n_params, base.rank, base.n_link_params
+        n, n_lp = base.n_params, base.n_link_params
         mass_s, length = _link_lengths(base.scales[:n_lp])
-        x = ca.SX.sym("x", n)
-        theta = (_theta_nonlinear if method == "nonlinear" else _theta_log_cholesky)(x[:n_lp], mass_s, length)
+        xs = ca.SX.sym("x", n)
+        theta = (_theta_nonlinear if method == "nonlinear" else _theta_log_cholesky)(xs[:n_lp], mass_s, length)
         if base.n_extra:  # the extra parameters: free, in units of their scales
-            theta = ca.vertcat(theta, x[n_lp:] * ca.DM(base.scales[n_lp:]))
-        rp = ca.SX.sym("R", r, r)
-        zp = ca.SX.sym("z", r)
-        inv_s2 = ca.SX.sym("inv_sigma2")
+            theta = ca.vertcat(theta, xs[n_lp:] * ca.DM(base.scales[n_lp:]))
+        pull_term, entropic_term, g = ca.SX(0), ca.SX(0), ca.SX.zeros(0, 1)
         nb = null_basis_scaled(base)
-        f = ca.sumsqr(ca.mtimes(rp, ca.mtimes(ca.DM(base.B), theta)) - zp) * inv_s2 / r
-        g = ca.SX.zeros(0, 1)
         if nb.shape[1]:
             null_part = ca.mtimes(ca.DM(nb.T), theta / ca.DM(base.scales) - ca.DM(prior / base.scales))
             if method == "nonlinear":
                 g = null_part  # the rule exactly: the null-space part equals the prior's
             else:
-                f += pull * ca.sumsqr(null_part)
+                pull_term = pull * ca.sumsqr(null_part)
         if method == "consistent" and entropic > 0:
-            f += entropic * _entropic(x, _prior_pseudo_inertia_inverses(prior[:n_lp], base.scales[:n_lp]))
-        p = ca.vertcat(ca.vec(rp), zp, inv_s2)
+            jp_inv = _prior_pseudo_inertia_inverses(prior[:n_lp], base.scales[:n_lp])
+            entropic_term = entropic * entropic_divergence(xs, jp_inv)
+        theta_fn = ca.Function("theta", [xs], [theta])
         opts = _solver_options(ipopt_options, compiled)
-        solver = nlpsol(f"ineid_{method}", {"x": x, "p": p, "f": f, "g": g}, opts)  # stops on SIGINT, SIGTERM
-        theta_fn = ca.Function("theta", [x], [theta])
-        return cls(method, base, prior, pull, entropic, solver, theta_fn, (x, p, f, theta, zp))
+        null_map = nb / base.scales[:, None] if method == "nonlinear" else np.zeros((n, 0))
+        pull_matrix = (method == "consistent") * pull * (nb @ nb.T) / np.outer(base.scales, base.scales)
+        jit = {k: opts[k] for k in ("jit", "compiler", "jit_options") if k in opts}
+        nlp, hess_lag, theta_x, zp = matrix_problem(
+            xs, theta, pull_term, entropic_term, g, base, prior, pull_matrix, null_map, jit
+        )
+        solver = nlpsol(f"ineid_{method}", nlp, dict(opts, hess_lag=hess_lag))  # stops on SIGINT, SIGTERM
+        x, p, f = nlp["x"], nlp["p"], nlp["f"]
+        return cls(method, base, prior, pull, entropic, solver, theta_fn, (x, p, f, theta_x, zp))
 
     def start(self, theta: np.ndarray) -> np.ndarray:
         n_lp, scales = self.base.n_link_params, self.base.scales
@@ -373,7 +384,7 @@ class NlpSolver:
     ) -> tuple[np.ndarray, bool, str, int]:
         """One configuration: ``(theta, success, IPOPT status, iterations)``."""
         s2 = max(float(sigma2), (SIGMA_FLOOR_REL[self.method] * max(float(data_rms), 1e-300)) ** 2)
-        p = np.concatenate([r_factor.ravel(order="F"), r_factor @ beta_hat, [1.0 / s2]])
+        p = data_parameters(r_factor, beta_hat, 1.0 / s2, self.base.B)
         lb, ub = self.bounds()
         x0 = np.clip(self.start(theta_start), lb, ub)
         sol = self.solver(x0=x0, p=p, lbx=lb, ubx=ub, lbg=0, ubg=0)
