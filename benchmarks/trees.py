@@ -52,6 +52,7 @@ os.environ["INEID_XLA_CACHE"] = "0"  # table 2's compile is a real one (table 3'
 
 import numpy as np
 from machine import cpu_description
+from regressor import sample  # the arms' frames: the same sampling
 
 import ineid  # turns on JAX's float64 mode before jax is used
 
@@ -102,15 +103,6 @@ def codegen_row(name: str) -> dict:
             [sys.executable, __file__, "--derive-child", name], env=env, capture_output=True, text=True, check=True
         )
     return json.loads(out.stdout.strip().splitlines()[-1])
-
-
-def sample(model, n: int, seed: int = 0):
-    """(q, qd, qdd), each (n, n_dof): uniform within joint limits and +-velocity/acceleration bounds."""
-    rng = np.random.default_rng(seed)
-    q = rng.uniform(model.q_lower, model.q_upper, (n, model.n_dof))
-    qd = rng.uniform(-model.qd_max, model.qd_max, (n, model.n_dof))
-    qdd = rng.uniform(-model.qdd_max, model.qdd_max, (n, model.n_dof))
-    return q, qd, qdd
 
 
 def best_of(step, n: int, repeats: int, chunk: int = CHUNK) -> float:
