@@ -163,7 +163,7 @@ def pinocchio_steps(model, data, route: str):
 
     (q, qd, qdd), n = data, model.n_dof
     if route == "free-flyer":  # root body on a free flyer held at identity, zero velocity/acceleration
-        pm = pin.buildModelFromUrdf(str(model.urdf_path), pin.JointModelFreeFlyer())
+        pm = pinocchio_model(model.urdf_path, free_flyer=True)
         if pm.nv != 6 + n or pm.nq != 7 + n:
             raise AssertionError("free-flyer route needs one-coordinate joints")
     else:

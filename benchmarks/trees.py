@@ -127,14 +127,9 @@ def pinocchio_free_flyer(model, path: Path, locked: dict, data, ref_frames: int 
     """(step, reference): Pinocchio's base regressor frame by frame, and its first frames in ineid's order."""
     import pinocchio as pin
 
-    pm = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer())
-    if locked:
-        q_ref = pin.neutral(pm)
-        ids = [pm.getJointId(j) for j in locked]
-        for jid, value in zip(ids, locked.values(), strict=True):
-            q_ref[pm.joints[jid].idx_q] = value
-        pm = pin.buildReducedModel(pm, ids, q_ref)
-    pm.gravity.linear = np.asarray(model.gravity)
+    from ineid.reference import pinocchio_model
+
+    pm = pinocchio_model(path, model.gravity, locked, free_flyer=True)
     jids = [pm.getJointId(j) for j in model.joint_names]
     if any(pm.joints[j].nq != 1 for j in jids) or pm.nv != 6 + model.n_dof:
         raise AssertionError("the free-flyer route needs one-coordinate joints")

@@ -13,12 +13,20 @@ import numpy as np
 
 
 def pinocchio_model(
-    urdf_path, gravity: Sequence[float] = (0.0, 0.0, -9.81), locked_joints: Mapping[str, float] | None = None
+    urdf_path,
+    gravity: Sequence[float] = (0.0, 0.0, -9.81),
+    locked_joints: Mapping[str, float] | None = None,
+    free_flyer: bool = False,
 ):
-    """Pinocchio model of a URDF (fixed joints merged), with ``locked_joints`` removed."""
+    """Pinocchio model of a URDF (fixed joints merged), with ``locked_joints`` removed; with ``free_flyer`` its root
+    on a free-flyer joint (the first 6 rows of ``computeJointTorqueRegressor`` are then the root's dynamics)."""
     import pinocchio as pin
 
-    model = pin.buildModelFromUrdf(str(urdf_path))
+    model = (
+        pin.buildModelFromUrdf(str(urdf_path), pin.JointModelFreeFlyer())
+        if free_flyer
+        else pin.buildModelFromUrdf(str(urdf_path))
+    )
     if locked_joints:
         q_ref = pin.neutral(model)
         ids = []
